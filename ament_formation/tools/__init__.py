@@ -1,0 +1,1 @@
+"""The `formation` command line."""

@@ -1,0 +1,14 @@
+# Sourced by every script: keep DDS on loopback, give the run its own domain and log folder.
+# Usage: source scripts/ros_env.sh [LOG_DIR]
+_af_root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+export ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}"
+export FASTRTPS_DEFAULT_PROFILES_FILE="${FASTRTPS_DEFAULT_PROFILES_FILE:-$_af_root/config/fastdds_localhost.xml}"
+export RMW_IMPLEMENTATION="${RMW_IMPLEMENTATION:-rmw_fastrtps_cpp}"
+# A run-unique domain (1..200) unless the caller chose one (e.g. a multi-machine deployment).
+if [ -z "${ROS_DOMAIN_ID:-}" ]; then
+  export ROS_DOMAIN_ID=$(( ( $$ + $(date +%N | sed 's/^0*//;s/^$/0/') ) % 200 + 1 ))
+fi
+export ROS_LOG_DIR="${1:-${ROS_LOG_DIR:-$(mktemp -d -t ament_formation_log.XXXXXX)}}"
+mkdir -p "$ROS_LOG_DIR"
+export PYTHONUNBUFFERED=1
+unset _af_root

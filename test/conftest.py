@@ -1,0 +1,46 @@
+"""Test-wide setup: DDS stays on loopback, each run has its own domain and log folder.
+
+The environment is set here, before any test module imports rclpy, so that running
+``pytest`` directly (without scripts/test.sh) is just as contained.
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import pytest
+
+_ROOT = Path(__file__).resolve().parents[1]
+os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+os.environ.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(_ROOT / "config" / "fastdds_localhost.xml"))
+os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
+os.environ.setdefault("ROS_DOMAIN_ID", str(os.getpid() % 200 + 1))
+if "ROS_LOG_DIR" not in os.environ:
+    os.environ["ROS_LOG_DIR"] = tempfile.mkdtemp(prefix="ament_formation_ros_log_")
+
+
+@pytest.fixture
+def ros_context():
+    """A private rclpy Context on this run's domain; shut down after the test."""
+    import rclpy
+    from rclpy.context import Context
+
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=int(os.environ["ROS_DOMAIN_ID"]))
+    try:
+        yield ctx
+    finally:
+        rclpy.try_shutdown(context=ctx)
+
+
+@pytest.fixture
+def executor(ros_context):
+    """A single-threaded executor bound to the private context."""
+    from rclpy.executors import SingleThreadedExecutor
+
+    ex = SingleThreadedExecutor(context=ros_context)
+    try:
+        yield ex
+    finally:
+        ex.shutdown(timeout_sec=1.0)
