@@ -12,3 +12,15 @@ export ROS_LOG_DIR="${1:-${ROS_LOG_DIR:-$(mktemp -d -t ament_formation_log.XXXXX
 mkdir -p "$ROS_LOG_DIR"
 export PYTHONUNBUFFERED=1
 unset _af_root
+
+# The ROS wheels load liblttng-ust, which creates /dev/shm/lttng-ust-wait-* on first use.
+# af_shm_snapshot remembers what existed; af_shm_cleanup removes only what this run created.
+af_shm_snapshot() {
+  _af_shm_before="$(ls /dev/shm 2>/dev/null | grep '^lttng-ust-wait' || true)"
+}
+af_shm_cleanup() {
+  local f
+  for f in $(ls /dev/shm 2>/dev/null | grep '^lttng-ust-wait' || true); do
+    if ! grep -qx "$f" <<<"${_af_shm_before:-}"; then rm -f "/dev/shm/$f"; fi
+  done
+}

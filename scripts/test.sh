@@ -4,10 +4,11 @@ set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 "$here/scripts/setup.sh"
 logdir="$(mktemp -d -t ament_formation_test.XXXXXX)"
-trap 'rm -rf "$logdir"' EXIT
 # shellcheck source=ros_env.sh
 source "$here/scripts/ros_env.sh" "$logdir/ros_log"
+af_shm_snapshot
+trap 'af_shm_cleanup; rm -rf "$logdir"' EXIT
 cd "$here"
-exec_status=0
-"$here/.venv/bin/python" -m pytest -p no:cacheprovider "$@" || exec_status=$?
-exit "$exec_status"
+status=0
+"$here/.venv/bin/python" -m pytest -p no:cacheprovider "$@" || status=$?
+exit "$status"
