@@ -189,3 +189,237 @@ def gain_schedule(t_since_entry_s, psi_dot_max, c_max, direction=1.0, mu=1.0, mu
     psi_dot = scale * mu * beta
     psi_ddot = scale * (mu * beta_dot + mu_dot * beta)
     return psi_dot, psi_ddot, c_max * beta, c_max * beta_dot
+
+
+# ----------------------------------------------------------------------------------------------
+# S6.5 parking factor
+# ----------------------------------------------------------------------------------------------
+
+def _anomaly_and_rate(z, z_dot, cphi, sphi, phi_dot, r1, r2):
+    """Eccentric anomaly psi = atan2(w/R2, u/R1) and its rate (U W_dot - W U_dot)/(U^2 + W^2)."""
+    zx = z[..., 0]
+    zy = z[..., 1]
+    u = cphi * zx + sphi * zy
+    w = -sphi * zx + cphi * zy
+    ud = cphi * z_dot[..., 0] + sphi * z_dot[..., 1] + phi_dot * w
+    wd = -sphi * z_dot[..., 0] + cphi * z_dot[..., 1] - phi_dot * u
+    uu = u / r1
+    ww = w / r2
+    den = uu * uu + ww * ww
+    num = uu * (wd / r2) - ww * (ud / r1)
+    rate = np.where(den > 0.0, num / np.where(den > 0.0, den, 1.0), 0.0)
+    return np.arctan2(ww, uu), rate
+
+
+def eccentric_anomaly(z, phi, r1, r2):
+    """psi = atan2(w/R2, u/R1) of z (N, 2) relative to the centre (S6.5). Returns (N,) [rad]."""
+    u, w = body_coords(np.asarray(z, dtype=float), phi)
+    return np.arctan2(w / r2, u / r1)
+
+
+def parking_factor(z, z_dot, goal, goal_dot, phi, phi_dot, r1, r2, direction, psi_slow):
+    """S6.5 parking factor mu = sat(D/psi_slow) and mu_dot.
+
+    ``z``, ``z_dot`` agent and ``goal``, ``goal_dot`` goal position/velocity RELATIVE to the obstacle
+    centre (g - x~, g_dot - x~_dot), (N, 2). D = ((s(psi_g - psi_a) + pi/2) mod 2 pi) - pi/2;
+    mu_dot = s(psi_g_dot - psi_a_dot)/psi_slow inside the linear zone, 0 outside.
+    Returns (mu (N,), mu_dot (N,)).
+    """
+    z = np.asarray(z, dtype=float)
+    goal = np.asarray(goal, dtype=float)
+    cphi = np.cos(phi)
+    sphi = np.sin(phi)
+    psi_a, rate_a = _anomaly_and_rate(z, np.asarray(z_dot, dtype=float), cphi, sphi, phi_dot, r1, r2)
+    psi_g, rate_g = _anomaly_and_rate(goal, np.asarray(goal_dot, dtype=float), cphi, sphi, phi_dot,
+                                      r1, r2)
+    dd = np.mod(direction * (psi_g - psi_a) + 0.5 * math.pi, TWO_PI) - 0.5 * math.pi
+    q = dd / psi_slow
+    linear = (q < 1.0) & (q > -1.0)
+    mu = np.clip(q, -1.0, 1.0)
+    mu_dot = np.where(linear, direction * (rate_g - rate_a) / psi_slow, 0.0)
+    return mu, mu_dot
+
+
+# ----------------------------------------------------------------------------------------------
+# S6.6 rotation direction
+# ----------------------------------------------------------------------------------------------
+
+_GL_X, _GL_W = np.polynomial.legendre.leggauss(48)
+
+
+def ellipse_arc_length(psi_from, delta, r1, r2):
+    """Arc length of the ellipse (R1 cos psi, R2 sin psi) over psi in [psi_from, psi_from + delta]
+    (delta >= 0), 48-point Gauss-Legendre on each of 4 sub-intervals. Broadcast, returns [m]."""
+    psi_from = np.asarray(psi_from, dtype=float)[..., None]
+    delta = np.asarray(delta, dtype=float)[..., None]
+    r1 = np.asarray(r1, dtype=float)[..., None]
+    r2 = np.asarray(r2, dtype=float)[..., None]
+    total = 0.0
+    n_sub = 4
+    for j in range(n_sub):
+        lo = psi_from + delta * (j / n_sub)
+        half = 0.5 * delta / n_sub
+        psi = lo + half * (_GL_X + 1.0)
+        speed = np.sqrt((r1 * np.sin(psi)) ** 2 + (r2 * np.cos(psi)) ** 2)
+        total = total + half[..., 0] * np.sum(_GL_W * speed, axis=-1)
+    return total
+
+
+def ellipse_perimeter(r1, r2):
+    """Perimeter of the ellipse with semi-axes (r1, r2) [m] (quadrature, relative error < 1e-12)."""
+    return ellipse_arc_length(0.0 * np.asarray(r1, dtype=float), TWO_PI, r1, r2)
+
+
+def choose_direction(z, z_dot, goal, goal_dot, obstacle_vel, phi, r1, r2, lookahead_m,
+                     velocity_tie_break=True):
+    """S6.6 rules 1-4 (obstacle) or rules 1-3 and 7 (yielding agent: ``velocity_tie_break=False``).
+
+    Parameters
+    ----------
+    z, z_dot : (N, 2) agent position relative to the centre [m] and relative velocity
+        p_dot - x~_dot [m/s] (rule 4 tie-break).
+    goal : (N, 2) goal g_i relative to the centre (g - x~) [m]; goal_dot (N, 2) g_dot (world) [m/s].
+    obstacle_vel : (N, 2) x~_dot of the centre [m/s].
+    phi, r1, r2 : orientation and semi-axes of the limit-cycle ellipse L_j [rad, m].
+    lookahead_m : rule 1 look-ahead length 2 kappa r1j (r1j of P_j) [m].
+
+    Rules 5 (keep s between adjacent static obstacles) and 6 (mutual: s = +1) are the caller's.
+    Returns s (N,) float in {+1 (CCW), -1 (CW)}.
+    """
+    z = np.asarray(z, dtype=float)
+    z_dot = np.asarray(z_dot, dtype=float)
+    goal = np.asarray(goal, dtype=float)
+    rel = np.asarray(goal_dot, dtype=float) - np.asarray(obstacle_vel, dtype=float)
+    speed = np.hypot(rel[..., 0], rel[..., 1])
+    scale = np.where(speed > 0.0, lookahead_m / np.where(speed > 0.0, speed, 1.0), 0.0)
+    g_la = goal + scale[..., None] * rel                                    # rule 1
+    psi_a = eccentric_anomaly(z, phi, r1, r2)
+    psi_g = eccentric_anomaly(g_la, phi, r1, r2)
+    d_plus = np.mod(psi_g - psi_a, TWO_PI)                                  # rule 2
+    l_plus = ellipse_arc_length(psi_a, d_plus, r1, r2)
+    perimeter = ellipse_perimeter(r1, r2)
+    l_minus = perimeter - l_plus
+    margin = 0.1 * perimeter                                                # rule 3
+    s = np.where(l_plus < l_minus - margin, 1.0, np.where(l_minus < l_plus - margin, -1.0, 0.0))
+    if velocity_tie_break:                                                  # rule 4
+        h1, h2, h3 = ellipse_coeffs(phi, r1, r2)
+        mx = h1 * z[..., 0] - h2 * z[..., 1]
+        my = h3 * z[..., 0] - h1 * z[..., 1]
+        tie = np.sign(mx * z_dot[..., 0] + my * z_dot[..., 1])
+        tie = np.where(tie == 0.0, 1.0, tie)
+    else:                                                                   # rule 7
+        tie = 1.0
+    return np.where(s == 0.0, tie, s)
+
+
+# ----------------------------------------------------------------------------------------------
+# S8 helpers: ray / segment tests
+# ----------------------------------------------------------------------------------------------
+
+def _quadratic(z, dz, phi, r1, r2):
+    c = np.cos(phi)
+    s = np.sin(phi)
+    u = c * z[..., 0] + s * z[..., 1]
+    w = -s * z[..., 0] + c * z[..., 1]
+    du = c * dz[..., 0] + s * dz[..., 1]
+    dw = -s * dz[..., 0] + c * dz[..., 1]
+    ia = 1.0 / np.multiply(r1, r1)
+    ib = 1.0 / np.multiply(r2, r2)
+    c0 = u * u * ia + w * w * ib - 1.0
+    qa = du * du * ia + dw * dw * ib
+    qb = u * du * ia + w * dw * ib
+    return qa, qb, c0
+
+
+def ray_hits_ellipse(z, z_dot, phi, r1, r2):
+    """Does the ray {z + lam z_dot, lam >= 0} meet the closed ellipse (h <= 0)? (S8.1 heading test)
+
+    ``z`` (N, 2) relative to the centre, ``z_dot`` (N, 2) direction (relative velocity).
+    Returns (hit (N,) bool, lam (N,) first contact parameter [s if z_dot is a velocity];
+    0 when already inside, +inf when missed).
+    """
+    z = np.asarray(z, dtype=float)
+    qa, qb, c0 = _quadratic(z, np.asarray(z_dot, dtype=float), phi, r1, r2)
+    inside = c0 <= 0.0
+    disc = qb * qb - qa * c0
+    ahead = (qa > 0.0) & (qb < 0.0) & (disc >= 0.0)
+    root = np.sqrt(np.maximum(disc, 0.0))
+    den = np.where(ahead, -qb + root, 1.0)
+    lam = np.where(inside, 0.0, np.where(ahead, c0 / den, np.inf))
+    return inside | ahead, lam
+
+
+def segment_hits_ellipse(p0, p1, center, phi, r1, r2):
+    """Does the segment [p0, p1] (N, 2) meet the closed ellipse at ``center``? (S8.3 cleared test)
+
+    Minimises h along the segment in closed form. Returns (N,) bool.
+    """
+    p0 = np.asarray(p0, dtype=float)
+    z = p0 - center
+    qa, qb, c0 = _quadratic(z, np.asarray(p1, dtype=float) - p0, phi, r1, r2)
+    lam = np.where(qa > 0.0, np.clip(-qb / np.where(qa > 0.0, qa, 1.0), 0.0, 1.0), 0.0)
+    return qa * lam * lam + 2.0 * qb * lam + c0 <= 0.0
+
+
+# ----------------------------------------------------------------------------------------------
+# Exact signed distance (metrics)
+# ----------------------------------------------------------------------------------------------
+
+def _distance_first_quadrant(y0, y1, e0, e1, iterations=200):
+    """Eberly's robust point-ellipse distance for y0, y1 >= 0, e0 >= e1 > 0 (vectorised)."""
+    # y1 > 0 and y0 > 0: bisection on the root s of F(s) = (r0 z0/(s + r0))^2 + (z1/(s + 1))^2 - 1
+    z0 = y0 / e0
+    z1 = y1 / e1
+    g = z0 * z0 + z1 * z1 - 1.0
+    r0 = (e0 / e1) ** 2
+    n0 = r0 * z0
+    s0 = z1 - 1.0
+    s1 = np.where(g < 0.0, 0.0, np.hypot(n0, z1) - 1.0)
+    s = 0.5 * (s0 + s1)
+    for _ in range(iterations):
+        s = 0.5 * (s0 + s1)
+        ratio0 = n0 / (s + r0)
+        ratio1 = z1 / (s + 1.0)
+        val = ratio0 * ratio0 + ratio1 * ratio1 - 1.0
+        pos = val > 0.0
+        s0 = np.where(pos, s, s0)
+        s1 = np.where(pos, s1, s)
+    x0 = r0 * y0 / (s + r0)
+    x1 = y1 / (s + 1.0)
+    general = np.hypot(x0 - y0, x1 - y1)
+    general = np.where(g == 0.0, 0.0, general)
+    # y1 > 0, y0 == 0: nearest point (0, e1)
+    on_minor = np.abs(y1 - e1)
+    # y1 == 0
+    numer0 = e0 * y0
+    denom0 = e0 * e0 - e1 * e1
+    inner = numer0 < denom0
+    xde0 = np.where(inner, numer0 / np.where(denom0 > 0, denom0, 1.0), 1.0)
+    xa = e0 * xde0
+    xb = e1 * np.sqrt(np.maximum(1.0 - xde0 * xde0, 0.0))
+    on_major = np.where(inner, np.hypot(xa - y0, xb), np.abs(y0 - e0))
+    return np.where(y1 > 0.0, np.where(y0 > 0.0, general, on_minor), on_major)
+
+
+def signed_distance_to_ellipse(points, center, phi, r1, r2):
+    """Exact Euclidean signed distance of ``points`` (K, 2) to the ellipse boundary, < 0 inside.
+
+    ``center`` (2,) or (K, 2), ``phi`` [rad] and semi-axes ``r1``, ``r2`` [m] scalars or (K,).
+    Not the algebraic h: the true distance to the nearest boundary point. Returns (K,) [m].
+    """
+    points = np.asarray(points, dtype=float)
+    z = points - np.asarray(center, dtype=float)
+    k = z.shape[0]
+    phi = np.broadcast_to(np.asarray(phi, dtype=float), (k,))
+    r1 = np.broadcast_to(np.asarray(r1, dtype=float), (k,))
+    r2 = np.broadcast_to(np.asarray(r2, dtype=float), (k,))
+    u, w = body_coords(z, phi)
+    swap = r2 > r1                     # make e0 >= e1 along the first coordinate
+    e0 = np.where(swap, r2, r1)
+    e1 = np.where(swap, r1, r2)
+    y0 = np.abs(np.where(swap, w, u))
+    y1 = np.abs(np.where(swap, u, w))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dist = _distance_first_quadrant(y0, y1, e0, e1)
+    inside = (y0 / e0) ** 2 + (y1 / e1) ** 2 < 1.0
+    return np.where(inside, -dist, dist)
