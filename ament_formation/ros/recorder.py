@@ -1,0 +1,201 @@
+"""Record every topic to a rosbag2-compatible MCAP file, and read a recording back into arrays.
+
+File layout (what rosbag2's mcap storage plugin and Foxglove expect): profile ``ros2``; one schema
+per message type, named ``pkg/msg/Type``, encoding ``ros2msg``, data = the .msg text with every
+dependency appended (ros/introspection.py); one channel per topic, message encoding ``cdr``; the
+message data are the serialized CDR bytes as received (raw subscriptions, no re-encoding);
+log_time = publish_time = receive time on the recorder node's clock [ns] (sim time under
+``use_sim_time``). Chunks are zstd-compressed.
+
+    writer = McapWriter(path)                     # plain file writer (no ROS graph needed)
+    rec = TopicRecorder(node, writer)             # subscribes to all topics, also later ones
+    ...; rec.close()                              # flushes and finalises the file
+    for topic, t_ns, msg in read_messages(path):  # deserialised messages in log-time order
+"""
+from __future__ import annotations
+
+import re
+import threading
+from pathlib import Path
+from typing import Iterable, Iterator
+
+import numpy as np
+from mcap.reader import make_reader
+from mcap.writer import CompressionType, Writer
+
+from ament_formation.ros.introspection import compatible_qos, message_class, message_definition
+
+PROFILE = "ros2"
+SCHEMA_ENCODING = "ros2msg"
+MESSAGE_ENCODING = "cdr"
+
+
+class McapWriter:
+    """A thread-safe MCAP writer for serialized ROS 2 messages (ros2 profile)."""
+
+    def __init__(self, path: str | Path, compression: str = "zstd"):
+        comp = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
+                "none": CompressionType.NONE}.get(compression)
+        if comp is None:
+            raise ValueError(f"compression: expected zstd, lz4 or none (got {compression!r})")
+        self.path = Path(path)
+        self._file = open(self.path, "wb")
+        self._writer = Writer(self._file, compression=comp)
+        self._writer.start(profile=PROFILE, library="ament_formation")
+        self._schemas: dict[str, int] = {}
+        self._channels: dict[str, int] = {}
+        self._sequence: dict[int, int] = {}
+        self._lock = threading.Lock()
+        self.message_count = 0
+        self._closed = False
+
+    def channel(self, topic: str, type_name: str) -> int:
+        """The channel id of ``topic`` (registered with its schema on first use)."""
+        with self._lock:
+            if topic in self._channels:
+                return self._channels[topic]
+            if type_name not in self._schemas:
+                self._schemas[type_name] = self._writer.register_schema(
+                    name=type_name, encoding=SCHEMA_ENCODING,
+                    data=message_definition(type_name).encode())
+            cid = self._writer.register_channel(topic=topic, message_encoding=MESSAGE_ENCODING,
+                                                schema_id=self._schemas[type_name])
+            self._channels[topic] = cid
+            self._sequence[cid] = 0
+            return cid
+
+    def write(self, channel_id: int, log_time_ns: int, data: bytes,
+              publish_time_ns: int | None = None) -> None:
+        """Append one serialized message."""
+        with self._lock:
+            if self._closed:
+                return
+            seq = self._sequence[channel_id]
+            self._sequence[channel_id] = seq + 1
+            self._writer.add_message(channel_id=channel_id, log_time=int(log_time_ns), data=bytes(data),
+                                     publish_time=int(log_time_ns if publish_time_ns is None
+                                                      else publish_time_ns), sequence=seq)
+            self.message_count += 1
+
+    def write_message(self, topic: str, msg, log_time_ns: int) -> None:
+        """Serialize and append a message object (used by tools that write without a graph)."""
+        from rclpy.serialization import serialize_message
+
+        from ament_formation.ros.introspection import full_type_name
+
+        cid = self.channel(topic, full_type_name(type(msg)))
+        self.write(cid, log_time_ns, serialize_message(msg))
+
+    def close(self) -> None:
+        """Write the summary section and close the file (idempotent)."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            self._writer.finish()
+            self._file.close()
+
+
+class TopicRecorder:
+    """Subscribes ``node`` to every visible topic (rescanning every ``scan_period_s``) and writes
+    each received message unchanged to ``writer``.
+
+    ``include``/``exclude``: regular expressions on the topic name (exclude wins). Subscriptions use
+    a QoS compatible with the publishers seen when the topic is first discovered.
+    """
+
+    def __init__(self, node, writer: McapWriter, include: Iterable[str] = (".*",),
+                 exclude: Iterable[str] = (), scan_period_s: float = 0.5):
+        self.node = node
+        self.writer = writer
+        self._include = [re.compile(p) for p in include]
+        self._exclude = [re.compile(p) for p in exclude]
+        self._subs: dict[str, object] = {}
+        self.counts: dict[str, int] = {}
+        self.scan()
+        self._timer = node.create_timer(scan_period_s, self.scan)
+
+    def _wanted(self, topic: str) -> bool:
+        return (any(p.fullmatch(topic) for p in self._include)
+                and not any(p.fullmatch(topic) for p in self._exclude))
+
+    def scan(self) -> None:
+        """Subscribe to topics that appeared since the last scan."""
+        for topic, types in self.node.get_topic_names_and_types():
+            if topic in self._subs or not types or not self._wanted(topic):
+                continue
+            if self.node.count_publishers(topic) == 0:
+                continue  # only subscribers so far: wait to learn the publishers' QoS
+            type_name = types[0]
+            try:
+                cls = message_class(type_name)
+            except ValueError:
+                continue  # a type this machine cannot decode: skip it
+            cid = self.writer.channel(topic, type_name)
+            self.counts[topic] = 0
+            self._subs[topic] = self.node.create_subscription(
+                cls, topic, self._callback(topic, cid), compatible_qos(self.node, topic, depth=100), raw=True)
+
+    def _callback(self, topic: str, cid: int):
+        clock = self.node.get_clock()
+
+        def on_raw(data: bytes) -> None:
+            self.writer.write(cid, clock.now().nanoseconds, data)
+            self.counts[topic] += 1
+
+        return on_raw
+
+    @property
+    def topics(self) -> list[str]:
+        return sorted(self._subs)
+
+    def close(self) -> None:
+        """Stop recording (destroy the subscriptions) and finalise the file."""
+        self.node.destroy_timer(self._timer)
+        for sub in self._subs.values():
+            self.node.destroy_subscription(sub)
+        self._subs.clear()
+        self.writer.close()
+
+
+# --------------------------------------------------------------------------- reading
+def topic_types(path: str | Path) -> dict[str, str]:
+    """{topic: pkg/msg/Type} of a recording."""
+    with open(path, "rb") as f:
+        summary = make_reader(f).get_summary()
+    if summary is None:
+        raise ValueError(f"{path}: no MCAP summary (the recording was not closed)")
+    return {ch.topic: summary.schemas[ch.schema_id].name for ch in summary.channels.values()}
+
+
+def read_messages(path: str | Path, topics: Iterable[str] | None = None) -> Iterator[tuple[str, int, object]]:
+    """Yield (topic, log_time_ns, message) in log-time order, deserialised with the installed types."""
+    from rclpy.serialization import deserialize_message
+
+    classes: dict[int, type] = {}
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        for schema, channel, message in reader.iter_messages(
+                topics=list(topics) if topics is not None else None):
+            cls = classes.get(channel.id)
+            if cls is None:
+                if schema is None or channel.message_encoding != MESSAGE_ENCODING:
+                    continue
+                cls = classes[channel.id] = message_class(schema.name)
+            yield channel.topic, message.log_time, deserialize_message(message.data, cls)
+
+
+def read_topic(path: str | Path, topic: str) -> list[tuple[int, object]]:
+    """[(log_time_ns, message)] of one topic."""
+    return [(t, msg) for _, t, msg in read_messages(path, [topic])]
+
+
+def odometry_arrays(path: str | Path, topic: str) -> tuple[np.ndarray, np.ndarray]:
+    """(stamp_s (T,), state (T, 5)) of an Odometry topic, in header-stamp order."""
+    from ament_formation.ros.messages import state_from_odometry
+
+    rows = [state_from_odometry(msg) for _, msg in read_topic(path, topic)]
+    if not rows:
+        return np.zeros(0), np.zeros((0, 5))
+    rows.sort(key=lambda r: r[1])
+    return np.array([r[1] for r in rows]), np.stack([r[0] for r in rows])
