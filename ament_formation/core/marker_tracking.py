@@ -1,0 +1,428 @@
+"""Marker tracking: ArUco detection → sub-pixel corners → floor plane → robot poses, by marker id.
+
+Pipeline for one frame (:class:`MarkerTracker.step`):
+
+1. **Detect** with ``cv2.aruco.ArucoDetector`` (OpenCV 4.7+ and 5.x). When every tracked marker
+   has a predicted pose, only regions of interest around the predictions are searched: the ROIs
+   are packed side by side into one small mosaic image and the detector runs once on it. Markers
+   not found there trigger a full-frame search (rate-limited while they stay lost); a full-frame
+   search also runs every ``full_frame_period`` frames to pick up new markers.
+2. **Refine** each corner: sub-pixel edge points are sampled across the marker's four outer
+   edges (gradient centroid along the edge normal), undistorted, and a straight line is fitted
+   to each edge; corners are the intersections of adjacent edge lines (ideal image coordinates,
+   so lens distortion is removed before fitting).
+3. **Map** the corners onto the marker plane (z = ``layout.height_m``) by intersecting viewing
+   rays; the marker centre is the mean of the four plane corners, the heading is the mean
+   direction of the marker's x axis, and the controlled point is the centre minus the body-frame
+   offset (:class:`~ament_formation.core.robot_marker.MarkerLayout`).
+4. **Gate**: a pose that moved farther than the robot can in the elapsed time is rejected
+   (kept out of the track) unless it persists for ``reacquire_after`` frames.
+5. **Uncertainty**: the four plane corners are compared with a perfect square of the known size
+   (least-squares fit); the residual, floored at ``pixel_noise_px`` times the local ground
+   sample, gives σ of the centre and of the heading, propagated to the controlled point.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from ament_formation.core.camera_model import CameraModel, undistort_normalized
+from ament_formation.core.errors import ConfigError
+from ament_formation.core.robot_marker import MarkerLayout, aruco_dictionary
+
+_EDGE_SAMPLES = 12          # sample points along each edge
+_PROFILE_STEP_PX = 0.25
+_MOSAIC_GAP_PX = 6
+_MOSAIC_FILL = 128
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """Tracking parameters (units in names)."""
+
+    max_speed_mps: float = 1.5          # faster apparent motion is a jump (rejected)
+    max_turn_rate_radps: float = 12.0
+    jump_margin_m: float = 0.03         # slack added to the speed gate
+    jump_margin_rad: float = 0.25
+    reacquire_after: int = 5            # consecutive rejected detections that reset a track
+    track_timeout_s: float = 1.0        # a marker unseen this long is no longer tracked
+    use_roi: bool = True
+    roi_margin_px: float = 10.0         # ROI border around the predicted marker (plus motion)
+    full_frame_period: int = 30         # frames between full-frame searches (discover markers)
+    lost_retry_period: int = 5          # frames between full-frame searches for lost markers
+    pixel_noise_px: float = 0.08        # floor of the per-corner uncertainty [px]
+    refine_edges: bool = True           # sub-pixel edge-line corner refinement (else OpenCV subpix)
+
+    def __post_init__(self) -> None:
+        for name in ("max_speed_mps", "max_turn_rate_radps", "track_timeout_s", "pixel_noise_px"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ConfigError(f"must be a finite number > 0 (got {v!r})", name)
+        for name in ("jump_margin_m", "jump_margin_rad", "roi_margin_px"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise ConfigError(f"must be a finite number >= 0 (got {v!r})", name)
+        for name in ("reacquire_after", "full_frame_period", "lost_retry_period"):
+            v = getattr(self, name)
+            if not isinstance(v, int) or isinstance(v, bool) or v < 1:
+                raise ConfigError(f"must be an integer >= 1 (got {v!r})", name)
+
+
+@dataclass(frozen=True)
+class MarkerPoses:
+    """Poses measured in one frame. K markers; world frame; SI units."""
+
+    ids: np.ndarray              # (K,) marker ids
+    poses: np.ndarray            # (K, 3) rows [x_m, y_m, theta_rad] of the controlled point
+    sigma_xy_m: np.ndarray       # (K,) 1-σ position uncertainty (per axis) of the controlled point
+    sigma_theta_rad: np.ndarray  # (K,) 1-σ heading uncertainty
+    corners_px: np.ndarray       # (K, 4, 2) detected corners TL, TR, BR, BL [px, distorted image]
+
+    @staticmethod
+    def empty() -> "MarkerPoses":
+        return MarkerPoses(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0), np.zeros(0),
+                           np.zeros((0, 4, 2)))
+
+    def take(self, mask: np.ndarray) -> "MarkerPoses":
+        return MarkerPoses(self.ids[mask], self.poses[mask], self.sigma_xy_m[mask],
+                           self.sigma_theta_rad[mask], self.corners_px[mask])
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+
+def make_detector(layout: MarkerLayout, image_size_px: tuple[int, int], camera: CameraModel | None = None,
+                  subpix: bool = True) -> cv2.aruco.ArucoDetector:
+    """An ArucoDetector tuned for markers of ``layout`` seen by ``camera``.
+
+    The smallest marker perimeter accepted is 60 % of the smallest the camera can see on the floor
+    (relative to ``image_size_px``, the size of the image the detector will be given).
+    """
+    p = cv2.aruco.DetectorParameters()
+    min_perimeter_px = 40.0
+    if camera is not None:
+        gsd_max = float(camera.ground_sample_m(np.array([camera.pixel_to_floor(
+            np.array([[0.0, 0.0]]), layout.height_m)[0]]), layout.height_m)[0])
+        if math.isfinite(gsd_max):
+            min_perimeter_px = 0.6 * 4 * layout.size_m / gsd_max
+    p.minMarkerPerimeterRate = max(min_perimeter_px / max(image_size_px), 0.005)
+    p.maxMarkerPerimeterRate = 4.0
+    p.adaptiveThreshWinSizeMin = 5
+    p.adaptiveThreshWinSizeMax = 15
+    p.adaptiveThreshWinSizeStep = 10
+    p.minDistanceToBorder = 1
+    p.perspectiveRemovePixelPerCell = 6
+    if subpix:
+        p.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
+        p.cornerRefinementWinSize = 2
+        p.cornerRefinementMaxIterations = 20
+        p.cornerRefinementMinAccuracy = 0.02
+    return cv2.aruco.ArucoDetector(aruco_dictionary(layout.dictionary), p)
+
+
+def detect(detector: cv2.aruco.ArucoDetector, image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Markers in a mono8 image → corners (K, 4, 2) [px] and ids (K,)."""
+    corners, ids, _ = detector.detectMarkers(image)
+    if ids is None or len(ids) == 0:
+        return np.zeros((0, 4, 2)), np.zeros(0, np.int64)
+    return np.array(corners, dtype=np.float64).reshape(-1, 4, 2), ids.reshape(-1).astype(np.int64)
+
+
+def refine_corners(image: np.ndarray, corners_px: np.ndarray, camera: CameraModel,
+                   bits: int = 4) -> np.ndarray:
+    """Sub-pixel corners by edge-line fitting → ideal normalized coordinates (K, 4, 2).
+
+    For each of the four outer edges, ``_EDGE_SAMPLES`` intensity profiles across the edge are
+    sampled (bilinear); the edge point on each is the centroid of the intensity gradient. Edge
+    points are undistorted and a line is fitted to each edge (total least squares); adjacent
+    lines intersect at the corners. Two passes (the second around the first result).
+    """
+    k_count = len(corners_px)
+    if k_count == 0:
+        return np.zeros((0, 4, 2))
+    img = image if image.dtype == np.float32 else image.astype(np.float32)
+    c = np.asarray(corners_px, dtype=np.float64)
+    side = np.linalg.norm(c - np.roll(c, -1, axis=1), axis=2).mean(axis=1)   # (K,)
+    cell = side / (bits + 2)
+    result = None
+    for half_px in (np.minimum(2.0, 0.6 * cell), np.minimum(1.4, 0.45 * cell)):
+        p0, p1 = c, np.roll(c, -1, axis=1)                                   # edge k: corner k → k+1
+        d = p1 - p0
+        length = np.linalg.norm(d, axis=2, keepdims=True)
+        d = d / length
+        n = np.stack([d[..., 1], -d[..., 0]], axis=-1)                      # normal (either side)
+        s = np.linspace(0.15, 0.85, _EDGE_SAMPLES)
+        base = p0[:, :, None, :] + (s[None, None, :, None] * length[:, :, None, :]) * d[:, :, None, :]
+        steps = np.arange(-2.0, 2.0 + 1e-9, _PROFILE_STEP_PX)               # (P,) in units of half_px/2
+        offs = steps[None, :] * (half_px[:, None] / 2.0)                     # (K, P)
+        pts = base[:, :, :, None, :] + offs[:, None, None, :, None] * n[:, :, None, None, :]
+        shape = pts.shape[:-1]                                               # (K, 4, M, P)
+        flat = pts.reshape(-1, 2).astype(np.float32)
+        vals = cv2.remap(img, flat[:, 0].reshape(1, -1), flat[:, 1].reshape(1, -1),
+                         cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(shape)
+        grad = np.abs(np.diff(vals, axis=-1))                                # (K, 4, M, P-1)
+        w = np.maximum(grad - 0.2 * grad.max(axis=-1, keepdims=True), 0.0)
+        wsum = w.sum(axis=-1)
+        mid = 0.5 * (offs[:, 1:] + offs[:, :-1])                             # (K, P-1)
+        pos = (w * mid[:, None, None, :]).sum(axis=-1) / np.where(wsum > 0, wsum, 1.0)
+        edge_px = base + pos[..., None] * n[:, :, None, :]                   # (K, 4, M, 2)
+        ok = wsum > 0
+        xn = undistort_normalized(edge_px.reshape(-1, 2), camera.k, camera.dist).reshape(edge_px.shape)
+        # total least squares line per edge: centroid + direction
+        wt = ok.astype(np.float64)
+        cnt = np.maximum(wt.sum(axis=-1, keepdims=True), 1.0)
+        cen = (xn * wt[..., None]).sum(axis=2) / cnt                         # (K, 4, 2)
+        dev = (xn - cen[:, :, None, :]) * wt[..., None]
+        cov = np.einsum("kemi,kemj->keij", dev, dev)
+        _, vecs = np.linalg.eigh(cov)
+        direction = vecs[..., :, 1]                                          # (K, 4, 2)
+        # corner j = edge (j-1) ∩ edge j
+        a_cen, a_dir = np.roll(cen, 1, axis=1), np.roll(direction, 1, axis=1)
+        rhs = cen - a_cen
+        mat = np.stack([a_dir, -direction], axis=-1)                         # (K, 4, 2, 2)
+        det = np.linalg.det(mat)
+        good = np.abs(det) > 1e-12
+        tpar = np.linalg.solve(np.where(good[..., None, None], mat, np.eye(2)), rhs[..., None])[..., 0, 0]
+        result = a_cen + tpar[..., None] * a_dir
+        # fall back to the detector's corners where a fit was degenerate
+        raw = undistort_normalized(c.reshape(-1, 2), camera.k, camera.dist).reshape(-1, 4, 2)
+        few = ok.sum(axis=-1) < 4                                            # (K, 4) per edge
+        bad = ~good | few | np.roll(few, 1, axis=1)
+        result = np.where(bad[..., None], raw, result)
+        # project back to pixels for the next pass
+        rays = np.concatenate([result.reshape(-1, 2), np.ones((result.size // 2, 1))], axis=1)
+        c = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), camera.k, camera.dist)[0].reshape(-1, 4, 2)
+    return result
+
+
+def poses_from_corners(normalized: np.ndarray, ids: np.ndarray, camera: CameraModel,
+                       layout: MarkerLayout, corners_px: np.ndarray,
+                       pixel_noise_px: float = 0.08) -> MarkerPoses:
+    """Ideal normalized corners (K, 4, 2) → controlled-point poses with uncertainties."""
+    k_count = len(ids)
+    if k_count == 0:
+        return MarkerPoses.empty()
+    rays_c = np.concatenate([normalized.reshape(-1, 2), np.ones((4 * k_count, 1))], axis=1)
+    rays_w = rays_c @ camera.r_wc.T
+    t = (layout.height_m - camera.center_w[2]) / rays_w[:, 2]
+    plane = (camera.center_w[:2] + t[:, None] * rays_w[:, :2]).reshape(k_count, 4, 2)
+    center = plane.mean(axis=1)                                              # (K, 2)
+    # marker x axis: TL→TR and BL→BR; marker y axis (left): BL→TL and BR→TR rotated by −90°
+    tl, tr, br, bl = plane[:, 0], plane[:, 1], plane[:, 2], plane[:, 3]
+    ex = (tr - tl) + (br - bl)
+    ey = (tl - bl) + (tr - br)
+    vx = ex + np.column_stack([ey[:, 1], -ey[:, 0]])
+    theta = np.arctan2(vx[:, 1], vx[:, 0])
+    point = layout.controlled_point(center, theta)
+    # residual against the ideal square at (center, theta)
+    ideal = layout.corners_w(np.column_stack([point, theta]))
+    resid = np.sqrt(((plane - ideal) ** 2).sum(axis=2).mean(axis=1) / 2.0)  # per-axis RMS [m]
+    gsd = camera.ground_sample_m(center, layout.height_m)
+    sigma_c = np.sqrt(resid**2 + (pixel_noise_px * gsd) ** 2)               # per-corner, per-axis
+    sigma_theta = sigma_c / (layout.size_m * math.sqrt(2.0))
+    lever = math.hypot(*layout.offset_m)
+    sigma_xy = np.sqrt(sigma_c**2 / 4.0 + (lever * sigma_theta) ** 2)
+    poses = np.column_stack([point, theta])
+    return MarkerPoses(ids.astype(np.int64), poses, sigma_xy, sigma_theta,
+                       np.asarray(corners_px, dtype=np.float64).reshape(-1, 4, 2))
+
+
+def measure(image: np.ndarray, detector: cv2.aruco.ArucoDetector, camera: CameraModel,
+            layout: MarkerLayout, config: TrackerConfig = TrackerConfig()) -> MarkerPoses:
+    """Full-frame detection → poses (no tracking state)."""
+    corners, ids = detect(detector, image)
+    return _to_poses(image, corners, ids, camera, layout, config)
+
+
+def _to_poses(image, corners, ids, camera, layout, config) -> MarkerPoses:
+    if len(ids) == 0:
+        return MarkerPoses.empty()
+    if config.refine_edges:
+        normalized = refine_corners(image, corners, camera, layout.bits)
+    else:
+        normalized = undistort_normalized(corners.reshape(-1, 2), camera.k, camera.dist).reshape(-1, 4, 2)
+    return poses_from_corners(normalized, ids, camera, layout, corners, config.pixel_noise_px)
+
+
+@dataclass
+class _Track:
+    pose: np.ndarray          # (3,) last accepted pose
+    t_s: float
+    velocity: np.ndarray      # (3,) [xdot, ydot, thetadot] estimate
+    rejected: int = 0
+
+
+@dataclass(frozen=True)
+class FrameResult:
+    """The outcome of :meth:`MarkerTracker.step` for one frame."""
+
+    accepted: MarkerPoses
+    rejected_ids: tuple[int, ...]
+    full_frame: bool               # True when the full-frame detector ran
+    roi_pixels: int                # pixels searched in ROI mode (0 when none)
+
+
+@dataclass
+class MarkerTracker:
+    """Tracks markers over frames (ROI search, jump gate). Time is passed in; no clocks inside.
+
+    ``expected_ids``: markers that should be in view (lost ones trigger rate-limited full-frame
+    searches); empty means "whatever is seen".
+    """
+
+    camera: CameraModel
+    layout: MarkerLayout = field(default_factory=MarkerLayout)
+    config: TrackerConfig = field(default_factory=TrackerConfig)
+    expected_ids: tuple[int, ...] = ()
+
+    def __post_init__(self) -> None:
+        self._full = make_detector(self.layout, self.camera.size_px, self.camera,
+                                   subpix=not self.config.refine_edges)
+        self._roi_detectors: dict[tuple[int, int], cv2.aruco.ArucoDetector] = {}
+        self._tracks: dict[int, _Track] = {}
+        self._frame = 0
+        self._last_full = -10**9
+
+    # ------------------------------------------------------------------ ROI mosaic
+    def _roi_detector(self, size: tuple[int, int]) -> cv2.aruco.ArucoDetector:
+        key = (size[0] // 64, size[1] // 64)
+        det = self._roi_detectors.get(key)
+        if det is None:
+            det = make_detector(self.layout, ((key[0] + 1) * 64, (key[1] + 1) * 64), self.camera,
+                                subpix=not self.config.refine_edges)
+            self._roi_detectors[key] = det
+        return det
+
+    def _predicted_boxes(self, t_s: float) -> list[tuple[int, tuple[int, int, int, int]]]:
+        w, h = self.camera.size_px
+        boxes = []
+        for mid, tr in self._tracks.items():
+            dt = max(t_s - tr.t_s, 0.0)
+            pred = tr.pose + tr.velocity * dt
+            px = self.camera.floor_to_pixel(self.layout.corners_w(pred[None])[0], self.layout.height_m)
+            gsd = float(self.camera.ground_sample_m(pred[None, :2], self.layout.height_m)[0])
+            motion_px = 0.5 * float(np.hypot(*tr.velocity[:2])) * dt / gsd
+            quiet = 1.5 * (px.max(0) - px.min(0)).max() / (self.layout.bits + 2)
+            m = self.config.roi_margin_px + quiet + motion_px
+            x0, y0 = np.floor(px.min(0) - m).astype(int)
+            x1, y1 = np.ceil(px.max(0) + m).astype(int) + 1
+            x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, w), min(y1, h)
+            if x1 - x0 >= 8 and y1 - y0 >= 8:
+                boxes.append((mid, (int(x0), int(y0), int(x1), int(y1))))
+        return boxes
+
+    def _detect_roi(self, image: np.ndarray, boxes) -> tuple[np.ndarray, np.ndarray, int]:
+        """Pack ROIs into one mosaic, detect once, map corners back to the frame."""
+        gap = _MOSAIC_GAP_PX
+        row_limit = max(self.camera.width_px, max(b[2] - b[0] for _, b in boxes) + 2 * gap)
+        places, x, y, row_h, mos_w = [], gap, gap, 0, 0
+        for mid, (x0, y0, x1, y1) in boxes:
+            bw, bh = x1 - x0, y1 - y0
+            if x + bw + gap > row_limit:
+                x, y, row_h = gap, y + row_h + gap, 0
+            places.append((mid, x0, y0, bw, bh, x, y))
+            x += bw + gap
+            row_h = max(row_h, bh)
+            mos_w = max(mos_w, x)
+        mos_h = y + row_h + gap
+        mosaic = np.full((mos_h, mos_w), _MOSAIC_FILL, np.uint8)
+        for _, x0, y0, bw, bh, mx, my in places:
+            mosaic[my:my + bh, mx:mx + bw] = image[y0:y0 + bh, x0:x0 + bw]
+        corners, ids = detect(self._roi_detector((mos_w, mos_h)), mosaic)
+        out_c, out_i, seen = [], [], set()
+        for cc, mid in zip(corners, ids):
+            cen = cc.mean(axis=0)
+            for pmid, x0, y0, bw, bh, mx, my in places:
+                if mx <= cen[0] < mx + bw and my <= cen[1] < my + bh:
+                    if int(mid) in seen:
+                        break
+                    out_c.append(cc + np.array([x0 - mx, y0 - my], dtype=np.float64))
+                    out_i.append(int(mid))
+                    seen.add(int(mid))
+                    break
+        if not out_i:
+            return np.zeros((0, 4, 2)), np.zeros(0, np.int64), mos_w * mos_h
+        return np.array(out_c), np.array(out_i, np.int64), mos_w * mos_h
+
+    # ------------------------------------------------------------------ step
+    def step(self, image: np.ndarray, t_s: float) -> FrameResult:
+        """Measure the markers in ``image`` (mono8, camera size) captured at ``t_s`` [s]."""
+        if image.ndim != 2 or image.dtype != np.uint8:
+            raise ValueError(f"image must be mono8 (H, W) uint8, got {image.dtype} {image.shape}")
+        if image.shape[::-1] != self.camera.size_px:
+            raise ValueError(f"image is {image.shape[1]}x{image.shape[0]} px, camera model is "
+                             f"{self.camera.width_px}x{self.camera.height_px}")
+        cfg = self.config
+        self._frame += 1
+        for mid in [m for m, tr in self._tracks.items() if t_s - tr.t_s > cfg.track_timeout_s]:
+            del self._tracks[mid]
+        since_full = self._frame - self._last_full
+        lost = [m for m in self.expected_ids if m not in self._tracks]
+        full = (not cfg.use_roi or not self._tracks or since_full >= cfg.full_frame_period
+                or (lost and since_full >= cfg.lost_retry_period))
+        roi_pixels = 0
+        if not full:
+            boxes = self._predicted_boxes(t_s)
+            corners, ids, roi_pixels = (self._detect_roi(image, boxes) if boxes else
+                                        (np.zeros((0, 4, 2)), np.zeros(0, np.int64), 0))
+            missing = set(self._tracks) - set(ids.tolist())
+            if missing:
+                full = True
+        if full:
+            corners, ids = detect(self._full, image)
+            self._last_full = self._frame
+        corners, ids = self._resolve_duplicates(corners, ids, t_s)
+        measured = _to_poses(image, corners, ids, self.camera, self.layout, cfg)
+        keep = np.array([self._gate(int(m), p, t_s) for m, p in zip(measured.ids, measured.poses)],
+                        dtype=bool).reshape(-1)
+        rejected = tuple(int(m) for m in measured.ids[~keep])
+        return FrameResult(measured.take(keep), rejected, bool(full), int(roi_pixels))
+
+    def _resolve_duplicates(self, corners, ids, t_s):
+        """Two markers with one id: keep the one nearest the prediction (drop both if untracked)."""
+        if len(ids) == len(set(ids.tolist())):
+            return corners, ids
+        keep = np.ones(len(ids), bool)
+        for mid in set(ids.tolist()):
+            idx = np.flatnonzero(ids == mid)
+            if len(idx) < 2:
+                continue
+            tr = self._tracks.get(int(mid))
+            keep[idx] = False
+            if tr is not None:
+                pred = tr.pose + tr.velocity * max(t_s - tr.t_s, 0.0)
+                pred_px = self.camera.floor_to_pixel(self.layout.marker_centers_w(pred[None]),
+                                                     self.layout.height_m)[0]
+                dist = np.linalg.norm(corners[idx].mean(axis=1) - pred_px, axis=1)
+                keep[idx[int(np.argmin(dist))]] = True
+        return corners[keep], ids[keep]
+
+    def _gate(self, mid: int, pose: np.ndarray, t_s: float) -> bool:
+        """Accept ``pose`` of marker ``mid`` unless it jumped (S: implausible speed)."""
+        cfg = self.config
+        tr = self._tracks.get(mid)
+        if tr is None:
+            self._tracks[mid] = _Track(pose.copy(), t_s, np.zeros(3))
+            return True
+        dt = max(t_s - tr.t_s, 1e-6)
+        dpos = float(np.hypot(*(pose[:2] - tr.pose[:2])))
+        dth = float((pose[2] - tr.pose[2] + np.pi) % (2 * np.pi) - np.pi)
+        ok = (dpos <= cfg.max_speed_mps * dt + cfg.jump_margin_m
+              and abs(dth) <= cfg.max_turn_rate_radps * dt + cfg.jump_margin_rad)
+        if not ok:
+            tr.rejected += 1
+            if tr.rejected < cfg.reacquire_after:
+                return False
+            self._tracks[mid] = _Track(pose.copy(), t_s, np.zeros(3))
+            return True
+        vel = np.array([(pose[0] - tr.pose[0]) / dt, (pose[1] - tr.pose[1]) / dt, dth / dt])
+        alpha = 0.5
+        self._tracks[mid] = _Track(pose.copy(), t_s, alpha * vel + (1 - alpha) * tr.velocity)
+        return True
+
+    @property
+    def tracked_ids(self) -> tuple[int, ...]:
+        return tuple(sorted(self._tracks))
