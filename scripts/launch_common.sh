@@ -1,0 +1,96 @@
+# Sourced by scripts/launch_*.sh: start processes, remember their PIDs, stop exactly those on exit.
+#
+#   af_launch_init RUN_DIR [--multi-machine]   environment (loopback DDS unless --multi-machine), traps
+#   af_start NAME CMD ARGS...                  start CMD in the background, log to RUN_DIR/NAME.log
+#   af_wait_any [TIMEOUT_S]                    wait until one started process exits (or the timeout)
+#
+# Several machines (opt-in): pass --multi-machine and export the same ROS_DOMAIN_ID on every machine.
+# That sets ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET and drops the loopback-only Fast DDS profile, so
+# DDS then uses every interface of the machine; use it only on a trusted robot network.
+AF_ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+AF_BIN="$AF_ROOT/.venv/bin"
+AF_PIDS=()
+AF_NAMES=()
+
+af_launch_init() {
+  AF_RUN_DIR="$1"; shift
+  local multi=0
+  [ "${1:-}" = "--multi-machine" ] && multi=1
+  mkdir -p "$AF_RUN_DIR"
+  if [ "$multi" = 1 ] && [ -z "${ROS_DOMAIN_ID:-}" ]; then
+    echo "--multi-machine: export the same ROS_DOMAIN_ID (0..101) on every machine first" >&2
+    exit 2
+  fi
+  # shellcheck source=ros_env.sh
+  source "$AF_ROOT/scripts/ros_env.sh" "$AF_RUN_DIR/ros_log"
+  if [ "$multi" = 1 ]; then
+    export ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET
+    unset FASTRTPS_DEFAULT_PROFILES_FILE
+  fi
+  af_shm_snapshot
+  : >"$AF_RUN_DIR/pids"
+  trap af_stop_all EXIT
+  trap 'exit 130' INT
+  trap 'exit 143' TERM
+}
+
+af_start() {
+  local name="$1"; shift
+  "$@" >"$AF_RUN_DIR/$name.log" 2>&1 &
+  AF_PIDS+=("$!")
+  AF_NAMES+=("$name")
+  echo "$! $name" >>"$AF_RUN_DIR/pids"
+  echo "started $name (pid $!)"
+}
+
+af_alive() { kill -0 "$1" 2>/dev/null; }
+
+# Stop every process we started, newest first: SIGTERM (rclpy shuts down cleanly on it; SIGINT is
+# ignored by background jobs of a script), then SIGKILL for anything still there after 4 s.
+# Only our own PIDs are signalled.
+af_stop_all() {
+  local status=$? i pid deadline
+  trap - EXIT INT TERM
+  for (( i=${#AF_PIDS[@]}-1; i>=0; i-- )); do
+    pid="${AF_PIDS[$i]}"; af_alive "$pid" && kill -TERM "$pid" 2>/dev/null || true
+  done
+  for sig in KILL; do
+    deadline=$(( $(date +%s%N) + 4000000000 ))
+    while [ "$(date +%s%N)" -lt "$deadline" ]; do
+      local any=0
+      for pid in "${AF_PIDS[@]}"; do af_alive "$pid" && any=1; done
+      [ "$any" = 0 ] && break
+      sleep 0.05
+    done
+    for (( i=${#AF_PIDS[@]}-1; i>=0; i-- )); do
+      pid="${AF_PIDS[$i]}"
+      if af_alive "$pid"; then
+        echo "stopping ${AF_NAMES[$i]} (pid $pid) with SIG$sig" >&2
+        kill -"$sig" "$pid" 2>/dev/null || true
+      fi
+    done
+  done
+  for pid in "${AF_PIDS[@]}"; do wait "$pid" 2>/dev/null || true; done
+  af_shm_cleanup
+  echo "stopped ${#AF_PIDS[@]} processes"
+  exit "$status"
+}
+
+# Wait until any started process exits (returns its status), or TIMEOUT_S passed (returns 0).
+af_wait_any() {
+  local timeout_s="${1:-}" i
+  local deadline=""
+  [ -n "$timeout_s" ] && deadline=$(( $(date +%s%N) + ${timeout_s%.*} * 1000000000 ))
+  while true; do
+    for i in "${!AF_PIDS[@]}"; do
+      if ! af_alive "${AF_PIDS[$i]}"; then
+        local rc=0
+        wait "${AF_PIDS[$i]}" || rc=$?
+        echo "${AF_NAMES[$i]} exited with status $rc"
+        return "$rc"
+      fi
+    done
+    if [ -n "$deadline" ] && [ "$(date +%s%N)" -ge "$deadline" ]; then return 0; fi
+    sleep 0.1
+  done
+}

@@ -1,0 +1,70 @@
+#!/usr/bin/env bash
+# Start every process of a simulated run and stop them all (by PID) on exit, Ctrl-C or TERM.
+#
+#   scripts/launch_sim.sh SCENARIO.yaml [--run-dir DIR] [--duration S] [--speed F] [--multi-machine]
+#
+# Processes: formation_world (plant, emulated boards on ptys, synthetic camera), one formation_bridge
+# and one formation_controller per robot (namespace robot_<id>), formation_tracker,
+# formation_coordinator. Logs and the PID list go to RUN_DIR (default: a new temp folder).
+# The run ends when the world finishes the scenario, when any process exits, or after --duration S.
+# DDS stays on loopback unless --multi-machine (see scripts/launch_common.sh).
+set -euo pipefail
+here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
+# shellcheck source=launch_common.sh
+source "$here/launch_common.sh"
+
+usage() { sed -n '2,11p' "$0" | sed 's/^# \{0,1\}//'; exit 2; }
+[ $# -ge 1 ] || usage
+scenario="$(realpath "$1")"; shift
+run_dir=""; duration=""; speed="1.0"; multi=""
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --run-dir) run_dir="$2"; shift 2 ;;
+    --duration) duration="$2"; shift 2 ;;
+    --speed) speed="$2"; shift 2 ;;
+    --multi-machine) multi="--multi-machine"; shift ;;
+    -h|--help) usage ;;
+    *) echo "launch_sim.sh: unknown option $1" >&2; exit 2 ;;
+  esac
+done
+[ -f "$scenario" ] || { echo "launch_sim.sh: $scenario: no such scenario file" >&2; exit 2; }
+[ -n "$run_dir" ] || run_dir="$(mktemp -d -t ament_formation_sim.XXXXXX)"
+run_dir="$(realpath -m "$run_dir")"
+
+ids="$("$AF_BIN/python" -c 'import sys
+from ament_formation.core.errors import ConfigError
+from ament_formation.core.scenario import load_scenario
+try:
+    print(" ".join(str(i) for i in load_scenario(sys.argv[1]).robot_ids))
+except ConfigError as e:
+    print(e, file=sys.stderr); sys.exit(2)' "$scenario")" || exit 2
+
+af_launch_init "$run_dir" $multi
+echo "run folder: $run_dir (ROS_DOMAIN_ID=$ROS_DOMAIN_ID)"
+pty_dir="$run_dir/pty"
+use_sim_time=false
+[ "$speed" != "1.0" ] && [ "$speed" != "1" ] && use_sim_time=true
+
+af_start world "$AF_BIN/formation_world" --ros-args -p scenario:="$scenario" -p pty_dir:="$pty_dir" \
+  -p speed_factor:="$speed"
+# the emulated boards' ptys appear as RUN_DIR/pty/robot_<id>
+for _ in $(seq 1 200); do
+  ready=1
+  for id in $ids; do [ -e "$pty_dir/robot_$id" ] || ready=0; done
+  [ "$ready" = 1 ] && break
+  af_alive "${AF_PIDS[0]}" || { echo "formation_world exited early; see $run_dir/world.log" >&2; exit 1; }
+  sleep 0.05
+done
+[ "$ready" = 1 ] || { echo "the world's ptys did not appear in 10 s" >&2; exit 1; }
+
+for id in $ids; do
+  af_start "bridge_$id" "$AF_BIN/formation_bridge" --ros-args -r __ns:="/robot_$id" \
+    -p port:="$pty_dir/robot_$id" -p use_sim_time:=$use_sim_time
+  af_start "controller_$id" "$AF_BIN/formation_controller" --ros-args -r __ns:="/robot_$id" \
+    -p scenario:="$scenario" -p robot_id:="$id" -p use_sim_time:=$use_sim_time
+done
+af_start tracker "$AF_BIN/formation_tracker" --ros-args -p scenario:="$scenario" -p use_sim_time:=$use_sim_time
+af_start coordinator "$AF_BIN/formation_coordinator" --ros-args -p scenario:="$scenario" \
+  -p use_sim_time:=$use_sim_time
+
+af_wait_any "$duration"
