@@ -1,0 +1,540 @@
+/*
+ * harness.c - run the motor-board firmware ELF in simavr, with the UART on a pty, emulated
+ * quadrature encoders driven by a wheel model fed from the PWM outputs, and cycle measurements.
+ *
+ * Usage: formation_fw_sim FIRMWARE.elf [--status FILE] [--link PATH] [--duration-s S]
+ *                                      [--no-realtime] [--freeze-wheels]
+ *
+ *   stdout, first line:  "PTY /dev/pts/N"  (the slave side: open it like a serial port)
+ *   --status FILE        one JSON object per line every 10 ms of emulated time (see emit_status)
+ *   --link PATH          also create a symlink PATH -> pty slave (removed at exit)
+ *   --duration-s S       stop after S seconds of emulated time (default: run until SIGTERM/SIGINT)
+ *   --no-realtime        run as fast as the host can (default: paced to the wall clock)
+ *   --freeze-wheels      hold the wheels still (encoders never move)
+ *
+ * Measurements (cycles of the emulated 16 MHz CPU):
+ *   isr: per vector, count and worst case from vector entry to RETI (the simavr "interrupt
+ *        running" IRQ); the firmware never nests interrupts.
+ *   loop: the firmware writes GPIOR0 = 1 when its main loop starts work and 0 just before it
+ *        sleeps; the worst busy stretch is reported with ISR preemption included ("loop_max")
+ *        and with ISR cycles subtracted ("loop_max_own").
+ *   telemetry: frames the firmware sends (each 0x00 delimiter on its TX line ends one frame),
+ *        counted with their emulated time, so the rate is known in emulated time.
+ *
+ * Wheel model (per wheel, both identical): J domega/dt = tau(duty, omega) - b omega, with
+ * tau from the same DC-motor model and constants as the firmware (src/motor_model.c,
+ * src/config.h), integrated every 50 us of emulated time; encoder A/B edges are emitted one
+ * quadrature step at a time (at most one per wheel per 50 us step, so no edge is ever lost).
+ */
+#define _GNU_SOURCE
+#include <errno.h>
+#include <fcntl.h>
+#include <math.h>
+#include <pty.h>
+#include <signal.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <termios.h>
+#include <time.h>
+#include <unistd.h>
+
+#include <sim_avr.h>
+#include <sim_elf.h>
+#include <sim_interrupts.h>
+#include <sim_io.h>
+#include <sim_irq.h>
+#include <sim_cycle_timers.h>
+#include <sim_time.h>
+#include <avr_ioport.h>
+#include <avr_uart.h>
+
+#include "../src/config.h"
+#include "../src/motor_model.h"
+
+/* ATmega328P data-space addresses (datasheet, register summary) */
+#define REG_PORTB 0x25
+#define REG_DDRB 0x24
+#define REG_PORTD 0x2B
+#define REG_GPIOR0 0x3E
+#define REG_TCCR1A 0x80
+#define REG_ICR1L 0x86
+#define REG_OCR1AL 0x88
+#define REG_OCR1BL 0x8A
+#define COM1A1_BIT 7
+#define COM1B1_BIT 5
+
+#define MODEL_STEP_US 50u
+#define IO_POLL_STEPS 4u            /* pty polled every 200 us of emulated time */
+#define STATUS_PERIOD_US 10000u
+#define N_VECTORS 26
+#define IN_BUF_BYTES 8192u
+#define OUT_BUF_BYTES 8192u
+
+static const char *const VECTOR_NAMES[N_VECTORS] = {
+    "RESET", "INT0", "INT1", "PCINT0", "PCINT1", "PCINT2", "WDT", "TIMER2_COMPA", "TIMER2_COMPB",
+    "TIMER2_OVF", "TIMER1_CAPT", "TIMER1_COMPA", "TIMER1_COMPB", "TIMER1_OVF", "TIMER0_COMPA",
+    "TIMER0_COMPB", "TIMER0_OVF", "SPI_STC", "USART_RX", "USART_UDRE", "USART_TX", "ADC",
+    "EE_READY", "ANALOG_COMP", "TWI", "SPM_READY"};
+
+typedef struct {
+    double angle_rad;
+    double speed_radps;
+    int64_t emitted_ticks;     /* quadrature steps already put on the pins */
+    avr_irq_t *pin_a;
+    avr_irq_t *pin_b;
+} wheel_t;
+
+typedef struct {
+    avr_t *avr;
+    int master_fd;
+    int slave_fd;
+    FILE *status;
+    int realtime;
+    int freeze_wheels;
+    struct timespec wall_start;
+    avr_irq_t *uart_input;
+    int uart_xon;
+    uint8_t in_buf[IN_BUF_BYTES];
+    size_t in_len, in_pos;
+    uint8_t out_buf[OUT_BUF_BYTES];
+    size_t out_len;
+    uint64_t rx_bytes, tx_bytes, tx_dropped;
+    /* interrupts */
+    int running_vector;
+    avr_cycle_count_t isr_entry;
+    uint64_t isr_count[N_VECTORS];
+    uint64_t isr_max[N_VECTORS];
+    uint64_t isr_total;
+    /* main loop */
+    int loop_busy;
+    avr_cycle_count_t loop_start;
+    uint64_t loop_start_isr_total;
+    uint64_t loop_count;
+    uint64_t loop_max;
+    uint64_t loop_max_own;
+    /* telemetry-frame counting on the TX line */
+    uint64_t tx_frames;
+    avr_cycle_count_t first_frame_cycle, last_frame_cycle;
+    /* wheels */
+    motor_model_t motor;
+    double inertia_kgm2;
+    double viscous_nms;
+    wheel_t wheel[2];
+    double duty[2];
+    int32_t pwm_counts[2];
+    unsigned step;
+    uint64_t next_status_us;
+} harness_t;
+
+static volatile sig_atomic_t g_stop;
+
+static void on_signal(int sig)
+{
+    (void)sig;
+    g_stop = 1;
+}
+
+static double emu_seconds(const harness_t *h)
+{
+    return (double)h->avr->cycle / (double)h->avr->frequency;
+}
+
+static double wall_seconds(const harness_t *h)
+{
+    struct timespec now;
+    clock_gettime(CLOCK_MONOTONIC, &now);
+    return (double)(now.tv_sec - h->wall_start.tv_sec) +
+           1e-9 * (double)(now.tv_nsec - h->wall_start.tv_nsec);
+}
+
+/* ---- UART <-> pty ------------------------------------------------------------------------ */
+static void uart_out_hook(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq;
+    harness_t *h = param;
+    h->tx_bytes++;
+    if ((uint8_t)value == 0x00) {
+        if (h->tx_frames == 0) {
+            h->first_frame_cycle = h->avr->cycle;
+        }
+        h->last_frame_cycle = h->avr->cycle;
+        h->tx_frames++;
+    }
+    if (h->out_len < OUT_BUF_BYTES) {
+        h->out_buf[h->out_len++] = (uint8_t)value;
+    } else {
+        h->tx_dropped++;
+    }
+}
+
+static void uart_xon_hook(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq;
+    (void)value;
+    ((harness_t *)param)->uart_xon = 1;
+}
+
+static void uart_xoff_hook(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq;
+    (void)value;
+    ((harness_t *)param)->uart_xon = 0;
+}
+
+static void pty_poll(harness_t *h)
+{
+    if (h->out_len > 0) {
+        const ssize_t n = write(h->master_fd, h->out_buf, h->out_len);
+        if (n > 0) {
+            memmove(h->out_buf, h->out_buf + n, h->out_len - (size_t)n);
+            h->out_len -= (size_t)n;
+        } else if (n < 0 && errno != EAGAIN && errno != EINTR) {
+            h->tx_dropped += h->out_len;   /* nobody can read: drop, as a real line would */
+            h->out_len = 0;
+        }
+        if (h->out_len > OUT_BUF_BYTES / 2) {   /* no reader: keep only recent bytes */
+            h->tx_dropped += h->out_len;
+            h->out_len = 0;
+        }
+    }
+    if (h->in_pos == h->in_len) {
+        h->in_pos = h->in_len = 0;
+        const ssize_t n = read(h->master_fd, h->in_buf, IN_BUF_BYTES);
+        if (n > 0) {
+            h->in_len = (size_t)n;
+        }
+    }
+    while (h->uart_xon && h->in_pos < h->in_len) {
+        h->rx_bytes++;
+        avr_raise_irq(h->uart_input, h->in_buf[h->in_pos++]);
+    }
+}
+
+/* ---- interrupt and main-loop timing ------------------------------------------------------- */
+static void isr_running_hook(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq;
+    harness_t *h = param;
+    const avr_cycle_count_t now = h->avr->cycle;
+    if (h->running_vector > 0 && h->running_vector < N_VECTORS) {
+        const uint64_t d = now - h->isr_entry;
+        h->isr_total += d;
+        if (d > h->isr_max[h->running_vector]) {
+            h->isr_max[h->running_vector] = d;
+        }
+    }
+    h->running_vector = (int)value;
+    h->isr_entry = now;
+    if (value > 0 && value < N_VECTORS) {
+        h->isr_count[value]++;
+    }
+}
+
+static void gpior0_write(struct avr_t *avr, avr_io_addr_t addr, uint8_t v, void *param)
+{
+    harness_t *h = param;
+    avr->data[addr] = v;
+    if (v && !h->loop_busy) {
+        h->loop_busy = 1;
+        h->loop_start = avr->cycle;
+        h->loop_start_isr_total = h->isr_total;
+    } else if (!v && h->loop_busy) {
+        h->loop_busy = 0;
+        const uint64_t d = avr->cycle - h->loop_start;
+        const uint64_t own = d - (h->isr_total - h->loop_start_isr_total);
+        h->loop_count++;
+        if (d > h->loop_max) {
+            h->loop_max = d;
+        }
+        if (own > h->loop_max_own) {
+            h->loop_max_own = own;
+        }
+    }
+}
+
+/* ---- PWM read-out and wheel model ---------------------------------------------------------- */
+static uint16_t reg16(const avr_t *avr, unsigned low)
+{
+    return (uint16_t)(avr->data[low] | (avr->data[low + 1] << 8));
+}
+
+static void read_pwm(harness_t *h)
+{
+    const avr_t *avr = h->avr;
+    const uint16_t top = reg16(avr, REG_ICR1L);
+    const uint8_t tccr1a = avr->data[REG_TCCR1A];
+    const uint8_t ddrb = avr->data[REG_DDRB];
+    const int dir[2] = {(avr->data[REG_PORTD] >> PIN_DIR_LEFT) & 1,
+                        (avr->data[REG_PORTB] >> PIN_DIR_RIGHT) & 1};
+    const int driven[2] = {((tccr1a >> COM1A1_BIT) & 1) && ((ddrb >> PIN_PWM_LEFT) & 1),
+                           ((tccr1a >> COM1B1_BIT) & 1) && ((ddrb >> PIN_PWM_RIGHT) & 1)};
+    const uint16_t ocr[2] = {reg16(avr, REG_OCR1AL), reg16(avr, REG_OCR1BL)};
+    for (int i = 0; i < 2; i++) {
+        if (!driven[i] || top == 0) {
+            h->duty[i] = 0.0;
+            h->pwm_counts[i] = 0;
+            continue;
+        }
+        const uint16_t c = ocr[i] > top ? top : ocr[i];
+        h->pwm_counts[i] = dir[i] ? -(int32_t)c : (int32_t)c;
+        h->duty[i] = (double)h->pwm_counts[i] / (double)top;
+    }
+}
+
+static void emit_encoder_step(harness_t *h, wheel_t *w)
+{
+    const double ticks = w->angle_rad / (2.0 * M_PI) * (double)ENCODER_TICKS_PER_REV;
+    const int64_t target = (int64_t)floor(ticks);
+    if (target == w->emitted_ticks) {
+        return;
+    }
+    w->emitted_ticks += target > w->emitted_ticks ? 1 : -1;
+    /* forward Gray sequence AB: 00 -> 01 -> 11 -> 10 (matches QUAD_TABLE in src/hal.c) */
+    static const uint8_t GRAY[4] = {0x0, 0x1, 0x3, 0x2};
+    const uint8_t ab = GRAY[((w->emitted_ticks % 4) + 4) % 4];
+    avr_raise_irq(w->pin_a, (ab >> 1) & 1);
+    avr_raise_irq(w->pin_b, ab & 1);
+    (void)h;
+}
+
+static void step_wheels(harness_t *h)
+{
+    const double dt = MODEL_STEP_US * 1e-6;
+    read_pwm(h);
+    for (int i = 0; i < 2; i++) {
+        wheel_t *w = &h->wheel[i];
+        if (!h->freeze_wheels) {
+            const double tau = motor_torque_from_duty(&h->motor, (float)h->duty[i], (float)w->speed_radps);
+            w->speed_radps += dt * (tau - h->viscous_nms * w->speed_radps) / h->inertia_kgm2;
+            w->angle_rad += dt * w->speed_radps;
+        }
+        emit_encoder_step(h, w);
+    }
+}
+
+/* ---- status --------------------------------------------------------------------------- */
+static void emit_status(harness_t *h, int final)
+{
+    if (!h->status) {
+        return;
+    }
+    FILE *f = h->status;
+    fprintf(f,
+            "{\"t_s\":%.6f,\"cycle\":%llu,\"wall_s\":%.6f,\"duty\":[%.5f,%.5f],"
+            "\"pwm_counts\":[%d,%d],\"pwm_top\":%u,\"wheel_rad\":[%.6f,%.6f],"
+            "\"wheel_radps\":[%.5f,%.5f],\"encoder_ticks\":[%lld,%lld],"
+            "\"rx_bytes\":%llu,\"tx_bytes\":%llu,\"tx_dropped\":%llu,\"tx_frames\":%llu,"
+            "\"first_frame_t_s\":%.6f,\"last_frame_t_s\":%.6f,"
+            "\"loop_count\":%llu,\"loop_max_cycles\":%llu,\"loop_max_own_cycles\":%llu,"
+            "\"isr_max_cycles\":{",
+            emu_seconds(h), (unsigned long long)h->avr->cycle, wall_seconds(h), h->duty[0],
+            h->duty[1], h->pwm_counts[0], h->pwm_counts[1], (unsigned)reg16(h->avr, REG_ICR1L),
+            h->wheel[0].angle_rad, h->wheel[1].angle_rad, h->wheel[0].speed_radps,
+            h->wheel[1].speed_radps, (long long)h->wheel[0].emitted_ticks,
+            (long long)h->wheel[1].emitted_ticks, (unsigned long long)h->rx_bytes,
+            (unsigned long long)h->tx_bytes, (unsigned long long)h->tx_dropped,
+            (unsigned long long)h->tx_frames,
+            (double)h->first_frame_cycle / (double)h->avr->frequency,
+            (double)h->last_frame_cycle / (double)h->avr->frequency,
+            (unsigned long long)h->loop_count, (unsigned long long)h->loop_max,
+            (unsigned long long)h->loop_max_own);
+    int first = 1;
+    for (int v = 1; v < N_VECTORS; v++) {
+        if (h->isr_count[v]) {
+            fprintf(f, "%s\"%s\":%llu", first ? "" : ",", VECTOR_NAMES[v],
+                    (unsigned long long)h->isr_max[v]);
+            first = 0;
+        }
+    }
+    fprintf(f, "},\"isr_count\":{");
+    first = 1;
+    for (int v = 1; v < N_VECTORS; v++) {
+        if (h->isr_count[v]) {
+            fprintf(f, "%s\"%s\":%llu", first ? "" : ",", VECTOR_NAMES[v],
+                    (unsigned long long)h->isr_count[v]);
+            first = 0;
+        }
+    }
+    fprintf(f, "},\"state\":%d,\"final\":%s}\n", h->avr->state, final ? "true" : "false");
+    fflush(f);
+}
+
+/* ---- the periodic cycle timer: wheels, pty, pacing, status ------------------------------- */
+static avr_cycle_count_t periodic(struct avr_t *avr, avr_cycle_count_t when, void *param)
+{
+    harness_t *h = param;
+    step_wheels(h);
+    h->step++;
+    if (h->step % IO_POLL_STEPS == 0) {
+        pty_poll(h);
+        if (h->realtime) {
+            const double ahead_s = emu_seconds(h) - wall_seconds(h);
+            if (ahead_s > 200e-6) {
+                const struct timespec ts = {0, (long)(ahead_s * 1e9)};
+                nanosleep(&ts, NULL);
+            }
+        }
+    }
+    const uint64_t now_us = (uint64_t)(emu_seconds(h) * 1e6);
+    if (now_us >= h->next_status_us) {
+        h->next_status_us += STATUS_PERIOD_US;
+        emit_status(h, 0);
+    }
+    return when + avr_usec_to_cycles(avr, MODEL_STEP_US);
+}
+
+static void no_sleep(avr_t *avr, avr_cycle_count_t how_long)
+{
+    (void)avr;
+    (void)how_long;   /* pacing is done against the wall clock in periodic() */
+}
+
+static void usage(void)
+{
+    fprintf(stderr, "usage: formation_fw_sim FIRMWARE.elf [--status FILE] [--link PATH] "
+                    "[--duration-s S] [--no-realtime] [--freeze-wheels]\n");
+}
+
+int main(int argc, char **argv)
+{
+    const char *elf = NULL, *status_path = NULL, *link_path = NULL;
+    double duration_s = 0.0;
+    static harness_t h;
+    h.realtime = 1;
+    for (int i = 1; i < argc; i++) {
+        if (!strcmp(argv[i], "--status") && i + 1 < argc) {
+            status_path = argv[++i];
+        } else if (!strcmp(argv[i], "--link") && i + 1 < argc) {
+            link_path = argv[++i];
+        } else if (!strcmp(argv[i], "--duration-s") && i + 1 < argc) {
+            char *end = NULL;
+            duration_s = strtod(argv[++i], &end);
+            if (!end || *end || !(duration_s > 0.0)) {
+                fprintf(stderr, "formation_fw_sim: --duration-s: expected a positive number\n");
+                return 2;
+            }
+        } else if (!strcmp(argv[i], "--no-realtime")) {
+            h.realtime = 0;
+        } else if (!strcmp(argv[i], "--freeze-wheels")) {
+            h.freeze_wheels = 1;
+        } else if (argv[i][0] != '-' && !elf) {
+            elf = argv[i];
+        } else {
+            usage();
+            return 2;
+        }
+    }
+    if (!elf) {
+        usage();
+        return 2;
+    }
+    elf_firmware_t fw;
+    memset(&fw, 0, sizeof fw);
+    if (elf_read_firmware(elf, &fw) != 0) {
+        fprintf(stderr, "formation_fw_sim: %s: cannot read ELF firmware\n", elf);
+        return 2;
+    }
+    if (!fw.mmcu[0]) {
+        strcpy(fw.mmcu, "atmega328p");
+    }
+    if (!fw.frequency) {
+        fw.frequency = F_CPU;
+    }
+    avr_t *avr = avr_make_mcu_by_name(fw.mmcu);
+    if (!avr) {
+        fprintf(stderr, "formation_fw_sim: %s: unknown MCU %s\n", elf, fw.mmcu);
+        return 2;
+    }
+    avr_init(avr);
+    avr_load_firmware(avr, &fw);
+    avr->sleep = no_sleep;
+    avr->log = 0;
+    h.avr = avr;
+
+    if (status_path) {
+        h.status = fopen(status_path, "w");
+        if (!h.status) {
+            fprintf(stderr, "formation_fw_sim: --status %s: %s\n", status_path, strerror(errno));
+            return 2;
+        }
+    }
+    char slave_name[128];
+    if (openpty(&h.master_fd, &h.slave_fd, slave_name, NULL, NULL) < 0) {
+        fprintf(stderr, "formation_fw_sim: openpty: %s\n", strerror(errno));
+        return 1;
+    }
+    struct termios tio;
+    tcgetattr(h.slave_fd, &tio);
+    cfmakeraw(&tio);
+    tcsetattr(h.slave_fd, TCSANOW, &tio);
+    fcntl(h.master_fd, F_SETFL, fcntl(h.master_fd, F_GETFL) | O_NONBLOCK);
+    if (link_path) {
+        unlink(link_path);
+        if (symlink(slave_name, link_path) != 0) {
+            fprintf(stderr, "formation_fw_sim: --link %s: %s\n", link_path, strerror(errno));
+            return 2;
+        }
+    }
+
+    /* UART 0 */
+    h.uart_xon = 1;
+    h.uart_input = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUTPUT),
+                            uart_out_hook, &h);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XON),
+                            uart_xon_hook, &h);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XOFF),
+                            uart_xoff_hook, &h);
+    /* interrupts and loop marker */
+    avr_irq_register_notify(avr_get_interrupt_irq(avr, AVR_INT_ANY) + AVR_INT_IRQ_RUNNING,
+                            isr_running_hook, &h);
+    avr_register_io_write(avr, REG_GPIOR0, gpior0_write, &h);
+    /* encoders */
+    h.wheel[0].pin_a = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), PIN_ENC_LEFT_A);
+    h.wheel[0].pin_b = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), PIN_ENC_LEFT_B);
+    h.wheel[1].pin_a = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), PIN_ENC_RIGHT_A);
+    h.wheel[1].pin_b = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), PIN_ENC_RIGHT_B);
+    for (int i = 0; i < 2; i++) {
+        avr_raise_irq(h.wheel[i].pin_a, 0);
+        avr_raise_irq(h.wheel[i].pin_b, 0);
+    }
+    /* plant: the firmware's motor constants; wheel + reflected half robot (2.5 kg, r = 35 mm) */
+    h.motor = (motor_model_t){MOTOR_SUPPLY_V, MOTOR_TORQUE_CONSTANT_NM_PER_A, MOTOR_RESISTANCE_OHM,
+                              MOTOR_GEAR_RATIO, MOTOR_GEAR_EFFICIENCY};
+    h.inertia_kgm2 = 1.6e-3;
+    h.viscous_nms = 2e-3;
+
+    signal(SIGTERM, on_signal);
+    signal(SIGINT, on_signal);
+    signal(SIGPIPE, SIG_IGN);
+    printf("PTY %s\n", slave_name);
+    fflush(stdout);
+
+    clock_gettime(CLOCK_MONOTONIC, &h.wall_start);
+    avr_cycle_timer_register_usec(avr, MODEL_STEP_US, periodic, &h);
+    const avr_cycle_count_t end_cycle =
+        duration_s > 0.0 ? (avr_cycle_count_t)(duration_s * (double)avr->frequency) : 0;
+    int state = cpu_Running;
+    while (!g_stop && state != cpu_Done && state != cpu_Crashed) {
+        state = avr_run(avr);
+        if (end_cycle && avr->cycle >= end_cycle) {
+            break;
+        }
+    }
+    emit_status(&h, 1);
+    if (state == cpu_Crashed) {
+        fprintf(stderr, "formation_fw_sim: firmware crashed at pc=0x%04x\n", avr->pc);
+    }
+    if (link_path) {
+        unlink(link_path);
+    }
+    if (h.status) {
+        fclose(h.status);
+    }
+    close(h.master_fd);
+    close(h.slave_fd);
+    avr_terminate(avr);
+    return state == cpu_Crashed ? 1 : 0;
+}

@@ -1,0 +1,256 @@
+/* board.c - motor-board behaviour; see board.h and docs/serial-protocol.md section 4. */
+#include "board.h"
+
+#include <string.h>
+
+static void send_msg(board_t *b, proto_msg_t *m)
+{
+    uint8_t wire[PROTO_MAX_WIRE_BYTES];
+    m->version = PROTO_VERSION;
+    m->seq = b->tx_seq;
+    const uint16_t n = proto_encode(m, false, wire, sizeof wire);
+    if (n == 0 || !b->send(wire, n, b->send_ctx)) {
+        b->tx_dropped++;
+        return;
+    }
+    b->tx_seq++;   /* one per frame actually sent, so the host sees no false gap */
+}
+
+static int16_t clamp_torque(int16_t v, uint16_t limit, bool *clamped)
+{
+    const int32_t lim = limit;
+    if (v > lim) {
+        *clamped = true;
+        return (int16_t)lim;
+    }
+    if (v < -lim) {
+        *clamped = true;
+        return (int16_t)-lim;
+    }
+    return v;
+}
+
+static void update_outputs(board_t *b)
+{
+    const bool stopped = (b->flags & (PROTO_FLAG_WATCHDOG | PROTO_FLAG_ESTOP)) != 0;
+    for (int i = 0; i < 2; i++) {
+        bool ignored = false;
+        b->applied_e4nm[i] =
+            stopped ? 0 : clamp_torque(b->command_e4nm[i], b->torque_limit_e4nm, &ignored);
+        if (b->applied_e4nm[i] == 0) {
+            b->pwm_counts[i] = 0;   /* zero torque = coast (H-bridge off), never a duty */
+            continue;
+        }
+        const float torque_nm = (float)b->applied_e4nm[i] * 1e-4f;
+        const float speed_radps = (float)b->vel_mradps[i] * 1e-3f;
+        const float duty = motor_duty_from_torque(&b->cfg.motor, torque_nm, speed_radps);
+        b->pwm_counts[i] = motor_duty_to_counts(duty, b->cfg.pwm_top);
+    }
+}
+
+void board_init(board_t *b, const board_config_t *cfg, uint32_t now_ms, board_send_fn send,
+                void *send_ctx)
+{
+    memset(b, 0, sizeof *b);
+    b->cfg = *cfg;
+    b->send = send;
+    b->send_ctx = send_ctx;
+    proto_decoder_init(&b->decoder, PROTO_VERSION);
+    b->torque_limit_e4nm = cfg->hard_limit_e4nm;
+    b->watchdog_ms = cfg->default_watchdog_ms;
+    b->telemetry_period_ms = cfg->default_telemetry_period_ms;
+    b->flags = PROTO_FLAG_WATCHDOG | PROTO_FLAG_RESET;
+    b->boot_ms = now_ms;
+    b->last_cmd_ms = now_ms;
+    b->next_telemetry_ms = now_ms + b->telemetry_period_ms;
+    b->next_status_ms = now_ms + BOARD_STATUS_PERIOD_MS;
+    update_outputs(b);
+}
+
+static uint16_t clamp_u16(uint16_t v, uint16_t lo, uint16_t hi)
+{
+    return v < lo ? lo : (v > hi ? hi : v);
+}
+
+static void on_message(board_t *b, const proto_msg_t *m, uint32_t now_ms)
+{
+    if (b->have_rx_seq) {
+        b->rx_gaps = (uint16_t)(b->rx_gaps + (uint8_t)(m->seq - b->last_rx_seq - 1u));
+    }
+    b->have_rx_seq = true;
+    b->last_rx_seq = m->seq;
+    proto_msg_t r;
+    memset(&r, 0, sizeof r);
+    switch (m->type) {
+    case PROTO_HELLO:
+        b->flags &= (uint8_t)~PROTO_FLAG_RESET;
+        r.type = PROTO_HELLO_ACK;
+        r.u.hello_ack.protocol_version = PROTO_VERSION;
+        r.u.hello_ack.firmware_major = BOARD_FIRMWARE_MAJOR;
+        r.u.hello_ack.firmware_minor = BOARD_FIRMWARE_MINOR;
+        r.u.hello_ack.ticks_per_rev = b->cfg.ticks_per_rev;
+        r.u.hello_ack.torque_limit_e4nm = b->torque_limit_e4nm;
+        r.u.hello_ack.hard_torque_limit_e4nm = b->cfg.hard_limit_e4nm;
+        r.u.hello_ack.watchdog_ms = b->watchdog_ms;
+        r.u.hello_ack.telemetry_period_ms = b->telemetry_period_ms;
+        send_msg(b, &r);
+        break;
+    case PROTO_TORQUE_CMD: {
+        b->cmd_seq = m->seq;
+        b->last_cmd_ms = now_ms;
+        b->flags &= (uint8_t)~PROTO_FLAG_WATCHDOG;
+        bool clamped = false;
+        b->command_e4nm[0] = clamp_torque(m->u.torque_cmd.left_e4nm, b->torque_limit_e4nm, &clamped);
+        b->command_e4nm[1] = clamp_torque(m->u.torque_cmd.right_e4nm, b->torque_limit_e4nm, &clamped);
+        if (b->flags & PROTO_FLAG_ESTOP) {
+            b->command_e4nm[0] = b->command_e4nm[1] = 0;
+        }
+        if (clamped) {
+            b->flags |= PROTO_FLAG_CLAMPED;
+        } else {
+            b->flags &= (uint8_t)~PROTO_FLAG_CLAMPED;
+        }
+        update_outputs(b);
+        break;
+    }
+    case PROTO_HEARTBEAT:
+        r.type = PROTO_HEARTBEAT;
+        r.u.heartbeat = m->u.heartbeat;
+        send_msg(b, &r);
+        break;
+    case PROTO_ESTOP:
+        if (m->u.estop.engage) {
+            b->flags |= PROTO_FLAG_ESTOP;
+        } else {
+            b->flags &= (uint8_t)~PROTO_FLAG_ESTOP;
+        }
+        b->command_e4nm[0] = b->command_e4nm[1] = 0;   /* release: 0 until the next command */
+        update_outputs(b);
+        break;
+    case PROTO_CONFIG:
+        b->torque_limit_e4nm = clamp_u16(m->u.config.torque_limit_e4nm, 0, b->cfg.hard_limit_e4nm);
+        b->watchdog_ms = clamp_u16(m->u.config.watchdog_ms, BOARD_WATCHDOG_MIN_MS, BOARD_WATCHDOG_MAX_MS);
+        b->telemetry_period_ms =
+            clamp_u16(m->u.config.telemetry_period_ms, BOARD_TELEMETRY_MIN_MS, BOARD_TELEMETRY_MAX_MS);
+        b->next_telemetry_ms = now_ms + b->telemetry_period_ms;
+        update_outputs(b);   /* re-clamps the applied torque to a lowered limit */
+        r.type = PROTO_CONFIG_ACK;
+        r.u.config.torque_limit_e4nm = b->torque_limit_e4nm;
+        r.u.config.watchdog_ms = b->watchdog_ms;
+        r.u.config.telemetry_period_ms = b->telemetry_period_ms;
+        send_msg(b, &r);
+        break;
+    default:
+        /* board -> host types arriving at the board: valid frames, nothing to do */
+        break;
+    }
+}
+
+void board_receive(board_t *b, uint8_t byte, uint32_t now_ms)
+{
+    proto_msg_t m;
+    switch (proto_decoder_feed(&b->decoder, byte, &m)) {
+    case PROTO_FEED_FRAME:
+        on_message(b, &m, now_ms);
+        break;
+    case PROTO_FEED_REJECTED:
+        b->flags |= PROTO_FLAG_RX_ERROR;
+        switch (b->decoder.last_reject) {
+        case PROTO_REJECT_CRC:
+            b->crc_errors++;
+            break;
+        case PROTO_REJECT_OVERSIZE:
+        case PROTO_REJECT_COBS:
+        case PROTO_REJECT_LENGTH:
+            b->frame_errors++;
+            break;
+        default:
+            b->type_errors++;
+            break;
+        }
+        break;
+    default:
+        break;
+    }
+}
+
+static int16_t velocity_mradps(int32_t dticks, uint32_t dt_us, uint16_t ticks_per_rev)
+{
+    if (dt_us == 0) {
+        return 0;
+    }
+    /* 2 pi rad per revolution: vel = dticks * 2 pi / (ticks_per_rev * dt) in mrad/s */
+    const float v = (float)dticks * 6283185.307f / ((float)ticks_per_rev * (float)dt_us) * 1000.0f;
+    if (v >= 32767.0f) {
+        return 32767;
+    }
+    if (v <= -32768.0f) {
+        return -32768;
+    }
+    return (int16_t)(v >= 0.0f ? v + 0.5f : v - 0.5f);
+}
+
+void board_control_step(board_t *b, int32_t left_ticks, int32_t right_ticks, uint32_t dt_us)
+{
+    b->vel_mradps[0] = velocity_mradps(left_ticks - b->ticks[0], dt_us, b->cfg.ticks_per_rev);
+    b->vel_mradps[1] = velocity_mradps(right_ticks - b->ticks[1], dt_us, b->cfg.ticks_per_rev);
+    b->ticks[0] = left_ticks;
+    b->ticks[1] = right_ticks;
+    update_outputs(b);
+}
+
+static bool due(uint32_t now_ms, uint32_t when_ms)
+{
+    return (int32_t)(now_ms - when_ms) >= 0;
+}
+
+void board_poll(board_t *b, uint32_t now_ms)
+{
+    if (!(b->flags & PROTO_FLAG_WATCHDOG) && now_ms - b->last_cmd_ms >= b->watchdog_ms) {
+        b->flags |= PROTO_FLAG_WATCHDOG;
+        b->watchdog_trips++;
+        update_outputs(b);
+    }
+    proto_msg_t m;
+    if (due(now_ms, b->next_telemetry_ms)) {
+        b->next_telemetry_ms += b->telemetry_period_ms;
+        if (due(now_ms, b->next_telemetry_ms)) {   /* fell behind: do not burst */
+            b->next_telemetry_ms = now_ms + b->telemetry_period_ms;
+        }
+        memset(&m, 0, sizeof m);
+        m.type = PROTO_TELEMETRY;
+        m.u.telemetry.left_ticks = (int16_t)(uint16_t)b->ticks[0];
+        m.u.telemetry.right_ticks = (int16_t)(uint16_t)b->ticks[1];
+        m.u.telemetry.left_vel_mradps = b->vel_mradps[0];
+        m.u.telemetry.right_vel_mradps = b->vel_mradps[1];
+        m.u.telemetry.cmd_seq = b->cmd_seq;
+        m.u.telemetry.flags = b->flags;
+        send_msg(b, &m);
+        b->flags &= (uint8_t)~PROTO_FLAG_RX_ERROR;
+    }
+    if (due(now_ms, b->next_status_ms)) {
+        b->next_status_ms += BOARD_STATUS_PERIOD_MS;
+        if (due(now_ms, b->next_status_ms)) {
+            b->next_status_ms = now_ms + BOARD_STATUS_PERIOD_MS;
+        }
+        memset(&m, 0, sizeof m);
+        m.type = PROTO_STATUS;
+        m.u.status.uptime_ms = now_ms - b->boot_ms;
+        m.u.status.left_applied_e4nm = b->applied_e4nm[0];
+        m.u.status.right_applied_e4nm = b->applied_e4nm[1];
+        m.u.status.crc_errors = b->crc_errors;
+        m.u.status.frame_errors = b->frame_errors;
+        m.u.status.type_errors = b->type_errors;
+        m.u.status.rx_gaps = b->rx_gaps;
+        m.u.status.watchdog_trips = b->watchdog_trips;
+        m.u.status.flags = b->flags;
+        m.u.status.cmd_seq = b->cmd_seq;
+        send_msg(b, &m);
+    }
+}
+
+void board_pwm(const board_t *b, int16_t *left_counts, int16_t *right_counts)
+{
+    *left_counts = b->pwm_counts[0];
+    *right_counts = b->pwm_counts[1];
+}

@@ -1,0 +1,68 @@
+/*
+ * main.c - motor-board firmware entry point (ATmega328P): glues board.c to the peripherals.
+ *
+ * Main loop (woken by every interrupt, at least once per millisecond by the Timer2 tick):
+ *   1. every received UART byte -> board_receive (decoder, message rules, replies)
+ *   2. every 10 ms (control tick): encoder snapshot -> board_control_step (speed -> duty),
+ *      hardware watchdog kick
+ *   3. board_poll: command watchdog, TELEMETRY / STATUS when due
+ *   4. PWM outputs from the board state; sleep (idle mode) until the next interrupt
+ * The hardware watchdog (60 ms) resets the MCU when the loop stops running the control step;
+ * after any reset the board comes up with torque 0 and the RESET flag (host handshakes again).
+ */
+#include <avr/interrupt.h>
+
+#include "board.h"
+#include "config.h"
+#include "hal.h"
+
+static bool uart_send(const uint8_t *frame, uint16_t len, void *ctx)
+{
+    (void)ctx;
+    return hal_uart_write(frame, len);
+}
+
+static void apply_pwm(const board_t *b)
+{
+    int16_t left, right;
+    board_pwm(b, &left, &right);
+    hal_pwm_set(left, right);
+}
+
+int main(void)
+{
+    static board_t board;
+    const board_config_t cfg = {
+        .motor = {MOTOR_SUPPLY_V, MOTOR_TORQUE_CONSTANT_NM_PER_A, MOTOR_RESISTANCE_OHM,
+                  MOTOR_GEAR_RATIO, MOTOR_GEAR_EFFICIENCY},
+        .pwm_top = PWM_TOP,
+        .ticks_per_rev = ENCODER_TICKS_PER_REV,
+        .hard_limit_e4nm = (uint16_t)(DEFAULT_TORQUE_LIMIT_NM * 1e4f + 0.5f),
+        .default_watchdog_ms = COMMAND_WATCHDOG_MS,
+        .default_telemetry_period_ms = CONTROL_PERIOD_MS,
+    };
+    hal_init();
+    board_init(&board, &cfg, 0, uart_send, 0);
+    apply_pwm(&board);
+    sei();
+    uint32_t last_control_ms = 0;
+    for (;;) {
+        hal_loop_busy();
+        const uint32_t now_ms = hal_millis();
+        uint8_t byte;
+        while (hal_uart_read(&byte)) {
+            board_receive(&board, byte, now_ms);
+        }
+        if (hal_take_control_tick()) {
+            int32_t left, right;
+            hal_encoders_read(&left, &right);
+            board_control_step(&board, left, right, (now_ms - last_control_ms) * 1000UL);
+            last_control_ms = now_ms;
+            hal_watchdog_kick();
+        }
+        board_poll(&board, now_ms);
+        apply_pwm(&board);
+        hal_led((board.flags & (PROTO_FLAG_WATCHDOG | PROTO_FLAG_ESTOP)) == 0);
+        hal_idle();
+    }
+}
