@@ -3,6 +3,7 @@
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 "$here/scripts/setup.sh"
+"$here/scripts/install_firmware_deps.sh" || { [ "$?" -eq 3 ] && export AMENT_FORMATION_NO_FIRMWARE_TOOLCHAIN=1; }  # exit 3: apt unusable -> firmware tests skip
 logdir="$(mktemp -d -t ament_formation_test.XXXXXX)"
 # shellcheck source=ros_env.sh
 source "$here/scripts/ros_env.sh" "$logdir/ros_log"
