@@ -354,6 +354,6 @@ def save_camera_yaml(setup: CameraSetup, path: str | Path) -> Path:
     """Write ``setup`` to ``path`` (parent folders created); returns the path."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    text = yaml.safe_dump(camera_setup_to_dict(setup), sort_keys=False, default_flow_style=None)
+    text = yaml.safe_dump(camera_setup_to_dict(setup), sort_keys=False, default_flow_style=None, width=100)
     path.write_text(_HEADER + text)
     return path
