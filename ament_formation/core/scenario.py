@@ -19,6 +19,7 @@ as ``robots[1].slot_m`` or ``obstacles[0].semi_axes_m``) and the problem. Checks
 from __future__ import annotations
 
 import math
+import re
 from collections import deque
 from dataclasses import dataclass, field, fields
 from functools import cached_property
@@ -33,6 +34,7 @@ from ament_formation.core.params import AvoidanceParams, ControlGains, RobotPara
 from ament_formation.core.paths import Path, path_from_config
 
 _OVERLAP_STEP_S = 0.25
+_NAME_RE = re.compile(r"[A-Za-z0-9_.\-]+")
 _BOUNDARY_SAMPLES = 256
 
 
@@ -430,6 +432,9 @@ def _parse_obstacles(items) -> list[ObstacleSpec]:
         name = item["name"]
         if not isinstance(name, str) or not name.strip():
             raise ConfigError(f"must be a non-empty string (got {name!r})", f"{where}.name")
+        if not _NAME_RE.fullmatch(name):
+            raise ConfigError(f"must use only letters, digits, '_', '-' and '.' (got {name!r})",
+                              f"{where}.name")
         if name in seen:
             raise ConfigError(f"duplicate obstacle name {name!r} (also obstacles[{seen[name]}])",
                               f"{where}.name")
@@ -579,3 +584,69 @@ def _check_limit_cycles(obstacles, avoidance: AvoidanceParams, duration_s: float
                     f"the limit cycles (L = {avoidance.limit_cycle_scale} P) of obstacles "
                     f"{obstacles[a].name!r} and {obstacles[b].name!r} overlap{kind}; move them apart or "
                     "merge them into one enclosing ellipse (S13 #3)", f"obstacles[{b}]")
+
+
+# ------------------------------------------------------------------------------------------------
+# Writing a scenario back (run directories keep the exact scenario they ran)
+# ------------------------------------------------------------------------------------------------
+
+def _path_to_mapping(path) -> dict:
+    from ament_formation.core.paths import LinePath, SinusoidPath, WaypointPath
+
+    if isinstance(path, SinusoidPath):
+        return {"type": "sinusoid", "start_m": list(path.start_m), "amplitude_m": path.amplitude_m,
+                "wavenumber_radpm": path.wavenumber_radpm, "speed_mps": path.speed_mps,
+                "heading_rad": path.heading_rad}
+    if isinstance(path, LinePath):
+        return {"type": "line", "start_m": list(path.start_m), "heading_rad": path.heading_rad,
+                "speed_mps": path.speed_mps}
+    if isinstance(path, WaypointPath):
+        return {"type": "waypoints", "points_m": [list(p) for p in path.points_m],
+                "speed_mps": path.speed_mps, "accel_mps2": path.accel_mps2}
+    raise TypeError(f"unknown path {path!r}")
+
+
+def scenario_to_mapping(scenario: Scenario) -> dict:
+    """The scenario as a mapping that :func:`parse_scenario` reads back to an equal Scenario.
+
+    Every robot lists all its parameters explicitly (no ``robot:`` defaults block)."""
+    def floats(values):
+        return [float(v) for v in values]
+
+    robots = []
+    for r in scenario.robots:
+        item = {"id": r.id, "leader": r.leader, "slot_m": floats(r.slot_m),
+                "initial_pose": floats(r.initial_pose), "marker_id": r.marker_id}
+        if r.path is not None:
+            item["path"] = _path_to_mapping(r.path)
+        for f in fields(RobotParams):
+            value = getattr(r.params, f.name)
+            item[f.name] = None if value is None else float(value)
+        robots.append(item)
+    obstacles = []
+    for o in scenario.obstacles:
+        item = {"name": o.name, "center_m": floats(o.center_m), "semi_axes_m": floats(o.semi_axes_m),
+                "orientation_rad": float(o.orientation_rad), "velocity_mps": floats(o.velocity_mps),
+                "angular_velocity_radps": float(o.angular_velocity_radps)}
+        if o.oscillation_period_s > 0:
+            item["oscillation"] = {"amplitude_m": floats(o.oscillation_amplitude_m),
+                                   "period_s": float(o.oscillation_period_s)}
+        obstacles.append(item)
+    return {
+        "name": scenario.name,
+        "duration_s": float(scenario.duration_s),
+        "disturbance": {"accel_bound": floats(scenario.disturbance.accel_bound),
+                        "seed": int(scenario.disturbance.seed)},
+        "robots": robots,
+        "graph": {"edges": [[int(u), int(v)] for u, v in scenario.edges]},
+        "obstacles": obstacles,
+        "avoidance": {f.name: float(getattr(scenario.avoidance, f.name)) for f in fields(AvoidanceParams)},
+        "control": {f.name: float(getattr(scenario.control, f.name)) for f in fields(ControlGains)},
+        "camera": {"fps": float(scenario.camera.fps), "width_px": int(scenario.camera.width_px),
+                   "height_px": int(scenario.camera.height_px)},
+    }
+
+
+def dump_scenario(scenario: Scenario) -> str:
+    """YAML text of :func:`scenario_to_mapping`."""
+    return yaml.safe_dump(scenario_to_mapping(scenario), sort_keys=False, default_flow_style=None)
