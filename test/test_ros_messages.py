@@ -61,7 +61,7 @@ def test_accel_and_wheels_round_trip():
 def test_mode_and_graph_json():
     d = m.mode_from_msg(m.mode_msg("obstacle", "O1", "ccw", since_s=3.0))
     assert d == {"mode": "obstacle", "target": "O1", "direction": "ccw", "since_s": 3.0}
-    g = m.GraphMessage(7, {0: None, 1: 0, 2: 0}, {1: (0.0, 1.2), 2: (-0.5, 0.0)}, (1,), 4.5)
+    g = m.GraphMessage(7, {0: None, 1: 0, 2: 0}, {1: (0.0, 1.2), 2: (-0.5, 0.0)}, (1,), 4.5, 2.0)
     back = m.graph_from_msg(m.graph_msg(g))
     assert back == g
     with pytest.raises(ValueError, match="graph"):

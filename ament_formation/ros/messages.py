@@ -199,13 +199,16 @@ def mode_from_msg(msg: String) -> dict:
 
 @dataclass(frozen=True)
 class GraphMessage:
-    """Decoded /formation/graph: revision, parent of each robot (None = root), offsets delta [m]."""
+    """Decoded /formation/graph: revision, parent of each robot (None = root), offsets delta [m],
+    the robots avoiding, when it was made [s, ROS time] and the mission start ``start_s`` [s, ROS
+    time] (None until the coordinator has started the mission; scenario time t = now - start_s)."""
 
     revision: int
     parents: dict[int, int | None]
     offsets_m: dict[int, tuple[float, float]] = field(default_factory=dict)
     avoiding: tuple[int, ...] = ()
     stamp_s: float = 0.0
+    start_s: float | None = None
 
 
 def graph_msg(graph: GraphMessage) -> String:
@@ -216,6 +219,7 @@ def graph_msg(graph: GraphMessage) -> String:
         "offsets_m": {str(k): [float(v[0]), float(v[1])] for k, v in sorted(graph.offsets_m.items())},
         "avoiding": sorted(int(a) for a in graph.avoiding),
         "stamp_s": float(graph.stamp_s),
+        "start_s": None if graph.start_s is None else float(graph.start_s),
     }, sort_keys=True))
 
 
@@ -228,9 +232,10 @@ def graph_from_msg(msg: String) -> GraphMessage:
         offsets = {int(k): (float(v[0]), float(v[1])) for k, v in data.get("offsets_m", {}).items()}
         avoiding = tuple(int(a) for a in data.get("avoiding", ()))
         stamp_s = float(data.get("stamp_s", 0.0))
+        start_s = None if data.get("start_s") is None else float(data["start_s"])
     except (json.JSONDecodeError, KeyError, TypeError, ValueError, IndexError) as err:
         raise ValueError(f"graph: malformed ({type(err).__name__}: {err})") from None
-    return GraphMessage(revision, parents, offsets, avoiding, stamp_s)
+    return GraphMessage(revision, parents, offsets, avoiding, stamp_s, start_s)
 
 
 # --------------------------------------------------------------------------- image

@@ -1,0 +1,248 @@
+"""formation_world: the simulated hardware twin (DESIGN §1, §6).
+
+The plant of every robot (1 kHz RK4, core/twin.py) with the scenario's disturbance and moving
+obstacles; one emulated motor board per robot on its own pty (hw/pty_board.py: the bridge opens
+``<pty_dir>/robot_<id>``); the synthetic overhead camera (core/synthetic_camera.py) rendering the
+robots' markers; ground truth for evaluation. The mission starts when ``/formation/graph`` carries a
+``start_s`` (the coordinator starts it once every controller is up); until then the robots stand.
+
+Topics (QoS from ros/qos.py)
+  pub  /camera/image_raw          sensor_msgs/Image mono8, stamp = capture time     QOS_IMAGE
+  pub  /world/truth/robot_<id>    nav_msgs/Odometry, every tick                    QOS_CONTROL
+  pub  /clock                     rosgraph_msgs/Clock (only when speed_factor != 1)  QOS_CLOCK
+  sub  /formation/graph           std_msgs/String JSON (start_s)                   QOS_GRAPH
+
+Parameters
+  scenario         str    scenario YAML (required)
+  camera_config    str    camera.yaml (config/ name or path)                  default camera.yaml
+  pty_dir          str    folder for the robot_<id> pty links (default: a new temp folder)
+  speed_factor     float  sim seconds per wall second; != 1 publishes /clock  default 1.0
+  tick_s           float  plant/board/truth period [s sim]                     default 0.01
+  physics_dt_s     float  RK4 step [s]                                         default 0.001
+  camera_enabled   bool   render and publish frames                            default true
+  camera_noise     float  sensor noise [grey levels]                           default 2.0
+  exit_at_end      bool   shut down when scenario time passes duration_s      default true
+"""
+from __future__ import annotations
+
+import math
+import os
+import shutil
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import rclpy
+from rclpy.node import Node
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import Image
+from std_msgs.msg import String
+
+from ament_formation.core.camera_model import load_camera_yaml
+from ament_formation.core.errors import ConfigError
+from ament_formation.core.motor_board import BoardConfig, MotorBoard
+from ament_formation.core.paths_config import config_file
+from ament_formation.core.scenario import load_scenario
+from ament_formation.core.synthetic_camera import Obstacles, RenderOptions, SyntheticCamera
+from ament_formation.core.twin import PlantTwin
+from ament_formation.hw.pty_board import PtyBoard
+from ament_formation.ros import messages as msgs
+from ament_formation.ros.params import declare_dataclass
+from ament_formation.ros.qos import QOS_CLOCK, QOS_CONTROL, QOS_GRAPH, QOS_IMAGE
+
+SIM_CLOCK_START_S = 1.0   # /clock starts here (ROS time 0 means "no time yet")
+
+
+@dataclass(frozen=True)
+class WorldParams:
+    scenario: str = ""
+    camera_config: str = "camera.yaml"
+    pty_dir: str = ""
+    speed_factor: float = 1.0
+    tick_s: float = 0.01
+    physics_dt_s: float = 0.001
+    camera_enabled: bool = True
+    camera_noise: float = 2.0
+    exit_at_end: bool = True
+
+    def __post_init__(self) -> None:
+        if not self.scenario:
+            raise ConfigError("is required (path of a scenario YAML)", "scenario")
+        if not (math.isfinite(self.speed_factor) and 0.05 <= self.speed_factor <= 50.0):
+            raise ConfigError(f"must be in [0.05, 50] (got {self.speed_factor!r})", "speed_factor")
+        if not (0.001 <= self.tick_s <= 0.05):
+            raise ConfigError(f"must be in [0.001, 0.05] s (got {self.tick_s!r})", "tick_s")
+        if not (0 < self.physics_dt_s <= self.tick_s):
+            raise ConfigError(f"must be in (0, tick_s] s (got {self.physics_dt_s!r})", "physics_dt_s")
+
+
+def _camera_path(name: str) -> Path:
+    p = Path(name)
+    return p if p.is_file() else config_file(name)
+
+
+class WorldNode(Node):
+    """See the module docstring."""
+
+    def __init__(self, *, context=None, params: WorldParams | None = None, **node_kw):
+        super().__init__("formation_world", context=context, **node_kw)
+        self.prm = params if params is not None else declare_dataclass(self, WorldParams)
+        self.scenario = load_scenario(self.prm.scenario)
+        self.twin = PlantTwin(self.scenario, dt_s=self.prm.physics_dt_s)
+        self.ids = self.twin.ids
+        self.sim_clock = self.prm.speed_factor != 1.0
+        self._mono0 = time.monotonic()
+        self.plant_time_s = self.now_s()       # ROS time [s] of the twin's state
+        self.start_s: float | None = None
+        self.done = False
+        self.overruns = 0
+        self.ticks = 0
+
+        # boards on ptys
+        self._own_pty_dir = not self.prm.pty_dir
+        self.pty_dir = Path(self.prm.pty_dir or tempfile.mkdtemp(prefix="ament_formation_pty_"))
+        self.pty_dir.mkdir(parents=True, exist_ok=True)
+        self.boards: list[PtyBoard] = []
+        for spec in self.scenario.robots:
+            cfg = BoardConfig(hard_torque_limit_nm=spec.params.torque_limit_nm)
+            board = PtyBoard(MotorBoard(cfg, now_s=self.plant_time_s),
+                             link_path=self.pty_dir / f"robot_{spec.id}", clock=self.now_s)
+            board.open()
+            board.start(step_period_s=0.005)
+            self.boards.append(board)
+
+        # camera
+        self.camera = None
+        if self.prm.camera_enabled:
+            setup = load_camera_yaml(_camera_path(self.prm.camera_config))
+            self.camera = SyntheticCamera(setup.camera, options=RenderOptions(noise_std=self.prm.camera_noise),
+                                          floor=setup.floor)
+            self.frame_period_s = 1.0 / self.scenario.camera.fps
+            self.next_frame_s = self.plant_time_s
+            self.frames = 0
+        self.marker_ids = np.array([r.marker_id for r in self.scenario.robots])
+
+        self.pub_image = self.create_publisher(Image, "/camera/image_raw", QOS_IMAGE)
+        self.pub_truth = [self.create_publisher(msgs.Odometry, f"/world/truth/robot_{i}", QOS_CONTROL)
+                          for i in self.ids]
+        self.pub_clock = self.create_publisher(Clock, "/clock", QOS_CLOCK) if self.sim_clock else None
+        self.create_subscription(String, "/formation/graph", self._on_graph, QOS_GRAPH)
+        self._publish_clock()
+        self.timer = self.create_timer(self.prm.tick_s / self.prm.speed_factor, self._tick)
+        self.get_logger().info(
+            f"world: {len(self.ids)} robots, ptys in {self.pty_dir}, speed x{self.prm.speed_factor:g}")
+
+    # ------------------------------------------------------------------ time
+    def now_s(self) -> float:
+        """World time [s]: ROS time of the run (system clock, or the /clock we publish)."""
+        if self.sim_clock:
+            return SIM_CLOCK_START_S + self.prm.speed_factor * (time.monotonic() - self._mono0)
+        return time.time()
+
+    def scenario_time_s(self) -> float | None:
+        return None if self.start_s is None else self.plant_time_s - self.start_s
+
+    def _publish_clock(self) -> None:
+        if self.pub_clock is not None:
+            self.pub_clock.publish(Clock(clock=msgs.stamp_from_s(self.plant_time_s)))
+
+    # ------------------------------------------------------------------ callbacks
+    def _on_graph(self, msg: String) -> None:
+        try:
+            graph = msgs.graph_from_msg(msg)
+        except ValueError as err:
+            self.get_logger().warn(f"/formation/graph: {err}", throttle_duration_sec=5.0)
+            return
+        if graph.start_s is not None and self.start_s is None:
+            self.start_s = graph.start_s
+            self.get_logger().info(f"mission start at {graph.start_s:.3f} s")
+
+    def _tick(self) -> None:
+        """Advance the plant to the world clock in tick_s steps (at most 5 per call)."""
+        target = self.now_s()
+        n = 0
+        while self.plant_time_s + self.prm.tick_s <= target + 1e-9 and n < 5 and not self.done:
+            self._step_once()
+            n += 1
+        if target - self.plant_time_s > 5 * self.prm.tick_s:
+            self.overruns += 1
+            self.plant_time_s = target - self.prm.tick_s  # drop what we cannot catch up
+        if n:
+            self._publish_clock()
+
+    def _step_once(self) -> None:
+        tick = self.prm.tick_s
+        if (self.start_s is not None and not self.twin.started
+                and self.plant_time_s + 0.5 * self.prm.physics_dt_s >= self.start_s):
+            self.twin.start()
+        torque = np.array([b.board.applied_torque_nm for b in self.boards])
+        self.twin.advance(tick, torque)
+        self.plant_time_s += tick
+        self.ticks += 1
+        angles, rates = self.twin.wheel_angle_rad, self.twin.wheel_rate_radps
+        for k, b in enumerate(self.boards):
+            with b.lock:
+                b.board.set_wheel_state(angles[k], rates[k])
+        stamp = msgs.stamp_from_s(self.plant_time_s)
+        for k, rid in enumerate(self.ids):
+            self.pub_truth[k].publish(msgs.odometry(self.twin.state[k], stamp, f"robot_{rid}"))
+        if self.camera is not None and self.plant_time_s >= self.next_frame_s:
+            self._render(stamp)
+            self.next_frame_s += self.frame_period_s
+            if self.next_frame_s < self.plant_time_s:
+                self.next_frame_s = self.plant_time_s + self.frame_period_s
+        t = self.scenario_time_s()
+        if self.prm.exit_at_end and t is not None and t >= self.scenario.duration_s:
+            self.done = True
+            self.get_logger().info(f"scenario {self.scenario.name} finished at t = {t:.2f} s")
+
+    def _render(self, stamp) -> None:
+        obs = self.twin.obstacle_states()
+        frame = self.camera.render(self.twin.state[:, :3], self.marker_ids,
+                                   Obstacles(obs.center_m, obs.semi_axes_m, obs.phi_rad),
+                                   pose_rates=self.twin.pose_rates(), frame_index=self.frames)
+        self.frames += 1
+        self.pub_image.publish(msgs.image_mono8(frame, stamp))
+
+    # ------------------------------------------------------------------ shutdown
+    def close(self) -> None:
+        """Stop the boards, remove the ptys (and the pty folder if we made it)."""
+        for b in self.boards:
+            b.close()
+        self.boards = []
+        if self._own_pty_dir:
+            shutil.rmtree(self.pty_dir, ignore_errors=True)
+
+    def destroy_node(self):
+        self.close()
+        return super().destroy_node()
+
+
+def main(argv: list[str] | None = None) -> int:
+    rclpy.init(args=argv if argv is not None else sys.argv)
+    node = None
+    try:
+        node = WorldNode()
+        while rclpy.ok() and not node.done:
+            rclpy.spin_once(node, timeout_sec=0.1)
+        return 0
+    except ConfigError as err:
+        print(f"formation_world: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 0
+    except Exception as err:  # noqa: BLE001 - ExternalShutdownException on SIGTERM
+        if type(err).__name__ == "ExternalShutdownException":
+            return 0
+        raise
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    sys.exit(main())
