@@ -1,0 +1,198 @@
+"""formation_bridge: the serial bridge between a robot's controller and its motor board.
+
+Contract (namespace ``robot_<id>``; protocol: docs/serial-protocol.md)
+
+| topic | type | QoS | direction |
+|---|---|---|---|
+| wheel_torque | sensor_msgs/JointState (effort [left, right] N·m) | QOS_CONTROL | subscribed |
+| wheel_state | sensor_msgs/JointState (position rad, velocity rad/s, [left, right]) | QOS_CONTROL | published per TELEMETRY |
+| /diagnostics | diagnostic_msgs/DiagnosticArray | QOS_DIAGNOSTICS | published every diagnostics_period_s |
+
+Parameters (core.serial_link.LinkParams): port (path or pyserial URL, "/dev/ttyACM0"),
+baud_rate (115200), torque_limit_nm (0.15 N·m), watchdog_s (0.2 s, sent to the board),
+input_timeout_s (0.2 s: older wheel_torque -> zero torque), command_rate_hz (100 Hz),
+telemetry_period_s (0.01 s), ack_timeout_s (0.006 s), link_timeout_s (0.5 s), hello_retry_s (0.2 s),
+heartbeat_period_s (1 s), reconnect_initial_s (0.05 s) doubling to reconnect_max_s (0.5 s),
+poll_rate_hz (500 Hz), diagnostics_period_s (1 s).
+
+The port is read and written only non-blocking, from a timer: the executor never blocks. Safety
+(DESIGN §7): NaN/inf inputs are rejected and counted, torques clamped, stale input -> zero torque,
+a vanished port is reopened with backoff, zero torque is sent on shutdown.
+"""
+from __future__ import annotations
+
+import sys
+import time
+
+import rclpy
+import serial
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+
+from ament_formation.core import serial_link as sl
+from ament_formation.core.errors import ConfigError
+from ament_formation.ros import diagnostics as diag
+from ament_formation.ros.messages import wheel_state
+from ament_formation.ros.params import declare_dataclass
+from ament_formation.ros.qos import QOS_CONTROL, QOS_DIAGNOSTICS
+
+
+def open_port(url: str, baud_rate: int) -> serial.SerialBase:
+    """Open ``url`` non-blocking without touching DTR/RTS flow control (works on ptys)."""
+    port = serial.serial_for_url(url, baudrate=baud_rate, timeout=0, write_timeout=0, rtscts=False,
+                                 dsrdtr=False, xonxoff=False, do_not_open=True)
+    port.open()
+    return port
+
+
+class BridgeNode(Node):
+    """Thin shell around :class:`~ament_formation.core.serial_link.LinkHost` (the protocol logic)."""
+
+    def __init__(self, *, context=None, clock=time.monotonic, **kwargs) -> None:
+        super().__init__("formation_bridge", context=context, **kwargs)
+        self.params = declare_dataclass(self, sl.LinkParams)
+        self.link = sl.LinkHost(self.params)
+        self._clock = clock
+        self._port: serial.SerialBase | None = None
+        self._backoff = sl.Backoff(self.params.reconnect_initial_s, self.params.reconnect_max_s)
+        self._next_open_s = 0.0
+        self._last_error = ""
+        self._rx_frames_at_diag = (clock(), 0)
+        self.link_up_since_s: float | None = None
+        self._pub_state = self.create_publisher(JointState, "wheel_state", QOS_CONTROL)
+        self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", QOS_DIAGNOSTICS)
+        self.create_subscription(JointState, "wheel_torque", self._on_torque, QOS_CONTROL)
+        self.create_timer(1.0 / self.params.poll_rate_hz, self._poll)
+        self.create_timer(self.params.diagnostics_period_s, self._publish_diagnostics)
+
+    # -- callbacks -----------------------------------------------------------------------------
+    def _on_torque(self, msg: JointState) -> None:
+        now = self._clock()
+        efforts = list(msg.effort) if len(msg.effort) == 2 else None
+        if not self.link.set_input(efforts, now):
+            self.get_logger().warn("wheel_torque rejected (need 2 finite efforts)", throttle_duration_sec=1.0)
+            return
+        self._write(self.link.command_now(now))
+
+    def _poll(self) -> None:
+        now = self._clock()
+        if self._port is None:
+            if now >= self._next_open_s:
+                self._try_open(now)
+            return
+        try:
+            data = self._port.read(4096)
+        except (serial.SerialException, OSError) as err:
+            self._lost(now, f"read: {err}")
+            return
+        samples, answer = self.link.receive(data, now) if data else ([], b"")
+        for s in samples:
+            self._pub_state.publish(wheel_state(s.position_rad, s.velocity_radps, self.get_clock().now().to_msg()))
+        self._write(answer + self.link.poll(now))
+        if self.link.state == sl.UP and self.link_up_since_s is None:
+            self.link_up_since_s = now
+            self.get_logger().info(f"link up on {self.params.port}")
+        if self._port is not None and self.link.timed_out(now):
+            self._lost(now, "no valid frame from the board")
+
+    def _try_open(self, now: float) -> None:
+        try:
+            self._port = open_port(self.params.port, self.params.baud_rate)
+        except (serial.SerialException, OSError, ValueError) as err:
+            self._last_error = f"open: {err}"
+            self._next_open_s = now + self._backoff.next_delay()
+            self.get_logger().warn(f"cannot open {self.params.port}: {err}", throttle_duration_sec=2.0)
+            return
+        self._backoff.reset()
+        self._write(self.link.connected(now))
+
+    def _write(self, data: bytes) -> None:
+        if not data or self._port is None:
+            return
+        try:
+            self._port.write(data)
+        except (serial.SerialException, OSError) as err:
+            self._lost(self._clock(), f"write: {err}")
+
+    def _lost(self, now: float, why: str) -> None:
+        self._last_error = why
+        self.get_logger().warn(f"serial link lost ({why}); reopening", throttle_duration_sec=1.0)
+        self._close_port()
+        self.link.disconnected()
+        self.link_up_since_s = None
+        self._next_open_s = now + self._backoff.next_delay()
+
+    def _close_port(self) -> None:
+        if self._port is not None:
+            try:
+                self._port.close()
+            except (serial.SerialException, OSError):
+                pass
+            self._port = None
+
+    # -- diagnostics ---------------------------------------------------------------------------
+    def diagnostics_values(self) -> dict:
+        now = self._clock()
+        t0, n0 = self._rx_frames_at_diag
+        rx = self.link.stats["rx_frames"]
+        self._rx_frames_at_diag = (now, rx)
+        p50, p99 = self.link.rtt_percentiles_s()
+        values = {"link": self.link.state, "port": self.params.port, "rx_frames_per_s": (rx - n0) / max(now - t0, 1e-9)}
+        values.update(self.link.stats)
+        values.update({f"host_rejected_{k}": v for k, v in self.link.decoder.rejected.items()})
+        values.update({"rtt_p50_ms": p50 * 1e3, "rtt_p99_ms": p99 * 1e3, "board_flags": self.link.flags,
+                       "last_error": self._last_error})
+        st = self.link.board_status
+        if st is not None:
+            values.update({"board_crc_errors": st.crc_errors, "board_frame_errors": st.frame_errors,
+                           "board_type_errors": st.type_errors, "board_rx_gaps": st.rx_gaps,
+                           "board_watchdog_trips": st.watchdog_trips})
+        return values
+
+    def _publish_diagnostics(self) -> None:
+        values = self.diagnostics_values()
+        state = self.link.state
+        level = diag.OK if state == sl.UP else diag.WARN if state in (sl.HANDSHAKE, sl.CONFIGURING) else diag.ERROR
+        message = {"up": "link up", "down": "link down", "version_mismatch": "protocol version mismatch"}.get(
+            state, "connecting")
+        status = diag.status(f"{self.get_fully_qualified_name()}: serial link", self.params.port, level, message, values)
+        self._pub_diag.publish(diag.array(self.get_clock().now().to_msg(), [status]))
+
+    # -- shutdown ------------------------------------------------------------------------------
+    def shutdown(self) -> None:
+        """Send zero torque (three frames) and close the port."""
+        if self._port is not None:
+            self._write(self.link.zero_commands(3))
+            try:
+                if self._port is not None:
+                    self._port.flush()
+            except (serial.SerialException, OSError):
+                pass
+        self._close_port()
+
+    def destroy_node(self) -> None:
+        self.shutdown()
+        super().destroy_node()
+
+
+def main(args=None) -> int:
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = BridgeNode()
+        rclpy.spin(node)
+    except ConfigError as err:
+        print(f"formation_bridge: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
