@@ -1,0 +1,190 @@
+"""formation_coordinator: owns the communication graph (spec S9) and starts the mission.
+
+It watches every robot's ``state`` and ``mode``. When the set of robots in any avoidance mode
+changes, it recomputes the parents with core/graph.py (S9 rewiring; restoration = rewiring with
+fewer avoiders) and publishes ``/formation/graph`` with a new revision (transient local, so late
+controllers get the current graph). Once every robot's controller publishes its state (or at once
+with ``wait_for_robots`` false) it fixes the mission start ``start_s = now + start_delay_s`` in
+the same message: scenario time is ``now - start_s`` for every node. It also publishes markers
+for RViz/Foxglove.
+
+Topics (QoS from ros/qos.py)
+  sub  robot_<id>/state     nav_msgs/Odometry                               QOS_CONTROL
+  sub  robot_<id>/mode      std_msgs/String JSON {mode, target, direction, avoiding}  QOS_CONTROL
+  pub  /formation/graph     std_msgs/String JSON {revision, parents, offsets_m, avoiding,
+                            stamp_s, start_s}                                QOS_GRAPH
+  pub  /formation/markers   visualization_msgs/MarkerArray (robots, P/L/Q ellipses, edges)  QOS_MARKERS
+
+Parameters
+  scenario          str    scenario YAML (required)
+  start_delay_s     float  mission start after every controller is up [s]     default 1.0
+  wait_for_robots   bool   wait for every robot's state before starting       default true
+  markers_rate_hz   float  marker publication rate [Hz] (0: none)             default 5.0
+  republish_s       float  graph re-publication period [s]                    default 1.0
+"""
+from __future__ import annotations
+
+import math
+import sys
+from dataclasses import dataclass
+
+import numpy as np
+import rclpy
+from rclpy.node import Node
+from std_msgs.msg import String
+from visualization_msgs.msg import MarkerArray
+
+from ament_formation.core.errors import ConfigError
+from ament_formation.core.graph import FormationGraph
+from ament_formation.core.obstacles import ObstacleField
+from ament_formation.core.scenario import load_scenario
+from ament_formation.ros import messages as msgs
+from ament_formation.ros.params import declare_dataclass
+from ament_formation.ros.qos import QOS_CONTROL, QOS_GRAPH, QOS_MARKERS
+
+
+@dataclass(frozen=True)
+class CoordinatorParams:
+    scenario: str = ""
+    start_delay_s: float = 1.0
+    wait_for_robots: bool = True
+    markers_rate_hz: float = 5.0
+    republish_s: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not self.scenario:
+            raise ConfigError("is required (path of a scenario YAML)", "scenario")
+        if not (math.isfinite(self.start_delay_s) and 0.0 <= self.start_delay_s <= 60.0):
+            raise ConfigError(f"must be in [0, 60] s (got {self.start_delay_s!r})", "start_delay_s")
+        if not (math.isfinite(self.markers_rate_hz) and 0.0 <= self.markers_rate_hz <= 100.0):
+            raise ConfigError(f"must be in [0, 100] Hz (got {self.markers_rate_hz!r})", "markers_rate_hz")
+        if not (math.isfinite(self.republish_s) and self.republish_s > 0):
+            raise ConfigError(f"must be > 0 s (got {self.republish_s!r})", "republish_s")
+
+
+def is_avoiding(mode: dict) -> bool:
+    """True when a robot's mode message says it is in any avoidance mode (S8)."""
+    if "avoiding" in mode:
+        return bool(mode["avoiding"])
+    return mode.get("mode") not in ("coordination", "hold", "stopped", "idle", None)
+
+
+class CoordinatorNode(Node):
+    """See the module docstring."""
+
+    def __init__(self, *, context=None, params: CoordinatorParams | None = None, **node_kw):
+        super().__init__("formation_coordinator", context=context, **node_kw)
+        self.prm = params if params is not None else declare_dataclass(self, CoordinatorParams)
+        self.scenario = load_scenario(self.prm.scenario)
+        self.graph = FormationGraph.from_scenario(self.scenario)
+        self.ids = self.scenario.robot_ids
+        self.obstacles = ObstacleField(self.scenario.obstacles)
+        self.states: dict[int, np.ndarray] = {}
+        self.avoiding: set[int] = set()
+        self.modes: dict[int, dict] = {}
+        self.revision = 0
+        self.parents = self.graph.rewire(())
+        self.start_s: float | None = None
+        self.history: list[msgs.GraphMessage] = []
+
+        self.pub_graph = self.create_publisher(String, "/formation/graph", QOS_GRAPH)
+        self.pub_markers = self.create_publisher(MarkerArray, "/formation/markers", QOS_MARKERS)
+        for rid in self.ids:
+            self.create_subscription(msgs.Odometry, f"/robot_{rid}/state",
+                                     lambda m, rid=rid: self._on_state(rid, m), QOS_CONTROL)
+            self.create_subscription(String, f"/robot_{rid}/mode",
+                                     lambda m, rid=rid: self._on_mode(rid, m), QOS_CONTROL)
+        if not self.prm.wait_for_robots:
+            self.start_s = self.now_s() + self.prm.start_delay_s
+        self._publish_graph()
+        self.create_timer(self.prm.republish_s, self._republish)
+        if self.prm.markers_rate_hz > 0:
+            self.create_timer(1.0 / self.prm.markers_rate_hz, self._publish_markers)
+
+    def now_s(self) -> float:
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    # ------------------------------------------------------------------ callbacks
+    def _on_state(self, rid: int, msg) -> None:
+        state, _ = msgs.state_from_odometry(msg)
+        if not np.all(np.isfinite(state)):
+            return
+        self.states[rid] = state
+        if self.start_s is None and len(self.states) == len(self.ids):
+            self.start_s = self.now_s() + self.prm.start_delay_s
+            self.get_logger().info(f"every controller is up: mission starts at {self.start_s:.3f} s")
+            self._publish_graph()
+
+    def _on_mode(self, rid: int, msg: String) -> None:
+        try:
+            mode = msgs.mode_from_msg(msg)
+        except ValueError as err:
+            self.get_logger().warn(f"robot_{rid}/mode: {err}", throttle_duration_sec=5.0)
+            return
+        self.modes[rid] = mode
+        avoiding = set(self.avoiding)
+        (avoiding.add if is_avoiding(mode) else avoiding.discard)(rid)
+        if avoiding != self.avoiding:
+            self.avoiding = avoiding
+            self.parents = self.graph.rewire(sorted(avoiding))   # S9 steps 1-6
+            self._publish_graph()
+
+    # ------------------------------------------------------------------ output
+    def current_graph(self) -> msgs.GraphMessage:
+        offsets = {c: tuple(float(x) for x in d) for c, d in self.graph.offsets(self.parents).items()}
+        return msgs.GraphMessage(self.revision, dict(self.parents), offsets, tuple(sorted(self.avoiding)),
+                                 self.now_s(), self.start_s)
+
+    def _publish_graph(self) -> None:
+        self.revision += 1
+        graph = self.current_graph()
+        self.history.append(graph)
+        self.pub_graph.publish(msgs.graph_msg(graph))
+
+    def _republish(self) -> None:
+        """Same revision again (a controller that missed it catches up)."""
+        self.pub_graph.publish(msgs.graph_msg(self.current_graph()))
+
+    def _publish_markers(self) -> None:
+        stamp = msgs.stamp_from_s(self.now_s())
+        t = 0.0 if self.start_s is None else max(0.0, self.now_s() - self.start_s)
+        groups = []
+        if len(self.obstacles):
+            obs = self.obstacles.at(t)
+            av = self.scenario.avoidance
+            groups.append(msgs.ellipse_markers(self.obstacles.names, obs.center_m, obs.phi_rad,
+                                               obs.semi_axes_m, {"P": 1.0, "L": av.limit_cycle_scale,
+                                                                 "Q": av.protected_scale}, stamp))
+        if self.states:
+            ids = sorted(self.states)
+            radius = [self.scenario.robot(i).params.body_radius_m for i in ids]
+            groups.append(msgs.robot_markers(ids, np.stack([self.states[i] for i in ids]), radius, stamp,
+                                             avoiding=[i in self.avoiding for i in ids]))
+            groups.append(msgs.edge_markers(self.parents, {i: self.states[i][:2] for i in ids}, stamp))
+        self.pub_markers.publish(msgs.marker_array(*groups))
+
+
+def main(argv: list[str] | None = None) -> int:
+    rclpy.init(args=argv if argv is not None else sys.argv)
+    node = None
+    try:
+        node = CoordinatorNode()
+        rclpy.spin(node)
+        return 0
+    except ConfigError as err:
+        print(f"formation_coordinator: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 0
+    except Exception as err:  # noqa: BLE001
+        if type(err).__name__ == "ExternalShutdownException":
+            return 0
+        raise
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    sys.exit(main())
