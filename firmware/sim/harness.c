@@ -3,7 +3,7 @@
  * quadrature encoders driven by a wheel model fed from the PWM outputs, and cycle measurements.
  *
  * Usage: formation_fw_sim FIRMWARE.elf [--status FILE] [--link PATH] [--duration-s S]
- *                                      [--no-realtime] [--freeze-wheels]
+ *                                      [--no-realtime] [--freeze-wheels] [--control FILE]
  *
  *   stdout, first line:  "PTY /dev/pts/N"  (the slave side: open it like a serial port)
  *   --status FILE        one JSON object per line every 10 ms of emulated time (see emit_status)
@@ -11,6 +11,9 @@
  *   --duration-s S       stop after S seconds of emulated time (default: run until SIGTERM/SIGINT)
  *   --no-realtime        run as fast as the host can (default: paced to the wall clock)
  *   --freeze-wheels      hold the wheels still (encoders never move)
+ *   --control FILE       fault injection on the host -> board line, read every 10 ms of emulated
+ *                        time: "pass" (default), "cut" (every byte dropped: a cut cable) or
+ *                        "corrupt" (one bit flipped in the first data byte of every frame)
  *
  * Measurements (cycles of the emulated 16 MHz CPU):
  *   isr: per vector, count and worst case from vector entry to RETI (the simavr "interrupt
@@ -18,8 +21,9 @@
  *   loop: the firmware writes GPIOR0 = 1 when its main loop starts work and 0 just before it
  *        sleeps; the worst busy stretch is reported with ISR preemption included ("loop_max")
  *        and with ISR cycles subtracted ("loop_max_own").
- *   telemetry: frames the firmware sends (each 0x00 delimiter on its TX line ends one frame),
- *        counted with their emulated time, so the rate is known in emulated time.
+ *   board -> host line: decoded with the firmware's own src/protocol.c; TELEMETRY frames are
+ *        counted with their emulated time (rate in emulated time), the last TELEMETRY and STATUS
+ *        fields are reported (error counters, flags, applied torque).
  *
  * Wheel model (per wheel, both identical): J domega/dt = tau(duty, omega) - b omega, with
  * tau from the same DC-motor model and constants as the firmware (src/motor_model.c,
@@ -52,6 +56,7 @@
 
 #include "../src/config.h"
 #include "../src/motor_model.h"
+#include "../src/protocol.h"
 
 /* ATmega328P data-space addresses (datasheet, register summary) */
 #define REG_PORTB 0x25
@@ -114,9 +119,22 @@ typedef struct {
     uint64_t loop_count;
     uint64_t loop_max;
     uint64_t loop_max_own;
-    /* telemetry-frame counting on the TX line */
+    /* board -> host line, decoded */
+    proto_decoder_t tx_dec;
     uint64_t tx_frames;
-    avr_cycle_count_t first_frame_cycle, last_frame_cycle;
+    uint64_t telemetry_count;
+    avr_cycle_count_t first_telemetry_cycle, last_telemetry_cycle;
+    proto_telemetry_t last_telemetry;
+    proto_status_t last_status;
+    uint64_t status_count;
+    uint64_t hello_ack_count;
+    /* host -> board line: fault injection */
+    const char *control_path;
+    int mode;                      /* 0 pass, 1 cut, 2 corrupt */
+    int rx_block_pos;              /* bytes since the last 0x00 on the host -> board line */
+    uint64_t rx_cut_bytes;
+    uint64_t rx_corrupted_frames;
+    avr_cycle_count_t last_rx_cycle;
     /* wheels */
     motor_model_t motor;
     double inertia_kgm2;
@@ -155,12 +173,22 @@ static void uart_out_hook(struct avr_irq_t *irq, uint32_t value, void *param)
     (void)irq;
     harness_t *h = param;
     h->tx_bytes++;
-    if ((uint8_t)value == 0x00) {
-        if (h->tx_frames == 0) {
-            h->first_frame_cycle = h->avr->cycle;
-        }
-        h->last_frame_cycle = h->avr->cycle;
+    proto_msg_t m;
+    if (proto_decoder_feed(&h->tx_dec, (uint8_t)value, &m) == PROTO_FEED_FRAME) {
         h->tx_frames++;
+        if (m.type == PROTO_TELEMETRY) {
+            if (h->telemetry_count == 0) {
+                h->first_telemetry_cycle = h->avr->cycle;
+            }
+            h->last_telemetry_cycle = h->avr->cycle;
+            h->telemetry_count++;
+            h->last_telemetry = m.u.telemetry;
+        } else if (m.type == PROTO_STATUS) {
+            h->status_count++;
+            h->last_status = m.u.status;
+        } else if (m.type == PROTO_HELLO_ACK) {
+            h->hello_ack_count++;
+        }
     }
     if (h->out_len < OUT_BUF_BYTES) {
         h->out_buf[h->out_len++] = (uint8_t)value;
@@ -207,9 +235,45 @@ static void pty_poll(harness_t *h)
         }
     }
     while (h->uart_xon && h->in_pos < h->in_len) {
+        uint8_t byte = h->in_buf[h->in_pos++];
+        const int pos = h->rx_block_pos;
+        h->rx_block_pos = byte == 0x00 ? 0 : pos + 1;
+        if (h->mode == 1) {
+            h->rx_cut_bytes++;
+            continue;
+        }
+        if (h->mode == 2 && byte != 0x00 && pos == 1) {
+            /* the first data byte after the COBS code byte is the header byte: a flipped bit
+             * is a single-bit error the CRC always detects; never turn it into a delimiter */
+            byte = (uint8_t)((byte ^ 0x04) ? (byte ^ 0x04) : (byte ^ 0x08));
+            h->rx_corrupted_frames++;
+        }
         h->rx_bytes++;
-        avr_raise_irq(h->uart_input, h->in_buf[h->in_pos++]);
+        h->last_rx_cycle = h->avr->cycle;
+        avr_raise_irq(h->uart_input, byte);
     }
+}
+
+static void read_control(harness_t *h)
+{
+    if (!h->control_path) {
+        return;
+    }
+    FILE *f = fopen(h->control_path, "r");
+    if (!f) {
+        return;
+    }
+    char word[16] = {0};
+    if (fscanf(f, "%15s", word) == 1) {
+        if (!strcmp(word, "pass")) {
+            h->mode = 0;
+        } else if (!strcmp(word, "cut")) {
+            h->mode = 1;
+        } else if (!strcmp(word, "corrupt")) {
+            h->mode = 2;
+        }
+    }
+    fclose(f);
 }
 
 /* ---- interrupt and main-loop timing ------------------------------------------------------- */
@@ -326,7 +390,13 @@ static void emit_status(harness_t *h, int final)
             "\"pwm_counts\":[%d,%d],\"pwm_top\":%u,\"wheel_rad\":[%.6f,%.6f],"
             "\"wheel_radps\":[%.5f,%.5f],\"encoder_ticks\":[%lld,%lld],"
             "\"rx_bytes\":%llu,\"tx_bytes\":%llu,\"tx_dropped\":%llu,\"tx_frames\":%llu,"
-            "\"first_frame_t_s\":%.6f,\"last_frame_t_s\":%.6f,"
+            "\"mode\":\"%s\",\"rx_cut_bytes\":%llu,\"rx_corrupted_frames\":%llu,\"last_rx_t_s\":%.6f,"
+            "\"telemetry_count\":%llu,\"first_telemetry_t_s\":%.6f,\"last_telemetry_t_s\":%.6f,"
+            "\"telemetry\":{\"ticks\":[%d,%d],\"vel_mradps\":[%d,%d],\"cmd_seq\":%u,\"flags\":%u},"
+            "\"status_count\":%llu,\"hello_ack_count\":%llu,"
+            "\"board\":{\"uptime_ms\":%lu,\"applied_e4nm\":[%d,%d],\"crc_errors\":%u,"
+            "\"frame_errors\":%u,\"type_errors\":%u,\"rx_gaps\":%u,\"watchdog_trips\":%u,"
+            "\"flags\":%u,\"cmd_seq\":%u},"
             "\"loop_count\":%llu,\"loop_max_cycles\":%llu,\"loop_max_own_cycles\":%llu,"
             "\"isr_max_cycles\":{",
             emu_seconds(h), (unsigned long long)h->avr->cycle, wall_seconds(h), h->duty[0],
@@ -336,8 +406,20 @@ static void emit_status(harness_t *h, int final)
             (long long)h->wheel[1].emitted_ticks, (unsigned long long)h->rx_bytes,
             (unsigned long long)h->tx_bytes, (unsigned long long)h->tx_dropped,
             (unsigned long long)h->tx_frames,
-            (double)h->first_frame_cycle / (double)h->avr->frequency,
-            (double)h->last_frame_cycle / (double)h->avr->frequency,
+            h->mode == 0 ? "pass" : (h->mode == 1 ? "cut" : "corrupt"),
+            (unsigned long long)h->rx_cut_bytes, (unsigned long long)h->rx_corrupted_frames,
+            (double)h->last_rx_cycle / (double)h->avr->frequency,
+            (unsigned long long)h->telemetry_count,
+            (double)h->first_telemetry_cycle / (double)h->avr->frequency,
+            (double)h->last_telemetry_cycle / (double)h->avr->frequency,
+            h->last_telemetry.left_ticks, h->last_telemetry.right_ticks,
+            h->last_telemetry.left_vel_mradps, h->last_telemetry.right_vel_mradps,
+            h->last_telemetry.cmd_seq, h->last_telemetry.flags,
+            (unsigned long long)h->status_count, (unsigned long long)h->hello_ack_count,
+            (unsigned long)h->last_status.uptime_ms, h->last_status.left_applied_e4nm,
+            h->last_status.right_applied_e4nm, h->last_status.crc_errors,
+            h->last_status.frame_errors, h->last_status.type_errors, h->last_status.rx_gaps,
+            h->last_status.watchdog_trips, h->last_status.flags, h->last_status.cmd_seq,
             (unsigned long long)h->loop_count, (unsigned long long)h->loop_max,
             (unsigned long long)h->loop_max_own);
     int first = 1;
@@ -380,6 +462,7 @@ static avr_cycle_count_t periodic(struct avr_t *avr, avr_cycle_count_t when, voi
     const uint64_t now_us = (uint64_t)(emu_seconds(h) * 1e6);
     if (now_us >= h->next_status_us) {
         h->next_status_us += STATUS_PERIOD_US;
+        read_control(h);
         emit_status(h, 0);
     }
     return when + avr_usec_to_cycles(avr, MODEL_STEP_US);
@@ -394,7 +477,7 @@ static void no_sleep(avr_t *avr, avr_cycle_count_t how_long)
 static void usage(void)
 {
     fprintf(stderr, "usage: formation_fw_sim FIRMWARE.elf [--status FILE] [--link PATH] "
-                    "[--duration-s S] [--no-realtime] [--freeze-wheels]\n");
+                    "[--duration-s S] [--no-realtime] [--freeze-wheels] [--control FILE]\n");
 }
 
 int main(int argc, char **argv)
@@ -415,6 +498,8 @@ int main(int argc, char **argv)
                 fprintf(stderr, "formation_fw_sim: --duration-s: expected a positive number\n");
                 return 2;
             }
+        } else if (!strcmp(argv[i], "--control") && i + 1 < argc) {
+            h.control_path = argv[++i];
         } else if (!strcmp(argv[i], "--no-realtime")) {
             h.realtime = 0;
         } else if (!strcmp(argv[i], "--freeze-wheels")) {
@@ -452,6 +537,7 @@ int main(int argc, char **argv)
     avr->sleep = no_sleep;
     avr->log = 0;
     h.avr = avr;
+    proto_decoder_init(&h.tx_dec, PROTO_VERSION);
 
     if (status_path) {
         h.status = fopen(status_path, "w");
