@@ -11,8 +11,12 @@ Conventions (samples k = 0..T-1 at times t_k):
 * ``prohibited_entries`` counts intervals with p inside P_j per (robot, obstacle) and per unordered
   robot pair; ``avoidance_entries`` counts intervals of ``avoiding`` (a re-target inside avoidance
   is not a new entry);
-* ``formation_rms_settled_m``: RMS of |p_i - g_i| over t >= (robot's last avoidance exit + 10 s),
-  or t >= 10 s when it never avoided; ``None`` when that window is empty.
+* ``formation_rms_settled_m``: RMS of |p_i - g_i| from 10 s after the last avoidance exit of any
+  robot of i's team (or from t0 + 10 s when nobody in the team avoided) to the end; ``None`` when
+  that window is empty. A follower's goal g_i hangs on its original parent, so its error includes
+  every upstream detour: the formation is settled only when the whole team is (as spec S12
+  measures it). ``formation_rms_after_own_exit_m`` is the same RMS from 10 s after the robot's
+  own last exit (DESIGN §4 read per robot).
 """
 from __future__ import annotations
 
@@ -121,6 +125,24 @@ def json_ready(value):
     return value
 
 
+def settle_start(t_s: np.ndarray, exits_s: list[float]) -> float:
+    """Start of the settled window: the last exit + SETTLE_DELAY_S, or t0 + SETTLE_DELAY_S."""
+    t0 = float(t_s[0]) if len(t_s) else 0.0
+    return (max(exits_s) if exits_s else t0) + SETTLE_DELAY_S
+
+
+def _rms_from(err: np.ndarray, t_s: np.ndarray, start_s: float):
+    window = t_s >= start_s - 1e-9
+    return float(np.sqrt(np.mean(err[window] ** 2))) if np.any(window) else None
+
+
+def _team(scenario, rid: int) -> int:
+    try:
+        return scenario.team_leader(rid)
+    except (KeyError, AttributeError):
+        return rid
+
+
 def compute_metrics(result: SimResult, scenario) -> dict:
     """DESIGN §4 metrics of a run.
 
@@ -171,14 +193,15 @@ def compute_metrics(result: SimResult, scenario) -> dict:
     entry_events.sort(key=lambda e: (e["t_s"], e["robot"]))
 
     err = result.formation_error_m                                  # (T, N)
+    spans_of = {rid: intervals(np.asarray(result.avoiding[:, i], dtype=bool), t) for i, rid in enumerate(ids)}
+    team_of = {rid: _team(scenario, rid) for rid in ids}
     robots: dict[str, dict] = {}
     for i, rid in enumerate(ids):
-        avoid = np.asarray(result.avoiding[:, i], dtype=bool)
-        spans = intervals(avoid, t)
-        last_exit = max((b for _a, b in spans), default=None)
-        start = (last_exit + SETTLE_DELAY_S) if last_exit is not None else (t[0] + SETTLE_DELAY_S if len(t) else 0.0)
-        window = t >= start - 1e-9
-        rms = float(np.sqrt(np.mean(err[window, i] ** 2))) if np.any(window) else None
+        spans = spans_of[rid]
+        own_start = settle_start(t, [b for _a, b in spans])
+        team_exits = [b for k in ids if team_of[k] == team_of[rid] for _a, b in spans_of[k]]
+        start = settle_start(t, team_exits)
+        rms = _rms_from(err[:, i], t, start)
         torque = np.abs(result.torque_nm[:, i, :])
         robots[str(rid)] = {
             "min_clearance_m": {name: float(min_dist[i, j]) for j, name in enumerate(names)},
@@ -186,6 +209,7 @@ def compute_metrics(result: SimResult, scenario) -> dict:
             "avoidance_entries": len(spans),
             "formation_rms_settled_m": rms,
             "settled_from_s": float(start),
+            "formation_rms_after_own_exit_m": _rms_from(err[:, i], t, own_start),
             "final_error_m": float(err[-1, i]) if len(t) else None,
             "peak_torque_nm": [float(torque[:, 0].max()), float(torque[:, 1].max())] if len(t) else [0.0, 0.0],
             "saturated_fraction": float(np.mean(result.saturated[:, i])) if len(t) else 0.0,

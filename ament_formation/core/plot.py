@@ -40,6 +40,22 @@ def _ellipse(center, phi, axes, scale, **kw) -> Ellipse:
                    angle=math.degrees(phi), **kw)
 
 
+def _limits(result: SimResult, axes_by_name: dict, kappa: float):
+    """x and y limits around every trajectory and every drawn Q ellipse, with a margin."""
+    pts = [result.state[:, :, :2].reshape(-1, 2)]
+    for j, name in enumerate(result.obstacle_names):
+        reach = kappa * max(axes_by_name[name])
+        c = result.obstacle_center_m[:, j]
+        pts.append(np.concatenate([c - reach, c + reach]))
+    allp = np.concatenate(pts)
+    allp = allp[np.all(np.isfinite(allp), axis=1)]
+    if len(allp) == 0:
+        return (-1.0, 1.0), (-1.0, 1.0)
+    lo, hi = allp.min(axis=0), allp.max(axis=0)
+    pad = 0.04 * max(hi - lo) + 0.05
+    return (lo[0] - pad, hi[0] + pad), (lo[1] - pad, hi[1] + pad)
+
+
 def render_figure(result: SimResult, scenario, path, *, arrow_every_s: float | None = None,
                   obstacle_instants: int = 4, dpi: int = 110) -> Path:
     """Draw the figure of ``result`` and save it as PNG at ``path``. Returns the path.
@@ -60,10 +76,17 @@ def render_figure(result: SimResult, scenario, path, *, arrow_every_s: float | N
     kappa = scenario.avoidance.protected_scale
     duration = float(t[-1] - t[0]) if len(t) > 1 else 1.0
 
-    fig = Figure(figsize=(15.0, max(6.5, 1.6 * n + 1.5)), dpi=dpi)
+    # layout: the phase portrait across the top, torque panels below in two columns
+    xlim, ylim = _limits(result, axes_by_name, kappa)
+    width_in = 14.0
+    portrait_in = float(np.clip(0.78 * width_in * (ylim[1] - ylim[0]) / (xlim[1] - xlim[0]), 4.0, 9.0))
+    cols = 1 if n <= 1 else 2
+    rows = max(1, math.ceil(n / cols))
+    fig = Figure(figsize=(width_in, portrait_in + 1.9 * rows + 0.6), dpi=dpi)
     FigureCanvasAgg(fig)
-    grid = fig.add_gridspec(max(n, 1), 2, width_ratios=(1.5, 1.0), wspace=0.18, hspace=0.35)
-    ax = fig.add_subplot(grid[:, 0])
+    outer = fig.add_gridspec(2, 1, height_ratios=(portrait_in, 1.9 * rows), hspace=0.16)
+    ax = fig.add_subplot(outer[0])
+    tgrid = outer[1].subgridspec(rows, cols, hspace=0.45, wspace=0.15)
 
     # ---- obstacles: P filled, L dashed, Q dotted, at a few instants when they move
     for j, name in enumerate(result.obstacle_names):
@@ -79,7 +102,7 @@ def render_figure(result: SimResult, scenario, path, *, arrow_every_s: float | N
                                   lw=0.9, alpha=fade))
             ax.add_patch(_ellipse(c, phi, ax_m, kappa, fill=False, edgecolor="0.4", ls=":",
                                   lw=0.9, alpha=fade))
-            if len(instants) > 1:
+            if len(instants) > 1 and np.ptp(result.obstacle_center_m[:, j], axis=0).max() > 0.05:
                 ax.annotate(f"{t[k]:.0f} s", c, fontsize=7, color="0.25", ha="center", va="center")
         c0 = result.obstacle_center_m[instants[0], j]
         phi0 = result.obstacle_phi_rad[instants[0], j]
@@ -89,17 +112,19 @@ def render_figure(result: SimResult, scenario, path, *, arrow_every_s: float | N
 
     # ---- robots
     every = arrow_every_s if arrow_every_s and arrow_every_s > 0 else max(duration / 14.0, 1e-9)
-    arrow_idx = np.unique(np.searchsorted(t, np.arange(t[0], t[-1] + 1e-9, every))) if len(t) else []
-    arrow_idx = [k for k in arrow_idx if k < len(t)]
+    stride = max(1, math.ceil(len(t) / 6000))
+    ts = t[::stride]
+    arrow_idx = np.unique(np.searchsorted(ts, np.arange(t[0], t[-1] + 1e-9, every))) if len(t) else []
+    arrow_idx = [k for k in arrow_idx if k < len(ts)]
     for i, rid in enumerate(ids):
         color = _COLORS[i % len(_COLORS)]
         x, y, th = result.state[:, i, 0], result.state[:, i, 1], result.state[:, i, 2]
+        x, y, th, avoid = (v[::stride] for v in (x, y, th, np.asarray(result.avoiding[:, i], dtype=bool)))
         spec = by_id.get(rid)
         if spec is not None and spec.leader and spec.path is not None and len(t):
-            r, _, _ = spec.path.reference(t)
+            r, _, _ = spec.path.reference(ts)
             ax.plot(r[:, 0], r[:, 1], ls="--", lw=0.8, color=color, alpha=0.6)
         ax.plot(x, y, lw=1.2, color=color, label=f"R{rid}" + (" (leader)" if spec and spec.leader else ""))
-        avoid = np.asarray(result.avoiding[:, i], dtype=bool)
         if avoid.any():
             # extend each avoiding run by one sample so short runs still draw a segment
             thick = avoid | np.concatenate([[False], avoid[:-1]])
@@ -116,25 +141,26 @@ def render_figure(result: SimResult, scenario, path, *, arrow_every_s: float | N
     ax.plot([], [], "o", mfc="white", mec="0.3", label="start")
     ax.plot([], [], "s", color="0.3", label="end")
     ax.plot([], [], ls="--", color="0.3", lw=0.8, label="leader reference")
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.autoscale_view()
+    ax.set_xlim(*xlim)
+    ax.set_ylim(*ylim)
+    ax.set_aspect("equal", adjustable="box")
     ax.grid(True, lw=0.4, alpha=0.5)
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     ax.set_title(f"(a) phase portrait: {result.scenario_name} "
                  f"(P filled, L = {rho_l:g} P dashed, Q = {kappa:g} P dotted)", fontsize=10)
-    ax.legend(loc="best", fontsize=8, framealpha=0.8)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, framealpha=0.8)
 
     # ---- torques
     first = None
     for i, rid in enumerate(ids):
-        tax = fig.add_subplot(grid[i, 1], sharex=first)
+        tax = fig.add_subplot(tgrid[i // cols, i % cols], sharex=first)
         first = first or tax
         tau_max = by_id[rid].params.torque_limit_nm if rid in by_id else None
         for a, b in intervals(np.asarray(result.avoiding[:, i], dtype=bool), t):
             tax.axvspan(a, b, color=_COLORS[i % len(_COLORS)], alpha=0.18, lw=0)
-        tax.plot(t, result.torque_nm[:, i, 0], lw=0.9, color="tab:blue", label=r"$\tau_1$ left")
-        tax.plot(t, result.torque_nm[:, i, 1], lw=0.9, color="tab:red", label=r"$\tau_2$ right")
+        tax.plot(t, result.torque_nm[:, i, 0], lw=0.8, color="tab:blue", label=r"$\tau_1$ left")
+        tax.plot(t, result.torque_nm[:, i, 1], lw=0.8, color="tab:red", label=r"$\tau_2$ right")
         if tau_max:
             for sign in (1, -1):
                 tax.axhline(sign * tau_max, ls="--", lw=0.7, color="0.4")
@@ -145,9 +171,10 @@ def render_figure(result: SimResult, scenario, path, *, arrow_every_s: float | N
         tax.tick_params(labelsize=7)
         tax.grid(True, lw=0.4, alpha=0.5)
         if i == 0:
-            tax.set_title("(b) wheel torques (avoidance shaded)", fontsize=10)
+            tax.set_title("(b) wheel torques vs time (avoidance shaded, dashed: limit)", fontsize=10,
+                          loc="left")
             tax.legend(loc="upper right", fontsize=7, ncol=2)
-        if i < n - 1:
+        if i + cols < n:
             tax.tick_params(labelbottom=False)
         else:
             tax.set_xlabel("t [s]")
