@@ -27,9 +27,12 @@ done
 [ -n "$scenario" ] && [ -f "$scenario" ] || { echo "launch_base.sh: --scenario: no such file" >&2; exit 2; }
 [ -n "$run_dir" ] || run_dir="$(mktemp -d -t ament_formation_base.XXXXXX)"
 cam=()
-[ -n "$camera" ] && cam=(-p camera_device:="$camera")
+[ -n "$camera" ] && cam=(-p source:="$camera")
+info="$("$AF_BIN/python" "$here/launch_info.py" "$scenario")" || exit 2
+eval "$info"   # sets ids, robot_ids_list, marker_ids_list
 
 af_launch_init "$(realpath -m "$run_dir")" $multi
-af_start tracker "$AF_BIN/formation_tracker" --ros-args -p scenario:="$scenario" "${cam[@]}" "${params[@]}"
+af_start tracker "$AF_BIN/formation_tracker" --ros-args -p robot_ids:="$robot_ids_list" \
+  -p marker_ids:="$marker_ids_list" "${cam[@]}" "${params[@]}"
 af_start coordinator "$AF_BIN/formation_coordinator" --ros-args -p scenario:="$scenario" "${params[@]}"
 af_wait_any

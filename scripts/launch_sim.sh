@@ -31,13 +31,9 @@ done
 [ -n "$run_dir" ] || run_dir="$(mktemp -d -t ament_formation_sim.XXXXXX)"
 run_dir="$(realpath -m "$run_dir")"
 
-ids="$("$AF_BIN/python" -c 'import sys
-from ament_formation.core.errors import ConfigError
-from ament_formation.core.scenario import load_scenario
-try:
-    print(" ".join(str(i) for i in load_scenario(sys.argv[1]).robot_ids))
-except ConfigError as e:
-    print(e, file=sys.stderr); sys.exit(2)' "$scenario")" || exit 2
+# robot ids, marker ids (tracker lists) and torque limits (bridges) from the scenario
+info="$("$AF_BIN/python" "$here/launch_info.py" "$scenario")" || exit 2
+eval "$info"   # sets ids, robot_ids_list, marker_ids_list, torque_<id>
 
 af_launch_init "$run_dir" $multi
 echo "run folder: $run_dir (ROS_DOMAIN_ID=$ROS_DOMAIN_ID)"
@@ -59,11 +55,13 @@ done
 
 for id in $ids; do
   af_start "bridge_$id" "$AF_BIN/formation_bridge" --ros-args -r __ns:="/robot_$id" \
-    -p port:="$pty_dir/robot_$id" -p use_sim_time:=$use_sim_time
+    -p port:="$pty_dir/robot_$id" -p torque_limit_nm:="$(eval echo "\$torque_$id")" \
+    -p use_sim_time:=$use_sim_time
   af_start "controller_$id" "$AF_BIN/formation_controller" --ros-args -r __ns:="/robot_$id" \
     -p scenario:="$scenario" -p robot_id:="$id" -p use_sim_time:=$use_sim_time
 done
-af_start tracker "$AF_BIN/formation_tracker" --ros-args -p scenario:="$scenario" -p use_sim_time:=$use_sim_time
+af_start tracker "$AF_BIN/formation_tracker" --ros-args -p robot_ids:="$robot_ids_list" \
+  -p marker_ids:="$marker_ids_list" -p use_sim_time:=$use_sim_time
 af_start coordinator "$AF_BIN/formation_coordinator" --ros-args -p scenario:="$scenario" \
   -p use_sim_time:=$use_sim_time
 

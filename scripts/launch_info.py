@@ -1,0 +1,23 @@
+"""Print shell assignments describing a scenario for scripts/launch_*.sh (ids, marker ids, limits).
+
+    eval "$(python scripts/launch_info.py SCENARIO.yaml)"
+sets ids="0 1", robot_ids_list="[0, 1]", marker_ids_list="[0, 1]", torque_<id>=<N m>.
+Bad scenario: one line on stderr, exit code 2.
+"""
+import shlex
+import sys
+
+from ament_formation.core.errors import ConfigError
+from ament_formation.core.scenario import load_scenario
+
+try:
+    sc = load_scenario(sys.argv[1])
+except ConfigError as err:
+    print(err, file=sys.stderr)
+    sys.exit(2)
+ids = [r.id for r in sc.robots]
+print(f"ids={shlex.quote(' '.join(map(str, ids)))}")
+print(f"robot_ids_list={shlex.quote(str(ids))}")
+print(f"marker_ids_list={shlex.quote(str([r.marker_id for r in sc.robots]))}")
+for r in sc.robots:
+    print(f"torque_{r.id}={r.params.torque_limit_nm!r}")
