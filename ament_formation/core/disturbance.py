@@ -86,6 +86,12 @@ class Disturbance:
         return np.sum(self.amplitude * np.sin(2.0 * math.pi * self.freq_hz * t_s + self.phase_rad),
                       axis=2)
 
+    def step_rotation(self, h_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """(cos, sin) of the phase advance 2 pi f h_s of every term, each (N, 2, M), for
+        :func:`ament_formation.core.kernels.disturbance_phasor_advance_k`."""
+        ang = 2.0 * math.pi * self.freq_hz * h_s
+        return np.cos(ang), np.sin(ang)
+
     def take(self, index) -> "Disturbance":
         """The disturbance of the robots selected by ``index``."""
         m = self.amplitude.shape[2]

@@ -8,7 +8,7 @@ mirror, operation for operation, the vectorised numpy functions:
 |---|---|---|
 | state_derivative_k, rk4_step_k, rk4_step_all | dynamics.state_derivative, dynamics.rk4_step | S2.2 |
 | point_velocity_k, commanded_point_accel_k | dynamics.point_velocity, dynamics.commanded_point_accel | S2.2 |
-| disturbance_k | disturbance.Disturbance.__call__ | S2.3 |
+| disturbance_k, disturbance_phasor_*_k | disturbance.Disturbance.__call__ | S2.3 |
 | smc_torque_k | smc.sliding_mode_torque_raw | S3.1, S3.2, S3.5, S3.6 |
 | tracking_field_k | formation.tracking_field (leader/follower) | S4 |
 | ellipse_h_k, ellipse_field_k | limit_cycle.ellipse_h, limit_cycle.field | S6.2-S6.4 |
@@ -109,6 +109,45 @@ def disturbance_k(t, amp, freq, phase):
     for m in range(amp.shape[1]):
         g1 += amp[0, m] * math.sin(2.0 * math.pi * freq[0, m] * t + phase[0, m])
         g2 += amp[1, m] * math.sin(2.0 * math.pi * freq[1, m] * t + phase[1, m])
+    return g1, g2
+
+
+@njit(**_JIT)
+def disturbance_phasor_init_k(t, freq, phase, sin_out, cos_out):
+    """Start the phasors of one robot at time t: sin_out/cos_out (2, M) = sin/cos(2 pi f t + phi)."""
+    for k in range(2):
+        for m in range(freq.shape[1]):
+            arg = 2.0 * math.pi * freq[k, m] * t + phase[k, m]
+            sin_out[k, m] = math.sin(arg)
+            cos_out[k, m] = math.cos(arg)
+
+
+@njit(**_JIT)
+def disturbance_phasor_advance_k(amp, sin_st, cos_st, cos_step, sin_step):
+    """Rotate the phasors of one robot by one step (angles 2 pi f h, from
+    :meth:`Disturbance.step_rotation`) in place and return g (g1, g2) at the new time.
+
+    No transcendental call per step: a closed loop with fixed dt evaluates g at t + dt/2 and t + dt
+    by two half-step rotations (reusing g(t) of the previous step). Rounding drift is ~1e-16 per
+    step relative to the bound; re-initialise with :func:`disturbance_phasor_init_k` now and then.
+    """
+    g1 = 0.0
+    g2 = 0.0
+    for m in range(amp.shape[1]):
+        s0 = sin_st[0, m]
+        c0 = cos_st[0, m]
+        sn = s0 * cos_step[0, m] + c0 * sin_step[0, m]
+        cn = c0 * cos_step[0, m] - s0 * sin_step[0, m]
+        sin_st[0, m] = sn
+        cos_st[0, m] = cn
+        g1 += amp[0, m] * sn
+        s0 = sin_st[1, m]
+        c0 = cos_st[1, m]
+        sn = s0 * cos_step[1, m] + c0 * sin_step[1, m]
+        cn = c0 * cos_step[1, m] - s0 * sin_step[1, m]
+        sin_st[1, m] = sn
+        cos_st[1, m] = cn
+        g2 += amp[1, m] * sn
     return g1, g2
 
 
