@@ -376,7 +376,8 @@ def _distance_first_quadrant(y0, y1, e0, e1, iterations=200):
     s0 = z1 - 1.0
     s1 = np.where(g < 0.0, 0.0, np.hypot(n0, z1) - 1.0)
     s = 0.5 * (s0 + s1)
-    for _ in range(iterations):
+    tiny = np.finfo(float).eps
+    for it in range(iterations):
         s = 0.5 * (s0 + s1)
         ratio0 = n0 / (s + r0)
         ratio1 = z1 / (s + 1.0)
@@ -384,6 +385,9 @@ def _distance_first_quadrant(y0, y1, e0, e1, iterations=200):
         pos = val > 0.0
         s0 = np.where(pos, s, s0)
         s1 = np.where(pos, s1, s)
+        if it % 8 == 7 and not np.any(s1 - s0 > 2.0 * tiny * np.maximum(np.abs(s), 1.0)):
+            break                       # every bracket has collapsed to rounding level
+    s = 0.5 * (s0 + s1)
     x0 = r0 * y0 / (s + r0)
     x1 = y1 / (s + 1.0)
     general = np.hypot(x0 - y0, x1 - y1)
