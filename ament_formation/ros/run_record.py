@@ -1,0 +1,153 @@
+"""A recorded whole-system run (run.mcap) as the core's :class:`SimResult`, so metrics and figures
+are computed exactly as for `formation sim` (DESIGN §4), from the *ground truth* of the twin.
+
+Sources in the recording:
+  /formation/graph          start_s (scenario time t = ROS time - start_s), graph events
+  /world/truth/robot_<id>   states (nav_msgs/Odometry, stamped with the plant time)
+  robot_<id>/wheel_torque   commanded torques (zero-order hold between commands)
+  robot_<id>/mode           avoidance flags and mode events (log time of reception)
+Samples are taken on a regular grid of ``record_every_s`` from t = 0 to the last truth sample.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ament_formation.core.graph import FormationGraph
+from ament_formation.core.obstacles import ObstacleField
+from ament_formation.core.trajectory import SimResult
+from ament_formation.ros import messages as msgs
+from ament_formation.ros.recorder import read_messages
+
+
+def _zoh_index(sample_t: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    """Index of the last sample at or before each grid time (-1 when none)."""
+    return np.searchsorted(sample_t, grid, side="right") - 1
+
+
+def load_run(path: str | Path, scenario, record_every_s: float = 0.01) -> SimResult:
+    """Read ``path`` (run.mcap) into a SimResult on scenario time; ValueError when the recording
+    lacks the mission start or the ground truth."""
+    ids = tuple(r.id for r in scenario.robots)
+    index = {rid: k for k, rid in enumerate(ids)}
+    truth: dict[int, list] = {rid: [] for rid in ids}
+    torque: dict[int, list] = {rid: [] for rid in ids}
+    modes: dict[int, list] = {rid: [] for rid in ids}
+    graphs: list[tuple[float, msgs.GraphMessage]] = []
+    truth_topics = {f"/world/truth/robot_{rid}": rid for rid in ids}
+    torque_topics = {f"/robot_{rid}/wheel_torque": rid for rid in ids}
+    mode_topics = {f"/robot_{rid}/mode": rid for rid in ids}
+    wanted = ["/formation/graph", *truth_topics, *torque_topics, *mode_topics]
+    for topic, log_ns, msg in read_messages(path, wanted):
+        if topic in truth_topics:
+            state, stamp = msgs.state_from_odometry(msg)
+            truth[truth_topics[topic]].append((stamp, state))
+        elif topic in torque_topics:
+            try:
+                tau, stamp = msgs.torque_from_msg(msg)
+            except ValueError:
+                continue
+            torque[torque_topics[topic]].append((log_ns * 1e-9, tau))
+        elif topic in mode_topics:
+            try:
+                modes[mode_topics[topic]].append((log_ns * 1e-9, msgs.mode_from_msg(msg)))
+            except ValueError:
+                continue
+        else:
+            try:
+                graphs.append((log_ns * 1e-9, msgs.graph_from_msg(msg)))
+            except ValueError:
+                continue
+    starts = [g.start_s for _, g in graphs if g.start_s is not None]
+    if not starts:
+        raise ValueError(f"{path}: no /formation/graph with a mission start (start_s)")
+    start_s = starts[0]
+    if any(not truth[rid] for rid in ids):
+        missing = [rid for rid in ids if not truth[rid]]
+        raise ValueError(f"{path}: no ground truth for robots {missing}")
+
+    t_end = min(max(s for s, _ in truth[rid]) for rid in ids) - start_s
+    t_end = min(t_end, scenario.duration_s)
+    grid = np.arange(0.0, max(t_end, 0.0) + 1e-9, record_every_s)
+    n, big_t = len(ids), len(grid)
+    state = np.zeros((big_t, n, 5))
+    tau = np.zeros((big_t, n, 2))
+    avoiding = np.zeros((big_t, n), dtype=bool)
+    mode_events: list[dict] = []
+    for rid in ids:
+        k = index[rid]
+        ts = np.array([s for s, _ in truth[rid]]) - start_s
+        order = np.argsort(ts, kind="stable")
+        ts, xs = ts[order], np.stack([x for _, x in truth[rid]])[order]
+        idx = np.clip(_zoh_index(ts, grid + 1e-9), 0, len(ts) - 1)
+        state[:, k] = xs[idx]
+        if torque[rid]:
+            tt = np.array([s for s, _ in torque[rid]]) - start_s
+            tv = np.stack([v for _, v in torque[rid]])
+            j = _zoh_index(tt, grid)
+            tau[:, k] = np.where((j >= 0)[:, None], tv[np.clip(j, 0, None)], 0.0)
+        prev = None
+        flags_t, flags_v = [], []
+        for s, mode in modes[rid]:
+            t = s - start_s
+            av = bool(mode.get("avoiding", mode.get("mode") not in ("coordination", "hold", "stopped")))
+            key = (av, mode.get("target"), mode.get("direction")) if av else (False, None, None)
+            if key != prev and t >= 0.0:
+                if prev is not None and prev[0]:
+                    mode_events.append({"t_s": t, "robot": rid, "event": "exit", "target": prev[1],
+                                        "direction": prev[2]})
+                if av:
+                    mode_events.append({"t_s": t, "robot": rid, "event": "enter", "target": mode.get("target"),
+                                        "direction": mode.get("direction")})
+            if t >= 0.0 or prev is None:
+                prev = key
+            flags_t.append(t)
+            flags_v.append(av)
+        if flags_t:
+            j = _zoh_index(np.array(flags_t), grid)
+            avoiding[:, k] = np.where(j >= 0, np.array(flags_v)[np.clip(j, 0, None)], False)
+    mode_events.sort(key=lambda e: (e["t_s"], e["robot"]))
+
+    tau_max = np.array([r.params.torque_limit_nm for r in scenario.robots])
+    saturated = np.max(np.abs(tau), axis=2) >= tau_max[None, :] * (1.0 - 1e-6)
+
+    # goals: leader r(t); follower p of its original parent + delta (S1)
+    graph = FormationGraph.from_scenario(scenario)
+    goal = np.zeros((big_t, n, 2))
+    for r in scenario.robots:
+        k = index[r.id]
+        if r.leader and r.path is not None:
+            goal[:, k] = np.array([r.path.reference(float(t))[0] for t in grid])
+        else:
+            parent = graph.original_parent[r.id]
+            goal[:, k] = state[:, index[parent], :2] + graph.offset(r.id, parent)
+
+    field = ObstacleField(scenario.obstacles)
+    m = len(field)
+    oc = np.zeros((big_t, m, 2))
+    ophi = np.zeros((big_t, m))
+    if m:
+        for i, t in enumerate(grid):
+            o = field.at(float(t))
+            oc[i], ophi[i] = o.center_m, o.phi_rad
+
+    graph_events = []
+    last_rev = None
+    for s, g in graphs:
+        if g.revision == last_rev or s - start_s < -1e-9 and graph_events:
+            continue
+        if last_rev is not None and graph_events and graph_events[-1]["parents"] == _parents_json(g.parents):
+            last_rev = g.revision
+            continue
+        last_rev = g.revision
+        graph_events.append({"t_s": max(0.0, s - start_s), "parents": _parents_json(g.parents)})
+
+    return SimResult(scenario_name=scenario.name, robot_ids=ids, obstacle_names=field.names, t_s=grid,
+                     state=state, torque_nm=tau, goal_m=goal, avoiding=avoiding, saturated=saturated,
+                     obstacle_center_m=oc, obstacle_phi_rad=ophi, mode_events=mode_events,
+                     graph_events=graph_events, dt_s=record_every_s)
+
+
+def _parents_json(parents: dict) -> dict:
+    return {str(c): (None if p is None else int(p)) for c, p in sorted(parents.items())}
