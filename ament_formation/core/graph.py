@@ -75,13 +75,9 @@ class FormationGraph:
 
     def _bfs_tree(self):
         """pi0: BFS from each leader in ascending id; neighbours in ascending id (S9 inputs)."""
-        parent: dict[int, int | None] = {}
-        team: dict[int, int] = {}
+        parent: dict[int, int | None] = {lead: None for lead in self.leaders}   # leaders stay roots
+        team: dict[int, int] = {lead: lead for lead in self.leaders}
         for lead in self.leaders:
-            if lead in parent:
-                continue
-            parent[lead] = None
-            team[lead] = lead
             queue = deque([lead])
             while queue:
                 u = queue.popleft()
