@@ -119,10 +119,15 @@ class MotorBoard:
 
     # -- byte interface ------------------------------------------------------------------------
     def receive(self, data: bytes, now_s: float) -> None:
-        """Process bytes from the host."""
+        """Process bytes from the host. A rejected frame is answered at once by a TELEMETRY with
+        RX_ERROR (a negative acknowledgement; at most one per half telemetry period)."""
+        rejected_before = self.decoder.rejected_total
         for frame in self.decoder.feed(data):
             self._count_gap(frame.seq)
             self._handle(frame.msg, now_s)
+        if (self.decoder.rejected_total != rejected_before
+                and now_s - self._last_telemetry_s >= 0.5e-3 * self.telemetry_period_ms):
+            self._send_telemetry(now_s)
 
     def step(self, now_s: float) -> None:
         """Advance the board to ``now_s``: watchdog, wheel model (standalone), periodic frames."""

@@ -113,6 +113,8 @@ class LinkHost:
         self._pending_ack: tuple[int, float, int] | None = None  # (seq, sent_s, input_id)
         self._retransmitted_id = -1
         self._last_cmd_sent_s = -math.inf
+        self._sent_input_id = 0
+        self._min_gap_s = 0.25 / params.command_rate_hz
         self._last_rx_s = -math.inf
         self._last_hello_s = -math.inf
         self._last_heartbeat_s = -math.inf
@@ -172,8 +174,9 @@ class LinkHost:
         return True
 
     def command_now(self, now_s: float) -> bytes:
-        """Bytes to write right after a new input (rate-limited to 2x command_rate_hz)."""
-        if self.state != UP or now_s - self._last_cmd_sent_s < 0.5 / self.p.command_rate_hz:
+        """Bytes to write right after a new input (at most 4x command_rate_hz; a new input that
+        comes sooner is sent by the next ``poll``)."""
+        if self.state != UP or now_s - self._last_cmd_sent_s < self._min_gap_s:
             return b""
         return self._command(now_s)
 
@@ -195,6 +198,7 @@ class LinkHost:
         self._sent[seq] = (now_s, input_id, wire)
         self._pending_ack = (seq, now_s, input_id)
         self._last_cmd_sent_s = now_s
+        self._sent_input_id = max(self._sent_input_id, input_id)
         self.stats["commands_sent"] += 1
         if self.sent_log is not None:
             self.sent_log.append((seq, wire[0], wire[1]))
@@ -222,17 +226,26 @@ class LinkHost:
             return b""
         out = b""
         pend = self._pending_ack
-        if (pend is not None and now_s - pend[1] >= p.ack_timeout_s and pend[2] != self._retransmitted_id
-                and self.input_fresh(now_s) and pend[2] == self._input_id):
-            self._retransmitted_id = pend[2]     # once per input: a newer input supersedes it anyway
-            self.stats["retransmissions"] += 1
-            out += self._command(now_s)
-        elif now_s - self._last_cmd_sent_s >= 1.0 / p.command_rate_hz:
+        if pend is not None and now_s - pend[1] >= p.ack_timeout_s and self._may_retransmit(now_s):
+            out += self._retransmit(now_s)
+        elif now_s - self._last_cmd_sent_s >= 1.0 / p.command_rate_hz or (
+                self._sent_input_id != self._input_id and now_s - self._last_cmd_sent_s >= self._min_gap_s):
             out += self._command(now_s)
         if now_s - self._last_heartbeat_s >= p.heartbeat_period_s:
             self._last_heartbeat_s = now_s
             out += self._frame(sp.Heartbeat(int(now_s * 1000) & 0xFFFFFFFF))
         return out
+
+    def _may_retransmit(self, now_s: float) -> bool:
+        """Resend once per input, only the newest one, only while it is fresh."""
+        pend = self._pending_ack
+        return (self.state == UP and pend is not None and pend[2] == self._input_id
+                and pend[2] != self._retransmitted_id and self.input_fresh(now_s))
+
+    def _retransmit(self, now_s: float) -> bytes:
+        self._retransmitted_id = self._pending_ack[2]
+        self.stats["retransmissions"] += 1
+        return self._command(now_s)
 
     # -- receive -------------------------------------------------------------------------------
     def receive(self, data: bytes, now_s: float) -> tuple[list[WheelSample], bytes]:
@@ -253,6 +266,8 @@ class LinkHost:
                 self.state = UP
             elif isinstance(msg, sp.Telemetry) and self.ticks_per_rev is not None:
                 samples.append(self._on_telemetry(msg, now_s))
+                if msg.flags & sp.FLAG_RX_ERROR and self._may_retransmit(now_s):  # negative ack
+                    out += self._retransmit(now_s)
                 if msg.flags & sp.FLAG_RESET and self.state == UP:   # the board rebooted: handshake again
                     self.stats["board_resets"] += 1
                     self.state = HANDSHAKE

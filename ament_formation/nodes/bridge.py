@@ -53,7 +53,7 @@ class BridgeNode(Node):
         super().__init__("formation_bridge", context=context, **kwargs)
         self.params = declare_dataclass(self, sl.LinkParams)
         self.link = sl.LinkHost(self.params)
-        self._clock = clock
+        self._mono = clock
         self._port: serial.SerialBase | None = None
         self._backoff = sl.Backoff(self.params.reconnect_initial_s, self.params.reconnect_max_s)
         self._next_open_s = 0.0
@@ -68,7 +68,7 @@ class BridgeNode(Node):
 
     # -- callbacks -----------------------------------------------------------------------------
     def _on_torque(self, msg: JointState) -> None:
-        now = self._clock()
+        now = self._mono()
         efforts = list(msg.effort) if len(msg.effort) == 2 else None
         if not self.link.set_input(efforts, now):
             self.get_logger().warn("wheel_torque rejected (need 2 finite efforts)", throttle_duration_sec=1.0)
@@ -76,7 +76,7 @@ class BridgeNode(Node):
         self._write(self.link.command_now(now))
 
     def _poll(self) -> None:
-        now = self._clock()
+        now = self._mono()
         if self._port is None:
             if now >= self._next_open_s:
                 self._try_open(now)
@@ -113,7 +113,7 @@ class BridgeNode(Node):
         try:
             self._port.write(data)
         except (serial.SerialException, OSError) as err:
-            self._lost(self._clock(), f"write: {err}")
+            self._lost(self._mono(), f"write: {err}")
 
     def _lost(self, now: float, why: str) -> None:
         self._last_error = why
@@ -133,7 +133,7 @@ class BridgeNode(Node):
 
     # -- diagnostics ---------------------------------------------------------------------------
     def diagnostics_values(self) -> dict:
-        now = self._clock()
+        now = self._mono()
         t0, n0 = self._rx_frames_at_diag
         rx = self.link.stats["rx_frames"]
         self._rx_frames_at_diag = (now, rx)
