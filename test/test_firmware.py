@@ -216,3 +216,189 @@ def _command_pump(link, msg, period_s: float = 0.01):
         link.pump()
 
     return pump
+
+
+# ---------------------------------------------------------------------------------------------
+# firmware in simavr driven by the real formation_bridge node (in-process executor)
+
+
+class BridgeRig:
+    """formation_bridge on the harness pty plus a helper node playing the controller (100 Hz)."""
+
+    def __init__(self, context, executor, harness: Harness) -> None:
+        from rclpy.node import Node
+        from rclpy.parameter import Parameter
+        from sensor_msgs.msg import JointState
+
+        from ament_formation.nodes.bridge import BridgeNode
+        from ament_formation.ros.qos import QOS_CONTROL
+
+        self.executor = executor
+        self.harness = harness
+        self.bridge = BridgeNode(context=context, namespace="robot_0",
+                                 parameter_overrides=[Parameter("port", value=harness.pty)])
+        self.helper = Node("firmware_test_controller", namespace="robot_0", context=context)
+        self._msg_type = JointState
+        self._pub = self.helper.create_publisher(JointState, "wheel_torque", QOS_CONTROL)
+        self.state_times: list[float] = []
+        self.helper.create_subscription(JointState, "wheel_state",
+                                        lambda _m: self.state_times.append(time.monotonic()), QOS_CONTROL)
+        self.torque: tuple[float, float] | None = None
+        self.helper.create_timer(0.01, self._publish)
+        executor.add_node(self.bridge)
+        executor.add_node(self.helper)
+
+    def _publish(self) -> None:
+        if self.torque is not None:
+            msg = self._msg_type()
+            msg.name = ["left_wheel", "right_wheel"]
+            msg.effort = [float(self.torque[0]), float(self.torque[1])]
+            self._pub.publish(msg)
+
+    def spin_until(self, predicate, timeout_s: float) -> bool:
+        from ament_formation.ros.executors import spin_until
+
+        def check() -> bool:
+            self.harness.poll()
+            return bool(predicate())
+
+        return spin_until(self.executor, check, timeout_s, step_s=0.002)
+
+    def wait_line(self, predicate, timeout_s: float) -> dict:
+        """Spin until a harness status line that arrives from now on satisfies ``predicate``."""
+        start = len(self.harness.lines)
+        ok = self.spin_until(lambda: any(predicate(x) for x in self.harness.lines[start:]), timeout_s)
+        assert ok, f"no harness status line met the condition within {timeout_s} s"
+        return next(x for x in self.harness.lines[start:] if predicate(x))
+
+    def link_up(self, timeout_s: float = 5.0) -> bool:
+        from ament_formation.core import serial_link as sl
+
+        return self.spin_until(lambda: self.bridge.link.state == sl.UP, timeout_s)
+
+    def close(self) -> None:
+        self.executor.remove_node(self.bridge)
+        self.executor.remove_node(self.helper)
+        self.bridge.destroy_node()
+        self.helper.destroy_node()
+
+
+@pytest.fixture
+def rig(ros_context, executor, harness):
+    r = BridgeRig(ros_context, executor, harness)
+    yield r
+    r.close()
+
+
+@pytest.fixture
+def frozen_rig(ros_context, executor, frozen_harness):
+    r = BridgeRig(ros_context, executor, frozen_harness)
+    yield r
+    r.close()
+
+
+def _counts(torques_nm, c) -> list[int]:
+    top = round(c["F_CPU"] / (2 * c["PWM_FREQUENCY_HZ"]))
+    return [round(expected_duty(t, 0.0, c) * top) for t in torques_nm]
+
+
+def test_bridge_handshake_and_version(rig):
+    from ament_formation.core import serial_protocol as sp
+
+    assert rig.link_up(5.0)
+    assert rig.bridge.link.board_version == sp.PROTOCOL_VERSION == 1
+    assert rig.bridge.link.ticks_per_rev == 1440
+    assert rig.bridge.link.board_config == sp.ConfigAck(1500, 200, 10)
+    line = rig.wait_line(lambda s: s["hello_ack_count"] >= 1 and s["telemetry_count"] > 0
+                         and not s["telemetry"]["flags"] & sp.FLAG_RESET, 2.0)
+    assert line["board"]["crc_errors"] == 0 and line["board"]["frame_errors"] == 0
+
+
+def test_bridge_torque_commands_reflected_in_pwm_duty(frozen_rig):
+    """Wheels held still: PWM compare = round(top * tau R / (G eta k_t V)); the bridge clamps at 0.15 N m."""
+    c = config_constants()
+    rig = frozen_rig
+    assert rig.link_up(5.0)
+    for torque, applied in (((0.10, -0.05), (0.10, -0.05)), ((-0.12, 0.07), (-0.12, 0.07)),
+                            ((0.5, -0.3), (0.15, -0.15))):
+        rig.torque = torque
+        want = _counts(applied, c)
+        line = rig.wait_line(lambda s, want=want: s["pwm_counts"] == want, 2.0)
+        assert all(w != 0 for w in want)
+        assert line["duty"] == pytest.approx([w / line["pwm_top"] for w in want], abs=1e-4)
+    assert rig.spin_until(lambda: rig.bridge.link.board_status is not None
+                          and rig.bridge.link.board_status.left_applied_e4nm == 1500, 1.0)
+    assert rig.bridge.link.board_status.right_applied_e4nm == -1500
+
+
+def test_bridge_watchdog_zeroes_pwm_200ms_after_last_command(rig):
+    from ament_formation.core import serial_protocol as sp
+
+    assert rig.link_up(5.0)
+    rig.torque = (0.08, 0.08)
+    rig.wait_line(lambda s: s["pwm_counts"][0] > 0 and s["pwm_counts"][1] > 0, 2.0)
+    rig.harness.set_mode("cut")              # cable cut: no byte reaches the board any more
+    line = rig.wait_line(lambda s: s["mode"] == "cut" and s["duty"] == [0.0, 0.0], 2.0)
+    delay_s = line["pwm_change_t_s"] - line["last_frame_rx_t_s"]
+    print(f"watchdog: PWM zero {delay_s * 1e3:.2f} ms (emulated) after the board read the last frame")
+    assert 0.199 <= delay_s <= 0.2015        # 200 ms at the 1 ms tick, PWM sampled every 50 us
+    # the board keeps reporting: the bridge sees the WATCHDOG flag and the trip counter
+    assert rig.spin_until(lambda: rig.bridge.link.flags & sp.FLAG_WATCHDOG, 1.0)
+    assert rig.spin_until(lambda: rig.bridge.link.board_status is not None
+                          and rig.bridge.link.board_status.watchdog_trips >= 1, 1.0)
+
+
+def test_bridge_corrupted_frames_counted_and_never_applied(rig):
+    c = config_constants()
+    assert rig.link_up(5.0)
+    good, bad = (0.06, -0.06), (-0.13, 0.11)
+    good_counts, bad_counts = _counts(good, c), _counts(bad, c)
+    rig.torque = good
+    rig.wait_line(lambda s: s["pwm_counts"][0] > 0 > s["pwm_counts"][1], 2.0)
+    rig.harness.set_mode("corrupt")          # one bit flipped in every host frame from now on
+    rig.wait_line(lambda s: s["mode"] == "corrupt", 1.0)
+    start = len(rig.harness.lines)
+    rig.torque = bad
+    # no valid command reaches the board: the watchdog zeroes PWM; the bad torque never shows
+    rig.wait_line(lambda s: s["duty"] == [0.0, 0.0], 2.0)
+    rig.spin_until(lambda: rig.harness.lines[-1]["rx_corrupted_frames"] >= 40, 2.0)
+    during = rig.harness.lines[start:]
+    assert all((s["pwm_counts"][0] >= 0) and (s["pwm_counts"][1] <= 0) for s in during)
+    assert not any(s["pwm_counts"] == bad_counts for s in during)
+    rig.harness.set_mode("pass")
+    line = rig.wait_line(lambda s: s["mode"] == "pass", 1.0)
+    corrupted = line["rx_corrupted_frames"]
+    assert corrupted >= 20
+    # valid commands again: the new torque is applied at once
+    rig.wait_line(lambda s: s["pwm_counts"][0] < 0 < s["pwm_counts"][1], 2.0)
+    # every corrupted frame was counted by the board exactly once, as a CRC error
+    line = rig.wait_line(lambda s: s["board"]["crc_errors"] + s["board"]["frame_errors"]
+                         + s["board"]["type_errors"] >= corrupted, 2.0)
+    board = line["board"]
+    print(f"corruption: {corrupted} frames corrupted, board counted crc={board['crc_errors']} "
+          f"frame={board['frame_errors']} type={board['type_errors']}")
+    assert board["crc_errors"] + board["frame_errors"] + board["type_errors"] == corrupted
+    assert board["crc_errors"] >= corrupted - 1
+    assert rig.spin_until(lambda: rig.bridge.link.board_status is not None
+                          and rig.bridge.link.board_status.crc_errors == board["crc_errors"], 1.0)
+    assert good_counts != bad_counts
+
+
+def test_bridge_telemetry_at_100hz(rig):
+    """Rate in emulated time from the firmware's TX line; the bridge publishes every frame."""
+    assert rig.link_up(5.0)
+    rig.torque = (0.03, -0.03)
+    first = rig.wait_line(lambda s: s["telemetry_count"] > 10, 2.0)
+    n_states0 = len(rig.state_times)
+    last = rig.wait_line(lambda s: s["last_telemetry_t_s"] - first["last_telemetry_t_s"] >= 1.5, 5.0)
+    frames = last["telemetry_count"] - first["telemetry_count"]
+    span_s = last["last_telemetry_t_s"] - first["last_telemetry_t_s"]
+    rate_hz = frames / span_s
+    states = len(rig.state_times) - n_states0
+    wall_rate = (len(rig.state_times) - 1 - n_states0) / (rig.state_times[-1] - rig.state_times[n_states0])
+    print(f"telemetry: {rate_hz:.2f} Hz emulated time ({frames} frames / {span_s:.3f} s); "
+          f"bridge published {states} wheel_state, {wall_rate:.1f} Hz wall time")
+    assert 95.0 <= rate_hz <= 105.0
+    assert abs(states - frames) <= max(3, 0.05 * frames)
+    assert last["loop_max_cycles"] < CONTROL_PERIOD_CYCLES
+    assert max(last["isr_max_cycles"].values()) < 1000

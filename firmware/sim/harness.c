@@ -21,6 +21,9 @@
  *   loop: the firmware writes GPIOR0 = 1 when its main loop starts work and 0 just before it
  *        sleeps; the worst busy stretch is reported with ISR preemption included ("loop_max")
  *        and with ISR cycles subtracted ("loop_max_own").
+ *   host -> board line: "last_frame_rx_t_s" is when the firmware's RX interrupt read the 0x00
+ *        that ended the last complete frame fed to it (the n-th RX interrupt reads the n-th byte);
+ *        "pwm_change_t_s" is when either PWM output last changed (sampled every 50 us).
  *   board -> host line: decoded with the firmware's own src/protocol.c; TELEMETRY frames are
  *        counted with their emulated time (rate in emulated time), the last TELEMETRY and STATUS
  *        fields are reported (error counters, flags, applied torque).
@@ -74,6 +77,7 @@
 #define IO_POLL_STEPS 4u            /* pty polled every 200 us of emulated time */
 #define STATUS_PERIOD_US 10000u
 #define N_VECTORS 26
+#define VECTOR_USART_RX 18
 #define IN_BUF_BYTES 8192u
 #define OUT_BUF_BYTES 8192u
 
@@ -135,6 +139,8 @@ typedef struct {
     uint64_t rx_cut_bytes;
     uint64_t rx_corrupted_frames;
     avr_cycle_count_t last_rx_cycle;
+    uint64_t frame_end_index;          /* rx_bytes count at the last frame-ending 0x00 fed */
+    avr_cycle_count_t frame_end_read_cycle;   /* when the firmware's RX ISR took that byte */
     /* wheels */
     motor_model_t motor;
     double inertia_kgm2;
@@ -142,6 +148,7 @@ typedef struct {
     wheel_t wheel[2];
     double duty[2];
     int32_t pwm_counts[2];
+    avr_cycle_count_t pwm_change_cycle;   /* last change of either PWM output */
     unsigned step;
     uint64_t next_status_us;
 } harness_t;
@@ -250,6 +257,9 @@ static void pty_poll(harness_t *h)
         }
         h->rx_bytes++;
         h->last_rx_cycle = h->avr->cycle;
+        if (byte == 0x00 && pos > 0) {
+            h->frame_end_index = h->rx_bytes;
+        }
         avr_raise_irq(h->uart_input, byte);
     }
 }
@@ -293,6 +303,10 @@ static void isr_running_hook(struct avr_irq_t *irq, uint32_t value, void *param)
     h->isr_entry = now;
     if (value > 0 && value < N_VECTORS) {
         h->isr_count[value]++;
+        /* the n-th USART_RX interrupt reads the n-th byte fed (the firmware counts overruns) */
+        if (value == VECTOR_USART_RX && h->isr_count[value] == h->frame_end_index) {
+            h->frame_end_read_cycle = now;
+        }
     }
 }
 
@@ -327,6 +341,7 @@ static uint16_t reg16(const avr_t *avr, unsigned low)
 static void read_pwm(harness_t *h)
 {
     const avr_t *avr = h->avr;
+    const int32_t before[2] = {h->pwm_counts[0], h->pwm_counts[1]};
     const uint16_t top = reg16(avr, REG_ICR1L);
     const uint8_t tccr1a = avr->data[REG_TCCR1A];
     const uint8_t ddrb = avr->data[REG_DDRB];
@@ -344,6 +359,9 @@ static void read_pwm(harness_t *h)
         const uint16_t c = ocr[i] > top ? top : ocr[i];
         h->pwm_counts[i] = dir[i] ? -(int32_t)c : (int32_t)c;
         h->duty[i] = (double)h->pwm_counts[i] / (double)top;
+    }
+    if (before[0] != h->pwm_counts[0] || before[1] != h->pwm_counts[1]) {
+        h->pwm_change_cycle = avr->cycle;
     }
 }
 
@@ -387,10 +405,10 @@ static void emit_status(harness_t *h, int final)
     FILE *f = h->status;
     fprintf(f,
             "{\"t_s\":%.6f,\"cycle\":%llu,\"wall_s\":%.6f,\"duty\":[%.5f,%.5f],"
-            "\"pwm_counts\":[%d,%d],\"pwm_top\":%u,\"wheel_rad\":[%.6f,%.6f],"
+            "\"pwm_counts\":[%d,%d],\"pwm_change_t_s\":%.6f,\"pwm_top\":%u,\"wheel_rad\":[%.6f,%.6f],"
             "\"wheel_radps\":[%.5f,%.5f],\"encoder_ticks\":[%lld,%lld],"
             "\"rx_bytes\":%llu,\"tx_bytes\":%llu,\"tx_dropped\":%llu,\"tx_frames\":%llu,"
-            "\"mode\":\"%s\",\"rx_cut_bytes\":%llu,\"rx_corrupted_frames\":%llu,\"last_rx_t_s\":%.6f,"
+            "\"mode\":\"%s\",\"rx_cut_bytes\":%llu,\"rx_corrupted_frames\":%llu,\"last_rx_t_s\":%.6f,\"last_frame_rx_t_s\":%.6f,"
             "\"telemetry_count\":%llu,\"first_telemetry_t_s\":%.6f,\"last_telemetry_t_s\":%.6f,"
             "\"telemetry\":{\"ticks\":[%d,%d],\"vel_mradps\":[%d,%d],\"cmd_seq\":%u,\"flags\":%u},"
             "\"status_count\":%llu,\"hello_ack_count\":%llu,"
@@ -400,7 +418,8 @@ static void emit_status(harness_t *h, int final)
             "\"loop_count\":%llu,\"loop_max_cycles\":%llu,\"loop_max_own_cycles\":%llu,"
             "\"isr_max_cycles\":{",
             emu_seconds(h), (unsigned long long)h->avr->cycle, wall_seconds(h), h->duty[0],
-            h->duty[1], h->pwm_counts[0], h->pwm_counts[1], (unsigned)reg16(h->avr, REG_ICR1L),
+            h->duty[1], h->pwm_counts[0], h->pwm_counts[1],
+            (double)h->pwm_change_cycle / (double)h->avr->frequency, (unsigned)reg16(h->avr, REG_ICR1L),
             h->wheel[0].angle_rad, h->wheel[1].angle_rad, h->wheel[0].speed_radps,
             h->wheel[1].speed_radps, (long long)h->wheel[0].emitted_ticks,
             (long long)h->wheel[1].emitted_ticks, (unsigned long long)h->rx_bytes,
@@ -409,6 +428,7 @@ static void emit_status(harness_t *h, int final)
             h->mode == 0 ? "pass" : (h->mode == 1 ? "cut" : "corrupt"),
             (unsigned long long)h->rx_cut_bytes, (unsigned long long)h->rx_corrupted_frames,
             (double)h->last_rx_cycle / (double)h->avr->frequency,
+            (double)h->frame_end_read_cycle / (double)h->avr->frequency,
             (unsigned long long)h->telemetry_count,
             (double)h->first_telemetry_cycle / (double)h->avr->frequency,
             (double)h->last_telemetry_cycle / (double)h->avr->frequency,
