@@ -82,11 +82,14 @@ def min_signed_distance(points, centers, phi, r1: float, r2: float) -> tuple[flo
     inside = q < 1.0
     if len(q) == 0:
         return math.inf, inside
-    radial = np.hypot(u, w) * np.abs(1.0 - 1.0 / np.maximum(q, 1e-300))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        radial = np.where(q > 0.0, np.hypot(u, w) * np.abs(1.0 - 1.0 / q), min(r1, r2))  # centre: r2
     gap = np.abs(q - 1.0) * min(r1, r2)
     lower = np.where(inside, -radial, gap)
     upper = np.where(inside, -gap, radial)
-    cand = np.flatnonzero(lower <= upper.min() + 1e-12)
+    cand = np.flatnonzero(lower <= np.nanmin(upper) + 1e-12)
+    if len(cand) == 0:  # only with non-finite input: evaluate everything
+        cand = np.arange(len(q))
     exact = signed_distance_to_ellipse(np.asarray(points, dtype=float)[cand],
                                        np.asarray(centers, dtype=float)[cand],
                                        np.asarray(phi, dtype=float)[cand], r1, r2)
