@@ -117,6 +117,8 @@ class IntrinsicsResult:
 def calibrate_intrinsics(images: list[tuple[str, np.ndarray]], spec: CharucoSpec,
                          min_views: int = MIN_VIEWS) -> IntrinsicsResult:
     """Intrinsics from ChArUco views ``images`` = [(name, mono8 (H, W))]."""
+    if min_views < 3:
+        raise ConfigError(f"must be >= 3 (got {min_views})", "--min-views")
     if not images:
         raise ConfigError("no images given", "IMAGES")
     board = spec.board()
