@@ -5,6 +5,7 @@ master side of the pty, the bridge opens the slave through a stable symlink.
 """
 from __future__ import annotations
 
+import collections
 import math
 import time
 
@@ -40,7 +41,7 @@ class Rig:
         overrides.update(params)
         self.bridge = BridgeNode(context=context, namespace="robot_0",
                                  parameter_overrides=[Parameter(k, value=v) for k, v in overrides.items()])
-        self.bridge.link.sent_log = __import__("collections").deque()
+        self.bridge.link.sent_log = collections.deque()
         from rclpy.node import Node
 
         self.helper = Node("bridge_test_helper", namespace="robot_0", context=context)
@@ -180,7 +181,7 @@ def test_one_percent_byte_corruption_keeps_commands_and_applies_no_corrupt_one(m
     n = 300
     values = [(1e-4 * (k + 1), -1e-4 * (k + 1)) for k in range(n)]   # every command distinct
     rig.publish_series(values)
-    assert rig.spin_until(lambda: rig.log and rig.log[-1][2] == n, 0.5) or True
+    rig.spin_until(lambda: rig.log[-1][2] == n, 0.5)   # let the last command settle (may be lost)
     applied = {(l, r) for _, _, l, r in rig.log}
     on_wire = {l for _, l, _ in rig.bridge.link.sent_log}
     entered = [k + 1 for k in range(n) if k + 1 in on_wire]   # not superseded before sending
@@ -192,8 +193,6 @@ def test_one_percent_byte_corruption_keeps_commands_and_applies_no_corrupt_one(m
     print(f"kept {kept:.3f} of {len(entered)} commands sent ({kept_all:.3f} of {n} published); board rejected {rejected} frames; "
           f"{rig.runner.rx.corrupted} bytes corrupted to the board; "
           f"retransmissions {rig.bridge.link.stats['retransmissions']}")
-    lost = [k + 1 for k in range(n) if (k + 1, -(k + 1)) not in applied]
-    print("lost", [(v, sum(1 for s in rig.bridge.link.sent_log if s[1] == v)) for v in lost])
     assert rig.runner.rx.corrupted > 20 and rejected > 10   # the faults really happened
     assert kept >= 0.95
     assert corrupt_applied == []
@@ -205,7 +204,8 @@ def test_port_closed_and_reopened_is_back_within_1_s(make_rig):
     node_before = rig.bridge
     rig.runner.close_port()
     assert rig.spin_until(lambda: rig.bridge.link.state == sl.DOWN, 1.0)
-    assert rig.spin_until(lambda: rig.bridge._next_open_s - time.monotonic() > 0.3 or False, 2.0) or True
+    # worst case: the port stays away until the reopen backoff has grown to its maximum
+    assert rig.spin_until(lambda: rig.bridge._backoff.delay_s >= rig.bridge.params.reconnect_max_s, 3.0)
     rig.runner.open()
     t0 = time.monotonic()
     assert rig.link_up(2.0)
@@ -214,3 +214,10 @@ def test_port_closed_and_reopened_is_back_within_1_s(make_rig):
     rig.publish(0.04, 0.04)
     assert rig.spin_until(lambda: np.allclose(rig.board.applied_torque_nm, [0.04, 0.04]), 1.0)
     assert rig.bridge is node_before and rig.bridge.link.stats["connects"] == 2
+
+
+def test_bad_parameter_is_a_one_line_config_error(ros_context):
+    from ament_formation.core.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="torque_limit_nm"):
+        BridgeNode(context=ros_context, parameter_overrides=[Parameter("torque_limit_nm", value=-1.0)])
