@@ -42,13 +42,14 @@ from numba import njit
 
 from ament_formation.core.automaton import (
     INF, MODE_C, MODE_MUTUAL, MODE_OBSTACLE, MODE_YIELD, P_DRIFT_CAP, P_EM, P_HORIZON, P_KAPPA,
-    P_KEEPOUT_MARGIN, P_L, P_TEAM_VREL, choose_direction, exit_conditions, exit_timer, h_value,
+    P_DWELL, P_KEEPOUT_MARGIN, P_L, P_TEAM_VREL, choose_direction, exit_conditions, exit_timer, h_value,
     in_cooldown, relative_velocity, threat_test,
 )
 
 KIND_OBSTACLE = 1   # cool-down bookkeeping: last target was an obstacle
 KIND_AGENT = 2      # ... or a robot
 MAX_THREATS = 8     # robot threats kept per robot and decision
+RETARGET_MARGIN = 0.1   # S8.2 between robots: the new h_L must be lower by this (hysteresis)
 
 
 @njit(cache=True)
@@ -414,15 +415,19 @@ def decide(t, p, pd, goal, goal_dot, vc, team, rbody, oc, ov, ophi, ophid, oaxes
             continue
         k = best
         if mode[i] != MODE_C:
+            if t - t_entry[i] < prm[P_DWELL]:
+                continue                          # S14.2: no re-target within T_dwell of a switch
             em_cur, hl_cur = _agent_urgency(i, tgt[i], p, pd, rbody, prm)
             if em_cur:
                 continue
             r = keepout_radius(rbody, i, k, prm)
             hl_new = h_value(p[i, 0] - p[k, 0], p[i, 1] - p[k, 1], 0.0, prm[P_L] * r, prm[P_L] * r)
-            if not (b_em or hl_new < hl_cur):
+            if not (b_em or hl_new < hl_cur - RETARGET_MARGIN):
                 continue
         if reacts_to(k, i, mode, tgt):
             # emergency against a robot that already reacts to i: convert to a mutual pair
+            if t - t_entry[k] < prm[P_DWELL]:
+                continue
             nev = _form_mutual(i, k, t, pd, mode, tgt, sdir, t_entry, since, last_kind, last_tgt,
                                last_exit, wc, ev, nev)
         elif mode[k] == MODE_C and (mode[i] == MODE_C or mode[i] == MODE_YIELD):

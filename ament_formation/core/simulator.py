@@ -65,6 +65,51 @@ def obstacle_states(t, c0, vel, amp, omega, phi0, phid, oc, ov, oa, ophi, ophid,
         ophidd[j] = 0.0
 
 
+REF_SUB = 10   # leader references are tabulated every REF_SUB steps and interpolated
+
+
+@njit(cache=True)
+def reference_at(step, sub, dt, tab, ref):
+    """Quintic Hermite interpolation of the tabulated leader references (exact r, r_dot, r_ddot at
+    the grid nodes, C2 in between; error ~ h^6 r^(6)) for step ``step`` of the chunk -> ``ref`` (N, 6)."""
+    g = step // sub
+    h = sub * dt
+    s = (step - g * sub) / sub
+    s2 = s * s
+    s3 = s2 * s
+    s4 = s3 * s
+    s5 = s4 * s
+    b0 = 1.0 - 10.0 * s3 + 15.0 * s4 - 6.0 * s5
+    b1 = s - 6.0 * s3 + 8.0 * s4 - 3.0 * s5
+    b2 = 0.5 * s2 - 1.5 * s3 + 1.5 * s4 - 0.5 * s5
+    b3 = 0.5 * s3 - s4 + 0.5 * s5
+    b4 = -4.0 * s3 + 7.0 * s4 - 3.0 * s5
+    b5 = 10.0 * s3 - 15.0 * s4 + 6.0 * s5
+    d0 = -30.0 * s2 + 60.0 * s3 - 30.0 * s4
+    d1 = 1.0 - 18.0 * s2 + 32.0 * s3 - 15.0 * s4
+    d2 = s - 4.5 * s2 + 6.0 * s3 - 2.5 * s4
+    d3 = 1.5 * s2 - 4.0 * s3 + 2.5 * s4
+    d4 = -12.0 * s2 + 28.0 * s3 - 15.0 * s4
+    d5 = -d0
+    e0 = -60.0 * s + 180.0 * s2 - 120.0 * s3
+    e1 = -36.0 * s + 96.0 * s2 - 60.0 * s3
+    e2 = 1.0 - 9.0 * s + 18.0 * s2 - 10.0 * s3
+    e3 = 3.0 * s - 12.0 * s2 + 10.0 * s3
+    e4 = -24.0 * s + 84.0 * s2 - 60.0 * s3
+    e5 = -e0
+    for i in range(tab.shape[0]):
+        for q in range(2):
+            p0 = tab[i, g, q]
+            v0 = tab[i, g, 2 + q] * h
+            a0 = tab[i, g, 4 + q] * h * h
+            p1 = tab[i, g + 1, q]
+            v1 = tab[i, g + 1, 2 + q] * h
+            a1 = tab[i, g + 1, 4 + q] * h * h
+            ref[i, q] = b0 * p0 + b1 * v0 + b2 * a0 + b3 * a1 + b4 * v1 + b5 * p1
+            ref[i, 2 + q] = (d0 * p0 + d1 * v0 + d2 * a0 + d3 * a1 + d4 * v1 + d5 * p1) / h
+            ref[i, 4 + q] = (e0 * p0 + e1 * v0 + e2 * a0 + e3 * a1 + e4 * v1 + e5 * p1) / (h * h)
+
+
 # ------------------------------------------------------------------------------ one robot's law
 
 @njit(cache=True)
@@ -203,7 +248,7 @@ def goals_and_fields(x, pd, ref, orig_parent, orig_offset, gains, goal, goal_dot
 # ------------------------------------------------------------------------------ the 1 kHz loop
 
 @njit(cache=True)
-def _run_segment(k0, k_end, skip_decide, dt, dec_every, rec_every, ref_k0, ref_tab,
+def _run_segment(k0, k_end, skip_decide, dt, dec_every, rec_every, ref_k0, ref_sub, ref_tab,
                  x, acmd, torque, sat_flag, pd, goal, goal_dot, vc, ref,
                  parent, offset, order, orig_parent, orig_offset, team, rbody, coeffs, gains,
                  d_amp, d_freq, d_phase,
@@ -226,10 +271,8 @@ def _run_segment(k0, k_end, skip_decide, dt, dec_every, rec_every, ref_k0, ref_t
         t = kk * dt
         obstacle_states(t, ob_c0, ob_v, ob_amp, ob_w, ob_phi0, ob_phid, oc, ov, oa, ophi, ophid,
                         ophidd)
-        row = kk - ref_k0
+        reference_at(kk - ref_k0, ref_sub, dt, ref_tab, ref)
         for i in range(n):
-            for q in range(6):
-                ref[i, q] = ref_tab[i, row, q]
             pvx, pvy = point_velocity_k(x[i, 2], x[i, 3], x[i, 4], coeffs[4, i])
             pd[i, 0] = pvx
             pd[i, 1] = pvy
@@ -395,9 +438,11 @@ class _Setup:
         return parent, offset, np.array(order, dtype=np.int64)
 
     def reference_table(self, k0: int, k1: int, dt_s: float) -> np.ndarray:
-        """(N, k1 - k0, 6) leader references [r, r_dot, r_ddot] at steps k0 .. k1-1 (zeros: followers)."""
-        tab = np.zeros((self.n, k1 - k0, 6))
-        t = np.arange(k0, k1) * dt_s
+        """(N, G, 6) leader references [r, r_dot, r_ddot] on the grid t = (k0 + REF_SUB g) dt_s
+        covering steps k0 .. k1-1 (zeros for followers); :func:`reference_at` interpolates."""
+        n_grid = (k1 - k0 - 1) // REF_SUB + 2
+        tab = np.zeros((self.n, n_grid, 6))
+        t = (k0 + REF_SUB * np.arange(n_grid)) * dt_s
         for i, path in enumerate(self.paths):
             if path is not None:
                 r, rd, rdd = path.reference(t)
@@ -499,7 +544,7 @@ def simulate(scenario, *, dt_s: float = 0.001, record_every_s: float = 0.01,
         ref_tab = setup.reference_table(k, k_chunk_end, dt_s)
         while k < k_chunk_end:
             k, nev = _run_segment(
-                k, k_chunk_end, skip, dt_s, dec_every, rec_every, ref_k0, ref_tab,
+                k, k_chunk_end, skip, dt_s, dec_every, rec_every, ref_k0, REF_SUB, ref_tab,
                 x, acmd, torque, sat_flag, pd, goal, goal_dot, vc, ref,
                 parent, offset, order, setup.orig_parent, setup.orig_offset, setup.team,
                 setup.rbody, setup.coeffs, setup.gains, setup.d_amp, setup.d_freq, setup.d_phase,
