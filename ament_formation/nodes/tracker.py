@@ -13,6 +13,7 @@ Contract
 Parameters (TrackerNodeParams)
   source               str     "" = subscribe image_topic; a number = video device index; else a
                                path/URL for cv2.VideoCapture (read in a thread)        default ""
+  source_loop          bool    replay a video file from the start when it ends         default false
   image_topic          str     topic of frames                                         default /camera/image_raw
   camera_config        str     camera.yaml (config/ name or path)                      default camera.yaml
   marker_ids           int[]   marker id per robot                                     default [0, 1]
@@ -64,6 +65,7 @@ class TrackerNodeParams:
     """Parameters of formation_tracker (see the module docstring)."""
 
     source: str = ""
+    source_loop: bool = False
     image_topic: str = "/camera/image_raw"
     camera_config: str = "camera.yaml"
     marker_ids: tuple[int, ...] = (0, 1)
@@ -106,12 +108,13 @@ def _camera_path(name: str) -> Path:
 class _Capture(threading.Thread):
     """Grabs frames from cv2.VideoCapture; keeps only the newest (frame, stamp)."""
 
-    def __init__(self, source: str, clock, on_frame) -> None:
+    def __init__(self, source: str, clock, on_frame, loop: bool = False) -> None:
         super().__init__(daemon=True, name="formation_tracker_capture")
         self._source = int(source) if source.isdigit() else source
         self._clock = clock
         self._on_frame = on_frame
-        self._stop = threading.Event()
+        self._loop = loop
+        self._halt = threading.Event()
         self._lock = threading.Lock()
         self._latest = None
         self.errors = 0
@@ -123,19 +126,26 @@ class _Capture(threading.Thread):
         return item
 
     def stop(self) -> None:
-        self._stop.set()
+        self._halt.set()
 
     def run(self) -> None:
         backoff_s = 0.1
-        while not self._stop.is_set():
+        while not self._halt.is_set():
             cap = cv2.VideoCapture(self._source)
             if not cap.isOpened():
                 self.errors += 1
-                self._stop.wait(backoff_s)
+                self._halt.wait(backoff_s)
                 backoff_s = min(2 * backoff_s, 2.0)
                 continue
             backoff_s = 0.1
-            while not self._stop.is_set():
+            is_file = isinstance(self._source, str) and "://" not in self._source
+            fps = cap.get(cv2.CAP_PROP_FPS) if is_file else 0.0
+            period_s = 1.0 / fps if fps and 0 < fps < 1000 else (1.0 / 30.0 if is_file else 0.0)
+            next_s = time.monotonic()
+            while not self._halt.is_set():
+                if period_s:  # a file plays at its own frame rate, like a camera would
+                    next_s += period_s
+                    self._halt.wait(max(next_s - time.monotonic(), 0.0))
                 if not cap.grab():
                     break
                 stamp = self._clock.now().to_msg()
@@ -149,7 +159,7 @@ class _Capture(threading.Thread):
                     self._latest = (np.ascontiguousarray(frame), stamp)
                 self._on_frame()
             cap.release()
-            if isinstance(self._source, str) and not self._source.startswith(("rtsp:", "http:", "https:")):
+            if is_file and not self._loop:
                 self.ended = True  # a video file ran out
                 return
 
@@ -180,7 +190,8 @@ class TrackerNode(Node):
         self.capture = None
         if self.prm.source:
             self._guard = self.create_guard_condition(self._on_captured)
-            self.capture = _Capture(self.prm.source, self.get_clock(), self._guard.trigger)
+            self.capture = _Capture(self.prm.source, self.get_clock(), self._guard.trigger,
+                                    loop=self.prm.source_loop)
             self.capture.start()
         else:
             self.create_subscription(Image, self.prm.image_topic, self._on_image, QOS_IMAGE)
