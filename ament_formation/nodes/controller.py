@@ -1,0 +1,329 @@
+"""formation_controller: one robot's sliding-mode formation controller (namespace robot_<id>).
+
+Every control period (100 Hz): the pose estimate (core/estimator.py, spec S10: wheel odometry
+between camera frames, each latency-compensated camera pose corrects it) feeds the robot's
+switching automaton and sliding-mode law (core/controller.py RobotController, the same functions
+as the simulator); the torque goes to the bridge. The current parent is the one of
+``/formation/graph``: the node re-subscribes to that parent's ``state`` and ``accel`` whenever the
+graph changes. Safety (DESIGN §7): no pose for ``pose_timeout_s`` or no wheel data for
+``wheel_timeout_s`` -> controlled stop (brake to rest, then zero torque); a parent silent for
+``parent_timeout_s`` is extrapolated with its commanded acceleration, after ``parent_hold_s`` the
+robot holds (brakes); NaN/inf inputs are rejected and counted; torques are clamped to the limit.
+Before the mission start (``start_s`` of the graph) the robot stands still (zero torque).
+
+Topics (namespace robot_<id>; QoS from ros/qos.py)
+  sub  pose                     geometry_msgs/PoseStamped (camera, stamp = capture time)  QOS_CONTROL
+  sub  wheel_state              sensor_msgs/JointState (wheel angles rad, rates rad/s)     QOS_CONTROL
+  sub  /formation/graph         std_msgs/String JSON (parents, offsets_m, start_s)         QOS_GRAPH
+  sub  /robot_<parent>/state    nav_msgs/Odometry                                          QOS_CONTROL
+  sub  /robot_<parent>/accel    geometry_msgs/AccelStamped                                 QOS_CONTROL
+  sub  /robot_<orig>/state      (original parent pi0, for the S8.3 exit goal when re-parented)
+  pub  wheel_torque             sensor_msgs/JointState effort [left, right] N m            QOS_CONTROL
+  pub  state                    nav_msgs/Odometry (fused pose; twist v, omega)             QOS_CONTROL
+  pub  accel                    geometry_msgs/AccelStamped (commanded point accel, S4)     QOS_CONTROL
+  pub  mode                     std_msgs/String JSON {mode, target, direction, avoiding}   QOS_CONTROL
+                                (on change and every second)
+
+Parameters
+  scenario          str    scenario YAML (required)
+  robot_id          int    this robot's id (required, >= 0)
+  control_rate_hz   float  control loop rate [Hz]                                   default 100
+  pose_timeout_s    float  no camera pose this long -> controlled stop [s]          default 0.5
+  wheel_timeout_s   float  no wheel_state this long -> controlled stop [s]          default 0.1
+  parent_timeout_s  float  parent state older than this is extrapolated [s]         default 0.1
+  parent_hold_s     float  parent state older than this -> hold [s]                 default 1.0
+  stop_time_s       float  time constant of the controlled stop [s]                 default 0.3
+  camera_gain       float  S10 complementary gain per camera frame, (0, 1]          default 0.5
+"""
+from __future__ import annotations
+
+import json
+import math
+import sys
+from dataclasses import dataclass
+
+import numpy as np
+import rclpy
+from geometry_msgs.msg import AccelStamped, PoseStamped
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+from std_msgs.msg import String
+
+from ament_formation.core.dynamics import PlantCoeffs, b2_inv, f2
+from ament_formation.core.errors import ConfigError
+from ament_formation.core.estimator import EstimatorParams, PoseEstimator
+from ament_formation.core.scenario import load_scenario
+from ament_formation.ros import messages as msgs
+from ament_formation.ros.params import declare_dataclass
+from ament_formation.ros.qos import QOS_CONTROL, QOS_GRAPH
+
+
+@dataclass(frozen=True)
+class ControllerParams:
+    scenario: str = ""
+    robot_id: int = -1
+    control_rate_hz: float = 100.0
+    pose_timeout_s: float = 0.5
+    wheel_timeout_s: float = 0.1
+    parent_timeout_s: float = 0.1
+    parent_hold_s: float = 1.0
+    stop_time_s: float = 0.3
+    camera_gain: float = 0.5
+
+    def __post_init__(self) -> None:
+        if not self.scenario:
+            raise ConfigError("is required (path of a scenario YAML)", "scenario")
+        if not (isinstance(self.robot_id, int) and self.robot_id >= 0):
+            raise ConfigError(f"is required: an integer >= 0 (got {self.robot_id!r})", "robot_id")
+        for name, lo, hi in (("control_rate_hz", 1.0, 2000.0), ("pose_timeout_s", 0.01, 10.0),
+                             ("wheel_timeout_s", 0.005, 10.0), ("parent_timeout_s", 0.0, 10.0),
+                             ("parent_hold_s", 0.0, 60.0), ("stop_time_s", 0.01, 10.0)):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and lo <= v <= hi):
+                raise ConfigError(f"must be in [{lo:g}, {hi:g}] (got {v!r})", name)
+        if self.parent_hold_s < self.parent_timeout_s:
+            raise ConfigError("must be >= parent_timeout_s", "parent_hold_s")
+
+
+def stop_torque(state: np.ndarray, k: PlantCoeffs, stop_time_s: float) -> np.ndarray:
+    """Controlled stop (DESIGN §7): torques (N, 2) that drive (v, omega) to 0 with time constant
+    ``stop_time_s`` through the model (S2.2: x2dot = f2 + B2 u => u = B2^-1 (-x2 / T - f2)),
+    uniformly scaled into the torque limit (S3.6)."""
+    x2dot = -state[:, 3:5] / stop_time_s - f2(state, k)
+    u = np.einsum("nij,nj->ni", b2_inv(k), x2dot)
+    scale = np.maximum(1.0, np.max(np.abs(u), axis=1) / k.tau_max)
+    return u / scale[:, None]
+
+
+class _Neighbour:
+    """Latest state/accel of another robot (parent or original parent)."""
+
+    def __init__(self, rid: int):
+        self.rid = rid
+        self.state: np.ndarray | None = None
+        self.accel = np.zeros(2)
+        self.stamp_s = -math.inf
+        self.subs: list = []
+
+
+class ControllerNode(Node):
+    """See the module docstring."""
+
+    def __init__(self, *, context=None, params: ControllerParams | None = None, **node_kw):
+        super().__init__("formation_controller", context=context, **node_kw)
+        self.prm = params if params is not None else declare_dataclass(self, ControllerParams)
+        self.scenario = load_scenario(self.prm.scenario)
+        if self.prm.robot_id not in self.scenario.robot_ids:
+            raise ConfigError(f"{self.prm.robot_id} is not a robot of {self.scenario.name} "
+                              f"(ids {list(self.scenario.robot_ids)})", "robot_id")
+        self.rid = self.prm.robot_id
+        spec = self.scenario.robot(self.rid)
+        self.k = PlantCoeffs.from_params([spec.params])
+        self.tau_max = spec.params.torque_limit_nm
+        self.estimator = PoseEstimator(EstimatorParams.from_robot(spec.params, camera_gain=self.prm.camera_gain))
+        from ament_formation.core.controller import RobotController
+
+        self.law = RobotController(self.scenario, self.rid)
+        self.start_s: float | None = None
+        self.graph: msgs.GraphMessage | None = None
+        self.parent: _Neighbour | None = None
+        self.orig_parent_id = self.law.original_parent if hasattr(self.law, "original_parent") else None
+        self.orig: _Neighbour | None = None
+        self.last_wheel_s = -math.inf
+        self.rejected = {"pose": 0, "wheel": 0, "parent": 0, "graph": 0}
+        self.safety = "waiting"       # waiting | running | stopped_pose | stopped_wheels | hold_parent
+        self.mode = {"mode": "hold", "target": None, "direction": None, "avoiding": False}
+        self._mode_sent = None
+        self._last_mode_pub = -math.inf
+        self.ticks = 0
+        self.last_torque = np.zeros(2)
+
+        self.pub_torque = self.create_publisher(JointState, "wheel_torque", QOS_CONTROL)
+        self.pub_state = self.create_publisher(msgs.Odometry, "state", QOS_CONTROL)
+        self.pub_accel = self.create_publisher(AccelStamped, "accel", QOS_CONTROL)
+        self.pub_mode = self.create_publisher(String, "mode", QOS_CONTROL)
+        self.create_subscription(PoseStamped, "pose", self._on_pose, QOS_CONTROL)
+        self.create_subscription(JointState, "wheel_state", self._on_wheels, QOS_CONTROL)
+        self.create_subscription(String, "/formation/graph", self._on_graph, QOS_GRAPH)
+        if self.orig_parent_id is not None:
+            self.orig = self._subscribe_neighbour(self.orig_parent_id)
+        self.timer = self.create_timer(1.0 / self.prm.control_rate_hz, self._control)
+
+    # ------------------------------------------------------------------ time
+    def now_s(self) -> float:
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    # ------------------------------------------------------------------ inputs
+    def _on_pose(self, msg: PoseStamped) -> None:
+        pose, stamp_s = msgs.pose_from_msg(msg)
+        outcome = self.estimator.camera_update(stamp_s, pose)
+        if outcome.startswith("rejected"):
+            self.rejected["pose"] += 1
+
+    def _on_wheels(self, msg: JointState) -> None:
+        try:
+            q, qd, stamp_s = msgs.wheel_state_from_msg(msg)
+        except ValueError:
+            self.rejected["wheel"] += 1
+            return
+        if self.estimator.wheel_update(stamp_s, q, qd):
+            self.last_wheel_s = self.now_s()
+        else:
+            self.rejected["wheel"] += 1
+
+    def _on_graph(self, msg: String) -> None:
+        try:
+            graph = msgs.graph_from_msg(msg)
+        except ValueError:
+            self.rejected["graph"] += 1
+            return
+        if self.graph is not None and graph.revision < self.graph.revision:
+            return
+        self.graph = graph
+        if graph.start_s is not None:
+            self.start_s = graph.start_s
+        parent = graph.parents.get(self.rid)
+        if (self.parent.rid if self.parent else None) != parent:
+            if self.parent is not None and self.parent is not self.orig:
+                for s in self.parent.subs:
+                    self.destroy_subscription(s)
+            if parent is None:
+                self.parent = None
+            elif self.orig is not None and parent == self.orig.rid:
+                self.parent = self.orig
+            else:
+                self.parent = self._subscribe_neighbour(parent)
+
+    def _subscribe_neighbour(self, rid: int) -> _Neighbour:
+        nb = _Neighbour(rid)
+
+        def on_state(msg, nb=nb):
+            state, stamp_s = msgs.state_from_odometry(msg)
+            if not np.all(np.isfinite(state)):
+                self.rejected["parent"] += 1
+                return
+            nb.state, nb.stamp_s = state, stamp_s
+
+        def on_accel(msg, nb=nb):
+            accel, _ = msgs.accel_from_msg(msg)
+            if not np.all(np.isfinite(accel)):
+                self.rejected["parent"] += 1
+                return
+            nb.accel = accel
+
+        nb.subs = [self.create_subscription(msgs.Odometry, f"/robot_{rid}/state", on_state, QOS_CONTROL),
+                   self.create_subscription(AccelStamped, f"/robot_{rid}/accel", on_accel, QOS_CONTROL)]
+        return nb
+
+    def _neighbour_now(self, nb: _Neighbour | None, now_s: float) -> np.ndarray | None:
+        """The neighbour's state extrapolated to now with its commanded acceleration (S10, S13 #13);
+        None when unknown or older than parent_hold_s."""
+        if nb is None or nb.state is None:
+            return None
+        age = now_s - nb.stamp_s
+        if age > self.prm.parent_hold_s:
+            return None
+        if age <= self.prm.parent_timeout_s:
+            return nb.state
+        dt = age
+        x = nb.state.copy()
+        d = self.k.d[0]
+        th, v, w = x[2], x[3], x[4]
+        pdot = np.array([v * math.cos(th) - d * w * math.sin(th), v * math.sin(th) + d * w * math.cos(th)])
+        x[:2] = x[:2] + pdot * dt + 0.5 * nb.accel * dt * dt
+        return x
+
+    # ------------------------------------------------------------------ control loop
+    def _control(self) -> None:
+        now = self.now_s()
+        self.ticks += 1
+        est = self.estimator
+        if not est.initialized:
+            self._safety("waiting")
+            self._send(np.zeros(2), None, now)
+            return
+        state = est.state_at(now)
+        stamp = msgs.stamp_from_s(now)
+        self.pub_state.publish(msgs.odometry(state, stamp, f"robot_{self.rid}"))
+        if now - self.last_wheel_s > self.prm.wheel_timeout_s:
+            self._safety("stopped_wheels")
+            self._send(np.zeros(2), None, now)     # no encoder data: nothing to brake with
+            return
+        if est.camera_age_s(now) > self.prm.pose_timeout_s:
+            self._safety("stopped_pose")
+            self._send(stop_torque(state[None], self.k, self.prm.stop_time_s)[0], None, now)
+            return
+        if self.start_s is None or now < self.start_s:
+            self._safety("waiting")
+            self._send(np.zeros(2), None, now)
+            return
+        t = now - self.start_s
+        parent_state = self._neighbour_now(self.parent, now)
+        if self.parent is not None and parent_state is None:
+            self._safety("hold_parent")
+            self._send(stop_torque(state[None], self.k, self.prm.stop_time_s)[0], None, now)
+            return
+        self._safety("running")
+        offset = (np.asarray(self.graph.offsets_m.get(self.rid, (0.0, 0.0)))
+                  if self.graph is not None else np.zeros(2))
+        out = self.law.step(
+            t, state,
+            parent=None if self.parent is None else self.parent.rid,
+            parent_state=parent_state,
+            parent_accel=None if self.parent is None else self.parent.accel,
+            offset=offset,
+            original_parent_state=self._neighbour_now(self.orig, now))
+        self.mode = {"mode": out.mode, "target": out.target, "direction": out.direction,
+                     "avoiding": bool(out.avoiding)}
+        self._send(np.asarray(out.torque_nm, dtype=float), np.asarray(out.accel_cmd_mps2, dtype=float), now)
+
+    def _safety(self, status: str) -> None:
+        if status != self.safety:
+            log = self.get_logger().warn if status.startswith(("stopped", "hold")) else self.get_logger().info
+            log(f"safety: {self.safety} -> {status}")
+            self.safety = status
+            if status != "running":
+                self.mode = {"mode": "hold" if status in ("waiting", "hold_parent") else "stopped",
+                             "target": None, "direction": None, "avoiding": False}
+
+    def _send(self, torque: np.ndarray, accel: np.ndarray | None, now: float) -> None:
+        torque = np.where(np.isfinite(torque), torque, 0.0)
+        torque = np.clip(torque, -self.tau_max, self.tau_max)   # DESIGN §7: clamp here too
+        self.last_torque = torque
+        stamp = msgs.stamp_from_s(now)
+        self.pub_torque.publish(msgs.wheel_torque(torque, stamp))
+        self.pub_accel.publish(msgs.accel_stamped(np.zeros(2) if accel is None else accel, stamp))
+        key = json.dumps(self.mode, sort_keys=True)
+        if key != self._mode_sent or now - self._last_mode_pub >= 1.0:
+            self.pub_mode.publish(msgs.mode_msg(**self.mode))
+            self._mode_sent, self._last_mode_pub = key, now
+
+
+def main(argv: list[str] | None = None) -> int:
+    rclpy.init(args=argv if argv is not None else sys.argv)
+    node = None
+    try:
+        node = ControllerNode()
+        rclpy.spin(node)
+        return 0
+    except ConfigError as err:
+        print(f"formation_controller: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 0
+    except Exception as err:  # noqa: BLE001
+        if type(err).__name__ == "ExternalShutdownException":
+            return 0
+        raise
+    finally:
+        if node is not None:
+            try:   # last word: zero torque (the bridge and the board time out anyway)
+                node.pub_torque.publish(msgs.wheel_torque(np.zeros(2), msgs.stamp_from_s(node.now_s())))
+            except Exception:  # noqa: BLE001 - context already shut down
+                pass
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    sys.exit(main())
