@@ -142,6 +142,7 @@ def test_board_watchdog_zeroes_torque_within_250_ms(make_rig):
     assert rig.spin_until(lambda: rig.board.watchdog_trips > trips_before, 1.0)
     last_cmd_s = rig.log[-1][0]
     delay_s = rig.board.watchdog_tripped_at_s - last_cmd_s
+    print(f"board watchdog zeroed torque {delay_s * 1e3:.1f} ms after the last command")
     assert 0.2 <= delay_s <= 0.25, f"watchdog after {delay_s * 1e3:.1f} ms"
     assert np.all(rig.board.applied_torque_nm == 0.0)
     assert rig.board.telemetry().flags & sp.FLAG_WATCHDOG
@@ -154,6 +155,7 @@ def test_bridge_zeroes_torque_when_input_goes_stale(make_rig):
     assert np.allclose(rig.board.applied_torque_nm, [0.08, -0.08])
     assert rig.spin_until(lambda: np.all(rig.board.applied_torque_nm == 0.0), 1.0)
     zero_s = next(t for t, _, l, r in rig.log if t > times[-1] and (l, r) == (0, 0))
+    print(f"bridge zeroed torque {1e3 * (zero_s - times[-1]):.0f} ms after the last input (timeout 150 ms)")
     assert zero_s - times[-1] <= 0.15 + 0.03, f"zeroed {1e3 * (zero_s - times[-1]):.0f} ms after the last input"
     assert rig.bridge.link.stats["stale_zero_commands"] > 0
     assert not rig.board.flags & sp.FLAG_WATCHDOG   # the bridge, not the board watchdog, stopped it
@@ -210,6 +212,7 @@ def test_port_closed_and_reopened_is_back_within_1_s(make_rig):
     t0 = time.monotonic()
     assert rig.link_up(2.0)
     back_s = time.monotonic() - t0
+    print(f"link back {back_s * 1e3:.0f} ms after the port reappeared")
     assert back_s <= 1.0, f"link back after {back_s:.2f} s"
     rig.publish(0.04, 0.04)
     assert rig.spin_until(lambda: np.allclose(rig.board.applied_torque_nm, [0.04, 0.04]), 1.0)
@@ -221,3 +224,15 @@ def test_bad_parameter_is_a_one_line_config_error(ros_context):
 
     with pytest.raises(ConfigError, match="torque_limit_nm"):
         BridgeNode(context=ros_context, parameter_overrides=[Parameter("torque_limit_nm", value=-1.0)])
+
+
+def test_wheel_torque_names_order_and_size():
+    from ament_formation.ros.wheels import torques_from_joint_state
+
+    msg = JointState()
+    msg.name, msg.effort = ["right_wheel", "left_wheel"], [0.2, -0.1]
+    assert torques_from_joint_state(msg) == (-0.1, 0.2)
+    msg.name = []
+    assert torques_from_joint_state(msg) == (0.2, -0.1)
+    msg.effort = [0.1, 0.2, 0.3]
+    assert torques_from_joint_state(msg) is None

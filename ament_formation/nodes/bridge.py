@@ -36,6 +36,7 @@ from ament_formation.ros import diagnostics as diag
 from ament_formation.ros.messages import wheel_state
 from ament_formation.ros.params import declare_dataclass
 from ament_formation.ros.qos import QOS_CONTROL, QOS_DIAGNOSTICS
+from ament_formation.ros.wheels import torques_from_joint_state
 
 
 def open_port(url: str, baud_rate: int) -> serial.SerialBase:
@@ -69,8 +70,7 @@ class BridgeNode(Node):
     # -- callbacks -----------------------------------------------------------------------------
     def _on_torque(self, msg: JointState) -> None:
         now = self._mono()
-        efforts = list(msg.effort) if len(msg.effort) == 2 else None
-        if not self.link.set_input(efforts, now):
+        if not self.link.set_input(torques_from_joint_state(msg), now):
             self.get_logger().warn("wheel_torque rejected (need 2 finite efforts)", throttle_duration_sec=1.0)
             return
         self._write(self.link.command_now(now))
