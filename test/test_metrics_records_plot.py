@@ -246,3 +246,53 @@ def test_read_run_rejects_a_damaged_directory(run_dir, tmp_path):
     (broken / "trajectories.csv").write_text("t_s,r0_x_m\n0,1\n")
     with pytest.raises(ConfigError, match="r0_y_m: missing column"):
         read_run(broken)
+
+
+def test_formation_sim_writes_a_complete_run_directory(tmp_path, capsys):
+    """`formation sim` end to end on the paper scenario cut to 3 s (the simulator's behaviour over
+    the whole run is tested with the simulator)."""
+    import yaml
+    from pathlib import Path
+
+    data = yaml.safe_load((Path(__file__).resolve().parents[1] / "config/scenarios/paper.yaml").read_text())
+    data["duration_s"] = 3.0
+    scen_file = tmp_path / "short.yaml"
+    scen_file.write_text(yaml.safe_dump(data))
+    out = tmp_path / "run"
+    assert formation(["sim", str(scen_file), "--out", str(out), "--record-every-s", "0.05"]) == 0
+    summary = capsys.readouterr().out
+    assert "scenario paper" in summary and "R1:" in summary
+    m = json.loads((out / "metrics.json").read_text())
+    assert DESIGN_KEYS <= set(m) and set(m["robots"]) == {"0", "1"}
+    assert m["sim_time_s"] == pytest.approx(3.0, abs=0.051)
+    assert m["prohibited_entries"] == 0 and m["min_clearance_m"] > 0.5
+    assert (out / "figure.png").stat().st_size > 20_000
+    back, _scen, _m = read_run(out)
+    assert back.state.shape[1:] == (2, 5) and len(back.t_s) >= 60
+    # the follower starts 0.2 m off its slot and closes the gap
+    err = back.formation_error_m[:, 1]
+    assert err[0] == pytest.approx(0.2, abs=1e-9) and err[-1] < 0.2
+
+
+def test_progress_is_silent_for_short_runs_and_reports_long_ones():
+    import io
+
+    from ament_formation.tools.sim_cmd import _Progress
+
+    class Clock:
+        now = 0.0
+
+        def __call__(self):
+            return self.now
+
+    clock, stream = Clock(), io.StringIO()
+    progress = _Progress(stream, delay_s=1.0, clock=clock)
+    clock.now = 0.5
+    progress(10.0, 55.0)
+    assert stream.getvalue() == ""                      # within the first second: silent
+    for k in range(1, 30):
+        clock.now = 0.5 + k * 0.5
+        progress(55.0 * k / 30, 55.0)
+    lines = stream.getvalue().splitlines()
+    assert 2 <= len(lines) <= 4                         # not a tty: a line every 5 s of wall time
+    assert lines[0].startswith("sim: t =") and "/ 55.0 s" in lines[0] and "%" in lines[0]
