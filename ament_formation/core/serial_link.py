@@ -121,6 +121,7 @@ class LinkHost:
         self._last_echo: int | None = None
         self._last_board_seq: int | None = None
         self.rtt_s: deque[float] = deque(maxlen=1000)
+        self._rtt_ewma_s: float | None = None
         self.stats = {"tx_frames": 0, "rx_frames": 0, "commands_sent": 0, "retransmissions": 0,
                       "inputs": 0, "inputs_rejected": 0, "inputs_clamped": 0, "stale_zero_commands": 0,
                       "rx_gaps": 0, "connects": 0, "link_timeouts": 0, "board_resets": 0}
@@ -226,7 +227,7 @@ class LinkHost:
             return b""
         out = b""
         pend = self._pending_ack
-        if pend is not None and now_s - pend[1] >= p.ack_timeout_s and self._may_retransmit(now_s):
+        if pend is not None and now_s - pend[1] >= self.ack_timeout_s() and self._may_retransmit(now_s):
             out += self._retransmit(now_s)
         elif now_s - self._last_cmd_sent_s >= 1.0 / p.command_rate_hz or (
                 self._sent_input_id != self._input_id and now_s - self._last_cmd_sent_s >= self._min_gap_s):
@@ -235,6 +236,13 @@ class LinkHost:
             self._last_heartbeat_s = now_s
             out += self._frame(sp.Heartbeat(int(now_s * 1000) & 0xFFFFFFFF))
         return out
+
+    def ack_timeout_s(self) -> float:
+        """Wait for a command's echo before resending: ack_timeout_s, or twice the mean round trip
+        if that is longer (a board that only echoes in periodic TELEMETRY is not flooded)."""
+        if self._rtt_ewma_s is None:
+            return self.p.ack_timeout_s
+        return max(self.p.ack_timeout_s, 2.0 * self._rtt_ewma_s)
 
     def _may_retransmit(self, now_s: float) -> bool:
         """Resend once per input, only the newest one, only while it is fresh."""
@@ -309,7 +317,9 @@ class LinkHost:
             self._last_echo = msg.cmd_seq
             sent = self._sent.get(msg.cmd_seq)
             if sent is not None:
-                self.rtt_s.append(now_s - sent[0])
+                rtt = now_s - sent[0]
+                self.rtt_s.append(rtt)
+                self._rtt_ewma_s = rtt if self._rtt_ewma_s is None else 0.9 * self._rtt_ewma_s + 0.1 * rtt
             if self._pending_ack is not None and self._pending_ack[0] == msg.cmd_seq:
                 self._pending_ack = None
         return WheelSample(

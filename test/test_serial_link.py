@@ -1,0 +1,103 @@
+"""Host link logic (core/serial_link.py) against the emulated board (core/motor_board.py) in
+simulated time, no ports and no ROS: deterministic numbers for the protocol rules."""
+from __future__ import annotations
+
+import collections
+
+import numpy as np
+import pytest
+
+from ament_formation.core import serial_link as sl
+from ament_formation.core import serial_protocol as sp
+from ament_formation.core.byte_faults import ByteFaults, FaultSpec
+from ament_formation.core.motor_board import BoardConfig, MotorBoard
+
+
+def run_link(n_inputs: int, faults: FaultSpec = FaultSpec(), board_cfg: BoardConfig = BoardConfig(),
+             dt_s: float = 0.0005, seed: int = 3, **params):
+    rng = np.random.default_rng(seed)
+    log: list = []
+    board = MotorBoard(board_cfg, command_log=log)
+    host = sl.LinkHost(sl.LinkParams(**params))
+    host.sent_log = collections.deque()
+    rx, tx = ByteFaults(faults, rng), ByteFaults(faults, rng)
+    to_board = host.connected(0.0)
+    t, k = 0.0, 0
+    while t < 0.2 + n_inputs * 0.01 + 0.05:
+        t += dt_s
+        if k < n_inputs and t >= 0.2 + k * 0.01:
+            k += 1
+            host.set_input((k * 1e-4, -k * 1e-4), t)
+            to_board += host.command_now(t)
+        board.receive(rx.pass_bytes(to_board, t), t)
+        board.step(t)
+        _, answer = host.receive(tx.pass_bytes(board.take_output(), t), t)
+        to_board = answer + host.poll(t)
+    applied = {(l, r) for _, _, l, r in log}
+    kept = sum((v, -v) in applied for v in range(1, n_inputs + 1)) / n_inputs
+    sent = set(host.sent_log)
+    corrupt = [(s, l, r) for _, s, l, r in log if (s, l, r) not in sent]
+    return host, board, kept, corrupt
+
+
+def test_clean_link_applies_every_command_without_retransmission():
+    host, board, kept, corrupt = run_link(300)
+    assert host.state == sl.UP and kept == 1.0 and corrupt == []
+    assert host.stats["retransmissions"] == 0 and board.decoder.rejected_total == 0
+    assert host.decoder.rejected_total == 0 and board.watchdog_trips == 0
+
+
+def test_one_percent_corruption_keeps_98_percent_and_applies_nothing_corrupt():
+    host, board, kept, corrupt = run_link(1000, FaultSpec(corrupt_prob=0.01))
+    assert board.decoder.rejected_total > 50           # ~10 % of frames were hit
+    assert kept >= 0.98, kept
+    assert corrupt == []
+    assert host.stats["retransmissions"] > 50
+
+
+def test_bridge_limit_and_rounding_never_exceed_the_wire_limit():
+    host = sl.LinkHost(sl.LinkParams(torque_limit_nm=0.12345))
+    assert not host.set_input((float("nan"), 0.0), 0.0) and not host.set_input((0.0,), 0.0)
+    assert host.set_input((1.0, -1.0), 0.0)
+    host.state = sl.UP
+    frame = sp.FrameDecoder().feed(host.command_now(0.0))[0]
+    assert (frame.msg.left_e4nm, frame.msg.right_e4nm) == (1234, -1234)
+    assert host.stats["inputs_rejected"] == 2 and host.stats["inputs_clamped"] == 1
+
+
+def test_stale_input_is_sent_as_zero():
+    host = sl.LinkHost(sl.LinkParams(input_timeout_s=0.1))
+    host.state = sl.UP
+    host.set_input((0.05, 0.05), 0.0)
+    dec = sp.FrameDecoder()
+    assert dec.feed(host.poll(0.05))[0].msg == sp.TorqueCommand(500, 500)
+    assert dec.feed(host.poll(0.11))[0].msg == sp.TorqueCommand(0, 0)
+
+
+def test_version_mismatch_sends_no_torque():
+    host, board, kept, _ = run_link(50, board_cfg=BoardConfig(protocol_version=2))
+    assert host.state == sl.VERSION_MISMATCH and host.board_version == 2
+    assert kept == 0.0 and host.stats["commands_sent"] == 0
+
+
+def test_board_reset_triggers_a_new_handshake():
+    log: list = []
+    board = MotorBoard(command_log=log)
+    host = sl.LinkHost(sl.LinkParams())
+    out, t = host.connected(0.0), 0.0
+    for _ in range(200):
+        t += 0.001
+        board.receive(out, t)
+        board.step(t)
+        _, out = host.receive(board.take_output(), t)
+        out += host.poll(t)
+        if t > 0.1 and host.stats["board_resets"] == 0 and board.flags & sp.FLAG_RESET == 0:
+            board.boot(t)   # e.g. a DTR reset of an Arduino
+    assert host.stats["board_resets"] == 1 and host.state == sl.UP
+
+
+@pytest.mark.parametrize("field,value", [("torque_limit_nm", 0.0), ("watchdog_s", 1.0), ("port", ""),
+                                         ("reconnect_initial_s", 2.0), ("baud_rate", 10)])
+def test_bad_parameters_name_the_field(field, value):
+    with pytest.raises(ValueError, match=field):
+        sl.LinkParams(**{field: value})
