@@ -344,3 +344,44 @@ def exit_timer(conditions_hold, t_s, since_s, t_entry_s, prm):
 def in_cooldown(kind, target, t_s, last_kind, last_target, last_exit_s, prm):
     """S8.4: heading-triggered re-entry to the target just left is blocked for T_cool."""
     return kind == last_kind and target == last_target and t_s - last_exit_s < prm[P_COOL]
+
+
+class AutomatonState:
+    """The automaton state of N robots as the arrays the compiled code updates in place.
+
+    Attributes (all (N,) unless stated): ``mode`` int (MODE_*), ``tgt`` int (obstacle index or
+    robot row, -1 in coordination), ``sdir`` float (+1 CCW, -1 CW), ``t_entry`` [s], ``since`` [s]
+    (start of the S8.3 dwell window, < 0 when the exit conditions do not hold), ``last_kind`` /
+    ``last_tgt`` / ``last_exit`` (the cool-down record: 1 obstacle, 2 robot), ``wc`` and ``wtgt``
+    (N, 2) [m/s] mutual-pair drift and its target.
+    """
+
+    def __init__(self, n: int):
+        self.mode = np.zeros(n, dtype=np.int64)
+        self.tgt = np.full(n, -1, dtype=np.int64)
+        self.sdir = np.ones(n)
+        self.t_entry = np.zeros(n)
+        self.since = np.full(n, -1.0)
+        self.last_kind = np.zeros(n, dtype=np.int64)
+        self.last_tgt = np.full(n, -1, dtype=np.int64)
+        self.last_exit = np.full(n, -1e9)
+        self.wc = np.zeros((n, 2))
+        self.wtgt = np.zeros((n, 2))
+
+    @property
+    def n(self) -> int:
+        return int(self.mode.shape[0])
+
+    def arrays(self) -> tuple:
+        """(mode, tgt, sdir, t_entry, since, last_kind, last_tgt, last_exit, wc, wtgt)."""
+        return (self.mode, self.tgt, self.sdir, self.t_entry, self.since, self.last_kind,
+                self.last_tgt, self.last_exit, self.wc, self.wtgt)
+
+    def set_mode(self, i: int, mode: int, target: int, direction: float, t_entry_s: float) -> None:
+        """Put robot row ``i`` into ``mode`` toward ``target`` (for tests and for a coordinator's
+        encounter assignment)."""
+        self.mode[i] = mode
+        self.tgt[i] = target
+        self.sdir[i] = direction
+        self.t_entry[i] = t_entry_s
+        self.since[i] = -1.0

@@ -479,3 +479,25 @@ def decide(t, p, pd, goal, goal_dot, vc, team, rbody, oc, ov, ophi, ophid, oaxes
             wtgt[i, 0] = wx
             wtgt[i, 1] = wy
     return nev
+
+
+def decide_once(t_s: float, state, p, pd, goal, goal_dot, vc, team, rbody, obstacles, prm,
+                ev_capacity: int | None = None) -> list[tuple]:
+    """Python convenience around :func:`decide` (tests, controller): returns the events as tuples
+    (t_s, robot_row, 'enter'|'exit', mode, target, direction).
+
+    ``state`` : :class:`~ament_formation.core.automaton.AutomatonState`; ``obstacles`` : tuple
+    (centres (M, 2), velocities (M, 2), phi (M,), phi_dot (M,), semi-axes (M, 2), static (M,) bool);
+    other arrays as in :func:`decide`.
+    """
+    n = state.n
+    ev = np.zeros((ev_capacity or 8 * n + 16, 6))
+    oc, ov, ophi, ophid, oaxes, ostatic = obstacles
+    f = lambda a: np.ascontiguousarray(a, dtype=float)
+    nev = decide(float(t_s), f(p), f(pd), f(goal), f(goal_dot), f(vc),
+                 np.ascontiguousarray(team, dtype=np.int64), f(rbody), f(oc).reshape(-1, 2),
+                 f(ov).reshape(-1, 2), f(ophi).reshape(-1), f(ophid).reshape(-1),
+                 f(oaxes).reshape(-1, 2), np.ascontiguousarray(ostatic, dtype=np.bool_).reshape(-1),
+                 *state.arrays(), prm, ev, 0)
+    return [(float(r[0]), int(r[1]), "enter" if r[2] > 0.5 else "exit", int(r[3]), int(r[4]),
+             float(r[5])) for r in ev[:min(nev, ev.shape[0])]]

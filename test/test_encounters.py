@@ -1,0 +1,188 @@
+"""S7 robot-robot encounters: mutual pairs (common s = +1, shared w_c, reciprocal field), yielding
+to stand-on robots, the acyclic reacts-to rule, S14.3 teammates, and closed-loop tie cases where
+only safety and settling are checked (S14.4: never which way a robot went round)."""
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from ament_formation.core.automaton import (
+    MODE_C, MODE_MUTUAL, MODE_OBSTACLE, MODE_YIELD, P_KEEPOUT_MARGIN, P_L, P_TAU_G, P_BETA0,
+    P_VTAN_AGENT, AutomatonState, SwitchingParams, design_gains,
+)
+from ament_formation.core.encounters import decide_once, reacts_to
+from ament_formation.core.kernels import ellipse_field_k, gain_schedule_k
+from ament_formation.core.metrics import compute_metrics
+from ament_formation.core.scenario import parse_scenario
+from ament_formation.core.simulator import G_ALPHA, robot_law, simulate
+
+PRM = SwitchingParams().as_array()
+NO_OBS = (np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros((0, 2)),
+          np.zeros(0, bool))
+R_AA = 0.25
+
+
+def decide(state, t, p, pd, team=None, goal=None, goal_dot=None, vc=None, obs=NO_OBS):
+    p = np.asarray(p, float)
+    pd = np.asarray(pd, float)
+    n = len(p)
+    goal = p + 3.0 * pd if goal is None else goal
+    goal_dot = pd if goal_dot is None else goal_dot
+    vc = pd if vc is None else vc
+    team = np.arange(n) if team is None else np.asarray(team)
+    return decide_once(t, state, p, pd, goal, goal_dot, vc, team, np.full(n, 0.1), obs, PRM)
+
+
+def test_head_on_free_robots_form_a_mutual_pair_with_common_sense_and_drift():
+    st_ = AutomatonState(2)
+    p = [(-0.2, 0.01), (0.2, 0.0)]
+    pd = [(0.05, 0.0), (-0.04, 0.002)]
+    events = decide(st_, 3.0, p, pd)
+    assert sorted((e[1], e[2], e[3]) for e in events) == [(0, "enter", MODE_MUTUAL),
+                                                          (1, "enter", MODE_MUTUAL)]
+    assert list(st_.mode) == [MODE_MUTUAL, MODE_MUTUAL] and list(st_.tgt) == [1, 0]
+    assert list(st_.sdir) == [1.0, 1.0] and st_.t_entry[0] == st_.t_entry[1] == 3.0
+    np.testing.assert_allclose(st_.wc[0], st_.wc[1])
+    np.testing.assert_allclose(st_.wc[0], 0.5 * (np.array(pd[0]) + np.array(pd[1])))
+
+
+def test_mutual_law_is_reciprocal_relative_motion_follows_f():
+    """V_d,i - V_d,k = F(z_ik) and V_d,i + V_d,k = 2 w_c (S7), from the law actually used."""
+    n = 2
+    x = np.array([[-0.2, 0.03, 0.1, 0.05, 0.2], [0.15, -0.02, 3.0, 0.04, -0.1]])
+    d = 0.05
+    pd = np.array([[x[i, 3] * math.cos(x[i, 2]) - d * x[i, 4] * math.sin(x[i, 2]),
+                    x[i, 3] * math.sin(x[i, 2]) + d * x[i, 4] * math.cos(x[i, 2])] for i in range(n)])
+    st_ = AutomatonState(n)
+    st_.set_mode(0, MODE_MUTUAL, 1, 1.0, 1.0)
+    st_.set_mode(1, MODE_MUTUAL, 0, 1.0, 1.0)
+    st_.wc[:] = [0.01, -0.02]
+    st_.wtgt[:] = [0.03, 0.0]
+    coeffs = np.array([[2.8, 2.8], [0.02598, 0.02598], [0.035, 0.035], [0.2, 0.2], [d, d],
+                       [2.5, 2.5], [0.15, 0.15]])
+    gains = np.array([0.27, 0.01, 0.5, 0.05, 0.15])
+    zeros = np.zeros((0, 2))
+    args = (x, pd, np.zeros((n, 2)), np.full(n, -1), np.zeros((n, 2)), np.zeros((n, 6)),
+            np.zeros((n, 2)), np.zeros((n, 2)), st_.mode, st_.tgt, st_.sdir, st_.t_entry, st_.wc,
+            st_.wtgt, zeros, zeros, zeros, np.zeros(0), np.zeros(0), np.zeros(0), zeros,
+            np.full(n, 0.1), coeffs, gains, PRM)
+    t = 2.2
+    out = [robot_law(i, t, *args) for i in range(n)]
+    vd = [pd[i] - np.array(out[i][2:4]) for i in range(n)]          # sigma = p_dot - V_d
+    r = 0.1 + 0.1 + PRM[P_KEEPOUT_MARGIN]
+    psi_max, c_max = design_gains(r, r, PRM[P_VTAN_AGENT], PRM)
+    psd, psdd, c, cd = gain_schedule_k(t - 1.0, psi_max, c_max, 1.0, 1.0, 0.0, PRM[P_BETA0], PRM[P_TAU_G])
+    z = x[0, :2] - x[1, :2]
+    zd = pd[0] - pd[1]
+    f = ellipse_field_k(z[0], z[1], zd[0], zd[1], 0.0, 0.0, 0.0, PRM[P_L] * r, PRM[P_L] * r,
+                        psd, psdd, c, cd)
+    np.testing.assert_allclose(vd[0] - vd[1], f[:2], atol=1e-12)
+    np.testing.assert_allclose(vd[0] + vd[1], 2 * st_.wc[0], atol=1e-12)
+    # both robots integrate the same w_c derivative, so their w_c stay identical
+    np.testing.assert_allclose(out[0][7:9], out[1][7:9])
+
+
+def test_free_robot_yields_to_stand_on_robot():
+    st_ = AutomatonState(2)
+    far = (np.array([[5.0, 5.0]]), np.zeros((1, 2)), np.zeros(1), np.zeros(1),
+           np.array([[0.3, 0.2]]), np.array([True]))
+    st_.set_mode(0, MODE_OBSTACLE, 0, 1.0, 0.0)                       # robot 0 is stand-on
+    events = decide(st_, 2.0, [(0.0, 0.0), (0.35, 0.02)], [(0.0, 0.0), (-0.05, 0.0)], obs=far)
+    assert st_.mode[1] == MODE_YIELD and st_.tgt[1] == 0
+    assert st_.mode[0] == MODE_OBSTACLE
+    assert [e[1] for e in events if e[2] == "enter"] == [1]
+
+
+def test_robot_does_not_react_to_a_robot_that_already_yields_to_it():
+    st_ = AutomatonState(2)
+    st_.set_mode(1, MODE_YIELD, 0, 1.0, 0.0)                          # 1 reacts to 0
+    # closing at 4 cm/s: a threat (contact with I in 1.6 s) but no emergency (P in 2.5 s)
+    decide(st_, 2.0, [(0.0, 0.0), (0.35, 0.02)], [(0.02, 0.0), (-0.02, 0.0)])
+    assert st_.mode[0] == MODE_C                                      # 1 is responsible
+    assert reacts_to(1, 0, st_.mode, st_.tgt) and not reacts_to(0, 1, st_.mode, st_.tgt)
+
+
+def test_emergency_converts_yield_into_mutual_pair():
+    st_ = AutomatonState(2)
+    st_.set_mode(1, MODE_YIELD, 0, -1.0, 0.0)
+    decide(st_, 2.0, [(0.0, 0.0), (0.25, 0.0)], [(0.05, 0.0), (-0.05, 0.0)])  # inside E
+    assert list(st_.mode) == [MODE_MUTUAL, MODE_MUTUAL] and list(st_.sdir) == [1.0, 1.0]
+
+
+def test_teammates_holding_slots_are_not_threats_but_strangers_are():
+    p = [(0.0, 0.0), (0.35, 0.0)]
+    pd = [(0.05, 0.0), (0.042, 0.0)]               # closing at 8 mm/s: contact with I in ~8 s
+    same = AutomatonState(2)
+    assert decide(same, 1.0, p, pd, team=[0, 0]) == []
+    other = AutomatonState(2)
+    assert len(decide(other, 1.0, p, pd, team=[0, 1])) == 2
+
+
+def _check_invariants(state):
+    n = state.n
+    for i in range(n):
+        if state.mode[i] == MODE_MUTUAL:
+            k = state.tgt[i]
+            assert state.mode[k] == MODE_MUTUAL and state.tgt[k] == i
+            assert state.sdir[i] == state.sdir[k] == 1.0
+            assert state.t_entry[i] == state.t_entry[k]
+            np.testing.assert_array_equal(state.wc[i], state.wc[k])
+        if state.mode[i] == MODE_YIELD:
+            # the reacts-to graph is acyclic apart from mutual pairs
+            assert not reacts_to(state.tgt[i], i, state.mode, state.tgt)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), n=st.integers(3, 9))
+def test_reacts_to_graph_stays_acyclic_over_random_encounters(seed, n):
+    rng = np.random.default_rng(seed)
+    state = AutomatonState(n)
+    p = rng.uniform(-0.6, 0.6, (n, 2))
+    team = rng.integers(0, 3, n)
+    for tick in range(40):
+        pd = rng.normal(0, 0.05, (n, 2))
+        toward = -p / np.maximum(np.linalg.norm(p, axis=1, keepdims=True), 1e-3) * 0.04
+        pd = np.where(rng.random((n, 1)) < 0.5, toward, pd)
+        decide(state, 0.1 * tick, p, pd, team=team)
+        _check_invariants(state)
+        p = p + 0.1 * pd
+
+
+def _meeting(n_robots, radius=1.5, duration=75.0, seed=3):
+    robots = []
+    for i in range(n_robots):
+        ang = 2 * math.pi * i / n_robots
+        start = [radius * math.cos(ang), radius * math.sin(ang)]
+        head = ang + math.pi
+        robots.append({"id": i, "leader": True, "slot_m": [0, 0], "marker_id": i,
+                       "initial_pose": [start[0], start[1], head],
+                       "path": {"type": "line", "start_m": start, "heading_rad": head,
+                                "speed_mps": 0.05}})
+    return parse_scenario({"name": f"meet{n_robots}", "duration_s": duration, "robots": robots,
+                           "graph": {"edges": []}, "obstacles": [],
+                           "disturbance": {"accel_bound": [0.05, 0.5], "seed": seed}})
+
+
+@pytest.fixture(scope="module")
+def meetings():
+    out = {}
+    for n in (2, 3, 4):
+        sc = _meeting(n)
+        res = simulate(sc)
+        out[n] = (res, compute_metrics(res, sc))
+    return out
+
+
+@pytest.mark.parametrize("n", [2, 3, 4])
+def test_symmetric_meetings_are_safe_and_settle(meetings, n):
+    """Exact ties (S6.6 rule 4, S14.4) and 3-4 robots meeting at once (S14.1): safety + settling."""
+    res, m = meetings[n]
+    assert m["prohibited_entries"] == 0
+    assert m["min_inter_robot_distance_m"] > R_AA
+    assert all(r["final_error_m"] < 0.01 for r in m["robots"].values())
+    assert not res.avoiding[-1].any()                 # everybody exited: no livelock
+    assert any(e["mode"] == "mutual" for e in res.mode_events)
+    done = [r for r in res.reaching if r["completed"]]
+    assert done and all(r["t_reach_s"] <= r["bound_s"] + 1e-9 for r in done)
+    assert all(r["t_reach_s"] <= r["bound_s"] + 1e-9 for r in res.reaching if not r["completed"])
