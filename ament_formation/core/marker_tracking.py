@@ -7,10 +7,11 @@ Pipeline for one frame (:class:`MarkerTracker.step`):
    are packed side by side into one small mosaic image and the detector runs once on it. Markers
    not found there trigger a full-frame search (rate-limited while they stay lost); a full-frame
    search also runs every ``full_frame_period`` frames to pick up new markers.
-2. **Refine** each corner: sub-pixel edge points are sampled across the marker's four outer
-   edges (gradient centroid along the edge normal), undistorted, and a straight line is fitted
-   to each edge; corners are the intersections of adjacent edge lines (ideal image coordinates,
-   so lens distortion is removed before fitting).
+2. **Refine** each corner (:mod:`~ament_formation.core.corner_refinement`, compiled): sub-pixel
+   edge points are sampled across the marker's four outer edges (gradient centroid along the
+   edge normal), undistorted, and a straight line is fitted to each edge; corners are the
+   intersections of adjacent edge lines (ideal image coordinates, so lens distortion is removed
+   before fitting).
 3. **Map** the corners onto the marker plane (z = ``layout.height_m``) by intersecting viewing
    rays; the marker centre is the mean of the four plane corners, the heading is the mean
    direction of the marker's x axis, and the controlled point is the centre minus the body-frame
@@ -29,12 +30,12 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from ament_formation.core import corner_refinement
 from ament_formation.core.camera_model import CameraModel, undistort_normalized
 from ament_formation.core.errors import ConfigError
 from ament_formation.core.robot_marker import MarkerLayout, aruco_dictionary
 
-_EDGE_SAMPLES = 12          # sample points along each edge
-_PROFILE_STEP_PX = 0.25
+_FAILED_SIGMA_PX = 0.5      # corner σ when the edge fit failed (detector corners kept)
 _MOSAIC_GAP_PX = 6
 _MOSAIC_FILL = 128
 _MOSAIC_ROW_PX = 4096
@@ -170,82 +171,15 @@ def detect(detector: cv2.aruco.ArucoDetector, image: np.ndarray) -> tuple[np.nda
 
 
 def refine_corners(image: np.ndarray, corners_px: np.ndarray, camera: CameraModel,
-                   bits: int = 4, undistort=None, return_sigma: bool = False):
-    """Sub-pixel corners by edge-line fitting → ideal normalized coordinates (K, 4, 2).
-
-    For each of the four outer edges, ``_EDGE_SAMPLES`` intensity profiles across the edge are
-    sampled (bilinear); the edge point on each is the centroid of the intensity gradient. Edge
-    points are undistorted and a line is fitted to each edge (total least squares); adjacent
-    lines intersect at the corners. Two passes (the second around the first result).
-    ``undistort``: pixels (N, 2) → ideal normalized (N, 2); default exact iteration
-    (:class:`UndistortLookup` is the fast equivalent).
-    With ``return_sigma`` also returns (K,) the 1-σ corner position [px] predicted from the scatter
-    of the edge points about their fitted lines (a corner is extrapolated from ``_EDGE_SAMPLES``
-    points spread over 70 % of the edge: σ_corner² ≈ 7.1 σ_edge² / M).
-    """
-    if undistort is None:
-        def undistort(px):
-            return undistort_normalized(px, camera.k, camera.dist)
-    k_count = len(corners_px)
-    if k_count == 0:
-        return np.zeros((0, 4, 2))
-    img = image if image.dtype == np.float32 else image.astype(np.float32)
-    c = np.asarray(corners_px, dtype=np.float64)
-    side = np.linalg.norm(c - np.roll(c, -1, axis=1), axis=2).mean(axis=1)   # (K,)
-    cell = side / (bits + 2)
-    result = None
-    for half_px in (np.minimum(2.0, 0.6 * cell), np.minimum(1.4, 0.45 * cell)):
-        p0, p1 = c, np.roll(c, -1, axis=1)                                   # edge k: corner k → k+1
-        d = p1 - p0
-        length = np.linalg.norm(d, axis=2, keepdims=True)
-        d = d / length
-        n = np.stack([d[..., 1], -d[..., 0]], axis=-1)                      # normal (either side)
-        s = np.linspace(0.15, 0.85, _EDGE_SAMPLES)
-        base = p0[:, :, None, :] + (s[None, None, :, None] * length[:, :, None, :]) * d[:, :, None, :]
-        steps = np.arange(-2.0, 2.0 + 1e-9, _PROFILE_STEP_PX)               # (P,) in units of half_px/2
-        offs = steps[None, :] * (half_px[:, None] / 2.0)                     # (K, P)
-        pts = base[:, :, :, None, :] + offs[:, None, None, :, None] * n[:, :, None, None, :]
-        shape = pts.shape[:-1]                                               # (K, 4, M, P)
-        flat = pts.reshape(-1, 2).astype(np.float32)
-        vals = cv2.remap(img, flat[:, 0].reshape(-1, shape[-1]), flat[:, 1].reshape(-1, shape[-1]),
-                         cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(shape)
-        grad = np.abs(np.diff(vals, axis=-1))                                # (K, 4, M, P-1)
-        w = np.maximum(grad - 0.2 * grad.max(axis=-1, keepdims=True), 0.0)
-        wsum = w.sum(axis=-1)
-        mid = 0.5 * (offs[:, 1:] + offs[:, :-1])                             # (K, P-1)
-        pos = (w * mid[:, None, None, :]).sum(axis=-1) / np.where(wsum > 0, wsum, 1.0)
-        edge_px = base + pos[..., None] * n[:, :, None, :]                   # (K, 4, M, 2)
-        ok = wsum > 0
-        xn = undistort(edge_px.reshape(-1, 2)).reshape(edge_px.shape)
-        # total least squares line per edge: centroid + direction
-        wt = ok.astype(np.float64)
-        cnt = np.maximum(wt.sum(axis=-1, keepdims=True), 1.0)
-        cen = (xn * wt[..., None]).sum(axis=2) / cnt                         # (K, 4, 2)
-        dev = (xn - cen[:, :, None, :]) * wt[..., None]
-        cov = np.einsum("kemi,kemj->keij", dev, dev)
-        evals, vecs = np.linalg.eigh(cov)
-        direction = vecs[..., :, 1]                                          # (K, 4, 2)
-        edge_var = evals[..., 0] / np.maximum(cnt[..., 0] - 2.0, 1.0)        # (K, 4) normalized²
-        # corner j = edge (j-1) ∩ edge j
-        a_cen, a_dir = np.roll(cen, 1, axis=1), np.roll(direction, 1, axis=1)
-        rhs = cen - a_cen
-        mat = np.stack([a_dir, -direction], axis=-1)                         # (K, 4, 2, 2)
-        det = np.linalg.det(mat)
-        good = np.abs(det) > 1e-12
-        tpar = np.linalg.solve(np.where(good[..., None, None], mat, np.eye(2)), rhs[..., None])[..., 0, 0]
-        result = a_cen + tpar[..., None] * a_dir
-        # fall back to the detector's corners where a fit was degenerate
-        raw = undistort(c.reshape(-1, 2)).reshape(-1, 4, 2)
-        few = ok.sum(axis=-1) < 4                                            # (K, 4) per edge
-        bad = ~good | few | np.roll(few, 1, axis=1)
-        result = np.where(bad[..., None], raw, result)
-        # project back to pixels for the next pass
-        rays = np.concatenate([result.reshape(-1, 2), np.ones((result.size // 2, 1))], axis=1)
-        c = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), camera.k, camera.dist)[0].reshape(-1, 4, 2)
+                   bits: int = 4, return_sigma: bool = False):
+    """Sub-pixel corners by edge-line fitting → ideal normalized coordinates (K, 4, 2)
+    (:mod:`~ament_formation.core.corner_refinement`). With ``return_sigma`` also (K,) the 1-σ
+    corner position [px] from the edge fits (``_FAILED_SIGMA_PX`` where a fit failed and the
+    detector's corners were kept)."""
+    normalized, sigma = corner_refinement.refine(image, corners_px, camera.k, camera.dist, bits)
     if return_sigma:
-        sigma_edge_px = np.sqrt(edge_var.mean(axis=1)) * camera.fx_px
-        return result, sigma_edge_px * math.sqrt(7.1 / _EDGE_SAMPLES)
-    return result
+        return normalized, np.where(np.isfinite(sigma), sigma, _FAILED_SIGMA_PX)
+    return normalized
 
 
 def poses_from_corners(normalized: np.ndarray, ids: np.ndarray, camera: CameraModel,
@@ -297,8 +231,7 @@ def _to_poses(image, corners, ids, camera, layout, config, undistort=None) -> Ma
     if len(ids) == 0:
         return MarkerPoses.empty()
     if config.refine_edges:
-        normalized, sigma_px = refine_corners(image, corners, camera, layout.bits, undistort,
-                                              return_sigma=True)
+        normalized, sigma_px = refine_corners(image, corners, camera, layout.bits, return_sigma=True)
         return poses_from_corners(normalized, ids, camera, layout, corners, config.pixel_noise_px, sigma_px)
     elif undistort is not None:
         normalized = undistort(corners.reshape(-1, 2)).reshape(-1, 4, 2)
