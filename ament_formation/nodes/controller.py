@@ -23,6 +23,9 @@ Topics (namespace robot_<id>; QoS from ros/qos.py)
   pub  accel                    geometry_msgs/AccelStamped (commanded point accel, S4)     QOS_CONTROL
   pub  mode                     std_msgs/String JSON {mode, target, direction, avoiding}   QOS_CONTROL
                                 (on change and every second)
+  pub  /diagnostics             diagnostic_msgs/DiagnosticArray every second: control ticks,
+                                late ticks (> 1.5 periods apart), safety state, rejected inputs,
+                                estimator counters                                         QOS_DIAGNOSTICS
 
 Parameters
   scenario          str    scenario YAML (required)
@@ -44,6 +47,9 @@ from dataclasses import dataclass
 
 import numpy as np
 import rclpy
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import AccelStamped, PoseStamped
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
@@ -53,9 +59,10 @@ from ament_formation.core.dynamics import PlantCoeffs, b2_inv, f2
 from ament_formation.core.errors import ConfigError
 from ament_formation.core.estimator import EstimatorParams, PoseEstimator
 from ament_formation.core.scenario import load_scenario
+from ament_formation.ros import diagnostics as diag
 from ament_formation.ros import messages as msgs
 from ament_formation.ros.params import declare_dataclass
-from ament_formation.ros.qos import QOS_CONTROL, QOS_GRAPH
+from ament_formation.ros.qos import QOS_CONTROL, QOS_DIAGNOSTICS, QOS_GRAPH
 
 
 @dataclass(frozen=True)
@@ -136,6 +143,9 @@ class ControllerNode(Node):
         self._mode_sent = None
         self._last_mode_pub = -math.inf
         self.ticks = 0
+        self.late_ticks = 0
+        self._last_tick_wall = None
+        self._sim_time = bool(self.get_parameter("use_sim_time").value)
         self.last_torque = np.zeros(2)
 
         self.pub_torque = self.create_publisher(JointState, "wheel_torque", QOS_CONTROL)
@@ -147,7 +157,9 @@ class ControllerNode(Node):
         self.create_subscription(String, "/formation/graph", self._on_graph, QOS_GRAPH)
         if self.orig_parent_id is not None:
             self.orig = self._subscribe_neighbour(self.orig_parent_id)
+        self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", QOS_DIAGNOSTICS)
         self.timer = self.create_timer(1.0 / self.prm.control_rate_hz, self._control)
+        self.create_timer(1.0, self._publish_diagnostics)
 
     # ------------------------------------------------------------------ time
     def now_s(self) -> float:
@@ -236,6 +248,11 @@ class ControllerNode(Node):
     # ------------------------------------------------------------------ control loop
     def _control(self) -> None:
         now = self.now_s()
+        wall = time.monotonic()
+        if (self._last_tick_wall is not None and self.start_s is not None and not self._sim_time
+                and wall - self._last_tick_wall > 1.5 / self.prm.control_rate_hz):
+            self.late_ticks += 1       # a missed control deadline (wall clock runs only)
+        self._last_tick_wall = wall
         self.ticks += 1
         est = self.estimator
         if not est.initialized:
@@ -276,6 +293,14 @@ class ControllerNode(Node):
         self.mode = {"mode": out.mode, "target": out.target, "direction": out.direction,
                      "avoiding": bool(out.avoiding)}
         self._send(np.asarray(out.torque_nm, dtype=float), np.asarray(out.accel_cmd_mps2, dtype=float), now)
+
+    def _publish_diagnostics(self) -> None:
+        values = {"ticks": self.ticks, "late_ticks": self.late_ticks, "safety": self.safety,
+                  "mode": self.mode["mode"], **{f"rejected_{k}": v for k, v in self.rejected.items()},
+                  **self.estimator.counters.as_dict()}
+        level = diag.OK if self.safety in ("running", "waiting") else diag.WARN
+        self.pub_diag.publish(diag.array(msgs.stamp_from_s(self.now_s()), [diag.status(
+            f"formation_controller robot_{self.rid}", f"robot_{self.rid}", level, self.safety, values)]))
 
     def _safety(self, status: str) -> None:
         if status != self.safety:
