@@ -82,7 +82,7 @@ def test_roi_tracking_matches_full_frame_and_searches_fewer_pixels(renderer):
     ids = np.arange(10)
     roi = MarkerTracker(CAM, LAYOUT, TrackerConfig(full_frame_period=1000), expected_ids=tuple(ids))
     full = MarkerTracker(CAM, LAYOUT, TrackerConfig(use_roi=False), expected_ids=tuple(ids))
-    roi_frames, searched = 0, []
+    roi_frames, searched, predicted = 0, [], []
     for k in range(30):
         t = k / 30.0
         truth = poses + rates * t
@@ -97,8 +97,23 @@ def test_roi_tracking_matches_full_frame_and_searches_fewer_pixels(renderer):
         if not a.full_frame:
             roi_frames += 1
             searched.append(a.roi_pixels)
+            predicted.append(a.predicted)
     assert roi_frames == 29                                    # only the first frame is full-frame
     assert max(searched) < 0.25 * CAM.width_px * CAM.height_px
+    assert np.mean(np.array(predicted) == 10) > 0.9            # mostly without any detection
+
+
+def test_predicted_corners_are_only_accepted_with_the_right_code(renderer):
+    tracker = MarkerTracker(CAM, LAYOUT, expected_ids=(1, 2))
+    poses = np.array([[0.6, 0.3, 0.2], [1.8, 1.0, -1.0]])
+    tracker.step(renderer.render(poses, [1, 2]), 0.0)
+    r = tracker.step(renderer.render(poses, [1, 2], frame_index=1), 1 / 30)
+    assert r.predicted == 2 and not r.full_frame
+    # marker 1 is swapped for marker 5 at the very same place: the prediction for 1 fits the
+    # edges perfectly but the code cells read 5 -> not accepted as 1; detection finds 5
+    r = tracker.step(renderer.render(poses, [5, 2], frame_index=2), 2 / 30)
+    assert r.full_frame                                        # 1 missing -> full-frame search
+    assert sorted(r.accepted.ids.tolist()) == [2, 5]
 
 
 def test_lost_marker_triggers_a_full_frame_search_and_is_found_again(renderer):

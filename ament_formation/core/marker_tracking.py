@@ -39,6 +39,9 @@ _FAILED_SIGMA_PX = 0.5      # corner σ when the edge fit failed (detector corne
 _MOSAIC_GAP_PX = 6
 _MOSAIC_FILL = 128
 _MOSAIC_ROW_PX = 4096
+_MAX_TRACK_SIGMA_PX = 0.5   # predicted-corner tracking: edge fit must be this clean …
+_MAX_TRACK_SHIFT_PX = 4.0   # … land this close to the prediction …
+_MIN_CODE_CONTRAST = 30.0   # … and read the right code with white − black >= this [grey levels]
 
 
 @dataclass(frozen=True)
@@ -240,6 +243,17 @@ def _to_poses(image, corners, ids, camera, layout, config, undistort=None) -> Ma
     return poses_from_corners(normalized, ids, camera, layout, corners, config.pixel_noise_px)
 
 
+def _concat(a: MarkerPoses, b: MarkerPoses) -> MarkerPoses:
+    if len(a) == 0:
+        return b
+    if len(b) == 0:
+        return a
+    return MarkerPoses(np.concatenate([a.ids, b.ids]), np.concatenate([a.poses, b.poses]),
+                       np.concatenate([a.sigma_xy_m, b.sigma_xy_m]),
+                       np.concatenate([a.sigma_theta_rad, b.sigma_theta_rad]),
+                       np.concatenate([a.corners_px, b.corners_px]))
+
+
 @dataclass
 class _Track:
     pose: np.ndarray          # (3,) last accepted pose
@@ -255,7 +269,8 @@ class FrameResult:
     accepted: MarkerPoses
     rejected_ids: tuple[int, ...]
     full_frame: bool               # True when the full-frame detector ran
-    roi_pixels: int                # pixels searched in ROI mode (0 when none)
+    roi_pixels: int                # pixels of the ROI mosaic searched by the detector (0: none)
+    predicted: int = 0             # markers measured from their predicted corners (no detection)
 
 
 @dataclass
@@ -275,6 +290,8 @@ class MarkerTracker:
         self._full = make_detector(self.layout, self.camera.size_px, self.camera,
                                    subpix=not self.config.refine_edges)
         self._undistort = UndistortLookup(self.camera)
+        self._dictionary = aruco_dictionary(self.layout.dictionary)
+        self._codes: dict[int, np.ndarray] = {}
         self._roi_detectors: dict[tuple[int, int], cv2.aruco.ArucoDetector] = {}
         self._tracks: dict[int, _Track] = {}
         self._frame = 0
@@ -290,14 +307,10 @@ class MarkerTracker:
             self._roi_detectors[key] = det
         return det
 
-    def _predicted_boxes(self, t_s: float) -> list[tuple[int, tuple[int, int, int, int]]]:
-        """Pixel boxes (x0, y0, x1, y1) around each track's marker now and at its prediction."""
+    def _predicted_boxes(self, t_s: float, mids: list[int]) -> list[tuple[int, tuple[int, int, int, int]]]:
+        """Pixel boxes (x0, y0, x1, y1) around tracks ``mids``' markers, last seen and predicted."""
         w, h = self.camera.size_px
-        mids = list(self._tracks)
-        last = np.array([self._tracks[m].pose for m in mids])
-        dts = np.array([max(t_s - self._tracks[m].t_s, 0.0) for m in mids])
-        vel = np.array([self._tracks[m].velocity for m in mids])
-        pred = last + vel * dts[:, None]
+        last, pred = self._predictions(t_s, mids)
         corners = self.layout.corners_w(np.concatenate([last, pred]))          # (2K, 4, 2)
         px = self.camera.floor_to_pixel(corners.reshape(-1, 2), self.layout.height_m)
         px = px.reshape(2, len(mids), 4, 2).transpose(1, 0, 2, 3).reshape(len(mids), 8, 2)
@@ -360,23 +373,104 @@ class MarkerTracker:
         lost = [m for m in self.expected_ids if m not in self._tracks]
         full = (not cfg.use_roi or not self._tracks or since_full >= cfg.full_frame_period
                 or (lost and since_full >= cfg.lost_retry_period))
-        roi_pixels = 0
+        roi_pixels, predicted = 0, 0
+        measured = MarkerPoses.empty()
         if not full:
-            boxes = self._predicted_boxes(t_s)
-            corners, ids, roi_pixels = (self._detect_roi(image, boxes) if boxes else
-                                        (np.zeros((0, 4, 2)), np.zeros(0, np.int64), 0))
-            missing = set(self._tracks) - set(ids.tolist())
-            if missing:
-                full = True
+            # 1. refine each track's predicted corners directly, verify the code (no detection)
+            measured = self._track_predicted(image, t_s)
+            predicted = len(measured)
+            remaining = [m for m in self._tracks if m not in set(measured.ids.tolist())]
+            # 2. detect in ROIs (one mosaic) around the rest
+            if remaining:
+                boxes = self._predicted_boxes(t_s, remaining)
+                corners, ids, roi_pixels = (self._detect_roi(image, boxes) if boxes else
+                                            (np.zeros((0, 4, 2)), np.zeros(0, np.int64), 0))
+                fresh = np.array([int(m) not in set(measured.ids.tolist()) for m in ids], bool)
+                corners, ids = self._resolve_duplicates(corners[fresh], ids[fresh], t_s)
+                measured = _concat(measured, _to_poses(image, corners, ids, self.camera, self.layout, cfg,
+                                                       self._undistort))
+                # 3. still missing: fall back to the full frame
+                if set(remaining) - set(ids.tolist()):
+                    full = True
         if full:
             corners, ids = detect(self._full, image)
             self._last_full = self._frame
-        corners, ids = self._resolve_duplicates(corners, ids, t_s)
-        measured = _to_poses(image, corners, ids, self.camera, self.layout, cfg, self._undistort)
+            corners, ids = self._resolve_duplicates(corners, ids, t_s)
+            measured = _to_poses(image, corners, ids, self.camera, self.layout, cfg, self._undistort)
+            predicted = 0
         keep = np.array([self._gate(int(m), p, t_s) for m, p in zip(measured.ids, measured.poses)],
                         dtype=bool).reshape(-1)
         rejected = tuple(int(m) for m in measured.ids[~keep])
-        return FrameResult(measured.take(keep), rejected, bool(full), int(roi_pixels))
+        return FrameResult(measured.take(keep), rejected, bool(full), int(roi_pixels), predicted)
+
+    def _predictions(self, t_s: float, mids) -> tuple[np.ndarray, np.ndarray]:
+        """(K, 3) last accepted and (K, 3) predicted poses of tracks ``mids`` at ``t_s``."""
+        last = np.array([self._tracks[m].pose for m in mids]).reshape(-1, 3)
+        dts = np.array([max(t_s - self._tracks[m].t_s, 0.0) for m in mids])
+        vel = np.array([self._tracks[m].velocity for m in mids]).reshape(-1, 3)
+        return last, last + vel * dts[:, None]
+
+    def _track_predicted(self, image: np.ndarray, t_s: float) -> MarkerPoses:
+        """Markers found by refining their predicted corners and checking their code cells."""
+        if not self.config.refine_edges:
+            return MarkerPoses.empty()
+        mids = np.array(list(self._tracks), np.int64)
+        _, pred = self._predictions(t_s, mids)
+        h = self.layout.height_m
+        guess = self.camera.floor_to_pixel(self.layout.corners_w(pred).reshape(-1, 2), h).reshape(-1, 4, 2)
+        normalized, sigma = corner_refinement.refine(image, guess, self.camera.k, self.camera.dist,
+                                                     self.layout.bits)
+        rays = np.concatenate([normalized.reshape(-1, 2), np.ones((normalized.size // 2, 1))], axis=1)
+        found = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), self.camera.k,
+                                  self.camera.dist)[0].reshape(-1, 4, 2)
+        ok = np.isfinite(sigma) & (sigma < _MAX_TRACK_SIGMA_PX)
+        ok &= np.linalg.norm(found - guess, axis=2).max(axis=1) < _MAX_TRACK_SHIFT_PX
+        ok[ok] = self._verify_codes(image, found[ok], mids[ok])
+        if not ok.any():
+            return MarkerPoses.empty()
+        return poses_from_corners(normalized[ok], mids[ok], self.camera, self.layout, found[ok],
+                                  self.config.pixel_noise_px, sigma[ok])
+
+    def _code_cells(self, mid: int) -> np.ndarray:
+        """(n + 2, n + 2) expected cells of marker ``mid`` (1 white): quiet ring, black border, code."""
+        cells = self._codes.get(mid)
+        if cells is None:
+            n = self.layout.bits + 2
+            img = cv2.aruco.generateImageMarker(self._dictionary, int(mid), n, borderBits=1)
+            cells = np.pad(img > 127, 1, constant_values=True)
+            self._codes[mid] = cells
+        return cells
+
+    def _verify_codes(self, image: np.ndarray, corners_px: np.ndarray, mids: np.ndarray) -> np.ndarray:
+        """(K,) True where the cells inside each quad read marker ``mids[k]`` (<= 1 cell wrong)."""
+        if len(mids) == 0:
+            return np.zeros(0, bool)
+        n = self.layout.bits + 2
+        centres = (np.arange(n + 2, dtype=np.float32) - 0.5)                 # quiet ring .. quiet ring
+        gx, gy = np.meshgrid(centres, centres)
+        grid = np.stack([gx.ravel(), gy.ravel()], axis=1).reshape(-1, 1, 2)
+        square = np.array([[0, 0], [n, 0], [n, n], [0, n]], np.float32)
+        pts = np.concatenate([cv2.perspectiveTransform(grid, cv2.getPerspectiveTransform(
+            square, c.astype(np.float32))) for c in corners_px]).reshape(len(mids), -1, 2)
+        flat = pts.reshape(-1, 2).astype(np.float32)
+        vals = cv2.remap(image, flat[:, 0].reshape(len(mids), -1), flat[:, 1].reshape(len(mids), -1),
+                         cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).astype(np.float32)
+        vals = vals.reshape(len(mids), n + 2, n + 2)
+        ring = np.zeros((n + 2, n + 2), bool)
+        ring[0, :] = ring[-1, :] = ring[:, 0] = ring[:, -1] = True
+        border = np.zeros((n + 2, n + 2), bool)
+        border[1:-1, 1:-1] = True
+        border[2:-2, 2:-2] = False
+        white = np.median(vals[:, ring], axis=1)
+        black = np.median(vals[:, border], axis=1)
+        ok = white - black > _MIN_CODE_CONTRAST
+        thr = 0.5 * (white + black)
+        inner = ~ring
+        for k, mid in enumerate(mids):
+            if ok[k]:
+                read = vals[k] > thr[k]
+                ok[k] = int((read[inner] != self._code_cells(int(mid))[inner]).sum()) <= 1
+        return ok
 
     def _resolve_duplicates(self, corners, ids, t_s):
         """Two markers with one id: keep the one nearest the prediction (drop both if untracked)."""
