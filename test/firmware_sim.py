@@ -27,6 +27,9 @@ ROOT = Path(__file__).resolve().parents[1]
 FIRMWARE_DIR = ROOT / "firmware"
 VECTORS_PATH = ROOT / "docs" / "serial-protocol-vectors.json"
 SIMAVR_HEADER = Path("/usr/include/simavr/sim_avr.h")
+# The harness is paced to the wall clock but runs slower than real time when the host is busy;
+# tests assert in emulated time, and every wall-clock timeout is scaled by this upper bound.
+WALL_TIMEOUT_SCALE = 5.0
 
 
 def toolchain_missing() -> list[str]:
@@ -129,7 +132,7 @@ class Harness:
     def wait_for(self, predicate: Callable[[dict], bool], timeout_s: float,
                  pump: Callable[[], None] | None = None) -> dict:
         """First new status line for which ``predicate`` holds; ``pump`` runs between polls."""
-        deadline = time.monotonic() + timeout_s
+        deadline = time.monotonic() + timeout_s * WALL_TIMEOUT_SCALE
         while time.monotonic() < deadline:
             if pump is not None:
                 pump()
@@ -180,13 +183,25 @@ class CodecLink:
         return new
 
     def wait_frame(self, msg_type, timeout_s: float, predicate=lambda f: True):
-        deadline = time.monotonic() + timeout_s
+        deadline = time.monotonic() + timeout_s * WALL_TIMEOUT_SCALE
         while time.monotonic() < deadline:
             for frame in self.pump():
                 if frame.msg.TYPE == msg_type and predicate(frame):
                     return frame
             time.sleep(0.002)
         raise TimeoutError(f"no {msg_type.name} frame within {timeout_s} s")
+
+    def handshake(self, timeout_s: float = 3.0):
+        """HELLO every 0.2 s until HELLO_ACK (docs/serial-protocol.md §5.1: bytes sent before the
+        firmware has enabled its UART are lost, as on a real board); returns the HELLO_ACK frame."""
+        deadline = time.monotonic() + timeout_s * WALL_TIMEOUT_SCALE
+        while time.monotonic() < deadline:
+            self.send(self.sp.Hello(self.sp.PROTOCOL_VERSION))
+            try:
+                return self.wait_frame(self.sp.MsgType.HELLO_ACK, 0.2 / WALL_TIMEOUT_SCALE)
+            except TimeoutError:
+                continue
+        raise TimeoutError(f"no HELLO_ACK within {timeout_s} s")
 
     def close(self) -> None:
         self.port.close()

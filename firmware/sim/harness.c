@@ -23,15 +23,15 @@
  *        and with ISR cycles subtracted ("loop_max_own").
  *   host -> board line: "last_frame_rx_t_s" is when the firmware's RX interrupt read the 0x00
  *        that ended the last complete frame fed to it (the n-th RX interrupt reads the n-th byte);
- *        "pwm_change_t_s" is when either PWM output last changed (sampled every 50 us).
+ *        "pwm_change_t_s" is when either PWM output last changed (sampled every 100 us).
  *   board -> host line: decoded with the firmware's own src/protocol.c; TELEMETRY frames are
  *        counted with their emulated time (rate in emulated time), the last TELEMETRY and STATUS
  *        fields are reported (error counters, flags, applied torque).
  *
  * Wheel model (per wheel, both identical): J domega/dt = tau(duty, omega) - b omega, with
  * tau from the same DC-motor model and constants as the firmware (src/motor_model.c,
- * src/config.h), integrated every 50 us of emulated time; encoder A/B edges are emitted one
- * quadrature step at a time (at most one per wheel per 50 us step, so no edge is ever lost).
+ * src/config.h), integrated every 100 us of emulated time; encoder A/B edges are emitted one
+ * quadrature step at a time (at most one per wheel per 100 us step: up to 43 rad/s, twice the motor's no-load speed).
  */
 #define _GNU_SOURCE
 #include <errno.h>
@@ -64,7 +64,6 @@
 /* ATmega328P data-space addresses (datasheet, register summary) */
 #define REG_PORTB 0x25
 #define REG_DDRB 0x24
-#define REG_PORTD 0x2B
 #define REG_GPIOR0 0x3E
 #define REG_TCCR1A 0x80
 #define REG_ICR1L 0x86
@@ -73,8 +72,8 @@
 #define COM1A1_BIT 7
 #define COM1B1_BIT 5
 
-#define MODEL_STEP_US 50u
-#define IO_POLL_STEPS 4u            /* pty polled every 200 us of emulated time */
+#define MODEL_STEP_US 100u
+#define IO_POLL_STEPS 2u            /* pty polled every 200 us of emulated time */
 #define STATUS_PERIOD_US 10000u
 #define N_VECTORS 26
 #define VECTOR_USART_RX 18
@@ -123,6 +122,7 @@ typedef struct {
     uint64_t loop_count;
     uint64_t loop_max;
     uint64_t loop_max_own;
+    uint64_t loop_busy_total;          /* all busy stretches added (cpu load of the main loop) */
     /* board -> host line, decoded */
     proto_decoder_t tx_dec;
     uint64_t tx_frames;
@@ -323,6 +323,7 @@ static void gpior0_write(struct avr_t *avr, avr_io_addr_t addr, uint8_t v, void 
         const uint64_t d = avr->cycle - h->loop_start;
         const uint64_t own = d - (h->isr_total - h->loop_start_isr_total);
         h->loop_count++;
+        h->loop_busy_total += d;
         if (d > h->loop_max) {
             h->loop_max = d;
         }
@@ -345,7 +346,7 @@ static void read_pwm(harness_t *h)
     const uint16_t top = reg16(avr, REG_ICR1L);
     const uint8_t tccr1a = avr->data[REG_TCCR1A];
     const uint8_t ddrb = avr->data[REG_DDRB];
-    const int dir[2] = {(avr->data[REG_PORTD] >> PIN_DIR_LEFT) & 1,
+    const int dir[2] = {(avr->data[REG_PORTB] >> PIN_DIR_LEFT) & 1,
                         (avr->data[REG_PORTB] >> PIN_DIR_RIGHT) & 1};
     const int driven[2] = {((tccr1a >> COM1A1_BIT) & 1) && ((ddrb >> PIN_PWM_LEFT) & 1),
                            ((tccr1a >> COM1B1_BIT) & 1) && ((ddrb >> PIN_PWM_RIGHT) & 1)};
@@ -373,8 +374,9 @@ static void emit_encoder_step(harness_t *h, wheel_t *w)
         return;
     }
     w->emitted_ticks += target > w->emitted_ticks ? 1 : -1;
-    /* forward Gray sequence AB: 00 -> 01 -> 11 -> 10 (matches QUAD_TABLE in src/hal.c) */
-    static const uint8_t GRAY[4] = {0x0, 0x1, 0x3, 0x2};
+    /* forward Gray sequence AB: 11 -> 10 -> 00 -> 01 (matches QUAD_TABLE in src/hal.c); count 0
+     * is AB = 11, the idle level of pulled-up lines, so the firmware's pull-ups agree at start */
+    static const uint8_t GRAY[4] = {0x3, 0x2, 0x0, 0x1};
     const uint8_t ab = GRAY[((w->emitted_ticks % 4) + 4) % 4];
     avr_raise_irq(w->pin_a, (ab >> 1) & 1);
     avr_raise_irq(w->pin_b, ab & 1);
@@ -415,7 +417,7 @@ static void emit_status(harness_t *h, int final)
             "\"board\":{\"uptime_ms\":%lu,\"applied_e4nm\":[%d,%d],\"crc_errors\":%u,"
             "\"frame_errors\":%u,\"type_errors\":%u,\"rx_gaps\":%u,\"watchdog_trips\":%u,"
             "\"flags\":%u,\"cmd_seq\":%u},"
-            "\"loop_count\":%llu,\"loop_max_cycles\":%llu,\"loop_max_own_cycles\":%llu,"
+            "\"loop_count\":%llu,\"loop_busy_cycles\":%llu,\"isr_cycles\":%llu,\"loop_max_cycles\":%llu,\"loop_max_own_cycles\":%llu,"
             "\"isr_max_cycles\":{",
             emu_seconds(h), (unsigned long long)h->avr->cycle, wall_seconds(h), h->duty[0],
             h->duty[1], h->pwm_counts[0], h->pwm_counts[1],
@@ -440,7 +442,8 @@ static void emit_status(harness_t *h, int final)
             h->last_status.right_applied_e4nm, h->last_status.crc_errors,
             h->last_status.frame_errors, h->last_status.type_errors, h->last_status.rx_gaps,
             h->last_status.watchdog_trips, h->last_status.flags, h->last_status.cmd_seq,
-            (unsigned long long)h->loop_count, (unsigned long long)h->loop_max,
+            (unsigned long long)h->loop_count, (unsigned long long)h->loop_busy_total,
+            (unsigned long long)h->isr_total, (unsigned long long)h->loop_max,
             (unsigned long long)h->loop_max_own);
     int first = 1;
     for (int v = 1; v < N_VECTORS; v++) {
@@ -464,6 +467,17 @@ static void emit_status(harness_t *h, int final)
 }
 
 /* ---- the periodic cycle timer: wheels, pty, pacing, status ------------------------------- */
+static uint32_t *g_profile;   /* PC histogram (word addresses), FW_SIM_PROFILE=FILE */
+
+static avr_cycle_count_t profile_tick(struct avr_t *avr, avr_cycle_count_t when, void *param)
+{
+    (void)param;
+    if (avr->state == cpu_Running && avr->pc / 2 < 16384) {
+        g_profile[avr->pc / 2]++;
+    }
+    return when + 97;   /* prime period: no aliasing with the firmware's loops */
+}
+
 static avr_cycle_count_t periodic(struct avr_t *avr, avr_cycle_count_t when, void *param)
 {
     harness_t *h = param;
@@ -603,8 +617,8 @@ int main(int argc, char **argv)
     h.wheel[1].pin_a = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), PIN_ENC_RIGHT_A);
     h.wheel[1].pin_b = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), PIN_ENC_RIGHT_B);
     for (int i = 0; i < 2; i++) {
-        avr_raise_irq(h.wheel[i].pin_a, 0);
-        avr_raise_irq(h.wheel[i].pin_b, 0);
+        avr_raise_irq(h.wheel[i].pin_a, 1);
+        avr_raise_irq(h.wheel[i].pin_b, 1);
     }
     /* plant: the firmware's motor constants; wheel + reflected half robot (2.5 kg, r = 35 mm) */
     h.motor = (motor_model_t){MOTOR_SUPPLY_V, MOTOR_TORQUE_CONSTANT_NM_PER_A, MOTOR_RESISTANCE_OHM,
@@ -620,6 +634,11 @@ int main(int argc, char **argv)
 
     clock_gettime(CLOCK_MONOTONIC, &h.wall_start);
     avr_cycle_timer_register_usec(avr, MODEL_STEP_US, periodic, &h);
+    const char *profile_path = getenv("FW_SIM_PROFILE");
+    if (profile_path) {
+        g_profile = calloc(16384, sizeof *g_profile);
+        avr_cycle_timer_register(avr, 97, profile_tick, NULL);
+    }
     const avr_cycle_count_t end_cycle =
         duration_s > 0.0 ? (avr_cycle_count_t)(duration_s * (double)avr->frequency) : 0;
     int state = cpu_Running;
@@ -630,6 +649,17 @@ int main(int argc, char **argv)
         }
     }
     emit_status(&h, 1);
+    if (g_profile) {
+        FILE *pf = fopen(profile_path, "w");
+        for (unsigned i = 0; pf && i < 16384; i++) {
+            if (g_profile[i]) {
+                fprintf(pf, "%u %u\n", i * 2, g_profile[i]);
+            }
+        }
+        if (pf) {
+            fclose(pf);
+        }
+    }
     if (state == cpu_Crashed) {
         fprintf(stderr, "formation_fw_sim: firmware crashed at pc=0x%04x\n", avr->pc);
     }

@@ -33,6 +33,7 @@ static int16_t clamp_torque(int16_t v, uint16_t limit, bool *clamped)
 static void update_outputs(board_t *b)
 {
     const bool stopped = (b->flags & (PROTO_FLAG_WATCHDOG | PROTO_FLAG_ESTOP)) != 0;
+    const int16_t before[2] = {b->pwm_counts[0], b->pwm_counts[1]};
     for (int i = 0; i < 2; i++) {
         bool ignored = false;
         b->applied_e4nm[i] =
@@ -43,9 +44,19 @@ static void update_outputs(board_t *b)
         }
         const float torque_nm = (float)b->applied_e4nm[i] * 1e-4f;
         const float speed_radps = (float)b->vel_mradps[i] * 1e-3f;
-        const float duty = motor_duty_from_torque(&b->cfg.motor, torque_nm, speed_radps);
+        const float duty = motor_duty_from_coeffs(&b->coeffs, torque_nm, speed_radps);
         b->pwm_counts[i] = motor_duty_to_counts(duty, b->cfg.pwm_top);
     }
+    if (before[0] != b->pwm_counts[0] || before[1] != b->pwm_counts[1]) {
+        b->outputs_changed = true;
+    }
+}
+
+bool board_take_outputs_changed(board_t *b)
+{
+    const bool changed = b->outputs_changed;
+    b->outputs_changed = false;
+    return changed;
 }
 
 void board_init(board_t *b, const board_config_t *cfg, uint32_t now_ms, board_send_fn send,
@@ -53,6 +64,8 @@ void board_init(board_t *b, const board_config_t *cfg, uint32_t now_ms, board_se
 {
     memset(b, 0, sizeof *b);
     b->cfg = *cfg;
+    b->coeffs = motor_coeffs(&cfg->motor);
+    b->outputs_changed = true;
     b->send = send;
     b->send_ctx = send_ctx;
     proto_decoder_init(&b->decoder, PROTO_VERSION);
@@ -174,13 +187,17 @@ void board_receive(board_t *b, uint8_t byte, uint32_t now_ms)
     }
 }
 
-static int16_t velocity_mradps(int32_t dticks, uint32_t dt_us, uint16_t ticks_per_rev)
+static int16_t velocity_mradps(board_t *b, int32_t dticks, uint32_t dt_us)
 {
     if (dt_us == 0) {
         return 0;
     }
-    /* 2 pi rad per revolution: vel = dticks * 2 pi / (ticks_per_rev * dt) in mrad/s */
-    const float v = (float)dticks * 6283185.307f / ((float)ticks_per_rev * (float)dt_us) * 1000.0f;
+    if (dt_us != b->vel_dt_us) {   /* the period is constant: one division per change */
+        /* 2 pi rad per revolution: vel = dticks * 2 pi / (ticks_per_rev * dt) in mrad/s */
+        b->vel_factor = 6283185307.0f / ((float)b->cfg.ticks_per_rev * (float)dt_us);
+        b->vel_dt_us = dt_us;
+    }
+    const float v = (float)dticks * b->vel_factor;
     if (v >= 32767.0f) {
         return 32767;
     }
@@ -192,8 +209,8 @@ static int16_t velocity_mradps(int32_t dticks, uint32_t dt_us, uint16_t ticks_pe
 
 void board_control_step(board_t *b, int32_t left_ticks, int32_t right_ticks, uint32_t dt_us)
 {
-    b->vel_mradps[0] = velocity_mradps(left_ticks - b->ticks[0], dt_us, b->cfg.ticks_per_rev);
-    b->vel_mradps[1] = velocity_mradps(right_ticks - b->ticks[1], dt_us, b->cfg.ticks_per_rev);
+    b->vel_mradps[0] = velocity_mradps(b, left_ticks - b->ticks[0], dt_us);
+    b->vel_mradps[1] = velocity_mradps(b, right_ticks - b->ticks[1], dt_us);
     b->ticks[0] = left_ticks;
     b->ticks[1] = right_ticks;
     update_outputs(b);

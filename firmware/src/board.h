@@ -52,6 +52,9 @@ typedef struct {
 
 typedef struct {
     board_config_t cfg;
+    motor_coeffs_t coeffs;          /* motor model, precomputed */
+    uint32_t vel_dt_us;             /* control period the velocity factor was computed for */
+    float vel_factor;               /* mrad/s per tick at vel_dt_us */
     board_send_fn send;
     void *send_ctx;
     proto_decoder_t decoder;
@@ -75,6 +78,7 @@ typedef struct {
     /* encoders */
     int32_t ticks[2];
     int16_t vel_mradps[2];
+    bool outputs_changed;           /* pwm_counts changed since board_take_outputs_changed */
     /* counters (wrapping) */
     uint16_t crc_errors;
     uint16_t frame_errors;
@@ -99,5 +103,8 @@ void board_poll(board_t *b, uint32_t now_ms);
 
 /* PWM outputs to apply now */
 void board_pwm(const board_t *b, int16_t *left_counts, int16_t *right_counts);
+
+/* true once after the PWM outputs changed */
+bool board_take_outputs_changed(board_t *b);
 
 #endif

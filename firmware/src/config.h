@@ -58,16 +58,18 @@
 #define MAX_TORQUE_LIMIT_NM 2.0f                 /* a config message can never raise it above this */
 
 /* ---- pins (Arduino Uno/Nano names in brackets; see firmware/README.md) -------------------
- * PB1 [D9]  OC1A  PWM left        PD7 [D7] DIR left     PD2 [D2] left  encoder A  (PCINT18)
+ * PB1 [D9]  OC1A  PWM left        PB3 [D11] DIR left    PD2 [D2] left  encoder A  (PCINT18)
  * PB2 [D10] OC1B  PWM right       PB4 [D12] DIR right   PD4 [D4] left  encoder B  (PCINT20)
  * PD0 [D0]  RXD   PD1 [D1] TXD    PB5 [D13] LED status  PD3 [D3] right encoder A  (PCINT19)
- *                                                       PD5 [D5] right encoder B  (PCINT21)  */
+ *                                                       PD5 [D5] right encoder B  (PCINT21)
+ * Port D holds only inputs (UART, encoders with pull-ups) and is written once at start-up;
+ * every output is on port B. PB0 (ICP1) stays free: Timer1 uses ICR1 as its TOP.          */
 #define PIN_ENC_LEFT_A 2    /* bit in PORTD */
 #define PIN_ENC_RIGHT_A 3
 #define PIN_ENC_LEFT_B 4
 #define PIN_ENC_RIGHT_B 5
-#define PIN_DIR_LEFT 7      /* bit in PORTD */
-#define PIN_DIR_RIGHT 4     /* bit in PORTB; not PB0 = ICP1 (kept free of the timer) */
+#define PIN_DIR_LEFT 3      /* bit in PORTB */
+#define PIN_DIR_RIGHT 4     /* bit in PORTB */
 #define PIN_PWM_LEFT 1      /* bit in PORTB (OC1A) */
 #define PIN_PWM_RIGHT 2     /* bit in PORTB (OC1B) */
 #define PIN_LED 5           /* bit in PORTB */

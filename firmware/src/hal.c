@@ -113,10 +113,10 @@ static void uart_init(void)
 /* ---- PWM ------------------------------------------------------------------------------- */
 static void pwm_init(void)
 {
-    PORTB &= (uint8_t)~((1 << PIN_PWM_LEFT) | (1 << PIN_PWM_RIGHT) | (1 << PIN_DIR_RIGHT));
-    PORTD &= (uint8_t)~(1 << PIN_DIR_LEFT);
-    DDRB |= (1 << PIN_PWM_LEFT) | (1 << PIN_PWM_RIGHT) | (1 << PIN_DIR_RIGHT) | (1 << PIN_LED);
-    DDRD |= (1 << PIN_DIR_LEFT);
+    PORTB &= (uint8_t)~((1 << PIN_PWM_LEFT) | (1 << PIN_PWM_RIGHT) | (1 << PIN_DIR_LEFT) |
+                        (1 << PIN_DIR_RIGHT));
+    DDRB |= (1 << PIN_PWM_LEFT) | (1 << PIN_PWM_RIGHT) | (1 << PIN_DIR_LEFT) | (1 << PIN_DIR_RIGHT) |
+            (1 << PIN_LED);
     ICR1 = PWM_TOP;
     OCR1A = 0;
     OCR1B = 0;
@@ -139,20 +139,18 @@ static uint16_t magnitude(int16_t counts)
 
 void hal_pwm_set(int16_t left_counts, int16_t right_counts)
 {
+    uint8_t dir = PORTB & (uint8_t)~((1 << PIN_DIR_LEFT) | (1 << PIN_DIR_RIGHT));
     if (left_counts < 0) {
-        PORTD |= (1 << PIN_DIR_LEFT);
-    } else {
-        PORTD &= (uint8_t)~(1 << PIN_DIR_LEFT);
+        dir |= (1 << PIN_DIR_LEFT);
     }
     if (right_counts < 0) {
-        PORTB |= (1 << PIN_DIR_RIGHT);
-    } else {
-        PORTB &= (uint8_t)~(1 << PIN_DIR_RIGHT);
+        dir |= (1 << PIN_DIR_RIGHT);
     }
     const uint16_t l = magnitude(left_counts);
     const uint16_t r = magnitude(right_counts);
     ATOMIC_BLOCK(ATOMIC_RESTORESTATE)
     {
+        PORTB = dir;
         OCR1A = l;   /* double-buffered by hardware: takes effect at TOP */
         OCR1B = r;
     }
@@ -187,7 +185,7 @@ static void encoders_init(void)
     const uint8_t mask = (1 << PIN_ENC_LEFT_A) | (1 << PIN_ENC_LEFT_B) | (1 << PIN_ENC_RIGHT_A) |
                          (1 << PIN_ENC_RIGHT_B);
     DDRD &= (uint8_t)~mask;
-    PORTD |= mask;                               /* pull-ups for open-collector encoders */
+    PORTD |= mask;     /* pull-ups for open-collector encoders; PORTD is not written again */
     const uint8_t pins = PIND;
     enc_prev_left = ab(pins, PIN_ENC_LEFT_A, PIN_ENC_LEFT_B);
     enc_prev_right = ab(pins, PIN_ENC_RIGHT_A, PIN_ENC_RIGHT_B);

@@ -5,8 +5,8 @@
  *   1. every received UART byte -> board_receive (decoder, message rules, replies)
  *   2. every 10 ms (control tick): encoder snapshot -> board_control_step (speed -> duty),
  *      hardware watchdog kick
- *   3. board_poll: command watchdog, TELEMETRY / STATUS when due
- *   4. PWM outputs from the board state; sleep (idle mode) until the next interrupt
+ *   3. then board_poll once per millisecond: command watchdog, TELEMETRY / STATUS when due
+ *   4. PWM outputs when the board changed them; sleep (idle mode) until the next interrupt
  * The hardware watchdog (60 ms) resets the MCU when the loop stops running the control step;
  * after any reset the board comes up with torque 0 and the RESET flag (host handshakes again).
  */
@@ -46,6 +46,7 @@ int main(void)
     apply_pwm(&board);
     sei();
     uint32_t last_control_ms = 0;
+    uint32_t last_poll_ms = 0;
     for (;;) {
         hal_loop_busy();
         const uint32_t now_ms = hal_millis();
@@ -59,10 +60,17 @@ int main(void)
             board_control_step(&board, left, right, (now_ms - last_control_ms) * 1000UL);
             last_control_ms = now_ms;
             hal_watchdog_kick();
+            hal_led((board.flags & (PROTO_FLAG_WATCHDOG | PROTO_FLAG_ESTOP)) == 0);
         }
-        board_poll(&board, now_ms);
-        apply_pwm(&board);
-        hal_led((board.flags & (PROTO_FLAG_WATCHDOG | PROTO_FLAG_ESTOP)) == 0);
+        /* after the control step, so TELEMETRY carries this period's encoder counts; a wake-up
+         * by a TX-empty or encoder interrupt alone has nothing new to decide */
+        if (now_ms != last_poll_ms) {
+            last_poll_ms = now_ms;
+            board_poll(&board, now_ms);
+        }
+        if (board_take_outputs_changed(&board)) {
+            apply_pwm(&board);
+        }
         hal_idle();
     }
 }

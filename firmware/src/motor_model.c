@@ -24,6 +24,20 @@ float motor_duty_from_torque(const motor_model_t *m, float torque_nm, float whee
     return clamp_unit(voltage_v / m->supply_v);
 }
 
+motor_coeffs_t motor_coeffs(const motor_model_t *m)
+{
+    motor_coeffs_t c;
+    c.duty_per_nm = m->resistance_ohm /
+                    (m->gear_ratio * m->gear_efficiency * m->torque_constant * m->supply_v);
+    c.duty_per_radps = m->torque_constant * m->gear_ratio / m->supply_v;
+    return c;
+}
+
+float motor_duty_from_coeffs(const motor_coeffs_t *c, float torque_nm, float wheel_speed_radps)
+{
+    return clamp_unit(torque_nm * c->duty_per_nm + wheel_speed_radps * c->duty_per_radps);
+}
+
 float motor_torque_from_duty(const motor_model_t *m, float duty, float wheel_speed_radps)
 {
     const float voltage_v = clamp_unit(duty) * m->supply_v;

@@ -22,6 +22,17 @@ typedef struct {
     float gear_efficiency;    /* eta in (0, 1] */
 } motor_model_t;
 
+/* The model is linear in torque and speed: d = tau * duty_per_nm + omega * duty_per_radps
+ * (then clamped). The firmware precomputes the two coefficients once, so its control step has
+ * no division. */
+typedef struct {
+    float duty_per_nm;        /* R / (G eta k_t V_supply)  [1 / (N m)] */
+    float duty_per_radps;     /* k_t G / V_supply           [s / rad] */
+} motor_coeffs_t;
+
+motor_coeffs_t motor_coeffs(const motor_model_t *m);
+float motor_duty_from_coeffs(const motor_coeffs_t *c, float torque_nm, float wheel_speed_radps);
+
 /* Duty in [-1, 1] that produces wheel torque `torque_nm` at wheel speed `wheel_speed_radps`. */
 float motor_duty_from_torque(const motor_model_t *m, float torque_nm, float wheel_speed_radps);
 
