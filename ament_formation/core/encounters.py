@@ -278,10 +278,15 @@ def decide(t, p, pd, goal, goal_dot, vc, team, rbody, oc, ov, ophi, ophid, oaxes
     ob_hl = np.full(n, INF)
     cur_em = np.zeros(n, dtype=np.bool_)
     cur_hl = np.full(n, INF)
+    reach2 = np.empty(m)        # culling: outside the circle of radius kappa r1 nothing triggers
+    for j in range(m):
+        reach2[j] = (prm[P_KAPPA] * max(oaxes[j, 0], oaxes[j, 1])) ** 2
     for i in range(n):
         for j in range(m):
             zx = p[i, 0] - oc[j, 0]
             zy = p[i, 1] - oc[j, 1]
+            if zx * zx + zy * zy >= reach2[j] and not (mode[i] == MODE_OBSTACLE and tgt[i] == j):
+                continue
             rvx, rvy = relative_velocity(zx, zy, pd[i, 0], pd[i, 1], ov[j, 0], ov[j, 1], ophid[j])
             trig, em, lam, h_em, h_l = threat_test(zx, zy, rvx, rvy, ophi[j], oaxes[j, 0],
                                                    oaxes[j, 1], prm)

@@ -35,7 +35,7 @@ from ament_formation.core.disturbance import Disturbance
 from ament_formation.core.dynamics import PlantCoeffs
 from ament_formation.core.encounters import decide, keepout_radius
 from ament_formation.core.kernels import (
-    disturbance_k, ellipse_field_k, gain_schedule_k, point_velocity_k, rk4_step_k, smc_torque_k,
+    disturbance_k, disturbance_phasor_advance_k, disturbance_phasor_init_k, ellipse_field_k, gain_schedule_k, point_velocity_k, rk4_step_k, smc_torque_k,
     tracking_field_k,
 )
 from ament_formation.core.trajectory import SimResult
@@ -251,7 +251,7 @@ def goals_and_fields(x, pd, ref, orig_parent, orig_offset, gains, goal, goal_dot
 def _run_segment(k0, k_end, skip_decide, dt, dec_every, rec_every, ref_k0, ref_sub, ref_tab,
                  x, acmd, torque, sat_flag, pd, goal, goal_dot, vc, ref,
                  parent, offset, order, orig_parent, orig_offset, team, rbody, coeffs, gains,
-                 d_amp, d_freq, d_phase,
+                 d_amp, d_freq, d_phase, d_hc, d_hs,
                  ob_c0, ob_v, ob_amp, ob_w, ob_phi0, ob_phid, oaxes, ostatic,
                  mode, tgt, sdir, t_entry, since, last_kind, last_tgt, last_exit, wc, wtgt, prm,
                  ev, reach_pending, reach_active, reach_t0, reach_sig0, reach_rec, nreach,
@@ -266,7 +266,12 @@ def _run_segment(k0, k_end, skip_decide, dt, dec_every, rec_every, ref_k0, ref_s
     ophid = np.empty(m)
     ophidd = np.empty(m)
     eps = gains[G_EPS]
-    lam = gains[G_LAMBDA]
+    d_sin = np.empty_like(d_amp)
+    d_cos = np.empty_like(d_amp)
+    g_prev = np.empty((n, 2))
+    for i in range(n):      # (re-)start the disturbance phasors at t(k0): no drift accumulates
+        disturbance_phasor_init_k(k0 * dt, d_freq[i], d_phase[i], d_sin[i], d_cos[i])
+        g_prev[i, 0], g_prev[i, 1] = disturbance_k(k0 * dt, d_amp[i], d_freq[i], d_phase[i])
     for kk in range(k0, k_end):
         t = kk * dt
         obstacle_states(t, ob_c0, ob_v, ob_amp, ob_w, ob_phi0, ob_phid, oc, ov, oa, ophi, ophid,
@@ -341,9 +346,13 @@ def _run_segment(k0, k_end, skip_decide, dt, dec_every, rec_every, ref_k0, ref_s
                     rec_ophi[rk, j] = ophi[j]
         # ---- plant: RK4 with ZOH torque and g at t, t + dt/2, t + dt (S2.2)
         for i in range(n):
-            g0a, g0b = disturbance_k(t, d_amp[i], d_freq[i], d_phase[i])
-            gha, ghb = disturbance_k(t + 0.5 * dt, d_amp[i], d_freq[i], d_phase[i])
-            g1a, g1b = disturbance_k(t + dt, d_amp[i], d_freq[i], d_phase[i])
+            # g at t (kept from the previous step), t + dt/2 and t + dt by phasor rotation
+            g0a = g_prev[i, 0]
+            g0b = g_prev[i, 1]
+            gha, ghb = disturbance_phasor_advance_k(d_amp[i], d_sin[i], d_cos[i], d_hc[i], d_hs[i])
+            g1a, g1b = disturbance_phasor_advance_k(d_amp[i], d_sin[i], d_cos[i], d_hc[i], d_hs[i])
+            g_prev[i, 0] = g1a
+            g_prev[i, 1] = g1b
             nx = rk4_step_k(x[i, 0], x[i, 1], x[i, 2], x[i, 3], x[i, 4], torque[i, 0],
                             torque[i, 1], g0a, g0b, gha, ghb, g1a, g1b, dt, coeffs[0, i],
                             coeffs[1, i], coeffs[2, i], coeffs[3, i], coeffs[4, i], coeffs[5, i])
@@ -382,6 +391,7 @@ class _Setup:
         bound = np.asarray(scenario.disturbance.accel_bound, dtype=float)
         dist = Disturbance.from_bounds(n, bound, scenario.disturbance.seed)
         self.d_amp, self.d_freq, self.d_phase = dist.amplitude, dist.freq_hz, dist.phase_rad
+        self.d_hc, self.d_hs = dist.step_rotation(0.5 * dt_s)     # half-step phasor rotation
         obs = scenario.obstacles
         m = len(obs)
         self.obstacle_names = tuple(o.name for o in obs)
@@ -548,6 +558,7 @@ def simulate(scenario, *, dt_s: float = 0.001, record_every_s: float = 0.01,
                 x, acmd, torque, sat_flag, pd, goal, goal_dot, vc, ref,
                 parent, offset, order, setup.orig_parent, setup.orig_offset, setup.team,
                 setup.rbody, setup.coeffs, setup.gains, setup.d_amp, setup.d_freq, setup.d_phase,
+                setup.d_hc, setup.d_hs,
                 setup.ob_c0, setup.ob_v, setup.ob_amp, setup.ob_w, setup.ob_phi0, setup.ob_phid,
                 setup.oaxes, setup.ostatic, mode, tgt, sdir, t_entry, since, last_kind, last_tgt,
                 last_exit, wc, wtgt, setup.prm, ev, reach_pending, reach_active, reach_t0,
