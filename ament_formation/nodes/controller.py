@@ -2,7 +2,7 @@
 
 Every control period (100 Hz): the pose estimate (core/estimator.py, spec S10: wheel odometry
 between camera frames, each latency-compensated camera pose corrects it) feeds the robot's
-switching automaton and sliding-mode law (core/controller.py RobotController, the same functions
+switching automaton and sliding-mode law (core/robot_law.py SingleRobotLaw: the same functions
 as the simulator); the torque goes to the bridge. The current parent is the one of
 ``/formation/graph``: the node re-subscribes to that parent's ``state`` and ``accel`` whenever the
 graph changes. Safety (DESIGN §7): no pose for ``pose_timeout_s`` or no wheel data for
@@ -58,6 +58,7 @@ from std_msgs.msg import String
 from ament_formation.core.dynamics import PlantCoeffs, b2_inv, f2
 from ament_formation.core.errors import ConfigError
 from ament_formation.core.estimator import EstimatorParams, PoseEstimator
+from ament_formation.core.robot_law import SingleRobotLaw
 from ament_formation.core.scenario import load_scenario
 from ament_formation.ros import diagnostics as diag
 from ament_formation.ros import messages as msgs
@@ -128,13 +129,11 @@ class ControllerNode(Node):
         self.k = PlantCoeffs.from_params([spec.params])
         self.tau_max = spec.params.torque_limit_nm
         self.estimator = PoseEstimator(EstimatorParams.from_robot(spec.params, camera_gain=self.prm.camera_gain))
-        from ament_formation.core.controller import RobotController
-
-        self.law = RobotController(self.scenario, self.rid)
+        self.law = SingleRobotLaw(self.scenario, self.rid)
         self.start_s: float | None = None
         self.graph: msgs.GraphMessage | None = None
         self.parent: _Neighbour | None = None
-        self.orig_parent_id = self.law.original_parent if hasattr(self.law, "original_parent") else None
+        self.orig_parent_id = self.law.original_parent
         self.orig: _Neighbour | None = None
         self.last_wheel_s = -math.inf
         self.rejected = {"pose": 0, "wheel": 0, "parent": 0, "graph": 0}

@@ -1,0 +1,285 @@
+"""Whole-system benchmarks (issue 5): run with `.venv/bin/python bench/bench_system.py [--quick]`.
+
+1. End-to-end latency from a camera frame's capture stamp to the torque frame that the emulated
+   motor board receives on its serial line, p50 / p99, with every node in one process and with
+   the nodes as separate processes (scripts/launch_sim.sh-like: world in this process so the
+   board's receive log is visible, everything else in its own process).
+   Attribution: for each pose message of robot 0 (stamp = capture time), the first wheel_torque
+   published by the controller after the pose arrived; that command's arrival at the board is
+   found in the board's command log by its (quantised) torque values.
+2. Robot count: the largest N (line formation, no obstacles, N controllers + N bridges as
+   processes, 100 Hz control, 30 fps camera) with < 1 % missed control deadlines (late ticks from
+   the controllers' /diagnostics) and the world keeping real time.
+
+Baseline for the ratios: the wire time of one torque frame at 115200 baud and the 10 ms control
+period.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from ament_formation.tools.run_cmd import loopback_env  # noqa: E402
+
+SCENARIO = ROOT / "test" / "data" / "paper_short.yaml"
+
+
+class LatencyProbe:
+    """Subscribes to robot_<rid>/pose and robot_<rid>/wheel_torque; pairs them with the board log."""
+
+    def __init__(self, node, rid: int = 0):
+        from sensor_msgs.msg import JointState
+
+        from ament_formation.ros import messages as m
+        from ament_formation.ros.qos import QOS_CONTROL
+
+        self.poses: list[tuple[float, float]] = []      # (capture stamp, arrival wall)
+        self.torques: list[tuple[float, np.ndarray]] = []  # (publish stamp, efforts)
+        node.create_subscription(m.PoseStamped, f"/robot_{rid}/pose",
+                                 lambda msg: self.poses.append((m.stamp_to_s(msg.header.stamp), time.time())),
+                                 QOS_CONTROL)
+        node.create_subscription(JointState, f"/robot_{rid}/wheel_torque",
+                                 lambda msg: self.torques.append((m.stamp_to_s(msg.header.stamp),
+                                                                  np.array(msg.effort))), QOS_CONTROL)
+
+    def latencies_s(self, board_log: list) -> np.ndarray:
+        """Capture -> board receive [s] per pose."""
+        if not board_log or not self.torques:
+            return np.zeros(0)
+        log_t = np.array([e[0] for e in board_log])
+        log_v = np.array([[e[2], e[3]] for e in board_log])
+        tq_t = np.array([t for t, _ in self.torques])
+        out = []
+        for capture_s, arrival_s in self.poses:
+            j = np.searchsorted(tq_t, arrival_s)
+            if j >= len(tq_t):
+                continue
+            want = np.round(self.torques[j][1] * 1e4)
+            k0 = np.searchsorted(log_t, tq_t[j] - 0.001)
+            for k in range(k0, min(k0 + 20, len(log_t))):
+                if np.all(np.abs(log_v[k] - want) <= 1):
+                    out.append(log_t[k] - capture_s)
+                    break
+        return np.array(out)
+
+
+def _spin_for(executor, seconds: float) -> None:
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        executor.spin_once(timeout_sec=0.01)
+
+
+def _percentiles(lat: np.ndarray) -> str:
+    if len(lat) == 0:
+        return "no samples"
+    return (f"p50 {1e3 * np.percentile(lat, 50):6.1f} ms  p99 {1e3 * np.percentile(lat, 99):6.1f} ms  "
+            f"(n = {len(lat)})")
+
+
+def latency_in_process(seconds: float) -> np.ndarray:
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+
+    from ament_formation.ros.system import build_system
+
+    ctx = Context()
+    rclpy.init(context=ctx)
+    ex = SingleThreadedExecutor(context=ctx)
+    system = build_system(ctx, SCENARIO, ex, start_delay_s=0.5)
+    log: list = []
+    system.world.boards[0].board.command_log = log
+    probe_node = rclpy.create_node("_bench_probe", context=ctx)
+    probe = LatencyProbe(probe_node)
+    ex.add_node(probe_node)
+    try:
+        _spin_for(ex, seconds)
+        return probe.latencies_s(log)
+    finally:
+        system.destroy(ex)
+        probe_node.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+
+
+def _start(cmd: list[str], log_dir: Path, name: str) -> subprocess.Popen:
+    return subprocess.Popen(cmd, stdout=open(log_dir / f"{name}.log", "w"), stderr=subprocess.STDOUT)
+
+
+def _stop(procs: list[subprocess.Popen]) -> None:
+    for p in procs:
+        if p.poll() is None:
+            p.send_signal(signal.SIGTERM)
+    for p in procs:
+        try:
+            p.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
+
+
+def node_processes(scenario_path: Path, pty_dir: Path, log_dir: Path) -> list[subprocess.Popen]:
+    """Bridge + controller per robot, tracker, coordinator as processes (not the world)."""
+    from ament_formation.core.scenario import load_scenario
+
+    sc = load_scenario(scenario_path)
+    b = ROOT / ".venv" / "bin"
+    procs = []
+    for r in sc.robots:
+        ns = ["--ros-args", "-r", f"__ns:=/robot_{r.id}"]
+        procs.append(_start([str(b / "formation_bridge"), *ns, "-p", f"port:={pty_dir}/robot_{r.id}",
+                             "-p", f"torque_limit_nm:={r.params.torque_limit_nm}"], log_dir, f"bridge_{r.id}"))
+        procs.append(_start([str(b / "formation_controller"), *ns, "-p", f"scenario:={scenario_path}",
+                             "-p", f"robot_id:={r.id}"], log_dir, f"controller_{r.id}"))
+    ids = [r.id for r in sc.robots]
+    procs.append(_start([str(b / "formation_tracker"), "--ros-args", "-p", f"robot_ids:={ids}",
+                         "-p", f"marker_ids:={[r.marker_id for r in sc.robots]}"], log_dir, "tracker"))
+    procs.append(_start([str(b / "formation_coordinator"), "--ros-args", "-p", f"scenario:={scenario_path}",
+                         "-p", "start_delay_s:=0.5"], log_dir, "coordinator"))
+    return procs
+
+
+def latency_multi_process(seconds: float, tmp: Path) -> np.ndarray:
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+
+    from ament_formation.nodes.world import WorldNode, WorldParams
+
+    ctx = Context()
+    rclpy.init(context=ctx)
+    ex = SingleThreadedExecutor(context=ctx)
+    pty_dir = tmp / "pty_lat"
+    world = WorldNode(context=ctx, params=WorldParams(scenario=str(SCENARIO), pty_dir=str(pty_dir)))
+    log: list = []
+    world.boards[0].board.command_log = log
+    probe_node = rclpy.create_node("_bench_probe", context=ctx)
+    probe = LatencyProbe(probe_node)
+    ex.add_node(world)
+    ex.add_node(probe_node)
+    procs = node_processes(SCENARIO, pty_dir, tmp)
+    try:
+        t0 = time.monotonic()
+        while world.start_s is None and time.monotonic() - t0 < 60:
+            ex.spin_once(timeout_sec=0.01)
+        _spin_for(ex, seconds)
+        return probe.latencies_s(log)
+    finally:
+        _stop(procs)
+        world.destroy_node()
+        probe_node.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+
+
+def line_scenario(n: int, path: Path) -> Path:
+    """N robots in a column behind a leader on a straight line; chain graph; no obstacles."""
+    robots = [{"id": 0, "leader": True, "slot_m": [0.0, 0.0], "initial_pose": [0.0, 0.0, 0.0], "marker_id": 0,
+               "path": {"type": "line", "start_m": [0.0, 0.0], "heading_rad": 0.0, "speed_mps": 0.05}}]
+    for i in range(1, n):
+        row, col = divmod(i - 1, 4)
+        y = -0.9 + 0.6 * col
+        x = -0.5 - 0.5 * row
+        robots.append({"id": i, "slot_m": [x, y], "initial_pose": [x, y, 0.0], "marker_id": i})
+    edges = [[0, i] for i in range(1, n)]
+    path.write_text(yaml.safe_dump({"name": f"line_{n}", "duration_s": 60.0, "robots": robots,
+                                    "graph": {"edges": edges}}, sort_keys=False))
+    return path
+
+
+def robot_count(n: int, seconds: float, tmp: Path) -> dict:
+    """Run N robots through the whole system; missed-deadline fraction and world overruns."""
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+
+    from ament_formation.nodes.world import WorldNode, WorldParams
+    from ament_formation.ros.qos import QOS_DIAGNOSTICS
+
+    scenario = line_scenario(n, tmp / f"line_{n}.yaml")
+    ctx = Context()
+    rclpy.init(context=ctx)
+    ex = SingleThreadedExecutor(context=ctx)
+    pty_dir = tmp / f"pty_{n}"
+    world = WorldNode(context=ctx, params=WorldParams(scenario=str(scenario), pty_dir=str(pty_dir)))
+    diag: dict[str, dict] = {}
+    probe = rclpy.create_node("_bench_diag", context=ctx)
+
+    def on_diag(msg):
+        for st in msg.status:
+            if st.name.startswith("formation_controller"):
+                diag[st.name] = {kv.key: kv.value for kv in st.values}
+
+    probe.create_subscription(DiagnosticArray, "/diagnostics", on_diag, QOS_DIAGNOSTICS)
+    ex.add_node(world)
+    ex.add_node(probe)
+    procs = node_processes(scenario, pty_dir, tmp)
+    try:
+        t0 = time.monotonic()
+        while world.start_s is None and time.monotonic() - t0 < 90:
+            ex.spin_once(timeout_sec=0.01)
+        started = world.start_s is not None
+        _spin_for(ex, 1.5)
+        before = {k: (int(v["ticks"]), int(v["late_ticks"])) for k, v in diag.items()}
+        over0 = world.overruns
+        _spin_for(ex, seconds)
+        after = {k: (int(v["ticks"]), int(v["late_ticks"])) for k, v in diag.items()}
+        ticks = sum(after[k][0] - before.get(k, (0, 0))[0] for k in after)
+        late = sum(after[k][1] - before.get(k, (0, 0))[1] for k in after)
+        return {"n": n, "started": started, "controllers_reporting": len(after), "ticks": ticks,
+                "late": late, "missed_fraction": late / ticks if ticks else float("nan"),
+                "world_overruns": world.overruns - over0,
+                "expected_ticks": int(100 * seconds * n)}
+    finally:
+        _stop(procs)
+        world.destroy_node()
+        probe.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="shorter windows, fewer robot counts")
+    ap.add_argument("--counts", type=int, nargs="*", default=None, help="robot counts to try")
+    args = ap.parse_args()
+    tmp = Path(tempfile.mkdtemp(prefix="ament_formation_bench_"))
+    loopback_env(tmp / "ros_log")
+    window = 5.0 if args.quick else 12.0
+    wire_ms = 1e3 * 10 * 10 / 115200   # one 10-byte torque frame at 115200 baud, 10 bits/byte
+    print(f"baseline: torque frame wire time {wire_ms:.2f} ms; control period 10 ms")
+    lat1 = latency_in_process(window + 4.0)
+    print(f"latency capture -> board, one process:    {_percentiles(lat1)}")
+    lat2 = latency_multi_process(window, tmp)
+    print(f"latency capture -> board, processes:      {_percentiles(lat2)}")
+    if len(lat1) and len(lat2):
+        print(f"  ratio p50 processes / one process: {np.percentile(lat2, 50) / np.percentile(lat1, 50):.2f}; "
+              f"p50 / wire time: {1e3 * np.percentile(lat2, 50) / wire_ms:.1f}")
+    counts = args.counts or ([2, 4, 6] if args.quick else [2, 4, 6, 8, 10, 12])
+    print(f"{'robots':>6} {'ticks':>7} {'late':>6} {'missed %':>9} {'world overruns':>15}")
+    best = 0
+    for n in counts:
+        r = robot_count(n, window, tmp)
+        print(f"{n:6d} {r['ticks']:7d} {r['late']:6d} {100 * r['missed_fraction']:9.2f} {r['world_overruns']:15d}"
+              + ("" if r["started"] and r["controllers_reporting"] == n else "  (did not start / not all up)"))
+        if r["started"] and r["controllers_reporting"] == n and r["missed_fraction"] < 0.01 \
+                and r["ticks"] >= 0.9 * r["expected_ticks"] and r["world_overruns"] == 0:
+            best = n
+        else:
+            break
+    print(f"largest robot count held in real time (< 1 % missed deadlines): {best}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

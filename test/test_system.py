@@ -1,0 +1,148 @@
+"""Whole-system tests: every node in one executor with real ptys and rendered frames, and the
+safety behaviour of the controller (DESIGN §7)."""
+from __future__ import annotations
+
+import math
+import os
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ament_formation.ros import messages as m
+from ament_formation.ros.executors import spin_until
+from ament_formation.ros.qos import QOS_CONTROL, QOS_GRAPH
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT / "test" / "data"
+
+
+def _signed_distance(p, center, phi, axes):
+    from ament_formation.core.limit_cycle import signed_distance_to_ellipse
+
+    return float(signed_distance_to_ellipse(np.atleast_2d(p), np.asarray(center), phi, axes[0], axes[1])[0])
+
+
+def test_shortened_paper_run_all_nodes_in_one_process(ros_context, executor, tmp_path):
+    """Leader goes round O1 with positive clearance, the follower keeps formation, the graph
+    revision changes when the leader starts and stops avoiding, torques stay within limits."""
+    import rclpy
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import String
+
+    from ament_formation.core.scenario import load_scenario
+    from ament_formation.ros.system import build_system
+
+    scenario_path = DATA / "paper_short.yaml"
+    sc = load_scenario(scenario_path)
+    system = build_system(ros_context, scenario_path, executor, pty_dir=tmp_path / "pty", start_delay_s=0.5)
+    probe = rclpy.create_node("_probe", context=ros_context)
+    truth = {0: [], 1: []}
+    torques = {0: [], 1: []}
+    graphs: list[m.GraphMessage] = []
+    for rid in (0, 1):
+        probe.create_subscription(m.Odometry, f"/world/truth/robot_{rid}",
+                                  lambda msg, rid=rid: truth[rid].append(m.state_from_odometry(msg)), QOS_CONTROL)
+        probe.create_subscription(JointState, f"/robot_{rid}/wheel_torque",
+                                  lambda msg, rid=rid: torques[rid].append(list(msg.effort)), QOS_CONTROL)
+    probe.create_subscription(String, "/formation/graph", lambda msg: graphs.append(m.graph_from_msg(msg)), QOS_GRAPH)
+    executor.add_node(probe)
+    try:
+        assert spin_until(executor, lambda: system.world.done, 60.0), "the world did not finish the scenario"
+    finally:
+        system.destroy(executor)
+    start_s = system.world.start_s
+    assert start_s is not None
+
+    # leader round O1: positive clearance, formation goal reached again
+    o1 = next(o for o in sc.obstacles if o.name == "O1")
+    lead = [(s - start_s, x) for x, s in truth[0] if s >= start_s]
+    clearance = min(_signed_distance(x[:2], o1.center_m, o1.orientation_rad, o1.semi_axes_m) for _, x in lead)
+    assert clearance > 0.0
+    t_end, x_end = lead[-1]
+    r_end = sc.robot(0).path.reference(t_end)[0]
+    assert np.hypot(*(x_end[:2] - r_end)) < 0.05
+    # follower keeps its slot (delta = (0, 1.2)) after the initial 0.2 m error
+    fol = {round(s - start_s, 2): x for x, s in truth[1]}
+    lead_at = {round(s - start_s, 2): x for x, s in truth[0]}
+    common = sorted(t for t in fol if t in lead_at and t > 10.0)
+    errs = [np.hypot(*(fol[t][:2] - lead_at[t][:2] - np.array([0.0, 1.2]))) for t in common]
+    assert len(errs) > 100 and max(errs) < 0.05
+    # graph: one revision when the leader starts avoiding, one when it stops
+    avoiding_revs = [g.revision for g in graphs if g.avoiding == (0,)]
+    assert avoiding_revs, [(g.revision, g.avoiding) for g in graphs]
+    later = [g for g in graphs if g.revision > max(avoiding_revs) and g.avoiding == ()]
+    assert later, "no revision after the leader stopped avoiding"
+    assert all(g.parents == {0: None, 1: 0} for g in graphs)
+    # torques within the limit, and the controllers did drive
+    for rid in (0, 1):
+        tau = np.array(torques[rid])
+        assert np.all(np.abs(tau) <= sc.robot(rid).params.torque_limit_nm + 1e-12)
+        assert np.max(np.abs(tau)) > 0.005
+
+
+def test_controller_stops_when_poses_stop(ros_context, executor, tmp_path):
+    """Cut the camera: within pose_timeout_s the controller switches to a controlled stop and the
+    robot comes to rest; the safety state and the mode say so."""
+    from ament_formation.ros.system import build_system
+
+    system = build_system(ros_context, DATA / "paper_short.yaml", executor, pty_dir=tmp_path / "pty",
+                          start_delay_s=0.3)
+    ctrl = system.controllers[0]
+    try:
+        assert spin_until(executor, lambda: ctrl.safety == "running" and system.world.twin.t_s > 1.5, 30.0)
+        assert abs(system.world.twin.state[0, 3]) > 0.02       # moving
+        system.world.camera = None                            # the camera goes dark
+        t_cut = time.monotonic()
+        assert spin_until(executor, lambda: ctrl.safety == "stopped_pose", 5.0)
+        assert time.monotonic() - t_cut < 0.5 + 0.3
+        assert ctrl.mode["mode"] == "stopped"
+        assert spin_until(executor, lambda: abs(system.world.twin.state[0, 3]) < 0.005
+                          and abs(system.world.twin.state[0, 4]) < 0.02, 5.0)
+    finally:
+        system.destroy(executor)
+
+
+def test_killing_the_controller_process_zeroes_the_board(ros_context, executor, tmp_path):
+    """A controller process drives robot 0 through the in-process bridge and board; SIGKILL it:
+    the board applies zero torque within 250 ms (bridge input timeout / board watchdog)."""
+    import rclpy
+    from rclpy.parameter import Parameter
+
+    from ament_formation.nodes.bridge import BridgeNode
+    from ament_formation.nodes.coordinator import CoordinatorNode, CoordinatorParams
+    from ament_formation.nodes.tracker import TrackerNode, TrackerNodeParams
+    from ament_formation.nodes.world import WorldNode, WorldParams
+
+    scenario = DATA / "paper_short.yaml"
+    pty = tmp_path / "pty"
+    world = WorldNode(context=ros_context, params=WorldParams(scenario=str(scenario), pty_dir=str(pty)))
+    bridge = BridgeNode(context=ros_context, namespace="/robot_0",
+                        parameter_overrides=[Parameter("port", value=str(pty / "robot_0"))])
+    tracker = TrackerNode(context=ros_context, params=TrackerNodeParams(marker_ids=(0, 1), robot_ids=(0, 1)))
+    coord = CoordinatorNode(context=ros_context, params=CoordinatorParams(
+        scenario=str(scenario), wait_for_robots=False, start_delay_s=0.0))
+    for n in (world, bridge, tracker, coord):
+        executor.add_node(n)
+    proc = subprocess.Popen([str(ROOT / ".venv" / "bin" / "formation_controller"), "--ros-args", "-r",
+                             "__ns:=/robot_0", "-p", f"scenario:={scenario}", "-p", "robot_id:=0"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    board = world.boards[0].board
+    try:
+        ok = spin_until(executor, lambda: np.max(np.abs(board.applied_torque_nm)) > 0.002 or proc.poll() is not None,
+                        60.0)
+        assert ok and proc.poll() is None, "the controller did not drive the board"
+        proc.send_signal(signal.SIGKILL)
+        t_kill = world.now_s()
+        assert spin_until(executor, lambda: np.all(board.applied_torque_nm == 0.0), 2.0)
+        assert world.now_s() - t_kill <= 0.25
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.communicate(timeout=10)
+        for n in (coord, tracker, bridge, world):
+            executor.remove_node(n)
+            n.destroy_node()
