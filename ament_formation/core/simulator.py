@@ -363,6 +363,24 @@ def _run_segment(k0, k_end, skip_decide, dt, dec_every, rec_every, ref_k0, ref_s
 
 # ------------------------------------------------------------------------------ Python driver
 
+def obstacle_arrays(obs) -> tuple:
+    """Motion parameters of obstacle specs for :func:`obstacle_states`: (c0 (M, 2), v (M, 2),
+    oscillation amplitude (M, 2), oscillation rate w (M,) [rad/s], phi0 (M,), phi_dot (M,),
+    semi-axes of P (M, 2), static (M,) bool)."""
+    obs = tuple(obs)
+    m = len(obs)
+    c0 = np.array([o.center_m for o in obs], dtype=float).reshape(m, 2)
+    vel = np.array([o.velocity_mps for o in obs], dtype=float).reshape(m, 2)
+    amp = np.array([o.oscillation_amplitude_m for o in obs], dtype=float).reshape(m, 2)
+    period = np.array([o.oscillation_period_s for o in obs], dtype=float)
+    omega = np.where(period > 0, 2 * np.pi / np.where(period > 0, period, 1.0), 0.0)
+    phi0 = np.array([o.orientation_rad for o in obs], dtype=float)
+    phid = np.array([o.angular_velocity_radps for o in obs], dtype=float)
+    axes = np.array([o.semi_axes_m for o in obs], dtype=float).reshape(m, 2)
+    static = np.array([not (o.moves or o.rotates) for o in obs], dtype=np.bool_)
+    return c0, vel, amp, omega, phi0, phid, axes, static
+
+
 class _Setup:
     """Arrays of one scenario for the compiled loop (rows in robot-ID order)."""
 
@@ -392,18 +410,9 @@ class _Setup:
         dist = Disturbance.from_bounds(n, bound, scenario.disturbance.seed)
         self.d_amp, self.d_freq, self.d_phase = dist.amplitude, dist.freq_hz, dist.phase_rad
         self.d_hc, self.d_hs = dist.step_rotation(0.5 * dt_s)     # half-step phasor rotation
-        obs = scenario.obstacles
-        m = len(obs)
-        self.obstacle_names = tuple(o.name for o in obs)
-        self.ob_c0 = np.array([o.center_m for o in obs], dtype=float).reshape(m, 2)
-        self.ob_v = np.array([o.velocity_mps for o in obs], dtype=float).reshape(m, 2)
-        self.ob_amp = np.array([o.oscillation_amplitude_m for o in obs], dtype=float).reshape(m, 2)
-        period = np.array([o.oscillation_period_s for o in obs], dtype=float)
-        self.ob_w = np.where(period > 0, 2 * np.pi / np.where(period > 0, period, 1.0), 0.0)
-        self.ob_phi0 = np.array([o.orientation_rad for o in obs], dtype=float)
-        self.ob_phid = np.array([o.angular_velocity_radps for o in obs], dtype=float)
-        self.oaxes = np.array([o.semi_axes_m for o in obs], dtype=float).reshape(m, 2)
-        self.ostatic = np.array([not (o.moves or o.rotates) for o in obs], dtype=np.bool_)
+        self.obstacle_names = tuple(o.name for o in scenario.obstacles)
+        (self.ob_c0, self.ob_v, self.ob_amp, self.ob_w, self.ob_phi0, self.ob_phid, self.oaxes,
+         self.ostatic) = obstacle_arrays(scenario.obstacles)
         slots = {r.id: np.asarray(r.slot_m, dtype=float) for r in robots}
         self.slots = np.array([slots[rid] for rid in self.ids], dtype=float).reshape(n, 2)
         self.graph = FormationGraph.from_scenario(scenario)

@@ -1,0 +1,393 @@
+"""One robot's switched sliding-mode controller for the ROS controller node (issue 5).
+
+:class:`RobotController` wraps exactly the compiled functions of the simulator -- the decision step
+:func:`ament_formation.core.encounters.decide` (S8 automaton + S7 encounter rules) and the law
+:func:`ament_formation.core.simulator.robot_law` (S3/S4/S6/S7 fields and the sliding-mode torque) --
+so a node and ``formation sim`` behave alike. It keeps only this robot's automaton state between
+calls; every other robot appears through its broadcast state.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from ament_formation.core.automaton import (
+    MODE_C, MODE_MUTUAL, MODE_NAMES, MODE_OBSTACLE, MODE_YIELD, AutomatonState, SwitchingParams,
+)
+from ament_formation.core.dynamics import PlantCoeffs
+from ament_formation.core.encounters import decide
+from ament_formation.core.errors import ConfigError
+from ament_formation.core.obstacles import ObstacleSpec, ObstacleStates
+from ament_formation.core.params import AvoidanceParams, ControlGains, RobotParams
+from ament_formation.core.simulator import (
+    goals_and_fields, obstacle_arrays, obstacle_states, robot_law,
+)
+
+_MODE_BY_NAME = {name: k for k, name in enumerate(MODE_NAMES)}
+
+
+@dataclass(frozen=True)
+class NeighbourState:
+    """What this robot knows about another robot (its broadcast, S4/S10).
+
+    ``state_m`` (5,) [x_m, y_m, theta_rad, v_mps, omega_radps] (p = controlled point, world frame);
+    ``accel_mps2`` (2,) its commanded point acceleration a_j (S4); ``body_radius_m``; ``team`` its
+    team leader id (S14.3 teammate rule; None = own team unknown, treated as another team);
+    ``mode`` its reported mode name (``coordination|obstacle|yield|mutual``) and ``target`` its
+    reported target (obstacle name or ``robot_<id>``), used for the S7 acyclicity rule.
+    """
+
+    state_m: np.ndarray
+    accel_mps2: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    body_radius_m: float = 0.10
+    team: int | None = None
+    mode: str = "coordination"
+    target: str | None = None
+    com_offset_m: float = 0.05
+
+    def __post_init__(self) -> None:
+        st = np.asarray(self.state_m, dtype=float).reshape(-1)
+        if st.shape != (5,) or not np.all(np.isfinite(st)):
+            raise ConfigError(f"must be 5 finite numbers (got {self.state_m!r})", "state_m")
+        acc = np.asarray(self.accel_mps2, dtype=float).reshape(-1)
+        if acc.shape != (2,) or not np.all(np.isfinite(acc)):
+            raise ConfigError(f"must be 2 finite numbers (got {self.accel_mps2!r})", "accel_mps2")
+        if self.mode not in _MODE_BY_NAME:
+            raise ConfigError(f"must be one of {list(_MODE_BY_NAME)} (got {self.mode!r})", "mode")
+        object.__setattr__(self, "state_m", st)
+        object.__setattr__(self, "accel_mps2", acc)
+
+
+@dataclass(frozen=True)
+class EncounterAssignment:
+    """A coordinator's S7 decision for this robot: ``mode`` ``yield`` or ``mutual`` toward robot
+    ``partner``; ``direction`` +1 CCW / -1 CW (mutual: +1); ``t_entry_s`` the common entry time;
+    ``drift_mps`` (2,) the shared w_c of a mutual pair (None: 1/2 (p_dot_i + p_dot_k) now)."""
+
+    mode: str
+    partner: int
+    direction: float = 1.0
+    t_entry_s: float | None = None
+    drift_mps: tuple[float, float] | None = None
+
+    def __post_init__(self) -> None:
+        if self.mode not in ("yield", "mutual"):
+            raise ConfigError(f"must be 'yield' or 'mutual' (got {self.mode!r})", "mode")
+        if self.direction not in (1.0, -1.0, 1, -1):
+            raise ConfigError(f"must be +1 or -1 (got {self.direction!r})", "direction")
+
+
+@dataclass(frozen=True)
+class ControlOutput:
+    """Result of one :meth:`RobotController.step`.
+
+    ``torque_nm`` (2,) [left, right] after S3.6 saturation; ``accel_cmd_mps2`` (2,) commanded point
+    acceleration to broadcast (S4 a_j); ``sigma_mps`` (2,); ``saturated``; ``mode`` name, ``target``
+    (obstacle name, ``robot_<id>`` or None) and ``direction`` (``ccw``/``cw``/None) for the mode
+    topic; ``events`` the mode events of this step ({t_s, robot, event, mode, target, direction}).
+    """
+
+    torque_nm: np.ndarray
+    accel_cmd_mps2: np.ndarray
+    sigma_mps: np.ndarray
+    saturated: bool
+    mode: str
+    target: str | None
+    direction: str | None
+    events: tuple[dict, ...] = ()
+
+    def mode_dict(self) -> dict:
+        """{mode, target, direction}: the JSON of the robot's mode topic (DESIGN §6)."""
+        return {"mode": self.mode, "target": self.target, "direction": self.direction}
+
+
+class RobotController:
+    """ONE robot's S8 automaton and sliding-mode law (same compiled functions as the simulator).
+
+    Construction
+    ------------
+    ``RobotController(robot_id, params, control, avoidance, obstacles, *, leader_path=None,
+    team=None, switching=None)``
+      * ``params`` :class:`RobotParams`; ``control`` :class:`ControlGains` (K, epsilon, alpha, v_cap,
+        lambda); ``avoidance`` :class:`AvoidanceParams`; ``obstacles`` the known
+        :class:`ObstacleSpec` (their motion is evaluated at the step time unless ``step`` receives
+        measured :class:`ObstacleStates`);
+      * ``leader_path``: a path with ``reference(t_s) -> (r, r_dot, r_ddot)`` when this robot leads
+        a team (then it tracks r(t), S4), else None;
+      * ``team``: id of its team leader (S14.3); ``switching``: :class:`SwitchingParams`
+        (decision period, default 0.01 s = 100 Hz).
+
+    Graph (from the coordinator's ``/formation/graph``, S9)
+    -------------------------------------------------------
+    ``set_graph(parent, offset_m, original_parent, original_offset_m)``: current parent id (None:
+    root) with delta = c_self - c_parent, and the original parent pi0 with its delta (for the goal
+    g_i of S8.3 item 1; None for a leader).
+
+    Per control period
+    ------------------
+    ``step(t_s, own_state, *, parent=None, original_parent=None, neighbours=None, obstacles=None,
+    assignment=None) -> ControlOutput``
+      * ``own_state`` (5,) own estimate [x_m, y_m, theta_rad, v_mps, omega_radps];
+      * ``parent``: :class:`NeighbourState` of the current parent (state + commanded accel, used for
+        the S4 follower field with feed-forward); ``original_parent``: of pi0 (exit test; may be the
+        same object);
+      * ``neighbours``: {robot id: NeighbourState} of every other robot it hears (robot-robot
+        threats, S7); the parents are added automatically;
+      * ``obstacles``: optional measured :class:`ObstacleStates` (else the specs' motion model);
+      * ``assignment``: optional :class:`EncounterAssignment` from the coordinator; it replaces the
+        robot's own robot-robot decision (an obstacle avoidance in progress is kept: static
+        obstacles beat robots, S7). Without it the controller arbitrates robot encounters itself
+        with the same rules as the simulator, over the robots it hears.
+      The automaton decides every ``switching.decision_period_s``; the law runs at every call.
+    ``mode`` / ``target`` / ``direction`` properties: the current mode (names as in ControlOutput).
+    """
+
+    def __init__(self, robot_id: int, params: RobotParams, control: ControlGains,
+                 avoidance: AvoidanceParams, obstacles: Sequence[ObstacleSpec] = (), *,
+                 leader_path=None, team: int | None = None,
+                 switching: SwitchingParams | None = None):
+        self.robot_id = int(robot_id)
+        self.params = params
+        self.leader_path = leader_path
+        self.team = self.robot_id if team is None else int(team)
+        base = switching or SwitchingParams()
+        self.switching = SwitchingParams(avoidance=avoidance, **{
+            f: getattr(base, f) for f in ("decision_period_s", "imminent_s", "agent_horizon_s",
+                                          "teammate_rel_speed_mps", "mutual_drift_tau_s",
+                                          "mutual_drift_cap_mps")})
+        self._prm = self.switching.as_array()
+        self._gains = np.array([control.switching_gain_mps2, control.boundary_layer_mps,
+                                control.formation_gain_per_s, control.formation_speed_cap_mps,
+                                control.reaching_rate_mps2], dtype=float)
+        k = PlantCoeffs.from_params([params])
+        self._own_coeffs = np.array([k.m_tilde[0], k.I_tilde[0], k.r[0], k.a[0], k.d[0],
+                                     k.m_c[0], k.tau_max[0]])
+        self.obstacle_names = tuple(o.name for o in obstacles)
+        (self._c0, self._v, self._amp, self._w, self._phi0, self._phid, self._axes,
+         self._static) = obstacle_arrays(obstacles)
+        self._state = AutomatonState(1)     # own automaton; target kept as obstacle index / robot id
+        self._target_id = -1
+        self._parent: int | None = None
+        self._offset = np.zeros(2)
+        self._orig_parent: int | None = None
+        self._orig_offset = np.zeros(2)
+        self._last_decision_s = -math.inf
+        self._last_step_s: float | None = None
+
+    # ------------------------------------------------------------------ graph
+    def set_graph(self, parent: int | None, offset_m=(0.0, 0.0), original_parent: int | None = None,
+                  original_offset_m=(0.0, 0.0)) -> None:
+        """Current parent and pi0 with their offsets delta = c_self - c_parent [m] (S9)."""
+        self._parent = None if parent is None else int(parent)
+        self._offset = np.asarray(offset_m, dtype=float).reshape(2)
+        self._orig_parent = None if original_parent is None else int(original_parent)
+        self._orig_offset = np.asarray(original_offset_m, dtype=float).reshape(2)
+
+    # ------------------------------------------------------------------ mode
+    @property
+    def mode(self) -> str:
+        return MODE_NAMES[int(self._state.mode[0])]
+
+    @property
+    def target(self) -> str | None:
+        return self._target_name(int(self._state.mode[0]), self._target_id)
+
+    @property
+    def direction(self) -> str | None:
+        if self._state.mode[0] == MODE_C:
+            return None
+        return "ccw" if self._state.sdir[0] > 0 else "cw"
+
+    def _target_name(self, mode: int, target: int) -> str | None:
+        if mode == MODE_C:
+            return None
+        if mode == MODE_OBSTACLE:
+            return self.obstacle_names[target]
+        return f"robot_{target}"
+
+    # ------------------------------------------------------------------ step
+    def step(self, t_s: float, own_state, *, parent: NeighbourState | None = None,
+             original_parent: NeighbourState | None = None,
+             neighbours: Mapping[int, NeighbourState] | None = None,
+             obstacles: ObstacleStates | None = None,
+             assignment: EncounterAssignment | None = None) -> ControlOutput:
+        """One control period: (maybe) decide, then the law. See the class docstring."""
+        own = np.asarray(own_state, dtype=float).reshape(-1)
+        if own.shape != (5,) or not np.all(np.isfinite(own)):
+            raise ValueError(f"own_state: must be 5 finite numbers (got {own_state!r})")
+        others: dict[int, NeighbourState] = dict(neighbours or {})
+        if self._parent is not None:
+            if parent is None:
+                raise ValueError(f"parent: state of robot {self._parent} is required (current parent)")
+            others[self._parent] = parent
+        if self._orig_parent is not None:
+            if original_parent is None:
+                raise ValueError(f"original_parent: state of robot {self._orig_parent} is required")
+            others.setdefault(self._orig_parent, original_parent)
+        others.pop(self.robot_id, None)
+        ids = sorted(set(others) | {self.robot_id})
+        row = {rid: q for q, rid in enumerate(ids)}
+        me = row[self.robot_id]
+        n = len(ids)
+
+        x = np.zeros((n, 5))
+        acmd = np.zeros((n, 2))
+        rbody = np.zeros(n)
+        team = np.zeros(n, dtype=np.int64)
+        coeffs = np.tile(self._own_coeffs[:, None], (1, n))
+        st = AutomatonState(n)
+        for rid, q in row.items():
+            if rid == self.robot_id:
+                x[q] = own
+                rbody[q] = self.params.body_radius_m
+                team[q] = self.team
+                continue
+            nb = others[rid]
+            x[q] = nb.state_m
+            acmd[q] = nb.accel_mps2
+            rbody[q] = nb.body_radius_m
+            coeffs[4, q] = nb.com_offset_m
+            team[q] = nb.team if nb.team is not None else -1 - rid
+            st.mode[q] = _MODE_BY_NAME[nb.mode]
+            st.t_entry[q] = -1e9
+            tgt_name = nb.target
+            if nb.mode in ("yield", "mutual") and tgt_name and tgt_name.startswith("robot_"):
+                tid = int(tgt_name[len("robot_"):])
+                st.tgt[q] = row.get(tid, -1)
+                if st.tgt[q] < 0:
+                    st.mode[q] = MODE_OBSTACLE      # busy with a robot we do not hear
+            elif nb.mode == "obstacle":
+                st.tgt[q] = (self.obstacle_names.index(tgt_name)
+                             if tgt_name in self.obstacle_names else -1)
+        # own automaton state (targets stored as ids -> rows)
+        src = self._state
+        for name in ("mode", "sdir", "t_entry", "since", "last_kind", "last_exit"):
+            getattr(st, name)[me] = getattr(src, name)[0]
+        st.wc[me] = src.wc[0]
+        st.wtgt[me] = src.wtgt[0]
+        own_mode = int(src.mode[0])
+        if own_mode in (MODE_YIELD, MODE_MUTUAL):
+            st.tgt[me] = row.get(self._target_id, -1)
+            if st.tgt[me] < 0:                     # partner no longer heard: back to coordination
+                st.mode[me] = MODE_C
+        else:
+            st.tgt[me] = self._target_id
+        if src.last_kind[0] == 2:
+            st.last_tgt[me] = row.get(int(src.last_tgt[0]), -1)
+        else:
+            st.last_tgt[me] = src.last_tgt[0]
+        if st.mode[me] == MODE_MUTUAL:            # the partner's view must be reciprocal
+            k = st.tgt[me]
+            st.mode[k] = MODE_MUTUAL
+            st.tgt[k] = me
+            st.sdir[k] = 1.0
+            st.t_entry[k] = st.t_entry[me]
+
+        # references, obstacles, point velocities, goals
+        ref = np.zeros((n, 6))
+        if self.leader_path is not None:
+            r, rd, rdd = self.leader_path.reference(float(t_s))
+            ref[me] = np.concatenate([np.asarray(r), np.asarray(rd), np.asarray(rdd)])
+        d = coeffs[4]
+        pd = np.stack([x[:, 3] * np.cos(x[:, 2]) - d * x[:, 4] * np.sin(x[:, 2]),
+                       x[:, 3] * np.sin(x[:, 2]) + d * x[:, 4] * np.cos(x[:, 2])], axis=1)
+        m = len(self.obstacle_names)
+        if obstacles is None:
+            oc, ov, oa = np.empty((m, 2)), np.empty((m, 2)), np.empty((m, 2))
+            ophi, ophid, ophidd = np.empty(m), np.empty(m), np.empty(m)
+            obstacle_states(float(t_s), self._c0, self._v, self._amp, self._w, self._phi0,
+                            self._phid, oc, ov, oa, ophi, ophid, ophidd)
+            oaxes = self._axes
+        else:
+            oc = np.ascontiguousarray(obstacles.center_m, dtype=float)
+            ov = np.ascontiguousarray(obstacles.velocity_mps, dtype=float)
+            oa = np.ascontiguousarray(obstacles.accel_mps2, dtype=float)
+            ophi = np.ascontiguousarray(obstacles.phi_rad, dtype=float)
+            ophid = np.ascontiguousarray(obstacles.phi_dot_radps, dtype=float)
+            ophidd = np.ascontiguousarray(obstacles.phi_ddot_radps2, dtype=float)
+            oaxes = np.ascontiguousarray(obstacles.semi_axes_m, dtype=float)
+        orig_parent = np.full(n, -1, dtype=np.int64)
+        orig_offset = np.zeros((n, 2))
+        if self._orig_parent is not None:
+            orig_parent[me] = row[self._orig_parent]
+            orig_offset[me] = self._orig_offset
+        for rid, q in row.items():            # others: goal = own position (unknown goals)
+            if q != me:
+                ref[q, 0:2] = x[q, 0:2]
+                ref[q, 2:4] = pd[q]
+        goal = np.zeros((n, 2))
+        goal_dot = np.zeros((n, 2))
+        vc = np.zeros((n, 2))
+        goals_and_fields(x, pd, ref, orig_parent, orig_offset, self._gains, goal, goal_dot, vc)
+
+        events: list[dict] = []
+        t_s = float(t_s)
+        if t_s - self._last_decision_s >= self.switching.decision_period_s - 1e-9:
+            self._last_decision_s = t_s
+            ev = np.zeros((8 * n + 16, 6))
+            nev = decide(t_s, np.ascontiguousarray(x[:, :2]), pd, goal, goal_dot, vc, team, rbody,
+                         oc, ov, ophi, ophid, oaxes, self._static, *st.arrays(), self._prm, ev, 0)
+            for r_ in ev[:nev]:
+                if int(r_[1]) == me:
+                    md = int(r_[3])
+                    tg = int(r_[4])
+                    events.append({"t_s": float(r_[0]), "robot": self.robot_id,
+                                   "event": "enter" if r_[2] > 0.5 else "exit",
+                                   "mode": MODE_NAMES[md],
+                                   "target": self._target_name(md, ids[tg] if md != MODE_OBSTACLE else tg),
+                                   "direction": "ccw" if r_[5] > 0 else "cw"})
+        if assignment is not None and st.mode[me] != MODE_OBSTACLE:
+            k = row.get(int(assignment.partner))
+            if k is None:
+                raise ValueError(f"assignment: partner {assignment.partner} is not a known robot")
+            new_mode = MODE_YIELD if assignment.mode == "yield" else MODE_MUTUAL
+            if st.mode[me] != new_mode or st.tgt[me] != k:
+                st.set_mode(me, new_mode, k, 1.0 if new_mode == MODE_MUTUAL else float(assignment.direction),
+                            t_s if assignment.t_entry_s is None else float(assignment.t_entry_s))
+                w = (0.5 * (pd[me] + pd[k]) if assignment.drift_mps is None
+                     else np.asarray(assignment.drift_mps, dtype=float))
+                st.wc[me] = w
+                st.wtgt[me] = w
+                events.append({"t_s": t_s, "robot": self.robot_id, "event": "enter",
+                               "mode": MODE_NAMES[new_mode], "target": f"robot_{assignment.partner}",
+                               "direction": "ccw" if st.sdir[me] > 0 else "cw"})
+
+        # the law (S3.2 with the mode's field)
+        parent_row = np.full(n, -1, dtype=np.int64)
+        offset = np.zeros((n, 2))
+        if self._parent is not None:
+            parent_row[me] = row[self._parent]
+            offset[me] = self._offset
+        if self.leader_path is not None and self._parent is None:
+            pass
+        elif self._parent is None and st.mode[me] == MODE_C:
+            # a follower without a parent (graph not received yet): hold via its original goal
+            if self._orig_parent is not None:
+                parent_row[me] = row[self._orig_parent]
+                offset[me] = self._orig_offset
+        t1, t2, sx, sy, sat, acx, acy, wdx, wdy = robot_law(
+            me, t_s, x, pd, acmd, parent_row, offset, ref, goal, goal_dot, st.mode, st.tgt,
+            st.sdir, st.t_entry, st.wc, st.wtgt, oc, ov, oa, ophi, ophid, ophidd, oaxes, rbody,
+            coeffs, self._gains, self._prm)
+        if st.mode[me] == MODE_MUTUAL and self._last_step_s is not None:
+            st.wc[me] += (t_s - self._last_step_s) * np.array([wdx, wdy])
+        self._last_step_s = t_s
+
+        # keep own state (robot targets as ids)
+        for name in ("mode", "sdir", "t_entry", "since", "last_kind", "last_exit"):
+            getattr(src, name)[0] = getattr(st, name)[me]
+        src.wc[0] = st.wc[me]
+        src.wtgt[0] = st.wtgt[me]
+        new_mode = int(st.mode[me])
+        self._target_id = (ids[int(st.tgt[me])] if new_mode in (MODE_YIELD, MODE_MUTUAL)
+                           else int(st.tgt[me]))
+        src.tgt[0] = self._target_id
+        lk = int(st.last_kind[me])
+        lt = int(st.last_tgt[me])
+        src.last_tgt[0] = ids[lt] if (lk == 2 and 0 <= lt < n) else lt
+        return ControlOutput(torque_nm=np.array([t1, t2]), accel_cmd_mps2=np.array([acx, acy]),
+                             sigma_mps=np.array([sx, sy]), saturated=bool(sat), mode=self.mode,
+                             target=self.target, direction=self.direction, events=tuple(events))
