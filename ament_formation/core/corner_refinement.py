@@ -1,7 +1,8 @@
-"""Sub-pixel marker corners by edge-line fitting (compiled: the tracker's hot loop).
+"""Sub-pixel marker corners by edge-line fitting, and code-cell verification (compiled: the
+tracker's hot loops).
 
 For each of a marker's four outer edges, ``EDGE_SAMPLES`` intensity profiles across the edge are
-sampled bilinearly from the image (17 samples over ±``half`` px); the edge point on each profile is
+sampled bilinearly from the image (``_PROFILE`` samples over ±``half`` px); the edge point on each profile is
 the centroid of the intensity gradient (small gradients, below 20 % of the largest, ignored). Edge
 points are undistorted (Brown–Conrady, fixed-point iteration as in OpenCV, to 1e-12) and a
 straight line is fitted to each edge by total least squares; adjacent lines intersect at the
@@ -18,8 +19,8 @@ import math
 import numpy as np
 from numba import njit
 
-EDGE_SAMPLES = 12
-_PROFILE = 17
+EDGE_SAMPLES = 8
+_PROFILE = 13
 
 
 @njit(cache=True)
@@ -200,3 +201,119 @@ def refine(image: np.ndarray, corners_px: np.ndarray, k: np.ndarray, dist: np.nd
         refine_kernel(np.ascontiguousarray(image), corners, float(k[0, 0]), float(k[1, 1]),
                       float(k[0, 2]), float(k[1, 2]), d, int(bits), out, sigma)
     return out, sigma
+
+
+@njit(cache=True)
+def _verify_kernel(img, corners, expected, n, min_contrast, out):
+    """Read the (n + 2)² cell centres (quiet ring, border, code) of each quad, bilinearly
+    interpolated between its corners; out[k] = True when contrast >= min_contrast and at most
+    one border/code cell disagrees with ``expected[k]`` (flattened, True = white)."""
+    g = n + 2
+    vals = np.empty(g * g)
+    for k in range(corners.shape[0]):
+        white = 0.0
+        black = 0.0
+        n_white = 0
+        n_black = 0
+        for r in range(g):
+            v = (r - 0.5) / n
+            for c in range(g):
+                u = (c - 0.5) / n
+                w0 = (1 - u) * (1 - v)
+                w1 = u * (1 - v)
+                w2 = u * v
+                w3 = (1 - u) * v
+                x = w0 * corners[k, 0, 0] + w1 * corners[k, 1, 0] + w2 * corners[k, 2, 0] + w3 * corners[k, 3, 0]
+                y = w0 * corners[k, 0, 1] + w1 * corners[k, 1, 1] + w2 * corners[k, 2, 1] + w3 * corners[k, 3, 1]
+                val = _bilinear(img, x, y)
+                vals[r * g + c] = val
+                if r == 0 or c == 0 or r == g - 1 or c == g - 1:
+                    white += val
+                    n_white += 1
+                elif r == 1 or c == 1 or r == g - 2 or c == g - 2:
+                    black += val
+                    n_black += 1
+        white /= n_white
+        black /= n_black
+        if white - black < min_contrast:
+            out[k] = False
+            continue
+        thr = 0.5 * (white + black)
+        wrong = 0
+        for r in range(1, g - 1):
+            for c in range(1, g - 1):
+                if (vals[r * g + c] > thr) != expected[k, r * g + c]:
+                    wrong += 1
+        out[k] = wrong <= 1
+
+
+def verify_codes(image: np.ndarray, corners_px: np.ndarray, expected: np.ndarray, bits: int,
+                 min_contrast: float) -> np.ndarray:
+    """(K,) True where the quads ``corners_px`` (K, 4, 2) [px] read the codes ``expected``
+    (K, (bits + 4)²) bool (True = white; quiet ring, border, code cells, row by row)."""
+    corners = np.ascontiguousarray(corners_px, dtype=np.float64).reshape(-1, 4, 2)
+    out = np.zeros(len(corners), dtype=np.bool_)
+    if len(corners):
+        _verify_kernel(np.ascontiguousarray(image), corners, np.ascontiguousarray(expected, dtype=np.bool_),
+                       int(bits) + 2, float(min_contrast), out)
+    return out
+
+
+@njit(cache=True)
+def poses_kernel(normalized, r_wc, center_w, plane_z, size, off_x, off_y, fx, fy, dist,
+                 pixel_noise_px, corner_sigma_px, out_pose, out_sigma_xy, out_sigma_th):
+    """Ideal normalized corners (K, 4, 2) → controlled-point poses (K, 3) and 1-σ (K,), (K,).
+
+    Corners are intersected with the plane z = ``plane_z``; the marker centre is their mean, the
+    heading the mean direction of the marker x axis (TL→TR, BL→BR and the y edges turned by −90°);
+    the controlled point is the centre minus the rotated body-frame offset. Per-corner σ (per
+    axis) = RMS of the misfit to the ideal square, ``corner_sigma_px`` and ``pixel_noise_px``,
+    pixel terms scaled by the ground sample (depth / f over the local lens magnification)."""
+    k1, k2, k3 = dist[0], dist[1], dist[4]
+    lever = math.hypot(off_x, off_y)
+    half = 0.5 * size
+    ideal_x = (-half, half, half, -half)
+    ideal_y = (half, half, -half, -half)
+    px = np.empty(4)
+    py = np.empty(4)
+    for k in range(normalized.shape[0]):
+        depth = 0.0
+        xm = 0.0
+        ym = 0.0
+        for j in range(4):
+            x, y = normalized[k, j, 0], normalized[k, j, 1]
+            wx = r_wc[0, 0] * x + r_wc[0, 1] * y + r_wc[0, 2]
+            wy = r_wc[1, 0] * x + r_wc[1, 1] * y + r_wc[1, 2]
+            wz = r_wc[2, 0] * x + r_wc[2, 1] * y + r_wc[2, 2]
+            t = (plane_z - center_w[2]) / wz
+            px[j] = center_w[0] + t * wx
+            py[j] = center_w[1] + t * wy
+            depth += 0.25 * t
+            xm += 0.25 * x
+            ym += 0.25 * y
+        cx = 0.25 * (px[0] + px[1] + px[2] + px[3])
+        cy = 0.25 * (py[0] + py[1] + py[2] + py[3])
+        ex = (px[1] - px[0]) + (px[2] - px[3])
+        ey = (py[1] - py[0]) + (py[2] - py[3])
+        fx_ = (px[0] - px[3]) + (px[1] - px[2])   # marker y axis, turned by −90°: (y, −x)
+        fy_ = (py[0] - py[3]) + (py[1] - py[2])
+        th = math.atan2(ey - fx_, ex + fy_)
+        c, s = math.cos(th), math.sin(th)
+        out_pose[k, 0] = cx - (c * off_x - s * off_y)
+        out_pose[k, 1] = cy - (s * off_x + c * off_y)
+        out_pose[k, 2] = th
+        res = 0.0
+        for j in range(4):
+            dx = px[j] - (cx + c * ideal_x[j] - s * ideal_y[j])
+            dy = py[j] - (cy + s * ideal_x[j] + c * ideal_y[j])
+            res += dx * dx + dy * dy
+        res /= 8.0                                   # per-axis mean square [m²]
+        r2 = xm * xm + ym * ym
+        tang = 1.0 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2
+        rad = 1.0 + 3.0 * k1 * r2 + 5.0 * k2 * r2 * r2 + 7.0 * k3 * r2 * r2 * r2
+        mag = math.sqrt(max(tang * rad, 1e-3))
+        gsd = depth / math.sqrt(fx * fy) / mag
+        var_c = res + (corner_sigma_px[k] * gsd) ** 2 + (pixel_noise_px * gsd) ** 2
+        sig_th = math.sqrt(var_c) / (size * math.sqrt(2.0))
+        out_sigma_th[k] = sig_th
+        out_sigma_xy[k] = math.sqrt(var_c / 4.0 + (lever * sig_th) ** 2)

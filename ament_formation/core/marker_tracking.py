@@ -2,11 +2,14 @@
 
 Pipeline for one frame (:class:`MarkerTracker.step`):
 
-1. **Detect** with ``cv2.aruco.ArucoDetector`` (OpenCV 4.7+ and 5.x). When every tracked marker
-   has a predicted pose, only regions of interest around the predictions are searched: the ROIs
-   are packed side by side into one small mosaic image and the detector runs once on it. Markers
-   not found there trigger a full-frame search (rate-limited while they stay lost); a full-frame
-   search also runs every ``full_frame_period`` frames to pick up new markers.
+1. **Find** the markers. A tracked marker is first looked for where its track predicts it: the
+   predicted corners are refined (step 2) and accepted when the edge fits are clean, land within
+   a few pixels of the prediction and the code cells read the marker's id (no detector at all).
+   Markers that fail are searched with ``cv2.aruco.ArucoDetector`` (OpenCV 4.7+ and 5.x) in
+   regions of interest around their predictions, packed side by side into one small mosaic image
+   (one detector call). Markers still missing trigger a full-frame search (rate-limited while
+   they stay lost); without a list of expected markers, a full-frame search also runs every
+   ``full_frame_period`` frames to pick up new ones.
 2. **Refine** each corner (:mod:`~ament_formation.core.corner_refinement`, compiled): sub-pixel
    edge points are sampled across the marker's four outer edges (gradient centroid along the
    edge normal), undistorted, and a straight line is fitted to each edge; corners are the
@@ -56,7 +59,8 @@ class TrackerConfig:
     track_timeout_s: float = 1.0        # a marker unseen this long is no longer tracked
     use_roi: bool = True
     roi_margin_px: float = 6.0          # ROI border around the last and predicted marker
-    full_frame_period: int = 30         # frames between full-frame searches (discover markers)
+    full_frame_period: int = 30         # frames between full-frame searches for new markers
+                                        # (only when no expected_ids are given)
     lost_retry_period: int = 5          # frames between full-frame searches for lost markers
     pixel_noise_px: float = 0.03        # floor of the per-corner uncertainty [px]
     refine_edges: bool = True           # sub-pixel edge-line corner refinement (else OpenCV subpix)
@@ -197,28 +201,15 @@ def poses_from_corners(normalized: np.ndarray, ids: np.ndarray, camera: CameraMo
     k_count = len(ids)
     if k_count == 0:
         return MarkerPoses.empty()
-    rays_c = np.concatenate([normalized.reshape(-1, 2), np.ones((4 * k_count, 1))], axis=1)
-    rays_w = rays_c @ camera.r_wc.T
-    t = (layout.height_m - camera.center_w[2]) / rays_w[:, 2]
-    plane = (camera.center_w[:2] + t[:, None] * rays_w[:, :2]).reshape(k_count, 4, 2)
-    center = plane.mean(axis=1)                                              # (K, 2)
-    # marker x axis: TL→TR and BL→BR; marker y axis (left): BL→TL and BR→TR rotated by −90°
-    tl, tr, br, bl = plane[:, 0], plane[:, 1], plane[:, 2], plane[:, 3]
-    ex = (tr - tl) + (br - bl)
-    ey = (tl - bl) + (tr - br)
-    vx = ex + np.column_stack([ey[:, 1], -ey[:, 0]])
-    theta = np.arctan2(vx[:, 1], vx[:, 0])
-    point = layout.controlled_point(center, theta)
-    # residual against the ideal square at (center, theta)
-    ideal = layout.corners_w(np.column_stack([point, theta]))
-    resid = np.sqrt(((plane - ideal) ** 2).sum(axis=2).mean(axis=1) / 2.0)  # per-axis RMS [m]
-    gsd = camera.ground_sample_m(center, layout.height_m)
+    poses = np.empty((k_count, 3))
+    sigma_xy = np.empty(k_count)
+    sigma_theta = np.empty(k_count)
     fit_px = np.zeros(k_count) if corner_sigma_px is None else np.asarray(corner_sigma_px, float)
-    sigma_c = np.sqrt(resid**2 + (fit_px * gsd) ** 2 + (pixel_noise_px * gsd) ** 2)  # per corner, per axis
-    sigma_theta = sigma_c / (layout.size_m * math.sqrt(2.0))
-    lever = math.hypot(*layout.offset_m)
-    sigma_xy = np.sqrt(sigma_c**2 / 4.0 + (lever * sigma_theta) ** 2)
-    poses = np.column_stack([point, theta])
+    corner_refinement.poses_kernel(
+        np.ascontiguousarray(normalized, dtype=np.float64).reshape(-1, 4, 2), camera.r_wc, camera.center_w,
+        float(layout.height_m), float(layout.size_m), float(layout.offset_m[0]), float(layout.offset_m[1]),
+        float(camera.fx_px), float(camera.fy_px), camera.dist, float(pixel_noise_px),
+        np.ascontiguousarray(fit_px), poses, sigma_xy, sigma_theta)
     return MarkerPoses(ids.astype(np.int64), poses, sigma_xy, sigma_theta,
                        np.asarray(corners_px, dtype=np.float64).reshape(-1, 4, 2))
 
@@ -371,7 +362,8 @@ class MarkerTracker:
             del self._tracks[mid]
         since_full = self._frame - self._last_full
         lost = [m for m in self.expected_ids if m not in self._tracks]
-        full = (not cfg.use_roi or not self._tracks or since_full >= cfg.full_frame_period
+        discover = not self.expected_ids and since_full >= cfg.full_frame_period
+        full = (not cfg.use_roi or not self._tracks or discover
                 or (lost and since_full >= cfg.lost_retry_period))
         roi_pixels, predicted = 0, 0
         measured = MarkerPoses.empty()
@@ -445,32 +437,9 @@ class MarkerTracker:
         """(K,) True where the cells inside each quad read marker ``mids[k]`` (<= 1 cell wrong)."""
         if len(mids) == 0:
             return np.zeros(0, bool)
-        n = self.layout.bits + 2
-        centres = (np.arange(n + 2, dtype=np.float32) - 0.5)                 # quiet ring .. quiet ring
-        gx, gy = np.meshgrid(centres, centres)
-        grid = np.stack([gx.ravel(), gy.ravel()], axis=1).reshape(-1, 1, 2)
-        square = np.array([[0, 0], [n, 0], [n, n], [0, n]], np.float32)
-        pts = np.concatenate([cv2.perspectiveTransform(grid, cv2.getPerspectiveTransform(
-            square, c.astype(np.float32))) for c in corners_px]).reshape(len(mids), -1, 2)
-        flat = pts.reshape(-1, 2).astype(np.float32)
-        vals = cv2.remap(image, flat[:, 0].reshape(len(mids), -1), flat[:, 1].reshape(len(mids), -1),
-                         cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).astype(np.float32)
-        vals = vals.reshape(len(mids), n + 2, n + 2)
-        ring = np.zeros((n + 2, n + 2), bool)
-        ring[0, :] = ring[-1, :] = ring[:, 0] = ring[:, -1] = True
-        border = np.zeros((n + 2, n + 2), bool)
-        border[1:-1, 1:-1] = True
-        border[2:-2, 2:-2] = False
-        white = np.median(vals[:, ring], axis=1)
-        black = np.median(vals[:, border], axis=1)
-        ok = white - black > _MIN_CODE_CONTRAST
-        thr = 0.5 * (white + black)
-        inner = ~ring
-        for k, mid in enumerate(mids):
-            if ok[k]:
-                read = vals[k] > thr[k]
-                ok[k] = int((read[inner] != self._code_cells(int(mid))[inner]).sum()) <= 1
-        return ok
+        expected = np.stack([self._code_cells(int(m)).ravel() for m in mids])
+        return corner_refinement.verify_codes(image, corners_px, expected, self.layout.bits,
+                                              _MIN_CODE_CONTRAST)
 
     def _resolve_duplicates(self, corners, ids, t_s):
         """Two markers with one id: keep the one nearest the prediction (drop both if untracked)."""
@@ -499,8 +468,10 @@ class MarkerTracker:
             self._tracks[mid] = _Track(pose.copy(), t_s, np.zeros(3))
             return True
         dt = max(t_s - tr.t_s, 1e-6)
-        dpos = float(np.hypot(*(pose[:2] - tr.pose[:2])))
-        dth = float((pose[2] - tr.pose[2] + np.pi) % (2 * np.pi) - np.pi)
+        x, y, th = float(pose[0]), float(pose[1]), float(pose[2])
+        x0, y0, th0 = (float(v) for v in tr.pose)
+        dpos = math.hypot(x - x0, y - y0)
+        dth = (th - th0 + math.pi) % (2 * math.pi) - math.pi
         ok = (dpos <= cfg.max_speed_mps * dt + cfg.jump_margin_m
               and abs(dth) <= cfg.max_turn_rate_radps * dt + cfg.jump_margin_rad)
         if not ok:
@@ -509,7 +480,7 @@ class MarkerTracker:
                 return False
             self._tracks[mid] = _Track(pose.copy(), t_s, np.zeros(3))
             return True
-        vel = np.array([(pose[0] - tr.pose[0]) / dt, (pose[1] - tr.pose[1]) / dt, dth / dt])
+        vel = np.array([(x - x0) / dt, (y - y0) / dt, dth / dt])
         alpha = 0.5
         self._tracks[mid] = _Track(pose.copy(), t_s, alpha * vel + (1 - alpha) * tr.velocity)
         return True
