@@ -116,6 +116,7 @@ def test_rejections_are_counted_and_leave_the_estimate_alone():
     assert not est.wheel_update(0.01, [np.inf, 0.0], [0.0, 0.0])
     assert est.wheel_update(0.01, [0.0, 0.0], [0.0, 0.0])
     assert not est.wheel_update(0.02, [50.0, 0.0], [0.0, 0.0])  # 5000 rad/s: encoder glitch
+    assert not est.wheel_update(0.015, [50.0, 0.0], [0.0, 0.0])  # older stamp: stale
     assert est.wheel_update(0.03, [50.0, 0.0], [0.0, 0.0])      # resynchronised: no jump applied
     np.testing.assert_allclose(est.state(), before)
     assert est.camera_update(-1.0, [1.0, 2.0, 0.5]) == "rejected_stale"
@@ -125,7 +126,16 @@ def test_rejections_are_counted_and_leave_the_estimate_alone():
     assert est.camera_update(0.2, [3.0, 2.0, 0.5]) == "relocked"  # 5th disagreeing frame in a row
     np.testing.assert_allclose(est.pose(), [3.0, 2.0, 0.5])
     c = est.counters
-    assert (c.rejected_nonfinite, c.rejected_glitch, c.rejected_stale, c.rejected_outlier, c.relocks) == (2, 1, 1, 4, 1)
+    assert (c.rejected_nonfinite, c.rejected_glitch, c.rejected_stale, c.rejected_outlier, c.relocks) == (2, 1, 2, 4, 1)
+
+
+def test_samples_batched_under_one_stamp_are_all_applied():
+    est = PoseEstimator(EstimatorParams(wheel_radius_m=R, axle_length_m=A, com_offset_m=D))
+    est.initialize([0.0, 0.0, 0.0], 0.0)
+    est.wheel_update(0.0, [0.0, 0.0], [2.0, 2.0])
+    for q in (0.02, 0.04, 0.06):           # three telemetry frames read in one poll
+        assert est.wheel_update(0.03, [q, q], [2.0, 2.0])
+    assert est.pose()[0] == pytest.approx(R * 0.06)
 
 
 def test_odometry_before_the_first_frame_is_replayed_after_it():

@@ -13,10 +13,34 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 
 from ament_formation.core.disturbance import Disturbance
-from ament_formation.core.dynamics import PlantCoeffs, rk4_step
+from ament_formation.core.dynamics import PlantCoeffs
+from ament_formation.core.kernels import rk4_step_k
 from ament_formation.core.obstacles import ObstacleField, ObstacleStates
+
+
+@njit(cache=True)
+def _advance_k(state, wheel, tau, g, dt, mt, It, r, a, d, mc):
+    """n_steps RK4 steps (ZOH torque) of every robot; g (2 n_steps + 1, N, 2) is the disturbance
+    at t, t + dt/2, t + dt, ...; wheel angles integrated with the trapezoidal rule (S2.2)."""
+    n_steps = (g.shape[0] - 1) // 2
+    for i in range(state.shape[0]):
+        half = 0.5 * a[i]
+        for s in range(n_steps):
+            wl0 = (state[i, 3] - half * state[i, 4]) / r[i]
+            wr0 = (state[i, 3] + half * state[i, 4]) / r[i]
+            nx = rk4_step_k(state[i, 0], state[i, 1], state[i, 2], state[i, 3], state[i, 4],
+                            tau[i, 0], tau[i, 1], g[2 * s, i, 0], g[2 * s, i, 1], g[2 * s + 1, i, 0],
+                            g[2 * s + 1, i, 1], g[2 * s + 2, i, 0], g[2 * s + 2, i, 1], dt,
+                            mt[i], It[i], r[i], a[i], d[i], mc[i])
+            for q in range(5):
+                state[i, q] = nx[q]
+            wl1 = (state[i, 3] - half * state[i, 4]) / r[i]
+            wr1 = (state[i, 3] + half * state[i, 4]) / r[i]
+            wheel[i, 0] += 0.5 * dt * (wl0 + wl1)
+            wheel[i, 1] += 0.5 * dt * (wr0 + wr1)
 
 
 def wheel_rates(state: np.ndarray, r_m: np.ndarray, a_m: np.ndarray) -> np.ndarray:
@@ -53,6 +77,9 @@ class PlantTwin:
         self.t_s = 0.0            # scenario time of the state
         self.started = False
         self._steps = 0
+        k = self.k                # compile (or load) the kernel now, not in the first tick
+        _advance_k(self.state.copy(), self.wheel_angle_rad.copy(), self.torque_nm, np.zeros((1, len(self.ids), 2)),
+                   self.dt_s, k.m_tilde, k.I_tilde, k.r, k.a, k.d, k.m_c)
 
     def start(self) -> None:
         """Begin the mission: scenario time runs from 0 (disturbance and obstacles active)."""
@@ -72,14 +99,21 @@ class PlantTwin:
                       -self.k.tau_max[:, None], self.k.tau_max[:, None])
         tau = np.where(np.isfinite(tau), tau, 0.0)
         self.torque_nm = tau
-        g_fn = self._g if self.started else None
-        for _ in range(n_steps):
-            rates0 = wheel_rates(self.state, self.k.r, self.k.a)
-            self.state = rk4_step(self.state, tau, g_fn, self.t_s, self.dt_s, self.k)
-            rates1 = wheel_rates(self.state, self.k.r, self.k.a)
-            self.wheel_angle_rad += 0.5 * self.dt_s * (rates0 + rates1)
-            if self.started:
-                self.t_s += self.dt_s
+        if n_steps == 0:
+            return
+        n = len(self.ids)
+        if self.started:   # g at every half step, one vectorised evaluation
+            t = self.t_s + 0.5 * self.dt_s * np.arange(2 * n_steps + 1)
+            d = self.disturbance
+            g = np.sum(d.amplitude[None] * np.sin(2.0 * math.pi * d.freq_hz[None] * t[:, None, None, None]
+                                                    + d.phase_rad[None]), axis=3)
+        else:
+            g = np.zeros((2 * n_steps + 1, n, 2))
+        k = self.k
+        _advance_k(self.state, self.wheel_angle_rad, np.ascontiguousarray(tau), np.ascontiguousarray(g),
+                   self.dt_s, k.m_tilde, k.I_tilde, k.r, k.a, k.d, k.m_c)
+        if self.started:
+            self.t_s += n_steps * self.dt_s
         self._steps += n_steps
 
     @property

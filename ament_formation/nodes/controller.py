@@ -303,8 +303,10 @@ class ControllerNode(Node):
 
     def _safety(self, status: str) -> None:
         if status != self.safety:
-            log = self.get_logger().warn if status.startswith(("stopped", "hold")) else self.get_logger().info
-            log(f"safety: {self.safety} -> {status}")
+            if status.startswith(("stopped", "hold")):
+                self.get_logger().warn(f"safety: {self.safety} -> {status}")
+            else:
+                self.get_logger().info(f"safety: {self.safety} -> {status}")
             self.safety = status
             if status != "running":
                 self.mode = {"mode": "hold" if status in ("waiting", "hold_parent") else "stopped",

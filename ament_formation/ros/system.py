@@ -39,7 +39,8 @@ class InProcessSystem:
 
 def build_system(context, scenario_path: str | Path, executor=None, *, speed_factor: float = 1.0,
                  start_delay_s: float = 1.0, pty_dir: str | Path | None = None,
-                 camera_noise: float = 2.0, controller_overrides: dict | None = None) -> InProcessSystem:
+                 camera_noise: float = 2.0, controller_overrides: dict | None = None,
+                 bridge_poll_rate_hz: float = 500.0) -> InProcessSystem:
     """Create every node of a simulated run in ``context`` (and add them to ``executor``).
 
     ``speed_factor`` != 1 runs on the world's /clock (use_sim_time on every other node).
@@ -61,7 +62,8 @@ def build_system(context, scenario_path: str | Path, executor=None, *, speed_fac
         ns = f"/robot_{r.id}"
         system.bridges[r.id] = BridgeNode(context=context, namespace=ns, parameter_overrides=sim_time + [
             Parameter("port", value=str(pty_dir / f"robot_{r.id}")),
-            Parameter("torque_limit_nm", value=float(r.params.torque_limit_nm))])
+            Parameter("torque_limit_nm", value=float(r.params.torque_limit_nm)),
+            Parameter("poll_rate_hz", value=float(bridge_poll_rate_hz))])
         system.controllers[r.id] = ControllerNode(
             context=context, namespace=ns, parameter_overrides=sim_time,
             params=ControllerParams(scenario=str(scenario_path), robot_id=r.id, **(controller_overrides or {})))
