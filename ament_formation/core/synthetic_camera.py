@@ -86,10 +86,6 @@ def _plane_homography(k: np.ndarray, r_cw: np.ndarray, t: np.ndarray, z_m: float
     return k @ np.column_stack([r_cw[:, 0], r_cw[:, 1], r_cw[:, 2] * z_m + t])
 
 
-def _poly_fixed(points_px: np.ndarray) -> np.ndarray:
-    return np.round(points_px * _SHIFT_SCALE).astype(np.int32).reshape(-1, 1, 2)
-
-
 class SyntheticCamera:
     """Renders frames of ``camera`` (intrinsics, distortion, mounting) looking at the floor.
 
@@ -190,16 +186,18 @@ class SyntheticCamera:
 
     def _draw_ellipses(self, canvas: np.ndarray, h: np.ndarray, centers: np.ndarray,
                        axes: np.ndarray, phis: np.ndarray, level: int) -> None:
+        """Anti-aliased filled ellipses (M,) on the plane of homography ``h`` (one fillPoly call)."""
         if len(centers) == 0:
             return
         t = np.linspace(0.0, 2 * np.pi, _ELLIPSE_POINTS, endpoint=False)
-        ct, st = np.cos(t), np.sin(t)
-        polys = []
-        for (cx, cy), (a, b), phi in zip(centers, axes, phis):
-            c, s = math.cos(phi), math.sin(phi)
-            xy = np.column_stack([cx + a * ct * c - b * st * s, cy + a * ct * s + b * st * c])
-            polys.append(_poly_fixed(self._to_canvas(h, xy)))
-        cv2.fillPoly(canvas, polys, int(level), cv2.LINE_AA, _SHIFT)
+        ct, st = np.cos(t)[None, :], np.sin(t)[None, :]
+        c, s = np.cos(phis)[:, None], np.sin(phis)[:, None]
+        a, b = axes[:, 0:1], axes[:, 1:2]
+        x = centers[:, 0:1] + a * ct * c - b * st * s                      # (M, P)
+        y = centers[:, 1:2] + a * ct * s + b * st * c
+        p = np.stack([x, y, np.ones_like(x)], axis=-1) @ h.T               # (M, P, 3)
+        px = np.round(p[..., :2] / p[..., 2:3] * _SHIFT_SCALE).astype(np.int32)
+        cv2.fillPoly(canvas, list(px.reshape(len(centers), -1, 1, 2)), int(level), cv2.LINE_AA, _SHIFT)
 
     def _warp_patch(self, canvas: np.ndarray, texture: np.ndarray, hs: list[np.ndarray]) -> None:
         """Warp ``texture`` by each canvas homography in ``hs`` (averaged: motion blur) into the
