@@ -12,8 +12,8 @@ Default size 0.12 m: from 2.86 m with the default 640×480 lens (f = 540 px) one
 5.3 mm at the image centre and 6.2 mm at the floor's corners, so the marker spans 19–23 px,
 ≥ 3.2 px per code cell (6 cells with the border) everywhere on the 3 × 2.4 m floor: enough to
 decode through lens blur and noise, and long edges for sub-pixel heading. A 0.10 m marker drops
-to 2.7 px per cell at the corners (decoding becomes marginal); the measured numbers are in
-docs/camera.md. With a 1-cell quiet zone the white plate is 0.16 m, which fits a 0.2 m robot.
+to 2.7 px per cell at the corners and misses 0.17 % of the markers there (0.12 m: none); the
+measured numbers are in docs/camera.md. With a 1-cell quiet zone the white plate is 0.16 m, which fits a 0.2 m robot.
 """
 from __future__ import annotations
 
