@@ -32,6 +32,8 @@ def _default_out() -> Path:
 
 
 def _read_mono(path: str):
+    if not Path(path).is_file():
+        raise ConfigError("cannot read image (no such file)", None, path)
     img = cv2.imread(path, cv2.IMREAD_GRAYSCALE)
     if img is None:
         raise ConfigError("cannot read image (missing file or unknown format)", None, path)
