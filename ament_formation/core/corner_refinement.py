@@ -317,3 +317,15 @@ def poses_kernel(normalized, r_wc, center_w, plane_z, size, off_x, off_y, fx, fy
         sig_th = math.sqrt(var_c) / (size * math.sqrt(2.0))
         out_sigma_th[k] = sig_th
         out_sigma_xy[k] = math.sqrt(var_c / 4.0 + (lever * sig_th) ** 2)
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) every kernel now, not on the first camera frame."""
+    img = np.full((32, 32), 200, np.uint8)
+    img[8:24, 8:24] = 20
+    corners = np.array([[[7.5, 7.5], [23.5, 7.5], [23.5, 23.5], [7.5, 23.5]]])
+    k = np.array([[100.0, 0.0, 16.0], [0.0, 100.0, 16.0], [0.0, 0.0, 1.0]])
+    normalized, sigma = refine(img, corners, k, np.zeros(5))
+    verify_codes(img, corners, np.ones((1, 64), bool), 4, 30.0)
+    poses_kernel(normalized, np.eye(3), np.array([0.0, 0.0, 2.0]), 0.0, 0.1, 0.0, 0.0, 100.0, 100.0,
+                 np.zeros(5), 0.03, np.zeros(1), np.empty((1, 3)), np.empty(1), np.empty(1))

@@ -280,6 +280,7 @@ class MarkerTracker:
     def __post_init__(self) -> None:
         self._full = make_detector(self.layout, self.camera.size_px, self.camera,
                                    subpix=not self.config.refine_edges)
+        corner_refinement.warm_up()
         self._undistort = UndistortLookup(self.camera)
         self._dictionary = aruco_dictionary(self.layout.dictionary)
         self._codes: dict[int, np.ndarray] = {}
