@@ -337,8 +337,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     except KeyboardInterrupt:
         return 0
-    except Exception as err:  # noqa: BLE001
-        if type(err).__name__ == "ExternalShutdownException":
+    except Exception:  # noqa: BLE001 - SIGTERM/SIGINT shut the context down under spin
+        if not rclpy.ok():
             return 0
         raise
     finally:
