@@ -172,13 +172,16 @@ class CodecLink:
         self.decoder = sp.FrameDecoder()
         self.seq = 0
         self.frames: list = []
+        self.received = bytearray()       # every byte read, for diagnosing rejections
 
     def send(self, msg) -> None:
         self.port.write(self.sp.encode_frame(msg, self.seq, leading_delimiter=True))
         self.seq = (self.seq + 1) & 0xFF
 
     def pump(self) -> list:
-        new = self.decoder.feed(self.port.read(4096))
+        data = self.port.read(4096)
+        self.received += data
+        new = self.decoder.feed(data)
         self.frames.extend(new)
         return new
 
@@ -190,6 +193,16 @@ class CodecLink:
                     return frame
             time.sleep(0.002)
         raise TimeoutError(f"no {msg_type.name} frame within {timeout_s} s")
+
+    def rejected_blocks(self) -> list[tuple[str, str]]:
+        """(reason, block hex) of every received block the codec rejects."""
+        out = []
+        for block in bytes(self.received).split(b"\x00"):
+            if block:
+                res = self.sp.FrameDecoder()._decode_block(block)
+                if isinstance(res, str):
+                    out.append((res, block.hex()))
+        return out
 
     def handshake(self, timeout_s: float = 3.0):
         """HELLO every 0.2 s until HELLO_ACK (docs/serial-protocol.md §5.1: bytes sent before the

@@ -147,6 +147,8 @@ def test_codec_link_handshake_config_estop(harness):
     try:
         ack = link.handshake()
         assert ack.msg == sp.HelloAck(1, 1, 0, 1440, 1500, 1500, 200, 10)
+        # opening the port flushes its input, which may cut one frame in half: count from here
+        rejected_at_start = link.decoder.rejected_total
         tel = link.wait_frame(sp.MsgType.TELEMETRY, 1.0)
         assert tel.msg.flags & sp.FLAG_RESET == 0 and tel.msg.flags & sp.FLAG_WATCHDOG
 
@@ -177,7 +179,7 @@ def test_codec_link_handshake_config_estop(harness):
         # heartbeat is echoed unchanged
         link.send(sp.Heartbeat(0xDEADBEEF))
         assert link.wait_frame(sp.MsgType.HEARTBEAT, 1.0).msg.stamp_ms == 0xDEADBEEF
-        assert link.decoder.rejected["crc"] == 0
+        assert link.decoder.rejected_total == rejected_at_start <= 1, link.rejected_blocks()
     finally:
         link.close()
 
@@ -383,21 +385,37 @@ def test_bridge_corrupted_frames_counted_and_never_applied(rig):
 
 
 def test_bridge_telemetry_at_100hz(rig):
-    """Rate in emulated time from the firmware's TX line; the bridge publishes every frame."""
+    """TELEMETRY answers every TORQUE_CMD at once; without commands the board sends it every
+    telemetry_period_ms on its own. The board's own 100 Hz is measured in emulated time (cycle
+    counter) with the host -> board line cut, so host load cannot skew it; the bridge publishes
+    one wheel_state per frame. With the bridge commanding, acknowledgements are counted."""
     assert rig.link_up(5.0)
     rig.torque = (0.03, -0.03)
-    first = rig.wait_line(lambda s: s["telemetry_count"] > 10, 2.0)
+    # commanding: one TELEMETRY per TORQUE_CMD the board received (plus periodic ones in gaps)
+    a = rig.wait_line(lambda s: s["rx_torque_cmds"] > 10, 2.0)
+    t_wall0, n_states_cmd0 = time.monotonic(), len(rig.state_times)
+    b = rig.wait_line(lambda s: s["t_s"] - a["t_s"] >= 0.5, 10.0)
+    cmds, acks = b["rx_torque_cmds"] - a["rx_torque_cmds"], b["telemetry_count"] - a["telemetry_count"]
+    wall_rate_cmd = (len(rig.state_times) - n_states_cmd0) / (time.monotonic() - t_wall0)
+    # reported, not asserted: how many commands arrive per emulated second depends on how fast
+    # the emulator keeps up with the bridge's wall clock (answers coalesce in a backlog, periodic
+    # TELEMETRY fills host stalls longer than 20 ms)
+    assert cmds >= 20 and acks >= 20
+    # line cut: the board goes idle and reports every 10 ms of its own clock
+    rig.harness.set_mode("cut")
+    first = rig.wait_line(lambda s: s["mode"] == "cut" and s["t_s"] - s["last_frame_rx_t_s"] > 0.05, 2.0)
     n_states0 = len(rig.state_times)
     last = rig.wait_line(lambda s: s["last_telemetry_t_s"] - first["last_telemetry_t_s"] >= 1.0, 15.0)
     frames = last["telemetry_count"] - first["telemetry_count"]
     span_s = last["last_telemetry_t_s"] - first["last_telemetry_t_s"]
     rate_hz = frames / span_s
+    assert rig.spin_until(lambda: len(rig.state_times) - n_states0 >= frames - 1, 2.0)
     states = len(rig.state_times) - n_states0
-    wall_rate = (len(rig.state_times) - 1 - n_states0) / (rig.state_times[-1] - rig.state_times[n_states0])
-    print(f"telemetry: {rate_hz:.2f} Hz emulated time ({frames} frames / {span_s:.3f} s); "
-          f"bridge published {states} wheel_state, {wall_rate:.1f} Hz wall time")
+    print(f"telemetry: {rate_hz:.2f} Hz in emulated time ({frames} frames / {span_s:.3f} s, board idle); "
+          f"{acks} acknowledgements for {cmds} commands; bridge wheel_state {wall_rate_cmd:.1f} Hz "
+          f"wall time while commanding")
     assert 95.0 <= rate_hz <= 105.0
-    assert abs(states - frames) <= max(3, 0.05 * frames)
+    assert abs(states - frames) <= 3
     assert last["loop_max_cycles"] < CONTROL_PERIOD_CYCLES
     assert max(last["isr_max_cycles"].values()) < 1000
 
@@ -409,26 +427,33 @@ def test_encoders_on_interrupts_track_the_wheel_model(harness):
     sp = link.sp
     try:
         link.handshake()
-        pump = _command_pump(link, sp.TorqueCommand(600, -400))
-        line = harness.wait_for(lambda s: abs(s["encoder_ticks"][0]) > 2000 and abs(s["encoder_ticks"][1]) > 1000,
-                                5.0, pump)
+        # the limit torque saturates the duty: both wheels settle at the motor's speed for 12 V
+        # (~22.4 rad/s, time constant ~14 ms), so the check below sees steady wheels
+        pump = _command_pump(link, sp.TorqueCommand(1500, -1500))
+        spun = harness.wait_for(lambda s: s["wheel_radps"][0] > 22.0 and s["wheel_radps"][1] < -22.0, 5.0, pump)
+        line = harness.wait_for(lambda s: s["t_s"] - spun["t_s"] >= 0.25, 5.0, pump)
         checked = 0
         recent = harness.lines[-21:]
         for prev, s in zip(recent, recent[1:]):
             tel = s["telemetry"]
+            # the last TELEMETRY's counts were taken before it was sent (<= 4 ms of queue and
+            # wire time) and it arrived (t_s - last_telemetry_t_s) before this status line
+            age_s = s["t_s"] - s["last_telemetry_t_s"] + 0.006
             for i in range(2):
                 speed = s["wheel_radps"][i]
-                ticks_per_10ms = abs(speed) * 0.0105 * 1440 / (2 * 3.141592653589793)
+                accel = abs(speed - prev["wheel_radps"][i]) / (s["t_s"] - prev["t_s"])
+                ticks_in_age = abs(speed) * age_s * 1440 / (2 * 3.141592653589793)
                 diff = ((tel["ticks"][i] - s["encoder_ticks"][i] + 0x8000) & 0xFFFF) - 0x8000
-                assert abs(diff) <= ticks_per_10ms + 2, (i, diff, s)
-                # the reported velocity is the mean over the last 10 ms control period (quantum
-                # 1 tick / 10 ms = 0.436 rad/s) and up to one telemetry period old: it lags an
-                # accelerating wheel by up to two status steps of speed change
-                lag = 2.0 * abs(speed - prev["wheel_radps"][i])
+                assert abs(diff) <= ticks_in_age + 2, (i, diff, age_s, s)
+                # the velocity is the mean over the last 10 ms control period (quantum 1 tick per
+                # 10 ms = 0.436 rad/s), taken up to 10 ms before the frame: it lags an
+                # accelerating wheel by up to 15 ms + age
+                lag = accel * (0.015 + age_s)
                 assert abs(tel["vel_mradps"][i] * 1e-3 - speed) <= 0.44 + lag + 0.05, (i, tel, speed, lag)
                 checked += 1
         assert checked == 40
-        assert line["wheel_radps"][0] > 1.0 and line["wheel_radps"][1] < -1.0
+        assert line["wheel_radps"][0] > 22.0 and line["wheel_radps"][1] < -22.0
+        assert line["pwm_counts"] == [400, -400]                         # duty saturated
         # one pin-change interrupt per edge, or per pair of simultaneous left/right edges
         assert line["isr_count"]["PCINT2"] >= max(abs(t) for t in line["encoder_ticks"])
     finally:

@@ -137,6 +137,8 @@ typedef struct {
     int mode;                      /* 0 pass, 1 cut, 2 corrupt */
     int rx_block_pos;              /* bytes since the last 0x00 on the host -> board line */
     uint64_t rx_cut_bytes;
+    proto_decoder_t rx_dec;            /* what the board receives, decoded */
+    uint64_t rx_torque_cmds;           /* valid TORQUE_CMD frames fed to the board */
     uint64_t rx_corrupted_frames;
     avr_cycle_count_t last_rx_cycle;
     uint64_t frame_end_index;          /* rx_bytes count at the last frame-ending 0x00 fed */
@@ -257,6 +259,10 @@ static void pty_poll(harness_t *h)
         }
         h->rx_bytes++;
         h->last_rx_cycle = h->avr->cycle;
+        proto_msg_t m;
+        if (proto_decoder_feed(&h->rx_dec, byte, &m) == PROTO_FEED_FRAME && m.type == PROTO_TORQUE_CMD) {
+            h->rx_torque_cmds++;
+        }
         if (byte == 0x00 && pos > 0) {
             h->frame_end_index = h->rx_bytes;
         }
@@ -411,7 +417,7 @@ static void emit_status(harness_t *h, int final)
             "\"wheel_radps\":[%.5f,%.5f],\"encoder_ticks\":[%lld,%lld],"
             "\"rx_bytes\":%llu,\"tx_bytes\":%llu,\"tx_dropped\":%llu,\"tx_frames\":%llu,"
             "\"mode\":\"%s\",\"rx_cut_bytes\":%llu,\"rx_corrupted_frames\":%llu,\"last_rx_t_s\":%.6f,\"last_frame_rx_t_s\":%.6f,"
-            "\"telemetry_count\":%llu,\"first_telemetry_t_s\":%.6f,\"last_telemetry_t_s\":%.6f,"
+            "\"rx_torque_cmds\":%llu,\"telemetry_count\":%llu,\"first_telemetry_t_s\":%.6f,\"last_telemetry_t_s\":%.6f,"
             "\"telemetry\":{\"ticks\":[%d,%d],\"vel_mradps\":[%d,%d],\"cmd_seq\":%u,\"flags\":%u},"
             "\"status_count\":%llu,\"hello_ack_count\":%llu,"
             "\"board\":{\"uptime_ms\":%lu,\"applied_e4nm\":[%d,%d],\"crc_errors\":%u,"
@@ -431,7 +437,7 @@ static void emit_status(harness_t *h, int final)
             (unsigned long long)h->rx_cut_bytes, (unsigned long long)h->rx_corrupted_frames,
             (double)h->last_rx_cycle / (double)h->avr->frequency,
             (double)h->frame_end_read_cycle / (double)h->avr->frequency,
-            (unsigned long long)h->telemetry_count,
+            (unsigned long long)h->rx_torque_cmds, (unsigned long long)h->telemetry_count,
             (double)h->first_telemetry_cycle / (double)h->avr->frequency,
             (double)h->last_telemetry_cycle / (double)h->avr->frequency,
             h->last_telemetry.left_ticks, h->last_telemetry.right_ticks,
@@ -572,6 +578,7 @@ int main(int argc, char **argv)
     avr->log = 0;
     h.avr = avr;
     proto_decoder_init(&h.tx_dec, PROTO_VERSION);
+    proto_decoder_init(&h.rx_dec, PROTO_VERSION);
 
     if (status_path) {
         h.status = fopen(status_path, "w");

@@ -3,7 +3,7 @@
 
 #include <string.h>
 
-static void send_msg(board_t *b, proto_msg_t *m)
+static bool send_msg(board_t *b, proto_msg_t *m)
 {
     uint8_t wire[PROTO_MAX_WIRE_BYTES];
     m->version = PROTO_VERSION;
@@ -11,9 +11,36 @@ static void send_msg(board_t *b, proto_msg_t *m)
     const uint16_t n = proto_encode(m, false, wire, sizeof wire);
     if (n == 0 || !b->send(wire, n, b->send_ctx)) {
         b->tx_dropped++;
-        return;
+        return false;
     }
     b->tx_seq++;   /* one per frame actually sent, so the host sees no false gap */
+    return true;
+}
+
+#define TELEMETRY_WIRE_BYTES 16u
+
+static void send_telemetry(board_t *b, uint32_t now_ms)
+{
+    proto_msg_t m;
+    memset(&m, 0, sizeof m);
+    m.type = PROTO_TELEMETRY;
+    m.u.telemetry.left_ticks = (int16_t)(uint16_t)b->ticks[0];
+    m.u.telemetry.right_ticks = (int16_t)(uint16_t)b->ticks[1];
+    m.u.telemetry.left_vel_mradps = b->vel_mradps[0];
+    m.u.telemetry.right_vel_mradps = b->vel_mradps[1];
+    m.u.telemetry.cmd_seq = b->cmd_seq;
+    m.u.telemetry.flags = b->flags;
+    /* a TELEMETRY acknowledges cmd_seq and everything before it: behind a busy queue it waits
+     * and then goes out once, with the newest state */
+    if (b->queued(b->send_ctx) >= TELEMETRY_WIRE_BYTES) {
+        b->telemetry_pending = true;
+        return;
+    }
+    b->telemetry_pending = !send_msg(b, &m);
+    if (!b->telemetry_pending) {
+        b->flags &= (uint8_t)~PROTO_FLAG_RX_ERROR;
+        b->last_telemetry_ms = now_ms;
+    }
 }
 
 static int16_t clamp_torque(int16_t v, uint16_t limit, bool *clamped)
@@ -60,13 +87,14 @@ bool board_take_outputs_changed(board_t *b)
 }
 
 void board_init(board_t *b, const board_config_t *cfg, uint32_t now_ms, board_send_fn send,
-                void *send_ctx)
+                board_queued_fn queued, void *send_ctx)
 {
     memset(b, 0, sizeof *b);
     b->cfg = *cfg;
     b->coeffs = motor_coeffs(&cfg->motor);
     b->outputs_changed = true;
     b->send = send;
+    b->queued = queued;
     b->send_ctx = send_ctx;
     proto_decoder_init(&b->decoder, PROTO_VERSION);
     b->torque_limit_e4nm = cfg->hard_limit_e4nm;
@@ -75,7 +103,7 @@ void board_init(board_t *b, const board_config_t *cfg, uint32_t now_ms, board_se
     b->flags = PROTO_FLAG_WATCHDOG | PROTO_FLAG_RESET;
     b->boot_ms = now_ms;
     b->last_cmd_ms = now_ms;
-    b->next_telemetry_ms = now_ms + b->telemetry_period_ms;
+    b->last_telemetry_ms = now_ms;
     b->next_status_ms = now_ms + BOARD_STATUS_PERIOD_MS;
     update_outputs(b);
 }
@@ -123,7 +151,9 @@ static void on_message(board_t *b, const proto_msg_t *m, uint32_t now_ms)
         } else {
             b->flags &= (uint8_t)~PROTO_FLAG_CLAMPED;
         }
+        b->have_cmd = true;
         update_outputs(b);
+        send_telemetry(b, now_ms);   /* the acknowledgement, echoing this command's seq */
         break;
     }
     case PROTO_HEARTBEAT:
@@ -145,7 +175,6 @@ static void on_message(board_t *b, const proto_msg_t *m, uint32_t now_ms)
         b->watchdog_ms = clamp_u16(m->u.config.watchdog_ms, BOARD_WATCHDOG_MIN_MS, BOARD_WATCHDOG_MAX_MS);
         b->telemetry_period_ms =
             clamp_u16(m->u.config.telemetry_period_ms, BOARD_TELEMETRY_MIN_MS, BOARD_TELEMETRY_MAX_MS);
-        b->next_telemetry_ms = now_ms + b->telemetry_period_ms;
         update_outputs(b);   /* re-clamps the applied torque to a lowered limit */
         r.type = PROTO_CONFIG_ACK;
         r.u.config.torque_limit_e4nm = b->torque_limit_e4nm;
@@ -168,6 +197,12 @@ void board_receive(board_t *b, uint8_t byte, uint32_t now_ms)
         break;
     case PROTO_FEED_REJECTED:
         b->flags |= PROTO_FLAG_RX_ERROR;
+        /* negative acknowledgement, at most one per half telemetry period */
+        if (!b->have_nack || now_ms - b->last_nack_ms >= (uint32_t)(b->telemetry_period_ms / 2u)) {
+            b->have_nack = true;
+            b->last_nack_ms = now_ms;
+            send_telemetry(b, now_ms);
+        }
         switch (b->decoder.last_reject) {
         case PROTO_REJECT_CRC:
             b->crc_errors++;
@@ -209,11 +244,17 @@ static int16_t velocity_mradps(board_t *b, int32_t dticks, uint32_t dt_us)
 
 void board_control_step(board_t *b, int32_t left_ticks, int32_t right_ticks, uint32_t dt_us)
 {
-    b->vel_mradps[0] = velocity_mradps(b, left_ticks - b->ticks[0], dt_us);
-    b->vel_mradps[1] = velocity_mradps(b, right_ticks - b->ticks[1], dt_us);
+    b->vel_mradps[0] = velocity_mradps(b, left_ticks - b->control_ticks[0], dt_us);
+    b->vel_mradps[1] = velocity_mradps(b, right_ticks - b->control_ticks[1], dt_us);
+    b->control_ticks[0] = left_ticks;
+    b->control_ticks[1] = right_ticks;
+    update_outputs(b);
+}
+
+void board_encoders(board_t *b, int32_t left_ticks, int32_t right_ticks)
+{
     b->ticks[0] = left_ticks;
     b->ticks[1] = right_ticks;
-    update_outputs(b);
 }
 
 static bool due(uint32_t now_ms, uint32_t when_ms)
@@ -229,21 +270,10 @@ void board_poll(board_t *b, uint32_t now_ms)
         update_outputs(b);
     }
     proto_msg_t m;
-    if (due(now_ms, b->next_telemetry_ms)) {
-        b->next_telemetry_ms += b->telemetry_period_ms;
-        if (due(now_ms, b->next_telemetry_ms)) {   /* fell behind: do not burst */
-            b->next_telemetry_ms = now_ms + b->telemetry_period_ms;
-        }
-        memset(&m, 0, sizeof m);
-        m.type = PROTO_TELEMETRY;
-        m.u.telemetry.left_ticks = (int16_t)(uint16_t)b->ticks[0];
-        m.u.telemetry.right_ticks = (int16_t)(uint16_t)b->ticks[1];
-        m.u.telemetry.left_vel_mradps = b->vel_mradps[0];
-        m.u.telemetry.right_vel_mradps = b->vel_mradps[1];
-        m.u.telemetry.cmd_seq = b->cmd_seq;
-        m.u.telemetry.flags = b->flags;
-        send_msg(b, &m);
-        b->flags &= (uint8_t)~PROTO_FLAG_RX_ERROR;
+    const uint32_t period = b->telemetry_period_ms;
+    const bool idle = !b->have_cmd || now_ms - b->last_cmd_ms >= 2u * period;
+    if (!b->telemetry_pending && idle && now_ms - b->last_telemetry_ms >= period) {
+        send_telemetry(b, now_ms);
     }
     if (due(now_ms, b->next_status_ms)) {
         b->next_status_ms += BOARD_STATUS_PERIOD_MS;
@@ -263,6 +293,13 @@ void board_poll(board_t *b, uint32_t now_ms)
         m.u.status.flags = b->flags;
         m.u.status.cmd_seq = b->cmd_seq;
         send_msg(b, &m);
+    }
+}
+
+void board_service_tx(board_t *b, uint32_t now_ms)
+{
+    if (b->telemetry_pending && b->queued(b->send_ctx) < TELEMETRY_WIRE_BYTES) {
+        send_telemetry(b, now_ms);
     }
 }
 

@@ -17,7 +17,13 @@
  *       CONFIG_ACK with the values in force
  *   HEARTBEAT -> echoed with the same body
  *   rejected frames -> crc_errors / frame_errors / type_errors, RX_ERROR until the next TELEMETRY
- *   TELEMETRY every telemetry_period_ms, STATUS every 200 ms
+ *   TELEMETRY right after every accepted TORQUE_CMD (the acknowledgement, cmd_seq = its seq);
+ *       after a rejected frame at once (negative acknowledgement, RX_ERROR set), at most one per
+ *       telemetry_period_ms / 2; on its own every telemetry_period_ms while no TORQUE_CMD was
+ *       accepted for 2 x telemetry_period_ms
+ *   a TELEMETRY is queued only behind less than one frame of other bytes; otherwise it waits and
+ *       goes out with the newest state (cumulative cmd_seq), so it is never stale
+ *   STATUS every 200 ms
  *   duty from the applied torque through the DC-motor model (motor_model.h) with the wheel speed
  *   measured from the encoders, recomputed on every command and every control step
  */
@@ -40,6 +46,8 @@
 
 /* sends one complete wire frame; returns false when it could not be queued */
 typedef bool (*board_send_fn)(const uint8_t *frame, uint16_t len, void *ctx);
+/* bytes still waiting in the transmit queue */
+typedef uint16_t (*board_queued_fn)(void *ctx);
 
 typedef struct {
     motor_model_t motor;
@@ -56,6 +64,7 @@ typedef struct {
     uint32_t vel_dt_us;             /* control period the velocity factor was computed for */
     float vel_factor;               /* mrad/s per tick at vel_dt_us */
     board_send_fn send;
+    board_queued_fn queued;
     void *send_ctx;
     proto_decoder_t decoder;
     /* configuration in force */
@@ -73,10 +82,15 @@ typedef struct {
     bool have_rx_seq;
     uint32_t boot_ms;
     uint32_t last_cmd_ms;
-    uint32_t next_telemetry_ms;
+    uint32_t last_telemetry_ms;
+    uint32_t last_nack_ms;
+    bool have_cmd;                  /* a TORQUE_CMD was accepted since boot */
+    bool have_nack;
+    bool telemetry_pending;         /* a TELEMETRY waits for the TX queue to drain */
     uint32_t next_status_ms;
     /* encoders */
-    int32_t ticks[2];
+    int32_t ticks[2];               /* latest counts (TELEMETRY) */
+    int32_t control_ticks[2];       /* counts at the last control step (velocity) */
     int16_t vel_mradps[2];
     bool outputs_changed;           /* pwm_counts changed since board_take_outputs_changed */
     /* counters (wrapping) */
@@ -89,7 +103,14 @@ typedef struct {
 } board_t;
 
 void board_init(board_t *b, const board_config_t *cfg, uint32_t now_ms, board_send_fn send,
-                void *send_ctx);
+                board_queued_fn queued, void *send_ctx);
+
+/* every main-loop pass: sends a TELEMETRY held back while the queue was busy */
+void board_service_tx(board_t *b, uint32_t now_ms);
+
+/* latest encoder counts (x4, since boot): call before board_receive so acknowledgements carry
+ * fresh positions */
+void board_encoders(board_t *b, int32_t left_ticks, int32_t right_ticks);
 
 /* one received byte (decoder, then the message rules) */
 void board_receive(board_t *b, uint8_t byte, uint32_t now_ms);
@@ -98,7 +119,7 @@ void board_receive(board_t *b, uint8_t byte, uint32_t now_ms);
  * call [us] -> wheel velocity -> duty */
 void board_control_step(board_t *b, int32_t left_ticks, int32_t right_ticks, uint32_t dt_us);
 
-/* often (every ms): watchdog, TELEMETRY and STATUS when due */
+/* often (every ms): watchdog, periodic TELEMETRY and STATUS when due */
 void board_poll(board_t *b, uint32_t now_ms);
 
 /* PWM outputs to apply now */

@@ -18,7 +18,7 @@
 #endif
 #define UART_BAUD 115200UL          /* U2X=1, UBRR0=16 -> 117647 baud (+2.1 %), as Arduino does */
 #define UART_RX_BUFFER_BYTES 128u   /* power of two */
-#define UART_TX_BUFFER_BYTES 128u   /* power of two */
+#define UART_TX_BUFFER_BYTES 256u   /* power of two, at most 256 */
 
 /* ---- timing --------------------------------------------------------------------------- */
 #define TICK_HZ 1000u               /* Timer2 CTC tick: millisecond clock */

@@ -36,6 +36,10 @@ static volatile uint8_t tx_tail;   /* written by ISR */
 
 #define RX_MASK ((uint8_t)(UART_RX_BUFFER_BYTES - 1u))
 #define TX_MASK ((uint8_t)(UART_TX_BUFFER_BYTES - 1u))
+_Static_assert(UART_TX_BUFFER_BYTES <= 256u && (UART_TX_BUFFER_BYTES & (UART_TX_BUFFER_BYTES - 1u)) == 0,
+               "UART_TX_BUFFER_BYTES: power of two <= 256 (uint8_t indices)");
+_Static_assert(UART_RX_BUFFER_BYTES <= 256u && (UART_RX_BUFFER_BYTES & (UART_RX_BUFFER_BYTES - 1u)) == 0,
+               "UART_RX_BUFFER_BYTES: power of two <= 256 (uint8_t indices)");
 
 ISR(USART_RX_vect)
 {
@@ -78,6 +82,11 @@ bool hal_uart_read(uint8_t *byte)
 uint8_t hal_uart_rx_overruns(void)
 {
     return rx_overruns;
+}
+
+uint16_t hal_uart_tx_queued(void)
+{
+    return (uint8_t)(tx_head - tx_tail) & TX_MASK;
 }
 
 uint16_t hal_uart_tx_free(void)
@@ -205,14 +214,19 @@ void hal_encoders_read(int32_t *left_ticks, int32_t *right_ticks)
 /* ---- tick -------------------------------------------------------------------------------- */
 static volatile uint32_t millis_count;
 static volatile uint8_t control_countdown = CONTROL_PERIOD_MS;
-static volatile uint8_t control_pending;
+static volatile uint8_t control_pending;      /* periods since the main loop took one */
+static volatile int32_t control_left, control_right;
 
 ISR(TIMER2_COMPA_vect)
 {
     millis_count++;
     if (--control_countdown == 0) {
         control_countdown = CONTROL_PERIOD_MS;
-        control_pending = 1;
+        control_left = enc_left;      /* exact period boundary: the encoder ISR cannot nest */
+        control_right = enc_right;
+        if (control_pending != 0xFF) {
+            control_pending++;
+        }
     }
 }
 
@@ -234,12 +248,15 @@ uint32_t hal_millis(void)
     return ms;
 }
 
-bool hal_take_control_tick(void)
+bool hal_take_control_tick(int32_t *left_ticks, int32_t *right_ticks, uint8_t *periods)
 {
     bool due = false;
     ATOMIC_BLOCK(ATOMIC_RESTORESTATE)
     {
         if (control_pending) {
+            *periods = control_pending;
+            *left_ticks = control_left;
+            *right_ticks = control_right;
             control_pending = 0;
             due = true;
         }

@@ -21,6 +21,7 @@ void hal_init(void);                       /* all peripherals; interrupts still 
 bool hal_uart_read(uint8_t *byte);         /* false when no byte is waiting */
 uint8_t hal_uart_rx_overruns(void);        /* bytes lost to a full RX buffer (saturating) */
 uint16_t hal_uart_tx_free(void);           /* bytes of space in the TX ring */
+uint16_t hal_uart_tx_queued(void);         /* bytes waiting to be sent */
 bool hal_uart_write(const uint8_t *data, uint16_t len);   /* all or nothing */
 
 /* PWM: signed compare counts in [-PWM_TOP, PWM_TOP]; sign selects the DIR pin */
@@ -31,7 +32,9 @@ void hal_encoders_read(int32_t *left_ticks, int32_t *right_ticks);
 
 /* Time */
 uint32_t hal_millis(void);                 /* atomic snapshot of the ms clock */
-bool hal_take_control_tick(void);          /* true once per CONTROL_PERIOD_MS; clears the flag */
+/* true once per CONTROL_PERIOD_MS: the encoder counts latched by the tick interrupt at the
+ * period boundary and the number of periods since the previous call (normally 1) */
+bool hal_take_control_tick(int32_t *left_ticks, int32_t *right_ticks, uint8_t *periods);
 
 /* Watchdog + reset cause */
 void hal_watchdog_kick(void);

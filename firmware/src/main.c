@@ -2,8 +2,10 @@
  * main.c - motor-board firmware entry point (ATmega328P): glues board.c to the peripherals.
  *
  * Main loop (woken by every interrupt, at least once per millisecond by the Timer2 tick):
- *   1. every received UART byte -> board_receive (decoder, message rules, replies)
- *   2. every 10 ms (control tick): encoder snapshot -> board_control_step (speed -> duty),
+ *   1. encoder snapshot; every received UART byte -> board_receive (decoder, message rules,
+ *      replies: TELEMETRY acknowledges each accepted command at once)
+ *   2. every 10 ms (control tick): encoder counts latched in the tick interrupt at the period
+ *      boundary -> board_control_step (speed over exactly 10 ms -> duty),
  *      hardware watchdog kick
  *   3. then board_poll once per millisecond: command watchdog, TELEMETRY / STATUS when due
  *   4. PWM outputs when the board changed them; sleep (idle mode) until the next interrupt
@@ -20,6 +22,12 @@ static bool uart_send(const uint8_t *frame, uint16_t len, void *ctx)
 {
     (void)ctx;
     return hal_uart_write(frame, len);
+}
+
+static uint16_t uart_queued(void *ctx)
+{
+    (void)ctx;
+    return hal_uart_tx_queued();
 }
 
 static void apply_pwm(const board_t *b)
@@ -42,23 +50,23 @@ int main(void)
         .default_telemetry_period_ms = CONTROL_PERIOD_MS,
     };
     hal_init();
-    board_init(&board, &cfg, 0, uart_send, 0);
+    board_init(&board, &cfg, 0, uart_send, uart_queued, 0);
     apply_pwm(&board);
     sei();
-    uint32_t last_control_ms = 0;
     uint32_t last_poll_ms = 0;
     for (;;) {
         hal_loop_busy();
         const uint32_t now_ms = hal_millis();
+        int32_t left, right;
+        hal_encoders_read(&left, &right);
+        board_encoders(&board, left, right);
         uint8_t byte;
         while (hal_uart_read(&byte)) {
             board_receive(&board, byte, now_ms);
         }
-        if (hal_take_control_tick()) {
-            int32_t left, right;
-            hal_encoders_read(&left, &right);
-            board_control_step(&board, left, right, (now_ms - last_control_ms) * 1000UL);
-            last_control_ms = now_ms;
+        uint8_t periods;
+        if (hal_take_control_tick(&left, &right, &periods)) {
+            board_control_step(&board, left, right, (uint32_t)periods * CONTROL_PERIOD_MS * 1000UL);
             hal_watchdog_kick();
             hal_led((board.flags & (PROTO_FLAG_WATCHDOG | PROTO_FLAG_ESTOP)) == 0);
         }
@@ -68,6 +76,7 @@ int main(void)
             last_poll_ms = now_ms;
             board_poll(&board, now_ms);
         }
+        board_service_tx(&board, now_ms);
         if (board_take_outputs_changed(&board)) {
             apply_pwm(&board);
         }
