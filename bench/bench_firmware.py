@@ -5,7 +5,7 @@ Run: .venv/bin/python bench/bench_firmware.py [--seconds S]
 
 Two runs of the same firmware in the same process:
   baseline  handshake only, no torque commands, wheels still (the idle board)
-  loaded    TORQUE_CMD at 100 Hz with torques that spin both wheels (encoder edges at several kHz),
+  loaded    TORQUE_CMD at 100 Hz (of emulated time) with torques that spin both wheels (encoder edges at several kHz),
             HEARTBEAT at 1 Hz, CONFIG, and a burst of corrupted frames (receive-error path)
 Cycle counts come from the harness (firmware/sim/harness.c): interrupt vector entry to RETI, and
 the main loop's busy stretches (GPIOR0 marker), with and without interrupt preemption.
@@ -42,7 +42,7 @@ def run(build: Path, seconds: float, loaded: bool) -> dict:
             last_cmd = last_hb = 0.0
             corrupted_sent = False
             while h.latest()["t_s"] - start < seconds:
-                now = time.monotonic()
+                now = h.lines[-1]["t_s"]          # paced in emulated time: 100 Hz for the board
                 if loaded and now - last_cmd >= 0.01:
                     link.send(sp.TorqueCommand(1500, -1500))
                     last_cmd = now
