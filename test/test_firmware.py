@@ -312,6 +312,10 @@ def test_bridge_handshake_and_version(rig):
     line = rig.wait_line(lambda s: s["hello_ack_count"] >= 1 and s["telemetry_count"] > 0
                          and not s["telemetry"]["flags"] & sp.FLAG_RESET, 2.0)
     assert line["board"]["crc_errors"] == 0 and line["board"]["frame_errors"] == 0
+    # hardware watchdog armed: WDE set, prescaler WDP = 0b0010 (64 ms, avr-libc WDTO_60MS)
+    assert line["wdtcsr"] & 0x08 and line["wdtcsr"] & 0x27 == 0x02
+    # ... and kicked every control step: the board never reset (it would report RESET again)
+    assert rig.bridge.link.stats.get("board_resets", 0) == 0
 
 
 def test_bridge_torque_commands_reflected_in_pwm_duty(frozen_rig):

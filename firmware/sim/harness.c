@@ -65,6 +65,7 @@
 #define REG_PORTB 0x25
 #define REG_DDRB 0x24
 #define REG_GPIOR0 0x3E
+#define REG_WDTCSR 0x60
 #define REG_TCCR1A 0x80
 #define REG_ICR1L 0x86
 #define REG_OCR1AL 0x88
@@ -423,7 +424,7 @@ static void emit_status(harness_t *h, int final)
             "\"board\":{\"uptime_ms\":%lu,\"applied_e4nm\":[%d,%d],\"crc_errors\":%u,"
             "\"frame_errors\":%u,\"type_errors\":%u,\"rx_gaps\":%u,\"watchdog_trips\":%u,"
             "\"flags\":%u,\"cmd_seq\":%u},"
-            "\"loop_count\":%llu,\"loop_busy_cycles\":%llu,\"isr_cycles\":%llu,\"loop_max_cycles\":%llu,\"loop_max_own_cycles\":%llu,"
+            "\"wdtcsr\":%u,\"loop_count\":%llu,\"loop_busy_cycles\":%llu,\"isr_cycles\":%llu,\"loop_max_cycles\":%llu,\"loop_max_own_cycles\":%llu,"
             "\"isr_max_cycles\":{",
             emu_seconds(h), (unsigned long long)h->avr->cycle, wall_seconds(h), h->duty[0],
             h->duty[1], h->pwm_counts[0], h->pwm_counts[1],
@@ -448,7 +449,8 @@ static void emit_status(harness_t *h, int final)
             h->last_status.right_applied_e4nm, h->last_status.crc_errors,
             h->last_status.frame_errors, h->last_status.type_errors, h->last_status.rx_gaps,
             h->last_status.watchdog_trips, h->last_status.flags, h->last_status.cmd_seq,
-            (unsigned long long)h->loop_count, (unsigned long long)h->loop_busy_total,
+            (unsigned)h->avr->data[REG_WDTCSR], (unsigned long long)h->loop_count,
+            (unsigned long long)h->loop_busy_total,
             (unsigned long long)h->isr_total, (unsigned long long)h->loop_max,
             (unsigned long long)h->loop_max_own);
     int first = 1;
