@@ -269,6 +269,8 @@ def _run_segment(k0, k_end, skip_decide, dt, dec_every, rec_every, ref_k0, ref_s
     d_sin = np.empty_like(d_amp)
     d_cos = np.empty_like(d_amp)
     g_prev = np.empty((n, 2))
+    pos = np.empty((n, 2))      # contiguous positions for decide (one compiled specialisation)
+    nev0 = np.int64(0)          # not a literal 0: same specialisation as calls from Python
     for i in range(n):      # (re-)start the disturbance phasors at t(k0): no drift accumulates
         disturbance_phasor_init_k(k0 * dt, d_freq[i], d_phase[i], d_sin[i], d_cos[i])
         g_prev[i, 0], g_prev[i, 1] = disturbance_k(k0 * dt, d_amp[i], d_freq[i], d_phase[i])
@@ -283,9 +285,12 @@ def _run_segment(k0, k_end, skip_decide, dt, dec_every, rec_every, ref_k0, ref_s
             pd[i, 1] = pvy
         goals_and_fields(x, pd, ref, orig_parent, orig_offset, gains, goal, goal_dot, vc)
         if kk % dec_every == 0 and not (skip_decide and kk == k0):
-            nev = decide(t, x[:, :2], pd, goal, goal_dot, vc, team, rbody, oc, ov, ophi, ophid,
+            for i in range(n):
+                pos[i, 0] = x[i, 0]
+                pos[i, 1] = x[i, 1]
+            nev = decide(t, pos, pd, goal, goal_dot, vc, team, rbody, oc, ov, ophi, ophid,
                          oaxes, ostatic, mode, tgt, sdir, t_entry, since, last_kind, last_tgt,
-                         last_exit, wc, wtgt, prm, ev, 0)
+                         last_exit, wc, wtgt, prm, ev, nev0)
             if nev > 0:
                 return kk, nev
         # ---- law, parents before children (S4 feed-forward of the current a_j)
