@@ -245,12 +245,21 @@ def _concat(a: MarkerPoses, b: MarkerPoses) -> MarkerPoses:
                        np.concatenate([a.corners_px, b.corners_px]))
 
 
-@dataclass
 class _Track:
-    pose: np.ndarray          # (3,) last accepted pose
-    t_s: float
-    velocity: np.ndarray      # (3,) [xdot, ydot, thetadot] estimate
-    rejected: int = 0
+    """One marker's track: last accepted pose (x_m, y_m, theta_rad) at t_s and its velocity
+    estimate (xdot_mps, ydot_mps, thetadot_radps). Plain floats: updated every frame."""
+
+    __slots__ = ("pose", "t_s", "velocity", "rejected")
+
+    def __init__(self, pose: tuple, t_s: float, velocity: tuple = (0.0, 0.0, 0.0)) -> None:
+        self.pose = pose
+        self.t_s = t_s
+        self.velocity = velocity
+        self.rejected = 0
+
+    def predict(self, t_s: float) -> np.ndarray:
+        dt = max(t_s - self.t_s, 0.0)
+        return np.array([p + v * dt for p, v in zip(self.pose, self.velocity)])
 
 
 @dataclass(frozen=True)
@@ -454,7 +463,7 @@ class MarkerTracker:
             tr = self._tracks.get(int(mid))
             keep[idx] = False
             if tr is not None:
-                pred = tr.pose + tr.velocity * max(t_s - tr.t_s, 0.0)
+                pred = tr.predict(t_s)
                 pred_px = self.camera.floor_to_pixel(self.layout.marker_centers_w(pred[None]),
                                                      self.layout.height_m)[0]
                 dist = np.linalg.norm(corners[idx].mean(axis=1) - pred_px, axis=1)
@@ -462,28 +471,31 @@ class MarkerTracker:
         return corners[keep], ids[keep]
 
     def _gate(self, mid: int, pose: np.ndarray, t_s: float) -> bool:
-        """Accept ``pose`` of marker ``mid`` unless it jumped (S: implausible speed)."""
+        """Accept ``pose`` of marker ``mid`` unless it jumped (implausible speed or turn rate)."""
         cfg = self.config
+        x, y, th = float(pose[0]), float(pose[1]), float(pose[2])
         tr = self._tracks.get(mid)
         if tr is None:
-            self._tracks[mid] = _Track(pose.copy(), t_s, np.zeros(3))
+            self._tracks[mid] = _Track((x, y, th), t_s)
             return True
         dt = max(t_s - tr.t_s, 1e-6)
-        x, y, th = float(pose[0]), float(pose[1]), float(pose[2])
-        x0, y0, th0 = (float(v) for v in tr.pose)
+        x0, y0, th0 = tr.pose
         dpos = math.hypot(x - x0, y - y0)
         dth = (th - th0 + math.pi) % (2 * math.pi) - math.pi
-        ok = (dpos <= cfg.max_speed_mps * dt + cfg.jump_margin_m
-              and abs(dth) <= cfg.max_turn_rate_radps * dt + cfg.jump_margin_rad)
-        if not ok:
+        if (dpos > cfg.max_speed_mps * dt + cfg.jump_margin_m
+                or abs(dth) > cfg.max_turn_rate_radps * dt + cfg.jump_margin_rad):
             tr.rejected += 1
             if tr.rejected < cfg.reacquire_after:
                 return False
-            self._tracks[mid] = _Track(pose.copy(), t_s, np.zeros(3))
+            self._tracks[mid] = _Track((x, y, th), t_s)   # it really moved: start over
             return True
-        vel = np.array([(x - x0) / dt, (y - y0) / dt, dth / dt])
-        alpha = 0.5
-        self._tracks[mid] = _Track(pose.copy(), t_s, alpha * vel + (1 - alpha) * tr.velocity)
+        vx0, vy0, vth0 = tr.velocity
+        a = 0.5                                           # velocity: exponential smoothing
+        tr.velocity = (a * (x - x0) / dt + (1 - a) * vx0, a * (y - y0) / dt + (1 - a) * vy0,
+                       a * dth / dt + (1 - a) * vth0)
+        tr.pose = (x, y, th)
+        tr.t_s = t_s
+        tr.rejected = 0
         return True
 
     @property
