@@ -183,16 +183,16 @@ def latency_multi_process(seconds: float, tmp: Path) -> np.ndarray:
 
 
 def line_scenario(n: int, path: Path) -> Path:
-    """N robots in a column behind a leader on a straight line; chain graph; no obstacles."""
-    robots = [{"id": 0, "leader": True, "slot_m": [0.0, 0.0], "initial_pose": [0.0, 0.0, 0.0], "marker_id": 0,
-               "path": {"type": "line", "start_m": [0.0, 0.0], "heading_rad": 0.0, "speed_mps": 0.05}}]
+    """A leader on a straight line and N - 1 followers in rows of four behind it, all inside the
+    camera's floor area (config/camera.yaml: 3 x 2.4 m around (1.2, 0.6)); star graph; no obstacles."""
+    robots = [{"id": 0, "leader": True, "slot_m": [0.0, 0.0], "initial_pose": [1.8, 0.6, 0.0], "marker_id": 0,
+               "path": {"type": "line", "start_m": [1.8, 0.6], "heading_rad": 0.0, "speed_mps": 0.03}}]
     for i in range(1, n):
         row, col = divmod(i - 1, 4)
-        y = -0.9 + 0.6 * col
-        x = -0.5 - 0.5 * row
-        robots.append({"id": i, "slot_m": [x, y], "initial_pose": [x, y, 0.0], "marker_id": i})
+        dx, dy = -0.5 - 0.45 * row, -0.675 + 0.45 * col
+        robots.append({"id": i, "slot_m": [dx, dy], "initial_pose": [1.8 + dx, 0.6 + dy, 0.0], "marker_id": i})
     edges = [[0, i] for i in range(1, n)]
-    path.write_text(yaml.safe_dump({"name": f"line_{n}", "duration_s": 60.0, "robots": robots,
+    path.write_text(yaml.safe_dump({"name": f"line_{n}", "duration_s": 25.0, "robots": robots,
                                     "graph": {"edges": edges}}, sort_keys=False))
     return path
 
@@ -252,16 +252,20 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="shorter windows, fewer robot counts")
     ap.add_argument("--counts", type=int, nargs="*", default=None, help="robot counts to try")
+    ap.add_argument("--skip-latency", action="store_true", help="only the robot-count table")
     args = ap.parse_args()
     tmp = Path(tempfile.mkdtemp(prefix="ament_formation_bench_"))
     loopback_env(tmp / "ros_log")
     window = 5.0 if args.quick else 12.0
     wire_ms = 1e3 * 10 * 10 / 115200   # one 10-byte torque frame at 115200 baud, 10 bits/byte
     print(f"baseline: torque frame wire time {wire_ms:.2f} ms; control period 10 ms")
-    lat1 = latency_in_process(window + 4.0)
-    print(f"latency capture -> board, one process:    {_percentiles(lat1)}")
-    lat2 = latency_multi_process(window, tmp)
-    print(f"latency capture -> board, processes:      {_percentiles(lat2)}")
+    if args.skip_latency:
+        lat1 = lat2 = np.zeros(0)
+    else:
+        lat1 = latency_in_process(window + 4.0)
+        print(f"latency capture -> board, one process:    {_percentiles(lat1)}")
+        lat2 = latency_multi_process(window, tmp)
+        print(f"latency capture -> board, processes:      {_percentiles(lat2)}")
     if len(lat1) and len(lat2):
         print(f"  ratio p50 processes / one process: {np.percentile(lat2, 50) / np.percentile(lat1, 50):.2f}; "
               f"p50 / wire time: {1e3 * np.percentile(lat2, 50) / wire_ms:.1f}")
@@ -273,7 +277,7 @@ def main() -> int:
         print(f"{n:6d} {r['ticks']:7d} {r['late']:6d} {100 * r['missed_fraction']:9.2f} {r['world_overruns']:15d}"
               + ("" if r["started"] and r["controllers_reporting"] == n else "  (did not start / not all up)"))
         if r["started"] and r["controllers_reporting"] == n and r["missed_fraction"] < 0.01 \
-                and r["ticks"] >= 0.9 * r["expected_ticks"] and r["world_overruns"] == 0:
+                and r["ticks"] >= 0.9 * r["expected_ticks"] and r["world_overruns"] <= 0.01 * 100 * window:
             best = n
         else:
             break
