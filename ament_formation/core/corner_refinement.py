@@ -6,8 +6,9 @@ sampled bilinearly from the image (``_PROFILE`` samples over ±``half`` px); the
 the centroid of the intensity gradient (small gradients, below 20 % of the largest, ignored). Edge
 points are undistorted (Brown–Conrady model inverted by Newton's method) and a
 straight line is fitted to each edge by total least squares; adjacent lines intersect at the
-corners. Two passes: the second re-centres the profiles on the first result with a narrower
-window (half = min(2, 0.6 cell) px, then min(1.4, 0.45 cell) px, cell = side / (bits + 2)).
+corners. Up to two passes: the second re-centres the profiles on the first result with a narrower
+window (half = min(2, 0.6 cell) px, then min(1.4, 0.45 cell) px, cell = side / (bits + 2)); it is
+skipped when the first pass moved no corner by more than ``_SETTLED_PX`` (a good prediction).
 
 The per-marker corner σ [px] follows from the scatter of the edge points about their lines: a
 corner is extrapolated from M points spread over 70 % of the edge, σ_corner² ≈ 7.1 σ_edge² / M.
@@ -21,6 +22,8 @@ from numba import njit
 
 EDGE_SAMPLES = 8
 _PROFILE = 13
+N_PASSES = 2
+_SETTLED_PX = 0.25   # skip the second pass when the first moved no corner farther
 
 
 @njit(cache=True)
@@ -100,7 +103,7 @@ def refine_kernel(img, corners, fx, fy, cx, cy, dist, bits, out_norm, out_sigma)
             cur[i, 0] = corners[k, i, 0]
             cur[i, 1] = corners[k, i, 1]
         failed = False
-        for pass_ in range(2):
+        for pass_ in range(N_PASSES):
             side = 0.0
             for e in range(4):
                 side += math.hypot(cur[(e + 1) % 4, 0] - cur[e, 0], cur[(e + 1) % 4, 1] - cur[e, 1])
@@ -178,10 +181,14 @@ def refine_kernel(img, corners, fx, fy, cx, cy, dist, bits, out_norm, out_sigma)
                 out_norm[k, j, 1] = cen[a, 1] + t * ay
             if failed:
                 break
+            moved = 0.0
             for j in range(4):
                 u, v = _distort(out_norm[k, j, 0], out_norm[k, j, 1], fx, fy, cx, cy, dist)
+                moved = max(moved, math.hypot(u - cur[j, 0], v - cur[j, 1]))
                 cur[j, 0] = u
                 cur[j, 1] = v
+            if moved < _SETTLED_PX:
+                break
         if failed:
             for j in range(4):
                 xn, yn = _undistort(corners[k, j, 0], corners[k, j, 1], fx, fy, cx, cy, dist)
