@@ -126,7 +126,7 @@ def test_cli_echo_once_and_topics_across_processes(ros_context, executor):
     env = dict(os.environ)
     echo = subprocess.Popen(cli + ["echo", "robot_0/mode", "--once", "--timeout", "20"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
-    topics = subprocess.Popen(cli + ["topics", "-t", "--wait", "2.0"], stdout=subprocess.PIPE,
+    topics = subprocess.Popen(cli + ["topics", "-t", "--wait", "5.0"], stdout=subprocess.PIPE,
                               stderr=subprocess.PIPE, text=True, env=env)
     try:
         assert spin_until(executor, lambda: echo.poll() is not None and topics.poll() is not None, 40.0)
