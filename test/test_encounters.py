@@ -186,3 +186,14 @@ def test_symmetric_meetings_are_safe_and_settle(meetings, n):
     done = [r for r in res.reaching if r["completed"]]
     assert done and all(r["t_reach_s"] <= r["bound_s"] + 1e-9 for r in done)
     assert all(r["t_reach_s"] <= r["bound_s"] + 1e-9 for r in res.reaching if not r["completed"])
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), n=st.integers(2, 400), size=st.floats(0.3, 40.0))
+def test_grid_culling_finds_exactly_the_close_pairs(seed, n, size):
+    from ament_formation.core.encounters import candidate_pairs
+    q = np.random.default_rng(seed).uniform(0.0, size, (n, 2))
+    got = {tuple(r) for r in candidate_pairs(q, 0.45)}
+    d = np.linalg.norm(q[:, None] - q[None], axis=2)
+    want = {(i, k) for i in range(n) for k in range(i + 1, n) if d[i, k] < 0.45}
+    assert got == want

@@ -85,23 +85,42 @@ def candidate_pairs(p, cell_m):
     for i in range(n):
         ix[i] = int(math.floor((p[i, 0] - x0) / cell_m))
         iy[i] = int(math.floor((p[i, 1] - y0) / cell_m))
-    stride = iy.max() + 3
-    keys = (ix + 1) * stride + (iy + 1)
-    order = np.argsort(keys)
-    skeys = keys[order]
+    nx = ix.max() + 1
+    ny = iy.max() + 1
+    if nx * ny > 16 * n + 4096:          # sparse, huge arena: fall back to one cell column per x
+        ny = 1
+        for i in range(n):
+            iy[i] = 0
+    # counting sort of the robots by cell (dense grid of nx * ny cells)
+    cell = ix * ny + iy
+    start = np.zeros(nx * ny + 1, dtype=np.int64)
+    for i in range(n):
+        start[cell[i] + 1] += 1
+    for c in range(nx * ny):
+        start[c + 1] += start[c]
+    fill = start[:-1].copy()
+    members = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        members[fill[cell[i]]] = i
+        fill[cell[i]] += 1
+    c2 = cell_m * cell_m
     for i in range(n):
         for dx in range(-1, 2):
+            cx = ix[i] + dx
+            if cx < 0 or cx >= nx:
+                continue
             for dy in range(-1, 2):
-                key = (ix[i] + 1 + dx) * stride + (iy[i] + 1 + dy)
-                lo = np.searchsorted(skeys, key)
-                hi = np.searchsorted(skeys, key + 1)
-                for q in range(lo, hi):
-                    k = order[q]
+                cy = iy[i] + dy
+                if cy < 0 or cy >= ny:
+                    continue
+                c = cx * ny + cy
+                for q in range(start[c], start[c + 1]):
+                    k = members[q]
                     if k <= i:
                         continue
                     ddx = p[i, 0] - p[k, 0]
                     ddy = p[i, 1] - p[k, 1]
-                    if ddx * ddx + ddy * ddy < cell_m * cell_m:
+                    if ddx * ddx + ddy * ddy < c2:
                         if cnt >= out.shape[0]:
                             out = np.concatenate((out, np.empty_like(out)))
                         out[cnt, 0] = i
