@@ -139,7 +139,8 @@ def node_processes(scenario_path: Path, pty_dir: Path, log_dir: Path) -> list[su
     for r in sc.robots:
         ns = ["--ros-args", "-r", f"__ns:=/robot_{r.id}"]
         procs.append(_start([str(b / "formation_bridge"), *ns, "-p", f"port:={pty_dir}/robot_{r.id}",
-                             "-p", f"torque_limit_nm:={r.params.torque_limit_nm}"], log_dir, f"bridge_{r.id}"))
+                             "-p", f"torque_limit_nm:={r.params.torque_limit_nm}", "-p", "poll_rate_hz:=200.0"],
+                            log_dir, f"bridge_{r.id}"))
         procs.append(_start([str(b / "formation_controller"), *ns, "-p", f"scenario:={scenario_path}",
                              "-p", f"robot_id:={r.id}"], log_dir, f"controller_{r.id}"))
     ids = [r.id for r in sc.robots]

@@ -55,7 +55,7 @@ done
 
 for id in $ids; do
   af_start "bridge_$id" "$AF_BIN/formation_bridge" --ros-args -r __ns:="/robot_$id" \
-    -p port:="$pty_dir/robot_$id" -p torque_limit_nm:="$(eval echo "\$torque_$id")" \
+    -p port:="$pty_dir/robot_$id" -p torque_limit_nm:="$(eval echo "\$torque_$id")" -p poll_rate_hz:=200.0 \
     -p use_sim_time:=$use_sim_time
   af_start "controller_$id" "$AF_BIN/formation_controller" --ros-args -r __ns:="/robot_$id" \
     -p scenario:="$scenario" -p robot_id:="$id" -p use_sim_time:=$use_sim_time
