@@ -321,7 +321,7 @@ class RobotController:
         goal = np.zeros((n, 2))
         goal_dot = np.zeros((n, 2))
         vc = np.zeros((n, 2))
-        goals_and_fields(x, pd, ref, orig_parent, orig_offset, self._gains, goal, goal_dot, vc)
+        goals_and_fields(x, pd, ref, orig_parent, orig_offset, self._gains, goal, goal_dot, vc, True)
 
         events: list[dict] = []
         t_s = float(t_s)

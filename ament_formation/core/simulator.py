@@ -69,9 +69,10 @@ REF_SUB = 10   # leader references are tabulated every REF_SUB steps and interpo
 
 
 @njit(cache=True)
-def reference_at(step, sub, dt, tab, ref):
+def reference_at(step, sub, dt, tab, ref, rows):
     """Quintic Hermite interpolation of the tabulated leader references (exact r, r_dot, r_ddot at
-    the grid nodes, C2 in between; error ~ h^6 r^(6)) for step ``step`` of the chunk -> ``ref`` (N, 6)."""
+    the grid nodes, C2 in between; error ~ h^6 r^(6)) for step ``step`` of the chunk -> ``ref`` (N, 6)
+    rows ``rows`` (the leaders; other rows are left untouched)."""
     g = step // sub
     h = sub * dt
     s = (step - g * sub) / sub
@@ -97,7 +98,7 @@ def reference_at(step, sub, dt, tab, ref):
     e3 = 3.0 * s - 12.0 * s2 + 10.0 * s3
     e4 = -24.0 * s + 84.0 * s2 - 60.0 * s3
     e5 = -e0
-    for i in range(tab.shape[0]):
+    for i in rows:
         for q in range(2):
             p0 = tab[i, g, q]
             v0 = tab[i, g, 2 + q] * h
@@ -220,10 +221,11 @@ def robot_law(i, t, x, pd, acmd, parent, offset, ref, goal, goal_dot, mode, tgt,
 
 
 @njit(cache=True)
-def goals_and_fields(x, pd, ref, orig_parent, orig_offset, gains, goal, goal_dot, vc):
+def goals_and_fields(x, pd, ref, orig_parent, orig_offset, gains, goal, goal_dot, vc, with_fields=True):
     """Formation goal g_i, its velocity and the coordination field V_c = g_dot - Phi(p - g) (S8.3).
 
-    Leaders: g = r(t). Followers: g = p of the original parent + delta (S8.3 item 1).
+    Leaders: g = r(t). Followers: g = p of the original parent + delta (S8.3 item 1). V_c only
+    when ``with_fields`` (the automaton needs it at decisions only).
     """
     n = x.shape[0]
     for i in range(n):
@@ -238,6 +240,8 @@ def goals_and_fields(x, pd, ref, orig_parent, orig_offset, gains, goal, goal_dot
             goal[i, 1] = x[j, 1] + orig_offset[i, 1]
             goal_dot[i, 0] = pd[j, 0]
             goal_dot[i, 1] = pd[j, 1]
+        if not with_fields:
+            continue
         vdx, vdy, _, _ = tracking_field_k(x[i, 0] - goal[i, 0], x[i, 1] - goal[i, 1],
                                           goal_dot[i, 0], goal_dot[i, 1], 0.0, 0.0, pd[i, 0],
                                           pd[i, 1], gains[G_ALPHA], gains[G_VCAP])
@@ -249,6 +253,7 @@ def goals_and_fields(x, pd, ref, orig_parent, orig_offset, gains, goal, goal_dot
 
 @njit(cache=True)
 def _run_segment(k0, k_end, skip_decide, dt, dec_every, rec_every, ref_k0, ref_sub, ref_tab,
+                 leader_rows,
                  x, acmd, torque, sat_flag, pd, goal, goal_dot, vc, ref,
                  parent, offset, order, orig_parent, orig_offset, team, rbody, coeffs, gains,
                  d_amp, d_freq, d_phase, d_hc, d_hs,
@@ -278,13 +283,14 @@ def _run_segment(k0, k_end, skip_decide, dt, dec_every, rec_every, ref_k0, ref_s
         t = kk * dt
         obstacle_states(t, ob_c0, ob_v, ob_amp, ob_w, ob_phi0, ob_phid, oc, ov, oa, ophi, ophid,
                         ophidd)
-        reference_at(kk - ref_k0, ref_sub, dt, ref_tab, ref)
+        reference_at(kk - ref_k0, ref_sub, dt, ref_tab, ref, leader_rows)
         for i in range(n):
             pvx, pvy = point_velocity_k(x[i, 2], x[i, 3], x[i, 4], coeffs[4, i])
             pd[i, 0] = pvx
             pd[i, 1] = pvy
-        goals_and_fields(x, pd, ref, orig_parent, orig_offset, gains, goal, goal_dot, vc)
-        if kk % dec_every == 0 and not (skip_decide and kk == k0):
+        decision = kk % dec_every == 0 and not (skip_decide and kk == k0)
+        goals_and_fields(x, pd, ref, orig_parent, orig_offset, gains, goal, goal_dot, vc, decision)
+        if decision:
             for i in range(n):
                 pos[i, 0] = x[i, 0]
                 pos[i, 1] = x[i, 1]
@@ -433,6 +439,7 @@ class _Setup:
         team_of = {rid: scenario.team_leader(rid) for rid in self.ids}
         self.team = np.array([self.index[team_of[rid]] for rid in self.ids], dtype=np.int64)
         self.paths = [r.path if r.leader else None for r in robots]
+        self.leader_rows = np.array([i for i, r in enumerate(robots) if r.leader], dtype=np.int64)
         self.state = np.zeros((n, 5))
         for i, r in enumerate(robots):
             self.state[i, :3] = r.initial_pose
@@ -569,6 +576,7 @@ def simulate(scenario, *, dt_s: float = 0.001, record_every_s: float = 0.01,
         while k < k_chunk_end:
             k, nev = _run_segment(
                 k, k_chunk_end, skip, dt_s, dec_every, rec_every, ref_k0, REF_SUB, ref_tab,
+                setup.leader_rows,
                 x, acmd, torque, sat_flag, pd, goal, goal_dot, vc, ref,
                 parent, offset, order, setup.orig_parent, setup.orig_offset, setup.team,
                 setup.rbody, setup.coeffs, setup.gains, setup.d_amp, setup.d_freq, setup.d_phase,
