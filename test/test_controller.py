@@ -109,3 +109,41 @@ def test_assignment_overrides_robot_decision_and_bad_input_is_named():
         c.step(1.01, np.array([np.nan, 0, 0, 0, 0]))
     with pytest.raises(ValueError, match="mode"):
         EncounterAssignment("dance", 2)
+
+
+def test_per_robot_controllers_on_the_plant_twin_reproduce_the_simulators_mode_events():
+    """Moved from test_robot_law.py: RobotController at 100 Hz, closed robot by robot on the plant
+    twin, gives the simulator's mode events (enter/exit O1 within 50 ms) and final errors on the
+    shortened paper scenario, with torques within the limit."""
+    from pathlib import Path
+
+    from ament_formation.core.twin import PlantTwin
+
+    sc = load_scenario(Path(__file__).resolve().parent / "data" / "paper_short.yaml")
+    ref = simulate(sc, dt_s=0.001)
+    twin = PlantTwin(sc)
+    twin.start()
+    r0, r1 = sc.robot(0), sc.robot(1)
+    c0 = RobotController(0, r0.params, sc.control, sc.avoidance, sc.obstacles, leader_path=r0.path, team=0)
+    c1 = RobotController(1, r1.params, sc.control, sc.avoidance, sc.obstacles, team=0)
+    c1.set_graph(0, (0.0, 1.2), 0, (0.0, 1.2))
+    ev0, ev1, peak = [], [], 0.0
+    for k in range(int(round(sc.duration_s / 0.01))):
+        t = 0.01 * k
+        o0 = c0.step(t, twin.state[0], neighbours={1: NeighbourState(twin.state[1], team=0)})
+        lead = NeighbourState(twin.state[0], o0.accel_cmd_mps2, team=0, mode=o0.mode, target=o0.target)
+        o1 = c1.step(t, twin.state[1], parent=lead, original_parent=lead)
+        ev0.extend(o0.events)
+        ev1.extend(o1.events)
+        tau = np.array([o0.torque_nm, o1.torque_nm])
+        peak = max(peak, float(np.max(np.abs(tau))))
+        twin.advance(0.01, tau)
+    ref_ev = [e for e in ref.mode_events if e["robot"] == 0]
+    assert [(e["event"], e["target"]) for e in ev0] == [(e["event"], e["target"]) for e in ref_ev] \
+        == [("enter", "O1"), ("exit", "O1")]
+    assert all(abs(a["t_s"] - b["t_s"]) <= 0.05 for a, b in zip(ev0, ref_ev))   # 100 Hz vs 1 kHz
+    assert ev1 == []
+    err_lead = np.hypot(*(twin.state[0, :2] - r0.path.reference(sc.duration_s)[0]))
+    err_fol = np.hypot(*(twin.state[1, :2] - twin.state[0, :2] - [0.0, 1.2]))
+    assert err_lead < 0.02 and err_fol < 0.01
+    assert peak <= r0.params.torque_limit_nm

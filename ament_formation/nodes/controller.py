@@ -2,10 +2,15 @@
 
 Every control period (100 Hz): the pose estimate (core/estimator.py, spec S10: wheel odometry
 between camera frames, each latency-compensated camera pose corrects it) feeds the robot's
-switching automaton and sliding-mode law (core/robot_law.py SingleRobotLaw: the same functions
-as the simulator); the torque goes to the bridge. The current parent is the one of
-``/formation/graph``: the node re-subscribes to that parent's ``state`` and ``accel`` whenever the
-graph changes. Safety (DESIGN §7): no pose for ``pose_timeout_s`` or no wheel data for
+switching automaton and sliding-mode law (core/controller.py RobotController: the same compiled
+functions as the simulator); the torque goes to the bridge. The node hears every robot of the
+scenario (``state``, ``accel``, ``mode``): the current parent is the one of ``/formation/graph``
+(S4 field with feed-forward), the original parent gives the S8.3 exit goal, and every robot is a
+possible robot-robot threat (S7). The coordinator's assignment for this robot on
+``/formation/encounters`` overrides the robot's own robot-robot decision; it is applied once per
+decision (same mode, partner, t_entry_s), and the robot leaves it with its own S8.3 exit test.
+Without the coordinator the controller arbitrates robot encounters itself with the same rules.
+Safety (DESIGN §7): no pose for ``pose_timeout_s`` or no wheel data for
 ``wheel_timeout_s`` -> controlled stop (brake to rest, then zero torque); a parent silent for
 ``parent_timeout_s`` is extrapolated with its commanded acceleration, after ``parent_hold_s`` the
 robot holds (brakes); NaN/inf inputs are rejected and counted; torques are clamped to the limit.
@@ -15,9 +20,11 @@ Topics (namespace robot_<id>; QoS from ros/qos.py)
   sub  pose                     geometry_msgs/PoseStamped (camera, stamp = capture time)  QOS_CONTROL
   sub  wheel_state              sensor_msgs/JointState (wheel angles rad, rates rad/s)     QOS_CONTROL
   sub  /formation/graph         std_msgs/String JSON (parents, offsets_m, start_s)         QOS_GRAPH
-  sub  /robot_<parent>/state    nav_msgs/Odometry                                          QOS_CONTROL
-  sub  /robot_<parent>/accel    geometry_msgs/AccelStamped                                 QOS_CONTROL
-  sub  /robot_<orig>/state      (original parent pi0, for the S8.3 exit goal when re-parented)
+  sub  /formation/encounters    std_msgs/String JSON {revision, assignments: {id: {mode,
+                                partner, direction, t_entry_s, drift_mps}}} (S7)           QOS_GRAPH
+  sub  /robot_<k>/state         nav_msgs/Odometry, every other robot k of the scenario      QOS_CONTROL
+  sub  /robot_<k>/accel         geometry_msgs/AccelStamped, every other robot k             QOS_CONTROL
+  sub  /robot_<k>/mode          std_msgs/String JSON, every other robot k (S7 acyclicity)  QOS_CONTROL
   pub  wheel_torque             sensor_msgs/JointState effort [left, right] N m            QOS_CONTROL
   pub  state                    nav_msgs/Odometry (fused pose; twist v, omega)             QOS_CONTROL
   pub  accel                    geometry_msgs/AccelStamped (commanded point accel, S4)     QOS_CONTROL
@@ -33,8 +40,9 @@ Parameters
   control_rate_hz   float  control loop rate [Hz]                                   default 100
   pose_timeout_s    float  no camera pose this long -> controlled stop [s]          default 0.5
   wheel_timeout_s   float  no wheel_state this long -> controlled stop [s]          default 0.1
-  parent_timeout_s  float  parent state older than this is extrapolated [s]         default 0.1
-  parent_hold_s     float  parent state older than this -> hold [s]                 default 1.0
+  parent_timeout_s  float  parent (or other robot) state older than this is extrapolated [s]  default 0.1
+  parent_hold_s     float  parent state older than this -> hold; other robots older than
+                           this are ignored [s]                                      default 1.0
   stop_time_s       float  time constant of the controlled stop [s]                 default 0.3
   camera_gain       float  S10 complementary gain per camera frame, (0, 1]          default 0.5
 """
@@ -58,7 +66,8 @@ from std_msgs.msg import String
 from ament_formation.core.dynamics import PlantCoeffs, b2_inv, f2
 from ament_formation.core.errors import ConfigError
 from ament_formation.core.estimator import EstimatorParams, PoseEstimator
-from ament_formation.core.robot_law import SingleRobotLaw
+from ament_formation.core.controller import NeighbourState, RobotController
+from ament_formation.core.graph import FormationGraph
 from ament_formation.core.scenario import load_scenario
 from ament_formation.ros import diagnostics as diag
 from ament_formation.ros import messages as msgs
@@ -104,13 +113,15 @@ def stop_torque(state: np.ndarray, k: PlantCoeffs, stop_time_s: float) -> np.nda
 
 
 class _Neighbour:
-    """Latest state/accel of another robot (parent or original parent)."""
+    """Latest state/accel/mode of another robot."""
 
     def __init__(self, rid: int):
         self.rid = rid
         self.state: np.ndarray | None = None
         self.accel = np.zeros(2)
         self.stamp_s = -math.inf
+        self.mode = "coordination"
+        self.target: str | None = None
         self.subs: list = []
 
 
@@ -129,14 +140,26 @@ class ControllerNode(Node):
         self.k = PlantCoeffs.from_params([spec.params])
         self.tau_max = spec.params.torque_limit_nm
         self.estimator = PoseEstimator(EstimatorParams.from_robot(spec.params, camera_gain=self.prm.camera_gain))
-        self.law = SingleRobotLaw(self.scenario, self.rid)
+        sc = self.scenario
+        self.law = RobotController(self.rid, spec.params, sc.control, sc.avoidance, sc.obstacles,
+                                   leader_path=spec.path if spec.leader else None,
+                                   team=sc.team_leader(self.rid))
+        fgraph = FormationGraph.from_scenario(sc)
         self.start_s: float | None = None
         self.graph: msgs.GraphMessage | None = None
         self.parent: _Neighbour | None = None
-        self.orig_parent_id = self.law.original_parent
+        self.orig_parent_id = fgraph.original_parent.get(self.rid)
+        self.orig_offset = (np.zeros(2) if self.orig_parent_id is None
+                            else np.asarray(fgraph.offset(self.rid, self.orig_parent_id), dtype=float))
+        self.law.set_graph(self.orig_parent_id, self.orig_offset, self.orig_parent_id, self.orig_offset)
         self.orig: _Neighbour | None = None
+        self.encounter_revision = -1
+        self.assignment = None           # this robot's EncounterAssignment from the coordinator
+        self._applied = None             # key of the assignment in force
+        self._done: set = set()          # assignments this robot has already left (S8.3)
+        self.events: list[dict] = []     # mode events of the law (scenario time)
         self.last_wheel_s = -math.inf
-        self.rejected = {"pose": 0, "wheel": 0, "parent": 0, "graph": 0}
+        self.rejected = {"pose": 0, "wheel": 0, "parent": 0, "graph": 0, "encounters": 0}
         self.safety = "waiting"       # waiting | running | stopped_pose | stopped_wheels | hold_parent
         self.mode = {"mode": "hold", "target": None, "direction": None, "avoiding": False}
         self._mode_sent = None
@@ -154,8 +177,10 @@ class ControllerNode(Node):
         self.create_subscription(PoseStamped, "pose", self._on_pose, QOS_CONTROL)
         self.create_subscription(JointState, "wheel_state", self._on_wheels, QOS_CONTROL)
         self.create_subscription(String, "/formation/graph", self._on_graph, QOS_GRAPH)
+        self.create_subscription(String, "/formation/encounters", self._on_encounters, QOS_GRAPH)
+        self.neighbours = {k: self._subscribe_neighbour(k) for k in sc.robot_ids if k != self.rid}
         if self.orig_parent_id is not None:
-            self.orig = self._subscribe_neighbour(self.orig_parent_id)
+            self.orig = self.neighbours[self.orig_parent_id]
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", QOS_DIAGNOSTICS)
         self.timer = self.create_timer(1.0 / self.prm.control_rate_hz, self._control)
         self.create_timer(1.0, self._publish_diagnostics)
@@ -194,16 +219,23 @@ class ControllerNode(Node):
         if graph.start_s is not None:
             self.start_s = graph.start_s
         parent = graph.parents.get(self.rid)
-        if (self.parent.rid if self.parent else None) != parent:
-            if self.parent is not None and self.parent is not self.orig:
-                for s in self.parent.subs:
-                    self.destroy_subscription(s)
-            if parent is None:
-                self.parent = None
-            elif self.orig is not None and parent == self.orig.rid:
-                self.parent = self.orig
-            else:
-                self.parent = self._subscribe_neighbour(parent)
+        if parent is not None and parent not in self.neighbours:
+            self.rejected["graph"] += 1
+            return
+        self.parent = None if parent is None else self.neighbours[parent]
+        offset = graph.offsets_m.get(self.rid, (0.0, 0.0))
+        self.law.set_graph(parent, offset, self.orig_parent_id, self.orig_offset)
+
+    def _on_encounters(self, msg: String) -> None:
+        try:
+            revision, assignments = msgs.encounters_from_msg(msg)
+        except ValueError:
+            self.rejected["encounters"] += 1
+            return
+        if revision < self.encounter_revision:
+            return
+        self.encounter_revision = revision
+        self.assignment = assignments.get(self.rid)
 
     def _subscribe_neighbour(self, rid: int) -> _Neighbour:
         nb = _Neighbour(rid)
@@ -222,8 +254,22 @@ class ControllerNode(Node):
                 return
             nb.accel = accel
 
+        def on_mode(msg, nb=nb):
+            try:
+                mode = msgs.mode_from_msg(msg)
+            except ValueError:
+                self.rejected["parent"] += 1
+                return
+            name = mode.get("mode")
+            target = mode.get("target")
+            if name in ("obstacle", "yield", "mutual") and isinstance(target, str):
+                nb.mode, nb.target = name, target
+            else:                                    # coordination, hold, stopped, ...
+                nb.mode, nb.target = "coordination", None
+
         nb.subs = [self.create_subscription(msgs.Odometry, f"/robot_{rid}/state", on_state, QOS_CONTROL),
-                   self.create_subscription(AccelStamped, f"/robot_{rid}/accel", on_accel, QOS_CONTROL)]
+                   self.create_subscription(AccelStamped, f"/robot_{rid}/accel", on_accel, QOS_CONTROL),
+                   self.create_subscription(String, f"/robot_{rid}/mode", on_mode, QOS_CONTROL)]
         return nb
 
     def _neighbour_now(self, nb: _Neighbour | None, now_s: float) -> np.ndarray | None:
@@ -280,17 +326,35 @@ class ControllerNode(Node):
             self._send(stop_torque(state[None], self.k, self.prm.stop_time_s)[0], None, now)
             return
         self._safety("running")
-        offset = (np.asarray(self.graph.offsets_m.get(self.rid, (0.0, 0.0)))
-                  if self.graph is not None else np.zeros(2))
-        out = self.law.step(
-            t, state,
-            parent=None if self.parent is None else self.parent.rid,
-            parent_state=parent_state,
-            parent_accel=None if self.parent is None else self.parent.accel,
-            offset=offset,
-            original_parent_state=self._neighbour_now(self.orig, now))
+        heard: dict[int, NeighbourState] = {}
+        for k, nb in self.neighbours.items():
+            xk = parent_state if nb is self.parent else self._neighbour_now(nb, now)
+            if xk is not None:
+                rk = self.scenario.robot(k).params
+                heard[k] = NeighbourState(xk, nb.accel, body_radius_m=rk.body_radius_m,
+                                          team=self.scenario.team_leader(k), mode=nb.mode,
+                                          target=nb.target, com_offset_m=rk.com_offset_m)
+        orig_state = None
+        if self.orig_parent_id is not None:
+            orig_state = heard.get(self.orig_parent_id)
+            if orig_state is None:       # pi0 silent: goal = own position (no exit pull)
+                orig_state = NeighbourState(state - np.r_[self.orig_offset, 0.0, 0.0, 0.0])
+        assignment = self.assignment
+        key = None
+        if assignment is not None:
+            key = (assignment.mode, assignment.partner, assignment.t_entry_s)
+            if key in self._done or assignment.partner not in heard:
+                assignment = None
+        out = self.law.step(t, state, parent=None if self.parent is None else heard[self.parent.rid],
+                            original_parent=orig_state, neighbours=heard, assignment=assignment)
+        if assignment is not None:
+            self._applied = key
+        if self._applied is not None and (out.mode, out.target) != (self._applied[0], f"robot_{self._applied[1]}"):
+            self._done.add(self._applied)              # left (or replaced) with its own exit test
+            self._applied = None
+        self.events.extend(out.events)
         self.mode = {"mode": out.mode, "target": out.target, "direction": out.direction,
-                     "avoiding": bool(out.avoiding)}
+                     "avoiding": out.mode != "coordination"}
         self._send(np.asarray(out.torque_nm, dtype=float), np.asarray(out.accel_cmd_mps2, dtype=float), now)
 
     def _publish_diagnostics(self) -> None:

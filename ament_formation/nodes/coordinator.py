@@ -1,18 +1,26 @@
-"""formation_coordinator: owns the communication graph (spec S9) and starts the mission.
+"""formation_coordinator: owns the communication graph (spec S9), arbitrates robot-robot encounters
+(spec S7) and starts the mission.
 
 It watches every robot's ``state`` and ``mode``. When the set of robots in any avoidance mode
 changes, it recomputes the parents with core/graph.py (S9 rewiring; restoration = rewiring with
 fewer avoiders) and publishes ``/formation/graph`` with a new revision (transient local, so late
 controllers get the current graph). Once every robot's controller publishes its state (or at once
 with ``wait_for_robots`` false) it fixes the mission start ``start_s = now + start_delay_s`` in
-the same message: scenario time is ``now - start_s`` for every node. It also publishes markers
-for RViz/Foxglove.
+the same message: scenario time is ``now - start_s`` for every node. At ``encounter_rate_hz`` it
+arbitrates robot-robot encounters over all robots together (core/arbiter.py: the simulator's
+``decide`` on every robot's broadcast state, the robots' reported obstacle modes taken as given)
+and publishes the yield/mutual assignments on ``/formation/encounters`` (on change with a new
+revision, and every ``republish_s``); each controller applies its own as an override of its local
+decision. It also publishes markers for RViz/Foxglove.
 
 Topics (QoS from ros/qos.py)
   sub  robot_<id>/state     nav_msgs/Odometry                               QOS_CONTROL
   sub  robot_<id>/mode      std_msgs/String JSON {mode, target, direction, avoiding}  QOS_CONTROL
   pub  /formation/graph     std_msgs/String JSON {revision, parents, offsets_m, avoiding,
                             stamp_s, start_s}                                QOS_GRAPH
+  pub  /formation/encounters  std_msgs/String JSON {revision, stamp_s, assignments: {"<id>":
+                            {mode: yield|mutual, partner, direction (+1 CCW, -1 CW), t_entry_s
+                            (scenario time), drift_mps [wx, wy] or null}}}   QOS_GRAPH
   pub  /formation/markers   visualization_msgs/MarkerArray (robots, P/L/Q ellipses, edges)  QOS_MARKERS
 
 Parameters
@@ -21,6 +29,7 @@ Parameters
   wait_for_robots   bool   wait for every robot's state before starting       default true
   markers_rate_hz   float  marker publication rate [Hz] (0: none)             default 5.0
   republish_s       float  graph re-publication period [s]                    default 1.0
+  encounter_rate_hz float  S7 arbitration rate [Hz] (0: no arbitration)       default 50.0
 """
 from __future__ import annotations
 
@@ -34,6 +43,7 @@ from rclpy.node import Node
 from std_msgs.msg import String
 from visualization_msgs.msg import MarkerArray
 
+from ament_formation.core.arbiter import EncounterArbiter
 from ament_formation.core.errors import ConfigError
 from ament_formation.core.graph import FormationGraph
 from ament_formation.core.obstacles import ObstacleField
@@ -50,6 +60,7 @@ class CoordinatorParams:
     wait_for_robots: bool = True
     markers_rate_hz: float = 5.0
     republish_s: float = 1.0
+    encounter_rate_hz: float = 50.0
 
     def __post_init__(self) -> None:
         if not self.scenario:
@@ -60,6 +71,8 @@ class CoordinatorParams:
             raise ConfigError(f"must be in [0, 100] Hz (got {self.markers_rate_hz!r})", "markers_rate_hz")
         if not (math.isfinite(self.republish_s) and self.republish_s > 0):
             raise ConfigError(f"must be > 0 s (got {self.republish_s!r})", "republish_s")
+        if not (math.isfinite(self.encounter_rate_hz) and 0.0 <= self.encounter_rate_hz <= 1000.0):
+            raise ConfigError(f"must be in [0, 1000] Hz (got {self.encounter_rate_hz!r})", "encounter_rate_hz")
 
 
 def is_avoiding(mode: dict) -> bool:
@@ -86,9 +99,13 @@ class CoordinatorNode(Node):
         self.parents = self.graph.rewire(())
         self.start_s: float | None = None
         self.history: list[msgs.GraphMessage] = []
+        self.arbiter = EncounterArbiter(self.scenario)
+        self.assignments: dict = {}
+        self.encounter_revision = 0
 
         self.pub_graph = self.create_publisher(String, "/formation/graph", QOS_GRAPH)
         self.pub_markers = self.create_publisher(MarkerArray, "/formation/markers", QOS_MARKERS)
+        self.pub_encounters = self.create_publisher(String, "/formation/encounters", QOS_GRAPH)
         for rid in self.ids:
             self.create_subscription(msgs.Odometry, f"/robot_{rid}/state",
                                      lambda m, rid=rid: self._on_state(rid, m), QOS_CONTROL)
@@ -98,6 +115,9 @@ class CoordinatorNode(Node):
             self.start_s = self.now_s() + self.prm.start_delay_s
         self._publish_graph()
         self.create_timer(self.prm.republish_s, self._republish)
+        self._publish_encounters(new_revision=True)
+        if self.prm.encounter_rate_hz > 0:
+            self.create_timer(1.0 / self.prm.encounter_rate_hz, self._arbitrate)
         if self.prm.markers_rate_hz > 0:
             self.create_timer(1.0 / self.prm.markers_rate_hz, self._publish_markers)
 
@@ -144,6 +164,24 @@ class CoordinatorNode(Node):
     def _republish(self) -> None:
         """Same revision again (a controller that missed it catches up)."""
         self.pub_graph.publish(msgs.graph_msg(self.current_graph()))
+        self._publish_encounters(new_revision=False)
+
+    def _arbitrate(self) -> None:
+        """S7 over all robots (core/arbiter.py); publish the assignments when they change."""
+        now = self.now_s()
+        if self.start_s is None or now < self.start_s:
+            return
+        assignments = self.arbiter.decide(now - self.start_s, self.states, self.modes)
+        key = lambda d: {k: (a.mode, a.partner, a.direction, a.t_entry_s) for k, a in d.items()}
+        if key(assignments) != key(self.assignments):   # a new decision (not a w_c update)
+            self.assignments = assignments
+            self._publish_encounters(new_revision=True)
+
+    def _publish_encounters(self, new_revision: bool) -> None:
+        if new_revision:
+            self.encounter_revision += 1
+        self.pub_encounters.publish(msgs.encounters_msg(self.encounter_revision, self.assignments,
+                                                        self.now_s()))
 
     def _publish_markers(self) -> None:
         stamp = msgs.stamp_from_s(self.now_s())

@@ -239,6 +239,37 @@ def graph_from_msg(msg: String) -> GraphMessage:
 
 
 # --------------------------------------------------------------------------- image
+def encounters_msg(revision: int, assignments: dict, stamp_s: float) -> String:
+    """std_msgs/String JSON of /formation/encounters: {revision, stamp_s, assignments: {id: {mode,
+    partner, direction, t_entry_s, drift_mps}}} from {robot id: EncounterAssignment} (S7)."""
+    return String(data=json.dumps({
+        "revision": int(revision), "stamp_s": float(stamp_s),
+        "assignments": {str(k): {"mode": a.mode, "partner": int(a.partner), "direction": float(a.direction),
+                                 "t_entry_s": None if a.t_entry_s is None else float(a.t_entry_s),
+                                 "drift_mps": None if a.drift_mps is None else [float(v) for v in a.drift_mps]}
+                        for k, a in sorted(assignments.items())}}, sort_keys=True))
+
+
+def encounters_from_msg(msg: String) -> tuple[int, dict]:
+    """(revision, {robot id: EncounterAssignment}); ValueError naming the problem on bad input."""
+    from ament_formation.core.controller import EncounterAssignment
+    from ament_formation.core.errors import ConfigError
+
+    try:
+        data = json.loads(msg.data)
+        out = {}
+        for k, a in data["assignments"].items():
+            drift = a.get("drift_mps")
+            out[int(k)] = EncounterAssignment(
+                str(a["mode"]), int(a["partner"]), float(a.get("direction", 1.0)),
+                None if a.get("t_entry_s") is None else float(a["t_entry_s"]),
+                None if drift is None else (float(drift[0]), float(drift[1])))
+        return int(data["revision"]), out
+    except (json.JSONDecodeError, KeyError, TypeError, ValueError, IndexError, AttributeError,
+            ConfigError) as err:
+        raise ValueError(f"encounters: malformed ({type(err).__name__}: {err})") from None
+
+
 def image_mono8(pixels: np.ndarray, stamp: Time, frame_id: str = "camera") -> Image:
     """sensor_msgs/Image (mono8) from a (H, W) uint8 array."""
     if pixels.ndim != 2 or pixels.dtype != np.uint8:
