@@ -145,3 +145,50 @@ def test_killing_the_controller_process_zeroes_the_board(ros_context, executor, 
         for n in (coord, tracker, bridge, world):
             executor.remove_node(n)
             n.destroy_node()
+
+
+def test_head_on_encounter_through_the_nodes(ros_context, executor, tmp_path):
+    """Two one-robot teams drive toward each other on a line (test/data/head_on.yaml): the
+    coordinator assigns the mutual pair on /formation/encounters (S7), both controllers resolve it,
+    and the ground truth keeps them apart (> R_aa = 0.25 m between the controlled points)."""
+    import rclpy
+    from std_msgs.msg import String
+
+    from ament_formation.ros.system import build_system
+
+    system = build_system(ros_context, DATA / "head_on.yaml", executor, pty_dir=tmp_path / "pty",
+                          start_delay_s=0.5, speed_factor=0.5, bridge_poll_rate_hz=200.0)
+    probe = rclpy.create_node("_probe_enc", context=ros_context)
+    encounters = []
+    probe.create_subscription(String, "/formation/encounters",
+                              lambda msg: encounters.append(m.encounters_from_msg(msg)), QOS_GRAPH)
+    executor.add_node(probe)
+    samples = []
+
+    def finished():
+        w = system.world
+        samples.append((w.plant_time_s, w.twin.state[:, :2].copy()))
+        return w.done
+
+    try:
+        assert spin_until(executor, finished, 60.0), "the world did not finish the scenario"
+    finally:
+        executor.remove_node(probe)
+        probe.destroy_node()
+        system.destroy(executor)
+    start_s = system.world.start_s
+    t = np.array([s[0] for s in samples]) - start_s
+    x = np.stack([s[1] for s in samples])[t >= 0.0]
+    dist = np.hypot(*(x[:, 0] - x[:, 1]).T)
+    print(f"head-on: min distance {dist.min():.3f} m, end distance {dist[-1]:.3f} m")
+    assert dist.min() > 0.25
+    assert x[-1, 0, 0] > x[-1, 1, 0] + 0.2             # they passed: robot 0 ended up east of robot 1
+    pairs = [a for _, a in encounters if a]
+    assert pairs, "the coordinator never assigned an encounter"
+    a0, a1 = pairs[0][0], pairs[0][1]
+    assert (a0.mode, a0.partner, a1.mode, a1.partner) == ("mutual", 1, "mutual", 0)
+    assert a0.t_entry_s == a1.t_entry_s
+    assert encounters[-1][1] == {}                     # released after the joint exit
+    ev = {rid: [(e["event"], e["mode"], e["target"]) for e in c.events] for rid, c in system.controllers.items()}
+    assert ev[0][:1] == [("enter", "mutual", "robot_1")] and ev[1][:1] == [("enter", "mutual", "robot_0")], ev
+    assert ev[0][-1][0] == "exit" and ev[1][-1][0] == "exit", ev

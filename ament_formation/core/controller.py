@@ -354,6 +354,11 @@ class RobotController:
                 events.append({"t_s": t_s, "robot": self.robot_id, "event": "enter",
                                "mode": MODE_NAMES[new_mode], "target": f"robot_{assignment.partner}",
                                "direction": "ccw" if st.sdir[me] > 0 else "cw"})
+            elif new_mode == MODE_MUTUAL and assignment.drift_mps is not None:
+                # the pair's w_c is the coordinator's (it knows both goals): common to both robots,
+                # so z_dot = F(z) holds exactly (S7); the own relaxation would use a guessed goal
+                st.wc[me] = np.asarray(assignment.drift_mps, dtype=float)
+                st.wtgt[me] = st.wc[me]
 
         # the law (S3.2 with the mode's field)
         parent_row = np.full(n, -1, dtype=np.int64)
