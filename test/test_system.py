@@ -150,7 +150,8 @@ def test_killing_the_controller_process_zeroes_the_board(ros_context, executor, 
 def test_head_on_encounter_through_the_nodes(ros_context, executor, tmp_path):
     """Two one-robot teams drive toward each other on a line (test/data/head_on.yaml): the
     coordinator assigns the mutual pair on /formation/encounters (S7), both controllers resolve it,
-    and the ground truth keeps them apart (> R_aa = 0.25 m between the controlled points)."""
+    BOTH leave it again (back to coordination; the coordinator's release forces the joint exit,
+    S8.3), and the ground truth keeps them apart (> R_aa = 0.25 m between the controlled points)."""
     import rclpy
     from std_msgs.msg import String
 
@@ -191,4 +192,15 @@ def test_head_on_encounter_through_the_nodes(ros_context, executor, tmp_path):
     assert encounters[-1][1] == {}                     # released after the joint exit
     ev = {rid: [(e["event"], e["mode"], e["target"]) for e in c.events] for rid, c in system.controllers.items()}
     assert ev[0][:1] == [("enter", "mutual", "robot_1")] and ev[1][:1] == [("enter", "mutual", "robot_0")], ev
+    # BOTH robots leave the pair (own S8.3 test or the coordinator's joint release) and end in
+    # coordination, after the coordinator assigned it
+    exits = {rid: [e["t_s"] for e in c.events if (e["event"], e["mode"]) == ("exit", "mutual")]
+             for rid, c in system.controllers.items()}
+    print(f"head-on: mutual exits robot 0 at {exits[0]}, robot 1 at {exits[1]} s")
     assert ("exit", "mutual", "robot_1") in ev[0], ev
+    assert ("exit", "mutual", "robot_0") in ev[1], ev
+    for rid, c in system.controllers.items():
+        assert c.law.mode == "coordination", (rid, c.law.mode, ev[rid])
+        assert c.mode["mode"] in ("coordination", "hold"), (rid, c.mode)
+        assert exits[rid] and exits[rid][0] > pairs[0][rid].t_entry_s + 1.0   # T_min (S8.3)
+    assert abs(exits[0][0] - exits[1][0]) < 1.0, exits      # jointly (S8.3), up to the network

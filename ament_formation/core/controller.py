@@ -15,7 +15,8 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from ament_formation.core.automaton import (
-    MODE_C, MODE_MUTUAL, MODE_NAMES, MODE_OBSTACLE, MODE_YIELD, AutomatonState, SwitchingParams,
+    MODE_C, MODE_MUTUAL, MODE_NAMES, MODE_OBSTACLE, MODE_YIELD, P_EM, P_KEEPOUT_MARGIN,
+    AutomatonState, SwitchingParams,
 )
 from ament_formation.core.dynamics import PlantCoeffs
 from ament_formation.core.encounters import decide
@@ -38,6 +39,9 @@ class NeighbourState:
     team leader id (S14.3 teammate rule; None = own team unknown, treated as another team);
     ``mode`` its reported mode name (``coordination|obstacle|yield|mutual``) and ``target`` its
     reported target (obstacle name or ``robot_<id>``), used for the S7 acyclicity rule.
+    ``goal_m`` (2,) / ``goal_dot_mps`` (2,): its S8.3 goal g_k and g_k_dot when known (leader:
+    r(t), r_dot(t); follower: p of its original parent + delta), used for its side of the joint
+    exit test of a mutual pair and for its V_c; None: unknown, taken as its position and velocity.
     """
 
     state_m: np.ndarray
@@ -47,8 +51,20 @@ class NeighbourState:
     mode: str = "coordination"
     target: str | None = None
     com_offset_m: float = 0.05
+    goal_m: np.ndarray | None = None
+    goal_dot_mps: np.ndarray | None = None
 
     def __post_init__(self) -> None:
+        for name in ("goal_m", "goal_dot_mps"):
+            val = getattr(self, name)
+            if val is None:
+                continue
+            arr = np.asarray(val, dtype=float).reshape(-1)
+            if arr.shape != (2,) or not np.all(np.isfinite(arr)):
+                raise ConfigError(f"must be 2 finite numbers (got {val!r})", name)
+            object.__setattr__(self, name, arr)
+        if self.goal_dot_mps is not None and self.goal_m is None:
+            raise ConfigError("needs goal_m", "goal_dot_mps")
         st = np.asarray(self.state_m, dtype=float).reshape(-1)
         if st.shape != (5,) or not np.all(np.isfinite(st)):
             raise ConfigError(f"must be 5 finite numbers (got {self.state_m!r})", "state_m")
@@ -129,7 +145,7 @@ class RobotController:
     Per control period
     ------------------
     ``step(t_s, own_state, *, parent=None, original_parent=None, neighbours=None, obstacles=None,
-    assignment=None) -> ControlOutput``
+    assignment=None, release=None) -> ControlOutput``
       * ``own_state`` (5,) own estimate [x_m, y_m, theta_rad, v_mps, omega_radps];
       * ``parent``: :class:`NeighbourState` of the current parent (state + commanded accel, used for
         the S4 follower field with feed-forward); ``original_parent``: of pi0 (exit test; may be the
@@ -141,6 +157,11 @@ class RobotController:
         robot's own robot-robot decision (an obstacle avoidance in progress is kept: static
         obstacles beat robots, S7). Without it the controller arbitrates robot encounters itself
         with the same rules as the simulator, over the robots it hears.
+      * ``release``: id of a robot whose coordinator assignment (yield to it / mutual with it) was
+        withdrawn: the coordinator decided the exit (mutual pairs exit jointly, S8.3), so the
+        robot leaves that encounter now (event ``exit``, cool-down S8.4) -- unless it is inside
+        the partner's emergency circle (h_em < 0, S8.3 item 2): then it stays and the caller
+        repeats the release at the next step. Ignored when the robot is not in that encounter.
       The automaton decides every ``switching.decision_period_s``; the law runs at every call.
     ``mode`` / ``target`` / ``direction`` properties: the current mode (names as in ControlOutput).
     """
@@ -213,7 +234,8 @@ class RobotController:
              original_parent: NeighbourState | None = None,
              neighbours: Mapping[int, NeighbourState] | None = None,
              obstacles: ObstacleStates | None = None,
-             assignment: EncounterAssignment | None = None) -> ControlOutput:
+             assignment: EncounterAssignment | None = None,
+             release: int | None = None) -> ControlOutput:
         """One control period: (maybe) decide, then the law. See the class docstring."""
         own = np.asarray(own_state, dtype=float).reshape(-1)
         if own.shape != (5,) or not np.all(np.isfinite(own)):
@@ -314,10 +336,15 @@ class RobotController:
         if self._orig_parent is not None:
             orig_parent[me] = row[self._orig_parent]
             orig_offset[me] = self._orig_offset
-        for rid, q in row.items():            # others: goal = own position (unknown goals)
+        for rid, q in row.items():            # others: their goal when known, else their position
             if q != me:
-                ref[q, 0:2] = x[q, 0:2]
-                ref[q, 2:4] = pd[q]
+                nb = others[rid]
+                if nb.goal_m is not None:
+                    ref[q, 0:2] = nb.goal_m
+                    ref[q, 2:4] = 0.0 if nb.goal_dot_mps is None else nb.goal_dot_mps
+                else:
+                    ref[q, 0:2] = x[q, 0:2]
+                    ref[q, 2:4] = pd[q]
         goal = np.zeros((n, 2))
         goal_dot = np.zeros((n, 2))
         vc = np.zeros((n, 2))
@@ -339,6 +366,22 @@ class RobotController:
                                    "mode": MODE_NAMES[md],
                                    "target": self._target_name(md, ids[tg] if md != MODE_OBSTACLE else tg),
                                    "direction": "ccw" if r_[5] > 0 else "cw"})
+        if (release is not None and st.mode[me] in (MODE_YIELD, MODE_MUTUAL)
+                and ids[int(st.tgt[me])] == int(release)):
+            k = int(st.tgt[me])
+            # S8.3 item 2: never leave inside the partner's emergency circle E (rho_em R_aa, S7)
+            r_em = self._prm[P_EM] * (rbody[me] + rbody[k] + self._prm[P_KEEPOUT_MARGIN])
+            h_em = ((x[me, 0] - x[k, 0]) ** 2 + (x[me, 1] - x[k, 1]) ** 2) / r_em ** 2 - 1.0
+            if h_em >= 0.0:
+                events.append({"t_s": t_s, "robot": self.robot_id, "event": "exit",
+                               "mode": MODE_NAMES[int(st.mode[me])], "target": f"robot_{ids[k]}",
+                               "direction": "ccw" if st.sdir[me] > 0 else "cw"})
+                st.last_kind[me] = 2                # S8.4 cool-down record (robot target)
+                st.last_tgt[me] = k
+                st.last_exit[me] = t_s
+                st.mode[me] = MODE_C
+                st.tgt[me] = -1
+                st.since[me] = -1.0
         if assignment is not None and st.mode[me] != MODE_OBSTACLE:
             k = row.get(int(assignment.partner))
             if k is None:

@@ -8,7 +8,11 @@ scenario (``state``, ``accel``, ``mode``): the current parent is the one of ``/f
 (S4 field with feed-forward), the original parent gives the S8.3 exit goal, and every robot is a
 possible robot-robot threat (S7). The coordinator's assignment for this robot on
 ``/formation/encounters`` overrides the robot's own robot-robot decision; it is applied once per
-decision (same mode, partner, t_entry_s), and the robot leaves it with its own S8.3 exit test.
+decision (same mode, partner, t_entry_s). The robot leaves it with its own S8.3 exit test, or when
+the coordinator withdraws it (the coordinator's joint exit decision, S8.3: mutual pairs exit
+together; RobotController ``release``, never inside the partner's emergency circle). Every other
+robot's S8.3 goal is derived from the scenario (leader: r(t); follower: its original parent's
+point + slot offset), so the robot's own exit test sees the partner's goal too.
 Without the coordinator the controller arbitrates robot encounters itself with the same rules.
 Safety (DESIGN §7): no pose for ``pose_timeout_s`` or no wheel data for
 ``wheel_timeout_s`` -> controlled stop (brake to rest, then zero torque); a parent silent for
@@ -145,6 +149,12 @@ class ControllerNode(Node):
                                    leader_path=spec.path if spec.leader else None,
                                    team=sc.team_leader(self.rid))
         fgraph = FormationGraph.from_scenario(sc)
+        # every robot's S8.3 goal source: leader path, or (original parent, delta) (S8.3 item 1)
+        self.goal_source = {}
+        for r in sc.robots:
+            p0 = fgraph.original_parent.get(r.id)
+            self.goal_source[r.id] = ((r.path, None, None) if p0 is None else
+                                      (None, p0, np.asarray(fgraph.offset(r.id, p0), dtype=float)))
         self.start_s: float | None = None
         self.graph: msgs.GraphMessage | None = None
         self.parent: _Neighbour | None = None
@@ -290,6 +300,22 @@ class ControllerNode(Node):
         x[:2] = x[:2] + pdot * dt + 0.5 * nb.accel * dt * dt
         return x
 
+    def _goal_of(self, rid: int, t_s: float, known: dict) -> tuple:
+        """(g, g_dot) of robot ``rid`` at scenario time ``t_s`` (S8.3 item 1), each (2,) [m], [m/s]:
+        a leader's r(t), r_dot(t); a follower's original parent point + delta and that point's
+        velocity; (None, None) when its original parent is not heard."""
+        path, p0, offset = self.goal_source[rid]
+        if path is not None:
+            r, rd, _ = path.reference(t_s)
+            return np.asarray(r, dtype=float), np.asarray(rd, dtype=float)
+        xp = known.get(p0)
+        if xp is None:
+            return None, None
+        d = self.scenario.robot(p0).params.com_offset_m
+        th, v, w = xp[2], xp[3], xp[4]
+        pdot = np.array([v * math.cos(th) - d * w * math.sin(th), v * math.sin(th) + d * w * math.cos(th)])
+        return xp[:2] + offset, pdot
+
     # ------------------------------------------------------------------ control loop
     def _control(self) -> None:
         now = self.now_s()
@@ -327,13 +353,21 @@ class ControllerNode(Node):
             return
         self._safety("running")
         heard: dict[int, NeighbourState] = {}
+        known = {self.rid: state}
         for k, nb in self.neighbours.items():
             xk = parent_state if nb is self.parent else self._neighbour_now(nb, now)
             if xk is not None:
-                rk = self.scenario.robot(k).params
-                heard[k] = NeighbourState(xk, nb.accel, body_radius_m=rk.body_radius_m,
-                                          team=self.scenario.team_leader(k), mode=nb.mode,
-                                          target=nb.target, com_offset_m=rk.com_offset_m)
+                known[k] = xk
+        for k, xk in known.items():
+            if k == self.rid:
+                continue
+            nb = self.neighbours[k]
+            rk = self.scenario.robot(k).params
+            goal, goal_dot = self._goal_of(k, t, known)
+            heard[k] = NeighbourState(xk, nb.accel, body_radius_m=rk.body_radius_m,
+                                      team=self.scenario.team_leader(k), mode=nb.mode,
+                                      target=nb.target, com_offset_m=rk.com_offset_m,
+                                      goal_m=goal, goal_dot_mps=goal_dot)
         orig_state = None
         if self.orig_parent_id is not None:
             orig_state = heard.get(self.orig_parent_id)
@@ -345,8 +379,15 @@ class ControllerNode(Node):
             key = (assignment.mode, assignment.partner, assignment.t_entry_s)
             if key in self._done or assignment.partner not in heard:
                 assignment = None
+        # the coordinator withdrew (or replaced) the assignment in force: its joint exit (S8.3)
+        withdrawn = self._applied is not None and key != self._applied
+        release = self._applied[1] if withdrawn else None
         out = self.law.step(t, state, parent=None if self.parent is None else heard[self.parent.rid],
-                            original_parent=orig_state, neighbours=heard, assignment=assignment)
+                            original_parent=orig_state, neighbours=heard, assignment=assignment,
+                            release=release)
+        if withdrawn and (out.mode, out.target) != (self._applied[0], f"robot_{self._applied[1]}"):
+            self._done.add(self._applied)              # left on the coordinator's release
+            self._applied = None
         if assignment is not None:
             self._applied = key
         if self._applied is not None and (out.mode, out.target) != (self._applied[0], f"robot_{self._applied[1]}"):
