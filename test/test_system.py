@@ -197,8 +197,8 @@ def test_head_on_encounter_through_the_nodes(ros_context, executor, tmp_path):
     exits = {rid: [e["t_s"] for e in c.events if (e["event"], e["mode"]) == ("exit", "mutual")]
              for rid, c in system.controllers.items()}
     print(f"head-on: mutual exits robot 0 at {exits[0]}, robot 1 at {exits[1]} s")
-    assert ("exit", "mutual", "robot_1") in ev[0], ev
-    assert ("exit", "mutual", "robot_0") in ev[1], ev
+    assert ev[0] == [("enter", "mutual", "robot_1"), ("exit", "mutual", "robot_1")], ev
+    assert ev[1] == [("enter", "mutual", "robot_0"), ("exit", "mutual", "robot_0")], ev
     for rid, c in system.controllers.items():
         assert c.law.mode == "coordination", (rid, c.law.mode, ev[rid])
         assert c.mode["mode"] in ("coordination", "hold"), (rid, c.mode)

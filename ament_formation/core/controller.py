@@ -382,7 +382,10 @@ class RobotController:
                 st.mode[me] = MODE_C
                 st.tgt[me] = -1
                 st.since[me] = -1.0
-        if assignment is not None and st.mode[me] != MODE_OBSTACLE:
+        left_now = {(e["mode"], e["target"]) for e in events if e["event"] == "exit"}
+        if (assignment is not None and st.mode[me] != MODE_OBSTACLE
+                and (assignment.mode, f"robot_{assignment.partner}") not in left_now):
+            # (an encounter the robot left at this very decision, S8.3, is not re-entered)
             k = row.get(int(assignment.partner))
             if k is None:
                 raise ValueError(f"assignment: partner {assignment.partner} is not a known robot")
