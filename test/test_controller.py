@@ -147,3 +147,64 @@ def test_per_robot_controllers_on_the_plant_twin_reproduce_the_simulators_mode_e
     err_fol = np.hypot(*(twin.state[1, :2] - twin.state[0, :2] - [0.0, 1.2]))
     assert err_lead < 0.02 and err_fol < 0.01
     assert peak <= r0.params.torque_limit_nm
+
+
+def test_release_ends_an_assigned_encounter_but_never_inside_the_emergency_circle():
+    """The coordinator withdraws a mutual assignment (its joint exit, S8.3): ``release`` ends the
+    encounter at once (event, S8.4 cool-down record) -- but not while the robot is inside the
+    partner's emergency circle (h_em < 0: rho_em R_aa = 1.05 * 0.25 m), where it stays."""
+    sc = load_scenario(config_file("scenarios/paper.yaml"))
+    p = sc.robots[0].params
+    c = RobotController(3, p, sc.control, sc.avoidance, (), team=3)
+    mutual = EncounterAssignment("mutual", 7, t_entry_s=1.0, drift_mps=(0.0, 0.0))
+    me = np.array([0.0, 0.0, 0.0, 0.0, 0.0])
+    close = NeighbourState(np.array([0.25, 0.0, np.pi, 0.0, 0.0]), team=7, mode="mutual", target="robot_3")
+    out = c.step(1.0, me, neighbours={7: close}, assignment=mutual)
+    assert (out.mode, out.target) == ("mutual", "robot_7")
+    # inside E (0.25 m < 0.2625 m): the release is refused, the robot stays in the pair
+    out = c.step(1.01, me, neighbours={7: close}, release=7)
+    assert (out.mode, out.target) == ("mutual", "robot_7") and out.events == ()
+    # a release naming another robot is ignored
+    far = NeighbourState(np.array([0.27, 0.0, np.pi, 0.0, 0.0]), team=7, mode="mutual", target="robot_3")
+    out = c.step(1.02, me, neighbours={7: far, 9: NeighbourState(np.array([5.0, 5, 0, 0, 0]))}, release=9)
+    assert out.mode == "mutual"
+    # just outside E (0.27 m): it leaves, with an exit event and the robot cool-down record
+    out = c.step(1.03, me, neighbours={7: far}, release=7)
+    assert (out.mode, out.target, out.direction) == ("coordination", None, None)
+    assert [(e["event"], e["mode"], e["target"]) for e in out.events] == [("exit", "mutual", "robot_7")]
+    assert (c._state.last_kind[0], c._state.last_tgt[0], c._state.last_exit[0]) == (2, 7, 1.03)
+    # the same withdrawn assignment is not re-entered from a stale copy in the same decision
+    c2 = RobotController(3, p, sc.control, sc.avoidance, (), team=3)
+    c2.step(1.0, me, neighbours={7: close}, assignment=mutual)
+    out = c2.step(1.03, me, neighbours={7: far}, assignment=mutual, release=7)
+    assert out.mode == "coordination"      # left at this decision: not re-entered from the copy
+    assert [e["event"] for e in out.events] == ["exit"]
+
+
+def test_neighbour_goal_feeds_the_partners_side_of_the_exit_test():
+    """The partner's goal (``goal_m``) enters its side of the joint S8.3 exit test: a partner
+    that has moved away but whose goal lies beyond this robot (segment [p_k, g_k] crosses the
+    robot's circle, item 1) keeps the pair; with its goal unknown (= its position) the pair exits."""
+    sc = load_scenario(config_file("scenarios/paper.yaml"))
+    p = sc.robots[0].params
+
+    def run(with_goal: bool):
+        c = RobotController(0, p, sc.control, sc.avoidance, (), team=0,
+                            leader_path=sc.robots[0].path)
+        r, rd, _ = sc.robots[0].path.reference(5.0)
+        # me at my goal, moving along; partner 0.6 m behind me, moving away from me
+        me = np.array([r[0], r[1], math.atan2(rd[1], rd[0]), float(np.hypot(*rd)), 0.0])
+        back = -np.asarray(rd) / np.hypot(*rd)
+        xk = np.array([r[0] + 0.6 * back[0], r[1] + 0.6 * back[1], math.atan2(back[1], back[0]), 0.08, 0.0])
+        goal = (r - 2.0 * back) if with_goal else None          # 2 m beyond me
+        nb = NeighbourState(xk, team=5, mode="mutual", target="robot_0",
+                            goal_m=goal, goal_dot_mps=None if goal is None else np.zeros(2))
+        c.step(3.0, me, neighbours={5: nb}, assignment=EncounterAssignment("mutual", 5, t_entry_s=3.0))
+        return [c.step(3.0 + 0.01 * k, me, neighbours={5: nb}).mode   # T_min 1 s, T_dwell 0.3 s
+                for k in range(1, 160)]
+
+    with_goal, without = run(True), run(False)
+    assert without[-1] == "coordination" and "coordination" not in without[:95]   # not before T_min
+    assert set(with_goal) == {"mutual"}
+    with pytest.raises(Exception, match="goal_m"):
+        NeighbourState(np.zeros(5), goal_m=(np.nan, 0.0))
