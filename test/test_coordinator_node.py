@@ -74,9 +74,11 @@ def test_redundant_edge_rewiring_seen_on_graph(ros_context, executor):
     assert restored.revision == avoid.revision + 1
     assert restored.parents == first.parents
 
-    # markers: P/L/Q ellipse of the obstacle, four robots (disc + arrow), one edge list with 3 edges
-    assert spin_until(executor, lambda: any(len(a.markers) == 3 + 8 + 1 for a in markers), 5.0)
-    arr = [a for a in markers if len(a.markers) == 12][-1]
+    # markers drawn after the restoration: P/L/Q ellipse of the obstacle, four robots (disc +
+    # arrow), one edge list with the 3 edges of the original tree
+    n_before = len(markers)
+    assert spin_until(executor, lambda: any(len(a.markers) == 3 + 8 + 1 for a in markers[n_before:]), 5.0)
+    arr = [a for a in markers[n_before:] if len(a.markers) == 12][-1]
     edges = [mk for mk in arr.markers if mk.ns == "graph_edges"][0]
     assert len(edges.points) == 2 * 3
     fake.destroy_node()
