@@ -154,13 +154,12 @@ def node_processes(scenario_path: Path, pty_dir: Path, log_dir: Path) -> list[su
 def latency_multi_process(seconds: float, tmp: Path) -> np.ndarray:
     import rclpy
     from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
-
     from ament_formation.nodes.world import WorldNode, WorldParams
+    from ament_formation.ros.executors import make_executor
 
     ctx = Context()
     rclpy.init(context=ctx)
-    ex = SingleThreadedExecutor(context=ctx)
+    ex = make_executor(context=ctx)
     pty_dir = tmp / "pty_lat"
     world = WorldNode(context=ctx, params=WorldParams(scenario=str(SCENARIO), pty_dir=str(pty_dir)))
     log: list = []
@@ -203,15 +202,14 @@ def robot_count(n: int, seconds: float, tmp: Path) -> dict:
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
-
     from ament_formation.nodes.world import WorldNode, WorldParams
+    from ament_formation.ros.executors import make_executor
     from ament_formation.ros.qos import QOS_DIAGNOSTICS
 
     scenario = line_scenario(n, tmp / f"line_{n}.yaml")
     ctx = Context()
     rclpy.init(context=ctx)
-    ex = SingleThreadedExecutor(context=ctx)
+    ex = make_executor(context=ctx)
     pty_dir = tmp / f"pty_{n}"
     world = WorldNode(context=ctx, params=WorldParams(scenario=str(scenario), pty_dir=str(pty_dir)))
     diag: dict[str, dict] = {}
@@ -254,8 +252,17 @@ def main() -> int:
     ap.add_argument("--quick", action="store_true", help="shorter windows, fewer robot counts")
     ap.add_argument("--counts", type=int, nargs="*", default=None, help="robot counts to try")
     ap.add_argument("--skip-latency", action="store_true", help="only the robot-count table")
+    ap.add_argument("--dds", choices=("udp", "shm"), default="shm",
+                    help="Fast DDS profile: udp = config/fastdds_localhost.xml (loopback UDP only), "
+                         "shm = config/fastdds_localhost_shm.xml (shared memory + loopback UDP)")
+    ap.add_argument("--executor", choices=("events", "single"), default="events",
+                    help="executor of the node processes and of the world (ros/executors.py)")
     args = ap.parse_args()
     tmp = Path(tempfile.mkdtemp(prefix="ament_formation_bench_"))
+    profile = "fastdds_localhost_shm.xml" if args.dds == "shm" else "fastdds_localhost.xml"
+    os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(ROOT / "config" / profile)
+    os.environ["AMENT_FORMATION_EXECUTOR"] = args.executor
+    print(f"DDS profile {profile}; executor {args.executor}")
     loopback_env(tmp / "ros_log")
     window = 5.0 if args.quick else 12.0
     wire_ms = 1e3 * 10 * 10 / 115200   # one 10-byte torque frame at 115200 baud, 10 bits/byte

@@ -33,6 +33,7 @@ from sensor_msgs.msg import JointState
 from ament_formation.core import serial_link as sl
 from ament_formation.core.errors import ConfigError
 from ament_formation.ros import diagnostics as diag
+from ament_formation.ros.executors import spin_node
 from ament_formation.ros.messages import wheel_state
 from ament_formation.ros.params import declare_dataclass
 from ament_formation.ros.qos import QOS_CONTROL, QOS_DIAGNOSTICS
@@ -181,7 +182,7 @@ def main(args=None) -> int:
     node = None
     try:
         node = BridgeNode()
-        rclpy.spin(node)
+        spin_node(node)
     except ConfigError as err:
         print(f"formation_bridge: {err}", file=sys.stderr)
         return 2

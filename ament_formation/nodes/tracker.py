@@ -55,6 +55,7 @@ from ament_formation.core.paths_config import config_file
 from ament_formation.core.robot_marker import MarkerLayout
 from ament_formation.ros import diagnostics as diag
 from ament_formation.ros.image import image_to_mono8, numpy_to_image
+from ament_formation.ros.executors import spin_node
 from ament_formation.ros.messages import pose_stamped, stamp_to_s
 from ament_formation.ros.params import declare_dataclass
 from ament_formation.ros.qos import QOS_CONTROL, QOS_DIAGNOSTICS, QOS_IMAGE
@@ -314,7 +315,7 @@ def main(args=None) -> int:
     node = None
     try:
         node = TrackerNode()
-        rclpy.spin(node)
+        spin_node(node)
     except ConfigError as err:
         print(f"formation_tracker: {err}", file=sys.stderr)
         return 2

@@ -50,6 +50,7 @@ from ament_formation.core.synthetic_camera import Obstacles, RenderOptions, Synt
 from ament_formation.core.twin import PlantTwin
 from ament_formation.hw.pty_board import PtyBoard
 from ament_formation.ros import messages as msgs
+from ament_formation.ros.executors import make_executor
 from ament_formation.ros.params import declare_dataclass
 from ament_formation.ros.qos import QOS_CLOCK, QOS_CONTROL, QOS_GRAPH, QOS_IMAGE
 
@@ -226,8 +227,10 @@ def main(argv: list[str] | None = None) -> int:
     node = None
     try:
         node = WorldNode()
+        executor = make_executor(node, context=node.context)
+        executor.add_node(node)
         while rclpy.ok() and not node.done:
-            rclpy.spin_once(node, timeout_sec=0.1)
+            executor.spin_once(timeout_sec=0.1)
         return 0
     except ConfigError as err:
         print(f"formation_world: {err}", file=sys.stderr)
