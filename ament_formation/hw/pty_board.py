@@ -182,3 +182,67 @@ class PtyBoard:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+class PtyBoardGroup:
+    """Run the ``step`` of several :class:`PtyBoard` from ONE thread (instead of one thread each).
+
+    The thread waits with ``select`` on every open pty and wake-up pipe; a board is stepped when
+    its host wrote bytes, and every board is stepped at least every ``step_period_s``. One thread
+    for N boards keeps the wake-ups of a many-robot world at 1 / step_period_s + the command rate
+    instead of N times that.
+    """
+
+    def __init__(self, boards: list[PtyBoard], step_period_s: float = 0.005) -> None:
+        if not step_period_s > 0:
+            raise ValueError(f"step_period_s: must be > 0 s (got {step_period_s!r})")
+        self.boards = list(boards)
+        self.step_period_s = float(step_period_s)
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def start(self) -> None:
+        if self._thread is not None:
+            return
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name="pty_boards", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        next_all = time.monotonic()
+        while not self._stop.is_set():
+            owner: dict[int, PtyBoard] = {}
+            for b in self.boards:
+                owner[b._wake_r] = b
+                if b._master is not None:
+                    owner[b._master] = b
+            timeout = max(0.0, next_all - time.monotonic())
+            try:
+                ready, _, _ = select.select(list(owner), [], [], timeout)
+            except (OSError, ValueError):  # a port was closed under us
+                ready = []
+            due = set()
+            for fd in ready:
+                b = owner[fd]
+                if fd == b._wake_r:
+                    try:
+                        os.read(fd, 64)
+                    except OSError:
+                        pass
+                due.add(id(b))
+            now = time.monotonic()
+            every = now >= next_all
+            if every:
+                next_all = max(next_all + self.step_period_s, now)
+            for b in self.boards:
+                if every or id(b) in due:
+                    b.step()
+
+    def stop(self) -> None:
+        if self._thread is None:
+            return
+        self._stop.set()
+        for b in self.boards:
+            b._wake()
+        self._thread.join(timeout=2.0)
+        self._thread = None

@@ -48,7 +48,7 @@ from ament_formation.core.paths_config import config_file
 from ament_formation.core.scenario import load_scenario
 from ament_formation.core.synthetic_camera import Obstacles, RenderOptions, SyntheticCamera
 from ament_formation.core.twin import PlantTwin
-from ament_formation.hw.pty_board import PtyBoard
+from ament_formation.hw.pty_board import PtyBoard, PtyBoardGroup
 from ament_formation.ros import messages as msgs
 from ament_formation.ros.executors import make_executor
 from ament_formation.ros.params import declare_dataclass
@@ -112,8 +112,9 @@ class WorldNode(Node):
             board = PtyBoard(MotorBoard(cfg, now_s=self.plant_time_s),
                              link_path=self.pty_dir / f"robot_{spec.id}", clock=self.now_s)
             board.open()
-            board.start(step_period_s=0.005)
             self.boards.append(board)
+        self.board_runner = PtyBoardGroup(self.boards, step_period_s=0.005)   # one thread for all
+        self.board_runner.start()
 
         # camera
         self.camera = None
@@ -211,6 +212,7 @@ class WorldNode(Node):
     # ------------------------------------------------------------------ shutdown
     def close(self) -> None:
         """Stop the boards, remove the ptys (and the pty folder if we made it)."""
+        self.board_runner.stop()
         for b in self.boards:
             b.close()
         self.boards = []
