@@ -83,11 +83,11 @@ def run_system(args: argparse.Namespace) -> int:
 
     import rclpy
     from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
     from std_msgs.msg import String
 
     from ament_formation.ros import messages as msgs
+    from ament_formation.ros.executors import make_executor
     from ament_formation.ros.qos import QOS_CONTROL, QOS_GRAPH
     from ament_formation.ros.recorder import McapWriter, TopicRecorder
 
@@ -99,7 +99,7 @@ def run_system(args: argparse.Namespace) -> int:
     use_sim_time = args.speed != 1.0
     node = rclpy.create_node("_formation_run_recorder", context=ctx,
                              parameter_overrides=[Parameter("use_sim_time", value=use_sim_time)])
-    executor = SingleThreadedExecutor(context=ctx)
+    executor = make_executor(node, context=ctx)   # EventsExecutor unless on sim time (cheap wait sets)
     executor.add_node(node)
     exclude = ["/rosout", "/parameter_events"] + ([] if args.record_images else ["/camera/image_raw"])
     recorder = TopicRecorder(node, McapWriter(mcap_path), exclude=exclude, scan_period_s=0.25)
