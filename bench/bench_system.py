@@ -11,6 +11,12 @@
    processes, 100 Hz control, 30 fps camera) with < 1 % missed control deadlines (late ticks from
    the controllers' /diagnostics) and the world keeping real time.
 
+Options: --dds shm|udp (shared-memory Fast DDS profile config/fastdds_localhost_shm.xml, the
+default here, or the loopback-UDP-only profile of the tests), --executor events|single (what the
+node processes spin on, ros/executors.make_executor). Caveat: in the multi-process latency run the
+probe shares the world's process, so a busy world delays the probe's view of a pose's arrival and
+pairs it with a later torque; p99 there includes the first seconds after the mission start.
+
 Baseline for the ratios: the wire time of one torque frame at 115200 baud and the 10 ms control
 period.
 """
