@@ -15,7 +15,7 @@ from ament_formation.core.encounters import decide_once, reacts_to
 from ament_formation.core.kernels import ellipse_field_k, gain_schedule_k
 from ament_formation.core.metrics import compute_metrics
 from ament_formation.core.scenario import parse_scenario
-from ament_formation.core.simulator import G_ALPHA, robot_law, simulate
+from ament_formation.core.simulator import robot_law, simulate
 
 PRM = SwitchingParams().as_array()
 NO_OBS = (np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros((0, 2)),

@@ -6,7 +6,7 @@ from hypothesis import given, settings, strategies as st
 
 from ament_formation.core import kernels as kn
 from ament_formation.core.disturbance import Disturbance
-from ament_formation.core.dynamics import PlantCoeffs, point_velocity, rk4_step
+from ament_formation.core.dynamics import PlantCoeffs, point_velocity
 from ament_formation.core.formation import dphi, follower_field, leader_field, phi, tracking_field
 from ament_formation.core.params import ControlGains, RobotParams
 from ament_formation.core.smc import sliding_mode_torque

@@ -2,7 +2,6 @@
 its own one-line message naming the file, the field and the problem; the CLI exits with code 2."""
 from __future__ import annotations
 
-import copy
 import math
 import subprocess
 import sys

@@ -2,19 +2,15 @@
 safety behaviour of the controller (DESIGN §7)."""
 from __future__ import annotations
 
-import math
-import os
 import signal
 import subprocess
-import time
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from ament_formation.ros import messages as m
 from ament_formation.ros.executors import spin_until
-from ament_formation.ros.qos import QOS_CONTROL, QOS_GRAPH
+from ament_formation.ros.qos import QOS_GRAPH
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "test" / "data"
@@ -108,7 +104,6 @@ def test_controller_stops_when_poses_stop(ros_context, executor, tmp_path):
 def test_killing_the_controller_process_zeroes_the_board(ros_context, executor, tmp_path):
     """A controller process drives robot 0 through the in-process bridge and board; SIGKILL it:
     the board applies zero torque within 250 ms (bridge input timeout / board watchdog)."""
-    import rclpy
     from rclpy.parameter import Parameter
 
     from ament_formation.nodes.bridge import BridgeNode

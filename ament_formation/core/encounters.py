@@ -41,7 +41,7 @@ import numpy as np
 from numba import njit
 
 from ament_formation.core.automaton import (
-    INF, MODE_C, MODE_MUTUAL, MODE_OBSTACLE, MODE_YIELD, P_DRIFT_CAP, P_EM, P_HORIZON, P_KAPPA,
+    INF, MODE_C, MODE_MUTUAL, MODE_OBSTACLE, MODE_YIELD, P_DRIFT_CAP, P_HORIZON, P_KAPPA,
     P_DWELL, P_KEEPOUT_MARGIN, P_L, P_TEAM_VREL, choose_direction, exit_conditions, exit_timer, h_value,
     in_cooldown, relative_velocity, threat_test,
 )

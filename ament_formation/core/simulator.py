@@ -28,7 +28,7 @@ import numpy as np
 from numba import njit
 
 from ament_formation.core.automaton import (
-    MODE_C, MODE_MUTUAL, MODE_NAMES, MODE_OBSTACLE, MODE_YIELD, P_BETA0, P_DRIFT_TAU, P_L,
+    MODE_C, MODE_MUTUAL, MODE_NAMES, MODE_OBSTACLE, P_BETA0, P_DRIFT_TAU, P_L,
     P_PSI_SLOW, P_TAU_G, P_VTAN, P_VTAN_AGENT, SwitchingParams, design_gains, parking_factor,
 )
 from ament_formation.core.disturbance import Disturbance

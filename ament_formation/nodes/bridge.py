@@ -24,16 +24,14 @@ from __future__ import annotations
 import sys
 import time
 
-import rclpy
 import serial
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
 from ament_formation.core import serial_link as sl
-from ament_formation.core.errors import ConfigError
 from ament_formation.ros import diagnostics as diag
-from ament_formation.ros.executors import spin_node
+from ament_formation.ros.executors import run_node
 from ament_formation.ros.messages import wheel_state
 from ament_formation.ros.params import declare_dataclass
 from ament_formation.ros.qos import QOS_CONTROL, QOS_DIAGNOSTICS
@@ -177,22 +175,8 @@ class BridgeNode(Node):
         super().destroy_node()
 
 
-def main(args=None) -> int:
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = BridgeNode()
-        spin_node(node)
-    except ConfigError as err:
-        print(f"formation_bridge: {err}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+def main(args: list[str] | None = None) -> int:
+    return run_node("formation_bridge", BridgeNode, args)
 
 
 if __name__ == "__main__":

@@ -58,7 +58,6 @@ import sys
 from dataclasses import dataclass
 
 import numpy as np
-import rclpy
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -75,6 +74,7 @@ from ament_formation.core.graph import FormationGraph
 from ament_formation.core.scenario import load_scenario
 from ament_formation.ros import diagnostics as diag
 from ament_formation.ros import messages as msgs
+from ament_formation.ros.executors import run_node
 from ament_formation.ros.params import declare_dataclass
 from ament_formation.ros.qos import QOS_CONTROL, QOS_DIAGNOSTICS, QOS_GRAPH
 
@@ -430,30 +430,13 @@ class ControllerNode(Node):
             self._mode_sent, self._last_mode_pub = key, now
 
 
-def main(argv: list[str] | None = None) -> int:
-    rclpy.init(args=argv if argv is not None else sys.argv)
-    node = None
-    try:
-        node = ControllerNode()
-        rclpy.spin(node)
-        return 0
-    except ConfigError as err:
-        print(f"formation_controller: {err}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        return 0
-    except Exception:  # noqa: BLE001 - SIGTERM/SIGINT shut the context down under spin
-        if not rclpy.ok():
-            return 0
-        raise
-    finally:
-        if node is not None:
-            try:   # last word: zero torque (the bridge and the board time out anyway)
-                node.pub_torque.publish(msgs.wheel_torque(np.zeros(2), msgs.stamp_from_s(node.now_s())))
-            except Exception:  # noqa: BLE001 - context already shut down
-                pass
-            node.destroy_node()
-        rclpy.try_shutdown()
+def _send_zero_torque(node: "ControllerNode") -> None:
+    """Last word of the process: zero torque (the bridge and the board time out anyway)."""
+    node.pub_torque.publish(msgs.wheel_torque(np.zeros(2), msgs.stamp_from_s(node.now_s())))
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node("formation_controller", ControllerNode, args, on_exit=_send_zero_torque)
 
 
 if __name__ == "__main__":

@@ -38,7 +38,6 @@ import sys
 from dataclasses import dataclass
 
 import numpy as np
-import rclpy
 from rclpy.node import Node
 from std_msgs.msg import String
 from visualization_msgs.msg import MarkerArray
@@ -49,6 +48,7 @@ from ament_formation.core.graph import FormationGraph
 from ament_formation.core.obstacles import ObstacleField
 from ament_formation.core.scenario import load_scenario
 from ament_formation.ros import messages as msgs
+from ament_formation.ros.executors import run_node
 from ament_formation.ros.params import declare_dataclass
 from ament_formation.ros.qos import QOS_CONTROL, QOS_GRAPH, QOS_MARKERS
 
@@ -202,26 +202,8 @@ class CoordinatorNode(Node):
         self.pub_markers.publish(msgs.marker_array(*groups))
 
 
-def main(argv: list[str] | None = None) -> int:
-    rclpy.init(args=argv if argv is not None else sys.argv)
-    node = None
-    try:
-        node = CoordinatorNode()
-        rclpy.spin(node)
-        return 0
-    except ConfigError as err:
-        print(f"formation_coordinator: {err}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        return 0
-    except Exception:  # noqa: BLE001 - SIGTERM/SIGINT shut the context down under spin
-        if not rclpy.ok():
-            return 0
-        raise
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+def main(args: list[str] | None = None) -> int:
+    return run_node("formation_coordinator", CoordinatorNode, args)
 
 
 if __name__ == "__main__":

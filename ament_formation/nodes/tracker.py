@@ -42,7 +42,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from rclpy.node import Node
@@ -55,7 +54,7 @@ from ament_formation.core.paths_config import config_file
 from ament_formation.core.robot_marker import MarkerLayout
 from ament_formation.ros import diagnostics as diag
 from ament_formation.ros.image import image_to_mono8, numpy_to_image
-from ament_formation.ros.executors import spin_node
+from ament_formation.ros.executors import run_node
 from ament_formation.ros.messages import pose_stamped, stamp_to_s
 from ament_formation.ros.params import declare_dataclass
 from ament_formation.ros.qos import QOS_CONTROL, QOS_DIAGNOSTICS, QOS_IMAGE
@@ -310,22 +309,8 @@ class TrackerNode(Node):
         super().destroy_node()
 
 
-def main(args=None) -> int:
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = TrackerNode()
-        spin_node(node)
-    except ConfigError as err:
-        print(f"formation_tracker: {err}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+def main(args: list[str] | None = None) -> int:
+    return run_node("formation_tracker", TrackerNode, args)
 
 
 if __name__ == "__main__":

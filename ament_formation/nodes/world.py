@@ -26,7 +26,6 @@ Parameters
 from __future__ import annotations
 
 import math
-import os
 import shutil
 import sys
 import tempfile
@@ -35,7 +34,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import rclpy
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Image
@@ -50,7 +48,7 @@ from ament_formation.core.synthetic_camera import Obstacles, RenderOptions, Synt
 from ament_formation.core.twin import PlantTwin
 from ament_formation.hw.pty_board import PtyBoard, PtyBoardGroup
 from ament_formation.ros import messages as msgs
-from ament_formation.ros.executors import make_executor
+from ament_formation.ros.executors import run_node
 from ament_formation.ros.params import declare_dataclass
 from ament_formation.ros.qos import QOS_CLOCK, QOS_CONTROL, QOS_GRAPH, QOS_IMAGE
 
@@ -224,29 +222,8 @@ class WorldNode(Node):
         return super().destroy_node()
 
 
-def main(argv: list[str] | None = None) -> int:
-    rclpy.init(args=argv if argv is not None else sys.argv)
-    node = None
-    try:
-        node = WorldNode()
-        executor = make_executor(node, context=node.context)
-        executor.add_node(node)
-        while rclpy.ok() and not node.done:
-            executor.spin_once(timeout_sec=0.1)
-        return 0
-    except ConfigError as err:
-        print(f"formation_world: {err}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        return 0
-    except Exception:  # noqa: BLE001 - SIGTERM/SIGINT shut the context down under spin
-        if not rclpy.ok():
-            return 0
-        raise
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+def main(args: list[str] | None = None) -> int:
+    return run_node("formation_world", WorldNode, args)
 
 
 if __name__ == "__main__":

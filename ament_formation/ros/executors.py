@@ -2,6 +2,7 @@
 with a timeout instead of sleeping a fixed time."""
 from __future__ import annotations
 
+import sys
 import time
 from typing import Callable
 
@@ -54,14 +55,52 @@ def make_executor(node=None, context=None) -> Executor:
 
 
 def spin_node(node) -> None:
-    """Spin ``node`` until its context shuts down (SIGINT/SIGTERM), on :func:`make_executor`."""
+    """Spin ``node`` until its context shuts down (SIGINT/SIGTERM) or it sets ``node.done``, on
+    :func:`make_executor`."""
     executor = make_executor(node, context=node.context)
     executor.add_node(node)
     try:
-        while node.context.ok():   # EventsExecutor.spin() does not return on SIGTERM in Jazzy
+        # EventsExecutor.spin() does not return on SIGTERM in Jazzy: loop on spin_once instead
+        while node.context.ok() and not getattr(node, "done", False):
             executor.spin_once(timeout_sec=0.1)
     except ExternalShutdownException:  # SIGINT/SIGTERM shut the context down: a clean exit
         pass
     finally:
         executor.remove_node(node)
         executor.shutdown()
+
+
+def run_node(name: str, make_node: Callable, args: list[str] | None = None,
+             on_exit: Callable | None = None) -> int:
+    """The ``main()`` of every node process: init rclpy, build the node, spin it (:func:`spin_node`)
+    and shut down cleanly. Bad configuration (ConfigError) prints one line naming it and returns 2;
+    SIGINT/SIGTERM return 0. ``on_exit(node)`` runs last, best effort (e.g. a zero-torque command).
+    """
+    import rclpy
+
+    from ament_formation.core.errors import ConfigError
+
+    rclpy.init(args=args if args is not None else sys.argv)
+    node = None
+    try:
+        node = make_node()
+        spin_node(node)
+        return 0
+    except ConfigError as err:
+        print(f"{name}: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 0
+    except Exception:  # noqa: BLE001 - SIGTERM/SIGINT shut the context down under spin
+        if not rclpy.ok():
+            return 0
+        raise
+    finally:
+        if node is not None:
+            if on_exit is not None:
+                try:
+                    on_exit(node)
+                except Exception:  # noqa: BLE001 - context already shut down
+                    pass
+            node.destroy_node()
+        rclpy.try_shutdown()
