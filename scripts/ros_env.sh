@@ -13,14 +13,18 @@ mkdir -p "$ROS_LOG_DIR"
 export PYTHONUNBUFFERED=1
 unset _af_root
 
-# The ROS wheels load liblttng-ust, which creates /dev/shm/lttng-ust-wait-* on first use.
-# af_shm_snapshot remembers what existed; af_shm_cleanup removes only what this run created.
+# Shared memory the ROS processes of a run leave in /dev/shm: liblttng-ust (loaded by the ROS
+# wheels) creates lttng-ust-wait-*, and Fast DDS's shared-memory transport leaves fastrtps_* and
+# sem.fastrtps_* segments behind when a process is killed (a clean exit removes them; rmw_fastrtps
+# keeps that same-host transport next to the loopback UDP one). af_shm_snapshot remembers what
+# existed; af_shm_cleanup removes only what appeared since, once the run's processes are gone.
+_af_shm_pattern='^(lttng-ust-wait|fastrtps_|sem\.fastrtps_)'
 af_shm_snapshot() {
-  _af_shm_before="$(ls /dev/shm 2>/dev/null | grep '^lttng-ust-wait' || true)"
+  _af_shm_before="$(ls /dev/shm 2>/dev/null | grep -E "$_af_shm_pattern" || true)"
 }
 af_shm_cleanup() {
   local f
-  for f in $(ls /dev/shm 2>/dev/null | grep '^lttng-ust-wait' || true); do
-    if ! grep -qx "$f" <<<"${_af_shm_before:-}"; then rm -f "/dev/shm/$f"; fi
+  for f in $(ls /dev/shm 2>/dev/null | grep -E "$_af_shm_pattern" || true); do
+    if ! grep -qxF "$f" <<<"${_af_shm_before:-}"; then rm -f "/dev/shm/$f"; fi
   done
 }
