@@ -135,25 +135,13 @@ def _stop(procs: list[subprocess.Popen]) -> None:
             p.wait()
 
 
-# --controller-executor events: the controller node spun by ros/executors.spin_node (EventsExecutor)
-# instead of formation_controller's rclpy.spin (SingleThreadedExecutor), to measure that choice.
-_CONTROLLER_ON_EVENTS = (
-    "import sys, rclpy\n"
-    "from ament_formation.nodes.controller import ControllerNode\n"
-    "from ament_formation.ros.executors import spin_node\n"
-    "rclpy.init(args=sys.argv)\n"
-    "node = ControllerNode()\n"
-    "try:\n    spin_node(node)\nfinally:\n    node.destroy_node()\n    rclpy.try_shutdown()\n")
-
-
 def node_processes(scenario_path: Path, pty_dir: Path, log_dir: Path) -> list[subprocess.Popen]:
     """Bridge + controller per robot, tracker, coordinator as processes (not the world)."""
     from ament_formation.core.scenario import load_scenario
 
     sc = load_scenario(scenario_path)
     b = ROOT / ".venv" / "bin"
-    controller = ([str(b / "python"), "-c", _CONTROLLER_ON_EVENTS]
-                  if os.environ.get("AMENT_FORMATION_BENCH_CONTROLLER") == "events" else [str(b / "formation_controller")])
+    controller = [str(b / "formation_controller")]
     procs = []
     for r in sc.robots:
         ns = ["--ros-args", "-r", f"__ns:=/robot_{r.id}"]
@@ -271,21 +259,17 @@ def main() -> int:
     ap.add_argument("--quick", action="store_true", help="shorter windows, fewer robot counts")
     ap.add_argument("--counts", type=int, nargs="*", default=None, help="robot counts to try")
     ap.add_argument("--skip-latency", action="store_true", help="only the robot-count table")
-    ap.add_argument("--dds", choices=("udp", "shm"), default="shm",
+    ap.add_argument("--dds", choices=("udp", "shm"), default="udp",
                     help="Fast DDS profile: udp = config/fastdds_localhost.xml (loopback UDP only), "
                          "shm = config/fastdds_localhost_shm.xml (shared memory + loopback UDP)")
     ap.add_argument("--executor", choices=("events", "single"), default="events",
                     help="executor of the node processes and of the world (ros/executors.py)")
-    ap.add_argument("--controller-executor", choices=("rclpy", "events"), default="rclpy",
-                    help="rclpy = formation_controller as shipped (rclpy.spin); events = the same node "
-                         "spun by ros/executors.spin_node")
     args = ap.parse_args()
-    os.environ["AMENT_FORMATION_BENCH_CONTROLLER"] = args.controller_executor
     tmp = Path(tempfile.mkdtemp(prefix="ament_formation_bench_"))
     profile = "fastdds_localhost_shm.xml" if args.dds == "shm" else "fastdds_localhost.xml"
     os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(ROOT / "config" / profile)
     os.environ["AMENT_FORMATION_EXECUTOR"] = args.executor
-    print(f"DDS profile {profile}; executor {args.executor}; controller {args.controller_executor}")
+    print(f"DDS profile {profile}; executor {args.executor}")
     loopback_env(tmp / "ros_log")
     window = 5.0 if args.quick else 12.0
     wire_ms = 1e3 * 10 * 10 / 115200   # one 10-byte torque frame at 115200 baud, 10 bits/byte
