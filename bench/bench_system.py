@@ -25,6 +25,7 @@ from __future__ import annotations
 import argparse
 import os
 import signal
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -270,32 +271,35 @@ def main() -> int:
     os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(ROOT / "config" / profile)
     os.environ["AMENT_FORMATION_EXECUTOR"] = args.executor
     print(f"DDS profile {profile}; executor {args.executor}")
-    loopback_env(tmp / "ros_log")
-    window = 5.0 if args.quick else 12.0
-    wire_ms = 1e3 * 10 * 10 / 115200   # one 10-byte torque frame at 115200 baud, 10 bits/byte
-    print(f"baseline: torque frame wire time {wire_ms:.2f} ms; control period 10 ms")
-    if args.skip_latency:
-        lat1 = lat2 = np.zeros(0)
-    else:
-        lat1 = latency_in_process(window + 4.0)
-        print(f"latency capture -> board, one process:    {_percentiles(lat1)}")
-        lat2 = latency_multi_process(window, tmp)
-        print(f"latency capture -> board, processes:      {_percentiles(lat2)}")
-    if len(lat1) and len(lat2):
-        print(f"  ratio p50 processes / one process: {np.percentile(lat2, 50) / np.percentile(lat1, 50):.2f}; "
-              f"p50 / wire time: {1e3 * np.percentile(lat2, 50) / wire_ms:.1f}")
-    counts = args.counts or ([2, 4, 6] if args.quick else [2, 4, 6, 8, 10, 12])
-    print(f"{'robots':>6} {'ticks':>7} {'late':>6} {'missed %':>9} {'world overruns':>15}")
-    best = 0
-    for n in counts:
-        r = robot_count(n, window, tmp)
-        print(f"{n:6d} {r['ticks']:7d} {r['late']:6d} {100 * r['missed_fraction']:9.2f} {r['world_overruns']:15d}"
-              + ("" if r["started"] and r["controllers_reporting"] == n else "  (did not start / not all up)"))
-        if r["started"] and r["controllers_reporting"] == n and r["missed_fraction"] < 0.01 \
-                and r["ticks"] >= 0.9 * r["expected_ticks"] and r["world_overruns"] <= 0.01 * 100 * window:
-            best = n if best == counts[counts.index(n) - 1] or n == counts[0] else best
-        elif r["missed_fraction"] > 0.5 or not r["started"]:
-            break
+    try:
+        loopback_env(tmp / "ros_log")
+        window = 5.0 if args.quick else 12.0
+        wire_ms = 1e3 * 10 * 10 / 115200   # one 10-byte torque frame at 115200 baud, 10 bits/byte
+        print(f"baseline: torque frame wire time {wire_ms:.2f} ms; control period 10 ms")
+        if args.skip_latency:
+            lat1 = lat2 = np.zeros(0)
+        else:
+            lat1 = latency_in_process(window + 4.0)
+            print(f"latency capture -> board, one process:    {_percentiles(lat1)}")
+            lat2 = latency_multi_process(window, tmp)
+            print(f"latency capture -> board, processes:      {_percentiles(lat2)}")
+        if len(lat1) and len(lat2):
+            print(f"  ratio p50 processes / one process: {np.percentile(lat2, 50) / np.percentile(lat1, 50):.2f}; "
+                  f"p50 / wire time: {1e3 * np.percentile(lat2, 50) / wire_ms:.1f}")
+        counts = args.counts or ([2, 4, 6] if args.quick else [2, 4, 6, 8, 10, 12])
+        print(f"{'robots':>6} {'ticks':>7} {'late':>6} {'missed %':>9} {'world overruns':>15}")
+        best = 0
+        for n in counts:
+            r = robot_count(n, window, tmp)
+            print(f"{n:6d} {r['ticks']:7d} {r['late']:6d} {100 * r['missed_fraction']:9.2f} {r['world_overruns']:15d}"
+                  + ("" if r["started"] and r["controllers_reporting"] == n else "  (did not start / not all up)"))
+            if r["started"] and r["controllers_reporting"] == n and r["missed_fraction"] < 0.01 \
+                    and r["ticks"] >= 0.9 * r["expected_ticks"] and r["world_overruns"] <= 0.01 * 100 * window:
+                best = n if best == counts[counts.index(n) - 1] or n == counts[0] else best
+            elif r["missed_fraction"] > 0.5 or not r["started"]:
+                break
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
     print(f"largest robot count held in real time (< 1 % missed deadlines, every count up to it): {best}")
     return 0
 

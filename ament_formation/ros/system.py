@@ -4,6 +4,7 @@ system tests and the benchmarks; `formation run` starts the same nodes as separa
 """
 from __future__ import annotations
 
+import shutil
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,6 +22,7 @@ class InProcessSystem:
     tracker: object = None
     coordinator: object = None
     pty_dir: Path | None = None
+    owns_pty_dir: bool = False      # build_system made pty_dir: destroy() removes it
 
     @property
     def nodes(self) -> list:
@@ -35,6 +37,8 @@ class InProcessSystem:
             if executor is not None:
                 executor.remove_node(node)
             node.destroy_node()
+        if self.owns_pty_dir and self.pty_dir is not None:
+            shutil.rmtree(self.pty_dir, ignore_errors=True)
 
 
 def build_system(context, scenario_path: str | Path, executor=None, *, speed_factor: float = 1.0,
@@ -53,11 +57,12 @@ def build_system(context, scenario_path: str | Path, executor=None, *, speed_fac
     from ament_formation.nodes.world import WorldNode, WorldParams
 
     scenario = load_scenario(scenario_path)
+    owns_pty_dir = not pty_dir
     pty_dir = Path(pty_dir) if pty_dir else Path(tempfile.mkdtemp(prefix="ament_formation_sys_"))
     sim_time = [Parameter("use_sim_time", value=speed_factor != 1.0)]
     world = WorldNode(context=context, params=WorldParams(
         scenario=str(scenario_path), pty_dir=str(pty_dir), speed_factor=speed_factor, camera_noise=camera_noise))
-    system = InProcessSystem(world=world, pty_dir=pty_dir)
+    system = InProcessSystem(world=world, pty_dir=pty_dir, owns_pty_dir=owns_pty_dir)
     for r in scenario.robots:
         ns = f"/robot_{r.id}"
         system.bridges[r.id] = BridgeNode(context=context, namespace=ns, parameter_overrides=sim_time + [
