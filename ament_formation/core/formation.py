@@ -16,24 +16,25 @@ import numpy as np
 from ament_formation.core.params import ControlGains
 
 
-def phi(e: np.ndarray, alpha, v_cap) -> np.ndarray:
-    """S4: Phi(e) = alpha e / sqrt(1 + alpha^2 |e|^2 / v_cap^2), |Phi| < v_cap. (N, 2) -> (N, 2)."""
+def _phi_terms(e: np.ndarray, alpha, v_cap):
+    """Components of e, q = alpha^2 / v_cap^2 and s = sqrt(1 + q |e|^2) of S4's Phi."""
     e = np.asarray(e, dtype=float)
     ex = e[..., 0]
     ey = e[..., 1]
     q = alpha * alpha / (v_cap * v_cap)
-    s = np.sqrt(1.0 + q * (ex * ex + ey * ey))
+    return ex, ey, q, np.sqrt(1.0 + q * (ex * ex + ey * ey))
+
+
+def phi(e: np.ndarray, alpha, v_cap) -> np.ndarray:
+    """S4: Phi(e) = alpha e / sqrt(1 + alpha^2 |e|^2 / v_cap^2), |Phi| < v_cap. (N, 2) -> (N, 2)."""
+    ex, ey, _q, s = _phi_terms(e, alpha, v_cap)
     g = alpha / s
     return np.stack((g * ex, g * ey), axis=-1)
 
 
 def dphi(e: np.ndarray, alpha, v_cap) -> np.ndarray:
     """S4: DPhi(e) = (alpha/s) I - (alpha^3/(v_cap^2 s^3)) e e^T. (N, 2) -> (N, 2, 2)."""
-    e = np.asarray(e, dtype=float)
-    ex = e[..., 0]
-    ey = e[..., 1]
-    q = alpha * alpha / (v_cap * v_cap)
-    s = np.sqrt(1.0 + q * (ex * ex + ey * ey))
+    ex, ey, q, s = _phi_terms(e, alpha, v_cap)
     g = alpha / s
     k = alpha * q / (s * s * s)
     return np.stack((np.stack((g - k * ex * ex, -k * ex * ey), -1),
