@@ -3,13 +3,14 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from ament_formation.core.camera_model import (CameraModel, CameraSetup, FloorArea, load_camera_yaml,
-                                               save_camera_yaml)
+                                               rotation_vector, save_camera_yaml)
 from ament_formation.core.errors import ConfigError
 from ament_formation.core.marker_tracking import detect, make_detector, refine_corners
 from ament_formation.core.paths_config import config_file
@@ -124,6 +125,20 @@ def test_mounting_round_trips_through_an_opencv_pose(yaw, tilt, roll, x, y, h):
     assert np.allclose(back.r_wc, cam.r_wc, atol=1e-9) and np.allclose(back.center_w, cam.center_w, atol=1e-9)
     pts = np.array([[x + 0.3, y - 0.2], [x - 0.5, y + 0.4]])
     assert np.allclose(back.pixel_to_floor(cam.floor_to_pixel(pts, 0.05), 0.05), pts, atol=1e-9)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.floats(-1.0, 1.0), st.floats(-1.0, 1.0), st.floats(-1.0, 1.0),
+       st.sampled_from([0.0, 1e-12, 1e-6, 0.5, 1.5, np.pi - 1e-3, np.pi - 1e-7, np.pi - 1e-12, np.pi]))
+def test_rotation_vector_is_exact_near_zero_and_pi(ax, ay, az, angle):
+    """A camera looking straight down is a rotation by pi: rotation_vector must stay exact there
+    (cv2.Rodrigues matrix -> vector loses up to half the digits near pi)."""
+    axis = np.array([ax, ay, az])
+    if np.linalg.norm(axis) < 1e-3:
+        axis = np.array([1.0, 0.0, 0.0])
+    r = cv2.Rodrigues((axis / np.linalg.norm(axis) * angle).reshape(3, 1))[0]
+    back = cv2.Rodrigues(rotation_vector(r).reshape(3, 1))[0]
+    assert np.abs(back - r).max() < 1e-12
 
 
 def test_pixel_floor_mapping_inverts_projection_across_the_image():

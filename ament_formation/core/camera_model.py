@@ -71,6 +71,27 @@ def undistort_normalized(pixels_px: np.ndarray, k: np.ndarray, dist: np.ndarray)
     return out.reshape(-1, 2)
 
 
+def rotation_vector(r: np.ndarray) -> np.ndarray:
+    """(3,) axis-angle (Rodrigues) vector of the rotation matrix ``r`` (3, 3).
+
+    Accurate over the whole range, including rotations near pi, where cv2.Rodrigues loses up to
+    half the digits; a camera looking straight down is a rotation by pi about a floor axis.
+    """
+    r = np.asarray(r, dtype=np.float64)
+    w = 0.5 * np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])  # sin(theta) a
+    c = 0.5 * (np.trace(r) - 1.0)                                                   # cos(theta)
+    s = float(np.linalg.norm(w))
+    theta = math.atan2(s, c)
+    if c > 0.0:                    # theta < pi/2: the skew part is well conditioned
+        return w if s < 1e-15 else w * (theta / s)
+    b = (0.5 * (r + r.T) - c * np.eye(3)) / (1.0 - c)   # symmetric part: a a^T
+    k = int(np.argmax(np.diag(b)))
+    a = b[:, k] / math.sqrt(b[k, k])
+    if float(a @ w) < 0.0:
+        a = -a
+    return a * theta
+
+
 @dataclass(frozen=True)
 class CameraModel:
     """One calibrated camera: image size, intrinsics, distortion, mounting. SI units, world frame."""
@@ -138,7 +159,7 @@ class CameraModel:
     @cached_property
     def rvec(self) -> np.ndarray:
         """(3,) Rodrigues vector world → camera (OpenCV solvePnP convention)."""
-        return cv2.Rodrigues(self.r_wc.T)[0].reshape(3)
+        return rotation_vector(self.r_wc.T)
 
     @cached_property
     def tvec(self) -> np.ndarray:
@@ -199,7 +220,8 @@ class CameraModel:
         r_wc = r_cw.T
         center = -r_wc @ np.asarray(tvec, dtype=np.float64).reshape(3)
         m = _R0.T @ r_wc  # = Rz(-yaw) Rx(tilt) Rz(roll)  (ZXZ Euler)
-        tilt = math.acos(max(-1.0, min(1.0, m[2, 2])))
+        # atan2, not acos(m22): acos loses half the digits near straight down (tilt ~ 0)
+        tilt = math.atan2(math.hypot(m[0, 2], m[1, 2]), m[2, 2])
         if math.sin(tilt) < 1e-9:
             roll = 0.0
             yaw = -math.atan2(m[1, 0], m[0, 0])
