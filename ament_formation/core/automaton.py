@@ -223,23 +223,6 @@ def anomaly(zx, zy, phi, r1, r2):
 
 
 @njit(cache=True)
-def anomaly_rate(zx, zy, zdx, zdy, phi, phi_dot, r1, r2):
-    """d psi/dt = (U W' - W U')/(U^2 + W^2) with u' = cos z'x + sin z'y + phi' w, w' = ... (S6.5)."""
-    c = math.cos(phi)
-    s = math.sin(phi)
-    u = c * zx + s * zy
-    w = -s * zx + c * zy
-    ud = c * zdx + s * zdy + phi_dot * w
-    wd = -s * zdx + c * zdy - phi_dot * u
-    uu = u / r1
-    ww = w / r2
-    den = uu * uu + ww * ww
-    if den < 1e-18:
-        return 0.0
-    return (uu * wd / r2 - ww * ud / r1) / den
-
-
-@njit(cache=True)
 def arc_length(psi0, dpsi, r1, r2):
     """Length of the ellipse arc from anomaly psi0 over dpsi >= 0 (midpoint rule, 64 nodes)."""
     n = 64
@@ -289,25 +272,6 @@ def choose_direction(zx, zy, zdx, zdy, gx, gy, gdx, gdy, phi, big_r1, big_r2, lo
     mx = h1 * zx - h2 * zy
     my = h3 * zx - h1 * zy
     return 1.0 if mx * zdx + my * zdy >= 0.0 else -1.0
-
-
-@njit(cache=True)
-def parking_factor(zx, zy, zdx, zdy, gx, gy, gdx, gdy, phi, phi_dot, big_r1, big_r2, s, psi_slow):
-    """Parking factor mu and d mu/dt (S6.5): slow down on L at the goal's anomaly.
-
-    z, z_dot: robot relative to the centre (z_dot = p_dot - c_dot); g, g_dot likewise for the goal.
-    """
-    psi_a = anomaly(zx, zy, phi, big_r1, big_r2)
-    psi_g = anomaly(gx, gy, phi, big_r1, big_r2)
-    d = ((s * (psi_g - psi_a) + 0.5 * math.pi) % (2.0 * math.pi)) - 0.5 * math.pi
-    x = d / psi_slow
-    if x >= 1.0:
-        return 1.0, 0.0
-    if x <= -1.0:
-        return -1.0, 0.0
-    rate_a = anomaly_rate(zx, zy, zdx, zdy, phi, phi_dot, big_r1, big_r2)
-    rate_g = anomaly_rate(gx, gy, gdx, gdy, phi, phi_dot, big_r1, big_r2)
-    return x, s * (rate_g - rate_a) / psi_slow
 
 
 @njit(cache=True)

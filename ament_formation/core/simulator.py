@@ -29,14 +29,14 @@ from numba import njit
 
 from ament_formation.core.automaton import (
     MODE_C, MODE_MUTUAL, MODE_NAMES, MODE_OBSTACLE, P_BETA0, P_DRIFT_TAU, P_L,
-    P_PSI_SLOW, P_TAU_G, P_VTAN, P_VTAN_AGENT, SwitchingParams, design_gains, parking_factor,
+    P_PSI_SLOW, P_TAU_G, P_VTAN, P_VTAN_AGENT, SwitchingParams, design_gains,
 )
 from ament_formation.core.disturbance import Disturbance
 from ament_formation.core.dynamics import PlantCoeffs
 from ament_formation.core.encounters import decide, keepout_radius
 from ament_formation.core.kernels import (
-    disturbance_k, disturbance_phasor_advance_k, disturbance_phasor_init_k, ellipse_field_k, gain_schedule_k, point_velocity_k, rk4_step_k, smc_torque_k,
-    tracking_field_k,
+    disturbance_k, disturbance_phasor_advance_k, disturbance_phasor_init_k, ellipse_field_k, gain_schedule_k,
+    parking_factor_k, point_velocity_k, rk4_step_k, smc_torque_k, tracking_field_k,
 )
 from ament_formation.core.trajectory import SimResult
 
@@ -194,7 +194,7 @@ def robot_law(i, t, x, pd, acmd, parent, offset, ref, goal, goal_dot, mode, tgt,
             mu = 1.0
             mud = 0.0
         else:
-            mu, mud = parking_factor(zx, zy, zdx, zdy, goal[i, 0] - cx, goal[i, 1] - cy,
+            mu, mud = parking_factor_k(zx, zy, zdx, zdy, goal[i, 0] - cx, goal[i, 1] - cy,
                                      goal_dot[i, 0] - cvx, goal_dot[i, 1] - cvy, phi, phd,
                                      big1, big2, s, prm[P_PSI_SLOW])
         psd, psdd, cc, ccd = gain_schedule_k(t - t_entry[i], psi_max, c_max, s, mu, mud,
