@@ -42,6 +42,7 @@ setup(
             "formation_controller = ament_formation.nodes.controller:main",
             "formation_bridge = ament_formation.nodes.bridge:main",
             "formation_coordinator = ament_formation.nodes.coordinator:main",
+            "formation_team = ament_formation.nodes.team:main",
         ],
     },
 )

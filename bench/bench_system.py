@@ -136,22 +136,29 @@ def _stop(procs: list[subprocess.Popen]) -> None:
             p.wait()
 
 
-def node_processes(scenario_path: Path, pty_dir: Path, log_dir: Path) -> list[subprocess.Popen]:
-    """Bridge + controller per robot, tracker, coordinator as processes (not the world)."""
+def node_processes(scenario_path: Path, pty_dir: Path, log_dir: Path, team: int = 0) -> list[subprocess.Popen]:
+    """Bridge + controller per robot, tracker, coordinator as processes (not the world).
+    ``team`` > 0: the robots' bridges and controllers composed ``team`` robots per formation_team
+    process (nodes/team.py) instead of two processes per robot."""
     from ament_formation.core.scenario import load_scenario
 
     sc = load_scenario(scenario_path)
     b = ROOT / ".venv" / "bin"
     controller = [str(b / "formation_controller")]
     procs = []
-    for r in sc.robots:
+    ids = [r.id for r in sc.robots]
+    for k in range(0, len(ids), team) if team > 0 else ():
+        group = ids[k:k + team]
+        procs.append(_start([str(b / "formation_team"), "--ros-args", "-p", f"scenario:={scenario_path}",
+                             "-p", f"robot_ids:={group}", "-p", f"port_template:={pty_dir}/robot_{{id}}",
+                             "-p", "poll_rate_hz:=200.0"], log_dir, f"team_{k // team}"))
+    for r in sc.robots if team <= 0 else ():
         ns = ["--ros-args", "-r", f"__ns:=/robot_{r.id}"]
         procs.append(_start([str(b / "formation_bridge"), *ns, "-p", f"port:={pty_dir}/robot_{r.id}",
                              "-p", f"torque_limit_nm:={r.params.torque_limit_nm}", "-p", "poll_rate_hz:=200.0"],
                             log_dir, f"bridge_{r.id}"))
         procs.append(_start([*controller, *ns, "-p", f"scenario:={scenario_path}",
                              "-p", f"robot_id:={r.id}"], log_dir, f"controller_{r.id}"))
-    ids = [r.id for r in sc.robots]
     procs.append(_start([str(b / "formation_tracker"), "--ros-args", "-p", f"robot_ids:={ids}",
                          "-p", f"marker_ids:={[r.marker_id for r in sc.robots]}"], log_dir, "tracker"))
     procs.append(_start([str(b / "formation_coordinator"), "--ros-args", "-p", f"scenario:={scenario_path}",
@@ -159,7 +166,7 @@ def node_processes(scenario_path: Path, pty_dir: Path, log_dir: Path) -> list[su
     return procs
 
 
-def latency_multi_process(seconds: float, tmp: Path) -> np.ndarray:
+def latency_multi_process(seconds: float, tmp: Path, team: int = 0) -> np.ndarray:
     import rclpy
     from rclpy.context import Context
     from ament_formation.nodes.world import WorldNode, WorldParams
@@ -176,7 +183,7 @@ def latency_multi_process(seconds: float, tmp: Path) -> np.ndarray:
     probe = LatencyProbe(probe_node)
     ex.add_node(world)
     ex.add_node(probe_node)
-    procs = node_processes(SCENARIO, pty_dir, tmp)
+    procs = node_processes(SCENARIO, pty_dir, tmp, team)
     try:
         t0 = time.monotonic()
         while world.start_s is None and time.monotonic() - t0 < 60:
@@ -205,7 +212,7 @@ def line_scenario(n: int, path: Path) -> Path:
     return path
 
 
-def robot_count(n: int, seconds: float, tmp: Path) -> dict:
+def robot_count(n: int, seconds: float, tmp: Path, team: int = 0) -> dict:
     """Run N robots through the whole system; missed-deadline fraction and world overruns."""
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
@@ -231,7 +238,7 @@ def robot_count(n: int, seconds: float, tmp: Path) -> dict:
     probe.create_subscription(DiagnosticArray, "/diagnostics", on_diag, QOS_DIAGNOSTICS)
     ex.add_node(world)
     ex.add_node(probe)
-    procs = node_processes(scenario, pty_dir, tmp)
+    procs = node_processes(scenario, pty_dir, tmp, team)
     try:
         t0 = time.monotonic()
         while world.start_s is None and time.monotonic() - t0 < 90:
@@ -265,12 +272,16 @@ def main() -> int:
                          "shm = config/fastdds_localhost_shm.xml (shared memory + loopback UDP)")
     ap.add_argument("--executor", choices=("events", "single"), default="events",
                     help="executor of the node processes and of the world (ros/executors.py)")
+    ap.add_argument("--team", type=int, default=0, metavar="K",
+                    help="compose K robots' bridges and controllers per formation_team process "
+                         "(0: a bridge and a controller process per robot)")
     args = ap.parse_args()
     tmp = Path(tempfile.mkdtemp(prefix="ament_formation_bench_"))
     profile = "fastdds_localhost_shm.xml" if args.dds == "shm" else "fastdds_localhost.xml"
     os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(ROOT / "config" / profile)
     os.environ["AMENT_FORMATION_EXECUTOR"] = args.executor
-    print(f"DDS profile {profile}; executor {args.executor}")
+    print(f"DDS profile {profile}; executor {args.executor}; "
+          + (f"{args.team} robots per formation_team process" if args.team else "a process per node"))
     try:
         loopback_env(tmp / "ros_log")
         window = 5.0 if args.quick else 12.0
@@ -281,7 +292,7 @@ def main() -> int:
         else:
             lat1 = latency_in_process(window + 4.0)
             print(f"latency capture -> board, one process:    {_percentiles(lat1)}")
-            lat2 = latency_multi_process(window, tmp)
+            lat2 = latency_multi_process(window, tmp, args.team)
             print(f"latency capture -> board, processes:      {_percentiles(lat2)}")
         if len(lat1) and len(lat2):
             print(f"  ratio p50 processes / one process: {np.percentile(lat2, 50) / np.percentile(lat1, 50):.2f}; "
@@ -290,7 +301,7 @@ def main() -> int:
         print(f"{'robots':>6} {'ticks':>7} {'late':>6} {'missed %':>9} {'world overruns':>15}")
         best = 0
         for n in counts:
-            r = robot_count(n, window, tmp)
+            r = robot_count(n, window, tmp, args.team)
             print(f"{n:6d} {r['ticks']:7d} {r['late']:6d} {100 * r['missed_fraction']:9.2f} {r['world_overruns']:15d}"
                   + ("" if r["started"] and r["controllers_reporting"] == n else "  (did not start / not all up)"))
             if r["started"] and r["controllers_reporting"] == n and r["missed_fraction"] < 0.01 \

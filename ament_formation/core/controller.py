@@ -8,6 +8,7 @@ calls; every other robot appears through its broadcast state.
 """
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, field
 from typing import Mapping, Sequence
@@ -75,6 +76,20 @@ class NeighbourState:
             raise ConfigError(f"must be one of {list(_MODE_BY_NAME)} (got {self.mode!r})", "mode")
         object.__setattr__(self, "state_m", st)
         object.__setattr__(self, "accel_mps2", acc)
+
+    @classmethod
+    def trusted(cls, state_m: np.ndarray, accel_mps2: np.ndarray, body_radius_m: float, team: int | None,
+                mode: str, target: str | None, com_offset_m: float, goal_m: np.ndarray | None,
+                goal_dot_mps: np.ndarray | None) -> "NeighbourState":
+        """Build from values the caller has already checked (float arrays of the right shapes,
+        finite; a known mode): the controller node checks every message on arrival, and builds
+        one of these per robot per control period, so the checks are not repeated here."""
+        obj = object.__new__(cls)
+        for name, value in (("state_m", state_m), ("accel_mps2", accel_mps2), ("body_radius_m", body_radius_m),
+                            ("team", team), ("mode", mode), ("target", target),
+                            ("com_offset_m", com_offset_m), ("goal_m", goal_m), ("goal_dot_mps", goal_dot_mps)):
+            object.__setattr__(obj, name, value)
+        return obj
 
 
 @dataclass(frozen=True)
@@ -229,6 +244,14 @@ class RobotController:
             return self.obstacle_names[target]
         return f"robot_{target}"
 
+    def warm_up(self) -> None:
+        """Compile (or load from numba's disk cache) every kernel :meth:`step` uses, on a copy, so
+        that the first real control period is not late. The controller's own state is untouched."""
+        clone = copy.deepcopy(self)
+        clone._last_decision_s = -math.inf
+        other = NeighbourState(np.zeros(5))
+        clone.step(0.0, np.zeros(5), parent=None if clone._parent is None else other, original_parent=other)
+
     # ------------------------------------------------------------------ step
     def step(self, t_s: float, own_state, *, parent: NeighbourState | None = None,
              original_parent: NeighbourState | None = None,
@@ -255,35 +278,43 @@ class RobotController:
         me = row[self.robot_id]
         n = len(ids)
 
-        x = np.zeros((n, 5))
-        acmd = np.zeros((n, 2))
-        rbody = np.zeros(n)
-        team = np.zeros(n, dtype=np.int64)
-        coeffs = np.tile(self._own_coeffs[:, None], (1, n))
-        st = AutomatonState(n)
-        for rid, q in row.items():
+        # pack the robots as rows (one list per array, then one conversion each)
+        xs, accs, radii, teams, ds, modes, tgts = [], [], [], [], [], [], []
+        for rid in ids:
             if rid == self.robot_id:
-                x[q] = own
-                rbody[q] = self.params.body_radius_m
-                team[q] = self.team
+                xs.append(own)
+                accs.append((0.0, 0.0))
+                radii.append(self.params.body_radius_m)
+                teams.append(self.team)
+                ds.append(self._own_coeffs[4])
+                modes.append(MODE_C)
+                tgts.append(-1)
                 continue
             nb = others[rid]
-            x[q] = nb.state_m
-            acmd[q] = nb.accel_mps2
-            rbody[q] = nb.body_radius_m
-            coeffs[4, q] = nb.com_offset_m
-            team[q] = nb.team if nb.team is not None else -1 - rid
-            st.mode[q] = _MODE_BY_NAME[nb.mode]
-            st.t_entry[q] = -1e9
-            tgt_name = nb.target
+            xs.append(nb.state_m)
+            accs.append(nb.accel_mps2)
+            radii.append(nb.body_radius_m)
+            teams.append(nb.team if nb.team is not None else -1 - rid)
+            ds.append(nb.com_offset_m)
+            mode, tgt, tgt_name = _MODE_BY_NAME[nb.mode], -1, nb.target
             if nb.mode in ("yield", "mutual") and tgt_name and tgt_name.startswith("robot_"):
-                tid = int(tgt_name[len("robot_"):])
-                st.tgt[q] = row.get(tid, -1)
-                if st.tgt[q] < 0:
-                    st.mode[q] = MODE_OBSTACLE      # busy with a robot we do not hear
+                tgt = row.get(int(tgt_name[len("robot_"):]), -1)
+                if tgt < 0:
+                    mode = MODE_OBSTACLE            # busy with a robot we do not hear
             elif nb.mode == "obstacle":
-                st.tgt[q] = (self.obstacle_names.index(tgt_name)
-                             if tgt_name in self.obstacle_names else -1)
+                tgt = self.obstacle_names.index(tgt_name) if tgt_name in self.obstacle_names else -1
+            modes.append(mode)
+            tgts.append(tgt)
+        x = np.array(xs, dtype=float)
+        acmd = np.array(accs, dtype=float)
+        rbody = np.array(radii, dtype=float)
+        team = np.array(teams, dtype=np.int64)
+        coeffs = np.repeat(self._own_coeffs[:, None], n, axis=1)
+        coeffs[4] = ds
+        st = AutomatonState(n)
+        st.mode[:] = modes
+        st.tgt[:] = tgts
+        st.t_entry[:] = -1e9                        # others' entry times are not known here
         # own automaton state (targets stored as ids -> rows)
         src = self._state
         for name in ("mode", "sdir", "t_entry", "since", "last_kind", "last_exit"):

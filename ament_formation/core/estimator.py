@@ -88,6 +88,14 @@ def fold_steps(axle_xy, theta: float, ds, dth) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(axle_xy, dtype=float) + np.cumsum(steps, axis=0), th_end
 
 
+def arc_step(x: float, y: float, theta: float, ds: float, dth: float) -> tuple[float, float, float]:
+    """One step of :func:`fold_steps` in scalars (the per-sample path: no array overhead)."""
+    h = 0.5 * dth
+    chord = ds * (math.sin(h) / h if abs(h) > 1e-9 else 1.0 - h * h / 6.0)
+    th_mid = theta + h
+    return x + chord * math.cos(th_mid), y + chord * math.sin(th_mid), theta + dth
+
+
 @dataclass
 class EstimatorCounters:
     """What the estimator accepted and rejected (for diagnostics)."""
@@ -123,7 +131,7 @@ class PoseEstimator:
         self._steps: deque[_Step] = deque()
         self._axle = np.zeros(2)                   # current (end of odometry) axle pose
         self._th = 0.0
-        self._last_q: np.ndarray | None = None
+        self._last_q: tuple[float, float] | None = None   # wheel angles [left, right]
         self._last_q_t: float | None = None
         self._rates = np.zeros(2)                  # [v_mps, omega_radps] from the wheel rates
         self._odom_t: float | None = None          # time of the newest odometry sample
@@ -165,32 +173,37 @@ class PoseEstimator:
         """
         q = np.asarray(wheel_angle_rad, dtype=float)
         w = np.asarray(wheel_rate_radps, dtype=float)
-        if q.shape != (2,) or w.shape != (2,) or not (np.all(np.isfinite(q)) and np.all(np.isfinite(w))
-                                                       and math.isfinite(t_s)):
+        if q.shape != (2,) or w.shape != (2,):
             self.counters.rejected_nonfinite += 1
             return False
+        ql, qr = q.tolist()
+        wl, wr = w.tolist()
+        if not all(map(math.isfinite, (ql, qr, wl, wr, t_s))):
+            self.counters.rejected_nonfinite += 1
+            return False
+        r, a = self.p.wheel_radius_m, self.p.axle_length_m
+        t_s = float(t_s)
         if self._last_q is None:
-            self._last_q, self._last_q_t = q, float(t_s)
-            self._rates = np.array(wheel_to_body(w, self.p.wheel_radius_m, self.p.axle_length_m))
-            self._odom_t = float(t_s)
+            self._last_q, self._last_q_t = (ql, qr), t_s
+            self._rates = np.array([r * 0.5 * (wr + wl), r * (wr - wl) / a])
+            self._odom_t = t_s
             self.counters.odometry += 1
             return True
         dt = t_s - self._last_q_t
         if dt < 0.0:
             self.counters.rejected_stale += 1
             return False
-        dq = q - self._last_q
+        dql, dqr = ql - self._last_q[0], qr - self._last_q[1]
         # samples batched under one stamp (dt = 0) are fine; the jump test allows >= 10 ms of motion
-        if np.any(np.abs(dq) > self.p.max_wheel_speed_radps * max(dt, 0.01)) or np.any(
-                np.abs(w) > self.p.max_wheel_speed_radps):
+        wmax = self.p.max_wheel_speed_radps
+        if max(abs(dql), abs(dqr)) > wmax * max(dt, 0.01) or max(abs(wl), abs(wr)) > wmax:
             self.counters.rejected_glitch += 1
-            self._last_q, self._last_q_t = q, float(t_s)   # resynchronise, drop the jump
+            self._last_q, self._last_q_t = (ql, qr), t_s   # resynchronise, drop the jump
             return False
-        self._last_q, self._last_q_t = q, float(t_s)
-        ds, dth = wheel_to_body(dq, self.p.wheel_radius_m, self.p.axle_length_m)
-        step = _Step(float(t_s), float(ds), float(dth))
-        self._rates = np.array(wheel_to_body(w, self.p.wheel_radius_m, self.p.axle_length_m))
-        self._odom_t = float(t_s)
+        self._last_q, self._last_q_t = (ql, qr), t_s
+        step = _Step(t_s, r * 0.5 * (dqr + dql), r * (dqr - dql) / a)     # wheel_to_body, scalars
+        self._rates = np.array([r * 0.5 * (wr + wl), r * (wr - wl) / a])
+        self._odom_t = t_s
         self.counters.odometry += 1
         if self._anchor_t is None:
             self._pending.append(step)
@@ -199,8 +212,8 @@ class PoseEstimator:
                 self._pending.pop(0)
             return True
         self._steps.append(step)
-        axle, th = fold_steps(self._axle, self._th, [step.ds_m], [step.dth_rad])
-        self._axle, self._th = axle[-1], float(th[-1])
+        x, y, self._th = arc_step(float(self._axle[0]), float(self._axle[1]), self._th, step.ds_m, step.dth_rad)
+        self._axle = np.array([x, y])
         self._trim(t_s)
         return True
 
@@ -309,9 +322,11 @@ class PoseEstimator:
         if self._odom_t is None:
             return self.state()
         dt = min(max(0.0, t_s - self._odom_t), self.p.max_extrapolation_s)
-        v, w = self._rates
-        axle, th = fold_steps(self._axle, self._th, [v * dt], [w * dt])
-        return np.concatenate([self._to_point(axle[-1], float(th[-1])), self._rates])
+        v, w = self._rates.tolist()
+        x, y, th = arc_step(float(self._axle[0]), float(self._axle[1]), self._th, v * dt, w * dt)
+        d = self.p.com_offset_m
+        return np.array([x + d * math.cos(th), y + d * math.sin(th),
+                         (th + math.pi) % (2.0 * math.pi) - math.pi, v, w])
 
     def camera_age_s(self, now_s: float) -> float:
         """Time since the capture stamp of the newest accepted camera pose (inf if none)."""

@@ -49,7 +49,9 @@ def open_port(url: str, baud_rate: int) -> serial.SerialBase:
 class BridgeNode(Node):
     """Thin shell around :class:`~ament_formation.core.serial_link.LinkHost` (the protocol logic)."""
 
-    def __init__(self, *, context=None, clock=time.monotonic, **kwargs) -> None:
+    def __init__(self, *, context=None, clock=time.monotonic, poll_timer: bool = True, **kwargs) -> None:
+        """``poll_timer=False``: no poll timer of its own; the owner calls :meth:`poll` at
+        ``poll_rate_hz`` (nodes/team.py)."""
         super().__init__("formation_bridge", context=context, **kwargs)
         self.params = declare_dataclass(self, sl.LinkParams)
         self.link = sl.LinkHost(self.params)
@@ -63,7 +65,8 @@ class BridgeNode(Node):
         self._pub_state = self.create_publisher(JointState, "wheel_state", QOS_CONTROL)
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", QOS_DIAGNOSTICS)
         self.create_subscription(JointState, "wheel_torque", self._on_torque, QOS_CONTROL)
-        self.create_timer(1.0 / self.params.poll_rate_hz, self._poll)
+        if poll_timer:
+            self.create_timer(1.0 / self.params.poll_rate_hz, self._poll)
         self.create_timer(self.params.diagnostics_period_s, self._publish_diagnostics)
 
     # -- callbacks -----------------------------------------------------------------------------
@@ -73,6 +76,10 @@ class BridgeNode(Node):
             self.get_logger().warn("wheel_torque rejected (need 2 finite efforts)", throttle_duration_sec=1.0)
             return
         self._write(self.link.command_now(now))
+
+    def poll(self) -> None:
+        """Read the port, publish telemetry, write what the link has to send (see :meth:`_poll`)."""
+        self._poll()
 
     def _poll(self) -> None:
         now = self._mono()

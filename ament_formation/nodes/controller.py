@@ -126,8 +126,17 @@ def stop_torque(state: np.ndarray, k: PlantCoeffs, stop_time_s: float, gains: Co
     return u / scale[:, None]
 
 
+def threat_mode(mode: dict) -> tuple[str, str | None]:
+    """(mode, target) of another robot as its S7 acyclicity test reads it: an avoidance mode with
+    its target, anything else (coordination, hold, stopped, ...) as coordination."""
+    name, target = mode.get("mode"), mode.get("target")
+    if name in ("obstacle", "yield", "mutual") and isinstance(target, str):
+        return name, target
+    return "coordination", None
+
+
 class _Neighbour:
-    """Latest state/accel/mode of another robot."""
+    """Latest state/accel/mode of another robot, heard on its topics."""
 
     def __init__(self, rid: int):
         self.rid = rid
@@ -139,10 +148,63 @@ class _Neighbour:
         self.subs: list = []
 
 
+class PeerTable:
+    """Controllers composed in one process (nodes/team.py): they read each other's latest
+    published state, accel and mode here instead of through N^2 DDS subscriptions (the in-process
+    delivery an rclcpp component container gives). ``ids`` is fixed up front; ``nodes`` is filled
+    as the controllers are built."""
+
+    def __init__(self, ids):
+        self.ids = frozenset(int(i) for i in ids)
+        self.nodes: dict[int, "ControllerNode"] = {}
+
+
+class _PeerNeighbour:
+    """Another robot's controller in the same process: the same fields as :class:`_Neighbour`,
+    read from what that controller last published."""
+
+    subs: list = []
+
+    def __init__(self, rid: int, table: PeerTable):
+        self.rid = rid
+        self._table = table
+
+    def _node(self):
+        return self._table.nodes.get(self.rid)
+
+    @property
+    def state(self) -> np.ndarray | None:
+        node = self._node()
+        return None if node is None else node.out_state
+
+    @property
+    def stamp_s(self) -> float:
+        node = self._node()
+        return -math.inf if node is None else node.out_stamp_s
+
+    @property
+    def accel(self) -> np.ndarray:
+        node = self._node()
+        return np.zeros(2) if node is None else node.out_accel
+
+    @property
+    def mode(self) -> str:
+        node = self._node()
+        return "coordination" if node is None else threat_mode(node.mode)[0]
+
+    @property
+    def target(self) -> str | None:
+        node = self._node()
+        return None if node is None else threat_mode(node.mode)[1]
+
+
 class ControllerNode(Node):
     """See the module docstring."""
 
-    def __init__(self, *, context=None, params: ControllerParams | None = None, **node_kw):
+    def __init__(self, *, context=None, params: ControllerParams | None = None, tick_timer: bool = True,
+                 peers: PeerTable | None = None, **node_kw):
+        """``tick_timer=False``: no control timer of its own; the owner calls :meth:`control_tick`
+        every period (nodes/team.py). ``peers``: the controllers composed in the same process."""
         super().__init__("formation_controller", context=context, **node_kw)
         self.prm = params if params is not None else declare_dataclass(self, ControllerParams)
         self.scenario = load_scenario(self.prm.scenario)
@@ -159,12 +221,17 @@ class ControllerNode(Node):
                                    leader_path=spec.path if spec.leader else None,
                                    team=sc.team_leader(self.rid))
         fgraph = FormationGraph.from_scenario(sc)
-        # every robot's S8.3 goal source: leader path, or (original parent, delta) (S8.3 item 1)
+        # every robot's S8.3 goal source: leader path, or (original parent, delta, parent's d)
+        # (S8.3 item 1); and what the S7 tests need of it (body radius, team, d)
         self.goal_source = {}
+        self.robot_info = {}
         for r in sc.robots:
             p0 = fgraph.original_parent.get(r.id)
-            self.goal_source[r.id] = ((r.path, None, None) if p0 is None else
-                                      (None, p0, np.asarray(fgraph.offset(r.id, p0), dtype=float)))
+            self.goal_source[r.id] = ((r.path, None, None, 0.0) if p0 is None else
+                                      (None, p0, tuple(float(v) for v in fgraph.offset(r.id, p0)),
+                                       sc.robot(p0).params.com_offset_m))
+            self.robot_info[r.id] = (r.params.body_radius_m, sc.team_leader(r.id), r.params.com_offset_m)
+        self._path_cache: dict = {}      # leader id -> (t_s, r, r_dot) of this period
         self.start_s: float | None = None
         self.graph: msgs.GraphMessage | None = None
         self.parent: _Neighbour | None = None
@@ -189,6 +256,11 @@ class ControllerNode(Node):
         self._last_tick_wall = None
         self._sim_time = bool(self.get_parameter("use_sim_time").value)
         self.last_torque = np.zeros(2)
+        self.out_state: np.ndarray | None = None   # what this node last published (PeerTable)
+        self.out_stamp_s = -math.inf
+        self.out_accel = np.zeros(2)
+        self.peers = peers
+        self._msg_state = self._msg_torque = self._msg_accel = None   # refilled every period
 
         self.pub_torque = self.create_publisher(JointState, "wheel_torque", QOS_CONTROL)
         self.pub_state = self.create_publisher(msgs.Odometry, "state", QOS_CONTROL)
@@ -198,11 +270,15 @@ class ControllerNode(Node):
         self.create_subscription(JointState, "wheel_state", self._on_wheels, QOS_CONTROL)
         self.create_subscription(String, "/formation/graph", self._on_graph, QOS_GRAPH)
         self.create_subscription(String, "/formation/encounters", self._on_encounters, QOS_GRAPH)
-        self.neighbours = {k: self._subscribe_neighbour(k) for k in sc.robot_ids if k != self.rid}
+        self.neighbours = {k: (_PeerNeighbour(k, peers) if peers is not None and k in peers.ids
+                               else self._subscribe_neighbour(k)) for k in sc.robot_ids if k != self.rid}
         if self.orig_parent_id is not None:
             self.orig = self.neighbours[self.orig_parent_id]
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", QOS_DIAGNOSTICS)
-        self.timer = self.create_timer(1.0 / self.prm.control_rate_hz, self._control)
+        self.timer = self.create_timer(1.0 / self.prm.control_rate_hz, self._control) if tick_timer else None
+        if peers is not None:
+            peers.nodes[self.rid] = self
+        self.law.warm_up()      # compile (or load) the law's kernels now, not in the first tick
         self.create_timer(1.0, self._publish_diagnostics)
 
     # ------------------------------------------------------------------ time
@@ -280,12 +356,7 @@ class ControllerNode(Node):
             except ValueError:
                 self.rejected["parent"] += 1
                 return
-            name = mode.get("mode")
-            target = mode.get("target")
-            if name in ("obstacle", "yield", "mutual") and isinstance(target, str):
-                nb.mode, nb.target = name, target
-            else:                                    # coordination, hold, stopped, ...
-                nb.mode, nb.target = "coordination", None
+            nb.mode, nb.target = threat_mode(mode)
 
         nb.subs = [self.create_subscription(msgs.Odometry, f"/robot_{rid}/state", on_state, QOS_CONTROL),
                    self.create_subscription(AccelStamped, f"/robot_{rid}/accel", on_accel, QOS_CONTROL),
@@ -314,19 +385,27 @@ class ControllerNode(Node):
         """(g, g_dot) of robot ``rid`` at scenario time ``t_s`` (S8.3 item 1), each (2,) [m], [m/s]:
         a leader's r(t), r_dot(t); a follower's original parent point + delta and that point's
         velocity; (None, None) when its original parent is not heard."""
-        path, p0, offset = self.goal_source[rid]
+        path, p0, offset, d = self.goal_source[rid]
         if path is not None:
-            r, rd, _ = path.reference(t_s)
-            return np.asarray(r, dtype=float), np.asarray(rd, dtype=float)
+            cached = self._path_cache.get(rid)
+            if cached is None or cached[0] != t_s:
+                r, rd, _ = path.reference(t_s)
+                cached = (t_s, np.asarray(r, dtype=float), np.asarray(rd, dtype=float))
+                self._path_cache[rid] = cached
+            return cached[1], cached[2]
         xp = known.get(p0)
         if xp is None:
             return None, None
-        d = self.scenario.robot(p0).params.com_offset_m
-        th, v, w = xp[2], xp[3], xp[4]
-        pdot = np.array([v * math.cos(th) - d * w * math.sin(th), v * math.sin(th) + d * w * math.cos(th)])
-        return xp[:2] + offset, pdot
+        x, y, th, v, w = xp.tolist()
+        c, s = math.cos(th), math.sin(th)
+        return (np.array([x + offset[0], y + offset[1]]),
+                np.array([v * c - d * w * s, v * s + d * w * c]))
 
     # ------------------------------------------------------------------ control loop
+    def control_tick(self) -> None:
+        """One control period (the node's own timer, or its owner's when ``tick_timer=False``)."""
+        self._control()
+
     def _control(self) -> None:
         now = self.now_s()
         wall = time.monotonic()
@@ -342,7 +421,9 @@ class ControllerNode(Node):
             return
         state = est.state_at(now)
         stamp = msgs.stamp_from_s(now)
-        self.pub_state.publish(msgs.odometry(state, stamp, f"robot_{self.rid}"))
+        self._msg_state = msgs.odometry(state, stamp, f"robot_{self.rid}", out=self._msg_state)
+        self.pub_state.publish(self._msg_state)
+        self.out_state, self.out_stamp_s = state, now
         if now - self.last_wheel_s > self.prm.wheel_timeout_s:
             self._safety("stopped_wheels")
             self._send(np.zeros(2), None, now)     # no encoder data: nothing to brake with
@@ -368,16 +449,14 @@ class ControllerNode(Node):
             xk = parent_state if nb is self.parent else self._neighbour_now(nb, now)
             if xk is not None:
                 known[k] = xk
-        for k, xk in known.items():
+        for k, xk in known.items():    # every input was checked on arrival (finite, known mode)
             if k == self.rid:
                 continue
             nb = self.neighbours[k]
-            rk = self.scenario.robot(k).params
+            radius, team, d = self.robot_info[k]
             goal, goal_dot = self._goal_of(k, t, known)
-            heard[k] = NeighbourState(xk, nb.accel, body_radius_m=rk.body_radius_m,
-                                      team=self.scenario.team_leader(k), mode=nb.mode,
-                                      target=nb.target, com_offset_m=rk.com_offset_m,
-                                      goal_m=goal, goal_dot_mps=goal_dot)
+            heard[k] = NeighbourState.trusted(xk, nb.accel, radius, team, nb.mode, nb.target, d,
+                                              goal, goal_dot)
         orig_state = None
         if self.orig_parent_id is not None:
             orig_state = heard.get(self.orig_parent_id)
@@ -432,8 +511,11 @@ class ControllerNode(Node):
         torque = np.clip(torque, -self.tau_max, self.tau_max)   # DESIGN §7: clamp here too
         self.last_torque = torque
         stamp = msgs.stamp_from_s(now)
-        self.pub_torque.publish(msgs.wheel_torque(torque, stamp))
-        self.pub_accel.publish(msgs.accel_stamped(np.zeros(2) if accel is None else accel, stamp))
+        self._msg_torque = msgs.wheel_torque(torque, stamp, out=self._msg_torque)
+        self.pub_torque.publish(self._msg_torque)
+        self.out_accel = np.zeros(2) if accel is None else accel
+        self._msg_accel = msgs.accel_stamped(self.out_accel, stamp, out=self._msg_accel)
+        self.pub_accel.publish(self._msg_accel)
         key = json.dumps(self.mode, sort_keys=True)
         if key != self._mode_sent or now - self._last_mode_pub >= 1.0:
             self.pub_mode.publish(msgs.mode_msg(**self.mode))

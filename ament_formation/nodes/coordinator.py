@@ -14,7 +14,8 @@ revision, and every ``republish_s``); each controller applies its own as an over
 decision. It also publishes markers for RViz/Foxglove.
 
 Topics (QoS from ros/qos.py)
-  sub  robot_<id>/state     nav_msgs/Odometry                               QOS_CONTROL
+  sub  robot_<id>/state     nav_msgs/Odometry (taken serialized at 100 Hz; only the newest of each
+                            robot is decoded, when the arbitration or the markers read it)  QOS_CONTROL
   sub  robot_<id>/mode      std_msgs/String JSON {mode, target, direction, avoiding}  QOS_CONTROL
   pub  /formation/graph     std_msgs/String JSON {revision, parents, offsets_m, avoiding,
                             stamp_s, start_s}                                QOS_GRAPH
@@ -39,6 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from rclpy.node import Node
+from rclpy.serialization import deserialize_message
 from std_msgs.msg import String
 from visualization_msgs.msg import MarkerArray
 
@@ -92,7 +94,8 @@ class CoordinatorNode(Node):
         self.graph = FormationGraph.from_scenario(self.scenario)
         self.ids = self.scenario.robot_ids
         self.obstacles = ObstacleField(self.scenario.obstacles)
-        self.states: dict[int, np.ndarray] = {}
+        self._raw_states: dict[int, bytes] = {}      # newest serialized state of each robot
+        self._states: dict[int, np.ndarray] = {}     # decoded (finite) states
         self.avoiding: set[int] = set()
         self.modes: dict[int, dict] = {}
         self.revision = 0
@@ -108,7 +111,7 @@ class CoordinatorNode(Node):
         self.pub_encounters = self.create_publisher(String, "/formation/encounters", QOS_GRAPH)
         for rid in self.ids:
             self.create_subscription(msgs.Odometry, f"/robot_{rid}/state",
-                                     lambda m, rid=rid: self._on_state(rid, m), QOS_CONTROL)
+                                     lambda m, rid=rid: self._on_state(rid, m), QOS_CONTROL, raw=True)
             self.create_subscription(String, f"/robot_{rid}/mode",
                                      lambda m, rid=rid: self._on_mode(rid, m), QOS_CONTROL)
         if not self.prm.wait_for_robots:
@@ -125,11 +128,18 @@ class CoordinatorNode(Node):
         return self.get_clock().now().nanoseconds * 1e-9
 
     # ------------------------------------------------------------------ callbacks
-    def _on_state(self, rid: int, msg) -> None:
-        state, _ = msgs.state_from_odometry(msg)
-        if not np.all(np.isfinite(state)):
-            return
-        self.states[rid] = state
+    @property
+    def states(self) -> dict[int, np.ndarray]:
+        """Every heard robot's newest finite state (5,) (decoded here, on demand)."""
+        for rid, raw in self._raw_states.items():
+            state, _ = msgs.state_from_odometry(deserialize_message(raw, msgs.Odometry))
+            if np.all(np.isfinite(state)):
+                self._states[rid] = state
+        self._raw_states.clear()
+        return self._states
+
+    def _on_state(self, rid: int, raw: bytes) -> None:
+        self._raw_states[rid] = raw
         if self.start_s is None and len(self.states) == len(self.ids):
             self.start_s = self.now_s() + self.prm.start_delay_s
             self.get_logger().info(f"every controller is up: mission starts at {self.start_s:.3f} s")
@@ -193,12 +203,13 @@ class CoordinatorNode(Node):
             groups.append(msgs.ellipse_markers(self.obstacles.names, obs.center_m, obs.phi_rad,
                                                obs.semi_axes_m, {"P": 1.0, "L": av.limit_cycle_scale,
                                                                  "Q": av.protected_scale}, stamp))
-        if self.states:
-            ids = sorted(self.states)
+        states = self.states
+        if states:
+            ids = sorted(states)
             radius = [self.scenario.robot(i).params.body_radius_m for i in ids]
-            groups.append(msgs.robot_markers(ids, np.stack([self.states[i] for i in ids]), radius, stamp,
+            groups.append(msgs.robot_markers(ids, np.stack([states[i] for i in ids]), radius, stamp,
                                              avoiding=[i in self.avoiding for i in ids]))
-            groups.append(msgs.edge_markers(self.parents, {i: self.states[i][:2] for i in ids}, stamp))
+            groups.append(msgs.edge_markers(self.parents, {i: states[i][:2] for i in ids}, stamp))
         self.pub_markers.publish(msgs.marker_array(*groups))
 
 

@@ -55,10 +55,12 @@ def make_executor(node=None, context=None) -> Executor:
 
 
 def spin_node(node) -> None:
-    """Spin ``node`` until its context shuts down (SIGINT/SIGTERM) or it sets ``node.done``, on
-    :func:`make_executor`."""
+    """Spin ``node`` (and the nodes it hosts, ``node.composed_nodes``, nodes/team.py) until its
+    context shuts down (SIGINT/SIGTERM) or it sets ``node.done``, on :func:`make_executor`."""
     executor = make_executor(node, context=node.context)
-    executor.add_node(node)
+    nodes = [node, *getattr(node, "composed_nodes", ())]
+    for n in nodes:
+        executor.add_node(n)
     try:
         # EventsExecutor.spin() does not return on SIGTERM in Jazzy: loop on spin_once instead
         while node.context.ok() and not getattr(node, "done", False):
@@ -66,7 +68,8 @@ def spin_node(node) -> None:
     except ExternalShutdownException:  # SIGINT/SIGTERM shut the context down: a clean exit
         pass
     finally:
-        executor.remove_node(node)
+        for n in nodes:
+            executor.remove_node(n)
         executor.shutdown()
 
 

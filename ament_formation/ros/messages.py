@@ -98,17 +98,23 @@ def pose_from_msg(msg: PoseStamped) -> tuple[np.ndarray, float]:
 
 
 # --------------------------------------------------------------------------- odometry
-def odometry(state, stamp: Time, child_frame_id: str, frame_id: str = WORLD_FRAME) -> Odometry:
+def odometry(state, stamp: Time, child_frame_id: str, frame_id: str = WORLD_FRAME,
+             out: Odometry | None = None) -> Odometry:
     """Odometry from ``state`` (5,) [x_m, y_m, theta_rad, v_mps, omega_radps].
 
     Pose = controlled point p and heading; twist (body frame, REP 105) = (v, 0, 0), (0, 0, omega)
     with v the axle-midpoint speed; followers recompute p-dot from (theta, v, omega) and d (S2.2).
+    ``out``: a message this function filled before (same frames), refilled instead of building a
+    new one (a publisher at 100 Hz; rclpy serializes at publish, so reuse is safe).
     """
     x, y, th, v, w = (float(s) for s in state)
-    msg = Odometry()
+    if out is None:
+        msg = Odometry()
+        msg.header.frame_id = frame_id
+        msg.child_frame_id = child_frame_id
+    else:
+        msg = out
     msg.header.stamp = stamp
-    msg.header.frame_id = frame_id
-    msg.child_frame_id = child_frame_id
     msg.pose.pose.position.x = x
     msg.pose.pose.position.y = y
     q = msg.pose.pose.orientation
@@ -127,11 +133,16 @@ def state_from_odometry(msg: Odometry) -> tuple[np.ndarray, float]:
 
 
 # --------------------------------------------------------------------------- accel
-def accel_stamped(accel_mps2, stamp: Time, frame_id: str = WORLD_FRAME) -> AccelStamped:
-    """AccelStamped carrying the commanded point acceleration a_j (2,) [m/s^2, world] (S4)."""
-    msg = AccelStamped()
+def accel_stamped(accel_mps2, stamp: Time, frame_id: str = WORLD_FRAME,
+                  out: AccelStamped | None = None) -> AccelStamped:
+    """AccelStamped carrying the commanded point acceleration a_j (2,) [m/s^2, world] (S4).
+    ``out``: refill this message (built here before) instead of a new one."""
+    if out is None:
+        msg = AccelStamped()
+        msg.header.frame_id = frame_id
+    else:
+        msg = out
     msg.header.stamp = stamp
-    msg.header.frame_id = frame_id
     msg.accel.linear.x = float(accel_mps2[0])
     msg.accel.linear.y = float(accel_mps2[1])
     return msg
@@ -143,11 +154,15 @@ def accel_from_msg(msg: AccelStamped) -> tuple[np.ndarray, float]:
 
 
 # --------------------------------------------------------------------------- wheels
-def wheel_torque(torque_nm, stamp: Time) -> JointState:
-    """JointState with effort = (2,) [left, right] wheel torques [N m]."""
-    msg = JointState()
+def wheel_torque(torque_nm, stamp: Time, out: JointState | None = None) -> JointState:
+    """JointState with effort = (2,) [left, right] wheel torques [N m].
+    ``out``: refill this message (built here before) instead of a new one."""
+    if out is None:
+        msg = JointState()
+        msg.name = list(WHEEL_NAMES)
+    else:
+        msg = out
     msg.header.stamp = stamp
-    msg.name = list(WHEEL_NAMES)
     msg.effort = [float(torque_nm[0]), float(torque_nm[1])]
     return msg
 

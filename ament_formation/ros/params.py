@@ -45,9 +45,27 @@ def declare_dataclass(node: Node, cls: type[T], prefix: str = "", overrides: dic
             from rcl_interfaces.msg import ParameterDescriptor
 
             node.declare_parameter(name, None, ParameterDescriptor(dynamic_typing=True))
+            value = node.get_parameter(name).value
+        elif isinstance(default, (tuple, list)) and not default:
+            # an empty default says nothing of the element type: take it from the annotation
+            from rclpy.exceptions import ParameterUninitializedException
+            from rclpy.parameter import Parameter
+
+            hint = str(hints.get(f.name, ""))
+            kind = next((t for key, t in (("int", Parameter.Type.INTEGER_ARRAY),
+                                          ("float", Parameter.Type.DOUBLE_ARRAY),
+                                          ("str", Parameter.Type.STRING_ARRAY),
+                                          ("bool", Parameter.Type.BOOL_ARRAY)) if f"[{key}" in hint), None)
+            if kind is None:
+                raise ConfigError(f"empty default of unknown element type ({hint})", name)
+            node.declare_parameter(name, kind)
+            try:
+                value = node.get_parameter(name).value
+            except ParameterUninitializedException:
+                value = type(default)()
         else:
             node.declare_parameter(name, _ros_value(default))
-        value = node.get_parameter(name).value
+            value = node.get_parameter(name).value
         if isinstance(value, list) and "tuple" in str(hints.get(f.name, "")):
             value = tuple(value)
         values[f.name] = value
