@@ -4,7 +4,9 @@
 #   scripts/launch_robot.sh --id N --port /dev/ttyACM0 --scenario SCENARIO.yaml [--run-dir DIR]
 #                           [--params FILE.yaml] [--multi-machine]
 #
-# --params is passed to both nodes as --params-file (node parameters; see each node's header).
+# The bridge's torque limit (torque_limit_nm) is the robot's limit in the scenario; --params is
+# passed to both nodes as --params-file after it (node parameters; see each node's header).
+# Bad input (missing option, an id that is not a robot of the scenario): one line, exit code 2.
 # Stops both processes (by PID) on exit, Ctrl-C or TERM. DDS stays on loopback unless
 # --multi-machine (then export the same ROS_DOMAIN_ID on the robots and the camera PC).
 set -euo pipefail
@@ -12,7 +14,7 @@ here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
 # shellcheck source=launch_common.sh
 source "$here/launch_common.sh"
 
-usage() { sed -n '2,9p' "$0" | sed 's/^# \{0,1\}//'; exit 2; }
+usage() { sed -n '2,11p' "$0" | sed 's/^# \{0,1\}//'; exit 2; }
 id=""; port=""; scenario=""; run_dir=""; params=(); multi=""
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -29,10 +31,16 @@ done
 [[ "$id" =~ ^[0-9]+$ ]] || { echo "launch_robot.sh: --id: expected a robot id (integer)" >&2; exit 2; }
 [ -n "$port" ] || { echo "launch_robot.sh: --port: required (device path or pyserial URL)" >&2; exit 2; }
 [ -n "$scenario" ] && [ -f "$scenario" ] || { echo "launch_robot.sh: --scenario: no such file" >&2; exit 2; }
+info="$("$AF_BIN/python" "$here/launch_info.py" "$scenario")" || exit 2
+eval "$info"   # sets ids, robot_ids_list, marker_ids_list, torque_<id>
+[[ " $ids " == *" $id "* ]] || {
+  echo "launch_robot.sh: --id: robot $id is not in $scenario (ids: $ids)" >&2; exit 2; }
+torque_limit_nm="$(eval echo "\$torque_$id")"
 [ -n "$run_dir" ] || run_dir="$(mktemp -d -t ament_formation_robot.XXXXXX)"
 
 af_launch_init "$(realpath -m "$run_dir")" $multi
-af_start "bridge_$id" "$AF_BIN/formation_bridge" --ros-args -r __ns:="/robot_$id" -p port:="$port" "${params[@]}"
+af_start "bridge_$id" "$AF_BIN/formation_bridge" --ros-args -r __ns:="/robot_$id" -p port:="$port" \
+  -p torque_limit_nm:="$torque_limit_nm" "${params[@]}"
 af_start "controller_$id" "$AF_BIN/formation_controller" --ros-args -r __ns:="/robot_$id" \
   -p scenario:="$scenario" -p robot_id:="$id" "${params[@]}"
 af_wait_any

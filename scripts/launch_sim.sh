@@ -1,11 +1,15 @@
 #!/usr/bin/env bash
 # Start every process of a simulated run and stop them all (by PID) on exit, Ctrl-C or TERM.
 #
-#   scripts/launch_sim.sh SCENARIO.yaml [--run-dir DIR] [--duration S] [--speed F] [--multi-machine]
+#   scripts/launch_sim.sh SCENARIO.yaml [--run-dir DIR] [--duration S] [--speed F] [--team K]
+#                         [--multi-machine]
 #
 # Processes: formation_world (plant, emulated boards on ptys, synthetic camera), one formation_bridge
 # and one formation_controller per robot (namespace robot_<id>), formation_tracker,
-# formation_coordinator. Logs and the PID list go to RUN_DIR (default: a new temp folder).
+# formation_coordinator. --team K: instead of those two processes per robot, ceil(N/K)
+# formation_team processes (logs team_0, team_1, ...), each hosting the bridge and controller nodes
+# of K robots (same nodes and topics; fewer processes for many robots on one machine).
+# Logs and the PID list ("PID NAME" per line) go to RUN_DIR (default: a new temp folder).
 # The run ends when the world finishes the scenario, when any process exits, or after --duration S.
 # DDS stays on loopback unless --multi-machine (see scripts/launch_common.sh).
 set -euo pipefail
@@ -13,20 +17,24 @@ here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
 # shellcheck source=launch_common.sh
 source "$here/launch_common.sh"
 
-usage() { sed -n '2,11p' "$0" | sed 's/^# \{0,1\}//'; exit 2; }
+usage() { sed -n '2,14p' "$0" | sed 's/^# \{0,1\}//'; exit 2; }
 [ $# -ge 1 ] || usage
 scenario="$(realpath "$1")"; shift
-run_dir=""; duration=""; speed="1.0"; multi=""
+run_dir=""; duration=""; speed="1.0"; multi=""; team=""; team_given=""
 while [ $# -gt 0 ]; do
   case "$1" in
     --run-dir) run_dir="$2"; shift 2 ;;
     --duration) duration="$2"; shift 2 ;;
     --speed) speed="$2"; shift 2 ;;
+    --team) team_given=1; team="${2-}"; shift; [ $# -gt 0 ] && shift ;;
     --multi-machine) multi="--multi-machine"; shift ;;
     -h|--help) usage ;;
     *) echo "launch_sim.sh: unknown option $1" >&2; exit 2 ;;
   esac
 done
+if [ -n "$team_given" ] && ! [[ "$team" =~ ^[1-9][0-9]{0,3}$ ]]; then
+  echo "launch_sim.sh: --team: expected a positive integer K (robots per process), got '$team'" >&2; exit 2
+fi
 [ -f "$scenario" ] || { echo "launch_sim.sh: $scenario: no such scenario file" >&2; exit 2; }
 [ -n "$run_dir" ] || run_dir="$(mktemp -d -t ament_formation_sim.XXXXXX)"
 run_dir="$(realpath -m "$run_dir")"
@@ -53,13 +61,28 @@ for _ in $(seq 1 200); do
 done
 [ "$ready" = 1 ] || { echo "the world's ptys did not appear in 10 s" >&2; exit 1; }
 
-for id in $ids; do
-  af_start "bridge_$id" "$AF_BIN/formation_bridge" --ros-args -r __ns:="/robot_$id" \
-    -p port:="$pty_dir/robot_$id" -p torque_limit_nm:="$(eval echo "\$torque_$id")" -p poll_rate_hz:=200.0 \
-    -p use_sim_time:=$use_sim_time
-  af_start "controller_$id" "$AF_BIN/formation_controller" --ros-args -r __ns:="/robot_$id" \
-    -p scenario:="$scenario" -p robot_id:="$id" -p use_sim_time:=$use_sim_time
-done
+if [ -n "$team" ]; then
+  # ceil(N/K) formation_team processes, robots in scenario order, K per process
+  set -- $ids
+  k=0
+  while [ $# -gt 0 ]; do
+    members=()
+    while [ $# -gt 0 ] && [ "${#members[@]}" -lt "$team" ]; do members+=("$1"); shift; done
+    list="[$(IFS=,; echo "${members[*]}")]"
+    af_start "team_$k" "$AF_BIN/formation_team" --ros-args -p scenario:="$scenario" \
+      -p robot_ids:="$list" -p port_template:="$pty_dir/robot_{id}" -p poll_rate_hz:=200.0 \
+      -p use_sim_time:=$use_sim_time
+    k=$((k + 1))
+  done
+else
+  for id in $ids; do
+    af_start "bridge_$id" "$AF_BIN/formation_bridge" --ros-args -r __ns:="/robot_$id" \
+      -p port:="$pty_dir/robot_$id" -p torque_limit_nm:="$(eval echo "\$torque_$id")" -p poll_rate_hz:=200.0 \
+      -p use_sim_time:=$use_sim_time
+    af_start "controller_$id" "$AF_BIN/formation_controller" --ros-args -r __ns:="/robot_$id" \
+      -p scenario:="$scenario" -p robot_id:="$id" -p use_sim_time:=$use_sim_time
+  done
+fi
 af_start tracker "$AF_BIN/formation_tracker" --ros-args -p robot_ids:="$robot_ids_list" \
   -p marker_ids:="$marker_ids_list" -p use_sim_time:=$use_sim_time
 af_start coordinator "$AF_BIN/formation_coordinator" --ros-args -p scenario:="$scenario" \

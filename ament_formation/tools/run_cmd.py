@@ -1,7 +1,8 @@
 """`formation run SCENARIO.yaml --out DIR`: the whole ROS 2 system on the simulated hardware twin.
 
 Starts every process with scripts/launch_sim.sh (world, one bridge and one controller per robot,
-tracker, coordinator; logs in DIR/processes/), records every topic to DIR/run.mcap from this
+or with ``--team K`` one formation_team process per K robots, tracker, coordinator; logs in
+DIR/processes/), records every topic to DIR/run.mcap from this
 process (camera images only with --record-images), waits until the world has finished the
 scenario, then computes DIR/metrics.json from the recorded ground truth (core/metrics.py, the same
 code as `formation sim`), writes the trajectories (CSV) and DIR/figure.png, and prints a summary.
@@ -32,6 +33,10 @@ def register(subparsers) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="run directory (created)")
     p.add_argument("--speed", type=float, default=1.0,
                    help="sim seconds per wall second (!= 1 uses /clock and use_sim_time; default 1)")
+    p.add_argument("--team", type=int, default=None, metavar="K",
+                   help="compose K robots' bridge and controller nodes per process (formation_team; "
+                        "ceil(N/K) processes instead of 2 per robot: for many robots on one machine). "
+                        "Default: one bridge and one controller process per robot")
     p.add_argument("--record-images", action="store_true", help="also record /camera/image_raw")
     p.add_argument("--no-figure", action="store_true", help="skip figure.png")
     p.add_argument("--quiet", action="store_true", help="no progress and no summary")
@@ -73,6 +78,8 @@ def run_system(args: argparse.Namespace) -> int:
 
     if not (math.isfinite(args.speed) and 0.05 <= args.speed <= 50.0):
         raise ConfigError(f"must be in [0.05, 50] (got {args.speed})", "--speed")
+    if args.team is not None and args.team < 1:
+        raise ConfigError(f"must be a positive integer (robots per process; got {args.team})", "--team")
     out = Path(args.out).resolve()
     if out.exists() and not out.is_dir():
         raise ConfigError("exists and is not a directory", "--out", str(out))
@@ -122,7 +129,8 @@ def run_system(args: argparse.Namespace) -> int:
     proc_dir = out / "processes"
     launch = subprocess.Popen(
         [str(_ROOT / "scripts" / "launch_sim.sh"), str(Path(args.scenario).resolve()),
-         "--run-dir", str(proc_dir), "--speed", repr(float(args.speed))],
+         "--run-dir", str(proc_dir), "--speed", repr(float(args.speed))]
+        + ([] if args.team is None else ["--team", str(args.team)]),
         stdout=open(out / "launch.log", "w"), stderr=subprocess.STDOUT, start_new_session=True)
     progress = None if args.quiet else _Progress(sys.stderr, scenario.duration_s)
     status = 0
