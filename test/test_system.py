@@ -7,6 +7,7 @@ import subprocess
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from ament_formation.ros import messages as m
 from ament_formation.ros.executors import spin_until
@@ -142,18 +143,24 @@ def test_killing_the_controller_process_zeroes_the_board(ros_context, executor, 
             n.destroy_node()
 
 
-def test_head_on_encounter_through_the_nodes(ros_context, executor, tmp_path):
+@pytest.mark.parametrize("team", [False, True], ids=["node_per_robot", "formation_team"])
+def test_head_on_encounter_through_the_nodes(ros_context, executor, tmp_path, team):
     """Two one-robot teams drive toward each other on a line (test/data/head_on.yaml): the
     coordinator assigns the mutual pair on /formation/encounters (S7), both controllers resolve it,
     BOTH leave it again (back to coordination; the coordinator's release forces the joint exit,
-    S8.3), and the ground truth keeps them apart (> R_aa = 0.25 m between the controlled points)."""
+    S8.3), and the ground truth keeps them apart (> R_aa = 0.25 m between the controlled points).
+    ``team``: both robots' bridges and controllers in one formation_team node, the controllers
+    reading each other's state and mode in process (nodes/team.py) instead of over DDS."""
     import rclpy
     from std_msgs.msg import String
 
+    from ament_formation.nodes.controller import _PeerNeighbour
     from ament_formation.ros.system import build_system
 
     system = build_system(ros_context, DATA / "head_on.yaml", executor, pty_dir=tmp_path / "pty",
-                          start_delay_s=0.5, speed_factor=0.5, bridge_poll_rate_hz=200.0)
+                          start_delay_s=0.5, speed_factor=0.5, bridge_poll_rate_hz=200.0, team=team)
+    peers = [isinstance(nb, _PeerNeighbour) for c in system.controllers.values() for nb in c.neighbours.values()]
+    assert peers == [team, team]
     probe = rclpy.create_node("_probe_enc", context=ros_context)
     encounters = []
     probe.create_subscription(String, "/formation/encounters",

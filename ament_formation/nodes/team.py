@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import sys
 from dataclasses import dataclass
+from typing import Sequence
 
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -60,7 +61,10 @@ class TeamParams:
 class TeamNode(Node):
     """See the module docstring. ``composed_nodes``: the hosted nodes (spun with this one)."""
 
-    def __init__(self, *, context=None, params: TeamParams | None = None, **node_kw):
+    def __init__(self, *, context=None, params: TeamParams | None = None,
+                 hosted_parameters: Sequence[Parameter] = (), **node_kw):
+        """``hosted_parameters``: parameter overrides for every hosted node (what ``-p NAME:=VALUE``
+        on the process command line does), e.g. ``poll_rate_hz`` or ``pose_timeout_s``."""
         super().__init__("formation_team", context=context, **node_kw)
         self.prm = params if params is not None else declare_dataclass(self, TeamParams)
         scenario = load_scenario(self.prm.scenario)
@@ -69,7 +73,8 @@ class TeamNode(Node):
         if unknown:
             raise ConfigError(f"{unknown} are not robots of {scenario.name} (ids {list(scenario.robot_ids)})",
                               "robot_ids")
-        sim_time = [Parameter("use_sim_time", value=bool(self.get_parameter("use_sim_time").value))]
+        use_sim_time = bool(self.get_parameter("use_sim_time").value)
+        common = [*hosted_parameters, Parameter("use_sim_time", value=use_sim_time)]
         self.peers = PeerTable(ids)
         self.controllers: dict[int, ControllerNode] = {}
         self.bridges: dict[int, BridgeNode] = {}
@@ -78,13 +83,13 @@ class TeamNode(Node):
                 ns = f"/robot_{rid}"
                 if self.prm.port_template:
                     self.bridges[rid] = BridgeNode(
-                        context=context, namespace=ns, poll_timer=False, parameter_overrides=sim_time + [
+                        context=context, namespace=ns, poll_timer=False, parameter_overrides=common + [
                             Parameter("port", value=self.prm.port_template.replace("{id}", str(rid))),
                             Parameter("torque_limit_nm", value=float(scenario.robot(rid).params.torque_limit_nm))])
                 self.controllers[rid] = ControllerNode(
                     context=context, namespace=ns, tick_timer=False, peers=self.peers,
-                    parameter_overrides=sim_time + [Parameter("scenario", value=str(self.prm.scenario)),
-                                                    Parameter("robot_id", value=int(rid))])
+                    parameter_overrides=common + [Parameter("scenario", value=str(self.prm.scenario)),
+                                                  Parameter("robot_id", value=int(rid))])
         except BaseException:
             self.destroy_node()
             raise
