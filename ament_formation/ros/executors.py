@@ -2,6 +2,7 @@
 with a timeout instead of sleeping a fixed time."""
 from __future__ import annotations
 
+import gc
 import sys
 import time
 from typing import Callable
@@ -87,6 +88,11 @@ def run_node(name: str, make_node: Callable, args: list[str] | None = None,
     node = None
     try:
         node = make_node()
+        # everything built so far (modules, compiled kernels, the nodes) lives as long as the
+        # process: keep it out of the cyclic collector, whose full passes over it would otherwise
+        # pause the control loop for milliseconds
+        gc.collect()
+        gc.freeze()
         spin_node(node)
         return 0
     except ConfigError as err:
