@@ -157,6 +157,7 @@ class PeerTable:
     def __init__(self, ids):
         self.ids = frozenset(int(i) for i in ids)
         self.nodes: dict[int, "ControllerNode"] = {}
+        self.goals: dict = {}     # S8.3 goals of this period, shared (ControllerNode._goal_of)
 
 
 class _PeerNeighbour:
@@ -231,7 +232,7 @@ class ControllerNode(Node):
                                       (None, p0, tuple(float(v) for v in fgraph.offset(r.id, p0)),
                                        sc.robot(p0).params.com_offset_m))
             self.robot_info[r.id] = (r.params.body_radius_m, sc.team_leader(r.id), r.params.com_offset_m)
-        self._path_cache: dict = {}      # leader id -> (t_s, r, r_dot) of this period
+        self._goals: dict = {}           # robot id -> (g, g_dot) of this period ("t": its time)
         self.start_s: float | None = None
         self.graph: msgs.GraphMessage | None = None
         self.parent: _Neighbour | None = None
@@ -385,29 +386,35 @@ class ControllerNode(Node):
         """(g, g_dot) of robot ``rid`` at scenario time ``t_s`` (S8.3 item 1), each (2,) [m], [m/s]:
         a leader's r(t), r_dot(t); a follower's original parent point + delta and that point's
         velocity; (None, None) when its original parent is not heard."""
+        cache = self._goals if self.peers is None else self.peers.goals   # a team ticks at one time
+        if cache.get("t") != t_s:
+            cache.clear()
+            cache["t"] = t_s
+        hit = cache.get(rid)
+        if hit is not None:
+            return hit
         path, p0, offset, d = self.goal_source[rid]
         if path is not None:
-            cached = self._path_cache.get(rid)
-            if cached is None or cached[0] != t_s:
-                r, rd, _ = path.reference(t_s)
-                cached = (t_s, np.asarray(r, dtype=float), np.asarray(rd, dtype=float))
-                self._path_cache[rid] = cached
-            return cached[1], cached[2]
-        xp = known.get(p0)
-        if xp is None:
-            return None, None
-        x, y, th, v, w = xp.tolist()
-        c, s = math.cos(th), math.sin(th)
-        return (np.array([x + offset[0], y + offset[1]]),
-                np.array([v * c - d * w * s, v * s + d * w * c]))
+            r, rd, _ = path.reference(t_s)
+            hit = (np.asarray(r, dtype=float), np.asarray(rd, dtype=float))
+        else:
+            xp = known.get(p0)
+            if xp is None:
+                return None, None
+            x, y, th, v, w = xp.tolist()
+            c, s = math.cos(th), math.sin(th)
+            hit = (np.array([x + offset[0], y + offset[1]]), np.array([v * c - d * w * s, v * s + d * w * c]))
+        cache[rid] = hit
+        return hit
 
     # ------------------------------------------------------------------ control loop
-    def control_tick(self) -> None:
-        """One control period (the node's own timer, or its owner's when ``tick_timer=False``)."""
-        self._control()
+    def control_tick(self, now_s: float | None = None) -> None:
+        """One control period (the node's own timer, or its owner's when ``tick_timer=False``;
+        a team passes one ``now_s`` [s, ROS time] to every robot it hosts)."""
+        self._control(now_s)
 
-    def _control(self) -> None:
-        now = self.now_s()
+    def _control(self, now_s: float | None = None) -> None:
+        now = self.now_s() if now_s is None else now_s
         wall = time.monotonic()
         if (self._last_tick_wall is not None and self.start_s is not None and not self._sim_time
                 and wall - self._last_tick_wall > 1.5 / self.prm.control_rate_hz):

@@ -109,8 +109,9 @@ class TeamNode(Node):
             bridge.poll()
 
     def _control(self) -> None:
+        now_s = self.get_clock().now().nanoseconds * 1e-9     # one time for the whole period
         for controller in self.controllers.values():
-            controller.control_tick()
+            controller.control_tick(now_s)
 
     def destroy_node(self):
         for node in [*self.controllers.values(), *self.bridges.values()]:
