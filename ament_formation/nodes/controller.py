@@ -52,7 +52,6 @@ Parameters
 """
 from __future__ import annotations
 
-import json
 import math
 import sys
 from dataclasses import dataclass
@@ -523,7 +522,7 @@ class ControllerNode(Node):
         self.out_accel = np.zeros(2) if accel is None else accel
         self._msg_accel = msgs.accel_stamped(self.out_accel, stamp, out=self._msg_accel)
         self.pub_accel.publish(self._msg_accel)
-        key = json.dumps(self.mode, sort_keys=True)
+        key = tuple(sorted(self.mode.items()))
         if key != self._mode_sent or now - self._last_mode_pub >= 1.0:
             self.pub_mode.publish(msgs.mode_msg(**self.mode))
             self._mode_sent, self._last_mode_pub = key, now
