@@ -12,19 +12,24 @@ here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
 source "$here/launch_common.sh"
 
 usage() { sed -n '2,8p' "$0" | sed 's/^# \{0,1\}//'; exit 2; }
-scenario=""; camera=""; run_dir=""; params=(); multi=""
+scenario=""; camera=""; run_dir=""; params=(); params_file=""; multi=""
 while [ $# -gt 0 ]; do
   case "$1" in
-    --scenario) scenario="$(realpath "$2")"; shift 2 ;;
+    --scenario) scenario="${2-}"; shift; [ $# -gt 0 ] && shift ;;
     --camera) camera="$2"; shift 2 ;;
     --run-dir) run_dir="$2"; shift 2 ;;
-    --params) params=(--params-file "$(realpath "$2")"); shift 2 ;;
+    --params) params_file="${2-}"; shift; [ $# -gt 0 ] && shift ;;
     --multi-machine) multi="--multi-machine"; shift ;;
     -h|--help) usage ;;
     *) echo "launch_base.sh: unknown option $1" >&2; exit 2 ;;
   esac
 done
-[ -n "$scenario" ] && [ -f "$scenario" ] || { echo "launch_base.sh: --scenario: no such file" >&2; exit 2; }
+[ -n "$scenario" ] && [ -f "$scenario" ] || { echo "launch_base.sh: --scenario: no such file '$scenario'" >&2; exit 2; }
+scenario="$(realpath "$scenario")"
+if [ -n "$params_file" ]; then
+  [ -f "$params_file" ] || { echo "launch_base.sh: --params: no such file '$params_file'" >&2; exit 2; }
+  params=(--params-file "$(realpath "$params_file")")
+fi
 [ -n "$run_dir" ] || run_dir="$(mktemp -d -t ament_formation_base.XXXXXX)"
 cam=()
 [ -n "$camera" ] && cam=(-p source:="$camera")

@@ -4,6 +4,9 @@
 #   af_start NAME CMD ARGS...                  start CMD in the background, log to RUN_DIR/NAME.log
 #   af_wait_any [TIMEOUT_S]                    wait until one started process exits (or the timeout)
 #
+# A launcher's exit status: 143 when stopped by SIGTERM, 130 by Ctrl-C (SIGINT), else the status of
+# the first started process that exited (0 when --duration ran out); 2 for bad input.
+#
 # Several machines (opt-in): pass --multi-machine and export the same ROS_DOMAIN_ID on every machine.
 # That sets ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET and drops the loopback-only Fast DDS profile, so
 # DDS then uses every interface of the machine; use it only on a trusted robot network.
