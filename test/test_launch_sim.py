@@ -80,3 +80,45 @@ def test_launch_sim_smoke(ros_context, executor, tmp_path):
     assert [p for p in pids if _alive(p)] == [], out
     assert "stopped 7 processes" in out
     assert not any((run_dir / "pty").glob("robot_*")), "pty links left behind"
+
+
+def test_launch_sim_team_smoke(ros_context, executor, tmp_path):
+    """--team 2: one formation_team process hosts both robots' bridge and controller nodes."""
+    import rclpy
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import String
+
+    from ament_formation.tools.topic_cmd import list_nodes
+
+    run_dir = tmp_path / "run"
+    proc = subprocess.Popen([str(ROOT / "scripts" / "launch_sim.sh"), str(SCENARIO), "--run-dir", str(run_dir),
+                             "--team", "2"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    probe = rclpy.create_node("_team_probe", context=ros_context)
+    executor.add_node(probe)
+    torques = {0: 0, 1: 0}
+    for rid in torques:
+        probe.create_subscription(JointState, f"/robot_{rid}/wheel_torque", lambda _m, rid=rid: torques.__setitem__(
+            rid, torques[rid] + 1), QOS_CONTROL)
+    graphs: list[m.GraphMessage] = []
+    probe.create_subscription(String, "/formation/graph", lambda msg: graphs.append(m.graph_from_msg(msg)),
+                              QOS_GRAPH)
+    expected = EXPECTED_NODES | {"/formation_team"}
+    try:
+        ok = spin_until(executor, lambda: expected <= set(list_nodes(probe)) or proc.poll() is not None, 60.0)
+        assert ok and proc.poll() is None, f"nodes seen: {list_nodes(probe)}"
+        # the coordinator starts the mission once both composed controllers publish their state
+        assert spin_until(executor, lambda: graphs and graphs[-1].start_s is not None, 60.0)
+        n0 = dict(torques)
+        assert spin_until(executor, lambda: all(torques[r] > n0[r] + 10 for r in torques), 30.0), torques
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+        out, _ = proc.communicate(timeout=30)
+    names = [line.split()[1] for line in (run_dir / "pids").read_text().splitlines() if line.strip()]
+    assert names == ["world", "team_0", "tracker", "coordinator"], out
+    pids = [int(line.split()[0]) for line in (run_dir / "pids").read_text().splitlines() if line.strip()]
+    assert [p for p in pids if _alive(p)] == [], out
+    assert "stopped 4 processes" in out
+    assert proc.returncode == 143, out   # stopped by TERM (scripts/launch_common.sh)
+    assert not any((run_dir / "pty").glob("robot_*")), "pty links left behind"
