@@ -17,14 +17,19 @@ unset _af_root
 # wheels) creates lttng-ust-wait-*, and Fast DDS's shared-memory transport leaves fastrtps_* and
 # sem.fastrtps_* segments behind when a process is killed (a clean exit removes them; rmw_fastrtps
 # keeps that same-host transport next to the loopback UDP one). af_shm_snapshot remembers what
-# existed; af_shm_cleanup removes only what appeared since, once the run's processes are gone.
+# existed; af_shm_cleanup removes only what appeared since, once the run's processes are gone, and
+# never a segment a live process still maps (another launcher's processes on the same machine,
+# e.g. launch_base.sh next to launch_robot.sh, share Fast DDS port segments with ours).
 _af_shm_pattern='^(lttng-ust-wait|fastrtps_|sem\.fastrtps_)'
 af_shm_snapshot() {
   _af_shm_before="$(ls /dev/shm 2>/dev/null | grep -E "$_af_shm_pattern" || true)"
 }
 af_shm_cleanup() {
-  local f
+  local f in_use
+  in_use="$(cat /proc/[0-9]*/maps 2>/dev/null | grep -o '/dev/shm/[^ ]*' | sort -u || true)"
   for f in $(ls /dev/shm 2>/dev/null | grep -E "$_af_shm_pattern" || true); do
-    if ! grep -qxF "$f" <<<"${_af_shm_before:-}"; then rm -f "/dev/shm/$f"; fi
+    if ! grep -qxF "$f" <<<"${_af_shm_before:-}" && ! grep -qxF "/dev/shm/$f" <<<"$in_use"; then
+      rm -f "/dev/shm/$f"
+    fi
   done
 }
