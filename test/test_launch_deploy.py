@@ -209,3 +209,11 @@ def test_launcher_bad_input(args, option, tmp_path):
     if option == "--id" and args[2] == "7":
         assert "robot 7 is not in" in lines[0]
     assert proc.stdout == ""   # nothing was started
+
+
+def test_formation_run_rejects_bad_team(tmp_path):
+    proc = subprocess.run([str(ROOT / ".venv" / "bin" / "formation"), "run", str(SCENARIO), "--out",
+                           str(tmp_path / "out"), "--team", "0"], capture_output=True, text=True, timeout=60)
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode == 2 and len(lines) == 1 and "--team" in lines[0], proc.stderr
+    assert not (tmp_path / "out").exists()   # nothing was started
