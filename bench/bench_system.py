@@ -156,7 +156,8 @@ def node_processes(scenario_path: Path, pty_dir: Path, log_dir: Path, team: int 
     ids = [r.id for r in sc.robots]
     for k in range(0, len(ids), team) if team > 0 else ():
         group = ids[k:k + team]
-        procs.append(_start([str(b / "formation_team"), "--ros-args", "-p", f"scenario:={scenario_path}",
+        procs.append(_start([str(b / "formation_team"), "--ros-args",
+                             "-r", f"formation_team:__node:=formation_team_{k // team}", "-p", f"scenario:={scenario_path}",
                              "-p", f"robot_ids:={group}", "-p", f"port_template:={pty_dir}/robot_{{id}}",
                              "-p", "poll_rate_hz:=200.0"], log_dir, f"team_{k // team}"))
     for r in sc.robots if team <= 0 else ():

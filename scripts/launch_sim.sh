@@ -7,7 +7,7 @@
 # Processes: formation_world (plant, emulated boards on ptys, synthetic camera), one formation_bridge
 # and one formation_controller per robot (namespace robot_<id>), formation_tracker,
 # formation_coordinator. --team K: instead of those two processes per robot, ceil(N/K)
-# formation_team processes (logs team_0, team_1, ...), each hosting the bridge and controller nodes
+# formation_team processes (logs team_0, team_1, ...; nodes /formation_team_0, ...), each hosting the bridge and controller nodes
 # of K robots (same nodes and topics; fewer processes for many robots on one machine).
 # Logs and the PID list ("PID NAME" per line) go to RUN_DIR (default: a new temp folder).
 # The run ends when the world finishes the scenario, when any process exits, or after --duration S.
@@ -69,7 +69,8 @@ if [ -n "$team" ]; then
     members=()
     while [ $# -gt 0 ] && [ "${#members[@]}" -lt "$team" ]; do members+=("$1"); shift; done
     list="[$(IFS=,; echo "${members[*]}")]"
-    af_start "team_$k" "$AF_BIN/formation_team" --ros-args -p scenario:="$scenario" \
+    af_start "team_$k" "$AF_BIN/formation_team" --ros-args -r formation_team:__node:="formation_team_$k" \
+      -p scenario:="$scenario" \
       -p robot_ids:="$list" -p port_template:="$pty_dir/robot_{id}" -p poll_rate_hz:=200.0 \
       -p use_sim_time:=$use_sim_time
     k=$((k + 1))

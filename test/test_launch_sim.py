@@ -103,7 +103,7 @@ def test_launch_sim_team_smoke(ros_context, executor, tmp_path):
     graphs: list[m.GraphMessage] = []
     probe.create_subscription(String, "/formation/graph", lambda msg: graphs.append(m.graph_from_msg(msg)),
                               QOS_GRAPH)
-    expected = EXPECTED_NODES | {"/formation_team"}
+    expected = EXPECTED_NODES | {"/formation_team_0"}   # one team process, named by its index
     try:
         ok = spin_until(executor, lambda: expected <= set(list_nodes(probe)) or proc.poll() is not None, 60.0)
         assert ok and proc.poll() is None, f"nodes seen: {list_nodes(probe)}"
