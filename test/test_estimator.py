@@ -9,8 +9,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from ament_formation.core.errors import ConfigError
-from ament_formation.core.estimator import (EstimatorParams, PoseEstimator, fold_steps, wheel_to_body,
-                                            wrap_angle)
+from ament_formation.core.estimator import (EstimatorParams, PoseEstimator, _Step, fold_steps, fold_to_end,
+                                            wheel_to_body, wrap_angle)
 
 R, A, D = 0.035, 0.20, 0.05
 
@@ -27,6 +27,19 @@ def test_fold_steps_is_exact_for_constant_rates(v, w, th0, k, t):
         ex, ey = 0.3 + v * t * math.cos(th0), -0.2 + v * t * math.sin(th0)
     assert axle[-1] == pytest.approx([ex, ey], abs=1e-9)
     assert th[-1] == pytest.approx(th0 + w * t, abs=1e-12)
+
+
+@settings(max_examples=80, deadline=None)
+@given(steps=st.lists(st.tuples(st.floats(-0.01, 0.01), st.floats(-0.2, 0.2)), max_size=40),
+       th0=st.floats(-3.1, 3.1))
+def test_scalar_fold_matches_the_array_fold(steps, th0):
+    """fold_to_end (the per-sample scalar path) ends where fold_steps ends, tiny arcs included."""
+    axle, th = fold_to_end([0.3, -0.2], th0, [_Step(0.0, ds, dth) for ds, dth in steps])
+    if not steps:
+        assert axle.tolist() == [0.3, -0.2] and th == th0
+        return
+    ref_axle, ref_th = fold_steps([0.3, -0.2], th0, [s[0] for s in steps], [s[1] for s in steps])
+    assert axle == pytest.approx(ref_axle[-1], abs=1e-12) and th == pytest.approx(ref_th[-1], abs=1e-12)
 
 
 def test_wheel_to_body_matches_s2_kinematics():

@@ -96,6 +96,16 @@ def arc_step(x: float, y: float, theta: float, ds: float, dth: float) -> tuple[f
     return x + chord * math.cos(th_mid), y + chord * math.sin(th_mid), theta + dth
 
 
+def fold_to_end(axle_xy, theta: float, steps) -> tuple[np.ndarray, float]:
+    """The end pose of :func:`fold_steps` for a few ``_Step`` (a scalar loop: the estimator folds
+    the handful of odometry steps between camera frames, where arrays cost more than they save).
+    Returns (axle position (2,), heading [rad])."""
+    x, y, th = float(axle_xy[0]), float(axle_xy[1]), float(theta)
+    for step in steps:
+        x, y, th = arc_step(x, y, th, step.ds_m, step.dth_rad)
+    return np.array([x, y]), th
+
+
 @dataclass
 class EstimatorCounters:
     """What the estimator accepted and rejected (for diagnostics)."""
@@ -224,9 +234,8 @@ class PoseEstimator:
         while self._steps and self._steps[0].t_s < cutoff:
             old.append(self._steps.popleft())
         if old:
-            axle, th = fold_steps(self._anchor_axle, self._anchor_th,
-                                  [s.ds_m for s in old], [s.dth_rad for s in old])
-            self._anchor_axle, self._anchor_th, self._anchor_t = axle[-1], float(th[-1]), old[-1].t_s
+            self._anchor_axle, self._anchor_th = fold_to_end(self._anchor_axle, self._anchor_th, old)
+            self._anchor_t = old[-1].t_s
 
     # ---------------------------------------------------------------- camera
     def _split_at(self, t_s: float) -> tuple[list[_Step], list[_Step]]:
@@ -262,12 +271,7 @@ class PoseEstimator:
             self.counters.rejected_stale += 1
             return "rejected_stale"
         before, after = self._split_at(t_s)
-        if before:
-            axle_c, th_c = fold_steps(self._anchor_axle, self._anchor_th,
-                                      [s.ds_m for s in before], [s.dth_rad for s in before])
-            axle_c, th_c = axle_c[-1], float(th_c[-1])
-        else:
-            axle_c, th_c = self._anchor_axle, self._anchor_th
+        axle_c, th_c = fold_to_end(self._anchor_axle, self._anchor_th, before)
         predicted = self._to_point(axle_c, th_c)
         innov = pose - predicted
         innov[2] = float(wrap_angle(innov[2]))
@@ -300,12 +304,7 @@ class PoseEstimator:
         self.counters.camera_accepted += 1
 
     def _refold(self) -> None:
-        if self._steps:
-            axle, th = fold_steps(self._anchor_axle, self._anchor_th,
-                                  [s.ds_m for s in self._steps], [s.dth_rad for s in self._steps])
-            self._axle, self._th = axle[-1], float(th[-1])
-        else:
-            self._axle, self._th = self._anchor_axle.copy(), self._anchor_th
+        self._axle, self._th = fold_to_end(self._anchor_axle, self._anchor_th, self._steps)
 
     # ---------------------------------------------------------------- output
     def pose(self) -> np.ndarray:
