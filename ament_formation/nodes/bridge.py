@@ -87,8 +87,9 @@ class BridgeNode(Node):
             if now >= self._next_open_s:
                 self._try_open(now)
             return
-        try:
-            data = self._port.read(4096)
+        try:   # ask the driver first: an empty poll is one ioctl instead of pyserial's select loop
+            waiting = self._port.in_waiting
+            data = self._port.read(min(waiting, 4096)) if waiting else b""
         except (serial.SerialException, OSError) as err:
             self._lost(now, f"read: {err}")
             return
