@@ -49,9 +49,13 @@ def open_port(url: str, baud_rate: int) -> serial.SerialBase:
 class BridgeNode(Node):
     """Thin shell around :class:`~ament_formation.core.serial_link.LinkHost` (the protocol logic)."""
 
-    def __init__(self, *, context=None, clock=time.monotonic, poll_timer: bool = True, **kwargs) -> None:
+    def __init__(self, *, context=None, clock=time.monotonic, poll_timer: bool = True, torque_topic: bool = True,
+                 **kwargs) -> None:
         """``poll_timer=False``: no poll timer of its own; the owner calls :meth:`poll` at
-        ``poll_rate_hz`` (nodes/team.py)."""
+        ``poll_rate_hz`` (nodes/team.py). ``torque_topic=False``: no wheel_torque subscription;
+        the owner's controller calls :meth:`command` (a team: the controller in the same process).
+        ``telemetry_sinks``: callables ``(position_rad (2,), velocity_radps (2,), stamp_s)`` given
+        every wheel sample; with a sink, wheel_state is published only while someone subscribes."""
         super().__init__("formation_bridge", context=context, **kwargs)
         self.params = declare_dataclass(self, sl.LinkParams)
         self.link = sl.LinkHost(self.params)
@@ -64,18 +68,26 @@ class BridgeNode(Node):
         self.link_up_since_s: float | None = None
         self._pub_state = self.create_publisher(JointState, "wheel_state", QOS_CONTROL)
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", QOS_DIAGNOSTICS)
-        self.create_subscription(JointState, "wheel_torque", self._on_torque, QOS_CONTROL)
+        self.telemetry_sinks: list = []
+        if torque_topic:
+            self.create_subscription(JointState, "wheel_torque", self._on_torque, QOS_CONTROL)
         if poll_timer:
             self.create_timer(1.0 / self.params.poll_rate_hz, self._poll)
         self.create_timer(self.params.diagnostics_period_s, self._publish_diagnostics)
 
     # -- callbacks -----------------------------------------------------------------------------
     def _on_torque(self, msg: JointState) -> None:
+        self.command(torques_from_joint_state(msg))
+
+    def command(self, torques_nm: tuple[float, float] | None) -> bool:
+        """Take (left, right) wheel torques [N m] as the new input and send them to the board now
+        (what a wheel_torque message does). False (counted, logged) for anything but two finite values."""
         now = self._mono()
-        if not self.link.set_input(torques_from_joint_state(msg), now):
+        if not self.link.set_input(torques_nm, now):
             self.get_logger().warn("wheel_torque rejected (need 2 finite efforts)", throttle_duration_sec=1.0)
-            return
+            return False
         self._write(self.link.command_now(now))
+        return True
 
     def poll(self) -> None:
         """Read the port, publish telemetry, write what the link has to send (see :meth:`_poll`)."""
@@ -95,7 +107,11 @@ class BridgeNode(Node):
             return
         samples, answer = self.link.receive(data, now) if data else ([], b"")
         for s in samples:
-            self._pub_state.publish(wheel_state(s.position_rad, s.velocity_radps, self.get_clock().now().to_msg()))
+            stamp = self.get_clock().now()
+            for sink in self.telemetry_sinks:
+                sink(s.position_rad, s.velocity_radps, stamp.nanoseconds * 1e-9)
+            if not self.telemetry_sinks or self._pub_state.get_subscription_count():
+                self._pub_state.publish(wheel_state(s.position_rad, s.velocity_radps, stamp.to_msg()))
         self._write(answer + self.link.poll(now))
         if self.link.state == sl.UP and self.link_up_since_s is None:
             self.link_up_since_s = now

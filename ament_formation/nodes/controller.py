@@ -202,9 +202,12 @@ class ControllerNode(Node):
     """See the module docstring."""
 
     def __init__(self, *, context=None, params: ControllerParams | None = None, tick_timer: bool = True,
-                 peers: PeerTable | None = None, **node_kw):
+                 peers: PeerTable | None = None, bridge=None, **node_kw):
         """``tick_timer=False``: no control timer of its own; the owner calls :meth:`control_tick`
-        every period (nodes/team.py). ``peers``: the controllers composed in the same process."""
+        every period (nodes/team.py). ``peers``: the controllers composed in the same process.
+        ``bridge``: this robot's BridgeNode in the same process (a team): wheel samples come from
+        it directly and torques go to it directly (:meth:`BridgeNode.command`) instead of through
+        wheel_state / wheel_torque, which are then published only while someone subscribes."""
         super().__init__("formation_controller", context=context, **node_kw)
         self.prm = params if params is not None else declare_dataclass(self, ControllerParams)
         self.scenario = load_scenario(self.prm.scenario)
@@ -267,7 +270,11 @@ class ControllerNode(Node):
         self.pub_accel = self.create_publisher(AccelStamped, "accel", QOS_CONTROL)
         self.pub_mode = self.create_publisher(String, "mode", QOS_CONTROL)
         self.create_subscription(PoseStamped, "pose", self._on_pose, QOS_CONTROL)
-        self.create_subscription(JointState, "wheel_state", self._on_wheels, QOS_CONTROL)
+        self.bridge = bridge
+        if bridge is None:
+            self.create_subscription(JointState, "wheel_state", self._on_wheels, QOS_CONTROL)
+        else:
+            bridge.telemetry_sinks.append(self.wheel_sample)
         self.create_subscription(String, "/formation/graph", self._on_graph, QOS_GRAPH)
         self.create_subscription(String, "/formation/encounters", self._on_encounters, QOS_GRAPH)
         self.neighbours = {k: (_PeerNeighbour(k, peers) if peers is not None and k in peers.ids
@@ -298,6 +305,10 @@ class ControllerNode(Node):
         except ValueError:
             self.rejected["wheel"] += 1
             return
+        self.wheel_sample(q, qd, stamp_s)
+
+    def wheel_sample(self, q, qd, stamp_s: float) -> None:
+        """One encoder sample: wheel angles q (2,) [rad], rates qd (2,) [rad/s] at ``stamp_s``."""
         if self.estimator.wheel_update(stamp_s, q, qd):
             self.last_wheel_s = self.now_s()
         else:
@@ -517,8 +528,11 @@ class ControllerNode(Node):
         torque = np.clip(torque, -self.tau_max, self.tau_max)   # DESIGN §7: clamp here too
         self.last_torque = torque
         stamp = msgs.stamp_from_s(now)
-        self._msg_torque = msgs.wheel_torque(torque, stamp, out=self._msg_torque)
-        self.pub_torque.publish(self._msg_torque)
+        if self.bridge is None or self.pub_torque.get_subscription_count():
+            self._msg_torque = msgs.wheel_torque(torque, stamp, out=self._msg_torque)
+            self.pub_torque.publish(self._msg_torque)
+        if self.bridge is not None:
+            self.bridge.command((float(torque[0]), float(torque[1])))
         self.out_accel = np.zeros(2) if accel is None else accel
         self._msg_accel = msgs.accel_stamped(self.out_accel, stamp, out=self._msg_accel)
         self.pub_accel.publish(self._msg_accel)
@@ -530,6 +544,8 @@ class ControllerNode(Node):
 
 def _send_zero_torque(node: "ControllerNode") -> None:
     """Last word of the process: zero torque (the bridge and the board time out anyway)."""
+    if node.bridge is not None:
+        node.bridge.command((0.0, 0.0))
     node.pub_torque.publish(msgs.wheel_torque(np.zeros(2), msgs.stamp_from_s(node.now_s())))
 
 

@@ -8,9 +8,11 @@ and one executor, and
 * one timer runs every hosted controller's control period back to back (one wake-up of the
   process per period instead of one per robot), and one timer polls every hosted bridge;
 * the hosted controllers read each other's latest state, accel and mode in process
-  (nodes/controller.py PeerTable) instead of through N^2 DDS subscriptions. Everything is still
-  published on DDS: the coordinator, the recorder, the tools and the robots in other processes see
-  the same topics as before.
+  (nodes/controller.py PeerTable) instead of through N^2 DDS subscriptions, and each controller
+  hands its torques to its robot's bridge and takes the wheel samples from it directly. State,
+  accel and mode are still published on DDS for the coordinator, the recorder, the tools and the
+  robots in other processes; wheel_torque and wheel_state are published while anyone subscribes
+  (a hosted bridge takes its commands only from its hosted controller).
 
 For simulated runs of many robots on one machine (``scripts/launch_sim.sh --team K``: K robots per
 process). On real robots each board runs its own bridge and controller (scripts/launch_robot.sh).
@@ -83,11 +85,13 @@ class TeamNode(Node):
                 ns = f"/robot_{rid}"
                 if self.prm.port_template:
                     self.bridges[rid] = BridgeNode(
-                        context=context, namespace=ns, poll_timer=False, parameter_overrides=common + [
+                        context=context, namespace=ns, poll_timer=False, torque_topic=False,
+                        parameter_overrides=common + [
                             Parameter("port", value=self.prm.port_template.replace("{id}", str(rid))),
                             Parameter("torque_limit_nm", value=float(scenario.robot(rid).params.torque_limit_nm))])
                 self.controllers[rid] = ControllerNode(
                     context=context, namespace=ns, tick_timer=False, peers=self.peers,
+                    bridge=self.bridges.get(rid),
                     parameter_overrides=common + [Parameter("scenario", value=str(self.prm.scenario)),
                                                   Parameter("robot_id", value=int(rid))])
         except BaseException:
