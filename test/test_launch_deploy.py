@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from ament_formation.ros.executors import spin_until
+from processes import alive
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPTS = ROOT / "scripts"
@@ -22,17 +23,6 @@ SCENARIO = ROOT / "test" / "data" / "paper_short.yaml"
 ROBOT_1_TORQUE_LIMIT_NM = 0.12   # != the 0.15 N m of every other robot and of the bridge's default
 SHM_PATTERN = re.compile(r"^(fastrtps_|sem\.fastrtps_)")
 EXIT_ON_TERM = 143   # scripts/launch_common.sh: a launcher stopped by SIGTERM exits 128 + 15
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    try:  # a zombie is not alive
-        return Path(f"/proc/{pid}/stat").read_text().split()[2] != "Z"
-    except OSError:
-        return False
 
 
 def _pids(run_dir: Path) -> list[int]:
@@ -73,7 +63,7 @@ def _stop(proc: subprocess.Popen, run_dir: Path) -> None:
             proc.kill()
             proc.wait()
     for pid in _pids(run_dir):
-        if _alive(pid):
+        if alive(pid):
             os.kill(pid, signal.SIGKILL)
 
 
@@ -175,9 +165,9 @@ def test_deployment_split(ros_context, executor, tmp_path):
             outputs.append(out)
             assert proc.returncode == EXIT_ON_TERM, out
             deadline = time.monotonic() + 10.0
-            while [p for p in _pids(run_dir) if _alive(p)] and time.monotonic() < deadline:
+            while [p for p in _pids(run_dir) if alive(p)] and time.monotonic() < deadline:
                 time.sleep(0.05)   # polling the PIDs' exit, not waiting for a result
-            assert [p for p in _pids(run_dir) if _alive(p)] == [], out
+            assert [p for p in _pids(run_dir) if alive(p)] == [], out
             assert "stopped 2 processes" in out
     finally:
         for proc, run_dir in launchers:

@@ -2,7 +2,6 @@
 each other, topics flow, the mission starts and robots move; TERM stops every process it started."""
 from __future__ import annotations
 
-import os
 import signal
 import subprocess
 from pathlib import Path
@@ -12,23 +11,13 @@ import numpy as np
 from ament_formation.ros import messages as m
 from ament_formation.ros.executors import spin_until
 from ament_formation.ros.qos import QOS_CONTROL, QOS_GRAPH
+from processes import alive
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIO = ROOT / "test" / "data" / "paper_short.yaml"
 EXPECTED_NODES = {"/formation_world", "/formation_tracker", "/formation_coordinator",
                   "/robot_0/formation_bridge", "/robot_0/formation_controller",
                   "/robot_1/formation_bridge", "/robot_1/formation_controller"}
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    try:  # a zombie is not alive
-        return Path(f"/proc/{pid}/stat").read_text().split()[2] != "Z"
-    except OSError:
-        return False
 
 
 def test_launch_sim_smoke(ros_context, executor, tmp_path):
@@ -77,7 +66,7 @@ def test_launch_sim_smoke(ros_context, executor, tmp_path):
         out, _ = proc.communicate(timeout=30)
     pids = [int(line.split()[0]) for line in (run_dir / "pids").read_text().splitlines() if line.strip()]
     assert len(pids) == 1 + 2 * 2 + 2
-    assert [p for p in pids if _alive(p)] == [], out
+    assert [p for p in pids if alive(p)] == [], out
     assert "stopped 7 processes" in out
     assert not any((run_dir / "pty").glob("robot_*")), "pty links left behind"
 
@@ -118,7 +107,7 @@ def test_launch_sim_team_smoke(ros_context, executor, tmp_path):
     names = [line.split()[1] for line in (run_dir / "pids").read_text().splitlines() if line.strip()]
     assert names == ["world", "team_0", "tracker", "coordinator"], out
     pids = [int(line.split()[0]) for line in (run_dir / "pids").read_text().splitlines() if line.strip()]
-    assert [p for p in pids if _alive(p)] == [], out
+    assert [p for p in pids if alive(p)] == [], out
     assert "stopped 4 processes" in out
     assert proc.returncode == 143, out   # stopped by TERM (scripts/launch_common.sh)
     assert not any((run_dir / "pty").glob("robot_*")), "pty links left behind"
