@@ -154,13 +154,13 @@ def test_head_on_encounter_through_the_nodes(ros_context, executor, tmp_path, te
     import rclpy
     from std_msgs.msg import String
 
-    from ament_formation.nodes.controller import _PeerNeighbour
     from ament_formation.ros.system import build_system
 
     system = build_system(ros_context, DATA / "head_on.yaml", executor, pty_dir=tmp_path / "pty",
                           start_delay_s=0.5, speed_factor=0.5, bridge_poll_rate_hz=200.0, team=team)
-    peers = [isinstance(nb, _PeerNeighbour) for c in system.controllers.values() for nb in c.neighbours.values()]
-    assert peers == [team, team]
+    in_process = [c.peers is not None and nb is c.peers.records[k]
+                  for c in system.controllers.values() for k, nb in c.neighbours.items()]
+    assert in_process == [team, team]
     probe = rclpy.create_node("_probe_enc", context=ros_context)
     encounters = []
     probe.create_subscription(String, "/formation/encounters",

@@ -34,17 +34,17 @@ def test_unknown_robot_is_rejected(ros_context):
 
 def test_one_tick_runs_every_hosted_controller_and_peers_read_in_process(ros_context):
     """One team tick = one control period of every hosted controller, in id order; a controller
-    sees its peer's state exactly as the peer published it in that tick (no DDS subscription)."""
+    sees its peer's state, accel and mode exactly as the peer published them (no DDS subscription)."""
     from ament_formation.core.scenario import load_scenario
-    from ament_formation.nodes.controller import _PeerNeighbour
+    from ament_formation.ros import messages as msgs
 
     sc = load_scenario(SCENARIO)
     team = TeamNode(context=ros_context, params=TeamParams(scenario=str(SCENARIO)))
     try:
         assert sorted(team.controllers) == [0, 1] and team.bridges == {}
         c0, c1 = team.controllers[0], team.controllers[1]
-        assert isinstance(c1.neighbours[0], _PeerNeighbour) and isinstance(c0.neighbours[1], _PeerNeighbour)
-        assert c1.neighbours[0].state is None            # robot 0 has published nothing yet
+        assert c1.neighbours[0] is team.peers.records[0] and c0.neighbours[1] is team.peers.records[1]
+        assert c1.neighbours[0].subs == [] and c1.neighbours[0].state is None   # nothing published yet
         now = c0.now_s()
         for c in (c0, c1):                               # a camera pose and wheel data for each
             c.estimator.wheel_update(now, np.zeros(2), np.zeros(2))
@@ -53,12 +53,15 @@ def test_one_tick_runs_every_hosted_controller_and_peers_read_in_process(ros_con
         team._control()
         assert (c0.ticks, c1.ticks) == (1, 1)
         seen = c1.neighbours[0]
-        np.testing.assert_array_equal(seen.state, c0.out_state)
+        published, stamp_s = msgs.state_from_odometry(c0._msg_state)    # what went out on robot_0/state
+        np.testing.assert_allclose(seen.state, published, atol=1e-12)
         np.testing.assert_allclose(seen.state[:2], sc.robot(0).initial_pose[:2], atol=1e-3)
-        assert seen.stamp_s == c0.out_stamp_s >= now
+        assert seen.stamp_s == pytest.approx(stamp_s, abs=1e-9) and seen.stamp_s >= now
         assert (seen.mode, seen.target) == ("coordination", None)
         c0.mode = {"mode": "obstacle", "target": "O1", "direction": "cw", "avoiding": True}
+        c0._send(np.zeros(2), np.array([0.01, -0.02]), c0.now_s())
         assert (seen.mode, seen.target) == ("obstacle", "O1")
+        np.testing.assert_array_equal(seen.accel, [0.01, -0.02])
     finally:
         team.destroy_node()
     assert team.controllers == {}

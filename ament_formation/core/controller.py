@@ -280,6 +280,7 @@ class RobotController:
 
         # pack the robots as rows (one list per array, then one conversion each)
         xs, accs, radii, teams, ds, modes, tgts = [], [], [], [], [], [], []
+        goal_rows, goal_vals, blind_rows = [], [], []   # rows with a known goal (g, g_dot), rows without
         for rid in ids:
             if rid == self.robot_id:
                 xs.append(own)
@@ -305,6 +306,12 @@ class RobotController:
                 tgt = self.obstacle_names.index(tgt_name) if tgt_name in self.obstacle_names else -1
             modes.append(mode)
             tgts.append(tgt)
+            if nb.goal_m is None:
+                blind_rows.append(len(xs) - 1)
+            else:
+                goal_rows.append(len(xs) - 1)
+                gd = (0.0, 0.0) if nb.goal_dot_mps is None else nb.goal_dot_mps
+                goal_vals.append((nb.goal_m[0], nb.goal_m[1], gd[0], gd[1]))
         x = np.array(xs, dtype=float)
         acmd = np.array(accs, dtype=float)
         rbody = np.array(radii, dtype=float)
@@ -367,15 +374,12 @@ class RobotController:
         if self._orig_parent is not None:
             orig_parent[me] = row[self._orig_parent]
             orig_offset[me] = self._orig_offset
-        for rid, q in row.items():            # others: their goal when known, else their position
-            if q != me:
-                nb = others[rid]
-                if nb.goal_m is not None:
-                    ref[q, 0:2] = nb.goal_m
-                    ref[q, 2:4] = 0.0 if nb.goal_dot_mps is None else nb.goal_dot_mps
-                else:
-                    ref[q, 0:2] = x[q, 0:2]
-                    ref[q, 2:4] = pd[q]
+        # others: their goal when known, else their position and point velocity
+        if goal_rows:
+            ref[goal_rows, 0:4] = goal_vals
+        if blind_rows:
+            ref[blind_rows, 0:2] = x[blind_rows, 0:2]
+            ref[blind_rows, 2:4] = pd[blind_rows]
         goal = np.zeros((n, 2))
         goal_dot = np.zeros((n, 2))
         vc = np.zeros((n, 2))

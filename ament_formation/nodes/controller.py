@@ -135,7 +135,8 @@ def threat_mode(mode: dict) -> tuple[str, str | None]:
 
 
 class _Neighbour:
-    """Latest state/accel/mode of another robot, heard on its topics."""
+    """Latest state/accel/mode of a robot: heard on its topics, or (PeerTable) written by its
+    controller in the same process as it publishes them."""
 
     def __init__(self, rid: int):
         self.rid = rid
@@ -148,54 +149,15 @@ class _Neighbour:
 
 
 class PeerTable:
-    """Controllers composed in one process (nodes/team.py): they read each other's latest
-    published state, accel and mode here instead of through N^2 DDS subscriptions (the in-process
-    delivery an rclcpp component container gives). ``ids`` is fixed up front; ``nodes`` is filled
-    as the controllers are built."""
+    """Controllers composed in one process (nodes/team.py): each one writes what it publishes
+    (state with its stamp, accel, mode) into its own record here, and reads the other robots'
+    records instead of subscribing to their topics (the in-process delivery an rclcpp component
+    container gives; no N^2 DDS subscriptions). ``records`` are made up front for ``ids``."""
 
     def __init__(self, ids):
         self.ids = frozenset(int(i) for i in ids)
-        self.nodes: dict[int, "ControllerNode"] = {}
+        self.records: dict[int, _Neighbour] = {i: _Neighbour(i) for i in self.ids}
         self.goals: dict = {}     # S8.3 goals of this period, shared (ControllerNode._goal_of)
-
-
-class _PeerNeighbour:
-    """Another robot's controller in the same process: the same fields as :class:`_Neighbour`,
-    read from what that controller last published."""
-
-    subs: list = []
-
-    def __init__(self, rid: int, table: PeerTable):
-        self.rid = rid
-        self._table = table
-
-    def _node(self):
-        return self._table.nodes.get(self.rid)
-
-    @property
-    def state(self) -> np.ndarray | None:
-        node = self._node()
-        return None if node is None else node.out_state
-
-    @property
-    def stamp_s(self) -> float:
-        node = self._node()
-        return -math.inf if node is None else node.out_stamp_s
-
-    @property
-    def accel(self) -> np.ndarray:
-        node = self._node()
-        return np.zeros(2) if node is None else node.out_accel
-
-    @property
-    def mode(self) -> str:
-        node = self._node()
-        return "coordination" if node is None else threat_mode(node.mode)[0]
-
-    @property
-    def target(self) -> str | None:
-        node = self._node()
-        return None if node is None else threat_mode(node.mode)[1]
 
 
 class ControllerNode(Node):
@@ -259,10 +221,8 @@ class ControllerNode(Node):
         self._last_tick_wall = None
         self._sim_time = bool(self.get_parameter("use_sim_time").value)
         self.last_torque = np.zeros(2)
-        self.out_state: np.ndarray | None = None   # what this node last published (PeerTable)
-        self.out_stamp_s = -math.inf
-        self.out_accel = np.zeros(2)
         self.peers = peers
+        self.record = None if peers is None else peers.records[self.rid]   # what others read of us
         self._msg_state = self._msg_torque = self._msg_accel = None   # refilled every period
 
         self.pub_torque = self.create_publisher(JointState, "wheel_torque", QOS_CONTROL)
@@ -277,14 +237,12 @@ class ControllerNode(Node):
             bridge.telemetry_sinks.append(self.wheel_sample)
         self.create_subscription(String, "/formation/graph", self._on_graph, QOS_GRAPH)
         self.create_subscription(String, "/formation/encounters", self._on_encounters, QOS_GRAPH)
-        self.neighbours = {k: (_PeerNeighbour(k, peers) if peers is not None and k in peers.ids
+        self.neighbours = {k: (peers.records[k] if peers is not None and k in peers.ids
                                else self._subscribe_neighbour(k)) for k in sc.robot_ids if k != self.rid}
         if self.orig_parent_id is not None:
             self.orig = self.neighbours[self.orig_parent_id]
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", QOS_DIAGNOSTICS)
         self.timer = self.create_timer(1.0 / self.prm.control_rate_hz, self._control) if tick_timer else None
-        if peers is not None:
-            peers.nodes[self.rid] = self
         self.law.warm_up()      # compile (or load) the law's kernels now, not in the first tick
         self.create_timer(1.0, self._publish_diagnostics)
 
@@ -440,7 +398,8 @@ class ControllerNode(Node):
         stamp = msgs.stamp_from_s(now)
         self._msg_state = msgs.odometry(state, stamp, f"robot_{self.rid}", out=self._msg_state)
         self.pub_state.publish(self._msg_state)
-        self.out_state, self.out_stamp_s = state, now
+        if self.record is not None:
+            self.record.state, self.record.stamp_s = state, now
         if now - self.last_wheel_s > self.prm.wheel_timeout_s:
             self._safety("stopped_wheels")
             self._send(np.zeros(2), None, now)     # no encoder data: nothing to brake with
@@ -533,9 +492,13 @@ class ControllerNode(Node):
             self.pub_torque.publish(self._msg_torque)
         if self.bridge is not None:
             self.bridge.command((float(torque[0]), float(torque[1])))
-        self.out_accel = np.zeros(2) if accel is None else accel
-        self._msg_accel = msgs.accel_stamped(self.out_accel, stamp, out=self._msg_accel)
-        self.pub_accel.publish(self._msg_accel)
+        accel = np.zeros(2) if accel is None else accel
+        if self.record is not None:
+            self.record.accel = accel
+            self.record.mode, self.record.target = threat_mode(self.mode)
+        if self.pub_accel.get_subscription_count():     # (in a team, often nobody outside)
+            self._msg_accel = msgs.accel_stamped(accel, stamp, out=self._msg_accel)
+            self.pub_accel.publish(self._msg_accel)
         key = tuple(sorted(self.mode.items()))
         if key != self._mode_sent or now - self._last_mode_pub >= 1.0:
             self.pub_mode.publish(msgs.mode_msg(**self.mode))
