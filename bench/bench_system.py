@@ -143,7 +143,8 @@ def _stop(procs: list[subprocess.Popen]) -> None:
             p.wait()
 
 
-def node_processes(scenario_path: Path, pty_dir: Path, log_dir: Path, team: int = 0) -> list[subprocess.Popen]:
+def node_processes(scenario_path: Path, pty_dir: Path, log_dir: Path, team: int = 0,
+                   control_nice: int | None = None) -> list[subprocess.Popen]:
     """Bridge + controller per robot, tracker, coordinator as processes (not the world).
     ``team`` > 0: the robots' bridges and controllers composed ``team`` robots per formation_team
     process (nodes/team.py) instead of two processes per robot."""
@@ -151,18 +152,19 @@ def node_processes(scenario_path: Path, pty_dir: Path, log_dir: Path, team: int 
 
     sc = load_scenario(scenario_path)
     b = ROOT / ".venv" / "bin"
-    controller = [str(b / "formation_controller")]
+    ctl = [] if control_nice is None else ["nice", "-n", str(control_nice)]   # the control path
+    controller = [*ctl, str(b / "formation_controller")]
     procs = []
     ids = [r.id for r in sc.robots]
     for k in range(0, len(ids), team) if team > 0 else ():
         group = ids[k:k + team]
-        procs.append(_start([str(b / "formation_team"), "--ros-args",
+        procs.append(_start([*ctl, str(b / "formation_team"), "--ros-args",
                              "-r", f"formation_team:__node:=formation_team_{k // team}", "-p", f"scenario:={scenario_path}",
                              "-p", f"robot_ids:={group}", "-p", f"port_template:={pty_dir}/robot_{{id}}",
                              "-p", "poll_rate_hz:=200.0"], log_dir, f"team_{k // team}"))
     for r in sc.robots if team <= 0 else ():
         ns = ["--ros-args", "-r", f"__ns:=/robot_{r.id}"]
-        procs.append(_start([str(b / "formation_bridge"), *ns, "-p", f"port:={pty_dir}/robot_{r.id}",
+        procs.append(_start([*ctl, str(b / "formation_bridge"), *ns, "-p", f"port:={pty_dir}/robot_{r.id}",
                              "-p", f"torque_limit_nm:={r.params.torque_limit_nm}", "-p", "poll_rate_hz:=200.0"],
                             log_dir, f"bridge_{r.id}"))
         procs.append(_start([*controller, *ns, "-p", f"scenario:={scenario_path}",
@@ -174,7 +176,7 @@ def node_processes(scenario_path: Path, pty_dir: Path, log_dir: Path, team: int 
     return procs
 
 
-def latency_multi_process(seconds: float, tmp: Path, team: int = 0) -> np.ndarray:
+def latency_multi_process(seconds: float, tmp: Path, team: int = 0, control_nice: int | None = None) -> np.ndarray:
     import rclpy
     from rclpy.context import Context
     from ament_formation.nodes.world import WorldNode, WorldParams
@@ -191,7 +193,7 @@ def latency_multi_process(seconds: float, tmp: Path, team: int = 0) -> np.ndarra
     probe = LatencyProbe(probe_node)
     ex.add_node(world)
     ex.add_node(probe_node)
-    procs = node_processes(SCENARIO, pty_dir, tmp, team)
+    procs = node_processes(SCENARIO, pty_dir, tmp, team, control_nice)
     try:
         t0 = time.monotonic()
         while world.start_s is None and time.monotonic() - t0 < 60:
@@ -220,7 +222,7 @@ def line_scenario(n: int, path: Path) -> Path:
     return path
 
 
-def robot_count(n: int, seconds: float, tmp: Path, team: int = 0) -> dict:
+def robot_count(n: int, seconds: float, tmp: Path, team: int = 0, control_nice: int | None = None) -> dict:
     """Run N robots through the whole system; missed-deadline fraction and world overruns."""
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
@@ -246,7 +248,7 @@ def robot_count(n: int, seconds: float, tmp: Path, team: int = 0) -> dict:
     probe.create_subscription(DiagnosticArray, "/diagnostics", on_diag, QOS_DIAGNOSTICS)
     ex.add_node(world)
     ex.add_node(probe)
-    procs = node_processes(scenario, pty_dir, tmp, team)
+    procs = node_processes(scenario, pty_dir, tmp, team, control_nice)
     try:
         t0 = time.monotonic()
         while world.start_s is None and time.monotonic() - t0 < 90:
@@ -283,13 +285,17 @@ def main() -> int:
     ap.add_argument("--team", type=int, default=0, metavar="K",
                     help="compose K robots' bridges and controllers per formation_team process "
                          "(0: a bridge and a controller process per robot)")
+    ap.add_argument("--control-nice", type=int, default=None, metavar="N",
+                    help="start the bridge/controller/team processes under `nice -n N` (like "
+                         "scripts/launch_sim.sh --control-nice; negative needs root)")
     args = ap.parse_args()
     tmp = Path(tempfile.mkdtemp(prefix="ament_formation_bench_"))
     profile = "fastdds_localhost_shm.xml" if args.dds == "shm" else "fastdds_localhost.xml"
     os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(ROOT / "config" / profile)
     os.environ["AMENT_FORMATION_EXECUTOR"] = args.executor
     print(f"DDS profile {profile}; executor {args.executor}; "
-          + (f"{args.team} robots per formation_team process" if args.team else "a process per node"))
+          + (f"{args.team} robots per formation_team process" if args.team else "a process per node")
+          + ("" if args.control_nice is None else f"; control processes at nice {args.control_nice}"))
     try:
         loopback_env(tmp / "ros_log")
         window = 5.0 if args.quick else 12.0
@@ -300,7 +306,7 @@ def main() -> int:
         else:
             lat1 = latency_in_process(window)
             print(f"latency capture -> board, one process:    {_percentiles(lat1)}")
-            lat2 = latency_multi_process(window, tmp, args.team)
+            lat2 = latency_multi_process(window, tmp, args.team, args.control_nice)
             print(f"latency capture -> board, processes:      {_percentiles(lat2)}")
         if len(lat1) and len(lat2):
             print(f"  ratio p50 processes / one process: {np.percentile(lat2, 50) / np.percentile(lat1, 50):.2f}; "
@@ -309,7 +315,7 @@ def main() -> int:
         print(f"{'robots':>6} {'ticks':>7} {'late':>6} {'missed %':>9} {'world overruns':>15}")
         best = 0
         for n in counts:
-            r = robot_count(n, window, tmp, args.team)
+            r = robot_count(n, window, tmp, args.team, args.control_nice)
             print(f"{n:6d} {r['ticks']:7d} {r['late']:6d} {100 * r['missed_fraction']:9.2f} {r['world_overruns']:15d}"
                   + ("" if r["started"] and r["controllers_reporting"] == n else "  (did not start / not all up)"))
             if r["started"] and r["controllers_reporting"] == n and r["missed_fraction"] < 0.01 \

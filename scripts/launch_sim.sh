@@ -2,13 +2,16 @@
 # Start every process of a simulated run and stop them all (by PID) on exit, Ctrl-C or TERM.
 #
 #   scripts/launch_sim.sh SCENARIO.yaml [--run-dir DIR] [--duration S] [--speed F] [--team K]
-#                         [--multi-machine]
+#                         [--control-nice N] [--multi-machine]
 #
 # Processes: formation_world (plant, emulated boards on ptys, synthetic camera), one formation_bridge
 # and one formation_controller per robot (namespace robot_<id>), formation_tracker,
 # formation_coordinator. --team K: instead of those two processes per robot, ceil(N/K)
 # formation_team processes (logs team_0, team_1, ...; nodes /formation_team_0, ...), each hosting the bridge and controller nodes
 # of K robots (same nodes and topics; fewer processes for many robots on one machine).
+# --control-nice N: start the bridge/controller (or team) processes under `nice -n N` (-20..19;
+# negative = before the world, tracker and coordinator, as a real-time control loop should be;
+# needs root or CAP_SYS_NICE, otherwise nice warns and they run at the normal priority).
 # Logs and the PID list ("PID NAME" per line) go to RUN_DIR (default: a new temp folder).
 # The run ends when the world finishes the scenario, when any process exits, or after --duration S.
 # DDS stays on loopback unless --multi-machine (see scripts/launch_common.sh).
@@ -17,16 +20,17 @@ here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
 # shellcheck source=launch_common.sh
 source "$here/launch_common.sh"
 
-usage() { sed -n '2,14p' "$0" | sed 's/^# \{0,1\}//'; exit 2; }
+usage() { sed -n '2,17p' "$0" | sed 's/^# \{0,1\}//'; exit 2; }
 [ $# -ge 1 ] || usage
 scenario="$(realpath "$1")"; shift
-run_dir=""; duration=""; speed="1.0"; multi=""; team=""; team_given=""
+run_dir=""; duration=""; speed="1.0"; multi=""; team=""; team_given=""; control_nice=""; nice_given=""
 while [ $# -gt 0 ]; do
   case "$1" in
     --run-dir) run_dir="$2"; shift 2 ;;
     --duration) duration="$2"; shift 2 ;;
     --speed) speed="$2"; shift 2 ;;
     --team) team_given=1; team="${2-}"; shift; [ $# -gt 0 ] && shift ;;
+    --control-nice) nice_given=1; control_nice="${2-}"; shift; [ $# -gt 0 ] && shift ;;
     --multi-machine) multi="--multi-machine"; shift ;;
     -h|--help) usage ;;
     *) echo "launch_sim.sh: unknown option $1" >&2; exit 2 ;;
@@ -35,6 +39,12 @@ done
 if [ -n "$team_given" ] && ! [[ "$team" =~ ^[1-9][0-9]{0,3}$ ]]; then
   echo "launch_sim.sh: --team: expected a positive integer K (robots per process), got '$team'" >&2; exit 2
 fi
+if [ -n "$nice_given" ] && ! { [[ "$control_nice" =~ ^-?[0-9]{1,2}$ ]] && [ "$control_nice" -ge -20 ] \
+    && [ "$control_nice" -le 19 ]; }; then
+  echo "launch_sim.sh: --control-nice: expected an integer in [-20, 19], got '$control_nice'" >&2; exit 2
+fi
+ctl=()   # prefix of the control-path processes (bridges, controllers, teams)
+[ -n "$control_nice" ] && ctl=(nice -n "$control_nice")
 [ -f "$scenario" ] || { echo "launch_sim.sh: $scenario: no such scenario file" >&2; exit 2; }
 [ -n "$run_dir" ] || run_dir="$(mktemp -d -t ament_formation_sim.XXXXXX)"
 run_dir="$(realpath -m "$run_dir")"
@@ -69,7 +79,7 @@ if [ -n "$team" ]; then
     members=()
     while [ $# -gt 0 ] && [ "${#members[@]}" -lt "$team" ]; do members+=("$1"); shift; done
     list="[$(IFS=,; echo "${members[*]}")]"
-    af_start "team_$k" "$AF_BIN/formation_team" --ros-args -r formation_team:__node:="formation_team_$k" \
+    af_start "team_$k" "${ctl[@]}" "$AF_BIN/formation_team" --ros-args -r formation_team:__node:="formation_team_$k" \
       -p scenario:="$scenario" \
       -p robot_ids:="$list" -p port_template:="$pty_dir/robot_{id}" -p poll_rate_hz:=200.0 \
       -p use_sim_time:=$use_sim_time
@@ -77,10 +87,10 @@ if [ -n "$team" ]; then
   done
 else
   for id in $ids; do
-    af_start "bridge_$id" "$AF_BIN/formation_bridge" --ros-args -r __ns:="/robot_$id" \
+    af_start "bridge_$id" "${ctl[@]}" "$AF_BIN/formation_bridge" --ros-args -r __ns:="/robot_$id" \
       -p port:="$pty_dir/robot_$id" -p torque_limit_nm:="$(eval echo "\$torque_$id")" -p poll_rate_hz:=200.0 \
       -p use_sim_time:=$use_sim_time
-    af_start "controller_$id" "$AF_BIN/formation_controller" --ros-args -r __ns:="/robot_$id" \
+    af_start "controller_$id" "${ctl[@]}" "$AF_BIN/formation_controller" --ros-args -r __ns:="/robot_$id" \
       -p scenario:="$scenario" -p robot_id:="$id" -p use_sim_time:=$use_sim_time
   done
 fi

@@ -189,6 +189,8 @@ def test_deployment_split(ros_context, executor, tmp_path):
     (["launch_base.sh"], "--scenario"),
     (["launch_sim.sh", str(SCENARIO), "--team", "0"], "--team"),
     (["launch_sim.sh", str(SCENARIO), "--team", "two"], "--team"),
+    (["launch_sim.sh", str(SCENARIO), "--control-nice", "20"], "--control-nice"),
+    (["launch_sim.sh", str(SCENARIO), "--control-nice", "-5x"], "--control-nice"),
 ])
 def test_launcher_bad_input(args, option, tmp_path):
     proc = subprocess.run([str(SCRIPTS / args[0]), *args[1:]],
@@ -201,9 +203,10 @@ def test_launcher_bad_input(args, option, tmp_path):
     assert proc.stdout == ""   # nothing was started
 
 
-def test_formation_run_rejects_bad_team(tmp_path):
+@pytest.mark.parametrize("option, value", [("--team", "0"), ("--control-nice", "-21")])
+def test_formation_run_rejects_bad_launch_options(tmp_path, option, value):
     proc = subprocess.run([str(ROOT / ".venv" / "bin" / "formation"), "run", str(SCENARIO), "--out",
-                           str(tmp_path / "out"), "--team", "0"], capture_output=True, text=True, timeout=60)
+                           str(tmp_path / "out"), option, value], capture_output=True, text=True, timeout=60)
     lines = proc.stderr.strip().splitlines()
-    assert proc.returncode == 2 and len(lines) == 1 and "--team" in lines[0], proc.stderr
+    assert proc.returncode == 2 and len(lines) == 1 and option in lines[0], proc.stderr
     assert not (tmp_path / "out").exists()   # nothing was started

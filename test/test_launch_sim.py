@@ -72,7 +72,8 @@ def test_launch_sim_smoke(ros_context, executor, tmp_path):
 
 
 def test_launch_sim_team_smoke(ros_context, executor, tmp_path):
-    """--team 2: one formation_team process hosts both robots' bridge and controller nodes."""
+    """--team 2: one formation_team process hosts both robots' bridge and controller nodes;
+    --control-nice 5 starts it under nice 5 (the other processes keep theirs)."""
     import rclpy
     from sensor_msgs.msg import JointState
     from std_msgs.msg import String
@@ -81,7 +82,7 @@ def test_launch_sim_team_smoke(ros_context, executor, tmp_path):
 
     run_dir = tmp_path / "run"
     proc = subprocess.Popen([str(ROOT / "scripts" / "launch_sim.sh"), str(SCENARIO), "--run-dir", str(run_dir),
-                             "--team", "2"],
+                             "--team", "2", "--control-nice", "5"],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
     probe = rclpy.create_node("_team_probe", context=ros_context)
     executor.add_node(probe)
@@ -100,6 +101,10 @@ def test_launch_sim_team_smoke(ros_context, executor, tmp_path):
         assert spin_until(executor, lambda: graphs and graphs[-1].start_s is not None, 60.0)
         n0 = dict(torques)
         assert spin_until(executor, lambda: all(torques[r] > n0[r] + 10 for r in torques), 30.0), torques
+        launched = dict(line.split()[::-1] for line in (run_dir / "pids").read_text().splitlines() if line.strip())
+        nice = {name: int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[16])
+                for name, pid in launched.items()}
+        assert nice["team_0"] == nice["world"] + 5, nice
     finally:
         if proc.poll() is None:
             proc.send_signal(signal.SIGTERM)

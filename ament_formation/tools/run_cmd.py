@@ -37,6 +37,10 @@ def register(subparsers) -> None:
                    help="compose K robots' bridge and controller nodes per process (formation_team; "
                         "ceil(N/K) processes instead of 2 per robot: for many robots on one machine). "
                         "Default: one bridge and one controller process per robot")
+    p.add_argument("--control-nice", type=int, default=None, metavar="N",
+                   help="run the bridge/controller (or team) processes under `nice -n N` (-20..19; "
+                        "negative puts the control loops before the world, tracker and coordinator; "
+                        "needs root or CAP_SYS_NICE)")
     p.add_argument("--record-images", action="store_true", help="also record /camera/image_raw")
     p.add_argument("--no-figure", action="store_true", help="skip figure.png")
     p.add_argument("--quiet", action="store_true", help="no progress and no summary")
@@ -80,6 +84,8 @@ def run_system(args: argparse.Namespace) -> int:
         raise ConfigError(f"must be in [0.05, 50] (got {args.speed})", "--speed")
     if args.team is not None and args.team < 1:
         raise ConfigError(f"must be a positive integer (robots per process; got {args.team})", "--team")
+    if args.control_nice is not None and not -20 <= args.control_nice <= 19:
+        raise ConfigError(f"must be in [-20, 19] (got {args.control_nice})", "--control-nice")
     out = Path(args.out).resolve()
     if out.exists() and not out.is_dir():
         raise ConfigError("exists and is not a directory", "--out", str(out))
@@ -130,7 +136,8 @@ def run_system(args: argparse.Namespace) -> int:
     launch = subprocess.Popen(
         [str(_ROOT / "scripts" / "launch_sim.sh"), str(Path(args.scenario).resolve()),
          "--run-dir", str(proc_dir), "--speed", repr(float(args.speed))]
-        + ([] if args.team is None else ["--team", str(args.team)]),
+        + ([] if args.team is None else ["--team", str(args.team)])
+        + ([] if args.control_nice is None else ["--control-nice", str(args.control_nice)]),
         stdout=open(out / "launch.log", "w"), stderr=subprocess.STDOUT, start_new_session=True)
     progress = None if args.quiet else _Progress(sys.stderr, scenario.duration_s)
     status = 0
