@@ -208,13 +208,16 @@ def latency_multi_process(seconds: float, tmp: Path, team: int = 0, control_nice
 
 
 def line_scenario(n: int, path: Path) -> Path:
-    """A leader on a straight line and N - 1 followers in rows of four behind it, all inside the
-    camera's floor area (config/camera.yaml: 3 x 2.4 m around (1.2, 0.6)); star graph; no obstacles."""
+    if n > 21:
+        raise SystemExit(f"line_scenario: at most 21 robots fit in the camera's view (asked {n})")
+    """A leader on a straight line and N - 1 followers in rows of five behind it (0.45 m apart), all
+    inside the camera's floor area (config/camera.yaml: 3 x 2.4 m around (1.2, 0.6); up to 21
+    robots); star graph; no obstacles."""
     robots = [{"id": 0, "leader": True, "slot_m": [0.0, 0.0], "initial_pose": [1.8, 0.6, 0.0], "marker_id": 0,
                "path": {"type": "line", "start_m": [1.8, 0.6], "heading_rad": 0.0, "speed_mps": 0.03}}]
     for i in range(1, n):
-        row, col = divmod(i - 1, 4)
-        dx, dy = -0.5 - 0.45 * row, -0.675 + 0.45 * col
+        row, col = divmod(i - 1, 5)
+        dx, dy = -0.5 - 0.45 * row, -0.9 + 0.45 * col
         robots.append({"id": i, "slot_m": [dx, dy], "initial_pose": [1.8 + dx, 0.6 + dy, 0.0], "marker_id": i})
     edges = [[0, i] for i in range(1, n)]
     path.write_text(yaml.safe_dump({"name": f"line_{n}", "duration_s": 25.0, "robots": robots,
