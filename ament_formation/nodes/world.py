@@ -8,7 +8,7 @@ robots' markers; ground truth for evaluation. The mission starts when ``/formati
 
 Topics (QoS from ros/qos.py)
   pub  /camera/image_raw          sensor_msgs/Image mono8, stamp = capture time     QOS_IMAGE
-  pub  /world/truth/robot_<id>    nav_msgs/Odometry, every tick                    QOS_CONTROL
+  pub  /world/truth/robot_<id>    nav_msgs/Odometry, every tick (while subscribed) QOS_CONTROL
   pub  /clock                     rosgraph_msgs/Clock (only when speed_factor != 1)  QOS_CLOCK
   sub  /formation/graph           std_msgs/String JSON (start_s)                   QOS_GRAPH
 
@@ -126,6 +126,7 @@ class WorldNode(Node):
         self.marker_ids = np.array([r.marker_id for r in self.scenario.robots])
 
         self.pub_image = self.create_publisher(Image, "/camera/image_raw", QOS_IMAGE)
+        self._truth_msgs: list = [None] * len(self.ids)     # refilled every tick
         self.pub_truth = [self.create_publisher(msgs.Odometry, f"/world/truth/robot_{i}", QOS_CONTROL)
                           for i in self.ids]
         self.pub_clock = self.create_publisher(Clock, "/clock", QOS_CLOCK) if self.sim_clock else None
@@ -187,8 +188,11 @@ class WorldNode(Node):
             with b.lock:
                 b.board.set_wheel_state(angles[k], rates[k])
         stamp = msgs.stamp_from_s(self.plant_time_s)
-        for k, rid in enumerate(self.ids):
-            self.pub_truth[k].publish(msgs.odometry(self.twin.state[k], stamp, f"robot_{rid}"))
+        for k, rid in enumerate(self.ids):      # ground truth, while anyone listens (evaluation only)
+            if self.pub_truth[k].get_subscription_count():
+                self._truth_msgs[k] = msgs.odometry(self.twin.state[k], stamp, f"robot_{rid}",
+                                                    out=self._truth_msgs[k])
+                self.pub_truth[k].publish(self._truth_msgs[k])
         if self.camera is not None and self.plant_time_s >= self.next_frame_s:
             self._render(stamp)
             self.next_frame_s += self.frame_period_s
