@@ -1,4 +1,4 @@
-"""Whole-system benchmarks (issue 5): run with `.venv/bin/python bench/bench_system.py [--quick]`.
+"""Whole-system benchmarks (issue 5): run with `bench/run.sh bench_system.py [--quick] [--team K] ...`.
 
 1. End-to-end latency from a camera frame's capture stamp to the torque frame that the emulated
    motor board receives on its serial line, p50 / p99, with every node in one process and with
