@@ -272,6 +272,12 @@ def test_formation_sim_writes_a_complete_run_directory(tmp_path, capsys):
     # the follower starts 0.2 m off its slot and closes the gap
     err = back.formation_error_m[:, 1]
     assert err[0] == pytest.approx(0.2, abs=1e-9) and err[-1] < 0.2
+    assert "(metrics.json, figure.png, trajectories.csv" in summary
+    # --no-figure: no figure, and the summary does not claim one
+    assert formation(["sim", str(scen_file), "--out", str(tmp_path / "nofig"), "--no-figure"]) == 0
+    summary = capsys.readouterr().out
+    assert not (tmp_path / "nofig" / "figure.png").exists()
+    assert "figure.png" not in summary and "(metrics.json, trajectories.csv" in summary
 
 
 def test_progress_is_silent_for_short_runs_and_reports_long_ones():

@@ -205,5 +205,5 @@ def _evaluate(mcap_path: Path, scenario, out: Path, wall_s: float, args, launch_
     if not args.quiet:
         from ament_formation.tools.sim_cmd import _summary
 
-        print(_summary(metrics, out).replace("(metrics.json,", "(run.mcap, metrics.json,"))
+        print(_summary(metrics, out, figure=not args.no_figure, first=("run.mcap",)))
     return 0 if launch_rc in (0, None) else 1

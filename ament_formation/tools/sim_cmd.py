@@ -88,7 +88,9 @@ class _Progress:
             self._stream.flush()
 
 
-def _summary(metrics: dict, out: Path) -> str:
+def _summary(metrics: dict, out: Path, figure: bool = True, first: tuple[str, ...] = ()) -> str:
+    """The run's summary lines; the last names what was written (``first`` + metrics.json,
+    figure.png unless ``figure`` is false, trajectories.csv)."""
     def fmt(value, unit="m", scale=1.0, digits=3):
         return "n/a" if value is None else f"{value * scale:.{digits}f} {unit}"
 
@@ -103,7 +105,8 @@ def _summary(metrics: dict, out: Path) -> str:
             f"  R{rid}: avoid {r['avoidance_entries']}x {r['avoidance_time_s']:.1f} s, settled RMS "
             f"{fmt(r['formation_rms_settled_m'], 'mm', 1e3, 1)}, final {fmt(r['final_error_m'], 'mm', 1e3, 1)}, "
             f"peak torque {max(r['peak_torque_nm']):.3f} N m, saturated {100 * r['saturated_fraction']:.1f} %")
-    lines.append(f"  wrote {out}/ (metrics.json, figure.png, trajectories.csv, ...)")
+    wrote = [*first, "metrics.json", *(["figure.png"] if figure else []), "trajectories.csv", "..."]
+    lines.append(f"  wrote {out}/ ({', '.join(wrote)})")
     return "\n".join(lines)
 
 
@@ -136,7 +139,7 @@ def run_sim(args: argparse.Namespace) -> int:
 
         render_figure(result, scenario, out / "figure.png")
     if not args.quiet:
-        print(_summary(metrics, out))
+        print(_summary(metrics, out, figure=not args.no_figure))
     return 0
 
 
