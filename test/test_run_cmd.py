@@ -1,25 +1,21 @@
 """`formation run`: the whole system as processes on the simulated twin, recorded to run.mcap,
 evaluated from the recorded ground truth (a head-on encounter, 12.5 s of scenario)."""
 import json
-import os
 import subprocess
 from pathlib import Path
+
+from processes import alive
+
+from ament_formation.ros import shm
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIO = ROOT / "test" / "data" / "head_on.yaml"
 
 
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    return True
-
-
 def test_formation_run_records_evaluates_and_stops_every_process(tmp_path):
     from ament_formation.ros.recorder import read_topic
 
+    shm_before = shm.snapshot()
     out = tmp_path / "run"
     res = subprocess.run([str(ROOT / ".venv" / "bin" / "formation"), "run", str(SCENARIO), "--out", str(out),
                           "--quiet"], capture_output=True, text=True, timeout=240)
@@ -45,7 +41,9 @@ def test_formation_run_records_evaluates_and_stops_every_process(tmp_path):
 
     pids = [int(line.split()[0]) for line in (out / "processes" / "pids").read_text().splitlines()
             if line.strip()]                                       # "PID name" per process
-    assert pids and not any(_alive(p) for p in pids)
+    assert pids and not any(alive(p) for p in pids)
+    # nothing of the run left in /dev/shm (except what this test process itself maps)
+    assert shm.snapshot() - shm_before - shm.mapped(ignore_pid=None) == set()
 
 
 def test_formation_run_refuses_a_bad_scenario_in_one_line(tmp_path):

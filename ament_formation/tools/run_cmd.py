@@ -92,6 +92,9 @@ def run_system(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario)
     out.mkdir(parents=True, exist_ok=True)
     loopback_env(out / "ros_log")
+    from ament_formation.ros import shm
+
+    shm_before = shm.snapshot()     # what this run leaves in /dev/shm is removed at its end
 
     import rclpy
     from rclpy.context import Context
@@ -174,6 +177,7 @@ def run_system(args: argparse.Namespace) -> int:
         executor.shutdown(timeout_sec=1.0)
         node.destroy_node()
         rclpy.try_shutdown(context=ctx)
+        shm.cleanup(shm_before, ignore_pid=os.getpid())   # this process is done with DDS
     wall_s = time.monotonic() - wall0
     if status:
         return status

@@ -1,0 +1,60 @@
+"""Shared memory the ROS processes of a run leave in /dev/shm, and its cleanup.
+
+liblttng-ust (loaded by the ROS wheels) creates ``lttng-ust-wait-*``, and Fast DDS's shared-memory
+transport (which it keeps next to the loopback UDP one) leaves ``fastrtps_*`` / ``sem.fastrtps_*``
+segments when a process does not close them. The rules are those of scripts/ros_env.sh
+(``af_shm_snapshot`` / ``af_shm_cleanup``), for runs that a Python process drives (``formation
+run``): remember what existed, and at the end remove only what appeared since and no other live
+process still maps (another run's processes on the same machine may share a Fast DDS segment).
+"""
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+
+SHM_DIR = Path("/dev/shm")
+PATTERN = re.compile(r"^(lttng-ust-wait|fastrtps_|sem\.fastrtps_)")
+
+
+def snapshot(shm_dir: Path = SHM_DIR) -> frozenset[str]:
+    """Names of the run-related entries in ``shm_dir`` now."""
+    try:
+        return frozenset(n for n in os.listdir(shm_dir) if PATTERN.match(n))
+    except FileNotFoundError:
+        return frozenset()
+
+
+def mapped(shm_dir: Path = SHM_DIR, ignore_pid: int | None = None) -> set[str]:
+    """Names in ``shm_dir`` that a live process (other than ``ignore_pid``) has mapped."""
+    prefix = f"{shm_dir}/"
+    names: set[str] = set()
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit() or int(entry.name) == ignore_pid:
+            continue
+        try:
+            text = (entry / "maps").read_text()
+        except OSError:          # gone, or not ours to read
+            continue
+        for line in text.splitlines():
+            at = line.find(prefix)
+            if at >= 0:
+                names.add(line[at + len(prefix):].split()[0])
+    return names
+
+
+def cleanup(before: frozenset[str], shm_dir: Path = SHM_DIR, ignore_pid: int | None = None) -> list[str]:
+    """Remove the entries that appeared since ``before`` (a :func:`snapshot`) and that no live
+    process other than ``ignore_pid`` maps; return their names."""
+    new = snapshot(shm_dir) - before
+    if not new:
+        return []
+    in_use = mapped(shm_dir, ignore_pid)
+    removed = []
+    for name in sorted(new - in_use):
+        try:
+            (shm_dir / name).unlink()
+            removed.append(name)
+        except FileNotFoundError:
+            pass
+    return removed
