@@ -42,8 +42,11 @@ def test_formation_run_records_evaluates_and_stops_every_process(tmp_path):
     pids = [int(line.split()[0]) for line in (out / "processes" / "pids").read_text().splitlines()
             if line.strip()]                                       # "PID name" per process
     assert pids and not any(alive(p) for p in pids)
-    # nothing of the run left in /dev/shm (except what this test process itself maps)
-    assert shm.snapshot() - shm_before - shm.mapped(ignore_pid=None) == set()
+    # no Fast DDS segment of the run left in /dev/shm (lttng-ust-wait-* are shared by every
+    # lttng-ust process of the user, this test process included, whose listener thread maps and
+    # re-creates them on its own schedule: not the run's to answer for here)
+    left = shm.snapshot() - shm_before - shm.mapped()
+    assert {n for n in left if not n.startswith("lttng-ust-wait")} == set(), left
 
 
 def test_formation_run_refuses_a_bad_scenario_in_one_line(tmp_path):
