@@ -86,6 +86,14 @@ class LatencyProbe:
         return np.array(out)
 
 
+def _wait_for_start(executor, world, timeout_s: float) -> bool:
+    """Spin until the world has its mission start (the coordinator's start_s); False on timeout."""
+    t0 = time.monotonic()
+    while world.start_s is None and time.monotonic() - t0 < timeout_s:
+        executor.spin_once(timeout_sec=0.01)
+    return world.start_s is not None
+
+
 def _spin_for(executor, seconds: float) -> None:
     end = time.monotonic() + seconds
     while time.monotonic() < end:
@@ -116,9 +124,7 @@ def latency_in_process(seconds: float) -> np.ndarray:
     probe = LatencyProbe(probe_node)
     ex.add_node(probe_node)
     try:
-        t0 = time.monotonic()
-        while system.world.start_s is None and time.monotonic() - t0 < 60:
-            ex.spin_once(timeout_sec=0.01)
+        _wait_for_start(ex, system.world, 60.0)
         _spin_for(ex, seconds)
         return probe.latencies_s(log, after_s=system.world.start_s + SETTLE_S)
     finally:
@@ -195,9 +201,7 @@ def latency_multi_process(seconds: float, tmp: Path, team: int = 0, control_nice
     ex.add_node(probe_node)
     procs = node_processes(SCENARIO, pty_dir, tmp, team, control_nice)
     try:
-        t0 = time.monotonic()
-        while world.start_s is None and time.monotonic() - t0 < 60:
-            ex.spin_once(timeout_sec=0.01)
+        _wait_for_start(ex, world, 60.0)
         _spin_for(ex, seconds)
         return probe.latencies_s(log, after_s=world.start_s + SETTLE_S)
     finally:
@@ -253,10 +257,7 @@ def robot_count(n: int, seconds: float, tmp: Path, team: int = 0, control_nice: 
     ex.add_node(probe)
     procs = node_processes(scenario, pty_dir, tmp, team, control_nice)
     try:
-        t0 = time.monotonic()
-        while world.start_s is None and time.monotonic() - t0 < 90:
-            ex.spin_once(timeout_sec=0.01)
-        started = world.start_s is not None
+        started = _wait_for_start(ex, world, 90.0)
         _spin_for(ex, 1.5)
         before = {k: (int(v["ticks"]), int(v["late_ticks"])) for k, v in diag.items()}
         over0 = world.overruns

@@ -24,7 +24,7 @@ from ament_formation.core.controller import EncounterAssignment
 from ament_formation.core.dynamics import PlantCoeffs
 from ament_formation.core.encounters import KIND_OBSTACLE, decide
 from ament_formation.core.graph import FormationGraph
-from ament_formation.core.simulator import goals_and_fields, obstacle_arrays, obstacle_states
+from ament_formation.core.simulator import goal_fields, obstacle_arrays, obstacle_states
 
 
 class EncounterArbiter:
@@ -129,10 +129,7 @@ class EncounterArbiter:
             else:                                  # goal unknown: its own position
                 ref[q, 0:2] = x[q, 0:2]
                 ref[q, 2:4] = pd[q]
-        goal = np.zeros((n, 2))
-        goal_dot = np.zeros((n, 2))
-        vc = np.zeros((n, 2))
-        goals_and_fields(x, pd, ref, orig_parent, orig_offset, self._gains, goal, goal_dot, vc, True)
+        goal, goal_dot, vc = goal_fields(x, pd, ref, orig_parent, orig_offset, self._gains)
         team = np.array([row.get(self._team[r], -1 - self.index[r]) for r in known], dtype=np.int64)
         m = len(self.obstacle_names)
         oc, ov, oa = np.empty((m, 2)), np.empty((m, 2)), np.empty((m, 2))

@@ -25,7 +25,7 @@ from ament_formation.core.errors import ConfigError
 from ament_formation.core.obstacles import ObstacleSpec, ObstacleStates
 from ament_formation.core.params import AvoidanceParams, ControlGains, RobotParams
 from ament_formation.core.simulator import (
-    goals_and_fields, obstacle_arrays, obstacle_states, robot_law,
+    goal_fields, obstacle_arrays, obstacle_states, robot_law,
 )
 
 _MODE_BY_NAME = {name: k for k, name in enumerate(MODE_NAMES)}
@@ -380,10 +380,7 @@ class RobotController:
         if blind_rows:
             ref[blind_rows, 0:2] = x[blind_rows, 0:2]
             ref[blind_rows, 2:4] = pd[blind_rows]
-        goal = np.zeros((n, 2))
-        goal_dot = np.zeros((n, 2))
-        vc = np.zeros((n, 2))
-        goals_and_fields(x, pd, ref, orig_parent, orig_offset, self._gains, goal, goal_dot, vc, True)
+        goal, goal_dot, vc = goal_fields(x, pd, ref, orig_parent, orig_offset, self._gains)
 
         events: list[dict] = []
         t_s = float(t_s)

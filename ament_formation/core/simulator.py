@@ -249,6 +249,15 @@ def goals_and_fields(x, pd, ref, orig_parent, orig_offset, gains, goal, goal_dot
         vc[i, 1] = vdy
 
 
+def goal_fields(x, pd, ref, orig_parent, orig_offset, gains) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`goals_and_fields` into new arrays: (goal, goal_dot, V_c), each (N, 2). For callers
+    that evaluate one snapshot (core/controller.py, core/arbiter.py); the simulator reuses buffers."""
+    n = x.shape[0]
+    goal, goal_dot, vc = np.zeros((n, 2)), np.zeros((n, 2)), np.zeros((n, 2))
+    goals_and_fields(x, pd, ref, orig_parent, orig_offset, gains, goal, goal_dot, vc, True)
+    return goal, goal_dot, vc
+
+
 # ------------------------------------------------------------------------------ the 1 kHz loop
 
 @njit(cache=True)

@@ -23,6 +23,7 @@ Before the mission start (``start_s`` of the graph) the robot stands still (zero
 Topics (namespace robot_<id>; QoS from ros/qos.py)
   sub  pose                     geometry_msgs/PoseStamped (camera, stamp = capture time)  QOS_CONTROL
   sub  wheel_state              sensor_msgs/JointState (wheel angles rad, rates rad/s)     QOS_CONTROL
+                                (in a team: samples straight from the hosted bridge instead)
   sub  /formation/graph         std_msgs/String JSON (parents, offsets_m, start_s)         QOS_GRAPH
   sub  /formation/encounters    std_msgs/String JSON {revision, assignments: {id: {mode,
                                 partner, direction, t_entry_s, drift_mps}}} (S7)           QOS_GRAPH
@@ -30,8 +31,10 @@ Topics (namespace robot_<id>; QoS from ros/qos.py)
   sub  /robot_<k>/accel         geometry_msgs/AccelStamped, every other robot k             QOS_CONTROL
   sub  /robot_<k>/mode          std_msgs/String JSON, every other robot k (S7 acyclicity)  QOS_CONTROL
   pub  wheel_torque             sensor_msgs/JointState effort [left, right] N m            QOS_CONTROL
+                                (in a team: handed to the hosted bridge, published while subscribed)
   pub  state                    nav_msgs/Odometry (fused pose; twist v, omega)             QOS_CONTROL
   pub  accel                    geometry_msgs/AccelStamped (commanded point accel, S4)     QOS_CONTROL
+                                (while anyone subscribes)
   pub  mode                     std_msgs/String JSON {mode, target, direction, avoiding}   QOS_CONTROL
                                 (on change and every second)
   pub  /diagnostics             diagnostic_msgs/DiagnosticArray every second: control ticks,
