@@ -73,24 +73,33 @@ class SinusoidPath:
         _check_number(self.speed_mps, "speed_mps", positive=True)
         _check_number(self.heading_rad, "heading_rad")
 
-    # arc length from 0 to x of sqrt(1 + a^2 cos^2(k x)); exact to ~1e-15 per period (analytic integrand)
-    def _arc_length(self, x: np.ndarray) -> np.ndarray:
+    # arc length from 0 to x of sqrt(1 + a^2 cos^2(k x)), a = A k: Gauss-Legendre on ceil(a) equal
+    # panels of the part-period (one panel for a <= 1); the integrand's complex singularities lie
+    # asinh(1/a)/k from the real axis, so steep curves need shorter panels to stay exact to ~1e-15
+    def _panels(self) -> int:
+        return max(1, math.ceil(self.amplitude_m * self.wavenumber_radpm))
+
+    def _integral(self, length: np.ndarray) -> np.ndarray:
+        """∫_0^length sqrt(1 + a^2 cos^2(k x)) dx, elementwise over ``length`` [m]."""
         k = self.wavenumber_radpm
         a = self.amplitude_m * k
-        period = 2.0 * math.pi / k
+        n = self._panels()
+        width = np.asarray(length, dtype=float) / n
+        total = 0.0
+        for j in range(n):
+            nodes = width[..., None] * (j + 0.5 * (_GL_NODES + 1.0))
+            vals = np.sqrt(1.0 + (a * np.cos(k * nodes)) ** 2)
+            total = total + 0.5 * width * np.sum(vals * _GL_WEIGHTS, axis=-1)
+        return total
+
+    def _arc_length(self, x: np.ndarray) -> np.ndarray:
+        period = 2.0 * math.pi / self.wavenumber_radpm
         n_periods = np.floor(x / period)
         frac = x - n_periods * period
-        nodes = 0.5 * (frac[..., None]) * (_GL_NODES + 1.0)
-        vals = np.sqrt(1.0 + (a * np.cos(k * nodes)) ** 2)
-        partial = 0.5 * frac * np.sum(vals * _GL_WEIGHTS, axis=-1)
-        return n_periods * self._period_length() + partial
+        return n_periods * self._period_length() + self._integral(frac)
 
     def _period_length(self) -> float:
-        k = self.wavenumber_radpm
-        a = self.amplitude_m * k
-        period = 2.0 * math.pi / k
-        nodes = 0.5 * period * (_GL_NODES + 1.0)
-        return float(0.5 * period * np.sum(np.sqrt(1.0 + (a * np.cos(k * nodes)) ** 2) * _GL_WEIGHTS))
+        return float(self._integral(np.asarray(2.0 * math.pi / self.wavenumber_radpm)))
 
     def abscissa(self, t_s) -> np.ndarray:
         """x_r(t) [m] in the curve frame: arc-length(x_r) = v0 t. Shape of ``t_s``."""
