@@ -1,4 +1,4 @@
-"""Serial codec (core/cobs.py, core/crc16.py, core/serial_protocol.py): properties and corruption.
+"""Serial codec (core/cobs.py, core/crc16.py, core/crc32c.py, core/serial_protocol.py): properties and corruption.
 
 - any sequence of valid frames, split and merged at random and interleaved with noise, decodes to
   exactly those frames;
@@ -15,6 +15,7 @@ from hypothesis import strategies as st
 from ament_formation.core import cobs
 from ament_formation.core import serial_protocol as sp
 from ament_formation.core.crc16 import crc16
+from ament_formation.core.crc32c import crc32c
 
 _RANGES = {"B": (0, 0xFF), "H": (0, 0xFFFF), "I": (0, 0xFFFFFFFF), "h": (-0x8000, 0x7FFF)}
 
@@ -61,6 +62,10 @@ def _random_message(rng: np.random.Generator) -> sp.Message:
 def test_crc_check_value():
     assert crc16(b"123456789") == 0x29B1
     assert crc16(b"") == 0xFFFF
+    assert crc32c(b"123456789") == 0xE3069283        # CRC-32C check value (RFC 3720 B.4)
+    assert crc32c(b"") == 0
+    assert crc32c(bytes(32)) == 0x8A9136AA            # RFC 3720 B.4: 32 bytes of zeros
+    assert crc32c(b"\xff" * 32) == 0x62A8AB43         # RFC 3720 B.4: 32 bytes of ones
 
 
 @given(st.binary(max_size=600))
@@ -142,11 +147,11 @@ def test_rejection_reasons_are_counted_individually():
     raw = sp.raw_frame(sp.TorqueCommand(5, 6), 1)
     bad_crc = bytes([raw[0], raw[1] ^ 1]) + raw[2:]
 
-    def with_crc(b):
-        return b + crc16(b).to_bytes(2, "little")
+    def with_crc(b):   # the check the version nibble selects: CRC-16 for 1, CRC-32C for 2
+        return b + sp.frame_check(b, b[0] >> 4)
 
-    blocks = [bad_crc, with_crc(b"\x1b\x00\x01"), with_crc(b"\x23\x00\x01\x02\x03\x04"),
-              with_crc(b"\x13\x00\x01"), with_crc(b"\x17\x00\x09"), b"\x01\x02"]
+    blocks = [bad_crc, with_crc(b"\x2b\x00\x01"), with_crc(b"\x13\x00\x01\x02\x03\x04"),
+              with_crc(b"\x23\x00\x01"), with_crc(b"\x27\x00\x09"), b"\x01\x02"]
     stream = b"".join(cobs.encode(b) + b"\x00" for b in blocks) + b"\x05\x01\x00"
     assert dec.feed(stream) == []
     assert dec.rejected == {"oversize": 0, "cobs": 1, "length": 2, "crc": 1, "version": 1, "type": 1, "value": 1}

@@ -47,10 +47,12 @@ def test_clean_link_applies_every_command_without_retransmission():
     assert host.decoder.rejected_total == 0 and board.watchdog_trips == 0
 
 
-def test_one_percent_corruption_keeps_98_percent_and_applies_nothing_corrupt():
+def test_one_percent_corruption_keeps_96_percent_and_applies_nothing_corrupt():
+    # 1 % of bytes corrupted hits ~12 % of the 13-byte commands (version 2: CRC-32C, 2 bytes more
+    # than version 1); one retransmission per input recovers most: 0.968-0.99 over seeds 3-8
     host, board, kept, corrupt = run_link(1000, FaultSpec(corrupt_prob=0.01))
-    assert board.decoder.rejected_total > 50           # ~10 % of frames were hit
-    assert kept >= 0.98, kept
+    assert board.decoder.rejected_total > 50           # ~12 % of frames were hit
+    assert kept >= 0.96, kept
     assert corrupt == []
     assert host.stats["retransmissions"] > 50
 
@@ -74,10 +76,25 @@ def test_stale_input_is_sent_as_zero():
     assert dec.feed(host.poll(0.11))[0].msg == sp.TorqueCommand(0, 0)
 
 
-def test_version_mismatch_sends_no_torque():
-    host, board, kept, _ = run_link(50, board_cfg=BoardConfig(protocol_version=2))
-    assert host.state == sl.VERSION_MISMATCH and host.board_version == 2
-    assert kept == 0.0 and host.stats["commands_sent"] == 0
+@pytest.mark.parametrize("board_version", [1, 3])
+def test_version_mismatch_sends_no_torque(board_version):
+    # a version-1 board answers the (version-1 framed) HELLO in version-1 framing, a version-3 board
+    # in its own: either way the host reads its version, says so, and never sends a command
+    host, board, kept, _ = run_link(50, board_cfg=BoardConfig(protocol_version=board_version))
+    assert host.state == sl.VERSION_MISMATCH and host.board_version == board_version
+    assert kept == 0.0 and host.stats["commands_sent"] == 0 and board.accepted_commands == 0
+    assert f"board speaks version {board_version}" in host.version_mismatch_text()
+
+
+def test_version_1_host_reads_the_mismatch_from_a_version_2_board():
+    board = MotorBoard()
+    v1_host = sp.FrameDecoder(accepted_version=1)
+    board.receive(sp.encode_frame(sp.Hello(1), 0, leading_delimiter=True, version=1), 0.0)
+    frames = v1_host.feed(board.take_output())
+    assert [f.msg.protocol_version for f in frames] == [2] and frames[0].version == 1
+    # its version-1 torque commands are rejected, never applied
+    board.receive(sp.encode_frame(sp.TorqueCommand(500, 500), 1, leading_delimiter=True, version=1), 0.01)
+    assert board.accepted_commands == 0 and board.decoder.rejected["version"] == 1
 
 
 def test_board_reset_triggers_a_new_handshake():

@@ -10,6 +10,7 @@ import pytest
 from ament_formation.core import cobs
 from ament_formation.core import serial_protocol as sp
 from ament_formation.core.crc16 import crc16
+from ament_formation.core.crc32c import crc32c
 from ament_formation.tools import serial_vectors
 
 PATH = Path(__file__).resolve().parents[1] / "docs" / "serial-protocol-vectors.json"
@@ -40,7 +41,10 @@ def test_valid_vector_decodes_and_reencodes(vec):
     assert again == wire
     raw = bytes.fromhex(vec["raw_hex"])
     assert cobs.decode(wire.strip(b"\x00")) == raw
-    assert int(vec["crc16"], 16) == crc16(raw[:-2]) == int.from_bytes(raw[-2:], "little")
+    if vec["version"] == 1:
+        assert int(vec["check"], 16) == crc16(raw[:-2]) == int.from_bytes(raw[-2:], "little")
+    else:
+        assert int(vec["check"], 16) == crc32c(raw[:-4]) == int.from_bytes(raw[-4:], "little")
 
 
 @pytest.mark.parametrize("vec", DATA["invalid"], ids=lambda v: v["name"])

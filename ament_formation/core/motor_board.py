@@ -1,6 +1,7 @@
 """The motor board's firmware rules, emulated (docs/serial-protocol.md §4): decode host frames,
-clamp torques, 200 ms command watchdog, e-stop, configuration, encoder quantisation, TELEMETRY as
-the answer to each command (and periodically when idle), STATUS every 200 ms.
+clamp torques, 200 ms command watchdog followed by the stop brake (docs/safety.md), e-stop,
+configuration, encoder quantisation, TELEMETRY as the answer to each command (and periodically when
+idle), STATUS every 200 ms.
 
 No I/O and no clock: bytes and the time ``now_s`` [s] are passed in, bytes to send come out.
 In the simulated twin the plant feeds wheel angles/velocities (``set_wheel_state``) and reads
@@ -16,6 +17,26 @@ import numpy as np
 from ament_formation.core import serial_protocol as sp
 
 TWO_PI = 2.0 * math.pi
+
+# Stop brake (docs/safety.md; the same numbers as firmware/src/config.h BRAKE_*): when the command
+# watchdog trips after commands were flowing, each wheel is regulated to zero speed with
+# tau = clamp(-BRAKE_GAIN * omega, +-min(BRAKE_TORQUE_LIMIT, torque limit)), omega measured as the
+# firmware does (encoder counts per control period: below one count per period reads 0); the
+# H-bridge is released (coast, torque 0) once both wheels read 0 for BRAKE_REST_S, or after
+# BRAKE_MAX_S whatever the speed.
+BRAKE_GAIN_NM_PER_RADPS = 0.05
+BRAKE_TORQUE_LIMIT_NM = 0.10
+BRAKE_REST_S = 0.05
+BRAKE_MAX_S = 1.0
+CONTROL_PERIOD_S = 0.01          # the firmware's control step (speed measurement, brake update)
+
+
+def brake_torque_e4nm(speed_radps: float, limit_e4nm: int) -> int:
+    """Brake torque [1e-4 N·m] for a measured wheel speed [rad/s]: -gain * speed, rounded, clamped
+    to +-min(BRAKE_TORQUE_LIMIT_NM, limit)."""
+    bound = min(int(round(BRAKE_TORQUE_LIMIT_NM / sp.TORQUE_LSB_NM)), limit_e4nm)
+    tau = int(round(-BRAKE_GAIN_NM_PER_RADPS * speed_radps / sp.TORQUE_LSB_NM))
+    return max(-bound, min(bound, tau))
 
 
 @dataclass(frozen=True)
@@ -96,6 +117,12 @@ class MotorBoard:
         self._next_status_s = now_s + cfg.status_period_s
         self._rx_error_seen = self.decoder.rejected_total
         self.watchdog_tripped_at_s: float | None = None
+        self.braking = False
+        self.brake_started_s: float | None = None
+        self.brake_released_s: float | None = None
+        self.brakes = 0
+        self._rest_since_s: float | None = None
+        self._next_brake_step_s = now_s
         if not hasattr(self, "wheel_pos_rad"):
             self.wheel_pos_rad = np.zeros(2)
             self.wheel_vel_radps = np.zeros(2)
@@ -138,7 +165,14 @@ class MotorBoard:
                 self.flags |= sp.FLAG_WATCHDOG
                 self.watchdog_trips += 1
                 self.watchdog_tripped_at_s = now_s
-            self.applied_e4nm = [0, 0]
+                if self._last_cmd_s is not None and not self.estop:
+                    self._start_brake(now_s)
+            if self.braking:
+                if now_s >= self._next_brake_step_s:
+                    self._brake_step(now_s)
+                    self._next_brake_step_s = max(self._next_brake_step_s + CONTROL_PERIOD_S, now_s)
+            else:
+                self.applied_e4nm = [0, 0]
         if self.standalone and dt > 0:
             self._integrate_wheels(min(dt, 0.05))
         period_s = self.telemetry_period_ms / 1000.0
@@ -148,6 +182,44 @@ class MotorBoard:
         if now_s >= self._next_status_s:
             self._send(self.status(now_s))
             self._next_status_s = max(self._next_status_s + self.config.status_period_s, now_s)
+
+    # -- stop brake (docs/safety.md) ---------------------------------------------------------------
+    def measured_speed_radps(self) -> np.ndarray:
+        """Wheel speed [rad/s] as the firmware measures it: whole encoder counts per control
+        period (rounded toward zero), shape (2,)."""
+        counts_per_rad = self.config.ticks_per_rev * CONTROL_PERIOD_S / TWO_PI
+        return np.trunc(self.wheel_vel_radps * counts_per_rad) / counts_per_rad
+
+    def _start_brake(self, now_s: float) -> None:
+        self.braking = True
+        self.brakes += 1
+        self.brake_started_s = now_s
+        self.brake_released_s = None
+        self._rest_since_s = None
+        self._next_brake_step_s = now_s
+        self.flags |= sp.FLAG_BRAKING
+
+    def _stop_brake(self, now_s: float | None) -> None:
+        """Leave the brake: H-bridge off (``now_s`` None: a command or e-stop took over)."""
+        if self.braking and now_s is not None:
+            self.brake_released_s = now_s
+        self.braking = False
+        self.flags &= ~sp.FLAG_BRAKING
+        self.applied_e4nm = [0, 0]
+
+    def _brake_step(self, now_s: float) -> None:
+        """One control step of the brake: regulate each wheel's speed to 0, release at rest."""
+        speed = self.measured_speed_radps()
+        if np.all(speed == 0.0):
+            if self._rest_since_s is None:
+                self._rest_since_s = now_s
+        else:
+            self._rest_since_s = None
+        at_rest = self._rest_since_s is not None and now_s - self._rest_since_s >= BRAKE_REST_S - 1e-9
+        if at_rest or now_s - self.brake_started_s >= BRAKE_MAX_S - 1e-9:
+            self._stop_brake(now_s)
+            return
+        self.applied_e4nm = [brake_torque_e4nm(float(w), self.limit_e4nm) for w in speed]
 
     def take_output(self) -> bytes:
         """Bytes the board has queued for the host since the last call."""
@@ -182,8 +254,9 @@ class MotorBoard:
             flags |= sp.FLAG_RX_ERROR
         return flags
 
-    def _send(self, msg: sp.Message) -> None:
-        self._out += sp.encode_frame(msg, self._seq, version=self.config.protocol_version)
+    def _send(self, msg: sp.Message, version: int | None = None) -> None:
+        version = self.config.protocol_version if version is None else version
+        self._out += sp.encode_frame(msg, self._seq, version=version)
         self._seq = (self._seq + 1) & 0xFF
 
     def _send_telemetry(self, now_s: float) -> None:
@@ -201,7 +274,9 @@ class MotorBoard:
             self._torque(msg, now_s)
         elif isinstance(msg, sp.Hello):
             self.flags &= ~sp.FLAG_RESET
-            self._send(self.hello_ack())
+            # a version-1 host reads only version-1 framing: answer it in that, so it can report
+            # the mismatch; every other host gets the board's own framing
+            self._send(self.hello_ack(), version=1 if msg.protocol_version == 1 else None)
         elif isinstance(msg, sp.Config):
             self.limit_e4nm = _clamp(msg.torque_limit_e4nm, 0, self.hard_limit_e4nm)
             self.watchdog_ms = _clamp(msg.watchdog_ms, *WATCHDOG_RANGE_MS)
@@ -215,7 +290,7 @@ class MotorBoard:
             self.estop = bool(msg.engage)
             if self.estop:
                 self.flags |= sp.FLAG_ESTOP
-                self.applied_e4nm = [0, 0]
+                self._stop_brake(None)
             else:
                 self.flags &= ~sp.FLAG_ESTOP
         # board -> host types arriving at the board are valid frames with nothing to do
@@ -227,6 +302,8 @@ class MotorBoard:
 
     def _torque(self, msg: sp.TorqueCommand, now_s: float) -> None:
         self.cmd_seq = self._last_host_seq if self._last_host_seq is not None else 0
+        if self.braking:
+            self._stop_brake(None)
         self.accepted_commands += 1
         if self.command_log is not None:
             self.command_log.append((now_s, self.cmd_seq, msg.left_e4nm, msg.right_e4nm))

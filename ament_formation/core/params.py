@@ -7,9 +7,25 @@ S6.1/S6.5/S7/S8 avoidance and switching).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
+from typing import Any
 
 from ament_formation.core.errors import ConfigError
+
+
+def param(default: Any, description: str, *, range: tuple[float, float] | None = None,
+          live: bool = False, dynamic_typing: bool = False) -> Any:
+    """A dataclass field that is also a ROS parameter (ros/params.py ``declare_dataclass``).
+
+    ``description``: what it is, with its unit (shown by ``ros2 param describe``);
+    ``range``: inclusive [lo, hi] bounds (a FloatingPointRange/IntegerRange on the parameter; the
+    dataclass still checks open ends and cross-field rules); ``live``: the node applies a change at
+    run time (otherwise the parameter is read-only); ``dynamic_typing``: the parameter takes more
+    than one type (e.g. a camera source given as a device index or a path). Metadata only: the
+    dataclass stays plain and ROS-free.
+    """
+    return field(default=default, metadata={
+        "description": description, "range": range, "live": live, "dynamic_typing": dynamic_typing})
 
 
 def _require(cond: bool, field: str, value, problem: str) -> None:

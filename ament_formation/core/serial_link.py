@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ament_formation.core import serial_protocol as sp
+from ament_formation.core.params import param
 
 TWO_PI = 2.0 * math.pi
 
@@ -20,21 +21,28 @@ TWO_PI = 2.0 * math.pi
 class LinkParams:
     """Bridge parameters (also the ROS parameters of ``formation_bridge``)."""
 
-    port: str = "/dev/ttyACM0"            # device path or pyserial URL
-    baud_rate: int = 115200
-    torque_limit_nm: float = 0.15          # bridge clamp, also sent to the board (CONFIG)
-    watchdog_s: float = 0.2                # board watchdog, sent in CONFIG
-    input_timeout_s: float = 0.2           # wheel_torque older than this -> zero torque
-    command_rate_hz: float = 100.0         # keep-alive TORQUE_CMD rate
-    telemetry_period_s: float = 0.01       # board TELEMETRY period when idle, sent in CONFIG
-    ack_timeout_s: float = 0.006           # no echo of a command after this -> resend once
-    link_timeout_s: float = 0.5            # no valid frame for this long -> link down, reopen
-    hello_retry_s: float = 0.2
-    heartbeat_period_s: float = 1.0
-    reconnect_initial_s: float = 0.05      # reopen backoff: initial, doubling up to max
-    reconnect_max_s: float = 0.5
-    poll_rate_hz: float = 500.0            # non-blocking read/write timer of the node
-    diagnostics_period_s: float = 1.0
+    port: str = param("/dev/ttyACM0", "device path or pyserial URL of the motor board")
+    baud_rate: int = param(115200, "serial baud rate [baud]", range=(1200, 4_000_000))
+    torque_limit_nm: float = param(0.15, "bridge clamp per wheel, also sent to the board [N m]",
+                                   range=(0.0, 3.2767))
+    watchdog_s: float = param(0.2, "board watchdog, sent in CONFIG [s]", range=(0.02, 0.5))
+    input_timeout_s: float = param(0.2, "wheel_torque older than this -> zero torque [s]",
+                                   range=(0.0, 5.0))
+    command_rate_hz: float = param(100.0, "keep-alive TORQUE_CMD rate [Hz]", range=(1.0, 1000.0))
+    telemetry_period_s: float = param(0.01, "board TELEMETRY period when idle, sent in CONFIG [s]",
+                                      range=(0.005, 1.0))
+    ack_timeout_s: float = param(0.006, "no echo of a command after this -> resend once [s]",
+                                 range=(0.0, 1.0))
+    link_timeout_s: float = param(0.5, "no valid frame this long -> link down, reopen [s], "
+                                  "> 2 telemetry periods")
+    hello_retry_s: float = param(0.2, "HELLO retry period [s]", range=(0.0, 5.0))
+    heartbeat_period_s: float = param(1.0, "heartbeat period [s]", range=(0.0, 60.0))
+    reconnect_initial_s: float = param(0.05, "reopen backoff, initial, doubling [s]",
+                                       range=(0.0, 60.0))
+    reconnect_max_s: float = param(0.5, "reopen backoff, maximum [s]", range=(0.0, 60.0))
+    poll_rate_hz: float = param(500.0, "non-blocking port read/write timer [Hz]",
+                                range=(10.0, 5000.0))
+    diagnostics_period_s: float = param(1.0, "/diagnostics period [s]", range=(0.05, 60.0))
 
     def __post_init__(self) -> None:
         def need(ok: bool, field: str, what: str) -> None:
@@ -138,7 +146,7 @@ class LinkHost:
         self._last_echo = None
         self._last_board_seq = None
         self._last_hello_s = now_s
-        return b"\x00" + self._frame(sp.Hello(sp.PROTOCOL_VERSION))
+        return b"\x00" + self._hello()
 
     def disconnected(self) -> None:
         self.state = DOWN
@@ -219,7 +227,7 @@ class LinkHost:
         p = self.p
         if self.state == HANDSHAKE and now_s - self._last_hello_s >= p.hello_retry_s:
             self._last_hello_s = now_s
-            return self._frame(sp.Hello(sp.PROTOCOL_VERSION))
+            return self._hello()
         if self.state == CONFIGURING and now_s - self._last_hello_s >= p.hello_retry_s:
             self._last_hello_s = now_s
             return self._config_frame()
@@ -280,17 +288,17 @@ class LinkHost:
                     self.stats["board_resets"] += 1
                     self.state = HANDSHAKE
                     self._last_hello_s = now_s
-                    out += self._frame(sp.Hello(sp.PROTOCOL_VERSION))
+                    out += self._hello()
             elif isinstance(msg, sp.Status):
                 self.board_status = msg
         return samples, out
 
     def _on_hello_ack(self, msg: sp.HelloAck, now_s: float) -> bytes:
+        if self.state not in (HANDSHAKE, CONFIGURING):
+            return b""
         self.board_version = msg.protocol_version
         if msg.protocol_version != sp.PROTOCOL_VERSION:
-            self.state = VERSION_MISMATCH
-            return b""
-        if self.state not in (HANDSHAKE, CONFIGURING):
+            self.state = VERSION_MISMATCH   # the bridge reports it; no torque is ever sent
             return b""
         self.ticks_per_rev = msg.ticks_per_rev
         self.state = CONFIGURING
@@ -329,8 +337,18 @@ class LinkHost:
             flags=msg.flags, cmd_seq=msg.cmd_seq, received_s=now_s)
 
     # -- helpers -------------------------------------------------------------------------------
-    def _frame(self, msg: sp.Message) -> bytes:
-        data = sp.encode_frame(msg, self._seq, leading_delimiter=True)
+    def _hello(self) -> bytes:
+        """HELLO in version-1 framing, which a board of any version reads (its body says 2)."""
+        return self._frame(sp.Hello(sp.PROTOCOL_VERSION), version=sp.HANDSHAKE_FRAMING_VERSION)
+
+    def version_mismatch_text(self) -> str:
+        """One line for the log and diagnostics when the board speaks another protocol version."""
+        return (f"protocol version mismatch: the board speaks version {self.board_version}, this bridge "
+                f"speaks {sp.PROTOCOL_VERSION}; no torque is sent (flash firmware of protocol version "
+                f"{sp.PROTOCOL_VERSION}: make -C firmware flash)")
+
+    def _frame(self, msg: sp.Message, version: int = sp.PROTOCOL_VERSION) -> bytes:
+        data = sp.encode_frame(msg, self._seq, leading_delimiter=True, version=version)
         self._seq = (self._seq + 1) & 0xFF
         self.stats["tx_frames"] += 1
         return data

@@ -1,12 +1,14 @@
 """Serial protocol between the bridge (host) and the motor board: message layouts, frame encoder
 and incremental decoder. No I/O. The normative description is ``docs/serial-protocol.md``.
 
-Wire format of one frame::
+Wire format of one frame (protocol version 2)::
 
-    [0x00]  COBS( header(2) | body(n) | crc16_le(2) )  0x00
+    [0x00]  COBS( header(2) | body(n) | crc32c_le(4) )  0x00
     header byte 0 = (protocol_version << 4) | message_type,  header byte 1 = sequence (uint8)
 
-CRC-16/CCITT-FALSE over header and body, sent little-endian. All multi-byte fields are
+CRC-32C over header and body, sent little-endian. The header's version nibble selects the check:
+1 -> CRC-16/CCITT-FALSE (2 bytes; version 1, kept only so that HELLO / HELLO_ACK can tell a version-1
+peer about the mismatch), 2 and above -> CRC-32C (4 bytes). All multi-byte fields are
 little-endian integers in fixed-point units (no floats on the wire); a frame on the wire is at most
 ``MAX_WIRE_BYTES`` long.
 """
@@ -19,12 +21,14 @@ from typing import ClassVar, Union
 
 from ament_formation.core import cobs
 from ament_formation.core.crc16 import crc16
+from ament_formation.core.crc32c import crc32c
 
-PROTOCOL_VERSION = 1
+PROTOCOL_VERSION = 2
+HANDSHAKE_FRAMING_VERSION = 1   # HELLO always goes out in version-1 framing: any board can answer it
 MAX_WIRE_BYTES = 64          # largest frame on the wire, both delimiters included
 MAX_ENCODED_BYTES = 62       # largest COBS block between delimiters
 HEADER_BYTES = 2
-CRC_BYTES = 2
+CRC_BYTES = 4                # CRC-32C (version >= 2); version-1 framing has 2 (CRC-16)
 
 TORQUE_LSB_NM = 1e-4         # torque fields: int16 in units of 1e-4 N·m (±3.2767 N·m)
 VELOCITY_LSB_RADPS = 1e-3    # velocity fields: int16 in units of 1e-3 rad/s (±32.767 rad/s)
@@ -35,7 +39,8 @@ FLAG_CLAMPED = 0x02          # the last TORQUE_CMD exceeded the torque limit and
 FLAG_ESTOP = 0x04            # emergency stop engaged: torque is zero, commands are ignored
 FLAG_RX_ERROR = 0x08         # the board rejected a frame since the previous TELEMETRY
 FLAG_RESET = 0x10            # the board has not received a HELLO since it booted
-FLAGS_DEFINED = 0x1F
+FLAG_BRAKING = 0x20          # commands stopped: the board regulates the wheels to rest (version 2)
+FLAGS_DEFINED = 0x3F
 
 REJECT_REASONS = ("oversize", "cobs", "length", "crc", "version", "type", "value")
 
@@ -84,7 +89,8 @@ class _Message:
 
 @dataclass(frozen=True)
 class Hello(_Message):
-    """host -> board: start of a session; the board answers HELLO_ACK (any version)."""
+    """host -> board: start of a session; the board answers HELLO_ACK (any version). Always sent
+    in version-1 framing (``HANDSHAKE_FRAMING_VERSION``) so that a board of any version reads it."""
 
     TYPE: ClassVar[MsgType] = MsgType.HELLO
     FORMAT: ClassVar[str] = "<B"
@@ -228,10 +234,23 @@ class Frame:
             raise ValueError(f"Frame.version: {self.version} not in [1, 15]")
 
 
+def crc_bytes(version: int) -> int:
+    """Length of the check value in a frame whose header carries ``version``: 2 (CRC-16) for
+    version 1, 4 (CRC-32C) for every later version."""
+    return 2 if version == 1 else 4
+
+
+def frame_check(head_and_body: bytes, version: int) -> bytes:
+    """The check value of a frame of ``version``, little-endian (CRC-16 for 1, CRC-32C after)."""
+    if version == 1:
+        return crc16(head_and_body).to_bytes(2, "little")
+    return crc32c(head_and_body).to_bytes(4, "little")
+
+
 def raw_frame(msg: Message, seq: int, version: int = PROTOCOL_VERSION) -> bytes:
-    """header | body | crc16 (little-endian), before COBS."""
+    """header | body | check (little-endian), before COBS."""
     head = bytes(((version << 4) | int(msg.TYPE), seq & 0xFF)) + msg.pack()
-    return head + crc16(head).to_bytes(2, "little")
+    return head + frame_check(head, version)
 
 
 def encode_frame(msg: Message, seq: int, *, leading_delimiter: bool = False,
@@ -246,11 +265,14 @@ def encode_frame(msg: Message, seq: int, *, leading_delimiter: bool = False,
 
 def decode_raw(raw: bytes, accepted_version: int = PROTOCOL_VERSION) -> Frame | str:
     """Check and parse one de-COBSed frame: the Frame, or the rejection reason (REJECT_REASONS)."""
-    if len(raw) < HEADER_BYTES + 1 + CRC_BYTES:
+    if len(raw) < HEADER_BYTES + 1 + 2:
         return "length"
-    if crc16(raw[:-2]) != raw[-2] | (raw[-1] << 8):
-        return "crc"
     version, type_code = raw[0] >> 4, raw[0] & 0x0F
+    n_check = crc_bytes(version)
+    if len(raw) < HEADER_BYTES + 1 + n_check:
+        return "length"
+    if frame_check(raw[:-n_check], version) != raw[-n_check:]:
+        return "crc"
     try:
         mtype = MsgType(type_code)
     except ValueError:
@@ -259,7 +281,7 @@ def decode_raw(raw: bytes, accepted_version: int = PROTOCOL_VERSION) -> Frame | 
         return "version"
     if version == 0:
         return "version"
-    body = raw[HEADER_BYTES:-CRC_BYTES]
+    body = raw[HEADER_BYTES:-n_check]
     if len(body) != BODY_BYTES[mtype]:
         return "length"
     cls = MESSAGE_CLASSES[mtype]

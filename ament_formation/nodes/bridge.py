@@ -113,6 +113,9 @@ class BridgeNode(Node):
             if not self.telemetry_sinks or self._pub_state.get_subscription_count():
                 self._pub_state.publish(wheel_state(s.position_rad, s.velocity_radps, stamp.to_msg()))
         self._write(answer + self.link.poll(now))
+        if self.link.state == sl.VERSION_MISMATCH and self._last_error != self.link.version_mismatch_text():
+            self._last_error = self.link.version_mismatch_text()   # once per connection
+            self.get_logger().error(f"{self.params.port}: {self._last_error}")
         if self.link.state == sl.UP and self.link_up_since_s is None:
             self.link_up_since_s = now
             self.get_logger().info(f"link up on {self.params.port}")
@@ -177,7 +180,7 @@ class BridgeNode(Node):
         values = self.diagnostics_values()
         state = self.link.state
         level = diag.OK if state == sl.UP else diag.WARN if state in (sl.HANDSHAKE, sl.CONFIGURING) else diag.ERROR
-        message = {"up": "link up", "down": "link down", "version_mismatch": "protocol version mismatch"}.get(
+        message = {"up": "link up", "down": "link down", "version_mismatch": self.link.version_mismatch_text()}.get(
             state, "connecting")
         status = diag.status(f"{self.get_fully_qualified_name()}: serial link", self.params.port, level, message, values)
         self._pub_diag.publish(diag.array(self.get_clock().now().to_msg(), [status]))

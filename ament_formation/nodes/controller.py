@@ -73,7 +73,7 @@ from ament_formation.core.errors import ConfigError
 from ament_formation.core.estimator import EstimatorParams, PoseEstimator
 from ament_formation.core.controller import NeighbourState, RobotController
 from ament_formation.core.graph import FormationGraph
-from ament_formation.core.params import ControlGains
+from ament_formation.core.params import ControlGains, param
 from ament_formation.core.scenario import load_scenario
 from ament_formation.ros import diagnostics as diag
 from ament_formation.ros import messages as msgs
@@ -84,15 +84,20 @@ from ament_formation.ros.qos import QOS_CONTROL, QOS_DIAGNOSTICS, QOS_GRAPH
 
 @dataclass(frozen=True)
 class ControllerParams:
-    scenario: str = ""
-    robot_id: int = -1
-    control_rate_hz: float = 100.0
-    pose_timeout_s: float = 0.5
-    wheel_timeout_s: float = 0.1
-    parent_timeout_s: float = 0.1
-    parent_hold_s: float = 1.0
-    stop_time_s: float = 0.3
-    camera_gain: float = 0.5
+    scenario: str = param("", "scenario YAML path (required)")
+    robot_id: int = param(-1, "this robot's id in the scenario (required, >= 0)")
+    control_rate_hz: float = param(100.0, "control loop rate [Hz]", range=(1.0, 2000.0))
+    pose_timeout_s: float = param(0.5, "no camera pose this long -> controlled stop [s]",
+                                  range=(0.01, 10.0))
+    wheel_timeout_s: float = param(0.1, "no wheel_state this long -> controlled stop [s]",
+                                   range=(0.005, 10.0))
+    parent_timeout_s: float = param(0.1, "older parent/other robot state is extrapolated [s]",
+                                    range=(0.0, 10.0))
+    parent_hold_s: float = param(1.0, "older parent state -> hold; other robots ignored [s], "
+                                 ">= parent_timeout_s", range=(0.0, 60.0))
+    stop_time_s: float = param(0.3, "time constant of the controlled stop [s]", range=(0.01, 10.0))
+    camera_gain: float = param(0.5, "S10 complementary gain per camera frame, (0, 1]",
+                               range=(0.0, 1.0))
 
     def __post_init__(self) -> None:
         if not self.scenario:

@@ -48,6 +48,7 @@ from ament_formation.core.arbiter import EncounterArbiter
 from ament_formation.core.errors import ConfigError
 from ament_formation.core.graph import FormationGraph
 from ament_formation.core.obstacles import ObstacleField
+from ament_formation.core.params import param
 from ament_formation.core.scenario import load_scenario
 from ament_formation.ros import messages as msgs
 from ament_formation.ros.executors import run_node
@@ -57,12 +58,15 @@ from ament_formation.ros.qos import QOS_CONTROL, QOS_GRAPH, QOS_MARKERS
 
 @dataclass(frozen=True)
 class CoordinatorParams:
-    scenario: str = ""
-    start_delay_s: float = 1.0
-    wait_for_robots: bool = True
-    markers_rate_hz: float = 5.0
-    republish_s: float = 1.0
-    encounter_rate_hz: float = 50.0
+    scenario: str = param("", "scenario YAML path (required)")
+    start_delay_s: float = param(1.0, "mission start after every controller is up [s]",
+                                 range=(0.0, 60.0))
+    wait_for_robots: bool = param(True, "wait for every robot's state before starting")
+    markers_rate_hz: float = param(5.0, "/formation/markers rate [Hz] (0: none)", range=(0.0, 100.0))
+    republish_s: float = param(1.0, "/formation/graph re-publication period [s], > 0",
+                               range=(0.0, 3600.0))
+    encounter_rate_hz: float = param(50.0, "S7 arbitration rate [Hz] (0: no arbitration)",
+                                     range=(0.0, 1000.0))
 
     def __post_init__(self) -> None:
         if not self.scenario:

@@ -36,6 +36,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from ament_formation.core.errors import ConfigError
+from ament_formation.core.params import param
 from ament_formation.core.scenario import load_scenario
 from ament_formation.nodes.bridge import BridgeNode
 from ament_formation.nodes.controller import ControllerNode, PeerTable
@@ -46,9 +47,10 @@ from ament_formation.ros.params import declare_dataclass
 
 @dataclass(frozen=True)
 class TeamParams:
-    scenario: str = ""
-    robot_ids: tuple[int, ...] = ()
-    port_template: str = ""
+    scenario: str = param("", "scenario YAML path (required)")
+    robot_ids: tuple[int, ...] = param((), "robots hosted here (empty: every robot)")
+    port_template: str = param("", "serial port of robot {id}, e.g. /dev/ttyACM{id} "
+                               "('': no bridges, controllers only)")
 
     def __post_init__(self) -> None:
         if not self.scenario:

@@ -50,6 +50,7 @@ from sensor_msgs.msg import Image
 from ament_formation.core.camera_model import load_camera_yaml
 from ament_formation.core.errors import ConfigError
 from ament_formation.core.marker_tracking import MarkerTracker, TrackerConfig
+from ament_formation.core.params import param
 from ament_formation.core.paths_config import config_file
 from ament_formation.core.robot_marker import MarkerLayout
 from ament_formation.ros import diagnostics as diag
@@ -65,20 +66,21 @@ class TrackerNodeParams:
     """Parameters of formation_tracker (see the module docstring)."""
 
     source: str = ""
-    source_loop: bool = False
-    image_topic: str = "/camera/image_raw"
-    camera_config: str = "camera.yaml"
-    marker_ids: tuple[int, ...] = (0, 1)
-    robot_ids: tuple[int, ...] = (0, 1)
-    dictionary: str = "DICT_4X4_50"
-    marker_size_m: float = 0.12
-    marker_offset_m: tuple[float, ...] = (-0.05, 0.0)
-    marker_height_m: float = 0.08
-    max_speed_mps: float = 1.5
-    use_roi: bool = True
-    publish_covariance: bool = True
-    publish_debug_image: bool = False
-    diagnostics_period_s: float = 1.0
+    source_loop: bool = param(False, "replay a video file from the start when it ends")
+    image_topic: str = param("/camera/image_raw", "topic of frames when source is empty")
+    camera_config: str = param("camera.yaml", "camera calibration: a config/ file name or a path")
+    marker_ids: tuple[int, ...] = param((0, 1), "ArUco marker id of each robot")
+    robot_ids: tuple[int, ...] = param((0, 1), "robot id for each entry of marker_ids")
+    dictionary: str = param("DICT_4X4_50", "ArUco dictionary")
+    marker_size_m: float = param(0.12, "marker side [m]", range=(0.001, 10.0))
+    marker_offset_m: tuple[float, ...] = param(
+        (-0.05, 0.0), "marker centre in the controlled point's body frame [x, y] [m]")
+    marker_height_m: float = param(0.08, "marker plane above the floor [m]")
+    max_speed_mps: float = param(1.5, "faster apparent motion is rejected as a jump [m/s]")
+    use_roi: bool = param(True, "search around the predicted poses first")
+    publish_covariance: bool = param(True, "also publish robot_<id>/pose_cov")
+    publish_debug_image: bool = param(False, "publish ~/debug_image (bgr8, markers drawn)")
+    diagnostics_period_s: float = param(1.0, "/diagnostics period [s]", range=(0.0, 3600.0))
 
     def __post_init__(self) -> None:
         if len(self.marker_ids) != len(self.robot_ids):

@@ -42,6 +42,7 @@ from std_msgs.msg import String
 from ament_formation.core.camera_model import load_camera_yaml
 from ament_formation.core.errors import ConfigError
 from ament_formation.core.motor_board import BoardConfig, MotorBoard
+from ament_formation.core.params import param
 from ament_formation.core.paths_config import config_file
 from ament_formation.core.scenario import load_scenario
 from ament_formation.core.synthetic_camera import Obstacles, RenderOptions, SyntheticCamera
@@ -57,15 +58,16 @@ SIM_CLOCK_START_S = 1.0   # /clock starts here (ROS time 0 means "no time yet")
 
 @dataclass(frozen=True)
 class WorldParams:
-    scenario: str = ""
-    camera_config: str = "camera.yaml"
-    pty_dir: str = ""
-    speed_factor: float = 1.0
-    tick_s: float = 0.01
-    physics_dt_s: float = 0.001
-    camera_enabled: bool = True
-    camera_noise: float = 2.0
-    exit_at_end: bool = True
+    scenario: str = param("", "scenario YAML path (required)")
+    camera_config: str = param("camera.yaml", "camera calibration: a config/ file name or a path")
+    pty_dir: str = param("", "folder for the robot_<id> pty links ('': a new temp folder)")
+    speed_factor: float = param(1.0, "sim seconds per wall second; != 1 publishes /clock",
+                                range=(0.05, 50.0))
+    tick_s: float = param(0.01, "plant/board/truth period [s sim]", range=(0.001, 0.05))
+    physics_dt_s: float = param(0.001, "RK4 step [s], <= tick_s", range=(0.0, 0.05))
+    camera_enabled: bool = param(True, "render and publish camera frames")
+    camera_noise: float = param(2.0, "sensor noise std [grey levels]", range=(0.0, 255.0))
+    exit_at_end: bool = param(True, "shut down when scenario time passes duration_s")
 
     def __post_init__(self) -> None:
         if not self.scenario:

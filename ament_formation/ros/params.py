@@ -1,17 +1,48 @@
 """Node parameters from frozen dataclasses: declare one ROS parameter per field (same name, same
 default), read them back, build the dataclass (which validates itself), and turn any error into a
-one-line ConfigError naming the parameter. The node, the CLI and the tests build the same object."""
+one-line ConfigError naming the node and the parameter. The node, the CLI and the tests build the
+same object.
+
+Every parameter gets a ParameterDescriptor: its type, a description with its unit and a
+FloatingPointRange/IntegerRange from the field's metadata (core/params.py ``param``), and
+``read_only`` unless the field is ``live`` and the node applies changes (``on_change``). So at run
+time ``ros2 param set`` of a read-only parameter, of a value out of range or of a value the
+dataclass rejects answers ``successful=False`` with the reason, instead of being accepted and
+ignored. At start, a value of the wrong type (``-p torque_limit_nm:=abc``) is a ConfigError naming
+the node, the parameter and the expected type (the process prints one line and exits 2). An integer
+given for a float parameter (``-p control_rate_hz:=100``) is taken as that float.
+"""
 from __future__ import annotations
 
 import dataclasses
+import math
+import types
 import typing
-from typing import Any, TypeVar
+from typing import Any, Callable, TypeVar
 
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                SetParametersResult)
+from rclpy.exceptions import (InvalidParameterTypeException, InvalidParameterValueException,
+                              ParameterUninitializedException)
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 
 from ament_formation.core.errors import ConfigError
 
-T = TypeVar("T")
+T = TypeVar('T')
+
+_T = Parameter.Type
+_SCALAR = {bool: _T.BOOL, int: _T.INTEGER, float: _T.DOUBLE, str: _T.STRING}
+_ARRAY = {bool: _T.BOOL_ARRAY, int: _T.INTEGER_ARRAY, float: _T.DOUBLE_ARRAY, str: _T.STRING_ARRAY}
+_TYPE_WORDS = {
+    _T.BOOL: 'a bool (true/false)', _T.INTEGER: 'an integer', _T.DOUBLE: 'a float',
+    _T.STRING: 'a string', _T.BOOL_ARRAY: 'a list of bools', _T.INTEGER_ARRAY: 'a list of integers',
+    _T.DOUBLE_ARRAY: 'a list of floats', _T.STRING_ARRAY: 'a list of strings',
+    _T.BYTE_ARRAY: 'a list of bytes', _T.NOT_SET: 'unset',
+}
+# unit suffix of a parameter name -> unit, for descriptions of fields without metadata
+_UNITS = (('_nm', 'N m'), ('_mps2', 'm/s^2'), ('_mps', 'm/s'), ('_radps', 'rad/s'), ('_rad', 'rad'),
+          ('_hz', 'Hz'), ('_px', 'px'), ('_kgm2', 'kg m^2'), ('_kg', 'kg'), ('_m', 'm'), ('_s', 's'))
 
 
 def _default_of(f: dataclasses.Field) -> Any:
@@ -19,7 +50,7 @@ def _default_of(f: dataclasses.Field) -> Any:
         return f.default
     if f.default_factory is not dataclasses.MISSING:  # type: ignore[misc]
         return f.default_factory()  # type: ignore[misc]
-    raise ConfigError("has no default; the node cannot declare it", f.name)
+    raise ConfigError('has no default; the node cannot declare it', f.name)
 
 
 def _ros_value(value: Any) -> Any:
@@ -28,51 +59,185 @@ def _ros_value(value: Any) -> Any:
     return value
 
 
-def declare_dataclass(node: Node, cls: type[T], prefix: str = "", overrides: dict | None = None) -> T:
+def _is_union(hint: Any) -> bool:
+    return typing.get_origin(hint) in (typing.Union, types.UnionType)
+
+
+def parameter_type(hint: Any, default: Any) -> Parameter.Type | None:
+    """ROS parameter type of a field annotated ``hint`` with ``default``; None: dynamic typing
+    (a union such as ``str | int``, or a None default)."""
+    if default is None:
+        return None
+    if _is_union(hint):
+        args = [a for a in typing.get_args(hint) if a is not type(None)]
+        if len(args) != 1:
+            return None
+        hint = args[0]
+    origin = typing.get_origin(hint)
+    if origin in (tuple, list):
+        args = [a for a in typing.get_args(hint) if a is not Ellipsis]
+        if len(args) >= 1 and args[0] in _ARRAY:
+            return _ARRAY[args[0]]
+    elif hint in _SCALAR:
+        return _SCALAR[hint]
+    return Parameter.Type.from_parameter_value(_ros_value(default))
+
+
+def describe(f: dataclasses.Field) -> str:
+    """The field's description (metadata), else its name with the unit of its suffix."""
+    text = f.metadata.get('description')
+    if text:
+        return text
+    for suffix, unit in _UNITS:
+        if f.name.endswith(suffix):
+            return f'{f.name.replace("_", " ")} [{unit}]'
+    return f.name.replace('_', ' ')
+
+
+def _descriptor(name: str, f: dataclasses.Field, kind: Parameter.Type | None,
+                read_only: bool) -> ParameterDescriptor:
+    desc = ParameterDescriptor(name=name, description=describe(f), read_only=read_only)
+    if kind is None:
+        desc.dynamic_typing = True
+        return desc
+    desc.type = kind.value
+    bounds = f.metadata.get('range')
+    if bounds is not None and None not in bounds:
+        lo, hi = bounds
+        if kind == _T.DOUBLE:
+            desc.floating_point_range = [FloatingPointRange(
+                from_value=float(lo), to_value=float(hi), step=0.0)]
+        elif kind == _T.INTEGER:
+            desc.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi), step=1)]
+        desc.additional_constraints = f'in [{lo:g}, {hi:g}]'
+    return desc
+
+
+def _type_word(value: Any) -> str:
+    try:
+        return _TYPE_WORDS.get(Parameter.Type.from_parameter_value(value), type(value).__name__)
+    except TypeError:
+        return type(value).__name__
+
+
+def _coerce(value: Any, kind: Parameter.Type | None) -> tuple[bool, Any]:
+    """(ok, value) of an override for a parameter of type ``kind``: an integer (list) given for a
+    float (list) is that float; anything else must already have the type."""
+    if kind is None:
+        return True, value
+    if kind == _T.DOUBLE and isinstance(value, int) and not isinstance(value, bool):
+        return True, float(value)
+    if kind == _T.DOUBLE_ARRAY and isinstance(value, (list, tuple)) and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
+        return True, [float(v) for v in value]
+    try:
+        ok = Parameter.Type.from_parameter_value(value) == kind
+    except TypeError:
+        ok = False
+    return ok, value
+
+
+def declare_dataclass(node: Node, cls: type[T], prefix: str = '', overrides: dict | None = None,
+                      on_change: Callable[[T], None] | None = None) -> T:
     """Declare every field of ``cls`` as parameter ``prefix + name`` and return the built object.
 
-    ``overrides`` replace defaults (e.g. values from a scenario). Fields whose default is None are
-    declared with a dynamic type and read back as None when left unset.
-    Raises ConfigError("node: parameter: problem") for bad values.
+    ``overrides`` replace defaults (e.g. values from a scenario). Fields whose default is None or
+    whose annotation is a union (``str | int``) or whose metadata says ``dynamic_typing`` are
+    declared with a dynamic type (None read back when left unset). With ``on_change``, the fields
+    marked ``live`` stay writable: a run-time change is validated by building the dataclass again
+    (rejected with its reason when it fails) and ``on_change(new_object)`` applies it (it must
+    not raise); every other parameter is read-only.
+    Raises ConfigError("node: parameter: problem") for bad values or types.
     """
     overrides = overrides or {}
+    node_name = node.get_fully_qualified_name()
     hints = typing.get_type_hints(cls)
+    given = getattr(node, '_parameter_overrides', {})   # rclpy: command line and params files
     values: dict[str, Any] = {}
+    names: dict[str, str] = {}
     for f in dataclasses.fields(cls):
         name = prefix + f.name
+        names[name] = f.name
         default = overrides.get(f.name, _default_of(f))
-        if default is None:
-            from rcl_interfaces.msg import ParameterDescriptor
-
-            node.declare_parameter(name, None, ParameterDescriptor(dynamic_typing=True))
-            value = node.get_parameter(name).value
-        elif isinstance(default, (tuple, list)) and not default:
-            # an empty default says nothing of the element type: take it from the annotation
-            from rclpy.exceptions import ParameterUninitializedException
-            from rclpy.parameter import Parameter
-
-            hint = str(hints.get(f.name, ""))
-            kind = next((t for key, t in (("int", Parameter.Type.INTEGER_ARRAY),
-                                          ("float", Parameter.Type.DOUBLE_ARRAY),
-                                          ("str", Parameter.Type.STRING_ARRAY),
-                                          ("bool", Parameter.Type.BOOL_ARRAY)) if f"[{key}" in hint), None)
-            if kind is None:
-                raise ConfigError(f"empty default of unknown element type ({hint})", name)
-            node.declare_parameter(name, kind)
-            try:
-                value = node.get_parameter(name).value
-            except ParameterUninitializedException:
-                value = type(default)()
-        else:
-            node.declare_parameter(name, _ros_value(default))
-            value = node.get_parameter(name).value
-        if isinstance(value, list) and "tuple" in str(hints.get(f.name, "")):
-            value = tuple(value)
-        values[f.name] = value
+        kind = None if f.metadata.get('dynamic_typing') else parameter_type(hints.get(f.name),
+                                                                           default)
+        live = bool(f.metadata.get('live')) and on_change is not None
+        desc = _descriptor(name, f, kind, read_only=not live)
+        ignore_override = False
+        value = _ros_value(default)
+        if name in given:
+            ok, value_given = _coerce(given[name].value, kind)
+            if not ok:
+                raise ConfigError(
+                    f'expected {_TYPE_WORDS[kind]}, got {given[name].value!r} '
+                    f'({_type_word(given[name].value)}); {describe(f)}', name, node_name)
+            if value_given is not given[name].value:
+                value, ignore_override = value_given, True
+        try:
+            if kind is not None and isinstance(value, list) and not value:
+                # an empty list says nothing of its element type: declare by type only
+                node.declare_parameter(name, kind, desc, ignore_override=ignore_override)
+                try:
+                    value = node.get_parameter(name).value
+                except ParameterUninitializedException:
+                    value = []
+            else:
+                value = node.declare_parameter(name, value, desc,
+                                               ignore_override=ignore_override).value
+        except InvalidParameterTypeException:
+            raise ConfigError(f'expected {_TYPE_WORDS.get(kind, kind)}; {describe(f)}', name,
+                              node_name) from None
+        except InvalidParameterValueException as err:
+            bounds = f.metadata.get('range')
+            got = given[name].value if name in given else value
+            problem = (f'must be in [{bounds[0]:g}, {bounds[1]:g}] (got {got!r})' if bounds
+                       else str(err))
+            raise ConfigError(problem, name, node_name) from None
+        values[f.name] = _from_ros(value, hints.get(f.name))
     try:
-        return cls(**values)
+        obj = cls(**values)
     except ConfigError as err:
         field = prefix + err.field if err.field else None
-        raise ConfigError(err.problem, field, node.get_fully_qualified_name()) from None
+        raise ConfigError(err.problem, field, node_name) from None
     except (TypeError, ValueError) as err:
-        raise ConfigError(str(err), None, node.get_fully_qualified_name()) from None
+        raise ConfigError(str(err), None, node_name) from None
+    if on_change is not None and any(f.metadata.get('live') for f in dataclasses.fields(cls)):
+        _watch(node, obj, names, hints, on_change)
+    return obj
+
+
+def _from_ros(value: Any, hint: Any) -> Any:
+    if isinstance(value, list) and 'tuple' in str(hint):
+        return tuple(value)
+    return value
+
+
+def _watch(node: Node, obj: Any, names: dict[str, str], hints: dict, on_change: Callable) -> None:
+    """Validate run-time changes of ``obj``'s live parameters with the dataclass (on-set
+    callback: a rejection answers ``successful=False`` with the reason), then apply them
+    (post-set callback: ``on_change(new_object)``)."""
+    state = {'obj': obj}
+
+    def changed(params: list[Parameter]) -> Any:
+        changes = {names[p.name]: _from_ros(p.value, hints.get(names[p.name]))
+                   for p in params if p.name in names}
+        for key, value in changes.items():
+            if isinstance(value, float) and not math.isfinite(value):
+                raise ConfigError(f'must be finite (got {value!r})', key)
+        return dataclasses.replace(state['obj'], **changes) if changes else None
+
+    def on_set(params: list[Parameter]) -> SetParametersResult:
+        try:
+            changed(params)
+        except (ConfigError, TypeError, ValueError) as err:
+            return SetParametersResult(successful=False, reason=str(err))
+        return SetParametersResult(successful=True)
+
+    def post_set(params: list[Parameter]) -> None:
+        new = changed(params)
+        if new is not None:
+            state['obj'] = new
+            on_change(new)
+
+    node.add_on_set_parameters_callback(on_set)
+    node.add_post_set_parameters_callback(post_set)

@@ -13,6 +13,7 @@ from pathlib import Path
 from ament_formation.core import cobs
 from ament_formation.core import serial_protocol as sp
 from ament_formation.core.crc16 import crc16
+from ament_formation.core.crc32c import crc32c
 
 
 def _valid(name: str, direction: str, msg: sp.Message, seq: int, leading: bool, si: dict | None = None,
@@ -24,7 +25,7 @@ def _valid(name: str, direction: str, msg: sp.Message, seq: int, leading: bool, 
         "direction": direction,
         "hex": wire.hex(),
         "raw_hex": raw.hex(),
-        "crc16": f"0x{crc16(raw[:-2]):04x}",
+        "check": (f"0x{crc16(raw[:-2]):04x}" if version == 1 else f"0x{crc32c(raw[:-4]):08x}"),
         "leading_delimiter": leading,
         "version": version,
         "seq": seq,
@@ -40,14 +41,17 @@ def _cobs_wire(raw: bytes) -> str:
 
 
 def _with_crc(head_and_body: bytes) -> bytes:
-    return head_and_body + crc16(head_and_body).to_bytes(2, "little")
+    """Append the check value the header's version nibble selects (CRC-16 for 1, CRC-32C after)."""
+    return head_and_body + sp.frame_check(head_and_body, head_and_body[0] >> 4)
 
 
 def build_vectors() -> dict:
     """The whole vector file as a JSON-ready dict."""
     v = []
-    v.append(_valid("hello", "host->board", sp.Hello(1), 0, True, {"protocol_version": 1}))
-    v.append(_valid("hello_ack", "board->host", sp.HelloAck(1, 1, 0, 1440, 1500, 1500, 200, 10), 0, False,
+    v.append(_valid("hello", "host->board", sp.Hello(2), 0, True,
+                    {"protocol_version": 2, "note": "HELLO always travels in version-1 framing (CRC-16)"},
+                    version=1))
+    v.append(_valid("hello_ack", "board->host", sp.HelloAck(2, 2, 0, 1440, 1500, 1500, 200, 10), 0, False,
                     {"ticks_per_rev": 1440, "torque_limit_nm": 0.15, "watchdog_s": 0.2, "telemetry_rate_hz": 100}))
     v.append(_valid("torque_cmd_zero", "host->board", sp.TorqueCommand(0, 0), 1, True,
                     {"left_nm": 0.0, "right_nm": 0.0}))
@@ -77,35 +81,48 @@ def build_vectors() -> dict:
                     {"torque_limit_nm": 0.12, "watchdog_s": 0.2, "telemetry_rate_hz": 100}))
     v.append(_valid("config_ack", "board->host", sp.ConfigAck(1200, 200, 10), 20, False,
                     {"torque_limit_nm": 0.12, "watchdog_s": 0.2, "telemetry_rate_hz": 100}))
-    v.append(_valid("hello_other_version", "host->board", sp.Hello(2), 8, True,
-                    {"note": "HELLO/HELLO_ACK are accepted in any version: the board answers in its own"},
-                    version=2))
+    v.append(_valid("hello_from_version_1_host", "host->board", sp.Hello(1), 8, True,
+                    {"note": "what a version-1 bridge sends"}, version=1))
+    v.append(_valid("hello_ack_to_version_1_host", "board->host", sp.HelloAck(2, 2, 0, 1440, 1500, 1500, 200, 10),
+                    21, False, {"note": "answer to a HELLO asking for version 1: version-1 framing, so that host "
+                                        "reads protocol_version 2 and reports the mismatch"}, version=1))
+    v.append(_valid("hello_ack_from_version_1_board", "board->host", sp.HelloAck(1, 1, 0, 1440, 1500, 1500, 200, 10),
+                    0, False, {"note": "a version-1 board: the host reports the mismatch and sends no torque"},
+                    version=1))
+    v.append(_valid("telemetry_braking", "board->host",
+                    sp.Telemetry(100, 100, 2618, 2618, 9, sp.FLAG_WATCHDOG | sp.FLAG_BRAKING), 22, False,
+                    {"flags": ["WATCHDOG", "BRAKING"], "note": "commands stopped: the board brakes the wheels"}))
 
     good = sp.raw_frame(sp.TorqueCommand(1234, -567), 2)
     bad_crc = bytearray(good)
     bad_crc[3] ^= 0x01
+    crc16_framed = good[:-4] + crc16(good[:-4]).to_bytes(2, "little")
     bad_cobs = bytearray(cobs.encode(good))
     bad_cobs[0] = 0x30
     invalid = [
         {"name": "bad_crc_one_bit", "hex": _cobs_wire(bytes(bad_crc)), "reject": "crc",
          "note": "torque_cmd with bit 0 of byte 3 flipped"},
-        {"name": "bad_crc_swapped_bytes", "hex": _cobs_wire(good[:-2] + good[-1:] + good[-2:-1]), "reject": "crc",
-         "note": "CRC sent big-endian"},
+        {"name": "bad_crc_big_endian", "hex": _cobs_wire(good[:-4] + good[-4:][::-1]), "reject": "crc",
+         "note": "CRC-32C sent big-endian"},
+        {"name": "crc16_in_version_2", "hex": _cobs_wire(crc16_framed), "reject": "crc",
+         "note": "version-2 TORQUE_CMD closed by a CRC-16 (version-1 check) instead of a CRC-32C"},
         {"name": "cobs_code_past_end", "hex": (bytes(bad_cobs) + b"\x00").hex(), "reject": "cobs",
          "note": "first code byte 0x30 points beyond the frame"},
-        {"name": "too_short", "hex": _cobs_wire(b"\x13\x01\xff"), "reject": "length",
-         "note": "fewer than header + 1 + CRC bytes"},
-        {"name": "body_length_wrong_for_type", "hex": _cobs_wire(_with_crc(b"\x13\x02\x01\x02\x03")),
+        {"name": "too_short", "hex": _cobs_wire(b"\x23\x01\xff\x01\x02\x03"), "reject": "length",
+         "note": "fewer than header + 1 + CRC-32C bytes"},
+        {"name": "body_length_wrong_for_type", "hex": _cobs_wire(_with_crc(b"\x23\x02\x01\x02\x03")),
          "reject": "length", "note": "TORQUE_CMD with a 3-byte body, CRC correct"},
-        {"name": "unknown_type", "hex": _cobs_wire(_with_crc(b"\x1a\x02\x01\x02\x03\x04")), "reject": "type",
+        {"name": "unknown_type", "hex": _cobs_wire(_with_crc(b"\x2a\x02\x01\x02\x03\x04")), "reject": "type",
          "note": "type 0xA, CRC correct"},
-        {"name": "type_zero", "hex": _cobs_wire(_with_crc(b"\x10\x02\x01\x02\x03\x04")), "reject": "type",
+        {"name": "type_zero", "hex": _cobs_wire(_with_crc(b"\x20\x02\x01\x02\x03\x04")), "reject": "type",
          "note": "type 0x0 is never used"},
-        {"name": "wrong_version", "hex": _cobs_wire(sp.raw_frame(sp.TorqueCommand(100, 100), 3, version=2)),
-         "reject": "version", "note": "TORQUE_CMD in protocol version 2, CRC correct"},
-        {"name": "estop_bad_value", "hex": _cobs_wire(_with_crc(b"\x17\x05\x02")), "reject": "value",
+        {"name": "wrong_version", "hex": _cobs_wire(sp.raw_frame(sp.TorqueCommand(100, 100), 3, version=1)),
+         "reject": "version", "note": "TORQUE_CMD of protocol version 1 (CRC-16 correct): never applied"},
+        {"name": "future_version", "hex": _cobs_wire(sp.raw_frame(sp.TorqueCommand(100, 100), 3, version=3)),
+         "reject": "version", "note": "TORQUE_CMD in protocol version 3, CRC correct"},
+        {"name": "estop_bad_value", "hex": _cobs_wire(_with_crc(b"\x27\x05\x02")), "reject": "value",
          "note": "ESTOP engage=2"},
-        {"name": "telemetry_undefined_flag", "hex": _cobs_wire(_with_crc(b"\x14\x00" + bytes(9) + b"\x80")),
+        {"name": "telemetry_undefined_flag", "hex": _cobs_wire(_with_crc(b"\x24\x00" + bytes(9) + b"\x80")),
          "reject": "value", "note": "flags bit 7 set"},
         {"name": "oversize", "hex": (bytes(range(1, 71)) + b"\x00").hex(), "reject": "oversize",
          "note": "70 bytes without a delimiter (limit 62)"},
@@ -133,9 +150,13 @@ def build_vectors() -> dict:
         "protocol": "ament_formation motor-board serial protocol",
         "protocol_version": sp.PROTOCOL_VERSION,
         "document": "docs/serial-protocol.md",
-        "framing": "[0x00] COBS(header(2) | body | crc16_le(2)) 0x00",
-        "crc": "CRC-16/CCITT-FALSE poly 0x1021 init 0xFFFF refin false refout false xorout 0x0000, over header+body, "
-               "sent little-endian; check value of '123456789' is 0x29b1",
+        "framing": "[0x00] COBS(header(2) | body | crc32c_le(4)) 0x00; version-1 framing (HELLO, and HELLO_ACK "
+                   "to a version-1 host): [0x00] COBS(header(2) | body | crc16_le(2)) 0x00",
+        "crc": "CRC-32C (Castagnoli) poly 0x1EDC6F41 (reflected 0x82F63B78) init 0xFFFFFFFF refin true refout true "
+               "xorout 0xFFFFFFFF, over header+body, sent little-endian; check value of '123456789' is 0xe3069283",
+        "crc_version_1": "CRC-16/CCITT-FALSE poly 0x1021 init 0xFFFF refin false refout false xorout 0x0000, "
+                         "check value of '123456789' is 0x29b1",
+        "check_field": "'check' of a valid vector is the CRC its header's version selects (4 hex digits: CRC-16)",
         "units": {"torque": "int16, 1e-4 N*m", "velocity": "int16, 1e-3 rad/s",
                   "position": "int16 encoder ticks modulo 65536", "time": "ms"},
         "fields": "'message' holds the wire integers; 'meaning' the same values in SI units",
