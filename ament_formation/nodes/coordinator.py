@@ -63,8 +63,7 @@ class CoordinatorParams:
                                  range=(0.0, 60.0))
     wait_for_robots: bool = param(True, "wait for every robot's state before starting")
     markers_rate_hz: float = param(5.0, "/formation/markers rate [Hz] (0: none)", range=(0.0, 100.0))
-    republish_s: float = param(1.0, "/formation/graph re-publication period [s], > 0",
-                               range=(0.0, 3600.0))
+    republish_s: float = param(1.0, "/formation/graph re-publication period [s], > 0")
     encounter_rate_hz: float = param(50.0, "S7 arbitration rate [Hz] (0: no arbitration)",
                                      range=(0.0, 1000.0))
 

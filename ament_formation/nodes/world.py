@@ -66,7 +66,7 @@ class WorldParams:
     tick_s: float = param(0.01, "plant/board/truth period [s sim]", range=(0.001, 0.05))
     physics_dt_s: float = param(0.001, "RK4 step [s], <= tick_s", range=(0.0, 0.05))
     camera_enabled: bool = param(True, "render and publish camera frames")
-    camera_noise: float = param(2.0, "sensor noise std [grey levels]", range=(0.0, 255.0))
+    camera_noise: float = param(2.0, "sensor noise std [grey levels]")
     exit_at_end: bool = param(True, "shut down when scenario time passes duration_s")
 
     def __post_init__(self) -> None:
