@@ -43,6 +43,7 @@ setup(
             "formation_bridge = ament_formation.nodes.bridge:main",
             "formation_coordinator = ament_formation.nodes.coordinator:main",
             "formation_team = ament_formation.nodes.team:main",
+            "formation_live_view = ament_formation.nodes.live_view:main",
         ],
     },
 )
