@@ -6,7 +6,7 @@ Contract (namespace ``robot_<id>``; protocol: docs/serial-protocol.md)
 |---|---|---|---|
 | wheel_torque | sensor_msgs/JointState (effort [left, right] N·m) | QOS_CONTROL | subscribed |
 | wheel_state | sensor_msgs/JointState (position rad, velocity rad/s, [left, right]) | QOS_CONTROL | published per TELEMETRY |
-| /diagnostics | diagnostic_msgs/DiagnosticArray | QOS_DIAGNOSTICS | published every diagnostics_period_s |
+| /diagnostics | diagnostic_msgs/DiagnosticArray: "formation_bridge: robot_<id> serial link" (up OK, connecting WARN, down/mismatch ERROR), "... robot_<id> serial poll" (stalls, WARN); hardware_id robot_<id> (the port when not in a robot namespace) | QOS_DIAGNOSTICS | every diagnostics_period_s and at once on a link state change |
 
 Parameters (core.serial_link.LinkParams): port (path or pyserial URL, "/dev/ttyACM0"),
 baud_rate (115200), torque_limit_nm (0.15 N·m), watchdog_s (0.2 s, sent to the board),
@@ -25,7 +25,6 @@ import sys
 import time
 
 import serial
-from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
@@ -34,7 +33,7 @@ from ament_formation.ros import diagnostics as diag
 from ament_formation.ros.executors import run_node
 from ament_formation.ros.messages import wheel_state
 from ament_formation.ros.params import declare_dataclass
-from ament_formation.ros.qos import QOS_CONTROL, QOS_DIAGNOSTICS
+from ament_formation.ros.qos import QOS_CONTROL
 from ament_formation.ros.wheels import torques_from_joint_state
 
 
@@ -67,13 +66,19 @@ class BridgeNode(Node):
         self._rx_frames_at_diag = (clock(), 0)
         self.link_up_since_s: float | None = None
         self._pub_state = self.create_publisher(JointState, "wheel_state", QOS_CONTROL)
-        self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", QOS_DIAGNOSTICS)
+        self.diag = diag.Diagnostics(self, self.params.diagnostics_period_s)
+        robot = diag.robot_of_namespace(self.get_namespace())
+        self.diag.add(f"{robot} serial link" if robot else "serial link", self._link_status,
+                      hardware_id=robot or self.params.port)
+        self.poll_watch = (self.diag.watch(f"{robot} serial poll" if robot else "serial poll",
+                                           1.0 / self.params.poll_rate_hz, hardware_id=robot or self.params.port)
+                           if poll_timer else None)   # in a team, the team watches its poll timer
+        self._link_state_seen = self.link.state
         self.telemetry_sinks: list = []
         if torque_topic:
             self.create_subscription(JointState, "wheel_torque", self._on_torque, QOS_CONTROL)
         if poll_timer:
-            self.create_timer(1.0 / self.params.poll_rate_hz, self._poll)
-        self.create_timer(self.params.diagnostics_period_s, self._publish_diagnostics)
+            self.create_timer(1.0 / self.params.poll_rate_hz, self._timed_poll)
 
     # -- callbacks -----------------------------------------------------------------------------
     def _on_torque(self, msg: JointState) -> None:
@@ -91,6 +96,10 @@ class BridgeNode(Node):
 
     def poll(self) -> None:
         """Read the port, publish telemetry, write what the link has to send (see :meth:`_poll`)."""
+        self._poll()
+
+    def _timed_poll(self) -> None:
+        self.poll_watch.tick()
         self._poll()
 
     def _poll(self) -> None:
@@ -121,6 +130,9 @@ class BridgeNode(Node):
             self.get_logger().info(f"link up on {self.params.port}")
         if self._port is not None and self.link.timed_out(now):
             self._lost(now, "no valid frame from the board")
+        if self.link.state != self._link_state_seen:   # published when it happens
+            self._link_state_seen = self.link.state
+            self.diag.changed()
 
     def _try_open(self, now: float) -> None:
         try:
@@ -148,6 +160,8 @@ class BridgeNode(Node):
         self.link.disconnected()
         self.link_up_since_s = None
         self._next_open_s = now + self._backoff.next_delay()
+        self._link_state_seen = self.link.state
+        self.diag.changed()          # a lost link is published when it happens
 
     def _close_port(self) -> None:
         if self._port is not None:
@@ -176,14 +190,13 @@ class BridgeNode(Node):
                            "board_watchdog_trips": st.watchdog_trips})
         return values
 
-    def _publish_diagnostics(self) -> None:
+    def _link_status(self) -> tuple[int, str, dict]:
         values = self.diagnostics_values()
         state = self.link.state
         level = diag.OK if state == sl.UP else diag.WARN if state in (sl.HANDSHAKE, sl.CONFIGURING) else diag.ERROR
         message = {"up": "link up", "down": "link down", "version_mismatch": self.link.version_mismatch_text()}.get(
             state, "connecting")
-        status = diag.status(f"{self.get_fully_qualified_name()}: serial link", self.params.port, level, message, values)
-        self._pub_diag.publish(diag.array(self.get_clock().now().to_msg(), [status]))
+        return level, message, values
 
     # -- shutdown ------------------------------------------------------------------------------
     def shutdown(self) -> None:

@@ -37,9 +37,13 @@ Topics (namespace robot_<id>; QoS from ros/qos.py)
                                 (while anyone subscribes)
   pub  mode                     std_msgs/String JSON {mode, target, direction, avoiding}   QOS_CONTROL
                                 (on change and every second)
-  pub  /diagnostics             diagnostic_msgs/DiagnosticArray every second: control ticks,
-                                late ticks (> 1.5 periods apart), safety state, rejected inputs,
-                                estimator counters                                         QOS_DIAGNOSTICS
+  pub  /diagnostics             diagnostic_msgs/DiagnosticArray (docs/diagnostics.md), every
+                                second and at once on a change: "formation_controller: robot_<id>
+                                control" (safety state: running/waiting OK, hold_parent WARN,
+                                stopped_* ERROR; ticks, late ticks, estimator counters),
+                                "... robot_<id> control loop" (stalls of the control period, WARN),
+                                "... robot_<id> inputs" (rejected inputs and payloads, WARN for 10 s
+                                after one)                                                 QOS_DIAGNOSTICS
 
 Parameters
   scenario          str    scenario YAML (required)
@@ -62,7 +66,6 @@ from dataclasses import dataclass
 import numpy as np
 import time
 
-from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import AccelStamped, PoseStamped
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
@@ -79,7 +82,7 @@ from ament_formation.ros import diagnostics as diag
 from ament_formation.ros import messages as msgs
 from ament_formation.ros.executors import run_node
 from ament_formation.ros.params import declare_dataclass
-from ament_formation.ros.qos import QOS_CONTROL, QOS_DIAGNOSTICS, QOS_GRAPH
+from ament_formation.ros.qos import QOS_CONTROL, QOS_GRAPH
 
 
 @dataclass(frozen=True)
@@ -249,10 +252,15 @@ class ControllerNode(Node):
                                else self._subscribe_neighbour(k)) for k in sc.robot_ids if k != self.rid}
         if self.orig_parent_id is not None:
             self.orig = self.neighbours[self.orig_parent_id]
-        self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", QOS_DIAGNOSTICS)
+        self.diag = diag.Diagnostics(self)
+        robot = f"robot_{self.rid}"
+        self.diag.add(f"{robot} control", self._control_status, hardware_id=robot)
+        self.control_watch = self.diag.watch(f"{robot} control loop", 1.0 / self.prm.control_rate_hz,
+                                             hardware_id=robot)
+        self.diag.add(f"{robot} inputs", self._inputs_status, hardware_id=robot)
+        self._rejected_seen = (0, -math.inf)     # (total, when it last grew [s])
         self.timer = self.create_timer(1.0 / self.prm.control_rate_hz, self._control) if tick_timer else None
         self.law.warm_up()      # compile (or load) the law's kernels now, not in the first tick
-        self.create_timer(1.0, self._publish_diagnostics)
 
     # ------------------------------------------------------------------ time
     def now_s(self) -> float:
@@ -391,6 +399,7 @@ class ControllerNode(Node):
 
     def _control(self, now_s: float | None = None) -> None:
         now = self.now_s() if now_s is None else now_s
+        self.control_watch.tick(int(now * 1e9))
         wall = time.monotonic()
         if (self._last_tick_wall is not None and self.start_s is not None and not self._sim_time
                 and wall - self._last_tick_wall > 1.5 / self.prm.control_rate_hz):
@@ -471,13 +480,23 @@ class ControllerNode(Node):
                      "avoiding": out.mode != "coordination"}
         self._send(np.asarray(out.torque_nm, dtype=float), np.asarray(out.accel_cmd_mps2, dtype=float), now)
 
-    def _publish_diagnostics(self) -> None:
+    def _control_status(self) -> tuple[int, str, dict]:
         values = {"ticks": self.ticks, "late_ticks": self.late_ticks, "safety": self.safety,
                   "mode": self.mode["mode"], **{f"rejected_{k}": v for k, v in self.rejected.items()},
                   **self.estimator.counters.as_dict()}
-        level = diag.OK if self.safety in ("running", "waiting") else diag.WARN
-        self.pub_diag.publish(diag.array(msgs.stamp_from_s(self.now_s()), [diag.status(
-            f"formation_controller robot_{self.rid}", f"robot_{self.rid}", level, self.safety, values)]))
+        level = (diag.OK if self.safety in ("running", "waiting") else
+                 diag.WARN if self.safety == "hold_parent" else diag.ERROR)
+        return level, self.safety, values
+
+    def _inputs_status(self) -> tuple[int, str, dict]:
+        total, since = sum(self.rejected.values()), self._rejected_seen[1]
+        now = self.now_s()
+        if total != self._rejected_seen[0]:
+            self._rejected_seen = (total, since := now)
+        values = {f"rejected_{k}": v for k, v in self.rejected.items()}
+        if total and now - since <= 10.0:
+            return diag.WARN, f"{total} inputs rejected", values
+        return diag.OK, "inputs valid" if not total else f"{total} inputs rejected (none in 10 s)", values
 
     def _safety(self, status: str) -> None:
         if status != self.safety:
@@ -489,6 +508,7 @@ class ControllerNode(Node):
             if status != "running":
                 self.mode = {"mode": "hold" if status in ("waiting", "hold_parent") else "stopped",
                              "target": None, "direction": None, "avoiding": False}
+            self.diag.changed()       # a safety change is published when it happens
 
     def _send(self, torque: np.ndarray, accel: np.ndarray | None, now: float) -> None:
         torque = np.where(np.isfinite(torque), torque, 0.0)

@@ -10,14 +10,14 @@ with (x, y) the controlled point p (spec S2.1).
 | robot_<id>/state, truth  | nav_msgs/Odometry             | odometry, state_from_odometry             |
 | robot_<id>/accel         | geometry_msgs/AccelStamped    | accel_stamped, accel_from_msg             |
 | robot_<id>/wheel_*       | sensor_msgs/JointState        | wheel_torque, torque_from_msg, wheel_state, wheel_state_from_msg |
-| robot_<id>/mode          | std_msgs/String (JSON)        | mode_msg, mode_from_msg                   |
-| /formation/graph         | std_msgs/String (JSON)        | graph_msg, graph_from_msg (GraphMessage)  |
+| robot_<id>/mode          | std_msgs/String (JSON mode/v1)| mode_msg, mode_from_msg                   |
+| /formation/graph         | std_msgs/String (JSON graph/v1)| graph_msg, graph_from_msg (GraphMessage) |
+| /formation/encounters    | std_msgs/String (JSON encounters/v1)| encounters_msg, encounters_from_msg |
 | /formation/markers       | visualization_msgs/MarkerArray| robot_markers, ellipse_markers, edge_markers, marker_array |
 | /camera/image_raw        | sensor_msgs/Image (mono8)     | image_mono8, array_from_image             |
 """
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, field
 
@@ -28,6 +28,8 @@ from nav_msgs.msg import Odometry
 from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import ColorRGBA, String
 from visualization_msgs.msg import Marker, MarkerArray
+
+from ament_formation.ros import payloads
 
 WORLD_FRAME = "world"
 WHEEL_NAMES = ("left_wheel", "right_wheel")
@@ -194,21 +196,21 @@ def wheel_state_from_msg(msg: JointState) -> tuple[np.ndarray, np.ndarray, float
 
 
 # --------------------------------------------------------------------------- JSON strings
+# Versioned JSON payloads (ros/payloads.py, docs/schemas/): every receiver validates; a bad
+# payload raises ValueError (payloads.PayloadError) for the node to count, never anything else.
 def mode_msg(mode: str, target: str | int | None = None, direction: str | None = None,
              **extra) -> String:
-    """std_msgs/String JSON {"mode", "target", "direction", ...} for robot_<id>/mode."""
-    return String(data=json.dumps({"mode": mode, "target": target, "direction": direction, **extra},
-                                  sort_keys=True))
+    """std_msgs/String JSON ament_formation/mode/v1 {"schema", "mode", "target", "direction", ...}
+    for robot_<id>/mode (``extra``: more members, e.g. ``avoiding``)."""
+    return String(data=payloads.encode({**extra, "schema": payloads.MODE_V1, "mode": mode,
+                                        "target": target, "direction": direction}))
 
 
 def mode_from_msg(msg: String) -> dict:
-    """The mode dictionary; ValueError on malformed JSON or a missing "mode" key."""
-    try:
-        data = json.loads(msg.data)
-    except json.JSONDecodeError as err:
-        raise ValueError(f"mode: not JSON ({err})") from None
-    if not isinstance(data, dict) or "mode" not in data:
-        raise ValueError("mode: expected an object with a 'mode' key")
+    """The mode dictionary (without its "schema" member); ValueError unless it follows
+    ament_formation/mode/v1."""
+    data = payloads.decode(msg.data, payloads.MODE_V1)
+    data.pop("schema")
     return data
 
 
@@ -227,64 +229,59 @@ class GraphMessage:
 
 
 def graph_msg(graph: GraphMessage) -> String:
-    """std_msgs/String JSON of a GraphMessage (integer keys become strings)."""
-    return String(data=json.dumps({
+    """std_msgs/String JSON ament_formation/graph/v1 of a GraphMessage (integer keys as strings)."""
+    return String(data=payloads.encode({
+        "schema": payloads.GRAPH_V1,
         "revision": int(graph.revision),
         "parents": {str(k): (None if v is None else int(v)) for k, v in sorted(graph.parents.items())},
         "offsets_m": {str(k): [float(v[0]), float(v[1])] for k, v in sorted(graph.offsets_m.items())},
         "avoiding": sorted(int(a) for a in graph.avoiding),
         "stamp_s": float(graph.stamp_s),
         "start_s": None if graph.start_s is None else float(graph.start_s),
-    }, sort_keys=True))
+    }))
 
 
 def graph_from_msg(msg: String) -> GraphMessage:
-    """GraphMessage from the JSON; ValueError naming the field on malformed input."""
-    try:
-        data = json.loads(msg.data)
-        revision = int(data["revision"])
-        parents = {int(k): (None if v is None else int(v)) for k, v in data["parents"].items()}
-        offsets = {int(k): (float(v[0]), float(v[1])) for k, v in data.get("offsets_m", {}).items()}
-        avoiding = tuple(int(a) for a in data.get("avoiding", ()))
-        stamp_s = float(data.get("stamp_s", 0.0))
-        start_s = None if data.get("start_s") is None else float(data["start_s"])
-    except (json.JSONDecodeError, KeyError, TypeError, ValueError, IndexError) as err:
-        raise ValueError(f"graph: malformed ({type(err).__name__}: {err})") from None
-    return GraphMessage(revision, parents, offsets, avoiding, stamp_s, start_s)
+    """GraphMessage from the JSON; ValueError naming the member unless it follows
+    ament_formation/graph/v1."""
+    data = payloads.decode(msg.data, payloads.GRAPH_V1)
+    return GraphMessage(data["revision"], {int(k): v for k, v in data["parents"].items()},
+                        {int(k): (float(v[0]), float(v[1])) for k, v in data["offsets_m"].items()},
+                        tuple(data["avoiding"]), float(data["stamp_s"]),
+                        None if data["start_s"] is None else float(data["start_s"]))
 
 
-# --------------------------------------------------------------------------- image
 def encounters_msg(revision: int, assignments: dict, stamp_s: float) -> String:
-    """std_msgs/String JSON of /formation/encounters: {revision, stamp_s, assignments: {id: {mode,
-    partner, direction, t_entry_s, drift_mps}}} from {robot id: EncounterAssignment} (S7)."""
-    return String(data=json.dumps({
-        "revision": int(revision), "stamp_s": float(stamp_s),
+    """std_msgs/String JSON ament_formation/encounters/v1 of /formation/encounters: {schema,
+    revision, stamp_s, assignments: {id: {mode, partner, direction, t_entry_s, drift_mps}}} from
+    {robot id: EncounterAssignment} (S7)."""
+    return String(data=payloads.encode({
+        "schema": payloads.ENCOUNTERS_V1, "revision": int(revision), "stamp_s": float(stamp_s),
         "assignments": {str(k): {"mode": a.mode, "partner": int(a.partner), "direction": float(a.direction),
                                  "t_entry_s": None if a.t_entry_s is None else float(a.t_entry_s),
                                  "drift_mps": None if a.drift_mps is None else [float(v) for v in a.drift_mps]}
-                        for k, a in sorted(assignments.items())}}, sort_keys=True))
+                        for k, a in sorted(assignments.items())}}))
 
 
 def encounters_from_msg(msg: String) -> tuple[int, dict]:
-    """(revision, {robot id: EncounterAssignment}); ValueError naming the problem on bad input."""
+    """(revision, {robot id: EncounterAssignment}); ValueError naming the problem unless it
+    follows ament_formation/encounters/v1."""
     from ament_formation.core.controller import EncounterAssignment
     from ament_formation.core.errors import ConfigError
 
+    data = payloads.decode(msg.data, payloads.ENCOUNTERS_V1)
     try:
-        data = json.loads(msg.data)
-        out = {}
-        for k, a in data["assignments"].items():
-            drift = a.get("drift_mps")
-            out[int(k)] = EncounterAssignment(
-                str(a["mode"]), int(a["partner"]), float(a.get("direction", 1.0)),
-                None if a.get("t_entry_s") is None else float(a["t_entry_s"]),
-                None if drift is None else (float(drift[0]), float(drift[1])))
-        return int(data["revision"]), out
-    except (json.JSONDecodeError, KeyError, TypeError, ValueError, IndexError, AttributeError,
-            ConfigError) as err:
-        raise ValueError(f"encounters: malformed ({type(err).__name__}: {err})") from None
+        out = {int(k): EncounterAssignment(a["mode"], a["partner"], float(a["direction"]),
+                                           None if a["t_entry_s"] is None else float(a["t_entry_s"]),
+                                           None if a["drift_mps"] is None else
+                                           (float(a["drift_mps"][0]), float(a["drift_mps"][1])))
+               for k, a in data["assignments"].items()}
+    except ConfigError as err:
+        raise ValueError(f"{payloads.ENCOUNTERS_V1}: {err}") from None
+    return data["revision"], out
 
 
+# --------------------------------------------------------------------------- image
 def image_mono8(pixels: np.ndarray, stamp: Time, frame_id: str = "camera") -> Image:
     """sensor_msgs/Image (mono8) from a (H, W) uint8 array."""
     if pixels.ndim != 2 or pixels.dtype != np.uint8:
