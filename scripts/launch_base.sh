@@ -2,17 +2,20 @@
 # On the camera PC: the marker tracker and the formation coordinator.
 #
 #   scripts/launch_base.sh --scenario SCENARIO.yaml [--camera DEVICE_OR_URL] [--run-dir DIR]
-#                          [--params FILE.yaml] [--multi-machine]
+#                          [--params FILE.yaml] [--live [PORT]] [--live-host HOST] [--multi-machine]
 #
 # Without --camera the tracker subscribes /camera/image_raw (e.g. from a camera driver).
-# Stops both processes (by PID) on exit, Ctrl-C or TERM. DDS stays on loopback unless --multi-machine.
+# --live [PORT]: also formation_live_view (Foxglove on ws://127.0.0.1:PORT, default 8765); to watch
+# from another lab machine add --live-host HOST (this PC's lab address; implies --live). docs/live_view.md
+# Stops every process it started (by PID) on exit, Ctrl-C or TERM. DDS stays on loopback unless --multi-machine.
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
 # shellcheck source=launch_common.sh
 source "$here/launch_common.sh"
 
-usage() { sed -n '2,8p' "$0" | sed 's/^# \{0,1\}//'; exit 2; }
+usage() { sed -n '2,10p' "$0" | sed 's/^# \{0,1\}//'; exit 2; }
 scenario=""; camera=""; run_dir=""; params=(); params_file=""; multi=""
+live=""; live_port="8765"; live_host="127.0.0.1"
 while [ $# -gt 0 ]; do
   case "$1" in
     --scenario) scenario="${2-}"; shift; [ $# -gt 0 ] && shift ;;
@@ -20,12 +23,18 @@ while [ $# -gt 0 ]; do
     --run-dir) run_dir="$2"; shift 2 ;;
     --params) params_file="${2-}"; shift; [ $# -gt 0 ] && shift ;;
     --multi-machine) multi="--multi-machine"; shift ;;
+    --live) live=1; shift; if [ $# -gt 0 ] && [[ "$1" =~ ^[0-9]+$ ]]; then live_port="$1"; shift; fi ;;
+    --live-host) live=1; live_host="${2-}"; shift; [ $# -gt 0 ] && shift ;;
     -h|--help) usage ;;
     *) echo "launch_base.sh: unknown option $1" >&2; exit 2 ;;
   esac
 done
 [ -n "$scenario" ] && [ -f "$scenario" ] || { echo "launch_base.sh: --scenario: no such file '$scenario'" >&2; exit 2; }
 scenario="$(realpath "$scenario")"
+if [ -n "$live" ] && ! { [[ "$live_port" =~ ^[0-9]{1,5}$ ]] && [ "$live_port" -le 65535 ]; }; then
+  echo "launch_base.sh: --live: expected a TCP port in [0, 65535], got '$live_port'" >&2; exit 2
+fi
+[ -n "$live_host" ] || { echo "launch_base.sh: --live-host: expected an address" >&2; exit 2; }
 if [ -n "$params_file" ]; then
   [ -f "$params_file" ] || { echo "launch_base.sh: --params: no such file '$params_file'" >&2; exit 2; }
   params=(--params-file "$(realpath "$params_file")")
@@ -40,4 +49,8 @@ af_launch_init "$(realpath -m "$run_dir")" $multi
 af_start tracker "$AF_BIN/formation_tracker" --ros-args -p robot_ids:="$robot_ids_list" \
   -p marker_ids:="$marker_ids_list" "${cam[@]}" "${params[@]}"
 af_start coordinator "$AF_BIN/formation_coordinator" --ros-args -p scenario:="$scenario" "${params[@]}"
+if [ -n "$live" ]; then
+  af_start live_view "$AF_BIN/formation_live_view" --ros-args -p scenario:="$scenario" \
+    -p host:="$live_host" -p port:="$live_port" "${params[@]}"
+fi
 af_wait_any

@@ -2,7 +2,7 @@
 # Start every process of a simulated run and stop them all (by PID) on exit, Ctrl-C or TERM.
 #
 #   scripts/launch_sim.sh SCENARIO.yaml [--run-dir DIR] [--duration S] [--speed F] [--team K]
-#                         [--control-nice N] [--multi-machine]
+#                         [--control-nice N] [--live [PORT]] [--live-host HOST] [--multi-machine]
 #
 # Processes: formation_world (plant, emulated boards on ptys, synthetic camera), one formation_bridge
 # and one formation_controller per robot (namespace robot_<id>), formation_tracker,
@@ -12,6 +12,9 @@
 # --control-nice N: start the bridge/controller (or team) processes under `nice -n N` (-20..19;
 # negative = before the world, tracker and coordinator, as a real-time control loop should be;
 # needs root or CAP_SYS_NICE, otherwise nice warns and they run at the normal priority).
+# --live [PORT]: also formation_live_view, the run live in Foxglove on ws://127.0.0.1:PORT (default
+# 8765, 0 = any free port, see live_view.log); --live-host HOST (implies --live) binds it to HOST instead
+# (e.g. the lab address; off by default: loopback only). See docs/live_view.md.
 # Logs and the PID list ("PID NAME" per line) go to RUN_DIR (default: a new temp folder).
 # The run ends when the world finishes the scenario, when any process exits, or after --duration S.
 # DDS stays on loopback unless --multi-machine (see scripts/launch_common.sh).
@@ -20,10 +23,11 @@ here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
 # shellcheck source=launch_common.sh
 source "$here/launch_common.sh"
 
-usage() { sed -n '2,17p' "$0" | sed 's/^# \{0,1\}//'; exit 2; }
+usage() { sed -n '2,20p' "$0" | sed 's/^# \{0,1\}//'; exit 2; }
 [ $# -ge 1 ] || usage
 scenario="$(realpath "$1")"; shift
 run_dir=""; duration=""; speed="1.0"; multi=""; team=""; team_given=""; control_nice=""; nice_given=""
+live=""; live_port="8765"; live_host="127.0.0.1"
 while [ $# -gt 0 ]; do
   case "$1" in
     --run-dir) run_dir="$2"; shift 2 ;;
@@ -32,6 +36,8 @@ while [ $# -gt 0 ]; do
     --team) team_given=1; team="${2-}"; shift; [ $# -gt 0 ] && shift ;;
     --control-nice) nice_given=1; control_nice="${2-}"; shift; [ $# -gt 0 ] && shift ;;
     --multi-machine) multi="--multi-machine"; shift ;;
+    --live) live=1; shift; if [ $# -gt 0 ] && [[ "$1" =~ ^[0-9]+$ ]]; then live_port="$1"; shift; fi ;;
+    --live-host) live=1; live_host="${2-}"; shift; [ $# -gt 0 ] && shift ;;
     -h|--help) usage ;;
     *) echo "launch_sim.sh: unknown option $1" >&2; exit 2 ;;
   esac
@@ -43,6 +49,10 @@ if [ -n "$nice_given" ] && ! { [[ "$control_nice" =~ ^-?[0-9]{1,2}$ ]] && [ "$co
     && [ "$control_nice" -le 19 ]; }; then
   echo "launch_sim.sh: --control-nice: expected an integer in [-20, 19], got '$control_nice'" >&2; exit 2
 fi
+if [ -n "$live" ] && ! { [[ "$live_port" =~ ^[0-9]{1,5}$ ]] && [ "$live_port" -le 65535 ]; }; then
+  echo "launch_sim.sh: --live: expected a TCP port in [0, 65535], got '$live_port'" >&2; exit 2
+fi
+[ -n "$live_host" ] || { echo "launch_sim.sh: --live-host: expected an address" >&2; exit 2; }
 ctl=()   # prefix of the control-path processes (bridges, controllers, teams)
 [ -n "$control_nice" ] && ctl=(nice -n "$control_nice")
 [ -f "$scenario" ] || { echo "launch_sim.sh: $scenario: no such scenario file" >&2; exit 2; }
@@ -98,5 +108,9 @@ af_start tracker "$AF_BIN/formation_tracker" --ros-args -p robot_ids:="$robot_id
   -p marker_ids:="$marker_ids_list" -p use_sim_time:=$use_sim_time
 af_start coordinator "$AF_BIN/formation_coordinator" --ros-args -p scenario:="$scenario" \
   -p use_sim_time:=$use_sim_time
+if [ -n "$live" ]; then
+  af_start live_view "$AF_BIN/formation_live_view" --ros-args -p scenario:="$scenario" \
+    -p host:="$live_host" -p port:="$live_port" -p use_sim_time:=$use_sim_time
+fi
 
 af_wait_any "$duration"

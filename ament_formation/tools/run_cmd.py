@@ -42,6 +42,11 @@ def register(subparsers) -> None:
                         "negative puts the control loops before the world, tracker and coordinator; "
                         "needs root or CAP_SYS_NICE)")
     p.add_argument("--record-images", action="store_true", help="also record /camera/image_raw")
+    p.add_argument("--live", nargs="?", type=int, const=8765, default=None, metavar="PORT",
+                   help="watch the run live in Foxglove: formation_live_view on ws://127.0.0.1:PORT "
+                        "(default 8765; 0 = any free port, see DIR/processes/live_view.log; docs/live_view.md)")
+    p.add_argument("--live-host", default=None, metavar="HOST",
+                   help="bind the live view to HOST instead of 127.0.0.1 (e.g. the lab address; implies --live)")
     p.add_argument("--no-figure", action="store_true", help="skip figure.png")
     p.add_argument("--quiet", action="store_true", help="no progress and no summary")
     p.add_argument("--startup-timeout", type=float, default=90.0, metavar="S",
@@ -86,6 +91,8 @@ def run_system(args: argparse.Namespace) -> int:
         raise ConfigError(f"must be a positive integer (robots per process; got {args.team})", "--team")
     if args.control_nice is not None and not -20 <= args.control_nice <= 19:
         raise ConfigError(f"must be in [-20, 19] (got {args.control_nice})", "--control-nice")
+    if args.live is not None and not 0 <= args.live <= 65535:
+        raise ConfigError(f"must be a TCP port in [0, 65535] (got {args.live})", "--live")
     out = Path(args.out).resolve()
     if out.exists() and not out.is_dir():
         raise ConfigError("exists and is not a directory", "--out", str(out))
@@ -140,13 +147,23 @@ def run_system(args: argparse.Namespace) -> int:
         [str(_ROOT / "scripts" / "launch_sim.sh"), str(Path(args.scenario).resolve()),
          "--run-dir", str(proc_dir), "--speed", repr(float(args.speed))]
         + ([] if args.team is None else ["--team", str(args.team)])
-        + ([] if args.control_nice is None else ["--control-nice", str(args.control_nice)]),
+        + ([] if args.control_nice is None else ["--control-nice", str(args.control_nice)])
+        + ([] if args.live is None and args.live_host is None
+           else ["--live", str(8765 if args.live is None else args.live)])
+        + ([] if args.live_host is None else ["--live-host", args.live_host]),
         stdout=open(out / "launch.log", "w"), stderr=subprocess.STDOUT, start_new_session=True)
     progress = None if args.quiet else _Progress(sys.stderr, scenario.duration_s)
     status = 0
+    live_log = proc_dir / "live_view.log" if (args.live, args.live_host) != (None, None) else None
     try:
         while launch.poll() is None:
             executor.spin_once(timeout_sec=0.05)
+            if live_log is not None and not args.quiet and live_log.exists():   # say where to look, once
+                url = next((w for w in live_log.read_text().split() if w.startswith("ws://")), None)
+                if url is not None:
+                    print(f"run: live view on {url} (Foxglove: open a Foxglove WebSocket connection)",
+                          file=sys.stderr)
+                    live_log = None
             if progress is not None:
                 if start["s"] is None or latest["s"] is None:
                     progress(f"run: starting the system ({time.monotonic() - wall0:4.1f} s)")
