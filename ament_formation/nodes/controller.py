@@ -99,8 +99,7 @@ class ControllerParams:
     parent_hold_s: float = param(1.0, "older parent state -> hold; other robots ignored [s], "
                                  ">= parent_timeout_s", range=(0.0, 60.0))
     stop_time_s: float = param(0.3, "time constant of the controlled stop [s]", range=(0.01, 10.0))
-    camera_gain: float = param(0.5, "S10 complementary gain per camera frame, (0, 1]",
-                               range=(0.0, 1.0))
+    camera_gain: float = param(0.5, "S10 complementary gain per camera frame, (0, 1]")
 
     def __post_init__(self) -> None:
         if not self.scenario:
