@@ -4,16 +4,25 @@ Contract
 
 | topic | type | QoS | direction |
 |---|---|---|---|
-| /camera/image_raw (``image_topic``) | sensor_msgs/Image (mono8, bgr8, rgb8, mono16, …) | QOS_IMAGE | subscribed when ``source`` is empty |
+| /camera/image_raw (``image_topic``) | sensor_msgs/Image (mono8, bgr8, rgb8, mono16, …) | QOS_IMAGE | subscribed when ``source`` is empty; with ``source``, published (mono8, capture stamp) while anyone subscribes and ``publish_image`` |
+| /camera/camera_info (next to ``image_topic``) | sensor_msgs/CameraInfo (camera_config), same stamp as the frame | QOS_IMAGE | published per captured frame when ``source`` is set |
 | robot_<id>/pose | geometry_msgs/PoseStamped, frame ``world``, stamp = capture time | QOS_CONTROL | published per frame the robot's marker is seen |
 | robot_<id>/pose_cov | geometry_msgs/PoseWithCovarianceStamped (same pose, σ² of x, y, yaw) | QOS_CONTROL | when ``publish_covariance`` |
 | ~/debug_image | sensor_msgs/Image bgr8 (markers, poses drawn) | QOS_IMAGE | when ``publish_debug_image`` |
-| /diagnostics | diagnostic_msgs/DiagnosticArray (frame rate, detection rate, latency) | QOS_DIAGNOSTICS | every ``diagnostics_period_s`` |
+| /diagnostics | diagnostic_msgs/DiagnosticArray (source state, frame rate, detection rate, latency) | QOS_DIAGNOSTICS | every ``diagnostics_period_s`` and at once when the camera is lost or back |
 
 Parameters (TrackerNodeParams)
-  source               str     "" = subscribe image_topic; a number = video device index; else a
-                               path/URL for cv2.VideoCapture (read in a thread)        default ""
+  source               str|int "" = subscribe image_topic; else capture frames in the node from a
+                               device index (0 or "0"), a device path (/dev/video0,
+                               /dev/v4l/by-id/...), a video file or a stream URL (http://, rtsp://)
+                               (hw/video_source.py)                                    default ""
   source_loop          bool    replay a video file from the start when it ends         default false
+  source_wait_s        float   at start, keep trying to open the source this long [s]
+                               (0: one attempt; .inf: wait forever)                    default 0
+  source_timeout_s     float   a stream silent this long is lost and reopened [s]      default 1.0
+  capture_poll_s       float   period of the timer that takes the newest captured frame [s]
+                                                                                       default 0.01
+  publish_image        bool    with source: publish the captured frames on image_topic default true
   image_topic          str     topic of frames                                         default /camera/image_raw
   camera_config        str     camera.yaml (config/ name or path)                      default camera.yaml
   marker_ids           int[]   marker id per robot                                     default [0, 1]
@@ -28,14 +37,20 @@ Parameters (TrackerNodeParams)
   publish_debug_image  bool                                                            default false
   diagnostics_period_s float   [s]                                                     default 1.0
 
-With ``source`` set, a thread grabs frames (stamped with the node clock at grab time) and hands
-the newest to the executor through a guard condition: the executor never blocks on the camera.
+With ``source`` set, a thread grabs frames (stamped with the node clock at grab time) and keeps the
+newest; a timer of the node (``capture_poll_s``) takes it and runs the tracker, so the executor
+never blocks on the camera and any executor works (no guard condition: rclpy's EventsExecutor has
+none). Failure policy (docs/camera.md): a source that cannot be opened at start prints one line
+on stderr and the process exits with status 1 (after ``source_wait_s`` of retries, if set); a
+camera lost at run time is reported (log, diagnostics ERROR) and reopened with backoff for as long
+as the node runs, while the controllers, which get no pose, stop after their ``pose_timeout_s``;
+when frames come back, tracking resumes. A video file that ends (without ``source_loop``) is
+reported as an ERROR and the node keeps running.
 """
 from __future__ import annotations
 
 import math
 import sys
-import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -45,7 +60,7 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from rclpy.node import Node
-from sensor_msgs.msg import Image
+from sensor_msgs.msg import CameraInfo, Image
 
 from ament_formation.core.camera_model import load_camera_yaml
 from ament_formation.core.errors import ConfigError
@@ -53,10 +68,11 @@ from ament_formation.core.marker_tracking import MarkerTracker, TrackerConfig
 from ament_formation.core.params import param
 from ament_formation.core.paths_config import config_file
 from ament_formation.core.robot_marker import MarkerLayout
+from ament_formation.hw.video_source import FrameGrabber, SourceSpec, open_problem, parse_source
 from ament_formation.ros import diagnostics as diag
-from ament_formation.ros.image import image_to_mono8, numpy_to_image
+from ament_formation.ros.image import camera_info, image_to_mono8, numpy_to_image
 from ament_formation.ros.executors import run_node
-from ament_formation.ros.messages import pose_stamped, stamp_to_s
+from ament_formation.ros.messages import pose_stamped, stamp_to_ns, stamp_to_s
 from ament_formation.ros.params import declare_dataclass
 from ament_formation.ros.qos import QOS_CONTROL, QOS_DIAGNOSTICS, QOS_IMAGE
 
@@ -65,8 +81,18 @@ from ament_formation.ros.qos import QOS_CONTROL, QOS_DIAGNOSTICS, QOS_IMAGE
 class TrackerNodeParams:
     """Parameters of formation_tracker (see the module docstring)."""
 
-    source: str = ""
+    source: str | int = param("", "'': subscribe image_topic; else a device index (0), a device path "
+                                  "(/dev/video0), a video file or a stream URL to capture",
+                              dynamic_typing=True)
     source_loop: bool = param(False, "replay a video file from the start when it ends")
+    source_wait_s: float = param(0.0, "at start, keep trying to open the source this long [s] "
+                                      "(0: one attempt; .inf: forever)")
+    source_timeout_s: float = param(1.0, "a stream silent this long is lost and reopened [s]",
+                                    range=(0.05, 60.0))
+    capture_poll_s: float = param(0.01, "period of taking the newest captured frame [s]",
+                                  range=(0.001, 1.0))
+    publish_image: bool = param(True, "with source: publish captured frames on image_topic "
+                                      "while anyone subscribes")
     image_topic: str = param("/camera/image_raw", "topic of frames when source is empty")
     camera_config: str = param("camera.yaml", "camera calibration: a config/ file name or a path")
     marker_ids: tuple[int, ...] = param((0, 1), "ArUco marker id of each robot")
@@ -90,12 +116,24 @@ class TrackerNodeParams:
             v = getattr(self, name)
             if len(set(v)) != len(v) or any(not isinstance(i, int) or i < 0 for i in v):
                 raise ConfigError(f"must be distinct integers >= 0 (got {list(v)})", name)
-        if not self.source and not self.image_topic:
+        parse_source(self.source)       # ConfigError naming source for a float, a list, -1, …
+        if self.source_spec is None and not self.image_topic:
             raise ConfigError("is empty and no source is set", "image_topic")
+        if math.isnan(self.source_wait_s) or self.source_wait_s < 0:
+            raise ConfigError(f"must be >= 0 s (got {self.source_wait_s})", "source_wait_s")
+        for name, lo, hi in (("source_timeout_s", 0.05, 60.0), ("capture_poll_s", 0.001, 1.0)):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and lo <= v <= hi):
+                raise ConfigError(f"must be in [{lo:g}, {hi:g}] s (got {v})", name)
         if not (math.isfinite(self.diagnostics_period_s) and self.diagnostics_period_s > 0):
             raise ConfigError(f"must be > 0 s (got {self.diagnostics_period_s})", "diagnostics_period_s")
         self.layout()
         TrackerConfig(max_speed_mps=self.max_speed_mps, use_roi=self.use_roi)
+
+    @property
+    def source_spec(self) -> SourceSpec | None:
+        """The parsed ``source`` (None: frames come on ``image_topic``)."""
+        return parse_source(self.source)
 
     def layout(self) -> MarkerLayout:
         return MarkerLayout(self.dictionary, self.marker_size_m, tuple(self.marker_offset_m),
@@ -107,63 +145,8 @@ def _camera_path(name: str) -> Path:
     return p if p.is_file() else config_file(name)
 
 
-class _Capture(threading.Thread):
-    """Grabs frames from cv2.VideoCapture; keeps only the newest (frame, stamp)."""
-
-    def __init__(self, source: str, clock, on_frame, loop: bool = False) -> None:
-        super().__init__(daemon=True, name="formation_tracker_capture")
-        self._source = int(source) if source.isdigit() else source
-        self._clock = clock
-        self._on_frame = on_frame
-        self._loop = loop
-        self._halt = threading.Event()
-        self._lock = threading.Lock()
-        self._latest = None
-        self.errors = 0
-        self.ended = False
-
-    def take(self):
-        with self._lock:
-            item, self._latest = self._latest, None
-        return item
-
-    def stop(self) -> None:
-        self._halt.set()
-
-    def run(self) -> None:
-        backoff_s = 0.1
-        while not self._halt.is_set():
-            cap = cv2.VideoCapture(self._source)
-            if not cap.isOpened():
-                self.errors += 1
-                self._halt.wait(backoff_s)
-                backoff_s = min(2 * backoff_s, 2.0)
-                continue
-            backoff_s = 0.1
-            is_file = isinstance(self._source, str) and "://" not in self._source
-            fps = cap.get(cv2.CAP_PROP_FPS) if is_file else 0.0
-            period_s = 1.0 / fps if fps and 0 < fps < 1000 else (1.0 / 30.0 if is_file else 0.0)
-            next_s = time.monotonic()
-            while not self._halt.is_set():
-                if period_s:  # a file plays at its own frame rate, like a camera would
-                    next_s += period_s
-                    self._halt.wait(max(next_s - time.monotonic(), 0.0))
-                if not cap.grab():
-                    break
-                stamp = self._clock.now().to_msg()
-                ok, frame = cap.retrieve()
-                if not ok:
-                    self.errors += 1
-                    continue
-                if frame.ndim == 3:
-                    frame = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
-                with self._lock:
-                    self._latest = (np.ascontiguousarray(frame), stamp)
-                self._on_frame()
-            cap.release()
-            if is_file and not self._loop:
-                self.ended = True  # a video file ran out
-                return
+class SourceUnavailable(RuntimeError):
+    """The video source cannot be opened at start (the process prints one line, exits 1)."""
 
 
 class TrackerNode(Node):
@@ -189,17 +172,47 @@ class TrackerNode(Node):
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", QOS_DIAGNOSTICS)
         self._reset_stats()
         self.frames_total = 0
-        self.capture = None
-        if self.prm.source:
-            self._guard = self.create_guard_condition(self._on_captured)
-            self.capture = _Capture(self.prm.source, self.get_clock(), self._guard.trigger,
-                                    loop=self.prm.source_loop)
-            self.capture.start()
+        self.failure: str | None = None     # set (with done) when the source never opened in time
+        self.done = False
+        self.grabber: FrameGrabber | None = None
+        spec = self.prm.source_spec
+        if spec is not None:
+            self._start_capture(spec)
         else:
             self.create_subscription(Image, self.prm.image_topic, self._on_image, QOS_IMAGE)
         self.create_timer(self.prm.diagnostics_period_s, self._publish_diagnostics)
 
-    # ------------------------------------------------------------------ frames
+    def _start_capture(self, spec: SourceSpec) -> None:
+        """Open ``spec`` (one attempt now; more in the grabber thread within ``source_wait_s``),
+        start grabbing and the timer that takes the newest frame."""
+        clock = self.get_clock()
+        self.grabber = FrameGrabber(spec, lambda: clock.now().to_msg(), loop=self.prm.source_loop,
+                                    size_px=self.camera.size_px, fps_hz=self.camera.fps_hz,
+                                    read_timeout_s=self.prm.source_timeout_s)
+        self._wait_deadline_s = None
+        if not self.grabber.try_open():
+            if self.prm.source_wait_s <= 0.0:
+                raise SourceUnavailable(f"source {spec.text!r}: {open_problem(spec)}")
+            self._wait_deadline_s = time.monotonic() + self.prm.source_wait_s
+            self.get_logger().warn(f"source {spec.text!r}: {open_problem(spec)}; retrying for "
+                                   f"{self.prm.source_wait_s:g} s")
+        else:
+            self._log_opened()
+        self._source_state = self.grabber.state
+        info_topic = self.prm.image_topic.rsplit("/", 1)[0] + "/camera_info"
+        self.pub_info = self.create_publisher(CameraInfo, info_topic, QOS_IMAGE)
+        self._info = camera_info(self.camera, frame_id="camera")
+        self.pub_image = (self.create_publisher(Image, self.prm.image_topic, QOS_IMAGE)
+                          if self.prm.publish_image else None)
+        self.grabber.start()
+        self.create_timer(self.prm.capture_poll_s, self._take_captured)
+
+    def _log_opened(self) -> None:
+        g = self.grabber
+        fps = f" at {g.fps_hz:g} fps" if g.fps_hz else ""
+        self.get_logger().info(f"capturing {g.spec.kind} {g.spec.text!r}{fps}")
+
+        # ------------------------------------------------------------------ frames
     def _on_image(self, msg: Image) -> None:
         try:
             frame = image_to_mono8(msg)
@@ -209,10 +222,43 @@ class TrackerNode(Node):
             return
         self.process(frame, msg.header.stamp)
 
-    def _on_captured(self) -> None:
-        item = self.capture.take() if self.capture is not None else None
-        if item is not None:
-            self.process(*item)
+    def _take_captured(self) -> None:
+        """Timer (``capture_poll_s``): the newest captured frame, if any, → camera_info, image,
+        poses; source state changes → log and diagnostics at once."""
+        g = self.grabber
+        if g.state != self._source_state:
+            self._on_source_state(self._source_state, g.state)
+            self._source_state = g.state
+        if g.state == "closed" and self._wait_deadline_s is not None \
+                and time.monotonic() > self._wait_deadline_s:
+            self.failure = (f"source {g.spec.text!r}: {open_problem(g.spec)} "
+                            f"(waited {self.prm.source_wait_s:g} s)")
+            self.done = True
+            return
+        item = g.take()
+        if item is None:
+            return
+        frame, stamp = item
+        self.capture_delay_s.append(max(self.get_clock().now().nanoseconds - stamp_to_ns(stamp), 0) * 1e-9)
+        self._info.header.stamp = stamp
+        self.pub_info.publish(self._info)
+        if self.pub_image is not None and self.pub_image.get_subscription_count():
+            self.pub_image.publish(numpy_to_image(frame, "mono8", stamp))
+        self.process(frame, stamp)
+
+    def _on_source_state(self, old: str, new: str) -> None:
+        g, log = self.grabber, self.get_logger()
+        if new == "lost":
+            log.error(f"camera lost ({g.spec.text!r}): reopening with backoff; without poses the "
+                      f"robots stop after their pose_timeout_s")
+        elif new == "open" and old == "lost":
+            lost_s = time.monotonic() - g.lost_since_s if g.lost_since_s else 0.0
+            log.info(f"camera back ({g.spec.text!r}) after {lost_s:.1f} s")
+        elif new == "open":
+            self._log_opened()
+        elif new == "ended":
+            log.warn(f"video file {g.spec.text!r} ended (source_loop false): no more poses")
+        self._publish_diagnostics()
 
     def process(self, frame: np.ndarray, stamp) -> None:
         """One frame (mono8) captured at ``stamp`` → pose messages."""
@@ -221,6 +267,7 @@ class TrackerNode(Node):
             result = self.tracker.step(frame, stamp_to_s(stamp))
         except ValueError as err:
             self.bad_frames += 1
+            self.last_bad_frame = str(err)
             self.get_logger().warn(str(err), throttle_duration_sec=5.0)
             return
         acc = result.accepted
@@ -273,8 +320,28 @@ class TrackerNode(Node):
         self.detected = 0
         self.rejected = 0
         self.bad_frames = 0
+        self.last_bad_frame = ""
         self.latency_s: list[float] = []
+        self.capture_delay_s: list[float] = []
         self._stats_t0 = time.monotonic()
+
+    def _source_status(self) -> tuple[int, str] | None:
+        """(ERROR, text) while the own source gives no frames, else None."""
+        g = self.grabber
+        if g is None:
+            return None
+        now = time.monotonic()
+        if g.state == "closed":
+            return diag.ERROR, f"waiting for the camera: {open_problem(g.spec)} (attempt {g.open_attempts})"
+        if g.state == "lost":
+            lost_s = now - g.lost_since_s if g.lost_since_s else 0.0
+            return diag.ERROR, f"camera lost {lost_s:.1f} s ago, reopening (attempt {g.open_attempts})"
+        if g.state == "ended":
+            return diag.ERROR, "video file ended"
+        silent_s = now - (g.last_frame_s or self._stats_t0)
+        if silent_s > max(self.prm.source_timeout_s, 2.0 / max(self.camera.fps_hz, 1e-3)):
+            return diag.ERROR, f"no frames for {silent_s:.1f} s"
+        return None
 
     def _publish_diagnostics(self) -> None:
         elapsed = max(time.monotonic() - self._stats_t0, 1e-9)
@@ -291,28 +358,55 @@ class TrackerNode(Node):
             "tracked_markers": len(self.tracker.tracked_ids),
             "frames_total": self.frames_total,
         }
-        if self.capture is not None:
-            values["capture_errors"] = self.capture.errors
-        if self.frames == 0:
+        g = self.grabber
+        if g is not None:
+            delay = np.array(self.capture_delay_s) if self.capture_delay_s else np.zeros(1)
+            values.update({
+                "source_state": g.state,
+                "capture_delay_mean_ms": float(delay.mean() * 1e3),  # grab -> tracker (poll timer)
+                "capture_errors": g.errors,
+                "reopens": g.reopens,
+            })
+        source = self._source_status()
+        if source is not None:
+            level, text = source
+        elif self.frames == 0 and self.bad_frames:
+            level, text = diag.ERROR, f"unusable frames: {self.last_bad_frame}"
+        elif self.frames == 0:
             level, text = diag.WARN, "no frames"
         elif expected and self.detected < 0.9 * expected:
             level, text = diag.WARN, "markers missing"
         else:
             level, text = diag.OK, "tracking"
-        status = diag.status("formation_tracker: camera tracking", self.prm.source or self.prm.image_topic,
-                             level, text, values)
+        hardware_id = g.spec.text if g is not None else self.prm.image_topic
+        status = diag.status("formation_tracker: camera tracking", hardware_id, level, text, values)
         self.pub_diag.publish(diag.array(self.get_clock().now().to_msg(), [status]))
         self._reset_stats()
 
     def destroy_node(self) -> None:
-        if self.capture is not None:
-            self.capture.stop()
-            self.capture.join(timeout=2.0)
+        if self.grabber is not None:
+            self.grabber.stop()
         super().destroy_node()
 
 
 def main(args: list[str] | None = None) -> int:
-    return run_node("formation_tracker", TrackerNode, args)
+    """Console script ``formation_tracker``. Exit status: 0 (SIGINT/SIGTERM), 1 (the source could
+    not be opened: one line on stderr), 2 (bad configuration: one line)."""
+    made: list[TrackerNode] = []
+
+    def make() -> TrackerNode:
+        made.append(TrackerNode())
+        return made[-1]
+
+    try:
+        status = run_node("formation_tracker", make, args)
+    except SourceUnavailable as err:
+        print(f"formation_tracker: {err}", file=sys.stderr)
+        return 1
+    if made and made[-1].failure:
+        print(f"formation_tracker: {made[-1].failure}", file=sys.stderr)
+        return 1
+    return status
 
 
 if __name__ == "__main__":

@@ -1,14 +1,17 @@
-"""sensor_msgs/Image ↔ numpy without cv_bridge.
+"""sensor_msgs/Image ↔ numpy without cv_bridge, and sensor_msgs/CameraInfo from the calibration.
 
 Supported encodings: mono8, 8UC1, mono16, 16UC1, bgr8, rgb8, bgra8, rgba8 (row padding through
 ``step`` and big-endian 16-bit data are handled). :func:`image_to_mono8` gives what the tracker
-needs from any of them.
+needs from any of them. :func:`camera_info` describes the frames of a calibrated camera
+(core/camera_model.py, ``config/camera.yaml``) the way image_proc, RViz and Foxglove read it.
 """
 from __future__ import annotations
 
 import cv2
 import numpy as np
-from sensor_msgs.msg import Image
+from sensor_msgs.msg import CameraInfo, Image
+
+from ament_formation.core.camera_model import CameraModel
 
 _LAYOUT = {  # encoding -> (dtype, channels)
     "mono8": (np.uint8, 1), "8UC1": (np.uint8, 1),
@@ -68,4 +71,27 @@ def numpy_to_image(pixels: np.ndarray, encoding: str, stamp=None, frame_id: str 
     msg.is_bigendian = 0
     msg.step = msg.width * ch * arr.dtype.itemsize
     msg.data = np.ascontiguousarray(arr.astype(arr.dtype.newbyteorder("<"), copy=False)).tobytes()
+    return msg
+
+
+def camera_info(camera: CameraModel, stamp=None, frame_id: str = "camera") -> CameraInfo:
+    """sensor_msgs/CameraInfo of ``camera``: size, K, plumb_bob D = [k1, k2, p1, p2, k3], R = I,
+    P = [K | 0] (monocular; the tracker undistorts points itself, nothing is rectified).
+
+    Build it once and set ``header.stamp`` to each frame's stamp (the image's, not the send time).
+    The mounting (extrinsics) is not part of CameraInfo; it stays in ``config/camera.yaml``.
+    """
+    msg = CameraInfo()
+    if stamp is not None:
+        msg.header.stamp = stamp
+    msg.header.frame_id = frame_id
+    msg.width, msg.height = int(camera.width_px), int(camera.height_px)
+    msg.distortion_model = "plumb_bob"
+    msg.d = [float(v) for v in camera.dist]
+    k = camera.k
+    msg.k = [float(v) for v in k.ravel()]
+    msg.r = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+    msg.p = [float(k[0, 0]), 0.0, float(k[0, 2]), 0.0,
+             0.0, float(k[1, 1]), float(k[1, 2]), 0.0,
+             0.0, 0.0, 1.0, 0.0]
     return msg

@@ -1,0 +1,268 @@
+"""formation_tracker capturing frames itself (``source``), run as the console script with a params
+file, the way a lab runs it: a rendered video file and an MJPEG stream served on loopback become
+poses close to the rendered truth, stamped at capture, with camera_info next to the frames; a
+missing source is one line and exit status 1 (also ``-p source:=0`` and ``launch_base.sh --camera
+0`` on a machine without /dev/video0); a stream cut mid-run is a diagnostics ERROR, and tracking
+resumes when it comes back; SIGINT and SIGTERM end it cleanly."""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from geometry_msgs.msg import PoseStamped
+from rclpy.node import Node
+from sensor_msgs.msg import CameraInfo, Image
+
+from ament_formation.core.camera_model import CameraSetup
+from ament_formation.core.synthetic_camera import RenderOptions, SyntheticCamera
+from ament_formation.hw.mjpeg_stream import MjpegServer
+from ament_formation.ros.executors import spin_until
+from ament_formation.ros.messages import pose_from_msg, stamp_to_ns
+from ament_formation.ros.qos import QOS_CONTROL, QOS_DIAGNOSTICS, QOS_IMAGE
+
+ROOT = Path(__file__).resolve().parents[1]
+TRACKER = ROOT / ".venv" / "bin" / "formation_tracker"
+MARKERS, ROBOTS = (3, 7), (0, 1)
+N_FRAMES = 90
+CLOCK_STEP_M = 0.01       # robot 0 moves 1 cm per frame along x: its pose tells the frame index
+START_TIMEOUT_S = 90.0    # first pose: process start-up on a loaded 2-core machine
+
+
+def truth(k: np.ndarray | int) -> np.ndarray:
+    """(K, 2, 3) poses at frame indices ``k``: robot 0 on a line (the frame clock), robot 1 on an
+    arc of radius 0.4 m, turning 0.02 rad per frame."""
+    k = np.atleast_1d(np.asarray(k, dtype=float))
+    phi = 0.02 * k
+    r0 = np.column_stack([0.2 + CLOCK_STEP_M * k, np.zeros_like(k), np.zeros_like(k)])
+    r1 = np.column_stack([1.5 + 0.4 * np.cos(phi), 0.8 + 0.4 * np.sin(phi), phi + np.pi / 2])
+    return np.stack([r0, r1], axis=1)
+
+
+def render_frames(n: int = N_FRAMES) -> list[np.ndarray]:
+    setup = CameraSetup()
+    sc = SyntheticCamera(setup.camera, options=RenderOptions(noise_std=2.0), floor=setup.floor)
+    return [sc.render(truth(k)[0], MARKERS, frame_index=k) for k in range(n)]
+
+
+def write_video(path: Path, frames: list[np.ndarray], fps_hz: float = 30.0) -> Path:
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), fps_hz, (640, 480), isColor=False)
+    assert writer.isOpened()
+    for f in frames:
+        writer.write(f)
+    writer.release()
+    return path
+
+
+def params_file(tmp_path: Path, **params) -> Path:
+    base = {"marker_ids": list(MARKERS), "robot_ids": list(ROBOTS), "diagnostics_period_s": 0.5}
+    base.update(params)
+    path = tmp_path / "tracker.yaml"
+    path.write_text(yaml.safe_dump({"/**": {"ros__parameters": base}}))
+    return path
+
+
+def start_tracker(tmp_path: Path, *ros_args: str, **params) -> subprocess.Popen:
+    args = [str(TRACKER), "--ros-args", "--params-file", str(params_file(tmp_path, **params)), *ros_args]
+    return subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=os.environ.copy())
+
+
+def finish(proc: subprocess.Popen, sig: int = signal.SIGINT, timeout_s: float = 20.0) -> tuple[int, str]:
+    """Signal the tracker (if still running), wait for it; (exit status, stderr)."""
+    if proc.poll() is None:
+        proc.send_signal(sig)
+    try:
+        _, err = proc.communicate(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        _, err = proc.communicate()
+        pytest.fail(f"formation_tracker did not end within {timeout_s} s of signal {sig}")
+    return proc.returncode, err
+
+
+class Probe(Node):
+    """Everything the tracker publishes, with receive times."""
+
+    def __init__(self, context):
+        super().__init__("tracker_source_probe", context=context)
+        self.poses: dict[int, list[tuple[PoseStamped, int]]] = {r: [] for r in ROBOTS}
+        self.diags: list[DiagnosticStatus] = []
+        self.infos: list[CameraInfo] = []
+        self.images: list[Image] = []
+        clock = self.get_clock()
+        for r in ROBOTS:
+            self.create_subscription(
+                PoseStamped, f"/robot_{r}/pose",
+                lambda m, r=r: self.poses[r].append((m, clock.now().nanoseconds)), QOS_CONTROL)
+        self.create_subscription(DiagnosticArray, "/diagnostics",
+                                 lambda m: self.diags.extend(s for s in m.status
+                                                             if s.name.startswith("formation_tracker")),
+                                 QOS_DIAGNOSTICS)
+        self.create_subscription(CameraInfo, "/camera/camera_info", self.infos.append, QOS_IMAGE)
+        self.create_subscription(Image, "/camera/image_raw", self.images.append, QOS_IMAGE)
+
+
+@pytest.fixture
+def probe(ros_context, executor):
+    node = Probe(ros_context)
+    executor.add_node(node)
+    yield node
+    executor.remove_node(node)
+    node.destroy_node()
+
+
+def pose_errors(probe: Probe, since_ns: int = 0) -> dict:
+    """Match each frame's poses to the rendered truth through robot 0 (the frame clock).
+
+    Returns frame indices, stamps, and position [m] / heading [rad] errors of both robots.
+    """
+    by_stamp: dict[int, dict[int, np.ndarray]] = {}
+    for r in ROBOTS:
+        for m, _ in probe.poses[r]:
+            ns = stamp_to_ns(m.header.stamp)
+            if ns >= since_ns:
+                by_stamp.setdefault(ns, {})[r] = pose_from_msg(m)[0]
+    frames, pos_err, head_err = [], [], []
+    for ns in sorted(by_stamp):
+        poses = by_stamp[ns]
+        if 0 not in poses:
+            continue
+        k = int(round((poses[0][0] - 0.2) / CLOCK_STEP_M))
+        t = truth(k)[0]
+        frames.append((ns, k))
+        for r, p in poses.items():
+            pos_err.append(np.hypot(*(p[:2] - t[r, :2])))
+            head_err.append(abs((p[2] - t[r, 2] + np.pi) % (2 * np.pi) - np.pi))
+    return {"frames": frames, "pos": np.array(pos_err), "head": np.array(head_err)}
+
+
+def levels_seen(probe: Probe) -> list[tuple[int, str]]:
+    return [(s.level, s.message) for s in probe.diags]
+
+
+def assert_tracked_like_truth(probe: Probe, since_ns: int, min_frames: int) -> dict:
+    res = pose_errors(probe, since_ns)
+    assert len(res["frames"]) >= min_frames, f"only {len(res['frames'])} frames tracked"
+    # JPEG (quality 90 in the stream, MJPG in the file) on top of sensor noise: about 1 mm
+    assert np.percentile(res["pos"], 95) < 2.5e-3 and res["pos"].max() < 6e-3, res["pos"]
+    assert np.percentile(res["head"], 95) < np.radians(1.0), np.degrees(res["head"])
+    return res
+
+
+def test_video_file_becomes_poses_with_capture_stamps(tmp_path, probe, executor):
+    video = write_video(tmp_path / "overhead.avi", render_frames())
+    t_start_ns = probe.get_clock().now().nanoseconds
+    proc = start_tracker(tmp_path, source=str(video))
+    try:
+        assert spin_until(executor, lambda: proc.poll() is not None or any(
+            s.message == "video file ended" for s in probe.diags), START_TIMEOUT_S + N_FRAMES / 30.0), \
+            "the file did not play to its end"
+        assert proc.poll() is None, proc.communicate()[1]
+        res = assert_tracked_like_truth(probe, 0, min_frames=N_FRAMES // 3)
+        # a frame's poses carry the time it was grabbed: after the test started, before receipt
+        for r in ROBOTS:
+            for m, received_ns in probe.poses[r]:
+                assert t_start_ns < stamp_to_ns(m.header.stamp) <= received_ns
+        # the file plays at its own 30 fps: stamp differences follow the frame index
+        ks = np.array([k for _, k in res["frames"]])
+        ns = np.array([n for n, _ in res["frames"]])
+        rate_hz = (ks[-1] - ks[0]) / ((ns[-1] - ns[0]) * 1e-9)
+        assert 20.0 < rate_hz < 40.0, rate_hz
+        # camera_info next to the frames: the calibration, with frame stamps
+        assert probe.infos, "no camera_info"
+        info = probe.infos[-1]
+        assert (info.width, info.height, info.distortion_model) == (640, 480, "plumb_bob")
+        assert info.k[0] == pytest.approx(540.0) and info.d[0] == pytest.approx(-0.18)
+        pose_stamps = {stamp_to_ns(m.header.stamp) for m, _ in probe.poses[0]}
+        assert pose_stamps & {stamp_to_ns(i.header.stamp) for i in probe.infos}
+        # the captured frames themselves, while someone subscribes
+        assert probe.images and probe.images[-1].encoding == "mono8"
+        assert stamp_to_ns(probe.images[-1].header.stamp) in {stamp_to_ns(i.header.stamp) for i in probe.infos}
+        assert levels_seen(probe)[-1][0] == DiagnosticStatus.ERROR    # the file ended
+    finally:
+        status, err = finish(proc, signal.SIGINT)
+    assert status == 0 and "Traceback" not in err, err
+
+
+def test_stream_on_loopback_and_camera_loss(tmp_path, probe, executor):
+    server = MjpegServer()
+    url = server.start()
+    server.play(render_frames(), fps_hz=30.0)
+    proc = start_tracker(tmp_path, source=url, source_timeout_s=0.5)
+    try:
+        # 1. decoded stream frames -> poses like the truth
+        assert spin_until(executor, lambda: proc.poll() is not None or len(pose_errors(probe)["frames"]) >= 60,
+                          START_TIMEOUT_S), "no poses from the stream"
+        assert proc.poll() is None, proc.communicate()[1]
+        assert_tracked_like_truth(probe, 0, min_frames=60)
+        assert any(lv == DiagnosticStatus.OK for lv, _ in levels_seen(probe)), levels_seen(probe)
+        # 2. the stream is cut: diagnostics ERROR, no poses of frames after the cut
+        n_diag = len(probe.diags)
+        server.stop()
+        cut_ns = probe.get_clock().now().nanoseconds
+        assert spin_until(executor, lambda: any(
+            s.level == DiagnosticStatus.ERROR and "camera lost" in s.message for s in probe.diags[n_diag:]), 20.0), \
+            levels_seen(probe)[n_diag:]
+        lost_ns = probe.get_clock().now().nanoseconds
+        assert all(stamp_to_ns(m.header.stamp) <= cut_ns for m, rx in probe.poses[0] if rx > lost_ns)
+        # 3. the stream is back on the same port: tracking resumes, diagnostics OK again
+        back_ns = probe.get_clock().now().nanoseconds
+        server.start()
+        assert spin_until(executor, lambda: len(pose_errors(probe, back_ns)["frames"]) >= 30, 30.0), \
+            "tracking did not resume"
+        assert_tracked_like_truth(probe, back_ns, min_frames=30)
+        n_diag = len(probe.diags)
+        assert spin_until(executor, lambda: any(s.level == DiagnosticStatus.OK for s in probe.diags[n_diag:]), 10.0)
+        values = {kv.key: kv.value for kv in probe.diags[-1].values}
+        assert int(values["reopens"]) >= 1 and values["source_state"] == "open"
+    finally:
+        server.close()
+        status, err = finish(proc, signal.SIGTERM)
+    assert status == 0 and "Traceback" not in err, err
+
+
+@pytest.mark.parametrize("source, line", [
+    ("/nonexistent/overhead.avi", "formation_tracker: source '/nonexistent/overhead.avi': no such file"),
+    ("http://127.0.0.1:9/stream.mjpg",
+     "formation_tracker: source 'http://127.0.0.1:9/stream.mjpg': cannot open the stream"),
+])
+def test_missing_source_is_one_line_and_status_1(tmp_path, source, line):
+    proc = start_tracker(tmp_path, source=source)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 1
+    assert len(err.strip().splitlines()) == 1 and err.startswith(line), err
+
+
+@pytest.mark.skipif(os.path.exists("/dev/video0"), reason="this machine has a /dev/video0")
+def test_device_index_from_the_command_line(tmp_path):
+    proc = start_tracker(tmp_path, "-p", "source:=0")    # an INTEGER parameter
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 1
+    assert err.strip() == "formation_tracker: source '0': no such video device /dev/video0", err
+
+
+@pytest.mark.skipif(os.path.exists("/dev/video0"), reason="this machine has a /dev/video0")
+def test_launch_base_with_camera_0(tmp_path):
+    run_dir = tmp_path / "run"
+    proc = subprocess.Popen([str(ROOT / "scripts" / "launch_base.sh"), "--scenario",
+                             str(ROOT / "config" / "scenarios" / "paper.yaml"), "--camera", "0",
+                             "--run-dir", str(run_dir)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True)
+    try:
+        out, _ = proc.communicate(timeout=180)
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+            proc.wait(timeout=30)
+    assert proc.returncode == 1, out
+    assert "tracker exited with status 1" in out
+    log = (run_dir / "tracker.log").read_text()
+    assert "formation_tracker: source '0': no such video device /dev/video0" in log
+    assert "InvalidParameterType" not in log and "Traceback" not in log
