@@ -84,9 +84,11 @@ def test_every_vector_passes_in_host_compiled_c(build_dir):
         m = v["message"]
         fields = " ".join(f"{k}={val}" for k, val in m.items() if k != "type")
         lines.append(f"E {m['type']} {v['version']} {v['seq']} {int(v['leading_delimiter'])} {fields}")
-    lines += [f"C {v['raw_hex'][:-4]}" for v in valid]
+    # the check value the vector's version selects: CRC-16 (C) for version 1, CRC-32C (K) after
+    lines += [f"C {v['raw_hex'][:-4]}" if v["version"] == 1 else f"K {v['raw_hex'][:-8]}" for v in valid]
     lines += [f"X {_block(v['hex'])}" for v in valid]
     lines.append("C " + b"123456789".hex())
+    lines.append("K " + b"123456789".hex())
     out = _run_driver(build_dir, lines)
 
     decoded = _decode_blocks([o for o in out if o[0] in "FRE" and not o.startswith("ERR")])
@@ -106,9 +108,10 @@ def test_every_vector_passes_in_host_compiled_c(build_dir):
 
     encoded = [o[2:] if o.startswith("H ") else o for o in out if o.startswith(("H ", "ERR"))]
     assert encoded == [v["hex"] for v in valid]
-    crcs = [o.split()[1] for o in out if o.startswith("C ")]
-    assert crcs[:-1] == [v["crc16"] for v in valid]
-    assert crcs[-1] == "0x29b1"                       # CRC-16/CCITT-FALSE check value
+    crcs = [o.split()[1] for o in out if o.startswith(("C ", "K "))]
+    assert crcs[:-2] == [v["check"] for v in valid]
+    assert crcs[-2] == "0x29b1"                       # CRC-16/CCITT-FALSE check value
+    assert crcs[-1] == "0xe3069283"                   # CRC-32C check value
     raws = [o.split()[1] for o in out if o.startswith("X ")]
     assert raws == [v["raw_hex"] for v in valid]
 
@@ -146,7 +149,7 @@ def test_codec_link_handshake_config_estop(harness):
     sp = link.sp
     try:
         ack = link.handshake()
-        assert ack.msg == sp.HelloAck(1, 1, 0, 1440, 1500, 1500, 200, 10)
+        assert ack.msg == sp.HelloAck(2, 2, 0, 1440, 1500, 1500, 200, 10)
         # opening the port flushes its input, which may cut one frame in half: count from here
         rejected_at_start = link.decoder.rejected_total
         tel = link.wait_frame(sp.MsgType.TELEMETRY, 1.0)
@@ -306,7 +309,7 @@ def test_bridge_handshake_and_version(rig):
     from ament_formation.core import serial_protocol as sp
 
     assert rig.link_up(5.0)
-    assert rig.bridge.link.board_version == sp.PROTOCOL_VERSION == 1
+    assert rig.bridge.link.board_version == sp.PROTOCOL_VERSION == 2
     assert rig.bridge.link.ticks_per_rev == 1440
     assert rig.bridge.link.board_config == sp.ConfigAck(1500, 200, 10)
     line = rig.wait_line(lambda s: s["hello_ack_count"] >= 1 and s["telemetry_count"] > 0
@@ -335,19 +338,47 @@ def test_bridge_torque_commands_reflected_in_pwm_duty(frozen_rig):
     assert rig.bridge.link.board_status.right_applied_e4nm == -1500
 
 
-def test_bridge_watchdog_zeroes_pwm_200ms_after_last_command(rig):
+def test_bridge_watchdog_brakes_the_wheels_to_rest_then_releases(rig):
+    """Cable cut while the wheels turn at full speed: 200 ms later the board brakes them with at
+    most BRAKE_TORQUE_LIMIT_NM (never coasting on), and releases the H-bridge once they are at rest."""
     from ament_formation.core import serial_protocol as sp
 
+    c = config_constants()
+    wheel_r_m = 0.035                        # the harness's plant: wheel + half of a 2.5 kg robot
     assert rig.link_up(5.0)
-    rig.torque = (0.08, 0.08)
-    rig.wait_line(lambda s: s["pwm_counts"][0] > 0 and s["pwm_counts"][1] > 0, 2.0)
+    rig.torque = (0.15, 0.15)
+    rig.wait_line(lambda s: min(s["wheel_radps"]) > 20.0, 3.0)    # near the motor's top speed
     rig.harness.set_mode("cut")              # cable cut: no byte reaches the board any more
-    line = rig.wait_line(lambda s: s["mode"] == "cut" and s["duty"] == [0.0, 0.0], 2.0)
-    delay_s = line["pwm_change_t_s"] - line["last_frame_rx_t_s"]
-    print(f"watchdog: PWM zero {delay_s * 1e3:.2f} ms (emulated) after the board read the last frame")
-    assert 0.199 <= delay_s <= 0.2015        # 200 ms at the 1 ms tick, PWM sampled every 50 us
-    # the board keeps reporting: the bridge sees the WATCHDOG flag and the trip counter
-    assert rig.spin_until(lambda: rig.bridge.link.flags & sp.FLAG_WATCHDOG, 1.0)
+    n0 = len(rig.harness.lines)
+    released = rig.wait_line(lambda s: s["mode"] == "cut" and s["duty"] == [0.0, 0.0]
+                             and s["t_s"] > s["last_frame_rx_t_s"] + 0.25, 3.0)
+    t_loss = released["last_frame_rx_t_s"]
+    after = [s for s in rig.harness.lines[n0:] if s["t_s"] >= t_loss]
+    at_loss = after[0]
+    to_release_s = released["pwm_change_t_s"] - t_loss
+    travel_m = [(released["wheel_rad"][i] - at_loss["wheel_rad"][i]) * wheel_r_m for i in range(2)]
+    braking = [s for s in after if s["board"]["flags"] & sp.FLAG_BRAKING]
+    print(f"brake: wheels at {at_loss['wheel_radps'][0]:.1f} rad/s when commands stopped; H-bridge released "
+          f"{to_release_s * 1e3:.0f} ms later at {max(abs(w) for w in released['wheel_radps']):.3f} rad/s; "
+          f"wheel travel {travel_m[0] * 1e3:.0f} / {travel_m[1] * 1e3:.0f} mm (emulated time)")
+    # the watchdog delay: the drive torque stays on for 200 ms, the brake follows at once
+    driving = [s for s in after if s["t_s"] < t_loss + c["COMMAND_WATCHDOG_MS"] * 1e-3 - 0.002]
+    # full drive (0.15 N m: duty > 0.93 at 21 rad/s) until the watchdog; braking there would be 0.88
+    assert driving and all(s["duty"][0] > 0.9 for s in driving)
+    assert braking, "the board never reported BRAKING"
+    assert all(abs(a) <= c["BRAKE_TORQUE_LIMIT_NM"] * 1e4 for s in braking for a in s["board"]["applied_e4nm"])
+    # BRAKING shows in the first periodic TELEMETRY after the trip (10 ms period, 10 ms status lines)
+    first = next(s for s in after if s["telemetry"]["flags"] & sp.FLAG_BRAKING)
+    assert c["COMMAND_WATCHDOG_MS"] * 1e-3 <= first["t_s"] - t_loss <= c["COMMAND_WATCHDOG_MS"] * 1e-3 + 0.025
+    # released at rest (well before the BRAKE_MAX_MS timeout), the wheels did not coast on
+    assert max(abs(w) for w in released["wheel_radps"]) < 0.44    # below one encoder count per 10 ms
+    assert to_release_s < (c["COMMAND_WATCHDOG_MS"] + c["BRAKE_MAX_MS"]) * 1e-3 - 0.1
+    # 0.2 s watchdog + ~0.34 s at 0.1 N m from ~21 rad/s (J = 1.6e-3 kg m^2) + the linear tail
+    # (J / gain = 32 ms) + 50 ms at rest: ~0.7 s
+    assert 0.5 <= to_release_s <= 0.9
+    # the board keeps reporting: the bridge sees WATCHDOG, the trip counter, and BRAKING cleared
+    assert rig.spin_until(lambda: rig.bridge.link.flags & sp.FLAG_WATCHDOG
+                          and not rig.bridge.link.flags & sp.FLAG_BRAKING, 1.0)
     assert rig.spin_until(lambda: rig.bridge.link.board_status is not None
                           and rig.bridge.link.board_status.watchdog_trips >= 1, 1.0)
 

@@ -48,7 +48,7 @@ class BoardConfig:
     watchdog_s: float = 0.2
     telemetry_period_s: float = 0.01
     status_period_s: float = 0.2
-    firmware_major: int = 1
+    firmware_major: int = 2
     firmware_minor: int = 0
     protocol_version: int = sp.PROTOCOL_VERSION
     wheel_inertia_kgm2: float = 5e-4     # standalone wheel model: J dω/dt = τ − b ω

@@ -3,10 +3,10 @@
 
 #include <string.h>
 
-static bool send_msg(board_t *b, proto_msg_t *m)
+static bool send_msg_version(board_t *b, proto_msg_t *m, uint8_t version)
 {
     uint8_t wire[PROTO_MAX_WIRE_BYTES];
-    m->version = PROTO_VERSION;
+    m->version = version;
     m->seq = b->tx_seq;
     const uint16_t n = proto_encode(m, false, wire, sizeof wire);
     if (n == 0 || !b->send(wire, n, b->send_ctx)) {
@@ -17,7 +17,12 @@ static bool send_msg(board_t *b, proto_msg_t *m)
     return true;
 }
 
-#define TELEMETRY_WIRE_BYTES 16u
+static bool send_msg(board_t *b, proto_msg_t *m)
+{
+    return send_msg_version(b, m, PROTO_VERSION);
+}
+
+#define TELEMETRY_WIRE_BYTES 18u
 
 static void send_telemetry(board_t *b, uint32_t now_ms)
 {
@@ -59,12 +64,17 @@ static int16_t clamp_torque(int16_t v, uint16_t limit, bool *clamped)
 
 static void update_outputs(board_t *b)
 {
+    const bool braking = (b->flags & PROTO_FLAG_BRAKING) != 0;
     const bool stopped = (b->flags & (PROTO_FLAG_WATCHDOG | PROTO_FLAG_ESTOP)) != 0;
     const int16_t before[2] = {b->pwm_counts[0], b->pwm_counts[1]};
     for (int i = 0; i < 2; i++) {
         bool ignored = false;
-        b->applied_e4nm[i] =
-            stopped ? 0 : clamp_torque(b->command_e4nm[i], b->torque_limit_e4nm, &ignored);
+        if (braking) {
+            b->applied_e4nm[i] = clamp_torque(b->brake_e4nm[i], b->torque_limit_e4nm, &ignored);
+        } else {
+            b->applied_e4nm[i] =
+                stopped ? 0 : clamp_torque(b->command_e4nm[i], b->torque_limit_e4nm, &ignored);
+        }
         if (b->applied_e4nm[i] == 0) {
             b->pwm_counts[i] = 0;   /* zero torque = coast (H-bridge off), never a duty */
             continue;
@@ -77,6 +87,60 @@ static void update_outputs(board_t *b)
     if (before[0] != b->pwm_counts[0] || before[1] != b->pwm_counts[1]) {
         b->outputs_changed = true;
     }
+}
+
+/* ---- stop brake (docs/safety.md) ---------------------------------------------------------- */
+static void brake_torques(board_t *b)
+{
+    const uint16_t bound = b->cfg.brake_limit_e4nm < b->torque_limit_e4nm ? b->cfg.brake_limit_e4nm
+                                                                           : b->torque_limit_e4nm;
+    for (int i = 0; i < 2; i++) {
+        const float t = -b->cfg.brake_gain_e4nm_per_mradps * (float)b->vel_mradps[i];
+        const float lim = (float)bound;
+        const float c = t > lim ? lim : (t < -lim ? -lim : t);
+        b->brake_e4nm[i] = (int16_t)(c >= 0.0f ? c + 0.5f : c - 0.5f);
+    }
+}
+
+static void brake_start(board_t *b)
+{
+    b->flags |= PROTO_FLAG_BRAKING;
+    b->brake_elapsed_us = 0;
+    b->rest_elapsed_us = 0;
+    b->resting = false;
+    b->brakes++;
+    brake_torques(b);
+}
+
+static void brake_stop(board_t *b)
+{
+    b->flags &= (uint8_t)~PROTO_FLAG_BRAKING;
+    b->brake_e4nm[0] = b->brake_e4nm[1] = 0;
+}
+
+/* one control step of the brake (velocities just measured) */
+static void brake_step(board_t *b, uint32_t dt_us)
+{
+    if (!(b->flags & PROTO_FLAG_BRAKING)) {
+        return;
+    }
+    b->brake_elapsed_us += dt_us;
+    if (b->vel_mradps[0] == 0 && b->vel_mradps[1] == 0) {
+        if (b->resting) {
+            b->rest_elapsed_us += dt_us;
+        } else {
+            b->resting = true;
+            b->rest_elapsed_us = 0;
+        }
+    } else {
+        b->resting = false;
+    }
+    if ((b->resting && b->rest_elapsed_us >= (uint32_t)b->cfg.brake_rest_ms * 1000UL) ||
+        b->brake_elapsed_us >= (uint32_t)b->cfg.brake_max_ms * 1000UL) {
+        brake_stop(b);   /* at rest (or out of time): H-bridge off */
+        return;
+    }
+    brake_torques(b);
 }
 
 bool board_take_outputs_changed(board_t *b)
@@ -134,12 +198,15 @@ static void on_message(board_t *b, const proto_msg_t *m, uint32_t now_ms)
         r.u.hello_ack.hard_torque_limit_e4nm = b->cfg.hard_limit_e4nm;
         r.u.hello_ack.watchdog_ms = b->watchdog_ms;
         r.u.hello_ack.telemetry_period_ms = b->telemetry_period_ms;
-        send_msg(b, &r);
+        /* a version-1 host reads only version-1 framing: it must still learn our version */
+        send_msg_version(b, &r, m->u.hello.protocol_version == 1u ? PROTO_HANDSHAKE_FRAMING_VERSION
+                                                                 : PROTO_VERSION);
         break;
     case PROTO_TORQUE_CMD: {
         b->cmd_seq = m->seq;
         b->last_cmd_ms = now_ms;
         b->flags &= (uint8_t)~PROTO_FLAG_WATCHDOG;
+        brake_stop(b);   /* commands are back: they decide */
         bool clamped = false;
         b->command_e4nm[0] = clamp_torque(m->u.torque_cmd.left_e4nm, b->torque_limit_e4nm, &clamped);
         b->command_e4nm[1] = clamp_torque(m->u.torque_cmd.right_e4nm, b->torque_limit_e4nm, &clamped);
@@ -164,6 +231,7 @@ static void on_message(board_t *b, const proto_msg_t *m, uint32_t now_ms)
     case PROTO_ESTOP:
         if (m->u.estop.engage) {
             b->flags |= PROTO_FLAG_ESTOP;
+            brake_stop(b);
         } else {
             b->flags &= (uint8_t)~PROTO_FLAG_ESTOP;
         }
@@ -248,6 +316,7 @@ void board_control_step(board_t *b, int32_t left_ticks, int32_t right_ticks, uin
     b->vel_mradps[1] = velocity_mradps(b, right_ticks - b->control_ticks[1], dt_us);
     b->control_ticks[0] = left_ticks;
     b->control_ticks[1] = right_ticks;
+    brake_step(b, dt_us);
     update_outputs(b);
 }
 
@@ -267,6 +336,9 @@ void board_poll(board_t *b, uint32_t now_ms)
     if (!(b->flags & PROTO_FLAG_WATCHDOG) && now_ms - b->last_cmd_ms >= b->watchdog_ms) {
         b->flags |= PROTO_FLAG_WATCHDOG;
         b->watchdog_trips++;
+        if (b->have_cmd && !(b->flags & PROTO_FLAG_ESTOP)) {
+            brake_start(b);   /* a stop is a stop: brake the wheels to rest, then release */
+        }
         update_outputs(b);
     }
     proto_msg_t m;

@@ -7,11 +7,17 @@
  *
  * Rules implemented:
  *   boot: torque 0, flags WATCHDOG | RESET, counters 0, cmd_seq 0
- *   HELLO (any version) -> HELLO_ACK, RESET cleared
+ *   HELLO (any version) -> HELLO_ACK, RESET cleared; the HELLO_ACK goes out in version-1 framing
+ *       (CRC-16) when the HELLO asked for version 1, so an old host reports the mismatch
  *   TORQUE_CMD (accepted) -> cmd_seq = seq, watchdog restarted, WATCHDOG cleared,
  *       applied = clamp(cmd, +-limit) and CLAMPED = any wheel clamped; while the e-stop is
  *       engaged the command is counted in cmd_seq (and restarts the watchdog) but torque stays 0
- *   now - last TORQUE_CMD >= watchdog_ms -> torque 0, WATCHDOG set, watchdog_trips += 1 on the edge
+ *   now - last TORQUE_CMD >= watchdog_ms -> WATCHDOG set, watchdog_trips += 1 on the edge; if a
+ *       command had been accepted since boot (and no e-stop), the stop brake starts (BRAKING set):
+ *       every control step each wheel gets tau = clamp(-brake_gain * omega, +-min(brake limit,
+ *       torque limit)), omega from the encoders; released (torque 0, H-bridge off, BRAKING cleared)
+ *       once both wheels read 0 counts per period for brake_rest_ms, or after brake_max_ms.
+ *       A new TORQUE_CMD or an e-stop ends the brake at once. docs/safety.md.
  *   ESTOP engage -> torque 0 at once, ESTOP set; release -> ESTOP cleared, torque 0 until the next command
  *   CONFIG -> values clamped into [0, hard limit] N m, [20, 500] ms, [5, 1000] ms, applied at once,
  *       CONFIG_ACK with the values in force
@@ -36,7 +42,7 @@
 #include "motor_model.h"
 #include "protocol.h"
 
-#define BOARD_FIRMWARE_MAJOR 1u
+#define BOARD_FIRMWARE_MAJOR 2u
 #define BOARD_FIRMWARE_MINOR 0u
 #define BOARD_STATUS_PERIOD_MS 200u
 #define BOARD_WATCHDOG_MIN_MS 20u
@@ -56,6 +62,10 @@ typedef struct {
     uint16_t hard_limit_e4nm;       /* compiled-in maximum torque limit */
     uint16_t default_watchdog_ms;
     uint16_t default_telemetry_period_ms;
+    float brake_gain_e4nm_per_mradps;   /* stop brake: torque per wheel speed (config.h BRAKE_*) */
+    uint16_t brake_limit_e4nm;          /* stop brake torque bound */
+    uint16_t brake_rest_ms;             /* release after this long at rest */
+    uint16_t brake_max_ms;              /* release after this long whatever the speed */
 } board_config_t;
 
 typedef struct {
@@ -93,6 +103,12 @@ typedef struct {
     int32_t control_ticks[2];       /* counts at the last control step (velocity) */
     int16_t vel_mradps[2];
     bool outputs_changed;           /* pwm_counts changed since board_take_outputs_changed */
+    /* stop brake (flag PROTO_FLAG_BRAKING) */
+    int16_t brake_e4nm[2];          /* brake torque of the last control step */
+    uint32_t brake_elapsed_us;
+    uint32_t rest_elapsed_us;
+    bool resting;                   /* both wheels read 0 at the last control step */
+    uint16_t brakes;                /* brake episodes since boot (wrapping) */
     /* counters (wrapping) */
     uint16_t crc_errors;
     uint16_t frame_errors;

@@ -57,6 +57,16 @@
 #define DEFAULT_TORQUE_LIMIT_NM 0.15f            /* |tau_w| clamp, matches the scenario default */
 #define MAX_TORQUE_LIMIT_NM 2.0f                 /* a config message can never raise it above this */
 
+/* ---- stop brake on command loss (docs/safety.md; the emulated board core/motor_board.py uses
+ * the same numbers). After the command watchdog trips, each wheel is regulated to zero speed:
+ * tau = clamp(-BRAKE_GAIN * omega_encoder, +-min(BRAKE_TORQUE_LIMIT, torque limit)); released
+ * (H-bridge off) once both wheels read 0 encoder counts per control period for BRAKE_REST_MS,
+ * or after BRAKE_MAX_MS whatever the speed.                                                  */
+#define BRAKE_GAIN_NM_PER_RADPS 0.05f
+#define BRAKE_TORQUE_LIMIT_NM 0.10f
+#define BRAKE_REST_MS 50u
+#define BRAKE_MAX_MS 1000u
+
 /* ---- pins (Arduino Uno/Nano names in brackets; see firmware/README.md) -------------------
  * PB1 [D9]  OC1A  PWM left        PB3 [D11] DIR left    PD2 [D2] left  encoder A  (PCINT18)
  * PB2 [D10] OC1B  PWM right       PB4 [D12] DIR right   PD4 [D4] left  encoder B  (PCINT20)

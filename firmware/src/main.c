@@ -48,6 +48,11 @@ int main(void)
         .hard_limit_e4nm = (uint16_t)(DEFAULT_TORQUE_LIMIT_NM * 1e4f + 0.5f),
         .default_watchdog_ms = COMMAND_WATCHDOG_MS,
         .default_telemetry_period_ms = CONTROL_PERIOD_MS,
+        /* e4nm per mrad/s = (N m per rad/s) * 1e4 / 1e3 */
+        .brake_gain_e4nm_per_mradps = BRAKE_GAIN_NM_PER_RADPS * 10.0f,
+        .brake_limit_e4nm = (uint16_t)(BRAKE_TORQUE_LIMIT_NM * 1e4f + 0.5f),
+        .brake_rest_ms = BRAKE_REST_MS,
+        .brake_max_ms = BRAKE_MAX_MS,
     };
     hal_init();
     board_init(&board, &cfg, 0, uart_send, uart_queued, 0);

@@ -34,6 +34,44 @@ uint16_t proto_crc16(const uint8_t *data, uint16_t len, uint16_t crc)
     return crc;
 }
 
+/* ---- CRC-32C (Castagnoli), reflected: nibble table (64 bytes), two steps per byte --------- */
+static const uint32_t CRC32C_NIBBLE[16] = {
+    0x00000000UL, 0x105EC76FUL, 0x20BD8EDEUL, 0x30E349B1UL, 0x417B1DBCUL, 0x5125DAD3UL,
+    0x61C69362UL, 0x7198540DUL, 0x82F63B78UL, 0x92A8FC17UL, 0xA24BB5A6UL, 0xB21572C9UL,
+    0xC38D26C4UL, 0xD3D3E1ABUL, 0xE330A81AUL, 0xF36E6F75UL};
+
+uint32_t proto_crc32c(const uint8_t *data, uint16_t len)
+{
+    uint32_t crc = 0xFFFFFFFFUL;
+    for (uint16_t i = 0; i < len; i++) {
+        crc ^= data[i];
+        crc = (crc >> 4) ^ CRC32C_NIBBLE[crc & 0x0Fu];
+        crc = (crc >> 4) ^ CRC32C_NIBBLE[crc & 0x0Fu];
+    }
+    return crc ^ 0xFFFFFFFFUL;
+}
+
+uint8_t proto_check_bytes(uint8_t version)
+{
+    return version == 1u ? 2u : 4u;
+}
+
+/* appends the check value of `version` at raw + n; returns its length */
+static uint8_t put_check(uint8_t *raw, uint16_t n, uint8_t version)
+{
+    if (version == 1u) {
+        const uint16_t c = proto_crc16(raw, n, 0xFFFF);
+        raw[n] = (uint8_t)c;
+        raw[n + 1] = (uint8_t)(c >> 8);
+        return 2u;
+    }
+    const uint32_t c = proto_crc32c(raw, n);
+    for (uint8_t k = 0; k < 4u; k++) {
+        raw[n + k] = (uint8_t)(c >> (8u * k));
+    }
+    return 4u;
+}
+
 /* ---- COBS -------------------------------------------------------------------------------- */
 uint16_t proto_cobs_encode(const uint8_t *in, uint16_t len, uint8_t *out)
 {
@@ -245,8 +283,7 @@ uint16_t proto_encode(const proto_msg_t *msg, bool leading_delimiter, uint8_t *o
     raw[1] = msg->seq;
     uint8_t *end = pack_body(msg, raw + PROTO_HEADER_BYTES);
     const uint16_t n = (uint16_t)(end - raw);
-    put_u16(end, proto_crc16(raw, n, 0xFFFF));
-    const uint16_t raw_len = (uint16_t)(n + PROTO_CRC_BYTES);
+    const uint16_t raw_len = (uint16_t)(n + put_check(raw, n, msg->version));
     const uint16_t need = (uint16_t)(raw_len + raw_len / 254u + 2u + (leading_delimiter ? 1u : 0u));
     if (need > cap) {
         return 0;
@@ -263,14 +300,22 @@ uint16_t proto_encode(const proto_msg_t *msg, bool leading_delimiter, uint8_t *o
 proto_reject_t proto_decode_raw(const uint8_t *raw, uint16_t len, uint8_t accepted_version,
                                 proto_msg_t *out)
 {
-    if (len < PROTO_HEADER_BYTES + 1u + PROTO_CRC_BYTES) {
+    if (len < PROTO_HEADER_BYTES + 1u + 2u) {
         return PROTO_REJECT_LENGTH;
     }
-    const uint16_t crc = proto_crc16(raw, (uint16_t)(len - PROTO_CRC_BYTES), 0xFFFF);
-    if (crc != get_u16(raw + len - PROTO_CRC_BYTES)) {
+    const uint8_t version = (uint8_t)(raw[0] >> 4);
+    const uint8_t check = proto_check_bytes(version);
+    if (len < PROTO_HEADER_BYTES + 1u + check) {
+        return PROTO_REJECT_LENGTH;
+    }
+    const uint16_t n = (uint16_t)(len - check);
+    if (check == 2u) {
+        if (proto_crc16(raw, n, 0xFFFF) != get_u16(raw + n)) {
+            return PROTO_REJECT_CRC;
+        }
+    } else if (proto_crc32c(raw, n) != get_u32(raw + n)) {
         return PROTO_REJECT_CRC;
     }
-    const uint8_t version = (uint8_t)(raw[0] >> 4);
     const uint8_t type = (uint8_t)(raw[0] & 0x0F);
     const uint8_t body = proto_body_bytes(type);
     if (body == 0) {
@@ -280,7 +325,7 @@ proto_reject_t proto_decode_raw(const uint8_t *raw, uint16_t len, uint8_t accept
     if (version == 0 || (version != accepted_version && !version_free)) {
         return PROTO_REJECT_VERSION;
     }
-    if (len != (uint16_t)(PROTO_HEADER_BYTES + body + PROTO_CRC_BYTES)) {
+    if (len != (uint16_t)(PROTO_HEADER_BYTES + body + check)) {
         return PROTO_REJECT_LENGTH;
     }
     out->type = type;

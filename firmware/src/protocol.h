@@ -3,11 +3,14 @@
  *
  * No AVR headers and no I/O: the firmware and the host tests compile the same file.
  *
- * Wire format of one frame:
- *     [0x00]  COBS( header(2) | body(n) | crc16_le(2) )  0x00
+ * Wire format of one frame (protocol version 2):
+ *     [0x00]  COBS( header(2) | body(n) | crc32c_le(4) )  0x00
  *     header byte 0 = (protocol_version << 4) | message_type, header byte 1 = sequence (uint8)
- * CRC-16/CCITT-FALSE (poly 0x1021, init 0xFFFF, no reflection, no final XOR) over header and
- * body, sent little-endian. Every multi-byte field is a little-endian integer in fixed point.
+ * CRC-32C (Castagnoli: reflected poly 0x82F63B78, init and final XOR 0xFFFFFFFF) over header and
+ * body, sent little-endian. The version nibble selects the check: version 1 frames carry a
+ * CRC-16/CCITT-FALSE (2 bytes) instead; they are accepted only for HELLO / HELLO_ACK, so that a
+ * version-1 peer learns about the mismatch. Every multi-byte field is a little-endian integer in
+ * fixed point.
  */
 #ifndef FW_PROTOCOL_H
 #define FW_PROTOCOL_H
@@ -15,12 +18,13 @@
 #include <stdbool.h>
 #include <stdint.h>
 
-#define PROTO_VERSION 1u
+#define PROTO_VERSION 2u
+#define PROTO_HANDSHAKE_FRAMING_VERSION 1u   /* HELLO framing, and HELLO_ACK to a version-1 host */
 #define PROTO_MAX_WIRE_BYTES 64u      /* both delimiters included */
 #define PROTO_MAX_ENCODED_BYTES 62u   /* COBS block between delimiters */
 #define PROTO_MAX_RAW_BYTES 61u       /* header + body + crc before COBS */
 #define PROTO_HEADER_BYTES 2u
-#define PROTO_CRC_BYTES 2u
+#define PROTO_CRC_BYTES 4u            /* CRC-32C; version-1 framing has 2 (CRC-16) */
 
 /* status flag bits (TELEMETRY.flags, STATUS.flags) */
 #define PROTO_FLAG_WATCHDOG 0x01u     /* no valid TORQUE_CMD for watchdog_ms: torque is zero */
@@ -28,7 +32,8 @@
 #define PROTO_FLAG_ESTOP 0x04u        /* emergency stop engaged: torque zero, commands ignored */
 #define PROTO_FLAG_RX_ERROR 0x08u     /* a frame was rejected since the previous TELEMETRY */
 #define PROTO_FLAG_RESET 0x10u        /* no HELLO received since boot */
-#define PROTO_FLAGS_DEFINED 0x1Fu
+#define PROTO_FLAG_BRAKING 0x20u      /* commands stopped: the wheels are braked to rest */
+#define PROTO_FLAGS_DEFINED 0x3Fu
 
 typedef enum {
     PROTO_HELLO = 0x1,
@@ -132,6 +137,12 @@ uint8_t proto_body_bytes(uint8_t type);
 
 /* CRC-16/CCITT-FALSE of data, continuing `crc` (start with 0xFFFF). */
 uint16_t proto_crc16(const uint8_t *data, uint16_t len, uint16_t crc);
+
+/* CRC-32C of data (complete: initial value and final XOR applied). */
+uint32_t proto_crc32c(const uint8_t *data, uint16_t len);
+
+/* Bytes of the check value of a frame of `version`: 2 for version 1, 4 after. */
+uint8_t proto_check_bytes(uint8_t version);
 
 /* COBS-encode `len` bytes into `out` (room for len + len / 254 + 1); returns the output length. */
 uint16_t proto_cobs_encode(const uint8_t *in, uint16_t len, uint8_t *out);

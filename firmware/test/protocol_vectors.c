@@ -9,6 +9,7 @@
  *   E <TYPE> <version> <seq> <leading 0|1> <field>=<value> ...
  *                  encode; prints "H <hex>" (or "ERR ..." on a bad field)
  *   C <hex>        prints "C <crc16 of the bytes as 0x....>"
+ *   K <hex>        prints "K <crc32c of the bytes as 0x........>"
  *   X <hex>        COBS-decode one block; prints "X <hex>" or "X invalid"
  * Field and type names are those of the document (and of ament_formation.core.serial_protocol).
  */
@@ -247,6 +248,9 @@ int main(void)
         } else if (line[0] == 'C' && line[1] == ' ') {
             const size_t n = parse_hex(line + 2, buf, sizeof buf);
             printf("C 0x%04x\n", proto_crc16(buf, (uint16_t)n, 0xFFFF));
+        } else if (line[0] == 'K' && line[1] == ' ') {
+            const size_t n = parse_hex(line + 2, buf, sizeof buf);
+            printf("K 0x%08lx\n", (unsigned long)proto_crc32c(buf, (uint16_t)n));
         } else if (line[0] == 'X' && line[1] == ' ') {
             const size_t n = parse_hex(line + 2, buf, sizeof buf);
             static uint8_t out[30000];
