@@ -1,7 +1,11 @@
 """formation_tracker in-process: rendered frames of moving robots in, PoseStamped out with the right
 ids, stamps (= image capture stamps) and poses; diagnostics, debug image, covariance; a video file
-opened by the node itself; image conversions without cv_bridge."""
+opened by the node itself, under both executors a process may spin; the ``source`` forms; the
+capture thread's loss/reopen/backoff; image conversions without cv_bridge; the world's
+camera_info. (The console script with real sources: test_tracker_source.py.)"""
 from __future__ import annotations
+
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -101,7 +105,13 @@ def test_rendered_frames_become_pose_messages(ros_context, executor):
         probe.destroy_node()
 
 
-def test_the_node_opens_a_video_source_itself(ros_context, executor, tmp_path):
+@pytest.mark.parametrize("executor_kind", ["single", "events"])
+def test_the_node_opens_a_video_source_itself(ros_context, executor_kind, tmp_path):
+    """Both executors a node process may spin (ros/executors.py make_executor) take the frames the
+    capture thread grabs (no guard condition: the EventsExecutor has none)."""
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.experimental import EventsExecutor
+
     video = tmp_path / "overhead.avi"
     writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 30.0, (640, 480), isColor=False)
     assert writer.isOpened()
@@ -111,13 +121,14 @@ def test_the_node_opens_a_video_source_itself(ros_context, executor, tmp_path):
     writer.release()
     params = TrackerNodeParams(source=str(video), source_loop=True, marker_ids=MARKERS, robot_ids=ROBOTS,
                                publish_covariance=False)
+    executor = (EventsExecutor if executor_kind == "events" else SingleThreadedExecutor)(context=ros_context)
     probe = _Probe(ros_context)
     tracker = TrackerNode(context=ros_context, params=params)
     executor.add_node(tracker)
     executor.add_node(probe)
     try:
         t0 = tracker.get_clock().now()
-        assert spin_until(executor, lambda: all(len(probe.poses[r]) >= 3 for r in ROBOTS), 10.0)
+        assert spin_until(executor, lambda: all(len(probe.poses[r]) >= 3 for r in ROBOTS), 20.0)
         for i, r in enumerate(ROBOTS):
             pose, _ = pose_from_msg(probe.poses[r][-1])
             assert stamp_to_ns(probe.poses[r][-1].header.stamp) >= t0.nanoseconds   # grab time
@@ -129,7 +140,89 @@ def test_the_node_opens_a_video_source_itself(ros_context, executor, tmp_path):
         executor.remove_node(probe)
         tracker.destroy_node()
         probe.destroy_node()
-    assert not tracker.capture.is_alive()
+        executor.shutdown()
+    assert not tracker.grabber.is_alive()
+
+
+def test_source_parameter_forms():
+    """``source``: device index (int or digits), device path, stream URL, file; bad types refused."""
+    from ament_formation.hw.video_source import DEVICE, FILE, STREAM, parse_source
+
+    assert parse_source("") is None and parse_source(None) is None
+    assert (parse_source(0).kind, parse_source(0).target, parse_source(0).device_path) == (DEVICE, 0, "/dev/video0")
+    assert (parse_source("2").kind, parse_source("2").target) == (DEVICE, 2)
+    assert parse_source("/dev/v4l/by-id/usb-cam-video-index0").device_path == "/dev/v4l/by-id/usb-cam-video-index0"
+    assert parse_source("rtsp://10.0.0.5:554/live").kind == STREAM
+    assert parse_source("http://127.0.0.1:8080/stream.mjpg").kind == STREAM
+    assert parse_source("runs/overhead.avi").kind == FILE
+    for bad in (1.5, True, [0], -1):
+        with pytest.raises(ConfigError, match="source"):
+            TrackerNodeParams(source=bad)
+    assert TrackerNodeParams(source=0).source_spec.kind == DEVICE
+    with pytest.raises(ConfigError, match="source_wait_s"):
+        TrackerNodeParams(source_wait_s=-1.0)
+
+
+def test_capture_loss_and_reopen_with_backoff():
+    """The grabber of a live source: lost when grab fails, reopened with growing waits, frames
+    resume; a file that ends is 'ended'."""
+    import threading
+    import time
+
+    from ament_formation.hw.video_source import FrameGrabber, SourceSpec
+
+    class FakeCapture:
+        def __init__(self, frames):
+            self.frames = frames
+
+        def grab(self):
+            if self.frames <= 0:
+                return False
+            self.frames -= 1
+            time.sleep(0.002)
+            return True
+
+        def retrieve(self):
+            return True, np.zeros((4, 6, 3), np.uint8)
+
+        def get(self, prop):
+            return 0.0
+
+        def release(self):
+            pass
+
+    attempts, lock = [], threading.Lock()
+    plan = iter([5, None, None, None, 5])          # open, lost, two failed reopens, back
+
+    def opener(spec):
+        with lock:
+            attempts.append(time.monotonic())
+        n = next(plan, None)
+        return None if n is None else FakeCapture(n)
+
+    g = FrameGrabber(SourceSpec("stream", "http://x", "http://x"), now=time.monotonic,
+                     backoff_s=(0.02, 0.08), opener=opener)
+    assert g.try_open() and g.state == "open"
+    g.start()
+    deadline = time.monotonic() + 10.0
+    while g.reopens < 1 and time.monotonic() < deadline:
+        time.sleep(0.005)
+    assert g.reopens == 1
+    gaps = np.diff(attempts)     # lost at once after the 5 frames, then waits of 0.02, 0.04, 0.08 s
+    assert len(attempts) == 5 and gaps[0] < 1.0
+    assert gaps[1] >= 0.0195 and gaps[2] >= 0.0395 and gaps[3] >= 0.0795
+    while g.frames < 10 and time.monotonic() < deadline:
+        time.sleep(0.005)
+    assert g.frames == 10 and g.take()[0].shape == (4, 6)   # grey
+    g.stop()
+    assert not g.is_alive()
+
+    f = FrameGrabber(SourceSpec("file", "x.avi", "x.avi"), now=time.monotonic,
+                     opener=lambda spec: FakeCapture(3))
+    assert f.try_open()
+    f.start()
+    f.join(timeout=5.0)
+    assert f.state == "ended" and f.frames == 3
 
 
 def test_bad_parameters_are_refused():
@@ -164,3 +257,36 @@ def test_image_conversions_round_trip_without_cv_bridge():
         image_to_numpy(Image(height=1, width=1, encoding="yuv422", step=2, data=b"\0\0"))
     with pytest.raises(ValueError, match="data"):
         image_to_numpy(Image(height=4, width=4, encoding="mono8", step=4, data=b"\0" * 8))
+
+
+def test_world_publishes_camera_info_with_each_image(ros_context, executor, tmp_path):
+    """The simulated camera (formation_world) sends /camera/camera_info from config/camera.yaml with
+    every /camera/image_raw, stamped like the image."""
+    from sensor_msgs.msg import CameraInfo
+
+    from ament_formation.nodes.world import WorldNode, WorldParams
+
+    scenario = Path(__file__).resolve().parent / "data" / "paper_short.yaml"
+    world = WorldNode(context=ros_context, params=WorldParams(scenario=str(scenario), pty_dir=str(tmp_path / "pty"),
+                                                              exit_at_end=False))
+    probe = Node("camera_info_probe", context=ros_context)
+    images, infos = [], []
+    probe.create_subscription(Image, "/camera/image_raw", images.append, QOS_IMAGE)
+    probe.create_subscription(CameraInfo, "/camera/camera_info", infos.append, QOS_IMAGE)
+    executor.add_node(world)
+    executor.add_node(probe)
+    try:
+        assert spin_until(executor, lambda: len(images) >= 5 and len(infos) >= 5, 20.0)
+        image_stamps = {stamp_to_ns(m.header.stamp) for m in images}
+        assert len({stamp_to_ns(i.header.stamp) for i in infos} & image_stamps) >= 4
+        info = infos[-1]
+        cam = SETUP.camera
+        assert (info.width, info.height) == (cam.width_px, cam.height_px) == (images[-1].width, images[-1].height)
+        assert info.header.frame_id == images[-1].header.frame_id
+        assert np.allclose(np.reshape(info.k, (3, 3)), cam.k) and np.allclose(info.d, cam.distortion)
+        assert np.allclose(np.reshape(info.p, (3, 4))[:, :3], cam.k) and info.distortion_model == "plumb_bob"
+    finally:
+        executor.remove_node(world)
+        executor.remove_node(probe)
+        world.destroy_node()
+        probe.destroy_node()

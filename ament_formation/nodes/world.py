@@ -8,6 +8,7 @@ robots' markers; ground truth for evaluation. The mission starts when ``/formati
 
 Topics (QoS from ros/qos.py)
   pub  /camera/image_raw          sensor_msgs/Image mono8, stamp = capture time     QOS_IMAGE
+  pub  /camera/camera_info        sensor_msgs/CameraInfo (camera_config), with each image, same stamp  QOS_IMAGE
   pub  /world/truth/robot_<id>    nav_msgs/Odometry, every tick (while subscribed) QOS_CONTROL
   pub  /clock                     rosgraph_msgs/Clock (only when speed_factor != 1)  QOS_CLOCK
   sub  /formation/graph           std_msgs/String JSON (start_s)                   QOS_GRAPH
@@ -36,7 +37,7 @@ from pathlib import Path
 import numpy as np
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
-from sensor_msgs.msg import Image
+from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import String
 
 from ament_formation.core.camera_model import load_camera_yaml
@@ -50,6 +51,7 @@ from ament_formation.core.twin import PlantTwin
 from ament_formation.hw.pty_board import PtyBoard, PtyBoardGroup
 from ament_formation.ros import messages as msgs
 from ament_formation.ros.executors import run_node
+from ament_formation.ros.image import camera_info
 from ament_formation.ros.params import declare_dataclass
 from ament_formation.ros.qos import QOS_CLOCK, QOS_CONTROL, QOS_GRAPH, QOS_IMAGE
 
@@ -120,6 +122,7 @@ class WorldNode(Node):
         self.camera = None
         if self.prm.camera_enabled:
             setup = load_camera_yaml(_camera_path(self.prm.camera_config))
+            self._camera_info = camera_info(setup.camera)
             self.camera = SyntheticCamera(setup.camera, options=RenderOptions(noise_std=self.prm.camera_noise),
                                           floor=setup.floor)
             self.frame_period_s = 1.0 / self.scenario.camera.fps
@@ -128,6 +131,7 @@ class WorldNode(Node):
         self.marker_ids = np.array([r.marker_id for r in self.scenario.robots])
 
         self.pub_image = self.create_publisher(Image, "/camera/image_raw", QOS_IMAGE)
+        self.pub_camera_info = self.create_publisher(CameraInfo, "/camera/camera_info", QOS_IMAGE)
         self._truth_msgs: list = [None] * len(self.ids)     # refilled every tick
         self.pub_truth = [self.create_publisher(msgs.Odometry, f"/world/truth/robot_{i}", QOS_CONTROL)
                           for i in self.ids]
@@ -212,6 +216,8 @@ class WorldNode(Node):
                                    pose_rates=self.twin.pose_rates(), frame_index=self.frames)
         self.frames += 1
         self.pub_image.publish(msgs.image_mono8(frame, stamp))
+        self._camera_info.header.stamp = stamp
+        self.pub_camera_info.publish(self._camera_info)
 
     # ------------------------------------------------------------------ shutdown
     def close(self) -> None:
