@@ -59,6 +59,7 @@ Parameters
 """
 from __future__ import annotations
 
+import contextlib
 import math
 import sys
 from dataclasses import dataclass
@@ -74,7 +75,7 @@ from std_msgs.msg import String
 from ament_formation.core.dynamics import PlantCoeffs, b2_inv, f2
 from ament_formation.core.errors import ConfigError
 from ament_formation.core.estimator import EstimatorParams, PoseEstimator
-from ament_formation.core.controller import NeighbourState, RobotController
+from ament_formation.core.controller import NeighbourState, RobotController, fast_reference
 from ament_formation.core.graph import FormationGraph
 from ament_formation.core.params import ControlGains, param
 from ament_formation.core.scenario import load_scenario
@@ -83,6 +84,9 @@ from ament_formation.ros import messages as msgs
 from ament_formation.ros.executors import run_node
 from ament_formation.ros.params import declare_dataclass
 from ament_formation.ros.qos import QOS_CONTROL, QOS_GRAPH
+
+
+HEAR_HYSTERESIS_M = 0.3   # a robot stays heard until this much beyond the hearing range
 
 
 @dataclass(frozen=True)
@@ -100,6 +104,13 @@ class ControllerParams:
                                  ">= parent_timeout_s", range=(0.0, 60.0))
     stop_time_s: float = param(0.3, "time constant of the controlled stop [s]", range=(0.01, 10.0))
     camera_gain: float = param(0.5, "S10 complementary gain per camera frame, (0, 1]")
+    hear_all: bool = param(False, "subscribe every robot's state and accel at full rate (off: only "
+                           "the parents and the robots within hearing range, S7)")
+    hear_margin_m: float = param(0.6, "hearing range beyond a robot's S7 region Q: full-rate state "
+                                 "from a robot whose camera pose is closer than kappa R_aa + this [m]",
+                                 range=(0.0, 100.0))
+    realtime_priority: int = param(0, "SCHED_FIFO priority of the control loop (1..98; 0: normal "
+                                   "scheduling; needs root or CAP_SYS_NICE)", range=(0, 98))
 
     def __post_init__(self) -> None:
         if not self.scenario:
@@ -114,6 +125,12 @@ class ControllerParams:
                 raise ConfigError(f"must be in [{lo:g}, {hi:g}] (got {v!r})", name)
         if self.parent_hold_s < self.parent_timeout_s:
             raise ConfigError("must be >= parent_timeout_s", "parent_hold_s")
+        if not (isinstance(self.hear_margin_m, (int, float)) and math.isfinite(self.hear_margin_m)
+                and 0.0 <= self.hear_margin_m <= 100.0):
+            raise ConfigError(f"must be in [0, 100] m (got {self.hear_margin_m!r})", "hear_margin_m")
+        if not (isinstance(self.realtime_priority, int) and 0 <= self.realtime_priority <= 98):
+            raise ConfigError(f"must be an integer in [0, 98] (got {self.realtime_priority!r})",
+                              "realtime_priority")
 
 
 def stop_torque(state: np.ndarray, k: PlantCoeffs, stop_time_s: float, gains: ControlGains) -> np.ndarray:
@@ -133,6 +150,24 @@ def stop_torque(state: np.ndarray, k: PlantCoeffs, stop_time_s: float, gains: Co
     u = np.einsum("nij,nj->ni", b2_inv(k), x2dot)
     scale = np.maximum(1.0, np.max(np.abs(u), axis=1) / k.tau_max)
     return u / scale[:, None]
+
+
+def set_realtime(priority: int, logger=None) -> bool:
+    """Put the calling thread under SCHED_FIFO ``priority`` (1..98), the scheduling a robot
+    computer gives its control loop: it runs before every normal process as soon as it is ready
+    (the kernel's real-time throttling, 95 % by default, still leaves the rest of the machine some
+    time). False, with a warning, when not permitted (needs root or CAP_SYS_NICE)."""
+    import os
+
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(int(priority)))
+    except (OSError, AttributeError) as err:
+        if logger is not None:
+            logger.warn(f"realtime_priority {priority}: cannot use SCHED_FIFO ({err}); normal scheduling")
+        return False
+    if logger is not None:
+        logger.info(f"control loop under SCHED_FIFO priority {priority}")
+    return True
 
 
 def threat_mode(mode: dict) -> tuple[str, str | None]:
@@ -155,7 +190,9 @@ class _Neighbour:
         self.stamp_s = -math.inf
         self.mode = "coordination"
         self.target: str | None = None
-        self.subs: list = []
+        self.subs: list = []          # full-rate state + accel subscriptions (while heard)
+        self.low_subs: list = []      # mode and (range gate) camera pose subscriptions
+        self.in_range = False         # its camera pose is within hearing range (hysteresis)
 
 
 class PeerTable:
@@ -174,13 +211,18 @@ class ControllerNode(Node):
     """See the module docstring."""
 
     def __init__(self, *, context=None, params: ControllerParams | None = None, tick_timer: bool = True,
-                 peers: PeerTable | None = None, bridge=None, **node_kw):
+                 peers: PeerTable | None = None, bridge=None, lock=None, **node_kw):
         """``tick_timer=False``: no control timer of its own; the owner calls :meth:`control_tick`
         every period (nodes/team.py). ``peers``: the controllers composed in the same process.
         ``bridge``: this robot's BridgeNode in the same process (a team): wheel samples come from
         it directly and torques go to it directly (:meth:`BridgeNode.command`) instead of through
-        wheel_state / wheel_torque, which are then published only while someone subscribes."""
+        wheel_state / wheel_torque, which are then published only while someone subscribes.
+        ``lock``: held by the callbacks that change what a control period reads (camera pose,
+        graph, encounters) when the owner runs the control periods in a thread of their own
+        (nodes/team.py ControlLoop, which holds it for each period); default: no lock."""
         super().__init__("formation_controller", context=context, **node_kw)
+        self.lock = lock if lock is not None else contextlib.nullcontext()
+        self._own_xy: tuple[float, float] | None = None   # own position of the last period [m]
         self.prm = params if params is not None else declare_dataclass(self, ControllerParams)
         self.scenario = load_scenario(self.prm.scenario)
         if self.prm.robot_id not in self.scenario.robot_ids:
@@ -202,10 +244,14 @@ class ControllerNode(Node):
         self.robot_info = {}
         for r in sc.robots:
             p0 = fgraph.original_parent.get(r.id)
-            self.goal_source[r.id] = ((r.path, None, None, 0.0) if p0 is None else
+            self.goal_source[r.id] = ((fast_reference(r.path), None, None, 0.0) if p0 is None else
                                       (None, p0, tuple(float(v) for v in fgraph.offset(r.id, p0)),
                                        sc.robot(p0).params.com_offset_m))
             self.robot_info[r.id] = (r.params.body_radius_m, sc.team_leader(r.id), r.params.com_offset_m)
+        av = sc.avoidance        # S7: Q of robot k seen by this robot is kappa R_aa about p_k
+        self._hear_range_m = {r.id: av.protected_scale * (spec.params.body_radius_m + r.params.body_radius_m
+                                                          + av.agent_keepout_margin_m) + self.prm.hear_margin_m
+                              for r in sc.robots}
         self._goals: dict = {}           # robot id -> (g, g_dot) of this period ("t": its time)
         self.start_s: float | None = None
         self.graph: msgs.GraphMessage | None = None
@@ -251,6 +297,7 @@ class ControllerNode(Node):
                                else self._subscribe_neighbour(k)) for k in sc.robot_ids if k != self.rid}
         if self.orig_parent_id is not None:
             self.orig = self.neighbours[self.orig_parent_id]
+        self._update_hearing()
         self.diag = diag.Diagnostics(self)
         robot = f"robot_{self.rid}"
         self.diag.add(f"{robot} control", self._control_status, hardware_id=robot)
@@ -260,6 +307,8 @@ class ControllerNode(Node):
         self._rejected_seen = (0, -math.inf)     # (total, when it last grew [s])
         self.timer = self.create_timer(1.0 / self.prm.control_rate_hz, self._control) if tick_timer else None
         self.law.warm_up()      # compile (or load) the law's kernels now, not in the first tick
+        if tick_timer and self.prm.realtime_priority:   # the executor thread runs the control timer
+            set_realtime(self.prm.realtime_priority, self.get_logger())
 
     # ------------------------------------------------------------------ time
     def now_s(self) -> float:
@@ -268,7 +317,8 @@ class ControllerNode(Node):
     # ------------------------------------------------------------------ inputs
     def _on_pose(self, msg: PoseStamped) -> None:
         pose, stamp_s = msgs.pose_from_msg(msg)
-        outcome = self.estimator.camera_update(stamp_s, pose)
+        with self.lock:
+            outcome = self.estimator.camera_update(stamp_s, pose)
         if outcome.startswith("rejected"):
             self.rejected["pose"] += 1
 
@@ -288,10 +338,16 @@ class ControllerNode(Node):
             self.rejected["wheel"] += 1
 
     def _on_graph(self, msg: String) -> None:
+        with self.lock:
+            self._apply_graph(msg)
+        self._update_hearing()
+
+    def _apply_graph(self, msg: String) -> None:
         try:
             graph = msgs.graph_from_msg(msg)
         except ValueError:
             self.rejected["graph"] += 1
+            self.diag.changed()
             return
         if self.graph is not None and graph.revision < self.graph.revision:
             return
@@ -311,11 +367,14 @@ class ControllerNode(Node):
             revision, assignments = msgs.encounters_from_msg(msg)
         except ValueError:
             self.rejected["encounters"] += 1
+            self.diag.changed()
             return
         if revision < self.encounter_revision:
             return
-        self.encounter_revision = revision
-        self.assignment = assignments.get(self.rid)
+        with self.lock:
+            self.encounter_revision = revision
+            self.assignment = assignments.get(self.rid)
+        self._update_hearing()
 
     def _subscribe_neighbour(self, rid: int) -> _Neighbour:
         nb = _Neighbour(rid)
@@ -342,10 +401,50 @@ class ControllerNode(Node):
                 return
             nb.mode, nb.target = threat_mode(mode)
 
-        nb.subs = [self.create_subscription(msgs.Odometry, f"/robot_{rid}/state", on_state, QOS_CONTROL),
-                   self.create_subscription(AccelStamped, f"/robot_{rid}/accel", on_accel, QOS_CONTROL),
-                   self.create_subscription(String, f"/robot_{rid}/mode", on_mode, QOS_CONTROL)]
+        def on_camera(msg, nb=nb):
+            pose, _ = msgs.pose_from_msg(msg)
+            own = self._own_xy
+            if own is None or not (math.isfinite(pose[0]) and math.isfinite(pose[1])):
+                return
+            dist = math.hypot(pose[0] - own[0], pose[1] - own[1])
+            reach = self._hear_range_m[nb.rid]
+            in_range = dist < reach or (nb.in_range and dist < reach + HEAR_HYSTERESIS_M)
+            if in_range != nb.in_range:
+                nb.in_range = in_range
+                self._update_hearing(nb)
+
+        nb.callbacks = (on_state, on_accel)
+        nb.low_subs = [self.create_subscription(String, f"/robot_{rid}/mode", on_mode, QOS_CONTROL)]
+        if not self.prm.hear_all:      # range gate from the camera poses (30 fps) of robot rid
+            nb.low_subs.append(self.create_subscription(PoseStamped, f"/robot_{rid}/pose", on_camera,
+                                                        QOS_CONTROL))
         return nb
+
+    def _needed(self, nb: _Neighbour) -> bool:
+        """Full-rate state/accel of ``nb`` is needed: every robot with ``hear_all``; else the
+        current and original parents (S4 field, S8.3 exit goal), the partner of the coordinator's
+        assignment, and the robots whose camera pose is within hearing range (possible S7 threats)."""
+        if self.prm.hear_all or nb is self.parent or nb.rid == self.orig_parent_id or nb.in_range:
+            return True
+        a = self.assignment
+        return a is not None and a.partner == nb.rid
+
+    def _update_hearing(self, only: _Neighbour | None = None) -> None:
+        """Subscribe / unsubscribe the full-rate state and accel of the robots in other processes
+        as :meth:`_needed` says (executor thread only: graph, encounters and camera callbacks)."""
+        for nb in (self.neighbours.values() if only is None else (only,)):
+            if not hasattr(nb, "callbacks"):          # a peer in the same process: read directly
+                continue
+            need = self._needed(nb)
+            if need and not nb.subs:
+                on_state, on_accel = nb.callbacks
+                nb.subs = [self.create_subscription(msgs.Odometry, f"/robot_{nb.rid}/state", on_state, QOS_CONTROL),
+                           self.create_subscription(AccelStamped, f"/robot_{nb.rid}/accel", on_accel, QOS_CONTROL)]
+            elif not need and nb.subs:
+                for sub in nb.subs:
+                    self.destroy_subscription(sub)
+                nb.subs = []
+                nb.state, nb.stamp_s = None, -math.inf    # not heard any more: not used
 
     def _neighbour_now(self, nb: _Neighbour | None, now_s: float) -> np.ndarray | None:
         """The neighbour's state extrapolated to now with its commanded acceleration (S10, S13 #13);
@@ -411,6 +510,7 @@ class ControllerNode(Node):
             self._send(np.zeros(2), None, now)
             return
         state = est.state_at(now)
+        self._own_xy = (float(state[0]), float(state[1]))
         stamp = msgs.stamp_from_s(now)
         self._msg_state = msgs.odometry(state, stamp, f"robot_{self.rid}", out=self._msg_state)
         self.pub_state.publish(self._msg_state)
@@ -493,9 +593,9 @@ class ControllerNode(Node):
         if total != self._rejected_seen[0]:
             self._rejected_seen = (total, since := now)
         values = {f"rejected_{k}": v for k, v in self.rejected.items()}
-        if total and now - since <= 10.0:
-            return diag.WARN, f"{total} inputs rejected", values
-        return diag.OK, "inputs valid" if not total else f"{total} inputs rejected (none in 10 s)", values
+        if total and now - since <= 10.0:     # a stable message: a flood publishes once
+            return diag.WARN, "inputs rejected in the last 10 s", values
+        return diag.OK, "inputs valid" if not total else "no input rejected in the last 10 s", values
 
     def _safety(self, status: str) -> None:
         if status != self.safety:

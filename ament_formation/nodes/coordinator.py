@@ -16,13 +16,23 @@ decision. It also publishes markers for RViz/Foxglove.
 Topics (QoS from ros/qos.py)
   sub  robot_<id>/state     nav_msgs/Odometry (taken serialized at 100 Hz; only the newest of each
                             robot is decoded, when the arbitration or the markers read it)  QOS_CONTROL
-  sub  robot_<id>/mode      std_msgs/String JSON {mode, target, direction, avoiding}  QOS_CONTROL
-  pub  /formation/graph     std_msgs/String JSON {revision, parents, offsets_m, avoiding,
-                            stamp_s, start_s}                                QOS_GRAPH
-  pub  /formation/encounters  std_msgs/String JSON {revision, stamp_s, assignments: {"<id>":
-                            {mode: yield|mutual, partner, direction (+1 CCW, -1 CW), t_entry_s
-                            (scenario time), drift_mps [wx, wy] or null}}}   QOS_GRAPH
-  pub  /formation/markers   visualization_msgs/MarkerArray (robots, P/L/Q ellipses, edges)  QOS_MARKERS
+  sub  robot_<id>/mode      std_msgs/String JSON ament_formation/mode/v1 {schema, mode, target,
+                            direction, avoiding}; invalid payloads are counted  QOS_CONTROL
+  pub  /formation/graph     std_msgs/String JSON ament_formation/graph/v1 {schema, revision, parents,
+                            offsets_m, avoiding, stamp_s, start_s}           QOS_GRAPH
+  pub  /formation/encounters  std_msgs/String JSON ament_formation/encounters/v1 {schema, revision,
+                            stamp_s, assignments: {"<id>": {mode: yield|mutual, partner, direction
+                            (+1 CCW, -1 CW), t_entry_s (scenario time), drift_mps [wx, wy] or
+                            null}}}  (docs/schemas/)                         QOS_GRAPH
+  pub  /formation/markers   visualization_msgs/MarkerArray at markers_rate_hz: P/L/Q ellipses (ns
+                            ellipse_P|L|Q, id = obstacle index), robots (ns robots, headings; id =
+                            robot id) and graph edges (ns graph_edges, ARROW parent -> child, id =
+                            child id); robots heard in the last ROBOT_SILENT_S only; a DELETEALL
+                            first whenever the set of objects changes; robots and edges carry a
+                            lifetime (3 periods, >= 1 s) so they vanish if the coordinator stops  QOS_MARKERS
+  pub  /diagnostics         "formation_coordinator: graph" (mission, revision), "...: robots"
+                            (silent robots WARN), "...: inputs" (rejected payloads WARN), "...:
+                            arbitration loop", "...: markers loop" (stalls)   QOS_DIAGNOSTICS
 
 Parameters
   scenario          str    scenario YAML (required)
@@ -36,6 +46,7 @@ from __future__ import annotations
 
 import math
 import sys
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -50,6 +61,7 @@ from ament_formation.core.graph import FormationGraph
 from ament_formation.core.obstacles import ObstacleField
 from ament_formation.core.params import param
 from ament_formation.core.scenario import load_scenario
+from ament_formation.ros import diagnostics as diag
 from ament_formation.ros import messages as msgs
 from ament_formation.ros.executors import run_node
 from ament_formation.ros.params import declare_dataclass
@@ -87,6 +99,9 @@ def is_avoiding(mode: dict) -> bool:
     return mode.get("mode") not in ("coordination", "hold", "stopped", "idle", None)
 
 
+ROBOT_SILENT_S = 1.0    # a robot whose state is older is not drawn and is reported silent [s]
+
+
 class CoordinatorNode(Node):
     """See the module docstring."""
 
@@ -108,6 +123,14 @@ class CoordinatorNode(Node):
         self.arbiter = EncounterArbiter(self.scenario)
         self.assignments: dict = {}
         self.encounter_revision = 0
+        self._heard_mono: dict[int, float] = {}      # when each robot's state last arrived [s, monotonic]
+        self.rejected = {"mode": 0, "state": 0}
+        self._rejected_seen = (0, -math.inf)         # (total, when it last grew [s])
+        self._marker_keys: frozenset | None = None   # (ns, id) drawn by the last marker array
+        self.diag = diag.Diagnostics(self)
+        self.diag.add("graph", self._graph_status)
+        self.diag.add("robots", self._robots_status)
+        self.diag.add("inputs", self._inputs_status)
 
         self.pub_graph = self.create_publisher(String, "/formation/graph", QOS_GRAPH)
         self.pub_markers = self.create_publisher(MarkerArray, "/formation/markers", QOS_MARKERS)
@@ -122,9 +145,12 @@ class CoordinatorNode(Node):
         self._publish_graph()
         self.create_timer(self.prm.republish_s, self._republish)
         self._publish_encounters(new_revision=True)
+        self.arbitration_watch = self.markers_watch = None
         if self.prm.encounter_rate_hz > 0:
+            self.arbitration_watch = self.diag.watch("arbitration loop", 1.0 / self.prm.encounter_rate_hz)
             self.create_timer(1.0 / self.prm.encounter_rate_hz, self._arbitrate)
         if self.prm.markers_rate_hz > 0:
+            self.markers_watch = self.diag.watch("markers loop", 1.0 / self.prm.markers_rate_hz)
             self.create_timer(1.0 / self.prm.markers_rate_hz, self._publish_markers)
 
     def now_s(self) -> float:
@@ -138,11 +164,14 @@ class CoordinatorNode(Node):
             state, _ = msgs.state_from_odometry(deserialize_message(raw, msgs.Odometry))
             if np.all(np.isfinite(state)):
                 self._states[rid] = state
+            else:
+                self.rejected["state"] += 1
         self._raw_states.clear()
         return self._states
 
     def _on_state(self, rid: int, raw: bytes) -> None:
         self._raw_states[rid] = raw
+        self._heard_mono[rid] = time.monotonic()     # receive time: no clock skew between hosts
         if self.start_s is None and len(self.states) == len(self.ids):
             self.start_s = self.now_s() + self.prm.start_delay_s
             self.get_logger().info(f"every controller is up: mission starts at {self.start_s:.3f} s")
@@ -152,6 +181,8 @@ class CoordinatorNode(Node):
         try:
             mode = msgs.mode_from_msg(msg)
         except ValueError as err:
+            self.rejected["mode"] += 1
+            self.diag.changed()
             self.get_logger().warn(f"robot_{rid}/mode: {err}", throttle_duration_sec=5.0)
             return
         self.modes[rid] = mode
@@ -173,6 +204,7 @@ class CoordinatorNode(Node):
         graph = self.current_graph()
         self.history.append(graph)
         self.pub_graph.publish(msgs.graph_msg(graph))
+        self.diag.changed()          # a new graph (start, rewiring) is published when it happens
 
     def _republish(self) -> None:
         """Same revision again (a controller that missed it catches up)."""
@@ -182,6 +214,7 @@ class CoordinatorNode(Node):
     def _arbitrate(self) -> None:
         """S7 over all robots (core/arbiter.py); publish the assignments when they change."""
         now = self.now_s()
+        self.arbitration_watch.tick(int(now * 1e9))
         if self.start_s is None or now < self.start_s:
             return
         assignments = self.arbiter.decide(now - self.start_s, self.states, self.modes)
@@ -196,9 +229,16 @@ class CoordinatorNode(Node):
         self.pub_encounters.publish(msgs.encounters_msg(self.encounter_revision, self.assignments,
                                                         self.now_s()))
 
-    def _publish_markers(self) -> None:
-        stamp = msgs.stamp_from_s(self.now_s())
-        t = 0.0 if self.start_s is None else max(0.0, self.now_s() - self.start_s)
+    def live_robots(self) -> list[int]:
+        """Robots with a valid state received in the last ROBOT_SILENT_S [s, wall time]."""
+        now = time.monotonic()
+        return sorted(i for i in self.states if now - self._heard_mono.get(i, -math.inf) <= ROBOT_SILENT_S)
+
+    def marker_array(self, now_s: float) -> MarkerArray:
+        """The /formation/markers array at ``now_s`` [s, ROS time] (see the module docstring)."""
+        stamp = msgs.stamp_from_s(now_s)
+        t = 0.0 if self.start_s is None else max(0.0, now_s - self.start_s)
+        lifetime_s = max(3.0 / self.prm.markers_rate_hz, 1.0) if self.prm.markers_rate_hz > 0 else 0.0
         groups = []
         if len(self.obstacles):
             obs = self.obstacles.at(t)
@@ -206,15 +246,55 @@ class CoordinatorNode(Node):
             groups.append(msgs.ellipse_markers(self.obstacles.names, obs.center_m, obs.phi_rad,
                                                obs.semi_axes_m, {"P": 1.0, "L": av.limit_cycle_scale,
                                                                  "Q": av.protected_scale}, stamp))
-        states = self.states
-        if states:
-            ids = sorted(states)
+        ids = self.live_robots()
+        if ids:
+            states = self.states
             radius = [self.scenario.robot(i).params.body_radius_m for i in ids]
             groups.append(msgs.robot_markers(ids, np.stack([states[i] for i in ids]), radius, stamp,
-                                             avoiding=[i in self.avoiding for i in ids]))
-            groups.append(msgs.edge_markers(self.parents, {i: states[i][:2] for i in ids}, stamp))
-        self.pub_markers.publish(msgs.marker_array(*groups))
+                                             avoiding=[i in self.avoiding for i in ids], lifetime_s=lifetime_s))
+            groups.append(msgs.edge_markers(self.parents, {i: states[i][:2] for i in ids}, stamp,
+                                            lifetime_s=lifetime_s))
+        arr = msgs.marker_array(*groups)
+        keys = frozenset((mk.ns, mk.id) for mk in arr.markers)
+        if keys != self._marker_keys:     # a new layout: drop whatever the viewer still shows
+            arr.markers.insert(0, msgs.delete_all_marker(stamp))
+            self._marker_keys = keys
+        return arr
 
+    def _publish_markers(self) -> None:
+        now = self.now_s()
+        self.markers_watch.tick(int(now * 1e9))
+        self.pub_markers.publish(self.marker_array(now))
+
+    # ------------------------------------------------------------------ diagnostics
+    def _graph_status(self) -> tuple[int, str, dict]:
+        values = {"revision": self.revision, "avoiding": sorted(self.avoiding),
+                  "parents": {k: v for k, v in sorted(self.parents.items())},
+                  "encounter_revision": self.encounter_revision, "assignments": len(self.assignments),
+                  "start_s": "none" if self.start_s is None else self.start_s}
+        if self.start_s is None:
+            return diag.OK, f"waiting for robots ({len(self._states)}/{len(self.ids)} heard)", values
+        return diag.OK, f"mission started; revision {self.revision}, {len(self.avoiding)} avoiding", values
+
+    def _robots_status(self) -> tuple[int, str, dict]:
+        now = time.monotonic()
+        states = self.states
+        values = {f"robot_{i}_age_s": (now - self._heard_mono[i] if i in states else "never")
+                  for i in self.ids}
+        silent = [i for i in self.ids if i in states and now - self._heard_mono[i] > ROBOT_SILENT_S]
+        if self.start_s is not None and silent:
+            return diag.WARN, "silent: " + ", ".join(f"robot_{i}" for i in silent), values
+        return diag.OK, f"{len(states) - len(silent)}/{len(self.ids)} robots heard", values
+
+    def _inputs_status(self) -> tuple[int, str, dict]:
+        total, since = sum(self.rejected.values()), self._rejected_seen[1]
+        now = self.now_s()
+        if total != self._rejected_seen[0]:
+            self._rejected_seen = (total, since := now)
+        values = {f"rejected_{k}": v for k, v in self.rejected.items()}
+        if total and now - since <= 10.0:     # a stable message: a flood publishes once
+            return diag.WARN, "inputs rejected in the last 10 s", values
+        return diag.OK, "inputs valid" if not total else "no input rejected in the last 10 s", values
 
 def main(args: list[str] | None = None) -> int:
     return run_node("formation_coordinator", CoordinatorNode, args)

@@ -23,10 +23,11 @@ from typing import Callable
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
-OK = DiagnosticStatus.OK
-WARN = DiagnosticStatus.WARN
-ERROR = DiagnosticStatus.ERROR
-STALE = DiagnosticStatus.STALE
+# levels as ints (DiagnosticStatus.OK etc. are bytes in rclpy; level_int() reads either)
+OK = 0
+WARN = 1
+ERROR = 2
+STALE = 3
 _LEVEL_NAMES = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
 
 StatusFn = Callable[[], "tuple[int, str, dict]"]

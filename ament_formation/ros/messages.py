@@ -13,7 +13,7 @@ with (x, y) the controlled point p (spec S2.1).
 | robot_<id>/mode          | std_msgs/String (JSON mode/v1)| mode_msg, mode_from_msg                   |
 | /formation/graph         | std_msgs/String (JSON graph/v1)| graph_msg, graph_from_msg (GraphMessage) |
 | /formation/encounters    | std_msgs/String (JSON encounters/v1)| encounters_msg, encounters_from_msg |
-| /formation/markers       | visualization_msgs/MarkerArray| robot_markers, ellipse_markers, edge_markers, marker_array |
+| /formation/markers       | visualization_msgs/MarkerArray| robot_markers, ellipse_markers, edge_markers, delete_all_marker, marker_array |
 | /camera/image_raw        | sensor_msgs/Image (mono8)     | image_mono8, array_from_image             |
 """
 from __future__ import annotations
@@ -323,7 +323,7 @@ def robot_color(robot_id: int, alpha: float = 1.0) -> ColorRGBA:
     return _color((*_PALETTE[robot_id % len(_PALETTE)], alpha))
 
 
-def _marker(ns: str, mid: int, mtype: int, stamp: Time, frame_id: str) -> Marker:
+def _marker(ns: str, mid: int, mtype: int, stamp: Time, frame_id: str, lifetime_s: float = 0.0) -> Marker:
     m = Marker()
     m.header.stamp = stamp
     m.header.frame_id = frame_id
@@ -332,27 +332,40 @@ def _marker(ns: str, mid: int, mtype: int, stamp: Time, frame_id: str) -> Marker
     m.type = mtype
     m.action = Marker.ADD
     m.pose.orientation.w = 1.0
+    m.lifetime = duration_from_s(lifetime_s)
+    return m
+
+
+def delete_all_marker(stamp: Time, frame_id: str = WORLD_FRAME) -> Marker:
+    """A DELETEALL marker: put first in an array, the viewer drops every marker it holds from
+    this topic before drawing the rest of the array (a new layout: no stale object survives)."""
+    m = Marker()
+    m.header.stamp = stamp
+    m.header.frame_id = frame_id
+    m.action = Marker.DELETEALL
     return m
 
 
 def robot_markers(robot_ids, states, body_radius_m, stamp: Time, avoiding=None,
-                  frame_id: str = WORLD_FRAME) -> list[Marker]:
-    """Per robot a disc (CYLINDER, radius R_body) and a heading ARROW.
+                  frame_id: str = WORLD_FRAME, lifetime_s: float = 0.0) -> list[Marker]:
+    """Per robot a disc (CYLINDER, radius R_body; ns ``robots``) and a heading ARROW (ns
+    ``headings``), marker id = robot id.
 
     ``states`` (N, 5) rows [x_m, y_m, theta_rad, ...]; ``body_radius_m`` scalar or (N,);
-    ``avoiding`` (N,) bool makes the disc translucent red-tinted while avoiding.
+    ``avoiding`` (N,) bool makes the disc translucent while avoiding; ``lifetime_s`` > 0: the
+    viewer removes a robot not re-sent within that time [s] (0: kept until replaced or deleted).
     """
     states = np.asarray(states, dtype=float).reshape(-1, 5)
     radius = np.broadcast_to(np.asarray(body_radius_m, dtype=float), (len(states),))
     out = []
     for k, rid in enumerate(robot_ids):
         x, y, th = states[k, :3]
-        disc = _marker("robots", rid, Marker.CYLINDER, stamp, frame_id)
+        disc = _marker("robots", rid, Marker.CYLINDER, stamp, frame_id, lifetime_s)
         disc.pose.position.x, disc.pose.position.y = float(x), float(y)
         disc.scale.x = disc.scale.y = 2.0 * float(radius[k])
         disc.scale.z = 0.05
         disc.color = robot_color(rid, 0.5 if (avoiding is not None and avoiding[k]) else 0.9)
-        arrow = _marker("headings", rid, Marker.ARROW, stamp, frame_id)
+        arrow = _marker("headings", rid, Marker.ARROW, stamp, frame_id, lifetime_s)
         arrow.points = [Point(x=float(x), y=float(y), z=0.06),
                         Point(x=float(x + 1.5 * radius[k] * math.cos(th)),
                               y=float(y + 1.5 * radius[k] * math.sin(th)), z=0.06)]
@@ -392,19 +405,21 @@ def ellipse_markers(names, centers_m, phis_rad, semi_axes_m, scales, stamp: Time
     return out
 
 
-def edge_markers(parents: dict, positions_m: dict, stamp: Time,
-                 frame_id: str = WORLD_FRAME) -> list[Marker]:
-    """One LINE_LIST of the active graph edges parent -> child (``positions_m`` id -> (2,))."""
-    m = _marker("graph_edges", 0, Marker.LINE_LIST, stamp, frame_id)
+def edge_markers(parents: dict, positions_m: dict, stamp: Time, frame_id: str = WORLD_FRAME,
+                 lifetime_s: float = 0.0) -> list[Marker]:
+    """One ARROW parent -> child per active graph edge (ns ``graph_edges``, id = child id), for
+    edges whose two robots are in ``positions_m`` (id -> (2,) [m]); ``lifetime_s`` as for robots."""
+    out = []
     for child, parent in sorted(parents.items()):
         if parent is None or parent not in positions_m or child not in positions_m:
             continue
+        m = _marker("graph_edges", child, Marker.ARROW, stamp, frame_id, lifetime_s)
         a, b = positions_m[parent], positions_m[child]
-        m.points.append(Point(x=float(a[0]), y=float(a[1]), z=0.1))
-        m.points.append(Point(x=float(b[0]), y=float(b[1]), z=0.1))
-    m.scale.x = 0.015
-    m.color = _color((0.1, 0.1, 0.1, 0.8))
-    return [m]
+        m.points = [Point(x=float(a[0]), y=float(a[1]), z=0.1), Point(x=float(b[0]), y=float(b[1]), z=0.1)]
+        m.scale.x, m.scale.y, m.scale.z = 0.012, 0.03, 0.04     # shaft, head diameter, head length [m]
+        m.color = _color((0.1, 0.1, 0.1, 0.8))
+        out.append(m)
+    return out
 
 
 def marker_array(*groups: list[Marker]) -> MarkerArray:
