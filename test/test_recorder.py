@@ -1,7 +1,9 @@
-"""MCAP recording: every topic (also late ones) is written rosbag2-style and reads back equal."""
+"""MCAP recording: every topic (also late ones) is written rosbag2-style and reads back equal; the
+folder is a rosbag2 bag (metadata.yaml, QoS and type hashes) that independent readers open."""
 from __future__ import annotations
 
 import numpy as np
+import yaml
 from mcap.reader import make_reader
 
 from ament_formation.ros import messages as m
@@ -77,6 +79,47 @@ def test_record_and_read_back(ros_context, executor, tmp_path):
         assert summary.statistics.message_count == 10 + 2 + n_images
         times = [msg.log_time for _, _, msg in reader.iter_messages()]
         assert times == sorted(times)
+        # channel metadata as rosbag2 writes it: the publishers' QoS (YAML) and the RIHS01 hash
+        channels = {c.topic: c for c in summary.channels.values()}
+        graph_qos = yaml.safe_load(channels["/formation/graph"].metadata["offered_qos_profiles"])
+        assert [q["durability"] for q in graph_qos] == ["transient_local"]
+        assert graph_qos[0]["reliability"] == "reliable"
+        image_qos = yaml.safe_load(channels["/camera/image_raw"].metadata["offered_qos_profiles"])
+        assert image_qos[0]["reliability"] == "best_effort"
+        for c in channels.values():
+            assert c.metadata["topic_type_hash"].startswith("RIHS01_")
+
+    check_bag_folder(tmp_path, sent, n_images)
+
+
+def check_bag_folder(folder, sent, n_images):
+    """rosbags (an independent rosbag2 implementation) opens the folder as a bag: topics with
+    their QoS (a replay re-offers transient local for /formation/graph), counts, type hashes equal
+    to its own, and messages it deserializes itself."""
+    from rosbags.interfaces import QosDurability, QosReliability
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import Stores, get_typestore
+
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    with Reader(folder) as bag:
+        conns = {c.topic: c for c in bag.connections}
+        assert set(conns) == {"/robot_2/state", "/formation/graph", "/camera/image_raw"}
+        assert conns["/robot_2/state"].msgtype == "nav_msgs/msg/Odometry"
+        assert conns["/robot_2/state"].msgcount == 10
+        assert conns["/formation/graph"].msgcount == 2
+        assert conns["/camera/image_raw"].msgcount == n_images
+        assert bag.message_count == 12 + n_images
+        graph_qos = conns["/formation/graph"].ext.offered_qos_profiles
+        assert [q.durability for q in graph_qos] == [QosDurability.TRANSIENT_LOCAL]
+        assert graph_qos[0].reliability == QosReliability.RELIABLE
+        assert conns["/camera/image_raw"].ext.offered_qos_profiles[0].reliability == QosReliability.BEST_EFFORT
+        for c in conns.values():
+            assert c.digest == typestore.hash_rihs01(c.msgtype), c.topic
+        rows = [typestore.deserialize_cdr(raw, c.msgtype)
+                for c, _, raw in bag.messages(connections=[conns["/robot_2/state"]])]
+    got = np.array([[r.pose.pose.position.x, r.pose.pose.position.y, r.twist.twist.linear.x,
+                     r.twist.twist.angular.z] for r in rows])
+    np.testing.assert_allclose(got, sent[:, [0, 1, 3, 4]], atol=1e-12)
 
 
 def test_writer_without_graph(tmp_path):
@@ -88,3 +131,47 @@ def test_writer_without_graph(tmp_path):
     got = rec.read_topic(tmp_path / "x.mcap", "/robot_0/accel")
     assert [t for t, _ in got] == [0, 1000, 2000]
     assert [m.accel_from_msg(msg)[0].tolist() for _, msg in got] == [[0, 0], [1, -1], [2, -2]]
+    # without a graph there is no publisher QoS, but the type hash comes from the type description
+    meta = yaml.safe_load((tmp_path / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert meta["version"] == 9 and meta["storage_identifier"] == "mcap"
+    assert meta["relative_file_paths"] == ["x.mcap"] and meta["message_count"] == 3
+    assert meta["duration"]["nanoseconds"] == 2000
+    (topic,) = meta["topics_with_message_count"]
+    assert topic["message_count"] == 3
+    assert topic["topic_metadata"]["type_description_hash"].startswith("RIHS01_")
+
+
+def test_metadata_yaml_matches_rosbag2_layout(tmp_path):
+    """Keys and types of rosbag2 (Jazzy, version 9) metadata, checked against rosbags' writer."""
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    ref_dir = tmp_path / "ref"
+    with Writer(ref_dir, version=9) as w:
+        conn = w.add_connection("/robot_0/accel", "geometry_msgs/msg/AccelStamped", typestore=typestore)
+        w.write(conn, 5, b"\x00\x01\x00\x00" + bytes(60))
+    ref = yaml.safe_load((ref_dir / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+
+    ours_dir = tmp_path / "ours"
+    ours_dir.mkdir()
+    w = rec.McapWriter(ours_dir / "run.mcap")
+    w.write_message("/robot_0/accel", m.accel_stamped([1, 2], m.stamp_from_s(1)), 5)
+    w.close()
+    ours = yaml.safe_load((ours_dir / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+
+    def shape(d):
+        if isinstance(d, dict):
+            return {k: shape(v) for k, v in d.items()}
+        if isinstance(d, list):
+            return [shape(d[0])] if d else []
+        return type(d).__name__
+
+    ref_topic = ref["topics_with_message_count"][0]
+    our_topic = ours["topics_with_message_count"][0]
+    assert set(ours) >= set(ref) - {"custom_data"}
+    assert set(our_topic["topic_metadata"]) == set(ref_topic["topic_metadata"])
+    assert shape(our_topic["topic_metadata"]["type_description_hash"]) == "str"
+    assert our_topic["topic_metadata"]["type_description_hash"] == ref_topic["topic_metadata"]["type_description_hash"]
+    for key in ("duration", "starting_time", "message_count", "relative_file_paths", "files"):
+        assert shape(ours[key]) == shape(ref[key]), key

@@ -1,19 +1,26 @@
-"""Record every topic to a rosbag2-compatible MCAP file, and read a recording back into arrays.
+"""Record every topic to a rosbag2 bag (one MCAP file + metadata.yaml), and read a recording back
+into arrays (docs/recordings.md).
 
-File layout (what rosbag2's mcap storage plugin and Foxglove expect): profile ``ros2``; one schema
-per message type, named ``pkg/msg/Type``, encoding ``ros2msg``, data = the .msg text with every
-dependency appended (ros/introspection.py); one channel per topic, message encoding ``cdr``; the
-message data are the serialized CDR bytes as received (raw subscriptions, no re-encoding);
-log_time = publish_time = receive time on the recorder node's clock [ns] (sim time under
-``use_sim_time``). Chunks are zstd-compressed.
+File layout (what rosbag2's mcap storage plugin writes, so ``ros2 bag info/play``, rosbags and
+Foxglove open it): profile ``ros2``; one schema per message type, named ``pkg/msg/Type``, encoding
+``ros2msg``, data = the .msg text with every dependency appended (ros/introspection.py); one
+channel per topic, message encoding ``cdr``, channel metadata ``offered_qos_profiles`` (the QoS of
+the topic's publishers when it was discovered, rosbag2's version-9 YAML string: a replay offers the
+same reliability and durability, e.g. transient local for /formation/graph) and
+``topic_type_hash`` (RIHS01 type description hash); the message data are the serialized CDR bytes
+as received (raw subscriptions, no re-encoding); log_time = publish_time = receive time on the
+recorder node's clock [ns] (sim time under ``use_sim_time``). Chunks are zstd-compressed. On close,
+``metadata.yaml`` (rosbag2 version 9, storage ``mcap``, per-topic QoS and counts) is written beside
+the file, so the folder is a rosbag2 bag.
 
     writer = McapWriter(path)                     # plain file writer (no ROS graph needed)
     rec = TopicRecorder(node, writer)             # subscribes to all topics, also later ones
-    ...; rec.close()                              # flushes and finalises the file
+    ...; rec.close()                              # finalises the file, writes metadata.yaml
     for topic, t_ns, msg in read_messages(path):  # deserialised messages in log-time order
 """
 from __future__ import annotations
 
+import json
 import re
 import threading
 from pathlib import Path
@@ -28,12 +35,62 @@ from ament_formation.ros.introspection import compatible_qos, message_class, mes
 PROFILE = "ros2"
 SCHEMA_ENCODING = "ros2msg"
 MESSAGE_ENCODING = "cdr"
+BAG_METADATA_VERSION = 9      # rosbag2 in Jazzy
+ROS_DISTRO = "jazzy"
+_INFINITE_NS = 9_223_372_036_854_775_807
+
+
+# --------------------------------------------------------------------------- rosbag2 metadata
+def _duration(d) -> dict:
+    ns = getattr(d, "nanoseconds", None)
+    ns = _INFINITE_NS if ns is None or ns >= _INFINITE_NS or ns < 0 else int(ns)
+    return {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}
+
+
+def qos_dict(qos) -> dict:
+    """One rclpy QoSProfile as rosbag2 (metadata version 9) writes it: policies by lower-case name
+    (keep_last, reliable, transient_local, automatic, unknown, ...), durations as {sec, nsec}."""
+    return {
+        "history": qos.history.name.lower(),
+        "depth": int(qos.depth),
+        "reliability": qos.reliability.name.lower(),
+        "durability": qos.durability.name.lower(),
+        "deadline": _duration(qos.deadline),
+        "lifespan": _duration(qos.lifespan),
+        "liveliness": qos.liveliness.name.lower(),
+        "liveliness_lease_duration": _duration(qos.liveliness_lease_duration),
+        "avoid_ros_namespace_conventions": bool(qos.avoid_ros_namespace_conventions),
+    }
+
+
+def qos_yaml(profiles) -> str:
+    """The ``offered_qos_profiles`` string of a channel: a YAML list of :func:`qos_dict`."""
+    import yaml
+
+    return yaml.safe_dump([qos_dict(q) for q in profiles], sort_keys=False, default_flow_style=False) \
+        if profiles else ""
+
+
+def type_hash(type_name: str) -> str:
+    """RIHS01 type description hash of ``pkg/msg/Type`` from the type description that rosidl
+    installs (share/pkg/msg/Type.json); "" when not found."""
+    from ament_formation.ros.introspection import _share_dir, full_type_name
+
+    try:
+        pkg, name = full_type_name(message_class(type_name)).split("/msg/")
+        doc = json.loads((_share_dir(pkg) / "msg" / f"{name}.json").read_text())
+        want = f"{pkg}/msg/{name}"
+        return next(h["hash_string"] for h in doc["type_hashes"] if h["type_name"] == want)
+    except (ValueError, OSError, KeyError, StopIteration, TypeError):
+        return ""
 
 
 class McapWriter:
     """A thread-safe MCAP writer for serialized ROS 2 messages (ros2 profile)."""
 
-    def __init__(self, path: str | Path, compression: str = "zstd"):
+    def __init__(self, path: str | Path, compression: str = "zstd", bag_metadata: bool = True):
+        """``bag_metadata``: on close, write rosbag2's metadata.yaml into the file's folder (the
+        folder becomes a bag of this one file)."""
         comp = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
                 "none": CompressionType.NONE}.get(compression)
         if comp is None:
@@ -45,12 +102,20 @@ class McapWriter:
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}
         self._sequence: dict[int, int] = {}
+        self._topics: dict[int, dict] = {}          # channel id -> rosbag2 topic_metadata
         self._lock = threading.Lock()
         self.message_count = 0
+        self._first_ns: int | None = None
+        self._last_ns: int | None = None
         self._closed = False
+        self.bag_metadata = bag_metadata
 
-    def channel(self, topic: str, type_name: str) -> int:
-        """The channel id of ``topic`` (registered with its schema on first use)."""
+    def channel(self, topic: str, type_name: str, offered_qos=(), type_hash_str: str | None = None) -> int:
+        """The channel id of ``topic`` (registered with its schema on first use).
+
+        ``offered_qos``: the rclpy QoSProfiles of the topic's publishers (channel metadata
+        ``offered_qos_profiles``); ``type_hash_str``: its RIHS01 hash (default: the installed
+        type description's, :func:`type_hash`)."""
         with self._lock:
             if topic in self._channels:
                 return self._channels[topic]
@@ -58,10 +123,17 @@ class McapWriter:
                 self._schemas[type_name] = self._writer.register_schema(
                     name=type_name, encoding=SCHEMA_ENCODING,
                     data=message_definition(type_name).encode())
+            qos_text = qos_yaml(list(offered_qos))
+            digest = type_hash(type_name) if type_hash_str is None else type_hash_str
             cid = self._writer.register_channel(topic=topic, message_encoding=MESSAGE_ENCODING,
-                                                schema_id=self._schemas[type_name])
+                                                schema_id=self._schemas[type_name],
+                                                metadata={"offered_qos_profiles": qos_text,
+                                                          "topic_type_hash": digest})
             self._channels[topic] = cid
             self._sequence[cid] = 0
+            self._topics[cid] = {"name": topic, "type": type_name, "serialization_format": MESSAGE_ENCODING,
+                                 "offered_qos_profiles": [qos_dict(q) for q in offered_qos],
+                                 "type_description_hash": digest}
             return cid
 
     def write(self, channel_id: int, log_time_ns: int, data: bytes,
@@ -72,10 +144,15 @@ class McapWriter:
                 return
             seq = self._sequence[channel_id]
             self._sequence[channel_id] = seq + 1
-            self._writer.add_message(channel_id=channel_id, log_time=int(log_time_ns), data=bytes(data),
-                                     publish_time=int(log_time_ns if publish_time_ns is None
-                                                      else publish_time_ns), sequence=seq)
+            t = int(log_time_ns)
+            self._writer.add_message(channel_id=channel_id, log_time=t, data=bytes(data),
+                                     publish_time=int(t if publish_time_ns is None else publish_time_ns),
+                                     sequence=seq)
             self.message_count += 1
+            if self._first_ns is None or t < self._first_ns:
+                self._first_ns = t
+            if self._last_ns is None or t > self._last_ns:
+                self._last_ns = t
 
     def write_message(self, topic: str, msg, log_time_ns: int) -> None:
         """Serialize and append a message object (used by tools that write without a graph)."""
@@ -87,13 +164,42 @@ class McapWriter:
         self.write(cid, log_time_ns, serialize_message(msg))
 
     def close(self) -> None:
-        """Write the summary section and close the file (idempotent)."""
+        """Write the summary section, close the file and (``bag_metadata``) write metadata.yaml
+        beside it (idempotent)."""
         with self._lock:
             if self._closed:
                 return
             self._closed = True
             self._writer.finish()
             self._file.close()
+            if self.bag_metadata:
+                (self.path.parent / "metadata.yaml").write_text(self.metadata_yaml())
+
+    def metadata_yaml(self) -> str:
+        """rosbag2's metadata.yaml (version 9, storage mcap) of what was written so far."""
+        import yaml
+
+        start = self._first_ns or 0
+        duration = 0 if self._first_ns is None else self._last_ns - self._first_ns
+        info = {
+            "version": BAG_METADATA_VERSION,
+            "storage_identifier": "mcap",
+            "duration": {"nanoseconds": duration},
+            "starting_time": {"nanoseconds_since_epoch": start},
+            "message_count": self.message_count,
+            "topics_with_message_count": [
+                {"topic_metadata": meta, "message_count": self._sequence[cid]}
+                for cid, meta in sorted(self._topics.items())],
+            "compression_format": "",
+            "compression_mode": "",
+            "relative_file_paths": [self.path.name],
+            "files": [{"path": self.path.name, "starting_time": {"nanoseconds_since_epoch": start},
+                       "duration": {"nanoseconds": duration}, "message_count": self.message_count}],
+            "custom_data": {"recorded_by": "ament_formation"},
+            "ros_distro": ROS_DISTRO,
+        }
+        return yaml.safe_dump({"rosbag2_bagfile_information": info}, sort_keys=False,
+                              default_flow_style=False)
 
 
 class TopicRecorder:
@@ -131,7 +237,10 @@ class TopicRecorder:
                 cls = message_class(type_name)
             except ValueError:
                 continue  # a type this machine cannot decode: skip it
-            cid = self.writer.channel(topic, type_name)
+            infos = [i for i in self.node.get_publishers_info_by_topic(topic) if i.topic_type == type_name]
+            hashes = {str(i.topic_type_hash) for i in infos} - {""}
+            cid = self.writer.channel(topic, type_name, offered_qos=[i.qos_profile for i in infos],
+                                      type_hash_str=hashes.pop() if len(hashes) == 1 else None)
             self.counts[topic] = 0
             self._subs[topic] = self.node.create_subscription(
                 cls, topic, self._callback(topic, cid), compatible_qos(self.node, topic, depth=100), raw=True)
