@@ -205,6 +205,7 @@ class TrackerNode(Node):
         self.pub_image = (self.create_publisher(Image, self.prm.image_topic, QOS_IMAGE)
                           if self.prm.publish_image else None)
         self.grabber.start()
+        self.capture_watch = diag.PeriodWatch(self.prm.capture_poll_s, diag.clock_ns(self))   # stalls
         self.create_timer(self.prm.capture_poll_s, self._take_captured)
 
     def _log_opened(self) -> None:
@@ -225,6 +226,7 @@ class TrackerNode(Node):
     def _take_captured(self) -> None:
         """Timer (``capture_poll_s``): the newest captured frame, if any, → camera_info, image,
         poses; source state changes → log and diagnostics at once."""
+        self.capture_watch.tick()
         g = self.grabber
         if g.state != self._source_state:
             self._on_source_state(self._source_state, g.state)
@@ -378,9 +380,13 @@ class TrackerNode(Node):
             level, text = diag.WARN, "markers missing"
         else:
             level, text = diag.OK, "tracking"
-        hardware_id = g.spec.text if g is not None else self.prm.image_topic
-        status = diag.status("formation_tracker: camera tracking", hardware_id, level, text, values)
-        self.pub_diag.publish(diag.array(self.get_clock().now().to_msg(), [status]))
+        hardware_id = g.spec.text if g is not None else "camera"     # the device (docs/diagnostics.md)
+        statuses = [diag.status(diag.status_name(self.get_name(), "camera tracking"), hardware_id, level, text,
+                                values)]
+        if getattr(self, "capture_watch", None) is not None:
+            statuses.append(diag.status(diag.status_name(self.get_name(), "capture poll"), hardware_id,
+                                        *self.capture_watch.status()))
+        self.pub_diag.publish(diag.array(self.get_clock().now().to_msg(), statuses))
         self._reset_stats()
 
     def destroy_node(self) -> None:
