@@ -11,7 +11,9 @@ Topics (QoS from ros/qos.py)
   pub  /camera/camera_info        sensor_msgs/CameraInfo (camera_config), with each image, same stamp  QOS_IMAGE
   pub  /world/truth/robot_<id>    nav_msgs/Odometry, every tick (while subscribed) QOS_CONTROL
   pub  /clock                     rosgraph_msgs/Clock (only when speed_factor != 1)  QOS_CLOCK
-  sub  /formation/graph           std_msgs/String JSON (start_s)                   QOS_GRAPH
+  sub  /formation/graph           std_msgs/String JSON graph/v1 (start_s); invalid ones counted  QOS_GRAPH
+  pub  /diagnostics               "formation_world: simulation" (ticks, overruns: WARN for 5 s after
+                                  one, rejected graphs), "formation_world: plant loop" (stalls)
 
 Parameters
   scenario         str    scenario YAML (required)
@@ -49,6 +51,7 @@ from ament_formation.core.scenario import load_scenario
 from ament_formation.core.synthetic_camera import Obstacles, RenderOptions, SyntheticCamera
 from ament_formation.core.twin import PlantTwin
 from ament_formation.hw.pty_board import PtyBoard, PtyBoardGroup
+from ament_formation.ros import diagnostics as diag
 from ament_formation.ros import messages as msgs
 from ament_formation.ros.executors import run_node
 from ament_formation.ros.image import camera_info
@@ -103,6 +106,12 @@ class WorldNode(Node):
         self.done = False
         self.overruns = 0
         self.ticks = 0
+        self.rejected_graphs = 0
+        self._overruns_seen = (0, -math.inf)     # (count, when it last grew [s])
+        self.diag = diag.Diagnostics(self)
+        self.diag.add("simulation", self._simulation_status, hardware_id="simulation")
+        self.tick_watch = self.diag.watch("plant loop", self.prm.tick_s / self.prm.speed_factor,
+                                          hardware_id="simulation")
 
         # boards on ptys
         self._own_pty_dir = not self.prm.pty_dir
@@ -161,6 +170,7 @@ class WorldNode(Node):
         try:
             graph = msgs.graph_from_msg(msg)
         except ValueError as err:
+            self.rejected_graphs += 1
             self.get_logger().warn(f"/formation/graph: {err}", throttle_duration_sec=5.0)
             return
         if graph.start_s is not None and self.start_s is None:
@@ -169,6 +179,7 @@ class WorldNode(Node):
 
     def _tick(self) -> None:
         """Advance the plant to the world clock in tick_s steps (at most 5 per call)."""
+        self.tick_watch.tick()
         target = self.now_s()
         n = 0
         while self.plant_time_s + self.prm.tick_s <= target + 1e-9 and n < 5 and not self.done:
@@ -179,6 +190,18 @@ class WorldNode(Node):
             self.plant_time_s = target - self.prm.tick_s  # drop what we cannot catch up
         if n:
             self._publish_clock()
+
+    def _simulation_status(self) -> tuple[int, str, dict]:
+        now = time.monotonic()
+        if self.overruns != self._overruns_seen[0]:
+            self._overruns_seen = (self.overruns, now)
+        t = self.scenario_time_s()
+        values = {"ticks": self.ticks, "overruns": self.overruns, "plant_time_s": self.plant_time_s,
+                  "scenario_time_s": "not started" if t is None else t, "rejected_graphs": self.rejected_graphs,
+                  "speed_factor": self.prm.speed_factor}
+        if self.overruns and now - self._overruns_seen[1] <= 5.0:
+            return diag.WARN, "behind real time: plant steps dropped", values
+        return diag.OK, "waiting for the mission start" if t is None else "running", values
 
     def _step_once(self) -> None:
         tick = self.prm.tick_s

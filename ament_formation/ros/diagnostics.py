@@ -35,7 +35,7 @@ StatusFn = Callable[[], "tuple[int, str, dict]"]
 
 def _fmt(value) -> str:
     if isinstance(value, float):
-        return f"{value:.6g}"
+        return f"{value:.3f}" if abs(value) >= 1e5 else f"{value:.6g}"   # times [s] keep their ms
     return str(value)
 
 
