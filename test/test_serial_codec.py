@@ -30,6 +30,8 @@ def _message_strategy(cls):
             args.append(st.integers(0, sp.FLAGS_DEFINED))
         elif f.name == "engage":
             args.append(st.integers(0, 1))
+        elif f.name == "reason":
+            args.append(st.integers(0, sp.STOP_HOST_SHUTDOWN))
         elif f.name in ("protocol_version", "ticks_per_rev", "telemetry_period_ms") and cls in (sp.Hello, sp.HelloAck):
             args.append(st.integers(1, hi))
         else:
@@ -52,6 +54,8 @@ def _random_message(rng: np.random.Generator) -> sp.Message:
             hi = sp.FLAGS_DEFINED
         if f.name == "engage":
             hi = 1
+        if f.name == "reason":
+            hi = sp.STOP_HOST_SHUTDOWN
         if f.name in ("protocol_version", "ticks_per_rev", "telemetry_period_ms") and cls in (sp.Hello, sp.HelloAck):
             lo = 1
         # half the fields small (many zero bytes -> many COBS code bytes), half anywhere

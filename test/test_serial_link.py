@@ -67,13 +67,38 @@ def test_bridge_limit_and_rounding_never_exceed_the_wire_limit():
     assert host.stats["inputs_rejected"] == 2 and host.stats["inputs_clamped"] == 1
 
 
-def test_stale_input_is_sent_as_zero():
+def test_stale_input_is_sent_as_stop():
     host = sl.LinkHost(sl.LinkParams(input_timeout_s=0.1))
     host.state = sl.UP
     host.set_input((0.05, 0.05), 0.0)
     dec = sp.FrameDecoder()
     assert dec.feed(host.poll(0.05))[0].msg == sp.TorqueCommand(500, 500)
-    assert dec.feed(host.poll(0.11))[0].msg == sp.TorqueCommand(0, 0)
+    assert dec.feed(host.poll(0.11))[0].msg == sp.Stop(sp.STOP_INPUT_STALE)   # brake, never coast
+    assert host.stats["stale_stops"] == 1
+    assert [f.msg for f in dec.feed(host.stop_commands(2))] == [sp.Stop(sp.STOP_HOST_SHUTDOWN)] * 2
+
+
+def test_controller_silence_brakes_the_wheels_once_then_releases():
+    """Input goes stale on a driving robot: the bridge sends STOP, the board brakes at once (no
+    watchdog delay), releases at rest, and the STOPs that keep coming do not brake again."""
+    board = MotorBoard(BoardConfig(wheel_inertia_kgm2=1.6e-3, wheel_damping_nms=2e-3), standalone=True)
+    host = sl.LinkHost(sl.LinkParams(input_timeout_s=0.1))
+    out, t = host.connected(0.0), 0.0
+    last_input_s = 1.0
+    while t < 3.0:
+        t += 0.0005
+        if t < last_input_s and round(t / 0.0005) % 20 == 0:
+            host.set_input((0.1, 0.1), t)
+            out += host.command_now(t)
+        board.receive(out, t)
+        board.step(t)
+        _, out = host.receive(board.take_output(), t)
+        out += host.poll(t)
+    assert board.brakes == 1 and board.stops_received > 100 and board.watchdog_trips == 0
+    assert last_input_s + 0.1 <= board.brake_started_s <= last_input_s + 0.1 + 0.011
+    assert board.brake_released_s - board.brake_started_s < 1.0          # at rest, not timed out
+    assert abs(board.wheel_vel_radps[0]) < 0.44 and board.applied_e4nm == [0, 0]
+    assert host.state == sl.UP and host.stats["retransmissions"] == 0
 
 
 @pytest.mark.parametrize("board_version", [1, 3])

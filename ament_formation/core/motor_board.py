@@ -123,6 +123,8 @@ class MotorBoard:
         self.brakes = 0
         self._rest_since_s: float | None = None
         self._next_brake_step_s = now_s
+        self._brake_armed = False        # a TORQUE_CMD since the last brake: the next stop brakes
+        self.stops_received = 0
         if not hasattr(self, "wheel_pos_rad"):
             self.wheel_pos_rad = np.zeros(2)
             self.wheel_vel_radps = np.zeros(2)
@@ -165,14 +167,13 @@ class MotorBoard:
                 self.flags |= sp.FLAG_WATCHDOG
                 self.watchdog_trips += 1
                 self.watchdog_tripped_at_s = now_s
-                if self._last_cmd_s is not None and not self.estop:
+                if self._brake_armed and not self.estop:
                     self._start_brake(now_s)
-            if self.braking:
-                if now_s >= self._next_brake_step_s:
-                    self._brake_step(now_s)
-                    self._next_brake_step_s = max(self._next_brake_step_s + CONTROL_PERIOD_S, now_s)
-            else:
+            if not self.braking:
                 self.applied_e4nm = [0, 0]
+        if self.braking and now_s >= self._next_brake_step_s:
+            self._brake_step(now_s)
+            self._next_brake_step_s = max(self._next_brake_step_s + CONTROL_PERIOD_S, now_s)
         if self.standalone and dt > 0:
             self._integrate_wheels(min(dt, 0.05))
         period_s = self.telemetry_period_ms / 1000.0
@@ -190,7 +191,22 @@ class MotorBoard:
         counts_per_rad = self.config.ticks_per_rev * CONTROL_PERIOD_S / TWO_PI
         return np.trunc(self.wheel_vel_radps * counts_per_rad) / counts_per_rad
 
+    def _stop(self, now_s: float) -> None:
+        """STOP: acknowledged and feeding the watchdog like a command; brakes once per stop."""
+        self.cmd_seq = self._last_host_seq if self._last_host_seq is not None else 0
+        self.stops_received += 1
+        self.flags &= ~sp.FLAG_WATCHDOG
+        self._last_cmd_s = now_s
+        if self._brake_armed and not self.estop:
+            self._start_brake(now_s)
+            self._brake_step(now_s)
+            self._next_brake_step_s = now_s + CONTROL_PERIOD_S
+        elif not self.braking:
+            self.applied_e4nm = [0, 0]
+        self._send_telemetry(now_s)
+
     def _start_brake(self, now_s: float) -> None:
+        self._brake_armed = False
         self.braking = True
         self.brakes += 1
         self.brake_started_s = now_s
@@ -272,6 +288,8 @@ class MotorBoard:
     def _handle(self, msg: sp.Message, now_s: float) -> None:
         if isinstance(msg, sp.TorqueCommand):
             self._torque(msg, now_s)
+        elif isinstance(msg, sp.Stop):
+            self._stop(now_s)
         elif isinstance(msg, sp.Hello):
             self.flags &= ~sp.FLAG_RESET
             # a version-1 host reads only version-1 framing: answer it in that, so it can report
@@ -304,6 +322,7 @@ class MotorBoard:
         self.cmd_seq = self._last_host_seq if self._last_host_seq is not None else 0
         if self.braking:
             self._stop_brake(None)
+        self._brake_armed = True
         self.accepted_commands += 1
         if self.command_log is not None:
             self.command_log.append((now_s, self.cmd_seq, msg.left_e4nm, msg.right_e4nm))

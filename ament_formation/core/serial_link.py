@@ -131,7 +131,7 @@ class LinkHost:
         self.rtt_s: deque[float] = deque(maxlen=1000)
         self._rtt_ewma_s: float | None = None
         self.stats = {"tx_frames": 0, "rx_frames": 0, "commands_sent": 0, "retransmissions": 0,
-                      "inputs": 0, "inputs_rejected": 0, "inputs_clamped": 0, "stale_zero_commands": 0,
+                      "inputs": 0, "inputs_rejected": 0, "inputs_clamped": 0, "stale_stops": 0,
                       "rx_gaps": 0, "connects": 0, "link_timeouts": 0, "board_resets": 0}
         self.sent_log: deque[tuple[int, int, int]] | None = None   # (seq, left_e4nm, right_e4nm)
 
@@ -193,12 +193,18 @@ class LinkHost:
         return self._input is not None and now_s - self._input_s <= self.p.input_timeout_s
 
     def _command(self, now_s: float) -> bytes:
-        if self.input_fresh(now_s):
-            wire = (sp.torque_to_wire(self._input[0]), sp.torque_to_wire(self._input[1]))
-            input_id = self._input_id
-        else:
-            wire, input_id = (0, 0), -1
-            self.stats["stale_zero_commands"] += 1
+        if not self.input_fresh(now_s):
+            # no fresh torque: STOP (the board brakes the wheels to rest, then releases) instead of
+            # zero torque, which would let the robot coast; acknowledged, never retransmitted
+            self.stats["stale_stops"] += 1
+            seq = self._seq
+            data = self._frame(sp.Stop(sp.STOP_INPUT_STALE))
+            self._sent[seq] = (now_s, -1, None)
+            self._pending_ack = (seq, now_s, -1)
+            self._last_cmd_sent_s = now_s
+            return data
+        wire = (sp.torque_to_wire(self._input[0]), sp.torque_to_wire(self._input[1]))
+        input_id = self._input_id
         # the bridge clamp in wire units too, so rounding can never exceed the limit
         lim = int(math.floor(self.p.torque_limit_nm / sp.TORQUE_LSB_NM + 1e-9))
         wire = (max(-lim, min(lim, wire[0])), max(-lim, min(lim, wire[1])))
@@ -213,12 +219,12 @@ class LinkHost:
             self.sent_log.append((seq, wire[0], wire[1]))
         return data
 
-    def zero_commands(self, count: int = 3) -> bytes:
-        """Zero-torque frames for shutdown (sent whatever the link state)."""
+    def stop_commands(self, count: int = 3) -> bytes:
+        """STOP frames for shutdown (sent whatever the link state): the board brakes to rest."""
         self._input = None
         out = b""
         for _ in range(count):
-            out += self._frame(sp.TorqueCommand(0, 0))
+            out += self._frame(sp.Stop(sp.STOP_HOST_SHUTDOWN))
         return out
 
     # -- periodic ------------------------------------------------------------------------------

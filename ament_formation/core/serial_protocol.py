@@ -57,6 +57,7 @@ class MsgType(IntEnum):
     ESTOP = 0x7
     CONFIG = 0x8
     CONFIG_ACK = 0x9
+    STOP = 0xA                # version 2
 
 
 def _check_ranges(msg) -> None:
@@ -212,9 +213,27 @@ class ConfigAck(_Message):
     telemetry_period_ms: int
 
 
-Message = Union[Hello, HelloAck, TorqueCommand, Telemetry, Status, Heartbeat, EmergencyStop, Config, ConfigAck]
+STOP_UNSPECIFIED, STOP_INPUT_STALE, STOP_HOST_SHUTDOWN = 0, 1, 2
+
+
+@dataclass(frozen=True)
+class Stop(_Message):
+    """host -> board (version 2): no torque to apply — brake the wheels to rest, then release
+    (docs/safety.md). Feeds the watchdog and is acknowledged like a TORQUE_CMD; it starts the brake
+    once per stop (the first STOP or watchdog trip after a TORQUE_CMD), later ones keep it going."""
+
+    TYPE: ClassVar[MsgType] = MsgType.STOP
+    FORMAT: ClassVar[str] = "<B"
+    reason: int = STOP_UNSPECIFIED   # 0 unspecified, 1 input stale, 2 host shutdown
+
+    def check_values(self):
+        return None if self.reason <= STOP_HOST_SHUTDOWN else f"reason {self.reason} not in 0..2"
+
+
+Message = Union[Hello, HelloAck, TorqueCommand, Telemetry, Status, Heartbeat, EmergencyStop, Config, ConfigAck,
+                Stop]
 MESSAGE_CLASSES = {cls.TYPE: cls for cls in (Hello, HelloAck, TorqueCommand, Telemetry, Status,
-                                              Heartbeat, EmergencyStop, Config, ConfigAck)}
+                                              Heartbeat, EmergencyStop, Config, ConfigAck, Stop)}
 BODY_BYTES = {t: struct.calcsize(cls.FORMAT) for t, cls in MESSAGE_CLASSES.items()}
 VERSION_FREE_TYPES = (MsgType.HELLO, MsgType.HELLO_ACK)   # layout frozen across versions
 

@@ -21,6 +21,7 @@ a vanished port is reopened with backoff, zero torque is sent on shutdown.
 """
 from __future__ import annotations
 
+import os
 import sys
 import time
 
@@ -200,9 +201,9 @@ class BridgeNode(Node):
 
     # -- shutdown ------------------------------------------------------------------------------
     def shutdown(self) -> None:
-        """Send zero torque (three frames) and close the port."""
+        """Send STOP (three frames: the board brakes the wheels to rest) and close the port."""
         if self._port is not None:
-            self._write(self.link.zero_commands(3))
+            self._write(self.link.stop_commands(3))
             try:
                 if self._port is not None:
                     self._port.flush()

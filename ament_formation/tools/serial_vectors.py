@@ -89,6 +89,10 @@ def build_vectors() -> dict:
     v.append(_valid("hello_ack_from_version_1_board", "board->host", sp.HelloAck(1, 1, 0, 1440, 1500, 1500, 200, 10),
                     0, False, {"note": "a version-1 board: the host reports the mismatch and sends no torque"},
                     version=1))
+    v.append(_valid("stop_input_stale", "host->board", sp.Stop(sp.STOP_INPUT_STALE), 9, True,
+                    {"reason": "input stale", "note": "brake to rest, then release; acknowledged by TELEMETRY"}))
+    v.append(_valid("stop_host_shutdown", "host->board", sp.Stop(sp.STOP_HOST_SHUTDOWN), 10, True,
+                    {"reason": "host shutdown"}))
     v.append(_valid("telemetry_braking", "board->host",
                     sp.Telemetry(100, 100, 2618, 2618, 9, sp.FLAG_WATCHDOG | sp.FLAG_BRAKING), 22, False,
                     {"flags": ["WATCHDOG", "BRAKING"], "note": "commands stopped: the board brakes the wheels"}))
@@ -112,8 +116,10 @@ def build_vectors() -> dict:
          "note": "fewer than header + 1 + CRC-32C bytes"},
         {"name": "body_length_wrong_for_type", "hex": _cobs_wire(_with_crc(b"\x23\x02\x01\x02\x03")),
          "reject": "length", "note": "TORQUE_CMD with a 3-byte body, CRC correct"},
-        {"name": "unknown_type", "hex": _cobs_wire(_with_crc(b"\x2a\x02\x01\x02\x03\x04")), "reject": "type",
-         "note": "type 0xA, CRC correct"},
+        {"name": "unknown_type", "hex": _cobs_wire(_with_crc(b"\x2b\x02\x01\x02\x03\x04")), "reject": "type",
+         "note": "type 0xB, CRC correct"},
+        {"name": "stop_bad_reason", "hex": _cobs_wire(_with_crc(b"\x2a\x05\x03")), "reject": "value",
+         "note": "STOP reason=3"},
         {"name": "type_zero", "hex": _cobs_wire(_with_crc(b"\x20\x02\x01\x02\x03\x04")), "reject": "type",
          "note": "type 0x0 is never used"},
         {"name": "wrong_version", "hex": _cobs_wire(sp.raw_frame(sp.TorqueCommand(100, 100), 3, version=1)),

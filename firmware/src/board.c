@@ -104,6 +104,7 @@ static void brake_torques(board_t *b)
 
 static void brake_start(board_t *b)
 {
+    b->brake_armed = false;
     b->flags |= PROTO_FLAG_BRAKING;
     b->brake_elapsed_us = 0;
     b->rest_elapsed_us = 0;
@@ -207,6 +208,7 @@ static void on_message(board_t *b, const proto_msg_t *m, uint32_t now_ms)
         b->last_cmd_ms = now_ms;
         b->flags &= (uint8_t)~PROTO_FLAG_WATCHDOG;
         brake_stop(b);   /* commands are back: they decide */
+        b->brake_armed = true;
         bool clamped = false;
         b->command_e4nm[0] = clamp_torque(m->u.torque_cmd.left_e4nm, b->torque_limit_e4nm, &clamped);
         b->command_e4nm[1] = clamp_torque(m->u.torque_cmd.right_e4nm, b->torque_limit_e4nm, &clamped);
@@ -223,6 +225,19 @@ static void on_message(board_t *b, const proto_msg_t *m, uint32_t now_ms)
         send_telemetry(b, now_ms);   /* the acknowledgement, echoing this command's seq */
         break;
     }
+    case PROTO_STOP:
+        /* the host has no torque to apply: brake to rest (once per stop), then release */
+        b->cmd_seq = m->seq;
+        b->last_cmd_ms = now_ms;
+        b->flags &= (uint8_t)~(PROTO_FLAG_WATCHDOG | PROTO_FLAG_CLAMPED);
+        b->command_e4nm[0] = b->command_e4nm[1] = 0;
+        b->have_cmd = true;
+        if (b->brake_armed && !(b->flags & PROTO_FLAG_ESTOP)) {
+            brake_start(b);
+        }
+        update_outputs(b);
+        send_telemetry(b, now_ms);
+        break;
     case PROTO_HEARTBEAT:
         r.type = PROTO_HEARTBEAT;
         r.u.heartbeat = m->u.heartbeat;
@@ -336,7 +351,7 @@ void board_poll(board_t *b, uint32_t now_ms)
     if (!(b->flags & PROTO_FLAG_WATCHDOG) && now_ms - b->last_cmd_ms >= b->watchdog_ms) {
         b->flags |= PROTO_FLAG_WATCHDOG;
         b->watchdog_trips++;
-        if (b->have_cmd && !(b->flags & PROTO_FLAG_ESTOP)) {
+        if (b->brake_armed && !(b->flags & PROTO_FLAG_ESTOP)) {
             brake_start(b);   /* a stop is a stop: brake the wheels to rest, then release */
         }
         update_outputs(b);

@@ -18,6 +18,8 @@
  *       torque limit)), omega from the encoders; released (torque 0, H-bridge off, BRAKING cleared)
  *       once both wheels read 0 counts per period for brake_rest_ms, or after brake_max_ms.
  *       A new TORQUE_CMD or an e-stop ends the brake at once. docs/safety.md.
+ *   STOP -> like a TORQUE_CMD for the watchdog and the acknowledgement, torque command 0; starts
+ *       the brake if a TORQUE_CMD was accepted since the last brake start (once per stop)
  *   ESTOP engage -> torque 0 at once, ESTOP set; release -> ESTOP cleared, torque 0 until the next command
  *   CONFIG -> values clamped into [0, hard limit] N m, [20, 500] ms, [5, 1000] ms, applied at once,
  *       CONFIG_ACK with the values in force
@@ -109,6 +111,7 @@ typedef struct {
     uint32_t rest_elapsed_us;
     bool resting;                   /* both wheels read 0 at the last control step */
     uint16_t brakes;                /* brake episodes since boot (wrapping) */
+    bool brake_armed;               /* a TORQUE_CMD since the last brake start */
     /* counters (wrapping) */
     uint16_t crc_errors;
     uint16_t frame_errors;

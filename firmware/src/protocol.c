@@ -15,6 +15,7 @@ uint8_t proto_body_bytes(uint8_t type)
     case PROTO_ESTOP: return 1;
     case PROTO_CONFIG: return 6;
     case PROTO_CONFIG_ACK: return 6;
+    case PROTO_STOP: return 1;
     default: return 0;
     }
 }
@@ -201,6 +202,9 @@ static uint8_t *pack_body(const proto_msg_t *m, uint8_t *p)
     case PROTO_ESTOP:
         *p++ = m->u.estop.engage;
         break;
+    case PROTO_STOP:
+        *p++ = m->u.stop.reason;
+        break;
     case PROTO_CONFIG:
     case PROTO_CONFIG_ACK:
         p = put_u16(p, m->u.config.torque_limit_e4nm);
@@ -261,6 +265,9 @@ static bool unpack_body(const uint8_t *p, proto_msg_t *m)
     case PROTO_ESTOP:
         m->u.estop.engage = p[0];
         return p[0] <= 1;
+    case PROTO_STOP:
+        m->u.stop.reason = p[0];
+        return p[0] <= PROTO_STOP_REASON_MAX;
     case PROTO_CONFIG:
     case PROTO_CONFIG_ACK:
         m->u.config.torque_limit_e4nm = get_u16(p);

@@ -44,7 +44,8 @@ typedef enum {
     PROTO_HEARTBEAT = 0x6,
     PROTO_ESTOP = 0x7,
     PROTO_CONFIG = 0x8,
-    PROTO_CONFIG_ACK = 0x9
+    PROTO_CONFIG_ACK = 0x9,
+    PROTO_STOP = 0xA                  /* version 2: brake to rest, then release */
 } proto_type_t;
 
 /* why a frame was rejected; the order is the order of REJECT_REASONS in the document */
@@ -116,6 +117,12 @@ typedef struct {
     uint16_t telemetry_period_ms;
 } proto_config_t;                     /* CONFIG and CONFIG_ACK share the layout */
 
+#define PROTO_STOP_REASON_MAX 2u      /* 0 unspecified, 1 input stale, 2 host shutdown */
+
+typedef struct {
+    uint8_t reason;
+} proto_stop_t;
+
 typedef struct {
     uint8_t type;                     /* proto_type_t */
     uint8_t version;                  /* protocol version in the header */
@@ -129,6 +136,7 @@ typedef struct {
         proto_heartbeat_t heartbeat;
         proto_estop_t estop;
         proto_config_t config;        /* also CONFIG_ACK */
+        proto_stop_t stop;
     } u;
 } proto_msg_t;
 

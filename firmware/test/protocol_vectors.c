@@ -64,6 +64,7 @@ static const field_t STATUS_F[] = {
     F(status.cmd_seq, "cmd_seq", U8)};
 static const field_t HEARTBEAT_F[] = {F(heartbeat.stamp_ms, "stamp_ms", U32)};
 static const field_t ESTOP_F[] = {F(estop.engage, "engage", U8)};
+static const field_t STOP_F[] = {F(stop.reason, "reason", U8)};
 static const field_t CONFIG_F[] = {F(config.torque_limit_e4nm, "torque_limit_e4nm", U16),
                                    F(config.watchdog_ms, "watchdog_ms", U16),
                                    F(config.telemetry_period_ms, "telemetry_period_ms", U16)};
@@ -74,7 +75,7 @@ static const type_desc_t TYPES[] = {
     T("TORQUE_CMD", PROTO_TORQUE_CMD, TORQUE_F), T("TELEMETRY", PROTO_TELEMETRY, TELEMETRY_F),
     T("STATUS", PROTO_STATUS, STATUS_F),         T("HEARTBEAT", PROTO_HEARTBEAT, HEARTBEAT_F),
     T("ESTOP", PROTO_ESTOP, ESTOP_F),            T("CONFIG", PROTO_CONFIG, CONFIG_F),
-    T("CONFIG_ACK", PROTO_CONFIG_ACK, CONFIG_F)};
+    T("CONFIG_ACK", PROTO_CONFIG_ACK, CONFIG_F), T("STOP", PROTO_STOP, STOP_F)};
 #define N_TYPES ((int)(sizeof TYPES / sizeof TYPES[0]))
 
 static const char *const REASONS[PROTO_REJECT_COUNT] = {"oversize", "cobs", "length", "crc",
