@@ -1,29 +1,41 @@
 #!/usr/bin/env bash
-# On one robot's computer: the bridge to its motor board and its controller.
+# On one robot's computer: the robot process (bridge to its motor board + its controller).
 #
 #   scripts/launch_robot.sh --id N --port /dev/ttyACM0 --scenario SCENARIO.yaml [--run-dir DIR]
-#                           [--params FILE.yaml] [--multi-machine]
+#                           [--params FILE.yaml] [--split] [--nice N] [--rt-priority P]
+#                           [--multi-machine]
 #
+# Default: ONE process, formation_team hosting this robot's formation_bridge and formation_controller
+# nodes (node /robot_N/formation_bridge and /robot_N/formation_controller, same topics and parameters;
+# the controller hands torques to the bridge and takes wheel samples from it in process).
+# --split: the two nodes as two processes (formation_bridge, formation_controller) instead.
+# --nice N: start the robot's process(es) under `nice -n N` (-20..19; negative needs root).
+# --rt-priority P: run the control loop (the controller's control thread) under SCHED_FIFO priority P
+# (1..98; parameter realtime_priority; needs root or CAP_SYS_NICE, else a warning and normal priority).
 # The bridge's torque limit (torque_limit_nm) is the robot's limit in the scenario; --params is
-# passed to both nodes as --params-file after it (node parameters; see each node's header).
+# passed to the node(s) as --params-file after it (node parameters; see each node's header).
 # Bad input (missing option, an id that is not a robot of the scenario): one line, exit code 2.
-# Stops both processes (by PID) on exit, Ctrl-C or TERM (exit status 143 after TERM, 130 after
-# Ctrl-C, else that of the first process to exit). DDS stays on loopback unless --multi-machine
+# Stops every process it started (by PID) on exit, Ctrl-C or TERM (exit status 143 after TERM, 130
+# after Ctrl-C, else that of the first process to exit). DDS stays on loopback unless --multi-machine
 # (then export the same ROS_DOMAIN_ID on the robots and the camera PC).
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
 # shellcheck source=launch_common.sh
 source "$here/launch_common.sh"
 
-usage() { sed -n '2,12p' "$0" | sed 's/^# \{0,1\}//'; exit 2; }
-id=""; port=""; scenario=""; run_dir=""; params=(); params_file=""; multi=""
+usage() { sed -n '2,20p' "$0" | sed 's/^# \{0,1\}//'; exit 2; }
+id=""; port=""; scenario=""; run_dir=""; params=(); params_file=""; multi=""; split=""
+nice_n=""; nice_given=""; rt=""; rt_given=""
 while [ $# -gt 0 ]; do
   case "$1" in
-    --id) id="$2"; shift 2 ;;
-    --port) port="$2"; shift 2 ;;
+    --id) id="${2-}"; shift; [ $# -gt 0 ] && shift ;;
+    --port) port="${2-}"; shift; [ $# -gt 0 ] && shift ;;
     --scenario) scenario="${2-}"; shift; [ $# -gt 0 ] && shift ;;
-    --run-dir) run_dir="$2"; shift 2 ;;
+    --run-dir) run_dir="${2-}"; shift; [ $# -gt 0 ] && shift ;;
     --params) params_file="${2-}"; shift; [ $# -gt 0 ] && shift ;;
+    --split) split=1; shift ;;
+    --nice) nice_given=1; nice_n="${2-}"; shift; [ $# -gt 0 ] && shift ;;
+    --rt-priority) rt_given=1; rt="${2-}"; shift; [ $# -gt 0 ] && shift ;;
     --multi-machine) multi="--multi-machine"; shift ;;
     -h|--help) usage ;;
     *) echo "launch_robot.sh: unknown option $1" >&2; exit 2 ;;
@@ -32,6 +44,12 @@ done
 [[ "$id" =~ ^[0-9]+$ ]] || { echo "launch_robot.sh: --id: expected a robot id (integer)" >&2; exit 2; }
 [ -n "$port" ] || { echo "launch_robot.sh: --port: required (device path or pyserial URL)" >&2; exit 2; }
 [ -n "$scenario" ] && [ -f "$scenario" ] || { echo "launch_robot.sh: --scenario: no such file '$scenario'" >&2; exit 2; }
+if [ -n "$nice_given" ] && ! { [[ "$nice_n" =~ ^-?[0-9]{1,2}$ ]] && [ "$nice_n" -ge -20 ] && [ "$nice_n" -le 19 ]; }; then
+  echo "launch_robot.sh: --nice: expected an integer in [-20, 19], got '$nice_n'" >&2; exit 2
+fi
+if [ -n "$rt_given" ] && ! { [[ "$rt" =~ ^[0-9]{1,2}$ ]] && [ "$rt" -ge 1 ] && [ "$rt" -le 98 ]; }; then
+  echo "launch_robot.sh: --rt-priority: expected an integer in [1, 98], got '$rt'" >&2; exit 2
+fi
 scenario="$(realpath "$scenario")"
 if [ -n "$params_file" ]; then
   [ -f "$params_file" ] || { echo "launch_robot.sh: --params: no such file '$params_file'" >&2; exit 2; }
@@ -43,10 +61,21 @@ eval "$info"   # sets ids, robot_ids_list, marker_ids_list, torque_<id>
   echo "launch_robot.sh: --id: robot $id is not in $scenario (ids: $ids)" >&2; exit 2; }
 torque_limit_nm="$(eval echo "\$torque_$id")"
 [ -n "$run_dir" ] || run_dir="$(mktemp -d -t ament_formation_robot.XXXXXX)"
+ctl=()   # prefix of the robot's processes
+[ -n "$nice_n" ] && ctl=(nice -n "$nice_n")
+rtp=()
+[ -n "$rt" ] && rtp=(-p realtime_priority:="$rt")
 
 af_launch_init "$(realpath -m "$run_dir")" $multi
-af_start "bridge_$id" "$AF_BIN/formation_bridge" --ros-args -r __ns:="/robot_$id" -p port:="$port" \
-  -p torque_limit_nm:="$torque_limit_nm" "${params[@]}"
-af_start "controller_$id" "$AF_BIN/formation_controller" --ros-args -r __ns:="/robot_$id" \
-  -p scenario:="$scenario" -p robot_id:="$id" "${params[@]}"
+if [ -z "$split" ]; then
+  # the robot process: one formation_team hosting robot N's bridge and controller nodes
+  af_start "robot_$id" "${ctl[@]}" "$AF_BIN/formation_team" --ros-args \
+    -r formation_team:__node:="formation_robot_$id" -p scenario:="$scenario" -p robot_ids:="[$id]" \
+    -p port_template:="$port" "${rtp[@]}" "${params[@]}"
+else
+  af_start "bridge_$id" "${ctl[@]}" "$AF_BIN/formation_bridge" --ros-args -r __ns:="/robot_$id" \
+    -p port:="$port" -p torque_limit_nm:="$torque_limit_nm" "${params[@]}"
+  af_start "controller_$id" "${ctl[@]}" "$AF_BIN/formation_controller" --ros-args -r __ns:="/robot_$id" \
+    -p scenario:="$scenario" -p robot_id:="$id" "${rtp[@]}" "${params[@]}"
+fi
 af_wait_any

@@ -2,7 +2,8 @@
 # Start every process of a simulated run and stop them all (by PID) on exit, Ctrl-C or TERM.
 #
 #   scripts/launch_sim.sh SCENARIO.yaml [--run-dir DIR] [--duration S] [--speed F] [--team K]
-#                         [--control-nice N] [--live [PORT]] [--live-host HOST] [--multi-machine]
+#                         [--control-nice N] [--control-rt P] [--live [PORT]] [--live-host HOST]
+#                         [--multi-machine]
 #
 # Processes: formation_world (plant, emulated boards on ptys, synthetic camera), one formation_bridge
 # and one formation_controller per robot (namespace robot_<id>), formation_tracker,
@@ -12,6 +13,9 @@
 # --control-nice N: start the bridge/controller (or team) processes under `nice -n N` (-20..19;
 # negative = before the world, tracker and coordinator, as a real-time control loop should be;
 # needs root or CAP_SYS_NICE, otherwise nice warns and they run at the normal priority).
+# --control-rt P (default $AF_CONTROL_RT_PRIORITY): the controllers' / teams' control loops under
+# SCHED_FIFO priority P (1..98, parameter realtime_priority; needs root or CAP_SYS_NICE). --team 1 is
+# the robot-process layout of a real robot (scripts/launch_robot.sh): one process per robot.
 # --live [PORT]: also formation_live_view, the run live in Foxglove on ws://127.0.0.1:PORT (default
 # 8765, 0 = any free port, see live_view.log); --live-host HOST (implies --live) binds it to HOST instead
 # (e.g. the lab address; off by default: loopback only). See docs/live_view.md.
@@ -23,10 +27,10 @@ here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
 # shellcheck source=launch_common.sh
 source "$here/launch_common.sh"
 
-usage() { sed -n '2,20p' "$0" | sed 's/^# \{0,1\}//'; exit 2; }
+usage() { sed -n '2,24p' "$0" | sed 's/^# \{0,1\}//'; exit 2; }
 [ $# -ge 1 ] || usage
 scenario="$(realpath "$1")"; shift
-run_dir=""; duration=""; speed="1.0"; multi=""; team=""; team_given=""; control_nice=""; nice_given=""
+run_dir=""; duration=""; speed="1.0"; multi=""; team=""; team_given=""; control_nice=""; nice_given=""; control_rt=""
 live=""; live_port="8765"; live_host="127.0.0.1"
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -35,6 +39,7 @@ while [ $# -gt 0 ]; do
     --speed) speed="$2"; shift 2 ;;
     --team) team_given=1; team="${2-}"; shift; [ $# -gt 0 ] && shift ;;
     --control-nice) nice_given=1; control_nice="${2-}"; shift; [ $# -gt 0 ] && shift ;;
+    --control-rt) control_rt="${2-}"; shift; [ $# -gt 0 ] && shift ;;
     --multi-machine) multi="--multi-machine"; shift ;;
     --live) live=1; shift; if [ $# -gt 0 ] && [[ "$1" =~ ^[0-9]+$ ]]; then live_port="$1"; shift; fi ;;
     --live-host) live=1; live_host="${2-}"; shift; [ $# -gt 0 ] && shift ;;
@@ -55,6 +60,14 @@ fi
 [ -n "$live_host" ] || { echo "launch_sim.sh: --live-host: expected an address" >&2; exit 2; }
 ctl=()   # prefix of the control-path processes (bridges, controllers, teams)
 [ -n "$control_nice" ] && ctl=(nice -n "$control_nice")
+# --control-rt P (default: $AF_CONTROL_RT_PRIORITY): the control loops under SCHED_FIFO priority P
+control_rt="${control_rt:-${AF_CONTROL_RT_PRIORITY:-}}"
+if [ -n "$control_rt" ] && ! { [[ "$control_rt" =~ ^[0-9]{1,2}$ ]] && [ "$control_rt" -ge 1 ] \
+    && [ "$control_rt" -le 98 ]; }; then
+  echo "launch_sim.sh: --control-rt: expected an integer in [1, 98], got '$control_rt'" >&2; exit 2
+fi
+rtp=()   # parameter of the control-path processes that own a control loop (controllers, teams)
+[ -n "$control_rt" ] && rtp=(-p realtime_priority:="$control_rt")
 [ -f "$scenario" ] || { echo "launch_sim.sh: $scenario: no such scenario file" >&2; exit 2; }
 [ -n "$run_dir" ] || run_dir="$(mktemp -d -t ament_formation_sim.XXXXXX)"
 run_dir="$(realpath -m "$run_dir")"
@@ -92,7 +105,7 @@ if [ -n "$team" ]; then
     af_start "team_$k" "${ctl[@]}" "$AF_BIN/formation_team" --ros-args -r formation_team:__node:="formation_team_$k" \
       -p scenario:="$scenario" \
       -p robot_ids:="$list" -p port_template:="$pty_dir/robot_{id}" -p poll_rate_hz:=200.0 \
-      -p use_sim_time:=$use_sim_time
+      -p use_sim_time:=$use_sim_time "${rtp[@]}"
     k=$((k + 1))
   done
 else
@@ -101,7 +114,7 @@ else
       -p port:="$pty_dir/robot_$id" -p torque_limit_nm:="$(eval echo "\$torque_$id")" -p poll_rate_hz:=200.0 \
       -p use_sim_time:=$use_sim_time
     af_start "controller_$id" "${ctl[@]}" "$AF_BIN/formation_controller" --ros-args -r __ns:="/robot_$id" \
-      -p scenario:="$scenario" -p robot_id:="$id" -p use_sim_time:=$use_sim_time
+      -p scenario:="$scenario" -p robot_id:="$id" -p use_sim_time:=$use_sim_time "${rtp[@]}"
   done
 fi
 af_start tracker "$AF_BIN/formation_tracker" --ros-args -p robot_ids:="$robot_ids_list" \

@@ -122,9 +122,10 @@ def test_deployment_split(ros_context, executor, tmp_path):
     launched_shm: set[str] = set()
     try:
         launch([str(SCRIPTS / "launch_base.sh")], tmp_path / "base")
-        for i in ids:
-            launch([str(SCRIPTS / "launch_robot.sh"), "--id", str(i), "--port", str(pty_dir / f"robot_{i}")],
-                   tmp_path / f"robot_{i}")
+        for i in ids:   # robot 0: the default robot process; robot 1: bridge and controller split
+            launch([str(SCRIPTS / "launch_robot.sh"), "--id", str(i), "--port", str(pty_dir / f"robot_{i}"),
+                    *(["--split"] if i == 1 else [])], tmp_path / f"robot_{i}")
+        n_procs = {tmp_path / "base": 2, tmp_path / "robot_0": 1, tmp_path / "robot_1": 2}
 
         ok = spin_until(executor, lambda: expected <= set(list_nodes(probe)) or any_launcher_exited(), 60.0)
         assert ok and not any_launcher_exited(), f"nodes seen: {list_nodes(probe)}"
@@ -154,7 +155,7 @@ def test_deployment_split(ros_context, executor, tmp_path):
         assert world.boards[1].board.limit_e4nm == round(ROBOT_1_TORQUE_LIMIT_NM * 1e4)
 
         for proc, run_dir in launchers:
-            assert len(_pids(run_dir)) == 2, (run_dir / "pids").read_text()
+            assert len(_pids(run_dir)) == n_procs[run_dir], (run_dir / "pids").read_text()
             for pid in _pids(run_dir):
                 launched_shm |= _shm_mapped_by(pid)
         for proc, _ in launchers:
@@ -168,7 +169,7 @@ def test_deployment_split(ros_context, executor, tmp_path):
             while [p for p in _pids(run_dir) if alive(p)] and time.monotonic() < deadline:
                 time.sleep(0.05)   # polling the PIDs' exit, not waiting for a result
             assert [p for p in _pids(run_dir) if alive(p)] == [], out
-            assert "stopped 2 processes" in out
+            assert f"stopped {n_procs[run_dir]} processes" in out
     finally:
         for proc, run_dir in launchers:
             _stop(proc, run_dir)

@@ -39,7 +39,7 @@ def test_one_tick_runs_every_hosted_controller_and_peers_read_in_process(ros_con
     from ament_formation.ros import messages as msgs
 
     sc = load_scenario(SCENARIO)
-    team = TeamNode(context=ros_context, params=TeamParams(scenario=str(SCENARIO)))
+    team = TeamNode(context=ros_context, params=TeamParams(scenario=str(SCENARIO)), control_thread=False)
     try:
         assert sorted(team.controllers) == [0, 1] and team.bridges == {}
         c0, c1 = team.controllers[0], team.controllers[1]

@@ -14,21 +14,36 @@ and one executor, and
   robots in other processes; wheel_torque and wheel_state are published while anyone subscribes
   (a hosted bridge takes its commands only from its hosted controller).
 
-For simulated runs of many robots on one machine (``scripts/launch_sim.sh --team K``: K robots per
-process). On real robots each board runs its own bridge and controller (scripts/launch_robot.sh).
+On wall-clock time the control periods run in a thread of their own (:class:`ControlLoop`), not
+on an executor timer: a period starts on time whatever the executor is doing (decoding messages,
+diagnostics), reads the serial ports first, then runs every hosted controller; between periods
+the thread sleeps in select() on the ports and reads telemetry the moment it arrives (no poll
+timer). Callbacks that change what a period reads (camera pose, graph, encounters) take the
+team's lock. With ``realtime_priority`` P the loop thread runs under SCHED_FIFO P and the
+executor thread under P - 1. On simulated time (``use_sim_time``) executor timers run the periods.
+
+The robot process of a robot's computer (scripts/launch_robot.sh, default): a team of one robot,
+``robot_ids:=[N]``, ``port_template:=/dev/ttyACM0`` (no ``{id}`` needed for one robot). For
+simulated runs of many robots on one machine: ``scripts/launch_sim.sh --team K`` (K robots per
+process).
 
 Parameters (this node; ``--ros-args -p NAME:=VALUE`` given to the process also reaches every
 hosted node, as in any ROS 2 process, e.g. ``control_rate_hz``, ``pose_timeout_s``,
 ``poll_rate_hz``, ``use_sim_time``)
   scenario        str    scenario YAML (required)
   robot_ids       int[]  robots hosted here                         default [] = every robot
-  port_template   str    serial port of robot {id}, e.g. /dev/ttyACM{id} or PTY_DIR/robot_{id};
-                         empty: no bridges (controllers only)        default ""
+  port_template   str    serial port of robot {id}, e.g. /dev/ttyACM{id} or PTY_DIR/robot_{id}
+                         (one hosted robot: any path); empty: no bridges (controllers only)
+                                                                     default ""
+  realtime_priority int  SCHED_FIFO priority of the control loop thread (0: normal)  default 0
 Torque limits of the bridges come from the scenario.
 """
 from __future__ import annotations
 
+import select
 import sys
+import threading
+import time
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -39,7 +54,7 @@ from ament_formation.core.errors import ConfigError
 from ament_formation.core.params import param
 from ament_formation.core.scenario import load_scenario
 from ament_formation.nodes.bridge import BridgeNode
-from ament_formation.nodes.controller import ControllerNode, PeerTable
+from ament_formation.nodes.controller import ControllerNode, PeerTable, set_realtime
 from ament_formation.nodes.controller import _send_zero_torque as _controller_zero_torque
 from ament_formation.ros.executors import run_node
 from ament_formation.ros.params import declare_dataclass
@@ -51,6 +66,8 @@ class TeamParams:
     robot_ids: tuple[int, ...] = param((), "robots hosted here (empty: every robot)")
     port_template: str = param("", "serial port of robot {id}, e.g. /dev/ttyACM{id} "
                                "('': no bridges, controllers only)")
+    realtime_priority: int = param(0, "SCHED_FIFO priority of the control loop thread (1..98; "
+                                   "0: normal scheduling)", range=(0, 98))
 
     def __post_init__(self) -> None:
         if not self.scenario:
@@ -58,17 +75,23 @@ class TeamParams:
         ids = self.robot_ids
         if len(set(ids)) != len(ids) or any(not isinstance(i, int) or i < 0 for i in ids):
             raise ConfigError(f"must be distinct integers >= 0 (got {list(ids)})", "robot_ids")
-        if self.port_template and "{id}" not in self.port_template:
-            raise ConfigError(f"must contain {{id}} (got {self.port_template!r})", "port_template")
+        if self.port_template and "{id}" not in self.port_template and len(ids) != 1:
+            raise ConfigError(f"must contain {{id}} unless one robot is hosted (got {self.port_template!r})",
+                              "port_template")
+        if not (isinstance(self.realtime_priority, int) and 0 <= self.realtime_priority <= 98):
+            raise ConfigError(f"must be an integer in [0, 98] (got {self.realtime_priority!r})",
+                              "realtime_priority")
 
 
 class TeamNode(Node):
     """See the module docstring. ``composed_nodes``: the hosted nodes (spun with this one)."""
 
     def __init__(self, *, context=None, params: TeamParams | None = None,
-                 hosted_parameters: Sequence[Parameter] = (), **node_kw):
+                 hosted_parameters: Sequence[Parameter] = (), control_thread: bool = True, **node_kw):
         """``hosted_parameters``: parameter overrides for every hosted node (what ``-p NAME:=VALUE``
-        on the process command line does), e.g. ``poll_rate_hz`` or ``pose_timeout_s``."""
+        on the process command line does), e.g. ``poll_rate_hz`` or ``pose_timeout_s``.
+        ``control_thread=False``: executor timers run the control periods even on wall-clock time
+        (tests that call :meth:`_control` themselves)."""
         super().__init__("formation_team", context=context, **node_kw)
         self.prm = params if params is not None else declare_dataclass(self, TeamParams)
         scenario = load_scenario(self.prm.scenario)
@@ -79,6 +102,9 @@ class TeamNode(Node):
                               "robot_ids")
         use_sim_time = bool(self.get_parameter("use_sim_time").value)
         common = [*hosted_parameters, Parameter("use_sim_time", value=use_sim_time)]
+        threaded = not use_sim_time and control_thread
+        self.lock = threading.Lock() if threaded else None
+        self.loop: ControlLoop | None = None
         self.peers = PeerTable(ids)
         self.controllers: dict[int, ControllerNode] = {}
         self.bridges: dict[int, BridgeNode] = {}
@@ -93,17 +119,24 @@ class TeamNode(Node):
                             Parameter("torque_limit_nm", value=float(scenario.robot(rid).params.torque_limit_nm))])
                 self.controllers[rid] = ControllerNode(
                     context=context, namespace=ns, tick_timer=False, peers=self.peers,
-                    bridge=self.bridges.get(rid),
+                    bridge=self.bridges.get(rid), lock=self.lock,
                     parameter_overrides=common + [Parameter("scenario", value=str(self.prm.scenario)),
                                                   Parameter("robot_id", value=int(rid))])
         except BaseException:
             self.destroy_node()
             raise
         rates = {c.prm.control_rate_hz for c in self.controllers.values()}
-        self.create_timer(1.0 / rates.pop(), self._control)
-        if self.bridges:
-            poll_hz = next(iter(self.bridges.values())).params.poll_rate_hz
-            self.create_timer(1.0 / poll_hz, self._poll)
+        rate_hz = rates.pop()
+        if threaded:
+            self.loop = ControlLoop(self, rate_hz, self.prm.realtime_priority)
+            if self.prm.realtime_priority > 1:     # the executor thread: callbacks before other work
+                set_realtime(self.prm.realtime_priority - 1, None)
+            self.loop.start()
+        else:
+            self.create_timer(1.0 / rate_hz, self._control)
+            if self.bridges:
+                poll_hz = next(iter(self.bridges.values())).params.poll_rate_hz
+                self.create_timer(1.0 / poll_hz, self._poll)
         self.get_logger().info(f"hosting robots {ids}" + (" with bridges" if self.bridges else ""))
 
     @property
@@ -120,14 +153,88 @@ class TeamNode(Node):
             controller.control_tick(now_s)
 
     def destroy_node(self):
+        if self.loop is not None:
+            self.loop.stop()
         for node in [*self.controllers.values(), *self.bridges.values()]:
             node.destroy_node()
         self.controllers, self.bridges = {}, {}
         return super().destroy_node()
 
 
+class ControlLoop:
+    """The team's control periods in a thread of their own (a separate loop from the executor's;
+    ros/executors.py is untouched): every ``1 / rate_hz`` [s, monotonic clock] it reads every
+    hosted bridge's port, then runs :meth:`TeamNode._control`, holding ``team.lock``; in between
+    it waits in select() on the bridges' ports and reads telemetry as it arrives. A period that
+    starts late is run at once and the schedule moves on (the controllers count the late tick).
+    ``priority`` > 0: the thread runs under SCHED_FIFO ``priority``."""
+
+    def __init__(self, team: "TeamNode", rate_hz: float, priority: int = 0):
+        self.team = team
+        self.period_s = 1.0 / rate_hz
+        self.priority = priority
+        self._stop = threading.Event()
+        self.errors = 0
+        self.thread = threading.Thread(target=self._run, name="control_loop", daemon=True)
+
+    def start(self) -> None:
+        sys.setswitchinterval(0.0005)   # a waiting control thread gets the GIL within 0.5 ms
+        self.thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self.thread.is_alive() and threading.current_thread() is not self.thread:
+            self.thread.join(timeout=2.0)
+
+    def _fds(self) -> list[int]:
+        fds = []
+        for bridge in self.team.bridges.values():
+            port = getattr(bridge, "_port", None)
+            try:
+                fds.append(port.fileno())
+            except (AttributeError, OSError, ValueError, TypeError):
+                pass                       # closed (reopening with backoff) or no file descriptor
+        return fds
+
+    def _poll_all(self) -> None:
+        for bridge in self.team.bridges.values():
+            bridge.poll()
+
+    def _run(self) -> None:
+        if self.priority:
+            set_realtime(self.priority, self.team.get_logger())
+        lock, team, period = self.team.lock, self.team, self.period_s
+        next_s = time.monotonic() + period
+        while not self._stop.is_set():
+            try:
+                wait = next_s - time.monotonic()
+                if wait > 0.0:
+                    fds = self._fds()
+                    ready = select.select(fds, [], [], wait)[0] if fds else self._stop.wait(wait) and []
+                    if ready:
+                        with lock:
+                            self._poll_all()      # telemetry as it arrives
+                    continue
+                with lock:
+                    self._poll_all()
+                    team._control()
+                next_s += period
+                now = time.monotonic()
+                if next_s < now:                  # overran a whole period: restart the schedule
+                    next_s = now + period
+            except Exception as err:  # noqa: BLE001 - keep the loop; the board's watchdog stops the robot
+                if self._stop.is_set() or not team.context.ok():
+                    return
+                self.errors += 1
+                team.get_logger().error(f"control loop: {type(err).__name__}: {err}",
+                                        throttle_duration_sec=1.0)
+                time.sleep(period)
+
+
 def _send_zero_torque(team: TeamNode) -> None:
     """Last word of the process: zero torque from every hosted controller."""
+    if team.loop is not None:
+        team.loop.stop()
     for node in team.controllers.values():
         _controller_zero_torque(node)
 
