@@ -221,6 +221,38 @@ def _command_pump(link, msg, period_s: float = 0.01):
     return pump
 
 
+def test_stop_message_brakes_at_once_and_only_once(harness):
+    """STOP (what the bridge sends when its input goes stale): the firmware brakes the turning
+    wheels at once (no watchdog delay), acknowledges every STOP, releases at rest, and the STOPs
+    that keep coming do not brake again."""
+    link = CodecLink(harness.pty)
+    sp = link.sp
+    try:
+        link.handshake()
+        drive = _command_pump(link, sp.TorqueCommand(1000, -1000))
+        harness.wait_for(lambda s: s["wheel_radps"][0] > 10.0 and s["wheel_radps"][1] < -10.0, 5.0, drive)
+        stop = _command_pump(link, sp.Stop(sp.STOP_INPUT_STALE))
+        n0 = len(harness.lines)
+        braking = harness.wait_for(lambda s: s["telemetry"]["flags"] & sp.FLAG_BRAKING, 1.0, stop)
+        assert braking["board"]["watchdog_trips"] == 0
+        released = harness.wait_for(lambda s: not s["telemetry"]["flags"] & sp.FLAG_BRAKING
+                                    and s["duty"] == [0.0, 0.0], 2.0, stop)
+        # keep stopping for a while: no second brake, H-bridge stays off, STOPs are acknowledged
+        end = harness.wait_for(lambda s: s["t_s"] >= released["t_s"] + 0.3, 2.0, stop)
+        lines = harness.lines[n0:]
+        first_brake_t = min(s["t_s"] for s in lines if s["telemetry"]["flags"] & sp.FLAG_BRAKING)
+        print(f"STOP: braking seen {1e3 * (first_brake_t - lines[0]['t_s']):.0f} ms after the first STOP line, "
+              f"released {released['pwm_change_t_s'] - lines[0]['t_s']:.3f} s after (emulated)")
+        assert first_brake_t - lines[0]["t_s"] <= 0.03               # at once, not after 200 ms
+        assert max(abs(w) for w in released["wheel_radps"]) < 0.44
+        after = [s for s in lines if s["t_s"] > released["t_s"]]
+        assert all(s["duty"] == [0.0, 0.0] and not s["telemetry"]["flags"] & sp.FLAG_BRAKING for s in after)
+        assert not end["telemetry"]["flags"] & sp.FLAG_WATCHDOG      # STOPs feed the watchdog
+        assert end["telemetry"]["cmd_seq"] != released["telemetry"]["cmd_seq"]   # each STOP acknowledged
+    finally:
+        link.close()
+
+
 # ---------------------------------------------------------------------------------------------
 # firmware in simavr driven by the real formation_bridge node (in-process executor)
 
