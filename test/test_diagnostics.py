@@ -191,3 +191,25 @@ def test_controller_safety_stop_is_published_when_it_happens(controller, executo
     ctrl._safety("hold_parent")
     assert spin_until(executor, lambda: any(st.message == "hold_parent" and diag.level_int(st.level) == diag.WARN
                                             for _, st in statuses[name][n0:]), 5.0)
+
+
+def test_a_change_during_shutdown_is_not_an_error():
+    """A bridge closing its port in destroy_node reports the lost link: after the context is shut
+    down this must be a no-op, not an exception that turns a clean exit into a traceback."""
+    import os
+
+    import rclpy
+    from rclpy.context import Context
+
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=int(os.environ["ROS_DOMAIN_ID"]))
+    node = rclpy.create_node("closing", context=ctx)
+    state = {"level": diag.OK}
+    d = diag.Diagnostics(node)
+    d.add("link", lambda: (state["level"], str(state["level"]), {}))
+    assert d.changed() is True
+    rclpy.shutdown(context=ctx)
+    state["level"] = diag.ERROR
+    assert d.changed() is False
+    d.publish()
+    node.destroy_node()

@@ -22,6 +22,7 @@ import time
 from typing import Callable
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy._rclpy_pybind11 import InvalidHandle, RCLError
 
 # levels as ints (DiagnosticStatus.OK etc. are bytes in rclpy; level_int() reads either)
 OK = 0
@@ -198,7 +199,10 @@ class Diagnostics:
         return out
 
     def publish(self, evaluated=None) -> None:
-        """Publish every task's status now."""
+        """Publish every task's status now (nothing once the node's context is shut down: a
+        change seen while a node shuts down, e.g. its port closing, is not an error)."""
+        if not self.node.context.ok():
+            return
         rows = self._evaluate() if evaluated is None else evaluated
         if not rows:
             return
@@ -206,11 +210,16 @@ class Diagnostics:
         for t, level, message, values in rows:
             statuses.append(status(t.name, t.hardware_id, level, message, values))
             t.sent = (level, message)
-        self.pub.publish(array(self._clock.now().to_msg(), statuses))
+        try:
+            self.pub.publish(array(self._clock.now().to_msg(), statuses))
+        except (RCLError, InvalidHandle):       # shut down between the check and the publish
+            return
         self.published += 1
 
     def changed(self) -> bool:
         """Publish now if some task's level or message changed since it was last published."""
+        if not self.node.context.ok():
+            return False
         rows = self._evaluate()
         if any(t.sent != (level, message) for t, level, message, _ in rows):
             self.publish(rows)
