@@ -43,6 +43,8 @@ class LinkParams:
     poll_rate_hz: float = param(500.0, "non-blocking port read/write timer [Hz]",
                                 range=(10.0, 5000.0))
     diagnostics_period_s: float = param(1.0, "/diagnostics period [s]", range=(0.05, 60.0))
+    wait_for_port: bool = param(False, "a port that cannot be opened at start: wait for it (reopen "
+                                "with backoff) instead of exiting with one line on stderr")
 
     def __post_init__(self) -> None:
         def need(ok: bool, field: str, what: str) -> None:

@@ -13,7 +13,10 @@ baud_rate (115200), torque_limit_nm (0.15 N·m), watchdog_s (0.2 s, sent to the 
 input_timeout_s (0.2 s: older wheel_torque -> zero torque), command_rate_hz (100 Hz),
 telemetry_period_s (0.01 s), ack_timeout_s (0.006 s), link_timeout_s (0.5 s), hello_retry_s (0.2 s),
 heartbeat_period_s (1 s), reconnect_initial_s (0.05 s) doubling to reconnect_max_s (0.5 s),
-poll_rate_hz (500 Hz), diagnostics_period_s (1 s).
+poll_rate_hz (500 Hz), diagnostics_period_s (1 s), wait_for_port (false).
+
+A port that cannot be opened at start ends the process with one line on stderr naming it (exit
+code 2), unless ``wait_for_port`` is true: then the bridge waits for it, reopening with backoff.
 
 The port is read and written only non-blocking, from a timer: the executor never blocks. Safety
 (DESIGN §7): NaN/inf inputs are rejected and counted, torques clamped, stale input -> zero torque,
@@ -30,12 +33,22 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
 from ament_formation.core import serial_link as sl
+from ament_formation.core.errors import ConfigError
 from ament_formation.ros import diagnostics as diag
 from ament_formation.ros.executors import run_node
 from ament_formation.ros.messages import wheel_state
 from ament_formation.ros.params import declare_dataclass
 from ament_formation.ros.qos import QOS_CONTROL
 from ament_formation.ros.wheels import torques_from_joint_state
+
+
+def _open_error(err: Exception) -> str:
+    """The reason of an open failure without pyserial's repetitions ("[Errno 2] could not open
+    port X: [Errno 2] No such file or directory: 'X'" -> "No such file or directory")."""
+    errno = getattr(err, "errno", None)
+    if errno:
+        return os.strerror(errno)
+    return str(err).splitlines()[0] if str(err) else type(err).__name__
 
 
 def open_port(url: str, baud_rate: int) -> serial.SerialBase:
@@ -66,6 +79,15 @@ class BridgeNode(Node):
         self._last_error = ""
         self._rx_frames_at_diag = (clock(), 0)
         self.link_up_since_s: float | None = None
+        if not self.params.wait_for_port:   # a port missing at start is a configuration error
+            try:
+                self._port = open_port(self.params.port, self.params.baud_rate)
+            except (serial.SerialException, OSError, ValueError) as err:
+                name = self.get_fully_qualified_name()
+                Node.destroy_node(self)
+                raise ConfigError(f"cannot open {self.params.port}: {_open_error(err)} (wait_for_port:=true "
+                                  "waits for it)", "port", name) from None
+            self._write(self.link.connected(clock()))
         self._pub_state = self.create_publisher(JointState, "wheel_state", QOS_CONTROL)
         self.diag = diag.Diagnostics(self, self.params.diagnostics_period_s)
         robot = diag.robot_of_namespace(self.get_namespace())
