@@ -1,9 +1,13 @@
 #!/usr/bin/env bash
 # On the camera PC: the marker tracker and the formation coordinator.
 #
-#   scripts/launch_base.sh --scenario SCENARIO.yaml [--camera DEVICE_OR_URL] [--run-dir DIR]
+#   scripts/launch_base.sh --scenario SCENARIO.yaml [--camera SOURCE [--camera-wait S]] [--run-dir DIR]
 #                          [--params FILE.yaml] [--live [PORT]] [--live-host HOST] [--multi-machine]
 #
+# --camera SOURCE: the tracker captures frames itself from a device index (0), a device path
+# (/dev/video0, /dev/v4l/by-id/...), a video file or a stream URL (http://..., rtsp://...); a camera
+# that cannot be opened ends the run (tracker status 1, one line in RUN_DIR/tracker.log) unless
+# --camera-wait S lets it retry for S seconds (inf: forever). docs/camera.md.
 # Without --camera the tracker subscribes /camera/image_raw (e.g. from a camera driver).
 # --live [PORT]: also formation_live_view (Foxglove on ws://127.0.0.1:PORT, default 8765); to watch
 # from another lab machine add --live-host HOST (this PC's lab address; implies --live). docs/live_view.md
@@ -13,13 +17,16 @@ here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
 # shellcheck source=launch_common.sh
 source "$here/launch_common.sh"
 
-usage() { sed -n '2,10p' "$0" | sed 's/^# \{0,1\}//'; exit 2; }
-scenario=""; camera=""; run_dir=""; params=(); params_file=""; multi=""
+usage() { sed -n '2,14p' "$0" | sed 's/^# \{0,1\}//'; exit 2; }
+scenario=""; camera=""; camera_wait=""; run_dir=""; params=(); params_file=""; multi=""
 live=""; live_port="8765"; live_host="127.0.0.1"
 while [ $# -gt 0 ]; do
   case "$1" in
     --scenario) scenario="${2-}"; shift; [ $# -gt 0 ] && shift ;;
-    --camera) camera="$2"; shift 2 ;;
+    --camera) camera="${2-}"; shift; [ $# -gt 0 ] && shift
+      [ -n "$camera" ] || { echo "launch_base.sh: --camera: expected a device index, device path, video file or URL" >&2; exit 2; } ;;
+    --camera-wait) camera_wait="${2-}"; shift; [ $# -gt 0 ] && shift
+      [[ "$camera_wait" =~ ^([0-9]+(\.[0-9]*)?|inf)$ ]] || { echo "launch_base.sh: --camera-wait: expected seconds >= 0 or inf, got '$camera_wait'" >&2; exit 2; } ;;
     --run-dir) run_dir="$2"; shift 2 ;;
     --params) params_file="${2-}"; shift; [ $# -gt 0 ] && shift ;;
     --multi-machine) multi="--multi-machine"; shift ;;
@@ -42,12 +49,15 @@ fi
 [ -n "$run_dir" ] || run_dir="$(mktemp -d -t ament_formation_base.XXXXXX)"
 cam=()
 [ -n "$camera" ] && cam=(-p source:="$camera")
+[ -n "$camera_wait" ] && cam+=(-p source_wait_s:="$([ "$camera_wait" = inf ] && echo .inf || echo "$camera_wait")")
 info="$("$AF_BIN/python" "$here/launch_info.py" "$scenario")" || exit 2
 eval "$info"   # sets ids, robot_ids_list, marker_ids_list
 
 af_launch_init "$(realpath -m "$run_dir")" $multi
-af_start tracker "$AF_BIN/formation_tracker" --ros-args -p robot_ids:="$robot_ids_list" \
-  -p marker_ids:="$marker_ids_list" "${cam[@]}" "${params[@]}"
+# the params file first: the last value of a parameter wins, and the scenario's robots and
+# --camera must not be overridden by the file's defaults (config/params/formation_tracker.yaml)
+af_start tracker "$AF_BIN/formation_tracker" --ros-args "${params[@]}" -p robot_ids:="$robot_ids_list" \
+  -p marker_ids:="$marker_ids_list" "${cam[@]}"
 af_start coordinator "$AF_BIN/formation_coordinator" --ros-args -p scenario:="$scenario" "${params[@]}"
 if [ -n "$live" ]; then
   af_start live_view "$AF_BIN/formation_live_view" --ros-args -p scenario:="$scenario" \

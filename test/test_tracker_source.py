@@ -248,13 +248,24 @@ def test_device_index_from_the_command_line(tmp_path):
     assert err.strip() == "formation_tracker: source '0': no such video device /dev/video0", err
 
 
+def _launch_base(tmp_path: Path, *args: str) -> tuple[subprocess.Popen, Path]:
+    run_dir = tmp_path / "run"
+    proc = subprocess.Popen([str(ROOT / "scripts" / "launch_base.sh"), *args, "--run-dir", str(run_dir)],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    return proc, run_dir
+
+
+def _run_pids(run_dir: Path) -> list[int]:
+    path = run_dir / "pids"
+    return [int(line.split()[0]) for line in path.read_text().splitlines()] if path.exists() else []
+
+
 @pytest.mark.skipif(os.path.exists("/dev/video0"), reason="this machine has a /dev/video0")
 def test_launch_base_with_camera_0(tmp_path):
-    run_dir = tmp_path / "run"
-    proc = subprocess.Popen([str(ROOT / "scripts" / "launch_base.sh"), "--scenario",
-                             str(ROOT / "config" / "scenarios" / "paper.yaml"), "--camera", "0",
-                             "--run-dir", str(run_dir)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True)
+    # the shipped params file sets source: "" -- the launcher's --camera must win over it
+    proc, run_dir = _launch_base(tmp_path, "--scenario", str(ROOT / "config" / "scenarios" / "paper.yaml"),
+                                 "--params", str(ROOT / "config" / "params" / "formation_tracker.yaml"),
+                                 "--camera", "0")
     try:
         out, _ = proc.communicate(timeout=180)
     finally:
@@ -266,3 +277,32 @@ def test_launch_base_with_camera_0(tmp_path):
     log = (run_dir / "tracker.log").read_text()
     assert "formation_tracker: source '0': no such video device /dev/video0" in log
     assert "InvalidParameterType" not in log and "Traceback" not in log
+
+
+def test_launch_base_with_camera_file(tmp_path, probe, executor):
+    """The camera PC's launcher with --camera FILE: the scenario's robots tracked from the file."""
+    from processes import alive
+
+    text = (ROOT / "test" / "data" / "paper_short.yaml").read_text()
+    scenario = tmp_path / "markers_3_7.yaml"
+    scenario.write_text(text.replace("marker_id: 0", f"marker_id: {MARKERS[0]}")
+                        .replace("marker_id: 1", f"marker_id: {MARKERS[1]}"))
+    video = write_video(tmp_path / "overhead.avi", render_frames())
+    params = tmp_path / "base.yaml"
+    params.write_text(yaml.safe_dump({"/**/formation_tracker": {"ros__parameters": {
+        "source_loop": True, "marker_ids": [0, 1], "robot_ids": [5, 6]}}}))   # ids: the scenario wins
+    proc, run_dir = _launch_base(tmp_path, "--scenario", str(scenario), "--camera", str(video),
+                                 "--params", str(params))
+    try:
+        assert spin_until(executor, lambda: proc.poll() is not None or len(pose_errors(probe)["frames"]) >= 30,
+                          START_TIMEOUT_S), "no poses through launch_base.sh --camera FILE"
+        assert proc.poll() is None, proc.communicate()[0]
+        assert_tracked_like_truth(probe, 0, min_frames=30)
+    finally:
+        pids = _run_pids(run_dir)
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+        out, _ = proc.communicate(timeout=60)
+    assert proc.returncode == 143, out
+    assert pids and not any(alive(pid) for pid in pids)
+    assert "Traceback" not in (run_dir / "tracker.log").read_text()
