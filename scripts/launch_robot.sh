@@ -3,7 +3,7 @@
 #
 #   scripts/launch_robot.sh --id N --port /dev/ttyACM0 --scenario SCENARIO.yaml [--run-dir DIR]
 #                           [--params FILE.yaml] [--split] [--nice N] [--rt-priority P]
-#                           [--multi-machine]
+#                           [--wait-for-port] [--multi-machine]
 #
 # Default: ONE process, formation_team hosting this robot's formation_bridge and formation_controller
 # nodes (node /robot_N/formation_bridge and /robot_N/formation_controller, same topics and parameters;
@@ -14,7 +14,10 @@
 # (1..98; parameter realtime_priority; needs root or CAP_SYS_NICE, else a warning and normal priority).
 # The bridge's torque limit (torque_limit_nm) is the robot's limit in the scenario; --params is
 # passed to the node(s) as --params-file after it (node parameters; see each node's header).
-# Bad input (missing option, an id that is not a robot of the scenario): one line, exit code 2.
+# Bad input (missing option, an id that is not a robot of the scenario, a --port device that does
+# not exist or that this user cannot read and write): one line, exit code 2. --wait-for-port: start
+# anyway and let the bridge wait for the port to appear (parameter wait_for_port; a port lost while
+# running is always reopened with backoff).
 # Stops every process it started (by PID) on exit, Ctrl-C or TERM (exit status 143 after TERM, 130
 # after Ctrl-C, else that of the first process to exit). DDS stays on loopback unless --multi-machine
 # (then export the same ROS_DOMAIN_ID on the robots and the camera PC).
@@ -23,9 +26,9 @@ here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
 # shellcheck source=launch_common.sh
 source "$here/launch_common.sh"
 
-usage() { sed -n '2,20p' "$0" | sed 's/^# \{0,1\}//'; exit 2; }
+usage() { sed -n '2,23p' "$0" | sed 's/^# \{0,1\}//'; exit 2; }
 id=""; port=""; scenario=""; run_dir=""; params=(); params_file=""; multi=""; split=""
-nice_n=""; nice_given=""; rt=""; rt_given=""
+nice_n=""; nice_given=""; rt=""; rt_given=""; wait_port=()
 while [ $# -gt 0 ]; do
   case "$1" in
     --id) id="${2-}"; shift; [ $# -gt 0 ] && shift ;;
@@ -36,6 +39,7 @@ while [ $# -gt 0 ]; do
     --split) split=1; shift ;;
     --nice) nice_given=1; nice_n="${2-}"; shift; [ $# -gt 0 ] && shift ;;
     --rt-priority) rt_given=1; rt="${2-}"; shift; [ $# -gt 0 ] && shift ;;
+    --wait-for-port) wait_port=(-p wait_for_port:=true); shift ;;
     --multi-machine) multi="--multi-machine"; shift ;;
     -h|--help) usage ;;
     *) echo "launch_robot.sh: unknown option $1" >&2; exit 2 ;;
@@ -43,6 +47,14 @@ while [ $# -gt 0 ]; do
 done
 [[ "$id" =~ ^[0-9]+$ ]] || { echo "launch_robot.sh: --id: expected a robot id (integer)" >&2; exit 2; }
 [ -n "$port" ] || { echo "launch_robot.sh: --port: required (device path or pyserial URL)" >&2; exit 2; }
+if [ ${#wait_port[@]} = 0 ] && [[ "$port" != *://* ]]; then   # a device path (not a pyserial URL)
+  [ -e "$port" ] || {
+    echo "launch_robot.sh: --port: no such device '$port' (board not plugged in? --wait-for-port waits for it)" >&2
+    exit 2; }
+  [ -r "$port" ] && [ -w "$port" ] || {
+    echo "launch_robot.sh: --port: user $(id -un) cannot read and write '$port' (group $(stat -L -c %G "$port"))" >&2
+    exit 2; }
+fi
 [ -n "$scenario" ] && [ -f "$scenario" ] || { echo "launch_robot.sh: --scenario: no such file '$scenario'" >&2; exit 2; }
 if [ -n "$nice_given" ] && ! { [[ "$nice_n" =~ ^-?[0-9]{1,2}$ ]] && [ "$nice_n" -ge -20 ] && [ "$nice_n" -le 19 ]; }; then
   echo "launch_robot.sh: --nice: expected an integer in [-20, 19], got '$nice_n'" >&2; exit 2
@@ -71,10 +83,10 @@ if [ -z "$split" ]; then
   # the robot process: one formation_team hosting robot N's bridge and controller nodes
   af_start "robot_$id" "${ctl[@]}" "$AF_BIN/formation_team" --ros-args \
     -r formation_team:__node:="formation_robot_$id" -p scenario:="$scenario" -p robot_ids:="[$id]" \
-    -p port_template:="$port" "${rtp[@]}" "${params[@]}"
+    -p port_template:="$port" "${wait_port[@]}" "${rtp[@]}" "${params[@]}"
 else
   af_start "bridge_$id" "${ctl[@]}" "$AF_BIN/formation_bridge" --ros-args -r __ns:="/robot_$id" \
-    -p port:="$port" -p torque_limit_nm:="$torque_limit_nm" "${params[@]}"
+    -p port:="$port" -p torque_limit_nm:="$torque_limit_nm" "${wait_port[@]}" "${params[@]}"
   af_start "controller_$id" "${ctl[@]}" "$AF_BIN/formation_controller" --ros-args -r __ns:="/robot_$id" \
     -p scenario:="$scenario" -p robot_id:="$id" "${rtp[@]}" "${params[@]}"
 fi

@@ -186,6 +186,7 @@ def test_deployment_split(ros_context, executor, tmp_path):
     (["launch_robot.sh", "--id", "0", "--scenario", str(SCENARIO)], "--port"),
     (["launch_robot.sh", "--id", "7", "--port", "/dev/null", "--scenario", str(SCENARIO)], "--id"),
     (["launch_robot.sh", "--id", "x", "--port", "/dev/null", "--scenario", str(SCENARIO)], "--id"),
+    (["launch_robot.sh", "--id", "0", "--port", "/nonexistent/ttyACM9", "--scenario", str(SCENARIO)], "--port"),
     (["launch_base.sh", "--scenario", "/nonexistent/scenario.yaml"], "--scenario"),
     (["launch_base.sh"], "--scenario"),
     (["launch_sim.sh", str(SCENARIO), "--team", "0"], "--team"),
@@ -201,6 +202,8 @@ def test_launcher_bad_input(args, option, tmp_path):
     assert len(lines) == 1 and option in lines[0] and args[0] in lines[0], proc.stderr
     if option == "--id" and args[2] == "7":
         assert "robot 7 is not in" in lines[0]
+    if option == "--port" and "--port" in args:
+        assert "no such device '/nonexistent/ttyACM9'" in lines[0] and "--wait-for-port" in lines[0]
     assert proc.stdout == ""   # nothing was started
 
 
@@ -211,3 +214,45 @@ def test_formation_run_rejects_bad_launch_options(tmp_path, option, value):
     lines = proc.stderr.strip().splitlines()
     assert proc.returncode == 2 and len(lines) == 1 and option in lines[0], proc.stderr
     assert not (tmp_path / "out").exists()   # nothing was started
+
+
+@pytest.mark.parametrize("split", [False, True], ids=["robot_process", "split"])
+def test_launch_robot_wait_for_port_starts_and_connects_when_the_board_appears(ros_context, executor, tmp_path,
+                                                                                split):
+    """--wait-for-port: a missing port is no error; the bridge connects once the board's port
+    appears (here an emulated board on a pty created after the start), and TERM stops it all."""
+    import rclpy
+
+    from ament_formation.core import serial_protocol as sp
+    from ament_formation.core.motor_board import BoardConfig, MotorBoard
+    from ament_formation.hw.pty_board import PtyBoard
+    from ament_formation.tools.topic_cmd import list_nodes
+
+    port = tmp_path / "ttyACM_later"
+    run_dir = tmp_path / "robot_0"
+    proc = subprocess.Popen([str(SCRIPTS / "launch_robot.sh"), "--id", "0", "--port", str(port), "--scenario",
+                             str(SCENARIO), "--run-dir", str(run_dir), "--wait-for-port",
+                             *(["--split"] if split else [])],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    probe = rclpy.create_node("_wait_probe", context=ros_context)
+    executor.add_node(probe)
+    runner = PtyBoard(MotorBoard(BoardConfig(), now_s=time.monotonic()), link_path=port)
+    try:
+        assert spin_until(executor, lambda: "/robot_0/formation_bridge" in list_nodes(probe)
+                          or proc.poll() is not None, 60.0)
+        assert proc.poll() is None, proc.communicate(timeout=20)[0]
+        runner.open()
+        runner.start(step_period_s=0.002)
+        # the bridge opened the port and the handshake went through (the board answered a HELLO)
+        assert spin_until(executor, lambda: not runner.board.flags & sp.FLAG_RESET or proc.poll() is not None,
+                          30.0), f"board flags {runner.board.flags:#x}"
+        assert proc.poll() is None
+        proc.send_signal(signal.SIGTERM)
+        out, _ = proc.communicate(timeout=20)
+        assert proc.returncode == EXIT_ON_TERM, out
+        assert [p for p in _pids(run_dir) if alive(p)] == [], out
+    finally:
+        _stop(proc, run_dir)
+        executor.remove_node(probe)
+        probe.destroy_node()
+        runner.close()
