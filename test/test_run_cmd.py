@@ -1,35 +1,60 @@
 """`formation run`: the whole system as processes on the simulated twin, recorded to run.mcap,
-evaluated from the recorded ground truth (a head-on encounter, 12.5 s of scenario)."""
+evaluated from the recorded ground truth (a head-on encounter, 12.5 s of scenario), and honest
+about it: exit status 0 exactly when metrics.json says ``"ok": true``; a run that did not complete
+(a process killed mid-run) or whose checks fail exits 1 and names the reason in one line."""
+import argparse
+import io
 import json
+import os
+import signal
 import subprocess
+import time
+from contextlib import redirect_stderr
 from pathlib import Path
 
+import pytest
+import yaml
 from processes import alive
 
 from ament_formation.ros import shm
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIO = ROOT / "test" / "data" / "head_on.yaml"
+FORMATION = str(ROOT / ".venv" / "bin" / "formation")
 
 
-def test_formation_run_records_evaluates_and_stops_every_process(tmp_path):
+@pytest.fixture(scope="module")
+def passing_run(tmp_path_factory):
+    """One whole-system run of head_on.yaml (shared by the tests that read it)."""
+    out = tmp_path_factory.mktemp("run") / "run"
+    shm_before = shm.snapshot()
+    res = subprocess.run([FORMATION, "run", str(SCENARIO), "--out", str(out), "--quiet"],
+                         capture_output=True, text=True, timeout=400)
+    return res, out, shm_before
+
+
+def test_formation_run_records_evaluates_and_stops_every_process(passing_run):
     from ament_formation.ros.recorder import read_topic
 
-    shm_before = shm.snapshot()
-    out = tmp_path / "run"
-    res = subprocess.run([str(ROOT / ".venv" / "bin" / "formation"), "run", str(SCENARIO), "--out", str(out),
-                          "--quiet"], capture_output=True, text=True, timeout=240)
-    assert res.returncode == 0, res.stderr[-2000:]
-
+    res, out, shm_before = passing_run
     metrics = json.loads((out / "metrics.json").read_text())
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert metrics["ok"] is True and metrics["failure"] is None, metrics.get("failure")
+    assert res.stderr.strip() == ""                                # --quiet and nothing failed
+    names = {c["name"] for c in metrics["checks"]}
+    assert {"processes", "truth_gap_s", "control_gap_s", "completed", "prohibited_entries", "contact",
+            "avoidance_entries[R0]", "avoidance_entries[R1]", "min_inter_robot_distance_m"} <= names
+    assert all(c["ok"] for c in metrics["checks"])
+
     assert metrics["scenario"] == "head_on"
-    assert metrics["sim_time_s"] >= 12.0
+    assert metrics["sim_time_s"] >= 12.45
     assert metrics["prohibited_entries"] == 0
     assert metrics["min_inter_robot_distance_m"] > 0.25          # keep-out circle R_aa (S7)
     assert {e["robot"] for e in metrics["mode_events"] if e["event"] == "enter"} == {0, 1}
     for rid in ("0", "1"):
         peak = metrics["robots"][rid]["peak_torque_nm"]
         assert 0.0 < max(peak) <= 0.15
+    assert 0.0 < metrics["truth_max_gap_s"] <= 1.0
 
     truth = read_topic(out / "run.mcap", "/world/truth/robot_0")
     torques = read_topic(out / "run.mcap", "/robot_1/wheel_torque")
@@ -49,11 +74,79 @@ def test_formation_run_records_evaluates_and_stops_every_process(tmp_path):
     assert {n for n in left if not n.startswith("lttng-ust-wait")} == set(), left
 
 
+def test_a_failing_expectation_fails_the_run_in_one_line(passing_run, tmp_path):
+    """The same recording judged against an expectation it cannot meet (robot 1 closer than 1.5 m
+    is allowed never in a head-on encounter): exit status 1, one line naming the check, and
+    metrics.json saying the same."""
+    from ament_formation.core.scenario import parse_scenario
+    from ament_formation.tools.run_cmd import _evaluate, check
+
+    _res, out, _shm = passing_run
+    data = yaml.safe_load(SCENARIO.read_text())
+    data["expect"]["min_inter_robot_distance_m"] = 1.5
+    scenario = parse_scenario(data, source="head_on_strict")
+    judged = tmp_path / "strict"
+    judged.mkdir()
+    err = io.StringIO()
+    args = argparse.Namespace(no_figure=True, quiet=True)
+    with redirect_stderr(err):
+        rc = _evaluate(out / "run.mcap", scenario, judged, 20.0, args,
+                       [check("processes", True, "world:0", "world:0", "==")])
+    lines = err.getvalue().strip().splitlines()
+    assert rc == 1
+    assert len(lines) == 1 and "min_inter_robot_distance_m" in lines[0] and "< 1.5" in lines[0], lines
+    metrics = json.loads((judged / "metrics.json").read_text())
+    assert metrics["ok"] is False and metrics["failure"] in lines[0]
+    failed = [c for c in metrics["checks"] if not c["ok"]]
+    assert [c["name"] for c in failed] == ["min_inter_robot_distance_m"]
+    assert failed[0]["limit"] == 1.5 and failed[0]["value"] < 1.5
+
+
+def test_a_process_killed_mid_run_fails_the_run_naming_it(tmp_path):
+    """SIGKILL robot 1's controller 2 s after the mission starts: the launcher stops the rest,
+    `formation run` exits 1 naming the controller and the short simulated time, metrics.json too."""
+    out = tmp_path / "run"
+    run = subprocess.Popen([FORMATION, "run", str(SCENARIO), "--out", str(out), "--quiet", "--no-figure"],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        world_log = out / "processes" / "world.log"
+        deadline = time.monotonic() + 240
+        started = None
+        while started is None and time.monotonic() < deadline and run.poll() is None:
+            if world_log.exists() and "mission start" in world_log.read_text():
+                started = time.monotonic()
+            else:
+                time.sleep(0.1)     # polling the world's log for the start (not a fixed wait)
+        assert started is not None, "the mission did not start"
+        pids = dict(reversed(line.split()) for line in (out / "processes" / "pids").read_text().splitlines())
+        victim = int(pids["controller_1"])
+        while time.monotonic() < started + 2.0 and run.poll() is None:
+            time.sleep(0.1)         # let the robots drive for 2 s of the run first
+        os.kill(victim, signal.SIGKILL)
+        _stdout, stderr = run.communicate(timeout=240)
+    finally:
+        if run.poll() is None:
+            run.terminate()
+            run.wait(timeout=30)
+    lines = stderr.strip().splitlines()
+    assert run.returncode == 1
+    assert len(lines) == 1 and "Traceback" not in stderr, stderr
+    assert "controller_1 was killed by signal 9" in lines[0] and "completed" in lines[0], lines[0]
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["ok"] is False and metrics["failure"] in lines[0]
+    by_name = {c["name"]: c for c in metrics["checks"]}
+    assert by_name["processes"]["ok"] is False and by_name["processes"]["value"] == "controller_1:137"
+    assert by_name["completed"]["ok"] is False and by_name["completed"]["value"] < 12.5
+    pids = [int(p) for p in dict(reversed(line.split()) for line in
+                                 (out / "processes" / "pids").read_text().splitlines()).values()]
+    assert not any(alive(p) for p in pids)
+
+
 def test_formation_run_refuses_a_bad_scenario_in_one_line(tmp_path):
     bad = tmp_path / "bad.yaml"
     bad.write_text(SCENARIO.read_text().replace("duration_s: 12.5", "duration_s: -1"))
-    res = subprocess.run([str(ROOT / ".venv" / "bin" / "formation"), "run", str(bad), "--out",
-                          str(tmp_path / "o")], capture_output=True, text=True, timeout=60)
+    res = subprocess.run([FORMATION, "run", str(bad), "--out", str(tmp_path / "o")],
+                         capture_output=True, text=True, timeout=60)
     assert res.returncode == 2
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and "duration_s" in lines[0] and "Traceback" not in res.stderr

@@ -206,6 +206,24 @@ BAD_CASES = {
     "negative disturbance bound": (lambda d: d["disturbance"].update(accel_bound=[-0.1, 0.5]),
                                    "disturbance.accel_bound[0]", ">= 0"),
     "camera size zero": (lambda d: d["camera"].update(width_px=0), "camera.width_px", "> 0"),
+    "unknown expect key": (lambda d: d["expect"].update(settled_rms_m=0.01), "expect.settled_rms_m", "unknown key"),
+    "expect not a mapping": (lambda d: d.update(expect=[0.01]), "expect", "must be a mapping"),
+    "expect of an unknown robot": (lambda d: d["expect"].update(settled_rms_max_m={"0": 0.01, "7": 0.02}),
+                                   "expect.settled_rms_max_m", "'7' is not a robot id"),
+    "expect limit not positive": (lambda d: d["expect"].update(final_error_max_m={1: 0.0}),
+                                  "expect.final_error_max_m.1", "> 0"),
+    "expect limit not a number": (lambda d: d["expect"].update(settled_rms_max_m="small"),
+                                  "expect.settled_rms_max_m", "must be a number"),
+    "expect range reversed": (lambda d: d["expect"].update(avoidance_entries={0: [2, 1]}),
+                              "expect.avoidance_entries.0", "min must be <= max"),
+    "expect count negative": (lambda d: d["expect"].update(avoidance_entries={0: -1}),
+                              "expect.avoidance_entries.0", ">= 0"),
+    "expect count not an integer": (lambda d: d["expect"].update(avoidance_entries=1.5),
+                                    "expect.avoidance_entries", "must be an integer"),
+    "expect empty per-robot mapping": (lambda d: d["expect"].update(settled_rms_max_m={}),
+                                       "expect.settled_rms_max_m", "must not be empty"),
+    "expect clearance not finite": (lambda d: d["expect"].update(min_clearance_m=float("nan")),
+                                    "expect.min_clearance_m", "finite"),
 }
 
 
@@ -296,3 +314,73 @@ def test_cli_malformed_yaml_and_bad_option(tmp_path):
     assert proc.returncode == 2 and "--dt-s" in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
     proc = _formation("plot", str(tmp_path / "no_run"), cwd=tmp_path)
     assert proc.returncode == 2 and "no such run directory" in proc.stderr
+
+
+# ---------------------------------------------------------------------------------------------
+# The expect block and the checks made with it (core/metrics.check_run)
+# ---------------------------------------------------------------------------------------------
+
+def test_expect_block_forms():
+    data = base()
+    data["expect"] = {"settled_rms_max_m": 0.02, "final_error_max_m": {"1": 0.05},
+                      "avoidance_entries": {0: 1, "1": [0, 2]}, "min_clearance_m": -0.01,
+                      "min_inter_robot_distance_m": 0.3}
+    e = parse_scenario(data).expect
+    assert e.settled_rms_max_m == ((0, 0.02), (1, 0.02))           # one value: every robot
+    assert e.final_error_max_m == ((1, 0.05),)                      # string ids as in JSON
+    assert e.avoidance_entries == ((0, (1, 1)), (1, (0, 2)))        # a count or a [min, max] range
+    assert e.min_clearance_m == -0.01 and e.min_inter_robot_distance_m == 0.3
+    data.pop("expect")
+    assert parse_scenario(data).expect.empty
+
+
+def test_every_shipped_scenario_declares_what_a_run_must_achieve():
+    for path in [PAPER, V_FORMATION, *sorted((ROOT / "test" / "data").glob("*.yaml"))]:
+        assert not load_scenario(path).expect.empty, path
+
+
+def _metrics(rms=(0.001, 0.004), entries=(1, 1), sim_time_s=55.0, pair_m=1.0, entries_p=0):
+    return {"sim_time_s": sim_time_s, "prohibited_entries": entries_p, "min_clearance_m": 0.03,
+            "min_inter_robot_distance_m": pair_m, "robot_pair_min_distance_m": {"0-1": pair_m},
+            "robots": {str(k): {"formation_rms_settled_m": r, "final_error_m": 0.001, "avoidance_entries": n}
+                       for k, (r, n) in enumerate(zip(rms, entries))}}
+
+
+def test_check_run_passes_a_good_run_and_names_every_failed_check():
+    from ament_formation.core.metrics import check_run
+
+    paper = load_scenario(PAPER)                  # expect: RMS R0 <= 5 mm, R1 <= 15 mm, ...
+    good = check_run(_metrics(), paper)
+    assert good["ok"] is True and good["failure"] is None
+    assert [c["name"] for c in good["checks"]][:3] == ["completed", "prohibited_entries", "contact"]
+
+    bad = check_run(_metrics(rms=(0.0424, None), entries=(3, 1), sim_time_s=9.8, pair_m=0.15, entries_p=1),
+                    paper)
+    failed = {c["name"]: c for c in bad["checks"] if not c["ok"]}
+    assert set(failed) == {"completed", "prohibited_entries", "contact", "settled_rms_m[R0]",
+                           "settled_rms_m[R1]", "avoidance_entries[R0]"}
+    assert failed["contact"]["limit"] == pytest.approx(0.2)        # 2 x body radius
+    assert failed["settled_rms_m[R1]"]["value"] is None             # no settled window is a failure
+    line = bad["failure"]
+    assert "\n" not in line and "completed 9.8 < 55" in line and "settled_rms_m[R0] 0.0424 > 0.005" in line
+    assert "avoidance_entries[R0] 3 not in [1, 2]" in line and "no settled window" in line
+    # extra checks of the caller come first and count
+    extra = check_run(_metrics(), paper, extra=[{"name": "processes", "ok": False, "value": "world:1",
+                                                 "limit": "world:0", "op": "==", "detail": "world crashed"}])
+    assert extra["ok"] is False and extra["failure"].startswith("processes world:1 != world:0 (world crashed)")
+
+
+def test_formation_sim_exits_1_naming_a_failed_expectation(tmp_path):
+    data = yaml.safe_load((ROOT / "test" / "data" / "paper_short.yaml").read_text())
+    data["expect"]["final_error_max_m"] = {0: 0.001}
+    path = tmp_path / "strict.yaml"
+    path.write_text(yaml.safe_dump(data))
+    proc = _formation("sim", str(path), "--out", str(tmp_path / "o"), "--no-figure", cwd=tmp_path)
+    lines = [ln for ln in proc.stderr.strip().splitlines() if not ln.startswith("sim: t =")]   # progress
+    assert proc.returncode == 1 and len(lines) == 1, proc.stderr
+    assert lines[0].startswith("formation sim: FAILED: final_error_m[R0]") and "> 0.001" in lines[0]
+    assert "checks: FAILED" in proc.stdout
+    import json
+
+    metrics = json.loads((tmp_path / "o" / "metrics.json").read_text())
+    assert metrics["ok"] is False and metrics["failure"] in lines[0]

@@ -236,3 +236,108 @@ def compute_metrics(result: SimResult, scenario) -> dict:
         "reaching_ratio_max": max(ratios) if ratios else None,
     }
     return json_ready(metrics)
+
+
+# ------------------------------------------------------------------------------------------------
+# Checks: what every run must achieve, plus the scenario's ``expect:`` block (core/scenario.py)
+# ------------------------------------------------------------------------------------------------
+
+COMPLETE_TOLERANCE_S = 0.05     # a run is complete when sim_time_s >= duration_s - this
+
+
+def check(name: str, ok: bool, value, limit, op: str, detail: str | None = None) -> dict:
+    """One check result as written to metrics.json ``checks``: name, ok, value, limit, op (how value
+    compares with limit: "<=", ">=", "in", "=="), and an optional one-line detail."""
+    out = {"name": name, "ok": bool(ok), "value": json_ready(value), "limit": json_ready(limit), "op": op}
+    if detail:
+        out["detail"] = detail
+    return out
+
+
+def _le(name, value, limit, missing="not measured"):
+    if value is None:
+        return check(name, False, None, limit, "<=", missing)
+    return check(name, value <= limit, value, limit, "<=")
+
+
+def _ge(name, value, limit, missing="not measured"):
+    if value is None:
+        return check(name, False, None, limit, ">=", missing)
+    return check(name, value >= limit, value, limit, ">=")
+
+
+def check_run(metrics: dict, scenario, extra: list[dict] | None = None, measured: bool = True) -> dict:
+    """Check a run's ``metrics`` (from :func:`compute_metrics`) and add ``checks``, ``ok`` and
+    ``failure`` to it (returned too). ``formation sim`` and ``formation run`` call the same function;
+    ``extra`` are checks only the caller can make (a process that died, a gap in the recording),
+    listed first.
+
+    Every run: ``completed`` (sim_time_s reaches duration_s), ``prohibited_entries`` (0), ``contact``
+    (no two robot footprints overlap: |p_a - p_b| >= R_a + R_b for every pair). Then the scenario's
+    ``expect:`` block (:class:`~ament_formation.core.scenario.ExpectSpec`). ``failure`` is one line
+    naming the failed checks (None when ``ok``). ``measured=False`` (nothing was recorded): only
+    ``extra`` and ``completed``.
+    """
+    checks = list(extra or [])
+    checks.append(_ge("completed", metrics.get("sim_time_s"), scenario.duration_s - COMPLETE_TOLERANCE_S))
+    checks[-1]["limit"] = float(scenario.duration_s)
+    if not measured:
+        return _verdict(metrics, checks)
+    checks.append(_le("prohibited_entries", metrics.get("prohibited_entries"), 0))
+
+    radius = {str(r.id): r.params.body_radius_m for r in scenario.robots}
+    worst = None                                   # (gap, pair, distance, contact distance)
+    for pair, dist in (metrics.get("robot_pair_min_distance_m") or {}).items():
+        a, b = pair.split("-")
+        touch = radius[a] + radius[b]
+        gap = math.inf if dist is None else dist - touch
+        if worst is None or gap < worst[0]:
+            worst = (gap, pair, dist, touch)
+    if worst is not None:
+        checks.append(check("contact", worst[0] >= 0.0, worst[2], worst[3], ">=",
+                            f"robots {worst[1]}"))
+
+    e = scenario.expect
+    robots = metrics.get("robots") or {}
+    for rid, limit in e.settled_rms_max_m:
+        checks.append(_le(f"settled_rms_m[R{rid}]", robots.get(str(rid), {}).get("formation_rms_settled_m"),
+                          limit, missing="no settled window (run shorter than the last avoidance exit + 10 s)"))
+    for rid, limit in e.final_error_max_m:
+        checks.append(_le(f"final_error_m[R{rid}]", robots.get(str(rid), {}).get("final_error_m"), limit))
+    for rid, (lo, hi) in e.avoidance_entries:
+        n = robots.get(str(rid), {}).get("avoidance_entries")
+        checks.append(check(f"avoidance_entries[R{rid}]", n is not None and lo <= n <= hi, n, [lo, hi], "in"))
+    if e.min_clearance_m is not None:
+        checks.append(_ge("min_clearance_m", metrics.get("min_clearance_m"), e.min_clearance_m))
+    if e.min_inter_robot_distance_m is not None:
+        checks.append(_ge("min_inter_robot_distance_m", metrics.get("min_inter_robot_distance_m"),
+                          e.min_inter_robot_distance_m))
+
+    return _verdict(metrics, checks)
+
+
+def _verdict(metrics: dict, checks: list[dict]) -> dict:
+    metrics["checks"] = checks
+    metrics["ok"] = all(c["ok"] for c in checks)
+    metrics["failure"] = None if metrics["ok"] else "; ".join(describe_check(c) for c in checks if not c["ok"])
+    return metrics
+
+
+def _fmt(value) -> str:
+    if isinstance(value, float):
+        return f"{value:.4g}"
+    if isinstance(value, list):
+        return "[" + ", ".join(_fmt(v) for v in value) + "]"
+    return str(value)
+
+
+def describe_check(c: dict) -> str:
+    """A check as one short phrase: "settled_rms_m[R1] 0.0424 > 0.02" or its detail when no value."""
+    if c.get("value") is None and c.get("detail"):
+        return f"{c['name']}: {c['detail']}"
+    if c["ok"]:
+        rel = {"<=": "<=", ">=": ">=", "in": "in", "==": "=="}[c["op"]]
+    else:
+        rel = {"<=": ">", ">=": "<", "in": "not in", "==": "!="}[c["op"]]
+    text = f"{c['name']} {_fmt(c['value'])} {rel} {_fmt(c['limit'])}"
+    return f"{text} ({c['detail']})" if c.get("detail") and not c["ok"] else text

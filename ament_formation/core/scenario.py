@@ -14,7 +14,10 @@ as ``robots[1].slot_m`` or ``obstacles[0].semi_axes_m``) and the problem. Checks
 * geometry at start: no robot inside a prohibited region P_j, no two robots closer than the agent
   prohibited circle R_i + R_k + margin (S7);
 * geometry over the run: the limit cycles L_j = rho_L P_j of two obstacles never overlap
-  (S13 #3), checked exactly for static pairs and sampled every ``_OVERLAP_STEP_S`` for moving ones.
+  (S13 #3), checked exactly for static pairs and sampled every ``_OVERLAP_STEP_S`` for moving ones;
+* the optional ``expect:`` block (what a run of the scenario must achieve, checked by
+  core/metrics.check_run after `formation sim` and `formation run`): known keys, robot ids of the
+  scenario, limits of the right sign, ranges with min <= max.
 """
 from __future__ import annotations
 
@@ -77,6 +80,31 @@ class CameraSpec:
 
 
 @dataclass(frozen=True)
+class ExpectSpec:
+    """What a run of the scenario must achieve (the ``expect:`` block; docs/scenarios.md), besides
+    the checks every run gets (complete, no prohibited entry, no contact). Per-robot limits are
+    ``((robot_id, value), ...)`` in robot order; an empty tuple or None means "not checked".
+
+    settled_rms_max_m : formation_rms_settled_m <= limit [m] (a run without a settled window fails)
+    final_error_max_m : final_error_m <= limit [m]
+    avoidance_entries : ((robot_id, (min, max)), ...): avoidance_entries in [min, max]
+    min_clearance_m : metrics min_clearance_m >= this [m] (signed distance of p to every P_j)
+    min_inter_robot_distance_m : metrics min_inter_robot_distance_m >= this [m]
+    """
+
+    settled_rms_max_m: tuple[tuple[int, float], ...] = ()
+    final_error_max_m: tuple[tuple[int, float], ...] = ()
+    avoidance_entries: tuple[tuple[int, tuple[int, int]], ...] = ()
+    min_clearance_m: float | None = None
+    min_inter_robot_distance_m: float | None = None
+
+    @property
+    def empty(self) -> bool:
+        return not (self.settled_rms_max_m or self.final_error_max_m or self.avoidance_entries
+                    or self.min_clearance_m is not None or self.min_inter_robot_distance_m is not None)
+
+
+@dataclass(frozen=True)
 class Scenario:
     """A validated scenario. ``edges`` are (parent, child) pairs: child may receive parent's state."""
 
@@ -89,6 +117,7 @@ class Scenario:
     avoidance: AvoidanceParams = field(default_factory=AvoidanceParams)
     control: ControlGains = field(default_factory=ControlGains)
     camera: CameraSpec = field(default_factory=CameraSpec)
+    expect: ExpectSpec = field(default_factory=ExpectSpec)
     source: str | None = None
 
     @property
@@ -210,7 +239,9 @@ def parse_scenario(mapping, source: str | None = None) -> Scenario:
 # ------------------------------------------------------------------------------------------------
 
 _TOP_REQUIRED = {"name", "duration_s", "robots"}
-_TOP_OPTIONAL = {"robot", "disturbance", "graph", "obstacles", "avoidance", "control", "camera"}
+_TOP_OPTIONAL = {"robot", "disturbance", "graph", "obstacles", "avoidance", "control", "camera", "expect"}
+_EXPECT_KEYS = {"settled_rms_max_m", "final_error_max_m", "avoidance_entries", "min_clearance_m",
+                "min_inter_robot_distance_m"}
 _ROBOT_KEYS_REQUIRED = {"id", "initial_pose"}
 _ROBOT_KEYS_OPTIONAL = {"leader", "path", "slot_m", "marker_id"}
 _PARAM_KEYS = set(RobotParams.field_names())
@@ -311,10 +342,11 @@ def _parse(data, source) -> Scenario:
     _check_teams(robots, edges)
     _check_start_geometry(robots, obstacles, avoidance)
     _check_limit_cycles(obstacles, avoidance, duration)
+    expect = _parse_expect(data.get("expect", {}), ids)
 
     return Scenario(name=name.strip(), duration_s=duration, robots=tuple(robots), edges=tuple(edges),
                     obstacles=tuple(obstacles), disturbance=disturbance, avoidance=avoidance,
-                    control=control, camera=camera, source=source)
+                    control=control, camera=camera, expect=expect, source=source)
 
 
 def _parse_params_block(data, key, cls):
@@ -343,6 +375,59 @@ def _parse_camera(block) -> CameraSpec:
         if value <= 0:
             raise ConfigError(f"must be > 0 (got {value})", f"camera.{key}")
     return CameraSpec(fps=fps, width_px=width, height_px=height)
+
+
+def _per_robot(value, where: str, ids: list[int], parse_one) -> tuple:
+    """A per-robot expectation: one value for every robot, or a mapping robot id -> value (ids as
+    integers or strings, e.g. ``{"0": 0.01, "1": 0.02}``). Returns ((id, value), ...) in robot order."""
+    if not isinstance(value, dict):
+        one = parse_one(value, where)
+        return tuple((rid, one) for rid in ids)
+    if not value:
+        raise ConfigError("must not be empty (a value, or a mapping robot id -> value)", where)
+    out = {}
+    for key, item in value.items():
+        rid = key
+        if isinstance(key, str) and re.fullmatch(r"[0-9]+", key.strip()):
+            rid = int(key.strip())
+        if isinstance(rid, bool) or not isinstance(rid, int) or rid not in ids:
+            raise ConfigError(f"{key!r} is not a robot id of the scenario (ids: {sorted(ids)})", where)
+        if rid in out:
+            raise ConfigError(f"robot {rid} is listed twice", where)
+        out[rid] = parse_one(item, f"{where}.{key}")
+    return tuple((rid, out[rid]) for rid in ids if rid in out)
+
+
+def _entries_range(value, where: str) -> tuple[int, int]:
+    if isinstance(value, (list, tuple)):
+        if len(value) != 2:
+            raise ConfigError(f"must be a count or a [min, max] pair of counts (got {value!r})", where)
+        lo, hi = _integer(value[0], f"{where}[0]"), _integer(value[1], f"{where}[1]")
+        if lo > hi:
+            raise ConfigError(f"min must be <= max (got {list(value)})", where)
+        return lo, hi
+    n = _integer(value, where)
+    return n, n
+
+
+def _parse_expect(block, ids: list[int]) -> ExpectSpec:
+    block = {} if block is None else block
+    _keys(block, "expect", set(), _EXPECT_KEYS)
+
+    def limit(value, where):
+        return _number(value, where, positive=True)
+
+    kw = {}
+    for key in ("settled_rms_max_m", "final_error_max_m"):
+        if key in block:
+            kw[key] = _per_robot(block[key], f"expect.{key}", ids, limit)
+    if "avoidance_entries" in block:
+        kw["avoidance_entries"] = _per_robot(block["avoidance_entries"], "expect.avoidance_entries", ids,
+                                             _entries_range)
+    for key in ("min_clearance_m", "min_inter_robot_distance_m"):
+        if key in block:
+            kw[key] = _number(block[key], f"expect.{key}")
+    return ExpectSpec(**kw)
 
 
 def _parse_robots(items, base: dict) -> list[RobotSpec]:
@@ -632,7 +717,7 @@ def scenario_to_mapping(scenario: Scenario) -> dict:
             item["oscillation"] = {"amplitude_m": floats(o.oscillation_amplitude_m),
                                    "period_s": float(o.oscillation_period_s)}
         obstacles.append(item)
-    return {
+    out = {
         "name": scenario.name,
         "duration_s": float(scenario.duration_s),
         "disturbance": {"accel_bound": floats(scenario.disturbance.accel_bound),
@@ -645,6 +730,19 @@ def scenario_to_mapping(scenario: Scenario) -> dict:
         "camera": {"fps": float(scenario.camera.fps), "width_px": int(scenario.camera.width_px),
                    "height_px": int(scenario.camera.height_px)},
     }
+    e = scenario.expect
+    if not e.empty:
+        expect = {}
+        for key in ("settled_rms_max_m", "final_error_max_m"):
+            if getattr(e, key):
+                expect[key] = {int(rid): float(v) for rid, v in getattr(e, key)}
+        if e.avoidance_entries:
+            expect["avoidance_entries"] = {int(rid): [int(lo), int(hi)] for rid, (lo, hi) in e.avoidance_entries}
+        for key in ("min_clearance_m", "min_inter_robot_distance_m"):
+            if getattr(e, key) is not None:
+                expect[key] = float(getattr(e, key))
+        out["expect"] = expect
+    return out
 
 
 def dump_scenario(scenario: Scenario) -> str:

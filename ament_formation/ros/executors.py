@@ -30,23 +30,48 @@ def spin_until(
         executor.spin_once(timeout_sec=min(step_s, remaining))
 
 
-def make_executor(node=None, context=None) -> Executor:
-    """The executor a node process spins: rclpy's C++ EventsExecutor, unless the node runs on
-    simulated time (``use_sim_time``: its timer manager does not follow /clock in Jazzy) or
-    ``AMENT_FORMATION_EXECUTOR=single`` asks for the SingleThreadedExecutor.
+# The executor each process spins, chosen by measurement (docs/executors.md, bench/bench_executors.py):
+# rclpy's C++ EventsExecutor costs about half the CPU time per callback of the Python
+# SingleThreadedExecutor, which matters on the control path (a robot's board runs the bridge and
+# the controller at 100-200 Hz); where the executor's cost is small next to the work of the
+# callbacks (physics and rendering, image processing, the graph) or where a stalled callback
+# spoils the whole run (the world is the clock of a simulated run; the recorder of `formation run`
+# is how a run is judged), the SingleThreadedExecutor: plain rcl wait sets, with a timeout on
+# every wait. Keys are the process names given to run_node (and the node name of the recorder).
+EXECUTOR_BY_PROCESS: dict[str, str] = {
+    "formation_controller": "events",     # ~430 callbacks/s per robot (control tick, wheels, pose, parent)
+    "formation_bridge": "events",         # 200 Hz serial poll + 100 Hz torque
+    "formation_team": "events",           # several robots' controllers and bridges in one process
+    "formation_world": "single",          # plant + camera: the sim's clock; work >> executor cost
+    "formation_tracker": "single",        # 30 Hz frames: image processing >> executor cost
+    "formation_coordinator": "single",    # graph and arbiter; slow paths, safety-relevant decisions
+    "formation_live_view": "single",
+    "_formation_run_recorder": "single",  # formation run's judge: its stall would hide a failure
+}
+EXECUTOR_ENV = "AMENT_FORMATION_EXECUTOR"  # "single" or "events" overrides the table (experiments)
 
-    The EventsExecutor costs about a quarter of the CPU time per timer tick or message of the
-    Python SingleThreadedExecutor (bench/bench_system.py), which is what lets many robots' nodes
-    share two cores.
-    """
+
+def executor_kind(process: str | None = None, node=None) -> str:
+    """"single" or "events" for ``process`` (a key of EXECUTOR_BY_PROCESS; default: the node's
+    name): the environment override, else SingleThreadedExecutor on simulated time (the
+    EventsExecutor's timers do not follow /clock in Jazzy), else the table, else "events"."""
     import os
 
+    forced = os.environ.get(EXECUTOR_ENV, "").strip().lower()
+    if forced in ("single", "events"):
+        return forced
+    if node is not None and node.has_parameter("use_sim_time") and bool(node.get_parameter("use_sim_time").value):
+        return "single"
+    if process is None and node is not None:
+        process = node.get_name()
+    return EXECUTOR_BY_PROCESS.get(process or "", "events")
+
+
+def make_executor(node=None, context=None, process: str | None = None) -> Executor:
+    """The executor for ``process`` (or ``node``'s name), see :func:`executor_kind`."""
     from rclpy.executors import SingleThreadedExecutor
 
-    sim_time = False
-    if node is not None and node.has_parameter("use_sim_time"):
-        sim_time = bool(node.get_parameter("use_sim_time").value)
-    if sim_time or os.environ.get("AMENT_FORMATION_EXECUTOR", "events") == "single":
+    if executor_kind(process, node) == "single":
         return SingleThreadedExecutor(context=context)
     try:
         from rclpy.experimental import EventsExecutor
@@ -55,10 +80,11 @@ def make_executor(node=None, context=None) -> Executor:
     return EventsExecutor(context=context)
 
 
-def spin_node(node) -> None:
+def spin_node(node, process: str | None = None) -> None:
     """Spin ``node`` (and the nodes it hosts, ``node.composed_nodes``, nodes/team.py) until its
-    context shuts down (SIGINT/SIGTERM) or it sets ``node.done``, on :func:`make_executor`."""
-    executor = make_executor(node, context=node.context)
+    context shuts down (SIGINT/SIGTERM) or it sets ``node.done``, on :func:`make_executor`'s
+    choice for ``process``."""
+    executor = make_executor(node, context=node.context, process=process)
     nodes = [node, *getattr(node, "composed_nodes", ())]
     for n in nodes:
         executor.add_node(n)
@@ -74,6 +100,23 @@ def spin_node(node) -> None:
         executor.shutdown()
 
 
+def _stop_on_signals(get_node: Callable) -> None:
+    """SIGINT/SIGTERM end the spin loop (``node.done``) instead of shutting the context down under
+    running callbacks (which then fail to publish: "[FATAL] ... publisher's context is invalid"),
+    so that ``on_exit`` and ``destroy_node`` still publish and the context is shut down last. A
+    second signal interrupts at once."""
+    import signal
+
+    def handler(signum, frame):
+        node = get_node()
+        if node is None or getattr(node, "done", False):
+            raise KeyboardInterrupt
+        node.done = True
+
+    signal.signal(signal.SIGINT, handler)
+    signal.signal(signal.SIGTERM, handler)
+
+
 def run_node(name: str, make_node: Callable, args: list[str] | None = None,
              on_exit: Callable | None = None) -> int:
     """The ``main()`` of every node process: init rclpy, build the node, spin it (:func:`spin_node`)
@@ -84,6 +127,8 @@ def run_node(name: str, make_node: Callable, args: list[str] | None = None,
 
     from ament_formation.core.errors import ConfigError
 
+    from rclpy.signals import SignalHandlerOptions
+
     rclpy.init(args=args if args is not None else sys.argv)
     node = None
     try:
@@ -93,7 +138,7 @@ def run_node(name: str, make_node: Callable, args: list[str] | None = None,
         # pause the control loop for milliseconds
         gc.collect()
         gc.freeze()
-        spin_node(node)
+        spin_node(node, process=name)
         return 0
     except ConfigError as err:
         print(f"{name}: {err}", file=sys.stderr)

@@ -26,9 +26,16 @@ def _zoh_index(sample_t: np.ndarray, grid: np.ndarray) -> np.ndarray:
     return np.searchsorted(sample_t, grid, side="right") - 1
 
 
-def load_run(path: str | Path, scenario, record_every_s: float = 0.01) -> SimResult:
+def load_run(path: str | Path, scenario, record_every_s: float = 0.01, stats: dict | None = None) -> SimResult:
     """Read ``path`` (run.mcap) into a SimResult on scenario time; ValueError when the recording
-    lacks the mission start or the ground truth."""
+    lacks the mission start or the ground truth.
+
+    ``stats`` (a dict, filled when given): ``truth_max_gap_s`` the longest pause [s, scenario time]
+    between consecutive ground-truth samples of any robot from t = 0 to the end of the recording
+    (the world or the recorder stalled), ``truth_max_gap_at_s`` where it starts,
+    ``truth_end_s`` the scenario time of the last sample every robot has, and ``torque_max_gap_s``
+    {robot id: the longest pause [s] of its recorded wheel_torque commands over the same span,
+    the end included (a stalled or dead controller)}."""
     ids = tuple(r.id for r in scenario.robots)
     index = {rid: k for k, rid in enumerate(ids)}
     truth: dict[int, list] = {rid: [] for rid in ids}
@@ -68,6 +75,10 @@ def load_run(path: str | Path, scenario, record_every_s: float = 0.01) -> SimRes
         raise ValueError(f"{path}: no ground truth for robots {missing}")
 
     t_end = min(max(s for s, _ in truth[rid]) for rid in ids) - start_s
+    if stats is not None:
+        stats.update(_truth_gaps(truth, ids, start_s, t_end))
+        stats["torque_max_gap_s"] = {rid: _max_gap([s - start_s for s, _ in torque[rid]], t_end)
+                                     for rid in ids}
     t_end = min(t_end, scenario.duration_s)
     grid = np.arange(0.0, max(t_end, 0.0) + 1e-9, record_every_s)
     n, big_t = len(ids), len(grid)
@@ -147,6 +158,27 @@ def load_run(path: str | Path, scenario, record_every_s: float = 0.01) -> SimRes
                      state=state, torque_nm=tau, goal_m=goal, avoiding=avoiding, saturated=saturated,
                      obstacle_center_m=oc, obstacle_phi_rad=ophi, mode_events=mode_events,
                      graph_events=graph_events, dt_s=record_every_s)
+
+
+def _truth_gaps(truth: dict, ids, start_s: float, t_end: float) -> dict:
+    """Longest gap between ground-truth stamps on [0, t_end] of scenario time (see load_run)."""
+    worst, at = 0.0, None
+    for rid in ids:
+        ts = np.sort(np.array([s for s, _ in truth[rid]]) - start_s)
+        ts = np.concatenate([[0.0], ts[(ts > 0.0) & (ts <= t_end)]])
+        if len(ts) > 1:
+            gaps = np.diff(ts)
+            k = int(np.argmax(gaps))
+            if gaps[k] > worst:
+                worst, at = float(gaps[k]), float(ts[k])
+    return {"truth_max_gap_s": worst, "truth_max_gap_at_s": at, "truth_end_s": float(t_end)}
+
+
+def _max_gap(times_s, t_end: float) -> float:
+    """Longest pause [s] between the sample times on [0, t_end], counting 0 and t_end as edges."""
+    ts = np.sort(np.asarray(times_s, dtype=float))
+    ts = np.concatenate([[0.0], ts[(ts > 0.0) & (ts < t_end)], [max(t_end, 0.0)]])
+    return float(np.max(np.diff(ts)))
 
 
 def _parents_json(parents: dict) -> dict:

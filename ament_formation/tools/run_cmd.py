@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -22,6 +23,14 @@ from pathlib import Path
 from ament_formation.core.errors import ConfigError
 
 _ROOT = Path(__file__).resolve().parents[2]
+TRUTH_GAP_MAX_S = 1.0   # the longest pause [s, scenario time] of the recorded ground truth of a good run
+
+
+def check(*args, **kw) -> dict:
+    """core/metrics.check, imported when needed (the `formation` tool starts without numpy)."""
+    from ament_formation.core.metrics import check as make
+
+    return make(*args, **kw)
 
 
 def register(subparsers) -> None:
@@ -51,6 +60,9 @@ def register(subparsers) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress and no summary")
     p.add_argument("--startup-timeout", type=float, default=90.0, metavar="S",
                    help="give up when the mission has not started after S wall seconds (default 90)")
+    p.add_argument("--stall-timeout", type=float, default=20.0, metavar="S",
+                   help="give up when the world's ground truth has not advanced for S wall seconds "
+                        "after the start (a frozen process; default 20)")
     p.set_defaults(func=run_system)
 
 
@@ -121,7 +133,7 @@ def run_system(args: argparse.Namespace) -> int:
     use_sim_time = args.speed != 1.0
     node = rclpy.create_node("_formation_run_recorder", context=ctx,
                              parameter_overrides=[Parameter("use_sim_time", value=use_sim_time)])
-    executor = make_executor(node, context=ctx)   # EventsExecutor unless on sim time (cheap wait sets)
+    executor = make_executor(node, context=ctx)   # SingleThreadedExecutor (ros/executors.py: the judge must not stall)
     executor.add_node(node)
     exclude = ["/rosout", "/parameter_events"] + ([] if args.record_images else ["/camera/image_raw"])
     recorder = TopicRecorder(node, McapWriter(mcap_path), exclude=exclude, scan_period_s=0.25)
@@ -154,6 +166,8 @@ def run_system(args: argparse.Namespace) -> int:
         stdout=open(out / "launch.log", "w"), stderr=subprocess.STDOUT, start_new_session=True)
     progress = None if args.quiet else _Progress(sys.stderr, scenario.duration_s)
     status = 0
+    stop_reason = None                  # why this process stopped the system early (a failed check)
+    last_truth = {"s": None, "wall": None}
     live_log = proc_dir / "live_view.log" if (args.live, args.live_host) != (None, None) else None
     try:
         while launch.poll() is None:
@@ -171,11 +185,23 @@ def run_system(args: argparse.Namespace) -> int:
                     t = max(0.0, latest["s"] - start["s"])
                     progress(f"run: t = {t:6.1f} / {scenario.duration_s:.1f} s, "
                              f"{recorder.writer.message_count} messages recorded")
-            if start["s"] is None and time.monotonic() - wall0 > args.startup_timeout:
-                print(f"formation run: the mission did not start within {args.startup_timeout:g} s; "
-                      f"see {proc_dir}/*.log", file=sys.stderr)
-                status = 1
+            now = time.monotonic()
+            if start["s"] is None and now - wall0 > args.startup_timeout:
+                stop_reason = check("started", False, round(now - wall0, 2), args.startup_timeout, "<=",
+                                    f"the mission did not start within {args.startup_timeout:g} s; "
+                                    f"see {proc_dir}/*.log")
                 break
+            if latest["s"] != last_truth["s"]:
+                last_truth.update(s=latest["s"], wall=now)
+            elif start["s"] is not None and now - (last_truth["wall"] or now) > args.stall_timeout:
+                t = None if latest["s"] is None else latest["s"] - start["s"]
+                where = "before the first sample" if t is None else f"at t = {t:.2f} s"
+                stop_reason = check("stalled", False, round(now - last_truth["wall"], 2), args.stall_timeout, "<=",
+                                    f"no ground truth for {now - last_truth['wall']:.0f} s {where} (a frozen "
+                                    f"process or recorder); see {proc_dir}/*.log")
+                break
+            if start["s"] is not None and last_truth["wall"] is None:
+                last_truth["wall"] = now       # the stall clock runs from the start
         launch_rc = launch.poll()
     except KeyboardInterrupt:
         status = 130
@@ -198,26 +224,68 @@ def run_system(args: argparse.Namespace) -> int:
     wall_s = time.monotonic() - wall0
     if status:
         return status
-    if launch_rc not in (0, None):
-        print(f"formation run: a process of the system failed (launch status {launch_rc}); "
-              f"see {out}/launch.log and {proc_dir}/*.log", file=sys.stderr)
-    return _evaluate(mcap_path, scenario, out, wall_s, args, launch_rc)
+    extra = [stop_reason] if stop_reason is not None else [_process_check(out / "launch.log", launch_rc, proc_dir)]
+    return _evaluate(mcap_path, scenario, out, wall_s, args, extra)
 
 
-def _evaluate(mcap_path: Path, scenario, out: Path, wall_s: float, args, launch_rc) -> int:
-    from ament_formation.core.metrics import compute_metrics
-    from ament_formation.core.records import write_run
+_EXIT_RE = re.compile(r"^(\S+) exited with status (-?\d+)$", re.M)
+
+
+def _process_check(launch_log: Path, launch_rc, proc_dir: Path) -> dict:
+    """The ``processes`` check: a run ends well when the world is the first process to exit, with
+    status 0 (it finished the scenario); any other first exit (a crash, a kill, a process stopped
+    by a signal) names the process, its status and its log."""
+    try:
+        found = _EXIT_RE.search(launch_log.read_text())
+    except OSError:
+        found = None
+    if found is None:
+        return check("processes", False, f"launch status {launch_rc}", "world:0", "==",
+                     f"the launcher ended (status {launch_rc}) before any process exited; see {launch_log}")
+    name, rc = found.group(1), int(found.group(2))
+    if name == "world" and rc == 0:
+        return check("processes", True, "world:0", "world:0", "==")
+    how = f"was killed by signal {rc - 128}" if rc > 128 else f"exited with status {rc}"
+    return check("processes", False, f"{name}:{rc}", "world:0", "==",
+                 f"{name} {how} before the world finished; see {proc_dir / (name + '.log')}")
+
+
+def _evaluate(mcap_path: Path, scenario, out: Path, wall_s: float, args, extra: list[dict]) -> int:
+    """Metrics from the recording, the checks (core/metrics.check_run: every run's, the scenario's
+    ``expect:`` and ``extra``), metrics.json, figure, summary. Exit status 0 exactly when
+    metrics.json says ``"ok": true``; otherwise one line on stderr names what failed."""
+    from ament_formation.core.metrics import check_run, compute_metrics
+    from ament_formation.core.records import write_metrics, write_run
     from ament_formation.ros.run_record import load_run
 
+    stats: dict = {}
     try:
-        result = load_run(mcap_path, scenario)
-    except ValueError as err:
-        print(f"formation run: {err}", file=sys.stderr)
+        result = load_run(mcap_path, scenario, stats=stats)
+    except ValueError as err:     # nothing to evaluate: metrics.json still says why
+        extra = [*extra, check("recorded", False, None, None, "==", str(err))]
+        metrics = {"scenario": scenario.name, "sim_time_s": 0.0, "wall_time_s": wall_s,
+                   "source": "formation run (ROS 2 system, ground truth of the simulated twin)"}
+        check_run(metrics, scenario, extra=extra, measured=False)
+        write_metrics(out, metrics)
+        print(f"formation run: FAILED: {metrics['failure']}", file=sys.stderr)
         return 1
     result.wall_time_s = wall_s
     metrics = compute_metrics(result, scenario)
     metrics["wall_time_s"] = wall_s
     metrics["source"] = "formation run (ROS 2 system, ground truth of the simulated twin)"
+    metrics["truth_max_gap_s"] = stats.get("truth_max_gap_s")
+    gap = stats.get("truth_max_gap_s")
+    extra = [*extra, check("truth_gap_s", gap is not None and gap <= TRUTH_GAP_MAX_S, gap, TRUTH_GAP_MAX_S, "<=",
+                           f"the recorded ground truth stops for {gap or 0:.2f} s at t = "
+                           f"{stats.get('truth_max_gap_at_s') or 0:.2f} s (a stalled world or recorder)")]
+    torque_gaps = stats.get("torque_max_gap_s") or {}
+    metrics["torque_max_gap_s"] = {str(k): v for k, v in torque_gaps.items()}
+    if torque_gaps:
+        rid, worst = max(torque_gaps.items(), key=lambda kv: kv[1])
+        extra.append(check("control_gap_s", worst <= TRUTH_GAP_MAX_S, worst, TRUTH_GAP_MAX_S, "<=",
+                           f"robot {rid}'s wheel torque commands stop for {worst:.2f} s (a stalled or dead "
+                           f"controller or recorder)"))
+    check_run(metrics, scenario, extra=extra)
     write_run(out, result, scenario, metrics)
     if not args.no_figure:
         from ament_formation.core.plot import render_figure
@@ -227,4 +295,7 @@ def _evaluate(mcap_path: Path, scenario, out: Path, wall_s: float, args, launch_
         from ament_formation.tools.sim_cmd import _summary
 
         print(_summary(metrics, out, figure=not args.no_figure, first=("run.mcap",)))
-    return 0 if launch_rc in (0, None) else 1
+    if not metrics["ok"]:
+        print(f"formation run: FAILED: {metrics['failure']}", file=sys.stderr)
+        return 1
+    return 0

@@ -3,7 +3,9 @@
 sim   runs the ROS-free vectorised closed loop (core/simulator.py) on a scenario and writes the run
       directory (core/records.py): metrics.json, figure.png, trajectories.csv, obstacles.csv,
       events.json, run.json, scenario.yaml. A summary goes to stdout; progress of runs longer than
-      about a second goes to stderr.
+      about a second goes to stderr. The run is checked like `formation run` (core/metrics.check_run:
+      no prohibited entry, no contact, the scenario's ``expect:`` block); exit status 1 and one line
+      on stderr naming the failed checks when it fails (metrics.json ``ok``/``checks`` say the same).
 plot  redraws DIR/figure.png (or --output) from a run directory.
 
 Bad input (scenario, options, run directory) raises ConfigError: the dispatcher prints one line
@@ -97,6 +99,9 @@ def _summary(metrics: dict, out: Path, figure: bool = True, first: tuple[str, ..
     lines = [
         f"scenario {metrics['scenario']}: {metrics['sim_time_s']:.1f} s simulated in "
         f"{metrics['wall_time_s']:.2f} s wall",
+        *([] if "ok" not in metrics else [
+            f"  checks: {'OK' if metrics['ok'] else 'FAILED'} ({sum(c['ok'] for c in metrics['checks'])}/"
+            f"{len(metrics['checks'])} passed)" + ("" if metrics["ok"] else f": {metrics['failure']}")]),
         f"  prohibited entries {metrics['prohibited_entries']}, min clearance "
         f"{fmt(metrics['min_clearance_m'])}, min robot distance {fmt(metrics['min_inter_robot_distance_m'])}",
     ]
@@ -111,7 +116,7 @@ def _summary(metrics: dict, out: Path, figure: bool = True, first: tuple[str, ..
 
 
 def run_sim(args: argparse.Namespace) -> int:
-    from ament_formation.core.metrics import compute_metrics
+    from ament_formation.core.metrics import check_run, compute_metrics
     from ament_formation.core.records import write_run
     from ament_formation.core.scenario import load_scenario
 
@@ -132,7 +137,7 @@ def run_sim(args: argparse.Namespace) -> int:
     finally:
         if progress is not None:
             progress.finish()
-    metrics = compute_metrics(result, scenario)
+    metrics = check_run(compute_metrics(result, scenario), scenario)
     write_run(out, result, scenario, metrics)
     if not args.no_figure:
         from ament_formation.core.plot import render_figure
@@ -140,6 +145,9 @@ def run_sim(args: argparse.Namespace) -> int:
         render_figure(result, scenario, out / "figure.png")
     if not args.quiet:
         print(_summary(metrics, out, figure=not args.no_figure))
+    if not metrics["ok"]:
+        print(f"formation sim: FAILED: {metrics['failure']}", file=sys.stderr)
+        return 1
     return 0
 
 
