@@ -129,8 +129,9 @@ def run_node(name: str, make_node: Callable, args: list[str] | None = None,
 
     from rclpy.signals import SignalHandlerOptions
 
-    rclpy.init(args=args if args is not None else sys.argv)
+    rclpy.init(args=args if args is not None else sys.argv, signal_handler_options=SignalHandlerOptions.NO)
     node = None
+    _stop_on_signals(lambda: node)
     try:
         node = make_node()
         # everything built so far (modules, compiled kernels, the nodes) lives as long as the
