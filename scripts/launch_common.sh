@@ -9,7 +9,10 @@
 #
 # Several machines (opt-in): pass --multi-machine and export the same ROS_DOMAIN_ID on every machine.
 # That sets ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET and drops the loopback-only Fast DDS profile, so
-# DDS then uses every interface of the machine; use it only on a trusted robot network.
+# DDS then uses every interface of the machine; use it only on a trusted robot network. A lab's own
+# Fast DDS profile is kept: export FASTRTPS_DEFAULT_PROFILES_FILE=/path/lab_profile.xml before
+# launching (e.g. to pin DDS to the robot network's interface); a file that does not exist is bad
+# input (exit code 2). docs/deployment.md.
 AF_ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 AF_BIN="$AF_ROOT/.venv/bin"
 AF_PIDS=()
@@ -19,16 +22,27 @@ af_launch_init() {
   AF_RUN_DIR="$1"; shift
   local multi=0
   [ "${1:-}" = "--multi-machine" ] && multi=1
-  mkdir -p "$AF_RUN_DIR"
   if [ "$multi" = 1 ] && [ -z "${ROS_DOMAIN_ID:-}" ]; then
     echo "--multi-machine: export the same ROS_DOMAIN_ID (0..101) on every machine first" >&2
     exit 2
   fi
+  # a lab's own Fast DDS profile (anything but the project's loopback profile) survives --multi-machine
+  local lab_profile="${FASTRTPS_DEFAULT_PROFILES_FILE:-}"
+  [ "$lab_profile" = "$AF_ROOT/config/fastdds_localhost.xml" ] && lab_profile=""
+  if [ "$multi" = 1 ] && [ -n "$lab_profile" ] && [ ! -f "$lab_profile" ]; then
+    echo "$(basename "$0"): --multi-machine: FASTRTPS_DEFAULT_PROFILES_FILE: no such file '$lab_profile'" >&2
+    exit 2
+  fi
+  mkdir -p "$AF_RUN_DIR"
   # shellcheck source=ros_env.sh
   source "$AF_ROOT/scripts/ros_env.sh" "$AF_RUN_DIR/ros_log"
   if [ "$multi" = 1 ]; then
     export ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET
-    unset FASTRTPS_DEFAULT_PROFILES_FILE
+    if [ -n "$lab_profile" ]; then
+      export FASTRTPS_DEFAULT_PROFILES_FILE="$lab_profile"
+    else
+      unset FASTRTPS_DEFAULT_PROFILES_FILE
+    fi
   fi
   af_shm_snapshot
   : >"$AF_RUN_DIR/pids"
