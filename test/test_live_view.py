@@ -228,10 +228,27 @@ def test_scene_update_builds_every_entity(moving_scenario):
     assert len(update.encode()) > 1000      # decoded field by field by the Node client below
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+def test_layout_file_shows_what_the_live_view_serves():
+    from ament_formation.nodes.live_view import (IMAGE_TOPIC, SCENE_TOPIC, SERIES_SCHEMA, SERIES_TOPIC,
+                                                 foxglove_layout)
+
+    shipped = json.loads((ROOT / "config" / "foxglove" / "formation_layout.json").read_text())
+    assert shipped == json.loads(json.dumps(foxglove_layout()))      # regenerated when the code changes
+    panels = shipped["configById"]
+
+    def leaves(node):
+        return [node] if isinstance(node, str) else leaves(node["first"]) + leaves(node["second"])
+
+    assert sorted(leaves(shipped["layout"])) == sorted(panels)
+    kinds = {pid.split("!")[0] for pid in panels}
+    assert kinds == {"3D", "Image", "Plot"}
+    assert panels["3D!formation"]["topics"] == {SCENE_TOPIC: {"visible": True}}
+    assert panels["Image!camera"]["imageMode"]["imageTopic"] == IMAGE_TOPIC
+    plotted = [p["value"] for pid, cfg in panels.items() if pid.startswith("Plot!") for p in cfg["paths"]]
+    assert len(plotted) == 6 * 4                                     # robots 0..5: error, clearance, 2 torques
+    for value in plotted:
+        topic, field = value.rsplit(".", 1)
+        assert topic in {SERIES_TOPIC.format(id=i) for i in range(6)} and field in SERIES_SCHEMA["properties"]
 
 
 @pytest.mark.parametrize("case", ["bad_port", "port_in_use"])
@@ -318,7 +335,11 @@ def live_run(tmp_path_factory, node_client):
                 url = next((w for w in log.read_text().split() if w.startswith("ws://")), None)
             if url is None:
                 time.sleep(0.1)     # polling a log file for the server's address (not a fixed wait)
-        assert url is not None, f"the live view did not start: {log.read_text() if log.exists() else 'no log'}"
+        if url is None:
+            run.terminate()
+            _out, err = run.communicate(timeout=60)
+            pytest.fail(f"the live view did not start: {log.read_text() if log.exists() else 'no log'}\n"
+                        f"formation run: {err[-2000:]}")
         assert url.startswith("ws://127.0.0.1:")                  # loopback by default
         client = subprocess.run(node_client + ["--url", url, "--timeout-s", "500", "--image-data-every", "10",
                                                "--expect", ",".join(sorted(EXPECTED_TOPICS)), "--min-count", "3"],
