@@ -130,8 +130,8 @@ def test_torque_reaches_board_and_returns_in_telemetry(make_rig):
     rig.bridge.shutdown()
     assert rig.spin_until(lambda: rig.board.braking, 0.5)
     assert rig.board.stops_received >= 1 and not rig.board.flags & sp.FLAG_WATCHDOG
-    # 0.25 rad/s is below one encoder count per 10 ms (reads 0); -0.5 rad/s is braked, bounded
-    assert rig.board.applied_e4nm[0] == 0 and 0 < rig.board.applied_e4nm[1] <= 1000
+    # each wheel braked against its motion, bounded by 0.1 N m
+    assert -1000 <= rig.board.applied_e4nm[0] <= 0 < rig.board.applied_e4nm[1] <= 1000
 
 
 def test_board_watchdog_zeroes_torque_within_250_ms(make_rig):

@@ -232,6 +232,7 @@ def test_stop_message_brakes_at_once_and_only_once(harness):
         drive = _command_pump(link, sp.TorqueCommand(1000, -1000))
         harness.wait_for(lambda s: s["wheel_radps"][0] > 10.0 and s["wheel_radps"][1] < -10.0, 5.0, drive)
         stop = _command_pump(link, sp.Stop(sp.STOP_INPUT_STALE))
+        harness.poll()                       # every line written so far predates the first STOP
         n0 = len(harness.lines)
         braking = harness.wait_for(lambda s: s["telemetry"]["flags"] & sp.FLAG_BRAKING, 1.0, stop)
         assert braking["board"]["watchdog_trips"] == 0

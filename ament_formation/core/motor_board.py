@@ -21,8 +21,9 @@ TWO_PI = 2.0 * math.pi
 # Stop brake (docs/safety.md; the same numbers as firmware/src/config.h BRAKE_*): when the command
 # watchdog trips after commands were flowing, each wheel is regulated to zero speed with
 # tau = clamp(-BRAKE_GAIN * omega, +-min(BRAKE_TORQUE_LIMIT, torque limit)), omega measured as the
-# firmware does (encoder counts per control period: below one count per period reads 0); the
-# H-bridge is released (coast, torque 0) once both wheels read 0 for BRAKE_REST_S, or after
+# firmware does (encoder counts in the last control period: 0, 1, 0, 1 ... for a slow wheel); the
+# H-bridge is released (coast, torque 0) once both wheels stayed within one encoder count of a
+# reference position for BRAKE_REST_S (at rest: dithering by one count included), or after
 # BRAKE_MAX_S whatever the speed.
 BRAKE_GAIN_NM_PER_RADPS = 0.05
 BRAKE_TORQUE_LIMIT_NM = 0.10
@@ -137,6 +138,11 @@ class MotorBoard:
         self.wheel_vel_radps = np.array(vel_radps, dtype=float).reshape(2)
 
     @property
+    def last_command_s(self) -> float | None:
+        """When the last TORQUE_CMD or STOP was accepted [s], None before the first."""
+        return self._last_cmd_s
+
+    @property
     def applied_torque_nm(self) -> np.ndarray:
         """Torque the motors apply now [N·m], shape (2,) [left, right]."""
         return np.array(self.applied_e4nm, dtype=float) * sp.TORQUE_LSB_NM
@@ -186,10 +192,13 @@ class MotorBoard:
 
     # -- stop brake (docs/safety.md) ---------------------------------------------------------------
     def measured_speed_radps(self) -> np.ndarray:
-        """Wheel speed [rad/s] as the firmware measures it: whole encoder counts per control
-        period (rounded toward zero), shape (2,)."""
-        counts_per_rad = self.config.ticks_per_rev * CONTROL_PERIOD_S / TWO_PI
-        return np.trunc(self.wheel_vel_radps * counts_per_rad) / counts_per_rad
+        """Wheel speed [rad/s] as the firmware measures it, shape (2,): the encoder counts of the
+        last control period (the quantised angle now minus the quantised angle one period ago,
+        at the present speed) over the period; a count is 2 pi / ticks_per_rev."""
+        counts_per_rad = self.config.ticks_per_rev / TWO_PI
+        now = np.floor(self.wheel_pos_rad * counts_per_rad)
+        before = np.floor((self.wheel_pos_rad - self.wheel_vel_radps * CONTROL_PERIOD_S) * counts_per_rad)
+        return (now - before) / (counts_per_rad * CONTROL_PERIOD_S)
 
     def _stop(self, now_s: float) -> None:
         """STOP: acknowledged and feeding the watchdog like a command; brakes once per stop."""
@@ -211,7 +220,8 @@ class MotorBoard:
         self.brakes += 1
         self.brake_started_s = now_s
         self.brake_released_s = None
-        self._rest_since_s = None
+        self._rest_since_s = now_s
+        self._rest_ref_ticks = self.encoder_ticks
         self._next_brake_step_s = now_s
         self.flags |= sp.FLAG_BRAKING
 
@@ -226,12 +236,11 @@ class MotorBoard:
     def _brake_step(self, now_s: float) -> None:
         """One control step of the brake: regulate each wheel's speed to 0, release at rest."""
         speed = self.measured_speed_radps()
-        if np.all(speed == 0.0):
-            if self._rest_since_s is None:
-                self._rest_since_s = now_s
-        else:
-            self._rest_since_s = None
-        at_rest = self._rest_since_s is not None and now_s - self._rest_since_s >= BRAKE_REST_S - 1e-9
+        ticks = self.encoder_ticks
+        if np.any(np.abs(ticks - self._rest_ref_ticks) > 1):   # moved: restart the rest window here
+            self._rest_ref_ticks = ticks
+            self._rest_since_s = now_s
+        at_rest = now_s - self._rest_since_s >= BRAKE_REST_S - 1e-9
         if at_rest or now_s - self.brake_started_s >= BRAKE_MAX_S - 1e-9:
             self._stop_brake(now_s)
             return

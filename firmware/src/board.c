@@ -108,7 +108,8 @@ static void brake_start(board_t *b)
     b->flags |= PROTO_FLAG_BRAKING;
     b->brake_elapsed_us = 0;
     b->rest_elapsed_us = 0;
-    b->resting = false;
+    b->rest_ref_ticks[0] = b->control_ticks[0];
+    b->rest_ref_ticks[1] = b->control_ticks[1];
     b->brakes++;
     brake_torques(b);
 }
@@ -126,17 +127,16 @@ static void brake_step(board_t *b, uint32_t dt_us)
         return;
     }
     b->brake_elapsed_us += dt_us;
-    if (b->vel_mradps[0] == 0 && b->vel_mradps[1] == 0) {
-        if (b->resting) {
-            b->rest_elapsed_us += dt_us;
-        } else {
-            b->resting = true;
-            b->rest_elapsed_us = 0;
-        }
+    const int32_t d0 = b->control_ticks[0] - b->rest_ref_ticks[0];
+    const int32_t d1 = b->control_ticks[1] - b->rest_ref_ticks[1];
+    if (d0 > 1 || d0 < -1 || d1 > 1 || d1 < -1) {   /* moved: restart the rest window here */
+        b->rest_ref_ticks[0] = b->control_ticks[0];
+        b->rest_ref_ticks[1] = b->control_ticks[1];
+        b->rest_elapsed_us = 0;
     } else {
-        b->resting = false;
+        b->rest_elapsed_us += dt_us;
     }
-    if ((b->resting && b->rest_elapsed_us >= (uint32_t)b->cfg.brake_rest_ms * 1000UL) ||
+    if (b->rest_elapsed_us >= (uint32_t)b->cfg.brake_rest_ms * 1000UL ||
         b->brake_elapsed_us >= (uint32_t)b->cfg.brake_max_ms * 1000UL) {
         brake_stop(b);   /* at rest (or out of time): H-bridge off */
         return;

@@ -16,7 +16,8 @@
  *       command had been accepted since boot (and no e-stop), the stop brake starts (BRAKING set):
  *       every control step each wheel gets tau = clamp(-brake_gain * omega, +-min(brake limit,
  *       torque limit)), omega from the encoders; released (torque 0, H-bridge off, BRAKING cleared)
- *       once both wheels read 0 counts per period for brake_rest_ms, or after brake_max_ms.
+ *       once both wheels stayed within one encoder count of a reference position for
+ *       brake_rest_ms (at rest), or after brake_max_ms.
  *       A new TORQUE_CMD or an e-stop ends the brake at once. docs/safety.md.
  *   STOP -> like a TORQUE_CMD for the watchdog and the acknowledgement, torque command 0; starts
  *       the brake if a TORQUE_CMD was accepted since the last brake start (once per stop)
@@ -108,8 +109,8 @@ typedef struct {
     /* stop brake (flag PROTO_FLAG_BRAKING) */
     int16_t brake_e4nm[2];          /* brake torque of the last control step */
     uint32_t brake_elapsed_us;
-    uint32_t rest_elapsed_us;
-    bool resting;                   /* both wheels read 0 at the last control step */
+    uint32_t rest_elapsed_us;       /* time both wheels stayed within 1 count of rest_ref_ticks */
+    int32_t rest_ref_ticks[2];
     uint16_t brakes;                /* brake episodes since boot (wrapping) */
     bool brake_armed;               /* a TORQUE_CMD since the last brake start */
     /* counters (wrapping) */

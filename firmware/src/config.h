@@ -60,8 +60,8 @@
 /* ---- stop brake on command loss (docs/safety.md; the emulated board core/motor_board.py uses
  * the same numbers). After the command watchdog trips, each wheel is regulated to zero speed:
  * tau = clamp(-BRAKE_GAIN * omega_encoder, +-min(BRAKE_TORQUE_LIMIT, torque limit)); released
- * (H-bridge off) once both wheels read 0 encoder counts per control period for BRAKE_REST_MS,
- * or after BRAKE_MAX_MS whatever the speed.                                                  */
+ * (H-bridge off) once both wheels stayed within one encoder count of a reference position for
+ * BRAKE_REST_MS (at rest), or after BRAKE_MAX_MS whatever the speed.                                                  */
 #define BRAKE_GAIN_NM_PER_RADPS 0.05f
 #define BRAKE_TORQUE_LIMIT_NM 0.10f
 #define BRAKE_REST_MS 50u
