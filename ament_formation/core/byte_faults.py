@@ -87,3 +87,34 @@ class ByteFaults:
     def clear(self) -> None:
         """Forget held bytes (the port was closed)."""
         self._held.clear()
+
+
+MUTATION_KINDS = ("bit_flips", "byte_replaced", "byte_inserted", "byte_deleted", "burst")
+
+
+def mutate(data: bytes, rng) -> tuple[bytes, str]:
+    """One random corruption of ``data`` (a frame's bytes) and its kind (MUTATION_KINDS): 1-3 bit
+    flips (two chances in six), one byte replaced, one byte inserted, one byte deleted, or a burst
+    of up to 16 bits. ``rng`` is a ``random.Random`` (fast scalar draws; seeded by the caller).
+    The result can equal ``data`` (e.g. a burst that flips nothing twice); callers skip those."""
+    b = bytearray(data)
+    n = len(b)
+    kind = rng.randrange(6)
+    if kind <= 1:
+        for pos in rng.sample(range(n * 8), rng.randint(1, 3)):
+            b[pos >> 3] ^= 1 << (pos & 7)
+        return bytes(b), MUTATION_KINDS[0]
+    if kind == 2:
+        b[rng.randrange(n)] ^= rng.randint(1, 255)
+        return bytes(b), MUTATION_KINDS[1]
+    if kind == 3:
+        b.insert(rng.randint(0, n), rng.randint(1, 255))
+        return bytes(b), MUTATION_KINDS[2]
+    if kind == 4:
+        del b[rng.randrange(n)]
+        return bytes(b), MUTATION_KINDS[3]
+    start = rng.randrange(n * 8)
+    for pos in range(start, min(start + rng.randint(2, 16), n * 8)):
+        if pos == start or rng.random() < 0.5:
+            b[pos >> 3] ^= 1 << (pos & 7)
+    return bytes(b), MUTATION_KINDS[4]
