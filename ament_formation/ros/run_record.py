@@ -21,6 +21,9 @@ from ament_formation.ros import messages as msgs
 from ament_formation.ros.recorder import read_messages
 
 
+_PAUSED = ("stopped", "hold")   # controller modes of a safety stop / a hold (nodes/controller.py)
+
+
 def _zoh_index(sample_t: np.ndarray, grid: np.ndarray) -> np.ndarray:
     """Index of the last sample at or before each grid time (-1 when none)."""
     return np.searchsorted(sample_t, grid, side="right") - 1
@@ -35,7 +38,12 @@ def load_run(path: str | Path, scenario, record_every_s: float = 0.01, stats: di
     (the world or the recorder stalled), ``truth_max_gap_at_s`` where it starts,
     ``truth_end_s`` the scenario time of the last sample every robot has, and ``torque_max_gap_s``
     {robot id: the longest pause [s] of its recorded wheel_torque commands over the same span,
-    the end included (a stalled or dead controller)}."""
+    the end included (a stalled or dead controller)}, ``safety_stops`` {robot id: [(from_s, to_s)]
+    intervals of scenario time in which its controller reported a safety stop or hold}.
+
+    Avoidance (``avoiding``, mode events) follows the controllers' mode messages; a safety stop or
+    hold in the middle of an avoidance does not end it (the robot resumes the same avoidance), so
+    ``avoidance_entries`` counts avoidance decisions, and stop-and-go shows in ``safety_stops``."""
     ids = tuple(r.id for r in scenario.robots)
     index = {rid: k for k, rid in enumerate(ids)}
     truth: dict[int, list] = {rid: [] for rid in ids}
@@ -86,6 +94,7 @@ def load_run(path: str | Path, scenario, record_every_s: float = 0.01, stats: di
     tau = np.zeros((big_t, n, 2))
     avoiding = np.zeros((big_t, n), dtype=bool)
     mode_events: list[dict] = []
+    stops: dict[int, list] = {}
     for rid in ids:
         k = index[rid]
         ts = np.array([s for s, _ in truth[rid]]) - start_s
@@ -100,8 +109,20 @@ def load_run(path: str | Path, scenario, record_every_s: float = 0.01, stats: di
             tau[:, k] = np.where((j >= 0)[:, None], tv[np.clip(j, 0, None)], 0.0)
         prev = None
         flags_t, flags_v = [], []
+        stop_from, stops[rid] = None, []
         for s, mode in modes[rid]:
             t = s - start_s
+            if mode.get("mode") in _PAUSED and prev is not None and t >= 0.0:
+                # a safety stop or a hold pauses the robot, not its avoidance decision: the
+                # avoidance it resumes is the same entry (stop-and-go is counted in safety_stops)
+                if stop_from is None:
+                    stop_from = t
+                flags_t.append(t)
+                flags_v.append(prev[0])
+                continue
+            if stop_from is not None:
+                stops[rid].append((stop_from, t))
+                stop_from = None
             av = bool(mode.get("avoiding", mode.get("mode") not in ("coordination", "hold", "stopped")))
             key = (av, mode.get("target"), mode.get("direction")) if av else (False, None, None)
             if key != prev and t >= 0.0:
@@ -115,9 +136,14 @@ def load_run(path: str | Path, scenario, record_every_s: float = 0.01, stats: di
                 prev = key
             flags_t.append(t)
             flags_v.append(av)
+        if stop_from is not None:
+            stops[rid].append((stop_from, None))        # still stopped at the end of the recording
         if flags_t:
             j = _zoh_index(np.array(flags_t), grid)
             avoiding[:, k] = np.where(j >= 0, np.array(flags_v)[np.clip(j, 0, None)], False)
+    if stats is not None:
+        stats["safety_stops"] = {rid: [(a, min(b, t_end) if b is not None else t_end) for a, b in stops[rid]
+                                       if a <= t_end] for rid in ids}
     mode_events.sort(key=lambda e: (e["t_s"], e["robot"]))
 
     tau_max = np.array([r.params.torque_limit_nm for r in scenario.robots])

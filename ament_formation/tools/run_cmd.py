@@ -278,6 +278,10 @@ def _evaluate(mcap_path: Path, scenario, out: Path, wall_s: float, args, extra: 
     extra = [*extra, check("truth_gap_s", gap is not None and gap <= TRUTH_GAP_MAX_S, gap, TRUTH_GAP_MAX_S, "<=",
                            f"the recorded ground truth stops for {gap or 0:.2f} s at t = "
                            f"{stats.get('truth_max_gap_at_s') or 0:.2f} s (a stalled world or recorder)")]
+    for rid, spans in (stats.get("safety_stops") or {}).items():   # stop-and-go (ros/run_record.py)
+        robot = metrics["robots"][str(rid)]
+        robot["safety_stops"] = len(spans)
+        robot["safety_stop_time_s"] = float(sum(b - a for a, b in spans))
     torque_gaps = stats.get("torque_max_gap_s") or {}
     metrics["torque_max_gap_s"] = {str(k): v for k, v in torque_gaps.items()}
     if torque_gaps:

@@ -109,7 +109,8 @@ def _summary(metrics: dict, out: Path, figure: bool = True, first: tuple[str, ..
         lines.append(
             f"  R{rid}: avoid {r['avoidance_entries']}x {r['avoidance_time_s']:.1f} s, settled RMS "
             f"{fmt(r['formation_rms_settled_m'], 'mm', 1e3, 1)}, final {fmt(r['final_error_m'], 'mm', 1e3, 1)}, "
-            f"peak torque {max(r['peak_torque_nm']):.3f} N m, saturated {100 * r['saturated_fraction']:.1f} %")
+            f"peak torque {max(r['peak_torque_nm']):.3f} N m, saturated {100 * r['saturated_fraction']:.1f} %"
+            + (f", safety stops {r['safety_stops']} ({r['safety_stop_time_s']:.1f} s)" if "safety_stops" in r else ""))
     wrote = [*first, "metrics.json", *(["figure.png"] if figure else []), "trajectories.csv", "..."]
     lines.append(f"  wrote {out}/ ({', '.join(wrote)})")
     return "\n".join(lines)
