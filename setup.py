@@ -24,11 +24,13 @@ setup(
     packages=find_packages(exclude=["test", "test.*", "bench", "bench.*"]),
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
-        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}", ["package.xml", "LICENSE"]),
         (f"share/{PACKAGE}/docs", glob("docs/*.md") + glob("docs/*.json")),
     ]
     + config_files(""),
     install_requires=["setuptools"],
+    # colcon test runs pytest only for a package that declares it as a test dependency
+    extras_require={"test": ["pytest", "pytest-timeout", "hypothesis"]},
     zip_safe=True,
     maintainer="ament_formation maintainers",
     maintainer_email="maintainers@ament-formation.invalid",
