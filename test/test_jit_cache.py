@@ -17,26 +17,41 @@ ROOT = Path(__file__).resolve().parents[1]
 def _core_copy(tmp_path: Path) -> Path:
     core = tmp_path / "core"
     (core / "sub").mkdir(parents=True)
-    (core / "kernels.py").write_text("X = 1\n")
-    (core / "sub" / "geometry.py").write_text("def f():\n    return 2\n")
+    (core / "kernels.py").write_text("from numba import njit\n"
+                                     "from ament_formation.core.sub.geometry import f\n"
+                                     "from ament_formation.core import (\n    consts,\n)\n")
+    (core / "sub" / "__init__.py").write_text("")
+    (core / "sub" / "geometry.py").write_text("import ament_formation.core.deep\n\ndef f():\n    return 2\n")
+    (core / "deep.py").write_text("Y = 1\n")
+    (core / "consts.py").write_text("X = 1\n")
+    (core / "scenario.py").write_text("import yaml\n")         # no numba, not imported by numba code
     (core / "notes.txt").write_text("not a source")
     return core
 
 
-def test_hash_changes_with_any_core_source_and_only_with_sources(tmp_path):
+def test_numba_sources_are_the_numba_modules_and_what_they_import(tmp_path):
+    core = _core_copy(tmp_path)
+    names = [str(p.relative_to(core)) for p in jit_cache.numba_sources(core)]
+    assert names == ["consts.py", "deep.py", "kernels.py", "sub/geometry.py"]
+    shipped = {p.name for p in jit_cache.numba_sources()}
+    assert {"kernels.py", "automaton.py", "encounters.py", "simulator.py", "twin.py", "params.py"} <= shipped
+    assert "jit_cache.py" not in shipped and "scenario.py" not in shipped
+
+
+def test_hash_changes_with_any_source_numba_code_can_reach_and_only_with_those(tmp_path):
     core = _core_copy(tmp_path)
     h0 = jit_cache.source_hash(core)
     assert h0 == jit_cache.source_hash(core)                  # deterministic
     (core / "notes.txt").write_text("edited")
-    assert jit_cache.source_hash(core) == h0                   # not a .py file
-    (core / "sub" / "geometry.py").write_text("def f():\n    return 3\n")   # a module numba code calls
+    (core / "scenario.py").write_text("import yaml  # edited\n")
+    assert jit_cache.source_hash(core) == h0                   # nothing compiled code can see
+    (core / "deep.py").write_text("Y = 2\n")                  # a constant two imports away
     h1 = jit_cache.source_hash(core)
-    assert h1 != h0
-    (core / "extra.py").write_text("")                         # a new module
+    (core / "consts.py").write_text("X = 2\n")                # a module imported in parentheses
     h2 = jit_cache.source_hash(core)
-    assert len({h0, h1, h2}) == 3
-    (core / "extra.py").rename(core / "extra2.py")             # same bytes, other name
-    assert jit_cache.source_hash(core) != h2
+    (core / "scenario.py").write_text("from numba import njit\n")   # becomes numba code
+    h3 = jit_cache.source_hash(core)
+    assert len({h0, h1, h2, h3}) == 4
 
 
 def test_configure_sets_a_hashed_folder_and_prunes_old_ones(tmp_path):

@@ -2,10 +2,11 @@
 
 numba's on-disk cache (``@njit(cache=True)``) keys a compiled function on its own source file
 only: a change in another module it calls or whose constants it reads goes unnoticed, and the
-stale machine code is loaded. So the package points numba at a folder named after a hash of every
-source file of ``ament_formation/core`` (:func:`configure`, called from ``ament_formation/__init__``
-before anything imports numba): any edit of the core gives a new, empty folder, and the kernels are
-compiled afresh. Folders of older sources are pruned (the :data:`KEEP` most recently used stay).
+stale machine code is loaded. So the package points numba at a folder named after a hash of the
+core modules compiled code can depend on (:func:`numba_sources`: those importing numba and every
+core module they import, transitively; :func:`configure`, called from ``ament_formation/__init__``
+before anything imports numba): an edit of any of them gives a new, empty folder, and the kernels
+are compiled afresh. Folders of older sources are pruned (the :data:`KEEP` most recently used stay).
 
     $XDG_CACHE_HOME/ament_formation/numba-<hash>   (default ~/.cache/ament_formation/numba-<hash>)
 
@@ -21,6 +22,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import re
 import shutil
 import sys
 from pathlib import Path
@@ -30,10 +32,42 @@ _MARK = "AMENT_FORMATION_NUMBA_CACHE_DIR"  # what configure() set, to tell it fr
 _CORE = Path(__file__).resolve().parent
 
 
+_FROM = re.compile(r"^[ \t]*from[ \t]+([\w.]+)[ \t]+import[ \t]+(?:\(([^)]*)\)|([\w \t,]+))", re.M)
+_IMPORT = re.compile(r"^[ \t]*import[ \t]+([\w.]+)", re.M)
+_NUMBA = re.compile(r"^\s*(?:from\s+numba\b|import\s+numba\b)", re.M)
+
+
+def numba_sources(core_dir: Path = _CORE) -> list[Path]:
+    """The core modules compiled code can depend on: those that import numba and every core module
+    they import, transitively (a jitted function reaches other modules' functions and constants
+    only through its module's imports). This module itself is left out."""
+    package = "ament_formation." + core_dir.name
+    by_name: dict[str, Path] = {}
+    for path in core_dir.rglob("*.py"):
+        rel = path.relative_to(core_dir).with_suffix("")
+        parts = rel.parts[:-1] if rel.name == "__init__" else rel.parts
+        by_name[".".join((package, *parts)).rstrip(".")] = path
+    me = Path(__file__).resolve()
+    todo = [p for p in by_name.values() if p.resolve() != me and _NUMBA.search(p.read_text(errors="replace"))]
+    seen: set[Path] = set()
+    while todo:
+        path = todo.pop()
+        if path in seen:
+            continue
+        seen.add(path)
+        text = path.read_text(errors="replace")
+        candidates = _IMPORT.findall(text)
+        for base, grouped, names in _FROM.findall(text):
+            candidates.append(base)
+            candidates += [f"{base}.{n.split()[0]}" for n in (grouped or names).split(",") if n.split()]
+        todo += [by_name[c] for c in candidates if c in by_name and by_name[c].resolve() != me]
+    return sorted(seen)
+
+
 def source_hash(core_dir: Path = _CORE) -> str:
-    """sha256 (first 16 hex digits) over the relative paths and contents of ``core_dir/**/*.py``."""
+    """sha256 (first 16 hex digits) over the relative paths and contents of :func:`numba_sources`."""
     h = hashlib.sha256()
-    for path in sorted(core_dir.rglob("*.py")):
+    for path in numba_sources(core_dir):
         h.update(str(path.relative_to(core_dir)).encode())
         h.update(b"\0")
         h.update(path.read_bytes())
