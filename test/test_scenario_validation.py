@@ -370,19 +370,26 @@ def test_check_run_passes_a_good_run_and_names_every_failed_check():
     assert extra["ok"] is False and extra["failure"].startswith("processes world:1 != world:0 (world crashed)")
 
 
-def test_formation_sim_exits_1_naming_a_failed_expectation(tmp_path):
+def test_formation_sim_exits_1_naming_a_failed_expectation(tmp_path, capsys):
+    """`formation sim` (in process: the simulator's kernels may be compiled already) judges the run
+    with the same checks as `formation run`: a failed expectation is exit status 1, one line."""
+    import json
+
+    from ament_formation.tools.cli import main as formation
+
     data = yaml.safe_load((ROOT / "test" / "data" / "paper_short.yaml").read_text())
     data["expect"]["final_error_max_m"] = {0: 0.001}
     path = tmp_path / "strict.yaml"
     path.write_text(yaml.safe_dump(data))
-    proc = subprocess.run([sys.executable, "-m", "ament_formation.tools.cli", "sim", str(path), "--out",
-                           str(tmp_path / "o"), "--no-figure"], cwd=tmp_path, capture_output=True, text=True,
-                          timeout=600)      # the simulator's kernels may compile first (numba cache)
-    lines = [ln for ln in proc.stderr.strip().splitlines() if not ln.startswith("sim: t =")]   # progress
-    assert proc.returncode == 1 and len(lines) == 1, proc.stderr
+    assert formation(["sim", str(path), "--out", str(tmp_path / "o"), "--no-figure"]) == 1
+    captured = capsys.readouterr()
+    lines = [ln for ln in captured.err.strip().splitlines() if not ln.startswith("sim: t =")]   # progress
+    assert len(lines) == 1, captured.err
     assert lines[0].startswith("formation sim: FAILED: final_error_m[R0]") and "> 0.001" in lines[0]
-    assert "checks: FAILED" in proc.stdout
-    import json
-
+    assert "checks: FAILED" in captured.out
     metrics = json.loads((tmp_path / "o" / "metrics.json").read_text())
     assert metrics["ok"] is False and metrics["failure"] in lines[0]
+    # the scenario as shipped passes
+    assert formation(["sim", str(ROOT / "test" / "data" / "paper_short.yaml"), "--out", str(tmp_path / "p"),
+                      "--no-figure", "--quiet"]) == 0
+    assert json.loads((tmp_path / "p" / "metrics.json").read_text())["ok"] is True
