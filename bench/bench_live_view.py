@@ -148,12 +148,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeat", type=int, default=1, help="runs of each mode (interleaved)")
     ap.add_argument("--modes", default="base,idle,client")
     ap.add_argument("--json", type=Path, default=None, help="also write the rows here")
+    ap.add_argument("--no-warmup", action="store_true",
+                    help="skip the first, unmeasured run (it loads or compiles the numba kernels)")
     args = ap.parse_args(argv)
     if not CLIENT.parent.joinpath("node_modules").is_dir():
         subprocess.run(["npm", "ci", "--no-audit", "--no-fund", "--loglevel=error"], cwd=CLIENT.parent, check=True)
     modes = [m.strip() for m in args.modes.split(",") if m.strip()]
     rows = []
     with tempfile.TemporaryDirectory(prefix="bench_live_view_") as tmp:
+        if not args.no_warmup:
+            row = run_once("base", args.scenario.resolve(), Path(tmp))
+            print(f"warm-up (not counted): status {row['launch_status']}, wall {row['wall_s']:.1f} s", flush=True)
         for k in range(args.repeat):
             for mode in modes:
                 row = run_once(mode, args.scenario.resolve(), Path(tmp))

@@ -38,7 +38,7 @@ Parameters
                          to let the lab network connect, see docs/live_view.md)
   port            int    TCP port (0: any free port, logged at start)          default 8765
   scene_rate_hz   float  3D scene updates [Hz]                                 default 10
-  series_rate_hz  float  time-series samples per robot [Hz]                    default 20
+  series_rate_hz  float  time-series samples per robot [Hz]                    default 10
   image_rate_hz   float  camera frames sent [Hz] (0: no image)                 default 5
   jpeg_quality    int    JPEG quality, 1..100                                  default 75
   image_topic     str    the camera topic                                      default /camera/image_raw
@@ -82,7 +82,7 @@ class LiveViewParams:
     host: str = "127.0.0.1"
     port: int = 8765
     scene_rate_hz: float = 10.0
-    series_rate_hz: float = 20.0
+    series_rate_hz: float = 10.0
     image_rate_hz: float = 5.0
     jpeg_quality: int = 75
     image_topic: str = "/camera/image_raw"
@@ -181,11 +181,13 @@ OUTLINE_RGBA = {"P": (0.8, 0.1, 0.1, 1.0), "L": (0.1, 0.5, 0.9, 1.0), "Q": (0.5,
 CCW_RGB, CW_RGB = (0.1, 0.7, 0.2), (1.0, 0.55, 0.0)
 
 
-def scene_update(scene: Scene, stamp_ns: int):
+def scene_update(scene: Scene, stamp_ns: int, cache: dict | None = None):
     """foxglove SceneUpdate of a core Scene (entities keep their ids from update to update, so each
     update replaces the previous one; ids: robot_<id>, goal_<id>, avoid_<id>, obstacle_<name>,
-    graph_edges). Robot entities carry metadata t_s, mode, target, direction."""
+    graph_edges). Robot entities carry metadata t_s, mode, target, direction. ``cache``: a dict
+    kept by the caller for the obstacle outlines' points (fixed in the obstacle frame)."""
     fx = _fx()
+    cache = {} if cache is None else cache
     ts = fx.Timestamp(sec=int(stamp_ns // 1_000_000_000), nsec=int(stamp_ns % 1_000_000_000))
     t_text = "" if scene.t_s is None else f"{scene.t_s:.3f}"
     entities = []
@@ -233,11 +235,15 @@ def scene_update(scene: Scene, stamp_ns: int):
     for o in scene.obstacles:
         cx, cy = float(o.center_m[0]), float(o.center_m[1])
         pose = _pose(fx, cx, cy, 0.0, o.phi_rad)
-        lines = [fx.LinePrimitive(type=fx.LinePrimitiveLineType.LineStrip, pose=pose,
-                                  thickness=0.012 if key == "P" else 0.008,
-                                  points=[fx.Point3(x=float(px), y=float(py), z=0.005) for px, py in outline],
-                                  color=_color(fx, OUTLINE_RGBA[key][:3], OUTLINE_RGBA[key][3]))
-                 for key, (_scale, outline) in o.outlines.items()]
+        lines = []
+        for key, (_scale, outline) in o.outlines.items():
+            points = cache.get((o.name, key, id(outline)))
+            if points is None:
+                points = cache[(o.name, key, id(outline))] = [fx.Point3(x=float(px), y=float(py), z=0.005)
+                                                              for px, py in outline]
+            lines.append(fx.LinePrimitive(type=fx.LinePrimitiveLineType.LineStrip, pose=pose,
+                                          thickness=0.012 if key == "P" else 0.008, points=points,
+                                          color=_color(fx, OUTLINE_RGBA[key][:3], OUTLINE_RGBA[key][3])))
         r1, r2 = (float(v) for v in o.semi_axes_m)
         entity(f"obstacle_{o.name}", metadata=[fx.KeyValuePair(key="t_s", value=t_text)], lines=lines,
                cylinders=[fx.CylinderPrimitive(pose=_pose(fx, cx, cy, 0.002, o.phi_rad),
@@ -371,6 +377,7 @@ class LiveViewNode(Node):
         self.rejected = 0
         self._last_image_s = -math.inf
         self._groups: dict[str, list] = {"robots": [], "torques": [], "image": []}
+        self._outline_points: dict = {}      # foxglove points of the obstacle outlines, made once
 
         import foxglove
         from foxglove.channels import CompressedImageChannel, SceneUpdateChannel
@@ -530,7 +537,7 @@ class LiveViewNode(Node):
         if not self.ch_scene.has_sinks():
             return
         scene = self.live.scene(self.scenario_time_s(now), self.states, self.modes, self.parents)
-        self.ch_scene.log(scene_update(scene, now), log_time=now)
+        self.ch_scene.log(scene_update(scene, now, self._outline_points), log_time=now)
         self.sent["scene"] += 1
 
     def _publish_series(self) -> None:
