@@ -56,6 +56,7 @@ from ament_formation.core.scenario import load_scenario
 from ament_formation.nodes.bridge import BridgeNode
 from ament_formation.nodes.controller import ControllerNode, PeerTable, set_realtime
 from ament_formation.nodes.controller import _send_zero_torque as _controller_zero_torque
+from ament_formation.ros import diagnostics as diag
 from ament_formation.ros.executors import run_node
 from ament_formation.ros.params import declare_dataclass
 
@@ -105,6 +106,7 @@ class TeamNode(Node):
         threaded = not use_sim_time and control_thread
         self.lock = threading.Lock() if threaded else None
         self.loop: ControlLoop | None = None
+        self.poll_watch = None     # stalls of the bridges' poll timer (diagnostics "serial poll")
         self.peers = PeerTable(ids)
         self.controllers: dict[int, ControllerNode] = {}
         self.bridges: dict[int, BridgeNode] = {}
@@ -136,6 +138,8 @@ class TeamNode(Node):
             self.create_timer(1.0 / rate_hz, self._control)
             if self.bridges:
                 poll_hz = next(iter(self.bridges.values())).params.poll_rate_hz
+                self.diag = diag.Diagnostics(self)        # the hosted bridges' poll timer is ours
+                self.poll_watch = self.diag.watch("serial poll", 1.0 / poll_hz)
                 self.create_timer(1.0 / poll_hz, self._poll)
         self.get_logger().info(f"hosting robots {ids}" + (" with bridges" if self.bridges else ""))
 
@@ -144,6 +148,8 @@ class TeamNode(Node):
         return [*self.bridges.values(), *self.controllers.values()]
 
     def _poll(self) -> None:
+        if self.poll_watch is not None:
+            self.poll_watch.tick()
         for bridge in self.bridges.values():
             bridge.poll()
 
