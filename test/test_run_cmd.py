@@ -8,6 +8,7 @@ import json
 import os
 import signal
 import subprocess
+import threading
 import time
 from contextlib import redirect_stderr
 from pathlib import Path
@@ -28,15 +29,59 @@ def passing_run(tmp_path_factory):
     """One whole-system run of head_on.yaml (shared by the tests that read it)."""
     out = tmp_path_factory.mktemp("run") / "run"
     shm_before = shm.snapshot()
+    run_segments = _RunSegments(out)
     res = subprocess.run([FORMATION, "run", str(SCENARIO), "--out", str(out), "--quiet", "--startup-timeout", "400"],
                          capture_output=True, text=True, timeout=900)
-    return res, out, shm_before
+    run_segments.stop()
+    return res, out, (shm_before, run_segments.names)
+
+
+class _RunSegments:
+    """Names in /dev/shm that the run's processes map, sampled every 0.2 s while it runs: this test
+    process's children (`formation run`) and every process of its pids file. Other runs on the
+    machine (other tests, other users of ROS) create and leave segments too: not this run's."""
+
+    def __init__(self, out: Path):
+        self.names: set[str] = set()
+        self._out, self._stop = out, threading.Event()
+        self._thread = threading.Thread(target=self._sample, daemon=True)
+        self._thread.start()
+
+    def _sample(self) -> None:
+        while not self._stop.wait(0.2):
+            pids = {int(p.name) for p in Path("/proc").iterdir() if p.name.isdigit() and _ppid(p) == os.getpid()}
+            try:
+                pids |= {int(line.split()[0]) for line in (self._out / "processes" / "pids").read_text().splitlines()
+                         if line.strip()}
+            except OSError:
+                pass
+            for pid in pids:
+                self.names |= _mapped_by(pid)
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join()
+
+
+def _mapped_by(pid: int) -> set[str]:
+    try:
+        maps = Path(f"/proc/{pid}/maps").read_text()
+    except OSError:
+        return set()
+    return {line.split("/dev/shm/", 1)[1].split()[0] for line in maps.splitlines() if "/dev/shm/" in line}
+
+
+def _ppid(proc_dir: Path) -> int:
+    try:
+        return int((proc_dir / "stat").read_text().rsplit(")", 1)[1].split()[1])
+    except (OSError, IndexError, ValueError):
+        return -1
 
 
 def test_formation_run_records_evaluates_and_stops_every_process(passing_run):
     from ament_formation.ros.recorder import read_topic
 
-    res, out, shm_before = passing_run
+    res, out, (shm_before, run_segments) = passing_run
     metrics = json.loads((out / "metrics.json").read_text())
     assert res.returncode == 0, res.stderr[-2000:]
     assert metrics["ok"] is True and metrics["failure"] is None, metrics.get("failure")
@@ -67,10 +112,12 @@ def test_formation_run_records_evaluates_and_stops_every_process(passing_run):
     pids = [int(line.split()[0]) for line in (out / "processes" / "pids").read_text().splitlines()
             if line.strip()]                                       # "PID name" per process
     assert pids and not any(alive(p) for p in pids)
-    # no Fast DDS segment of the run left in /dev/shm (lttng-ust-wait-* are shared by every
-    # lttng-ust process of the user, this test process included, whose listener thread maps and
-    # re-creates them on its own schedule: not the run's to answer for here)
-    left = shm.snapshot() - shm_before - shm.mapped()
+    # no Fast DDS segment the run's processes used left in /dev/shm, unless a live process (this
+    # one, another run) still maps it (lttng-ust-wait-* are shared by every lttng-ust process of
+    # the user, this test process included, which re-creates them on its own schedule: not the
+    # run's to answer for here)
+    assert run_segments, "no shared memory of the run seen: the sampling is broken"
+    left = (run_segments & shm.snapshot()) - shm_before - shm.mapped()
     assert {n for n in left if not n.startswith("lttng-ust-wait")} == set(), left
 
 
