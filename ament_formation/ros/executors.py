@@ -100,6 +100,18 @@ def spin_node(node, process: str | None = None) -> None:
         executor.shutdown()
 
 
+def _stack_dump_on_sigusr1() -> None:
+    """`kill -USR1 <pid>` writes every thread's Python stack to stderr (the process's log): how a
+    stalled process is diagnosed without stopping it."""
+    import faulthandler
+    import signal
+
+    try:
+        faulthandler.register(signal.SIGUSR1, all_threads=True)
+    except (AttributeError, ValueError, OSError):   # no SIGUSR1 on this platform
+        pass
+
+
 def _stop_on_signals(get_node: Callable) -> None:
     """SIGINT/SIGTERM end the spin loop (``node.done``) instead of shutting the context down under
     running callbacks (which then fail to publish: "[FATAL] ... publisher's context is invalid"),
@@ -132,6 +144,7 @@ def run_node(name: str, make_node: Callable, args: list[str] | None = None,
     rclpy.init(args=args if args is not None else sys.argv, signal_handler_options=SignalHandlerOptions.NO)
     node = None
     _stop_on_signals(lambda: node)
+    _stack_dump_on_sigusr1()
     try:
         node = make_node()
         # everything built so far (modules, compiled kernels, the nodes) lives as long as the
