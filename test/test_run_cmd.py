@@ -22,6 +22,8 @@ from ament_formation.ros import shm
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIO = ROOT / "test" / "data" / "head_on.yaml"
 FORMATION = str(ROOT / ".venv" / "bin" / "formation")
+# whole-system runs: minutes on a busy machine (start-up, numba kernels, evaluation)
+pytestmark = pytest.mark.timeout(1500)
 
 
 @pytest.fixture(scope="module")
