@@ -85,10 +85,11 @@ def _loadavg() -> str:
     return " ".join(Path("/proc/loadavg").read_text().split()[:3])
 
 
-def run_once(mode: str, scenario: Path, work: Path) -> dict:
-    """One run of the system in ``mode`` (base | idle | client)."""
+def run_once(mode: str, scenario: Path, work: Path, max_wall_s: float) -> dict:
+    """One run of the system in ``mode`` (base | idle | client), stopped after ``max_wall_s``."""
     run_dir = work / f"{mode}_{time.monotonic_ns()}"
-    cmd = [str(ROOT / "scripts" / "launch_sim.sh"), str(scenario), "--run-dir", str(run_dir)]
+    cmd = [str(ROOT / "scripts" / "launch_sim.sh"), str(scenario), "--run-dir", str(run_dir),
+           "--duration", str(int(max_wall_s))]
     if mode != "base":
         cmd += ["--live", "0"]
     load_before = _loadavg()
@@ -123,7 +124,10 @@ def run_once(mode: str, scenario: Path, work: Path) -> dict:
             if proc is not None and proc.returncode is None and proc.poll() is None:
                 proc.send_signal(signal.SIGTERM)
                 proc.wait(timeout=30)
-    row = {"mode": mode, "launch_status": launch.returncode, "wall_s": time.monotonic() - wall0,
+    world_log = run_dir / "world.log"
+    completed = world_log.exists() and "finished at t" in world_log.read_text()
+    row = {"mode": mode, "launch_status": launch.returncode, "completed": completed,
+           "wall_s": time.monotonic() - wall0,
            "system_cpu_s": usage.ru_utime + usage.ru_stime, "load_before": load_before,
            "load_after": _loadavg(), "run_dir": str(run_dir)}
     if sampler.pid is not None and sampler.first_wall is not None:
@@ -148,6 +152,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeat", type=int, default=1, help="runs of each mode (interleaved)")
     ap.add_argument("--modes", default="base,idle,client")
     ap.add_argument("--json", type=Path, default=None, help="also write the rows here")
+    ap.add_argument("--max-wall-s", type=float, default=600.0,
+                    help="stop a run that has not finished after this many wall seconds (start-up included)")
     ap.add_argument("--no-warmup", action="store_true",
                     help="skip the first, unmeasured run (it loads or compiles the numba kernels)")
     args = ap.parse_args(argv)
@@ -157,14 +163,15 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     with tempfile.TemporaryDirectory(prefix="bench_live_view_") as tmp:
         if not args.no_warmup:
-            row = run_once("base", args.scenario.resolve(), Path(tmp))
-            print(f"warm-up (not counted): status {row['launch_status']}, wall {row['wall_s']:.1f} s", flush=True)
+            row = run_once("base", args.scenario.resolve(), Path(tmp), args.max_wall_s)
+            print(f"warm-up (not counted): {'done' if row['completed'] else 'UNFINISHED'}, wall {row['wall_s']:.1f} s",
+                  flush=True)
         for k in range(args.repeat):
             for mode in modes:
-                row = run_once(mode, args.scenario.resolve(), Path(tmp))
+                row = run_once(mode, args.scenario.resolve(), Path(tmp), args.max_wall_s)
                 row["repeat"] = k
                 rows.append(row)
-                print(f"{mode:7s} status {row['launch_status']:3d}  wall {row['wall_s']:6.1f} s  "
+                print(f"{mode:7s} {'done' if row['completed'] else 'UNFINISHED'}  wall {row['wall_s']:6.1f} s  "
                       f"system CPU {row['system_cpu_s']:7.1f} s"
                       + (f"  live view CPU {row['live_view_cpu_s']:5.2f} s over {row['live_view_life_s']:5.1f} s"
                          f" = {row['live_view_core_pct']:5.1f} % of a core" if "live_view_cpu_s" in row else "")
@@ -174,7 +181,7 @@ def main(argv: list[str] | None = None) -> int:
                     print(f"          {topic:30s} {c['messages']:5d} msgs  {c['rate_hz']:6.2f} msg/s  "
                           f"{c['kB_per_s']:7.1f} kB/s", flush=True)
     for mode in modes:
-        got = [r for r in rows if r["mode"] == mode and r["launch_status"] == 0]
+        got = [r for r in rows if r["mode"] == mode and r["completed"]]
         if got:
             cpu = sorted(r["system_cpu_s"] for r in got)[len(got) // 2]
             live = [r["live_view_core_pct"] for r in got if "live_view_core_pct" in r]
