@@ -241,10 +241,16 @@ def test_stop_message_brakes_at_once_and_only_once(harness):
         # keep stopping for a while: no second brake, H-bridge stays off, STOPs are acknowledged
         end = harness.wait_for(lambda s: s["t_s"] >= released["t_s"] + 0.3, 2.0, stop)
         lines = harness.lines[n0:]
+        # the last TORQUE_CMD the firmware read (drive commands still in the pty when the STOPs
+        # began are read first: on a loaded host the harness runs slower than the wall clock)
+        n_cmds = end["rx_torque_cmds"]
+        last_cmd_t = next(s["t_s"] for s in lines if s["rx_torque_cmds"] == n_cmds)
         first_brake_t = min(s["t_s"] for s in lines if s["telemetry"]["flags"] & sp.FLAG_BRAKING)
-        print(f"STOP: braking seen {1e3 * (first_brake_t - lines[0]['t_s']):.0f} ms after the first STOP line, "
-              f"released {released['pwm_change_t_s'] - lines[0]['t_s']:.3f} s after (emulated)")
-        assert first_brake_t - lines[0]["t_s"] <= 0.03               # at once, not after 200 ms
+        print(f"STOP: braking seen {1e3 * (first_brake_t - last_cmd_t):.0f} ms after the last torque command, "
+              f"released {released['pwm_change_t_s'] - last_cmd_t:.3f} s after (emulated)")
+        # at once (STOP's acknowledgement carries BRAKING; status lines every 10 ms), not after the
+        # 200 ms watchdog
+        assert first_brake_t - last_cmd_t <= 0.05
         assert max(abs(w) for w in released["wheel_radps"]) < 0.44
         after = [s for s in lines if s["t_s"] > released["t_s"]]
         assert all(s["duty"] == [0.0, 0.0] and not s["telemetry"]["flags"] & sp.FLAG_BRAKING for s in after)
@@ -396,8 +402,9 @@ def test_bridge_watchdog_brakes_the_wheels_to_rest_then_releases(rig):
           f"wheel travel {travel_m[0] * 1e3:.0f} / {travel_m[1] * 1e3:.0f} mm (emulated time)")
     # the watchdog delay: the drive torque stays on for 200 ms, the brake follows at once
     driving = [s for s in after if s["t_s"] < t_loss + c["COMMAND_WATCHDOG_MS"] * 1e-3 - 0.002]
-    # full drive (0.15 N m: duty > 0.93 at 21 rad/s) until the watchdog; braking there would be 0.88
-    assert driving and all(s["duty"][0] > 0.9 for s in driving)
+    # the last command holds until the watchdog: no brake before it, the wheels still driven
+    assert driving and not any(s["telemetry"]["flags"] & sp.FLAG_BRAKING for s in driving)
+    assert all(s["duty"][0] > 0.5 for s in driving)
     assert braking, "the board never reported BRAKING"
     assert all(abs(a) <= c["BRAKE_TORQUE_LIMIT_NM"] * 1e4 for s in braking for a in s["board"]["applied_e4nm"])
     # BRAKING shows in the first periodic TELEMETRY after the trip (10 ms period, 10 ms status lines)

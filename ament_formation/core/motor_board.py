@@ -237,7 +237,10 @@ class MotorBoard:
         """One control step of the brake: regulate each wheel's speed to 0, release at rest."""
         speed = self.measured_speed_radps()
         ticks = self.encoder_ticks
-        if np.any(np.abs(ticks - self._rest_ref_ticks) > 1):   # moved: restart the rest window here
+        counts = np.abs(speed) * (self.config.ticks_per_rev / TWO_PI * CONTROL_PERIOD_S)
+        # moved by more than one count since the reference, or more than one count in the last
+        # period (a plant that stalled between updates is not a wheel at rest): restart the window
+        if np.any(np.abs(ticks - self._rest_ref_ticks) > 1) or np.any(counts > 1.5):
             self._rest_ref_ticks = ticks
             self._rest_since_s = now_s
         at_rest = now_s - self._rest_since_s >= BRAKE_REST_S - 1e-9

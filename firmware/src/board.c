@@ -129,7 +129,10 @@ static void brake_step(board_t *b, uint32_t dt_us)
     b->brake_elapsed_us += dt_us;
     const int32_t d0 = b->control_ticks[0] - b->rest_ref_ticks[0];
     const int32_t d1 = b->control_ticks[1] - b->rest_ref_ticks[1];
-    if (d0 > 1 || d0 < -1 || d1 > 1 || d1 < -1) {   /* moved: restart the rest window here */
+    const float one_count = 1.5f * b->vel_factor;   /* mrad/s of 1.5 counts per period */
+    const bool counting = (float)b->vel_mradps[0] > one_count || (float)b->vel_mradps[0] < -one_count ||
+                          (float)b->vel_mradps[1] > one_count || (float)b->vel_mradps[1] < -one_count;
+    if (d0 > 1 || d0 < -1 || d1 > 1 || d1 < -1 || counting) {   /* moved: restart the rest window */
         b->rest_ref_ticks[0] = b->control_ticks[0];
         b->rest_ref_ticks[1] = b->control_ticks[1];
         b->rest_elapsed_us = 0;

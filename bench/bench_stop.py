@@ -1,0 +1,321 @@
+"""Stop on command loss: how long and how far a robot driving at speed rolls once its commands stop
+(docs/safety.md).
+
+    bench/run.sh bench_stop.py [--trials 5] [--speed-mps 0.8] [--json OUT.json] [--no-twin] [--no-firmware]
+
+Twin: formation_world's plant and emulated motor board (in this process, camera off, one robot of
+the reference parameters on an empty floor), the real formation_bridge as a subprocess on the
+board's pty, and a driver publishing wheel_torque (a speed loop on the true speed) until the robot
+holds ``--speed-mps``; then the bridge is SIGKILLed (no STOP, no last word: the board's watchdog
+is all that is left). Per trial: time and distance from the board's last command to rest (true
+speed below 5 mm/s for good) and to the release of the H-bridge, the peak brake torque.
+
+Firmware: the ATmega328P firmware in simavr (firmware/sim/harness.c: wheel + half the robot's
+inertia, the DC-motor model) driven at full torque to the motor's top speed, then the host->board
+line is cut. Per trial: time from the last frame the firmware read to the release of the H-bridge,
+wheel travel at the wheel radius (emulated time).
+
+Prints a table per part, the worst case, and the analytic bound of docs/safety.md for comparison.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "test"))
+
+REST_SPEED_MPS = 0.005
+
+SCENARIO = """\
+name: bench_stop
+duration_s: 100000.0
+robot:
+  platform_mass_kg: 2.5
+  wheel_mass_kg: 0.10
+  wheel_radius_m: 0.035
+  axle_length_m: 0.20
+  com_offset_m: 0.05
+  platform_inertia_kgm2: 0.0167
+  torque_limit_nm: 0.15
+  body_radius_m: 0.10
+robots:
+  - id: 0
+    leader: true
+    path: {type: line, start_m: [0.0, 0.0], heading_rad: 0.0, speed_mps: 0.05}
+    slot_m: [0.0, 0.0]
+    initial_pose: [0.0, 0.0, 0.0]
+    marker_id: 0
+graph: {edges: []}
+obstacles: []
+"""
+
+
+def analytic_bound(speed_mps: float, m_tilde_kg: float, r_m: float, tau_limit_nm: float) -> dict:
+    """Worst case of docs/safety.md: the last command is full forward torque, held for the watchdog,
+    then the brake at its bound until the wheel speed is in the linear range, then the linear
+    tail (time constant J/gain per wheel) to the one-count rest band, then the rest window."""
+    from ament_formation.core import motor_board as mb
+
+    wd = 0.2
+    a_drive = 2 * tau_limit_nm / (r_m * m_tilde_kg)
+    a_brake = 2 * mb.BRAKE_TORQUE_LIMIT_NM / (r_m * m_tilde_kg)
+    v1 = speed_mps + a_drive * wd
+    d1 = speed_mps * wd + 0.5 * a_drive * wd ** 2
+    w_lin = mb.BRAKE_TORQUE_LIMIT_NM / mb.BRAKE_GAIN_NM_PER_RADPS          # saturation below this [rad/s]
+    v_lin = min(v1, w_lin * r_m)
+    t2 = (v1 - v_lin) / a_brake
+    d2 = (v1 ** 2 - v_lin ** 2) / (2 * a_brake)
+    j_wheel = 0.5 * m_tilde_kg * r_m ** 2                                  # robot mass per wheel, reflected
+    tc = j_wheel / mb.BRAKE_GAIN_NM_PER_RADPS
+    v_rest = 2 * math.pi / 1440 / 0.05 * r_m                             # one count per 50 ms
+    t3 = tc * math.log(max(v_lin / v_rest, 1.0))
+    d3 = v_lin * tc
+    return {"speed_mps": speed_mps, "watchdog_s": wd, "speed_at_brake_mps": v1, "time_to_rest_s": wd + t2 + t3,
+            "time_to_release_s": wd + t2 + t3 + mb.BRAKE_REST_S + 0.01, "distance_m": d1 + d2 + d3,
+            "brake_decel_mps2": a_brake, "drive_accel_mps2": a_drive, "linear_time_constant_s": tc}
+
+
+# ---------------------------------------------------------------------------------------------
+def twin_trials(n_trials: int, speed_mps: float) -> list[dict]:
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    os.environ.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(ROOT / "config" / "fastdds_localhost.xml"))
+    os.environ.setdefault("ROS_DOMAIN_ID", str(os.getpid() % 200 + 1))
+    import numpy as np
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from sensor_msgs.msg import JointState
+
+    from ament_formation.nodes.world import WorldNode, WorldParams
+    from ament_formation.ros.executors import spin_until
+    from ament_formation.ros.qos import QOS_CONTROL
+
+    tmp = Path(tempfile.mkdtemp(prefix="bench_stop_"))
+    scenario = tmp / "scenario.yaml"
+    scenario.write_text(SCENARIO)
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=int(os.environ["ROS_DOMAIN_ID"]))
+    ex = SingleThreadedExecutor(context=ctx)
+    world = WorldNode(context=ctx, params=WorldParams(scenario=str(scenario), pty_dir=str(tmp / "pty"),
+                                                      camera_enabled=False, exit_at_end=False))
+    driver = Node("bench_stop_driver", namespace="robot_0", context=ctx)
+    pub = driver.create_publisher(JointState, "wheel_torque", QOS_CONTROL)
+    board = world.boards[0].board
+    k = world.twin.k
+    tau_lim = float(k.tau_max[0])
+    state = {"drive": False}
+    samples: list[tuple] = []
+
+    def tick():
+        s = world.twin.state[0]
+        samples.append((world.plant_time_s, float(s[0]), float(s[1]), float(s[3]), float(s[4]),
+                        bool(board.braking), tuple(board.applied_e4nm)))
+        if state["drive"]:
+            # speed loop on the true speed (both wheels alike), heading held by the torque difference
+            u = max(-tau_lim, min(tau_lim, 2.0 * (speed_mps - s[3])))
+            dw = max(-0.02, min(0.02, -0.05 * s[4]))
+            msg = JointState()
+            msg.effort = [u - dw, u + dw]
+            pub.publish(msg)
+
+    driver.create_timer(0.01, tick)
+    ex.add_node(world)
+    ex.add_node(driver)
+    results = []
+    bridge = None
+    try:
+        for trial in range(n_trials):
+            bridge = subprocess.Popen([str(ROOT / ".venv" / "bin" / "formation_bridge"), "--ros-args",
+                                       "-r", "__ns:=/robot_0", "-p", f"port:={tmp / 'pty' / 'robot_0'}",
+                                       "-p", f"torque_limit_nm:={tau_lim}"],
+                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            state["drive"] = True
+            held = {"since": None}
+
+            def at_speed():
+                v = world.twin.state[0, 3]
+                if abs(v - speed_mps) < 0.01 and board.last_command_s is not None and not board.braking:
+                    held["since"] = held["since"] or world.plant_time_s
+                    return world.plant_time_s - held["since"] > 0.5
+                held["since"] = None
+                return False
+
+            if not spin_until(ex, at_speed, 60.0):
+                raise RuntimeError(f"trial {trial}: the robot did not reach {speed_mps} m/s "
+                                   f"(v = {world.twin.state[0, 3]:.3f} m/s)")
+            brakes0 = board.brakes
+            bridge.send_signal(signal.SIGKILL)
+            bridge.wait(timeout=10)
+            state["drive"] = False
+            n0 = len(samples)
+            if not spin_until(ex, lambda: board.brakes > brakes0 and board.brake_released_s is not None
+                              and not board.braking, 10.0):
+                raise RuntimeError(f"trial {trial}: the board did not brake and release")
+            spin_until(ex, lambda: False, 0.3)            # after the release: drift
+            t_loss = board.last_command_s
+            rows = [r for r in samples[n0 - 50:] if r[0] >= t_loss - 0.011]
+            t = np.array([r[0] for r in rows])
+            xy = np.array([(r[1], r[2]) for r in rows])
+            v = np.array([r[3] for r in rows])
+            path = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))])
+            moving = np.flatnonzero(np.abs(v) >= REST_SPEED_MPS)
+            i_rest = min(int(moving[-1]) + 1, len(t) - 1) if moving.size else 0
+            i_rel = int(np.searchsorted(t, board.brake_released_s))
+            i_rel = min(i_rel, len(t) - 1)
+            peak = max((max(abs(a) for a in r[6]) for r in rows if r[5]), default=0) * 1e-4
+            results.append({
+                "trial": trial, "speed_at_loss_mps": float(np.interp(t_loss, t, v)),
+                "peak_speed_mps": float(v.max()),
+                "brake_start_after_loss_s": board.brake_started_s - t_loss,
+                "time_to_rest_s": float(t[i_rest] - t_loss), "distance_to_rest_m": float(path[i_rest]),
+                "time_to_release_s": board.brake_released_s - t_loss, "distance_to_release_m": float(path[i_rel]),
+                "speed_at_release_mps": float(abs(v[i_rel])), "drift_after_release_mps": float(abs(v[-1])),
+                "peak_brake_torque_nm": peak, "released_by": "rest" if board.brake_released_s
+                - board.brake_started_s < 0.99 else "timeout"})
+            bridge = None
+            # next trial starts from rest: wait for the drift to be counted, no more
+    finally:
+        if bridge is not None and bridge.poll() is None:
+            bridge.kill()
+            bridge.wait(timeout=10)
+        ex.remove_node(world)
+        ex.remove_node(driver)
+        world.close()
+        world.destroy_node()
+        driver.destroy_node()
+        ex.shutdown(timeout_sec=1.0)
+        rclpy.try_shutdown(context=ctx)
+        scenario.unlink()
+        for p in sorted(tmp.rglob("*"), reverse=True):
+            p.unlink() if p.is_file() or p.is_symlink() else p.rmdir()
+        tmp.rmdir()
+    return results
+
+
+# ---------------------------------------------------------------------------------------------
+def firmware_trials(n_trials: int, build_dir: Path) -> list[dict]:
+    from firmware_sim import CodecLink, Harness, build_firmware
+
+    from ament_formation.core import serial_protocol as sp
+
+    build_firmware(build_dir)
+    wheel_r_m = 0.035
+    results = []
+    for trial in range(n_trials):
+        work = Path(tempfile.mkdtemp(prefix="bench_stop_fw_"))
+        harness = Harness(build_dir, work)
+        link = CodecLink(harness.pty)
+        try:
+            link.handshake()
+            last = [0.0]
+
+            def drive():
+                now = time.monotonic()
+                if now - last[0] >= 0.01:
+                    link.send(sp.TorqueCommand(1500, 1500))
+                    last[0] = now
+                link.pump()
+
+            harness.wait_for(lambda s: min(s["wheel_radps"]) > 20.5, 10.0, drive)
+            harness.set_mode("cut")
+            harness.poll()
+            n0 = len(harness.lines)
+            released = harness.wait_for(lambda s: s["mode"] == "cut" and s["duty"] == [0.0, 0.0]
+                                        and s["t_s"] > s["last_frame_rx_t_s"] + 0.25, 5.0, link.pump)
+            t_loss = released["last_frame_rx_t_s"]
+            lines = [s for s in harness.lines[n0:] if s["t_s"] >= t_loss]
+            at_loss = lines[0]
+            brake = [s for s in lines if s["telemetry"]["flags"] & sp.FLAG_BRAKING]
+            rest = next((s for s in lines if max(abs(w) for w in s["wheel_radps"]) < REST_SPEED_MPS / wheel_r_m),
+                        released)
+            results.append({
+                "trial": trial, "wheel_speed_at_loss_radps": at_loss["wheel_radps"][0],
+                "speed_at_loss_mps": at_loss["wheel_radps"][0] * wheel_r_m,
+                "brake_seen_after_loss_s": (brake[0]["t_s"] - t_loss) if brake else None,
+                "time_to_rest_s": rest["t_s"] - t_loss,
+                "wheel_travel_to_rest_m": (rest["wheel_rad"][0] - at_loss["wheel_rad"][0]) * wheel_r_m,
+                "time_to_release_s": released["pwm_change_t_s"] - t_loss,
+                "wheel_travel_to_release_m": (released["wheel_rad"][0] - at_loss["wheel_rad"][0]) * wheel_r_m,
+                "wheel_speed_at_release_radps": max(abs(w) for w in released["wheel_radps"]),
+                "peak_applied_e4nm": max((abs(a) for s in brake for a in s["board"]["applied_e4nm"]), default=0)})
+        finally:
+            link.close()
+            harness.close()
+            for p in sorted(work.rglob("*"), reverse=True):
+                p.unlink() if p.is_file() or p.is_symlink() else p.rmdir()
+            work.rmdir()
+    return results
+
+
+def _table(rows: list[dict], keys: list[str]) -> str:
+    out = ["  ".join(f"{k:>24s}" for k in keys)]
+    for r in rows:
+        out.append("  ".join(f"{r[k]:24.3f}" if isinstance(r[k], float) else f"{str(r[k]):>24s}" for k in keys))
+    return "\n".join(out)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--trials", type=int, default=5)
+    ap.add_argument("--speed-mps", type=float, default=0.8, help="twin: speed when the bridge dies")
+    ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--no-twin", action="store_true")
+    ap.add_argument("--no-firmware", action="store_true")
+    a = ap.parse_args()
+    from ament_formation.core.dynamics import PlantCoeffs
+    from ament_formation.core.scenario import load_scenario
+
+    tmp = Path(tempfile.mkdtemp(prefix="bench_stop_sc_"))
+    (tmp / "s.yaml").write_text(SCENARIO)
+    k = PlantCoeffs.from_params([load_scenario(str(tmp / "s.yaml")).robots[0].params])
+    (tmp / "s.yaml").unlink()
+    tmp.rmdir()
+    report: dict = {"load_avg_1min": os.getloadavg()[0], "cpus": os.cpu_count()}
+    bound = analytic_bound(a.speed_mps, float(k.m_tilde[0]), float(k.r[0]), float(k.tau_max[0]))
+    report["analytic_bound"] = bound
+    print(f"analytic worst case at {a.speed_mps} m/s (last command full torque for the 200 ms watchdog): "
+          f"rest after {bound['time_to_rest_s']:.3f} s, {bound['distance_m']:.3f} m "
+          f"(m~ = {float(k.m_tilde[0]):.3f} kg, brake {bound['brake_decel_mps2']:.2f} m/s^2)")
+    if not a.no_twin:
+        rows = twin_trials(a.trials, a.speed_mps)
+        report["twin"] = rows
+        print(f"\ntwin: bridge SIGKILLed at {a.speed_mps} m/s, {len(rows)} trials (times from the board's last command)")
+        print(_table(rows, ["trial", "speed_at_loss_mps", "brake_start_after_loss_s", "time_to_rest_s",
+                            "distance_to_rest_m", "time_to_release_s", "speed_at_release_mps",
+                            "drift_after_release_mps", "peak_brake_torque_nm", "released_by"]))
+        print(f"worst: time to rest {max(r['time_to_rest_s'] for r in rows):.3f} s, "
+              f"distance {max(r['distance_to_rest_m'] for r in rows):.3f} m, "
+              f"release {max(r['time_to_release_s'] for r in rows):.3f} s")
+    if not a.no_firmware:
+        build = Path(tempfile.mkdtemp(prefix="bench_stop_build_"))
+        try:
+            rows = firmware_trials(a.trials, build)
+        finally:
+            subprocess.run(["rm", "-rf", str(build)], check=False)
+        report["firmware"] = rows
+        print(f"\nfirmware in simavr: line cut at the motor's top speed, {len(rows)} trials (emulated time)")
+        print(_table(rows, ["trial", "speed_at_loss_mps", "brake_seen_after_loss_s", "time_to_rest_s",
+                            "wheel_travel_to_rest_m", "time_to_release_s", "wheel_travel_to_release_m",
+                            "wheel_speed_at_release_radps", "peak_applied_e4nm"]))
+        print(f"worst: time to rest {max(r['time_to_rest_s'] for r in rows):.3f} s, "
+              f"wheel travel {max(r['wheel_travel_to_rest_m'] for r in rows):.3f} m, "
+              f"release {max(r['time_to_release_s'] for r in rows):.3f} s")
+    report["load_avg_1min_end"] = os.getloadavg()[0]
+    if a.json:
+        a.json.write_text(json.dumps(report, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
