@@ -89,17 +89,18 @@ class ByteFaults:
         self._held.clear()
 
 
-MUTATION_KINDS = ("bit_flips", "byte_replaced", "byte_inserted", "byte_deleted", "burst")
+MUTATION_KINDS = ("bit_flips", "byte_replaced", "byte_inserted", "byte_deleted", "burst", "bytes_replaced")
 
 
 def mutate(data: bytes, rng) -> tuple[bytes, str]:
-    """One random corruption of ``data`` (a frame's bytes) and its kind (MUTATION_KINDS): 1-3 bit
-    flips (two chances in six), one byte replaced, one byte inserted, one byte deleted, or a burst
-    of up to 16 bits. ``rng`` is a ``random.Random`` (fast scalar draws; seeded by the caller).
-    The result can equal ``data`` (e.g. a burst that flips nothing twice); callers skip those."""
+    """One random corruption of ``data`` (a frame's bytes) and its kind (MUTATION_KINDS), each
+    with probability 1/7 except bit flips (2/7): 1-3 bit flips, one byte replaced, one byte
+    inserted, one byte deleted, a burst of up to 16 bits, or 2-4 bytes anywhere replaced (line
+    noise beyond what a CRC-16 is guaranteed to catch). ``rng`` is a ``random.Random`` (fast scalar
+    draws; seeded by the caller). The result can equal ``data``; callers skip those."""
     b = bytearray(data)
     n = len(b)
-    kind = rng.randrange(6)
+    kind = rng.randrange(7)
     if kind <= 1:
         for pos in rng.sample(range(n * 8), rng.randint(1, 3)):
             b[pos >> 3] ^= 1 << (pos & 7)
@@ -113,8 +114,12 @@ def mutate(data: bytes, rng) -> tuple[bytes, str]:
     if kind == 4:
         del b[rng.randrange(n)]
         return bytes(b), MUTATION_KINDS[3]
-    start = rng.randrange(n * 8)
-    for pos in range(start, min(start + rng.randint(2, 16), n * 8)):
-        if pos == start or rng.random() < 0.5:
-            b[pos >> 3] ^= 1 << (pos & 7)
-    return bytes(b), MUTATION_KINDS[4]
+    if kind == 5:
+        start = rng.randrange(n * 8)
+        for pos in range(start, min(start + rng.randint(2, 16), n * 8)):
+            if pos == start or rng.random() < 0.5:
+                b[pos >> 3] ^= 1 << (pos & 7)
+        return bytes(b), MUTATION_KINDS[4]
+    for pos in rng.sample(range(n), min(n, rng.randint(2, 4))):
+        b[pos] ^= rng.randint(1, 255)
+    return bytes(b), MUTATION_KINDS[5]
