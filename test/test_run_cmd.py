@@ -203,3 +203,21 @@ def test_formation_run_refuses_a_bad_scenario_in_one_line(tmp_path):
     assert res.returncode == 2
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and "duration_s" in lines[0] and "Traceback" not in res.stderr
+
+
+@pytest.mark.parametrize("log, ok, phrase", [
+    ("started world (pid 1)\nworld exited with status 0\nstopped 7 processes\n", True, None),
+    ("started world (pid 1)\ncontroller_1 exited with status 137\n", False, "controller_1 was killed by signal 9"),
+    ("started world (pid 1)\ntracker exited with status 0\n", False, "tracker exited with status 0 before the world"),
+    ("started world (pid 1)\nworld exited with status 1\n", False, "world exited with status 1"),
+    ("started world (pid 1)\n", False, "the launcher ended (status 143) before any process exited"),
+])
+def test_the_processes_check_names_the_first_process_to_exit(tmp_path, log, ok, phrase):
+    from ament_formation.core.metrics import describe_check
+    from ament_formation.tools.run_cmd import _process_check
+
+    (tmp_path / "launch.log").write_text(log)
+    c = _process_check(tmp_path / "launch.log", 143, tmp_path / "processes")
+    assert c["name"] == "processes" and c["ok"] is ok
+    if phrase is not None:
+        assert phrase in describe_check(c)
