@@ -435,9 +435,13 @@ class LiveViewNode(Node):
                 for sub in subs:
                     self.destroy_subscription(sub)
                 subs.clear()
-                if group == "torques":
+                if group == "torques":      # what is no longer heard is not shown as current later
                     self._raw_torques.clear()
                     self._torques.clear()
+                elif group == "robots":
+                    self._raw_states.clear()
+                    self._states.clear()
+                    self.modes.clear()
                 self.get_logger().info(f"no Foxglove client shows {group} any more: unsubscribed")
 
     def _subscribe(self, group: str) -> list:
