@@ -145,58 +145,94 @@ def _same(a, b) -> bool:
     return type(a) is type(b) and a == b
 
 
-def validate(value, schema: dict, where: str = "") -> None:
-    """Raise PayloadError naming the JSON pointer ``where`` unless ``value`` follows ``schema``."""
-    at = where or "/"
+_PATTERNS: dict[str, re.Pattern] = {}
+
+
+def _pattern(text: str) -> re.Pattern:
+    p = _PATTERNS.get(text)
+    if p is None:
+        p = _PATTERNS[text] = re.compile(text)
+    return p
+
+
+class _Invalid(Exception):
+    """A failed check deep in a value; the member path is collected while it unwinds."""
+
+    def __init__(self, problem: str):
+        super().__init__(problem)
+        self.problem = problem
+        self.path: list[str] = []
+
+
+def _descend(value, schema: dict, member) -> None:
+    try:
+        _check(value, schema)
+    except _Invalid as err:
+        err.path.append(str(member))
+        raise
+
+
+def _check(value, schema: dict) -> None:
     if isinstance(value, float) and not math.isfinite(value):
-        raise PayloadError(f"{at}: must be a finite number")
+        raise _Invalid("must be a finite number")
     if "const" in schema and not _same(value, schema["const"]):
-        raise PayloadError(f"{at}: must be {schema['const']!r}")
+        raise _Invalid(f"must be {schema['const']!r}")
     if "enum" in schema and not any(_same(value, e) for e in schema["enum"]):
-        raise PayloadError(f"{at}: must be one of {schema['enum']!r}")
+        raise _Invalid(f"must be one of {schema['enum']!r}")
     types = schema.get("type")
     if types is not None:
         types = [types] if isinstance(types, str) else types
         if not any(_TYPES[t](value) for t in types):
-            raise PayloadError(f"{at}: must be of type {' or '.join(types)} (got {type(value).__name__})")
+            raise _Invalid(f"must be of type {' or '.join(types)} (got {type(value).__name__})")
     if isinstance(value, (int, float)) and not isinstance(value, bool):
         if "minimum" in schema and value < schema["minimum"]:
-            raise PayloadError(f"{at}: must be >= {schema['minimum']}")
+            raise _Invalid(f"must be >= {schema['minimum']}")
         if "maximum" in schema and value > schema["maximum"]:
-            raise PayloadError(f"{at}: must be <= {schema['maximum']}")
+            raise _Invalid(f"must be <= {schema['maximum']}")
     elif isinstance(value, str):
         if len(value) < schema.get("minLength", 0):
-            raise PayloadError(f"{at}: must have at least {schema['minLength']} characters")
+            raise _Invalid(f"must have at least {schema['minLength']} characters")
         if "maxLength" in schema and len(value) > schema["maxLength"]:
-            raise PayloadError(f"{at}: must have at most {schema['maxLength']} characters")
-        if "pattern" in schema and re.search(schema["pattern"], value) is None:
-            raise PayloadError(f"{at}: must match {schema['pattern']}")
+            raise _Invalid(f"must have at most {schema['maxLength']} characters")
+        if "pattern" in schema and _pattern(schema["pattern"]).search(value) is None:
+            raise _Invalid(f"must match {schema['pattern']}")
     elif isinstance(value, list):
         if len(value) < schema.get("minItems", 0):
-            raise PayloadError(f"{at}: must have at least {schema['minItems']} items")
+            raise _Invalid(f"must have at least {schema['minItems']} items")
         if "maxItems" in schema and len(value) > schema["maxItems"]:
-            raise PayloadError(f"{at}: must have at most {schema['maxItems']} items")
-        if "items" in schema:
+            raise _Invalid(f"must have at most {schema['maxItems']} items")
+        items = schema.get("items")
+        if items is not None:
             for k, item in enumerate(value):
-                validate(item, schema["items"], f"{where}/{k}")
+                _descend(item, items, k)
     elif isinstance(value, dict):
         if "maxProperties" in schema and len(value) > schema["maxProperties"]:
-            raise PayloadError(f"{at}: must have at most {schema['maxProperties']} members")
+            raise _Invalid(f"must have at most {schema['maxProperties']} members")
         for key in schema.get("required", ()):
             if key not in value:
-                raise PayloadError(f"{at}: missing member {key!r}")
+                raise _Invalid(f"missing member {key!r}")
         props = schema.get("properties", {})
         extra = schema.get("additionalProperties", True)
         names = schema.get("propertyNames")
         for key, item in value.items():
             if names is not None:
-                validate(key, names, f"{where}/{key}")
-            if key in props:
-                validate(item, props[key], f"{where}/{key}")
+                _descend(key, names, key)
+            sub = props.get(key)
+            if sub is not None:
+                _descend(item, sub, key)
             elif extra is False:
-                raise PayloadError(f"{at}: unexpected member {key!r}")
-            elif isinstance(extra, dict):
-                validate(item, extra, f"{where}/{key}")
+                raise _Invalid(f"unexpected member {key!r}")
+            elif extra is not True:
+                _descend(item, extra, key)
+
+
+def validate(value, schema: dict) -> None:
+    """Raise PayloadError ``<JSON pointer>: <problem>`` unless ``value`` follows ``schema`` (the
+    member path is only built for a failure: a valid payload costs no string work)."""
+    try:
+        _check(value, schema)
+    except _Invalid as err:
+        raise PayloadError("/" + "/".join(reversed(err.path)) + ": " + err.problem) from None
 
 
 def _no_constant(name: str):
