@@ -184,6 +184,7 @@ def summarize(report: dict, out: Path, args) -> int:
         "ok": sum(bool(r["ok"]) for r in loaded),
         "exit_status_agrees_with_metrics": sum(r["agrees"] for r in rows), "runs": len(rows),
         "hiccups": sum(not r["frozen"] and r["longest_pause_s"] > 1.0 for r in loaded),
+        "not_started": sum("started" in r["failed_checks"] for r in loaded),
         "longest_pause_s": [round(r["longest_pause_s"], 2) for r in loaded],
         "failures": [r["failure"] or r["stderr_last"] for r in loaded if not r["ok"]],
     }
@@ -195,7 +196,8 @@ def summarize(report: dict, out: Path, args) -> int:
     print(f"  frozen runs (a pause > {args.frozen_gap_s:g} s, a stall, a hang): {summary['frozen']} / {len(loaded)}; "
           f"hiccups (a pause of 1 to {args.frozen_gap_s:g} s): {summary['hiccups']}; passed their checks: "
           f"{summary['ok']} / {len(loaded)}; exit status agrees with metrics.json: "
-          f"{summary['exit_status_agrees_with_metrics']} / {len(rows)}")
+          f"{summary['exit_status_agrees_with_metrics']} / {len(rows)}; did not start within "
+          f"--startup-timeout: {summary['not_started']}")
     print(f"  longest pause per loaded run [s]: {summary['longest_pause_s']}")
     sim = report["sim"]
     for key, what in (("rms_from_10s_m", "formation RMS from t = 10 s"), ("settled_rms_m", "settled formation RMS"),
