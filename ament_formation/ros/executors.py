@@ -53,15 +53,15 @@ EXECUTOR_ENV = "AMENT_FORMATION_EXECUTOR"  # "single" or "events" overrides the 
 
 def executor_kind(process: str | None = None, node=None) -> str:
     """"single" or "events" for ``process`` (a key of EXECUTOR_BY_PROCESS; default: the node's
-    name): the environment override, else SingleThreadedExecutor on simulated time (the
-    EventsExecutor's timers do not follow /clock in Jazzy), else the table, else "events"."""
+    name): SingleThreadedExecutor on simulated time (the EventsExecutor's timers do not follow
+    /clock in Jazzy), else the environment override, else the table, else "events"."""
     import os
 
+    if node is not None and node.has_parameter("use_sim_time") and bool(node.get_parameter("use_sim_time").value):
+        return "single"
     forced = os.environ.get(EXECUTOR_ENV, "").strip().lower()
     if forced in ("single", "events"):
         return forced
-    if node is not None and node.has_parameter("use_sim_time") and bool(node.get_parameter("use_sim_time").value):
-        return "single"
     if process is None and node is not None:
         process = node.get_name()
     return EXECUTOR_BY_PROCESS.get(process or "", "events")
