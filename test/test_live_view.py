@@ -312,6 +312,159 @@ def node_client() -> list[str]:
     return [node, str(JS / "live_client.mjs")]
 
 
+def _wait(predicate, timeout_s: float, what: str) -> None:
+    """Wait for ``predicate()`` with a timeout (polled; fails naming ``what``)."""
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        if time.monotonic() > deadline:
+            pytest.fail(f"timed out after {timeout_s:g} s waiting for {what}")
+        time.sleep(0.05)
+
+
+@pytest.mark.timeout(600)
+def test_console_script_serves_what_is_published_only_while_watched(tmp_path, ros_context, node_client):
+    """formation_live_view (the console script) beside publishers in this process: it subscribes to
+    the robots only once a Foxglove client watches, and the client decodes exactly what was
+    published (poses, modes, torques, graph, image) placed in the scenario at scenario time."""
+    import threading
+
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from sensor_msgs.msg import Image, JointState
+    from std_msgs.msg import String
+
+    from ament_formation.ros import messages as msgs
+    from ament_formation.ros.image import numpy_to_image
+    from ament_formation.ros.qos import QOS_CONTROL, QOS_GRAPH, QOS_IMAGE
+
+    scenario_path = tmp_path / "moving.yaml"
+    scenario_path.write_text(yaml.safe_dump(_moving_scenario_mapping(), sort_keys=False))
+    scenario = load_scenario(scenario_path)
+    node = rclpy.create_node("live_view_feed", context=ros_context)
+    pub_graph = node.create_publisher(String, "/formation/graph", QOS_GRAPH)
+    pub_state = {i: node.create_publisher(msgs.Odometry, f"/robot_{i}/state", QOS_CONTROL) for i in (0, 1)}
+    pub_mode = {i: node.create_publisher(String, f"/robot_{i}/mode", QOS_CONTROL) for i in (0, 1)}
+    pub_tau = {i: node.create_publisher(JointState, f"/robot_{i}/wheel_torque", QOS_CONTROL) for i in (0, 1)}
+    pub_image = node.create_publisher(Image, "/camera/image_raw", QOS_IMAGE)
+    now_s = lambda: node.get_clock().now().nanoseconds * 1e-9   # noqa: E731
+    start_s = now_s() - 3.0                                       # the mission started 3 s ago
+    pub_graph.publish(msgs.graph_msg(msgs.GraphMessage(4, {0: None, 1: 0}, {1: (0.0, 1.2)}, (0,), now_s(), start_s)))
+    states = {0: np.array([0.35, 0.12, 0.4, 0.05, 0.1]), 1: np.array([0.05, 1.1, -0.2, 0.04, 0.0])}
+    torques = {0: (0.0125, -0.03), 1: (-0.002, 0.004)}
+    modes = {0: dict(mode="obstacle", target="O1", direction="ccw", avoiding=True),
+             1: dict(mode="coordination", target=None, direction=None, avoiding=False)}
+    pattern = np.tile(np.linspace(20, 230, 640, dtype=np.uint8), (480, 1))
+    pattern[200:260, 300:380] = 255
+
+    def feed():
+        stamp = msgs.stamp_from_s(now_s())
+        for i in (0, 1):
+            pub_state[i].publish(msgs.odometry(states[i], stamp, f"robot_{i}"))
+            pub_tau[i].publish(msgs.wheel_torque(torques[i], stamp))
+            pub_mode[i].publish(msgs.mode_msg(**modes[i]))
+        pub_image.publish(numpy_to_image(pattern, "mono8", stamp))
+
+    node.create_timer(0.05, feed)
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(node)
+    stop = threading.Event()
+
+    def spin():
+        while not stop.is_set():
+            executor.spin_once(timeout_sec=0.05)
+
+    spinner = threading.Thread(target=spin)
+    spinner.start()
+    log = tmp_path / "live_view.log"
+    with open(log, "w") as out:
+        proc = subprocess.Popen([str(BIN / "formation_live_view"), "--ros-args", "-p", f"scenario:={scenario_path}",
+                                 "-p", "port:=0", "-p", "image_rate_hz:=4.0"], stdout=out, stderr=subprocess.STDOUT)
+    try:
+        _wait(lambda: "ws://" in log.read_text() or proc.poll() is not None, 180, "the live view's address")
+        assert proc.poll() is None, log.read_text()
+        url = next(w for w in log.read_text().split() if w.startswith("ws://"))
+        assert url.startswith("ws://127.0.0.1:")
+        # nobody watches: the live view hears the graph only (it is up: its log says where it listens)
+        assert pub_graph.get_subscription_count() == 1
+        assert all(p.get_subscription_count() == 0 for p in (*pub_state.values(), *pub_tau.values(), pub_image))
+        client = subprocess.run(node_client + ["--url", url, "--timeout-s", "240", "--image-data-every", "1",
+                                               "--expect", ",".join(sorted(EXPECTED_TOPICS)), "--min-count", "5",
+                                               "--after-s", "1.5"], capture_output=True, text=True, timeout=300)
+        assert client.returncode == 0, client.stdout[-3000:] + client.stderr[-2000:]
+        # the client is gone: the live view lets go of the robots and the camera again
+        _wait(lambda: all(p.get_subscription_count() == 0 for p in (*pub_state.values(), pub_image)), 60,
+              "the live view to unsubscribe")
+    finally:
+        stop.set()
+        spinner.join()
+        proc.terminate()
+        proc.wait(timeout=60)
+        executor.shutdown(timeout_sec=1.0)
+        node.destroy_node()
+    assert proc.returncode == 0, log.read_text()
+    events = [json.loads(line) for line in client.stdout.splitlines() if line.startswith("{")]
+    assert {e["channel"]["topic"] for e in events if e["event"] == "advertise"} == EXPECTED_TOPICS
+    assert not [e for e in events if e.get("error")]
+
+    scenes = [(float(_meta(ents["robot_0"])["t_s"]), ents) for ents in
+              ({e["id"]: e for e in m["decoded"]["entities"]} for m in _messages(events, "/formation/scene"))
+              if "robot_0" in ents and "robot_1" in ents]
+    assert len(scenes) >= 5
+    field = ObstacleField(scenario.obstacles)
+    for t, ents in scenes:
+        assert 3.0 < t < 3.0 + 300.0
+        for i in (0, 1):
+            disc = ents[f"robot_{i}"]["cylinders"][0]["pose"]["position"]
+            assert (disc["x"], disc["y"]) == (states[i][0], states[i][1])          # bit for bit
+            assert _yaw(ents[f"robot_{i}"]["arrows"][0]["pose"]["orientation"]) == pytest.approx(states[i][2], abs=1e-12)
+        assert _meta(ents["robot_0"]) | {"t_s": ""} == {"t_s": "", "mode": "obstacle", "target": "O1", "direction": "ccw"}
+        assert ents["robot_0"]["texts"][0]["text"] == "robot 0\nobstacle O1 ccw"
+        assert ents["robot_1"]["texts"][0]["text"] == "robot 1\ncoordination"
+        truth = field.at(t)
+        o1 = ents["obstacle_O1"]["lines"][0]["pose"]["position"]
+        assert (o1["x"], o1["y"]) == pytest.approx(tuple(truth.center_m[0]), abs=1e-9)
+        o2 = ents["obstacle_O2"]["lines"][0]["pose"]
+        assert (o2["position"]["x"], o2["position"]["y"]) == pytest.approx(tuple(truth.center_m[1]), abs=1e-4)
+        assert _wrap(_yaw(o2["orientation"]) - truth.phi_rad[1]) == pytest.approx(0.0, abs=1e-3)
+        # robot 0 goes round O1 counter-clockwise: the arrow is tangent, turning left of the radial
+        arrow = _yaw(ents["avoid_0"]["arrows"][0]["pose"]["orientation"])
+        radial = math.atan2(states[0][1] - o1["y"], states[0][0] - o1["x"])
+        assert _wrap(arrow - radial) == pytest.approx(math.pi / 2, abs=1e-9)
+        assert not ents["avoid_1"]["arrows"]
+        assert json.loads(_meta(ents["graph_edges"])["edges"]) == [[0, 1]]
+        goal1 = ents["goal_1"]["spheres"][0]["pose"]["position"]
+        assert (goal1["x"], goal1["y"]) == pytest.approx((states[0][0], states[0][1] + 1.2), abs=1e-12)
+        goal0 = ents["goal_0"]["spheres"][0]["pose"]["position"]
+        r0 = scenario.robot(0).path.reference(t)[0]
+        assert (goal0["x"], goal0["y"]) == pytest.approx(tuple(r0), abs=1e-3)
+    for i in (0, 1):
+        samples = [m["decoded"] for m in _messages(events, f"/formation/series/robot_{i}")]
+        assert len(samples) >= 5
+        for s in samples:
+            if s["torque_left_nm"] is None:          # the first samples may precede the first torque
+                continue
+            assert (s["torque_left_nm"], s["torque_right_nm"]) == torques[i]
+            assert s["mode"] == modes[i]["mode"] and s["avoiding"] == int(modes[i]["avoiding"])
+        s = samples[-1]
+        assert s["robot_distance_m"] == pytest.approx(float(np.hypot(*(states[0][:2] - states[1][:2]))))
+        if i == 1:
+            goal = states[0][:2] + np.array([0.0, 1.2])
+            assert s["formation_error_m"] == pytest.approx(float(np.hypot(*(states[1][:2] - goal))))
+        obs = field.at(s["t_s"])
+        d = signed_distance_to_ellipse(np.repeat(states[i][None, :2], 2, axis=0), obs.center_m, obs.phi_rad,
+                                       obs.semi_axes_m[:, 0], obs.semi_axes_m[:, 1])
+        assert s["clearance_m"] == pytest.approx(float(d.min()), abs=1e-6)
+    status = [m["decoded"] for m in _messages(events, "/formation/status")]
+    assert status and status[-1]["revision"] == 4 and status[-1]["parents"] == {"0": None, "1": 0}
+    assert status[-1]["start_s"] == pytest.approx(start_s) and status[-1]["avoiding"] == [0]
+    import cv2
+
+    images = [m["decoded"] for m in _messages(events, "/camera/image/compressed")]
+    assert len(images) >= 5
+    frame = cv2.imdecode(np.frombuffer(base64.b64decode(images[-1]["dataBase64"]), np.uint8), cv2.IMREAD_UNCHANGED)
+    assert frame.shape == pattern.shape and np.abs(frame.astype(int) - pattern).mean() < 3.0
+
+
 EXPECTED_TOPICS = {"/formation/scene", "/camera/image/compressed", "/formation/status",
                    "/formation/series/robot_0", "/formation/series/robot_1"}
 
