@@ -253,15 +253,24 @@ def node_processes(tmp_path_factory):
                 proc.wait()
 
 
-def _call(node, executor, srv_type, name, request, timeout_s=90.0):
+def _call(node, executor, srv_type, name, request, timeout_s=120.0):
+    """Call service ``name``; a request is sent again every 10 s without an answer (a response
+    can be lost while discovery of the reply reader is still under way, slow on a busy machine;
+    the calls made here are idempotent)."""
+    import time
+
     from ament_formation.ros.executors import spin_until
 
+    deadline = time.monotonic() + timeout_s
     client = node.create_client(srv_type, name)
     try:
         assert spin_until(executor, client.service_is_ready, timeout_s), f'{name} never came up'
-        future = client.call_async(request)
-        assert spin_until(executor, future.done, 90.0), f'{name}: no answer'
-        return future.result()
+        while True:
+            future = client.call_async(request)
+            if spin_until(executor, future.done, min(10.0, max(0.1, deadline - time.monotonic()))):
+                return future.result()
+            client.remove_pending_request(future)
+            assert time.monotonic() < deadline, f'{name}: no answer in {timeout_s:g} s'
     finally:
         node.destroy_client(client)
 
