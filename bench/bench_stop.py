@@ -86,7 +86,7 @@ def analytic_bound(speed_mps: float, m_tilde_kg: float, r_m: float, tau_limit_nm
 
 
 # ---------------------------------------------------------------------------------------------
-def twin_trials(n_trials: int, speed_mps: float) -> list[dict]:
+def twin_trials(n_trials: int, speed_mps: float, speed_factor: float) -> list[dict]:
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     os.environ.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(ROOT / "config" / "fastdds_localhost.xml"))
     os.environ.setdefault("ROS_DOMAIN_ID", str(os.getpid() % 200 + 1))
@@ -108,7 +108,8 @@ def twin_trials(n_trials: int, speed_mps: float) -> list[dict]:
     rclpy.init(context=ctx, domain_id=int(os.environ["ROS_DOMAIN_ID"]))
     ex = SingleThreadedExecutor(context=ctx)
     world = WorldNode(context=ctx, params=WorldParams(scenario=str(scenario), pty_dir=str(tmp / "pty"),
-                                                      camera_enabled=False, exit_at_end=False))
+                                                      camera_enabled=False, exit_at_end=False,
+                                                      speed_factor=speed_factor))
     driver = Node("bench_stop_driver", namespace="robot_0", context=ctx)
     pub = driver.create_publisher(JointState, "wheel_torque", QOS_CONTROL)
     board = world.boards[0].board
@@ -139,7 +140,7 @@ def twin_trials(n_trials: int, speed_mps: float) -> list[dict]:
             bridge = subprocess.Popen([str(ROOT / ".venv" / "bin" / "formation_bridge"), "--ros-args",
                                        "-r", "__ns:=/robot_0", "-p", f"port:={tmp / 'pty' / 'robot_0'}",
                                        "-p", f"torque_limit_nm:={tau_lim}"],
-                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                                      stdout=subprocess.DEVNULL, stderr=open(tmp / f"bridge_{trial}.log", "w"))
             state["drive"] = True
             held = {"since": None}
 
@@ -151,18 +152,20 @@ def twin_trials(n_trials: int, speed_mps: float) -> list[dict]:
                 held["since"] = None
                 return False
 
-            if not spin_until(ex, at_speed, 60.0):
+            if not spin_until(ex, at_speed, 60.0 / speed_factor):
                 raise RuntimeError(f"trial {trial}: the robot did not reach {speed_mps} m/s "
-                                   f"(v = {world.twin.state[0, 3]:.3f} m/s)")
+                                   f"(v = {world.twin.state[0, 3]:.3f} m/s); bridge: "
+                                   + (tmp / f"bridge_{trial}.log").read_text()[-2000:])
             brakes0 = board.brakes
+            overruns0 = world.overruns
             bridge.send_signal(signal.SIGKILL)
             bridge.wait(timeout=10)
             state["drive"] = False
             n0 = len(samples)
             if not spin_until(ex, lambda: board.brakes > brakes0 and board.brake_released_s is not None
-                              and not board.braking, 10.0):
+                              and not board.braking, 10.0 / speed_factor):
                 raise RuntimeError(f"trial {trial}: the board did not brake and release")
-            spin_until(ex, lambda: False, 0.3)            # after the release: drift
+            spin_until(ex, lambda: False, 0.3 / speed_factor)            # after the release: drift
             t_loss = board.last_command_s
             rows = [r for r in samples[n0 - 50:] if r[0] >= t_loss - 0.011]
             t = np.array([r[0] for r in rows])
@@ -182,7 +185,8 @@ def twin_trials(n_trials: int, speed_mps: float) -> list[dict]:
                 "time_to_release_s": board.brake_released_s - t_loss, "distance_to_release_m": float(path[i_rel]),
                 "speed_at_release_mps": float(abs(v[i_rel])), "drift_after_release_mps": float(abs(v[-1])),
                 "peak_brake_torque_nm": peak, "released_by": "rest" if board.brake_released_s
-                - board.brake_started_s < 0.99 else "timeout"})
+                - board.brake_started_s < 0.99 else "timeout",
+                "world_overruns": world.overruns - overruns0})
             bridge = None
             # next trial starts from rest: wait for the drift to be counted, no more
     finally:
@@ -269,6 +273,9 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--trials", type=int, default=5)
     ap.add_argument("--speed-mps", type=float, default=0.8, help="twin: speed when the bridge dies")
+    ap.add_argument("--speed-factor", type=float, default=0.5,
+                    help="twin: world time per wall second (board and plant share it; < 1 lets a busy "
+                         "machine keep up: world_overruns counts the ticks it could not)")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--no-twin", action="store_true")
     ap.add_argument("--no-firmware", action="store_true")
@@ -288,12 +295,13 @@ def main() -> int:
           f"rest after {bound['time_to_rest_s']:.3f} s, {bound['distance_m']:.3f} m "
           f"(m~ = {float(k.m_tilde[0]):.3f} kg, brake {bound['brake_decel_mps2']:.2f} m/s^2)")
     if not a.no_twin:
-        rows = twin_trials(a.trials, a.speed_mps)
+        rows = twin_trials(a.trials, a.speed_mps, a.speed_factor)
         report["twin"] = rows
         print(f"\ntwin: bridge SIGKILLed at {a.speed_mps} m/s, {len(rows)} trials (times from the board's last command)")
         print(_table(rows, ["trial", "speed_at_loss_mps", "brake_start_after_loss_s", "time_to_rest_s",
                             "distance_to_rest_m", "time_to_release_s", "speed_at_release_mps",
-                            "drift_after_release_mps", "peak_brake_torque_nm", "released_by"]))
+                            "drift_after_release_mps", "peak_brake_torque_nm", "released_by",
+                            "world_overruns"]))
         print(f"worst: time to rest {max(r['time_to_rest_s'] for r in rows):.3f} s, "
               f"distance {max(r['distance_to_rest_m'] for r in rows):.3f} m, "
               f"release {max(r['time_to_release_s'] for r in rows):.3f} s")

@@ -221,7 +221,6 @@ class MotorBoard:
         self.brake_started_s = now_s
         self.brake_released_s = None
         self._rest_since_s = now_s
-        self._rest_ref_ticks = self.encoder_ticks
         self._next_brake_step_s = now_s
         self.flags |= sp.FLAG_BRAKING
 
@@ -236,12 +235,13 @@ class MotorBoard:
     def _brake_step(self, now_s: float) -> None:
         """One control step of the brake: regulate each wheel's speed to 0, release at rest."""
         speed = self.measured_speed_radps()
-        ticks = self.encoder_ticks
-        counts = np.abs(speed) * (self.config.ticks_per_rev / TWO_PI * CONTROL_PERIOD_S)
-        # moved by more than one count since the reference, or more than one count in the last
-        # period (a plant that stalled between updates is not a wheel at rest): restart the window
-        if np.any(np.abs(ticks - self._rest_ref_ticks) > 1) or np.any(counts > 1.5):
-            self._rest_ref_ticks = ticks
+        # the firmware's test: within one count of a reference for BRAKE_REST_S; here the counts a
+        # wheel turning at its present speed makes in BRAKE_REST_S (the plant's angles come in
+        # steps: a plant that stalled between updates is not a wheel at rest)
+        counts_per_rad = self.config.ticks_per_rev / TWO_PI
+        window = np.floor(self.wheel_pos_rad * counts_per_rad) - np.floor(
+            (self.wheel_pos_rad - self.wheel_vel_radps * BRAKE_REST_S) * counts_per_rad)
+        if np.any(np.abs(window) > 1):   # moving: restart the rest window
             self._rest_since_s = now_s
         at_rest = now_s - self._rest_since_s >= BRAKE_REST_S - 1e-9
         if at_rest or now_s - self.brake_started_s >= BRAKE_MAX_S - 1e-9:
