@@ -56,9 +56,11 @@ eval "$info"   # sets ids, robot_ids_list, marker_ids_list
 af_launch_init "$(realpath -m "$run_dir")" $multi
 # the params file first: the last value of a parameter wins, and the scenario's robots and
 # --camera must not be overridden by the file's defaults (config/params/formation_tracker.yaml)
-af_start tracker "$AF_BIN/formation_tracker" --ros-args "${params[@]}" -p robot_ids:="$robot_ids_list" \
+af_start tracker "$AF_BIN/formation_tracker" --ros-args \
+  --params-file "$AF_PARAMS_DIR/formation_tracker.yaml" "${params[@]}" -p robot_ids:="$robot_ids_list" \
   -p marker_ids:="$marker_ids_list" "${cam[@]}"
-af_start coordinator "$AF_BIN/formation_coordinator" --ros-args -p scenario:="$scenario" "${params[@]}"
+af_start coordinator "$AF_BIN/formation_coordinator" --ros-args \
+  --params-file "$AF_PARAMS_DIR/formation_coordinator.yaml" -p scenario:="$scenario" "${params[@]}"
 if [ -n "$live" ]; then
   af_start live_view "$AF_BIN/formation_live_view" --ros-args -p scenario:="$scenario" \
     -p host:="$live_host" -p port:="$live_port" "${params[@]}"

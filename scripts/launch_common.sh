@@ -15,6 +15,9 @@
 # input (exit code 2). docs/deployment.md.
 AF_ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 AF_BIN="$AF_ROOT/.venv/bin"
+# every node's params file (every parameter with its default; installed by colcon build to
+# share/ament_formation/config/params): launchers pass it first, then their -p overrides
+AF_PARAMS_DIR="$AF_ROOT/config/params"
 AF_PIDS=()
 AF_NAMES=()
 

@@ -82,12 +82,16 @@ af_launch_init "$(realpath -m "$run_dir")" $multi
 if [ -z "$split" ]; then
   # the robot process: one formation_team hosting robot N's bridge and controller nodes
   af_start "robot_$id" "${ctl[@]}" "$AF_BIN/formation_team" --ros-args \
+    --params-file "$AF_PARAMS_DIR/formation_team.yaml" \
+    --params-file "$AF_PARAMS_DIR/formation_controller.yaml" \
+    --params-file "$AF_PARAMS_DIR/formation_bridge.yaml" \
     -r formation_team:__node:="formation_robot_$id" -p scenario:="$scenario" -p robot_ids:="[$id]" \
     -p port_template:="$port" "${wait_port[@]}" "${rtp[@]}" "${params[@]}"
 else
   af_start "bridge_$id" "${ctl[@]}" "$AF_BIN/formation_bridge" --ros-args -r __ns:="/robot_$id" \
-    -p port:="$port" -p torque_limit_nm:="$torque_limit_nm" "${wait_port[@]}" "${params[@]}"
+    --params-file "$AF_PARAMS_DIR/formation_bridge.yaml" -p port:="$port" -p torque_limit_nm:="$torque_limit_nm" "${wait_port[@]}" "${params[@]}"
   af_start "controller_$id" "${ctl[@]}" "$AF_BIN/formation_controller" --ros-args -r __ns:="/robot_$id" \
+    --params-file "$AF_PARAMS_DIR/formation_controller.yaml" \
     -p scenario:="$scenario" -p robot_id:="$id" "${rtp[@]}" "${params[@]}"
 fi
 af_wait_any

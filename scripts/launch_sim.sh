@@ -82,7 +82,8 @@ pty_dir="$run_dir/pty"
 use_sim_time=false
 [ "$speed" != "1.0" ] && [ "$speed" != "1" ] && use_sim_time=true
 
-af_start world "$AF_BIN/formation_world" --ros-args -p scenario:="$scenario" -p pty_dir:="$pty_dir" \
+af_start world "$AF_BIN/formation_world" --ros-args --params-file "$AF_PARAMS_DIR/formation_world.yaml" \
+  -p scenario:="$scenario" -p pty_dir:="$pty_dir" \
   -p speed_factor:="$speed"
 # the emulated boards' ptys appear as RUN_DIR/pty/robot_<id>
 for _ in $(seq 1 200); do
@@ -103,6 +104,9 @@ if [ -n "$team" ]; then
     while [ $# -gt 0 ] && [ "${#members[@]}" -lt "$team" ]; do members+=("$1"); shift; done
     list="[$(IFS=,; echo "${members[*]}")]"
     af_start "team_$k" "${ctl[@]}" "$AF_BIN/formation_team" --ros-args -r formation_team:__node:="formation_team_$k" \
+      --params-file "$AF_PARAMS_DIR/formation_team.yaml" \
+      --params-file "$AF_PARAMS_DIR/formation_controller.yaml" \
+      --params-file "$AF_PARAMS_DIR/formation_bridge.yaml" \
       -p scenario:="$scenario" \
       -p robot_ids:="$list" -p port_template:="$pty_dir/robot_{id}" -p poll_rate_hz:=200.0 \
       -p use_sim_time:=$use_sim_time "${rtp[@]}"
@@ -111,15 +115,18 @@ if [ -n "$team" ]; then
 else
   for id in $ids; do
     af_start "bridge_$id" "${ctl[@]}" "$AF_BIN/formation_bridge" --ros-args -r __ns:="/robot_$id" \
-      -p port:="$pty_dir/robot_$id" -p torque_limit_nm:="$(eval echo "\$torque_$id")" -p poll_rate_hz:=200.0 \
+      --params-file "$AF_PARAMS_DIR/formation_bridge.yaml" -p port:="$pty_dir/robot_$id" -p torque_limit_nm:="$(eval echo "\$torque_$id")" -p poll_rate_hz:=200.0 \
       -p use_sim_time:=$use_sim_time
     af_start "controller_$id" "${ctl[@]}" "$AF_BIN/formation_controller" --ros-args -r __ns:="/robot_$id" \
+      --params-file "$AF_PARAMS_DIR/formation_controller.yaml" \
       -p scenario:="$scenario" -p robot_id:="$id" -p use_sim_time:=$use_sim_time "${rtp[@]}"
   done
 fi
-af_start tracker "$AF_BIN/formation_tracker" --ros-args -p robot_ids:="$robot_ids_list" \
+af_start tracker "$AF_BIN/formation_tracker" --ros-args \
+  --params-file "$AF_PARAMS_DIR/formation_tracker.yaml" -p robot_ids:="$robot_ids_list" \
   -p marker_ids:="$marker_ids_list" -p use_sim_time:=$use_sim_time
-af_start coordinator "$AF_BIN/formation_coordinator" --ros-args -p scenario:="$scenario" \
+af_start coordinator "$AF_BIN/formation_coordinator" --ros-args \
+  --params-file "$AF_PARAMS_DIR/formation_coordinator.yaml" -p scenario:="$scenario" \
   -p use_sim_time:=$use_sim_time
 if [ -n "$live" ]; then
   af_start live_view "$AF_BIN/formation_live_view" --ros-args -p scenario:="$scenario" \
