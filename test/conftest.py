@@ -31,6 +31,17 @@ except ImportError:  # pragma: no cover - hypothesis is pinned in requirements.t
     pass
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _numba_kernels_compiled_once():
+    """numba's kernels compiled once (core/jit_cache.py), before any test starts processes, if
+    the core changed since scripts/setup.sh did it: not in every started process at once."""
+    import subprocess
+    import sys
+
+    subprocess.run([sys.executable, "-c", "from ament_formation.core.jit_cache import main; main()"],
+                   check=False, timeout=900)
+
+
 @pytest.fixture
 def ros_context():
     """A private rclpy Context on this run's domain; shut down after the test."""

@@ -104,7 +104,9 @@ def test_controller_stops_when_poses_stop(ros_context, executor, tmp_path):
 
 def test_killing_the_controller_process_zeroes_the_board(ros_context, executor, tmp_path):
     """A controller process drives robot 0 through the in-process bridge and board; SIGKILL it:
-    the board applies zero torque within 250 ms (bridge input timeout / board watchdog)."""
+    within 250 ms the board stops applying its torque (a zero command or STOP from the bridge's
+    input timeout, or its own watchdog; STOP brakes the wheels to rest, docs/safety.md), measured
+    in the board's own clock (the world's, which steps the boards), not when this test sees it."""
     from rclpy.parameter import Parameter
 
     from ament_formation.nodes.bridge import BridgeNode
@@ -122,18 +124,34 @@ def test_killing_the_controller_process_zeroes_the_board(ros_context, executor, 
         scenario=str(scenario), wait_for_robots=False, start_delay_s=0.0))
     for n in (world, bridge, tracker, coord):
         executor.add_node(n)
+    # generous input timeouts: the subject is the kill, not a controlled stop when this test's one
+    # executor (world, camera, tracker, bridge) runs late on a busy machine
     proc = subprocess.Popen([str(ROOT / ".venv" / "bin" / "formation_controller"), "--ros-args", "-r",
-                             "__ns:=/robot_0", "-p", f"scenario:={scenario}", "-p", "robot_id:=0"],
+                             "__ns:=/robot_0", "-p", f"scenario:={scenario}", "-p", "robot_id:=0",
+                             "-p", "wheel_timeout_s:=2.0", "-p", "pose_timeout_s:=5.0"],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     board = world.boards[0].board
+    board.command_log = log = []         # (board time, seq, left, right) of every torque command
     try:
-        ok = spin_until(executor, lambda: np.max(np.abs(board.applied_torque_nm)) > 0.002 or proc.poll() is not None,
-                        60.0)
-        assert ok and proc.poll() is None, "the controller did not drive the board"
+        # the controller drives: the board applies a nonzero command from it (not a brake torque)
+        ok = spin_until(executor, lambda: bool(log) and log[-1][2:] != (0, 0) and not getattr(board, "braking", False)
+                        or proc.poll() is not None, 120.0)
+        assert ok and proc.poll() is None, (f"the controller did not drive the board: {len(log)} commands, "
+                                            f"last {log[-3:]}; controller: {_output(proc)}")
+
+        def stopped_at_s():
+            """Board time when it stopped applying the controller's torque (None: not yet)."""
+            times = [t for t, _, left, right in list(log) if t >= t_kill and (left, right) == (0, 0)]
+            times += [t for t in (getattr(board, "brake_started_s", None), board.watchdog_tripped_at_s)
+                      if t is not None and t >= t_kill]
+            return min(times, default=None)
+
+        t_kill = world.now_s()           # the boards' clock
         proc.send_signal(signal.SIGKILL)
-        t_kill = world.now_s()
-        assert spin_until(executor, lambda: np.all(board.applied_torque_nm == 0.0), 2.0)
-        assert world.now_s() - t_kill <= 0.25
+        assert spin_until(executor, lambda: stopped_at_s() is not None, 2.0), "the board never stopped"
+        print(f"board stopped {1e3 * (stopped_at_s() - t_kill):.0f} ms (board time) after the kill")
+        assert stopped_at_s() - t_kill <= 0.25
+        assert np.all(board.applied_torque_nm == 0.0) or getattr(board, "braking", False)
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -141,6 +159,20 @@ def test_killing_the_controller_process_zeroes_the_board(ros_context, executor, 
         for n in (coord, tracker, bridge, world):
             executor.remove_node(n)
             n.destroy_node()
+
+
+def _output(proc) -> str:
+    """What a process wrote so far (stdout, non-blocking), its last 2000 characters."""
+    import os
+    import select
+
+    chunks = []
+    while proc.stdout is not None and select.select([proc.stdout], [], [], 0)[0]:
+        data = os.read(proc.stdout.fileno(), 65536)
+        if not data:
+            break
+        chunks.append(data.decode(errors="replace"))
+    return "".join(chunks)[-2000:]
 
 
 @pytest.mark.parametrize("team", [False, True], ids=["node_per_robot", "formation_team"])
