@@ -26,7 +26,7 @@ class LinkParams:
     torque_limit_nm: float = param(0.15, "bridge clamp per wheel, also sent to the board [N m]",
                                    range=(0.0, 3.2767))
     watchdog_s: float = param(0.2, "board watchdog, sent in CONFIG [s]", range=(0.02, 0.5))
-    input_timeout_s: float = param(0.2, "wheel_torque older than this -> zero torque [s]",
+    input_timeout_s: float = param(0.2, "wheel_torque older than this -> STOP: the board brakes [s]",
                                    range=(0.0, 5.0))
     command_rate_hz: float = param(100.0, "keep-alive TORQUE_CMD rate [Hz]", range=(1.0, 1000.0))
     telemetry_period_s: float = param(0.01, "board TELEMETRY period when idle, sent in CONFIG [s]",
