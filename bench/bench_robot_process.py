@@ -1,19 +1,20 @@
 """What one robot's computer spends on its robot (issue "Robots as separate hosts"):
 run with `bench/run.sh bench_robot_process.py [options]`.
 
-1. Cost per robot at 100 Hz, two layouts in the same run on the simulated twin
-   (scripts/launch_sim.sh: world, tracker, coordinator as usual):
-     split  a formation_bridge and a formation_controller process per robot (today's default of
-            launch_sim.sh; what launch_robot.sh --split starts);
-     robot  one robot process per robot: formation_team hosting that robot's bridge and controller
-            (launch_sim.sh --team 1; what launch_robot.sh starts by default).
-   For each, idle and (``--quota``) with every robot's processes in a cgroup of their own with a
+1. Cost per robot at 100 Hz, two layouts in the same run: robot 1 of the paper scenario (a
+   follower: it hears its parent at full rate) started by scripts/launch_robot.sh as on a robot's
+   computer, against its emulated motor board on a pty (`formation board`, another process, not
+   counted), with what the lab sends it published from this process (camera poses of every robot
+   at 30 fps, the parent's state and accel at 100 Hz, /formation/graph with the mission start):
+     split  launch_robot.sh --split: a formation_bridge and a formation_controller process;
+     robot  launch_robot.sh: one robot process (formation_team hosting both nodes).
+   For each, idle and (``--quota``) with the robot's processes in a cgroup of their own with a
    CPU quota (default 25 % of one core: cgroup v2 cpu.max "25000 100000", or cgroup v1
-   cpu.cfs_quota_us / cpu.rt_runtime_us 25000 per 100000 us; the groups are removed afterwards).
-   Measured over a fixed window once every controller runs the mission:
+   cpu.cfs_quota_us and cpu.rt_runtime_us 25000 per 100000 us; removed afterwards).
+   Measured over a fixed window once the controller runs the mission:
      CPU %    utime + stime of the robot's processes from /proc/<pid>/stat, per 100 % of one core
      RSS      VmRSS of the robot's processes from /proc/<pid>/status (summed)
-     late     late control ticks / ticks from the controllers' /diagnostics (a tick more than
+     late     late control ticks / ticks from the controller's /diagnostics (a tick more than
               1.5 periods after the previous one)
 2. (``--paper``) The paper scenario (config/scenarios/paper.yaml, 55 s) through `formation run`
    with one robot process per robot, idle, next to two CPU-bound processes (``hogs``) and with each
@@ -30,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import shutil
 import signal
@@ -168,7 +170,7 @@ class DiagProbe:
             vals = {kv.key: kv.value for kv in st.values}
             if "late_ticks" in vals and "safety" in vals:
                 robot = (st.hardware_id or st.name.split()[-1]).strip()
-                self.values[robot] = {**vals, "_message": st.message}
+                self.values[robot] = {**vals, "_message": st.message, "_t": time.monotonic()}
 
     def spin_for(self, seconds: float) -> None:
         end = time.monotonic() + seconds
@@ -196,66 +198,144 @@ class DiagProbe:
         rclpy.try_shutdown(context=self.ctx)
 
 
-# ------------------------------------------------------------------ part 1
-def robot_processes(layout: str, pids: dict[str, int], ids: list[int]) -> dict[int, list[int]]:
-    if layout == "split":
-        return {i: [pids[f"bridge_{i}"], pids[f"controller_{i}"]] for i in ids
-                if f"bridge_{i}" in pids and f"controller_{i}" in pids}
-    return {i: [pids[f"team_{k}"]] for k, i in enumerate(ids) if f"team_{k}" in pids}
+# ------------------------------------------------------------------ part 1: one robot's computer
+class RobotInputs:
+    """What a robot's computer receives from the rest of the lab, published from this process:
+    its camera pose at 30 fps (``robot_<rid>/pose``, capture stamp 20 ms old), its parent's state
+    and commanded acceleration at 100 Hz, the parent's camera pose and mode, and
+    ``/formation/graph`` with the mission start; plus a probe of the controllers' diagnostics."""
+
+    def __init__(self, probe: DiagProbe, scenario: Path, rid: int):
+        from geometry_msgs.msg import AccelStamped, PoseStamped
+        from std_msgs.msg import String
+
+        from ament_formation.core.graph import FormationGraph
+        from ament_formation.core.scenario import load_scenario
+        from ament_formation.ros import messages as m
+        from ament_formation.ros.qos import QOS_CONTROL, QOS_GRAPH
+
+        import rclpy
+
+        self.m, self.rid, self.probe = m, rid, probe
+        self.node = rclpy.create_node("_bench_robot_inputs", context=probe.ctx)
+        probe.ex.add_node(self.node)
+        sc = load_scenario(scenario)
+        fg = FormationGraph.from_scenario(sc)
+        self.parent = fg.original_parent.get(rid)
+        self.pose = {r.id: [float(v) for v in r.initial_pose] for r in sc.robots}
+        n = self.node
+        self.pub_pose = {k: n.create_publisher(PoseStamped, f"/robot_{k}/pose", QOS_CONTROL) for k in self.pose}
+        self.pub_state = n.create_publisher(m.Odometry, f"/robot_{self.parent}/state", QOS_CONTROL)
+        self.pub_accel = n.create_publisher(AccelStamped, f"/robot_{self.parent}/accel", QOS_CONTROL)
+        self.pub_mode = n.create_publisher(String, f"/robot_{self.parent}/mode", QOS_CONTROL)
+        self.pub_graph = n.create_publisher(String, "/formation/graph", QOS_GRAPH)
+        now = self.now_s()
+        parents = {r.id: fg.original_parent.get(r.id) for r in sc.robots}
+        offsets = {c: tuple(float(v) for v in fg.offset(c, p)) for c, p in parents.items() if p is not None}
+        self.pub_graph.publish(m.graph_msg(m.GraphMessage(revision=1, parents=parents, offsets_m=offsets,
+                                                          stamp_s=now, start_s=now + 2.0)))
+        self.ticks = 0
+        n.create_timer(0.01, self._tick)
+
+    def now_s(self) -> float:
+        return self.node.get_clock().now().nanoseconds * 1e-9
+
+    def close(self) -> None:
+        self.probe.ex.remove_node(self.node)
+        self.node.destroy_node()
+
+    def _tick(self) -> None:
+        from geometry_msgs.msg import PoseStamped
+
+        m, now = self.m, self.now_s()
+        self.ticks += 1
+        px, py, pth = self.pose[self.parent]
+        stamp = m.stamp_from_s(now)
+        self.pub_state.publish(m.odometry([px, py, pth, 0.0, 0.0], stamp, f"robot_{self.parent}"))
+        self.pub_accel.publish(m.accel_stamped([0.0, 0.0], stamp))
+        if self.ticks % 3 == 0:      # the camera: 30 fps (every robot's pose, as the tracker sends)
+            for k, (x, y, th) in self.pose.items():
+                msg = PoseStamped()
+                msg.header.frame_id = "world"
+                msg.header.stamp = m.stamp_from_s(now - 0.02)
+                msg.pose.position.x, msg.pose.position.y = x, y
+                msg.pose.orientation.z, msg.pose.orientation.w = math.sin(th / 2), math.cos(th / 2)
+                self.pub_pose[k].publish(msg)
+        if self.ticks % 100 == 0:
+            self.pub_mode.publish(m.mode_msg(mode="coordination", target=None, direction=None, avoiding=False))
 
 
 def measure_cost(layout: str, quota_pct: float | None, window_s: float, tmp: Path, probe: DiagProbe,
-                 extra: list[str], scenario: Path = SCENARIO) -> dict:
-    from ament_formation.core.scenario import load_scenario
-
-    ids = list(load_scenario(scenario).robot_ids)
+                 extra: list[str], scenario: Path = SCENARIO, rid: int = 1) -> dict:
+    """Robot ``rid`` of ``scenario`` on its own: its emulated motor board on a pty (`formation
+    board`, not counted), scripts/launch_robot.sh (``split``: --split), inputs from
+    :class:`RobotInputs`; CPU and RSS of the launcher's processes, late ticks from diagnostics."""
     run_dir = tmp / f"cost_{layout}_{'quota' if quota_pct else 'idle'}"
-    cmd = [str(ROOT / "scripts" / "launch_sim.sh"), str(scenario), "--run-dir", str(run_dir),
-           "--duration", "400", *(["--team", "1"] if layout == "robot" else []), *extra]
-    launch = subprocess.Popen(cmd, stdout=open(tmp / f"{run_dir.name}.out", "w"), stderr=subprocess.STDOUT,
-                              start_new_session=True)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    link = run_dir / f"robot_{rid}.tty"
+    board = subprocess.Popen([str(ROOT / ".venv" / "bin" / "formation"), "board", "--pty", "--link", str(link)],
+                             stdout=open(run_dir / "board.log", "w"), stderr=subprocess.STDOUT)
     groups: list[CpuQuota] = []
+    launch = None
     probe.values.clear()
+    inputs = None
     try:
-        procs: dict[int, list[int]] = {}
-        probe.spin_until(lambda: len(robot_processes(layout, read_pids(run_dir / "pids"), ids)) == len(ids)
-                         or launch.poll() is not None, 120.0)
-        procs = robot_processes(layout, read_pids(run_dir / "pids"), ids)
+        probe.spin_until(lambda: link.exists() or board.poll() is not None, 60.0)
+        cmd = [str(ROOT / "scripts" / "launch_robot.sh"), "--id", str(rid), "--port", str(link),
+               "--scenario", str(scenario), "--run-dir", str(run_dir / "robot"),
+               *(["--split"] if layout == "split" else []), *extra]
+        launch = subprocess.Popen(cmd, stdout=open(run_dir / "launch.out", "w"), stderr=subprocess.STDOUT,
+                                  start_new_session=True)
+        names = {"split": 2, "robot": 1}[layout]
+        probe.spin_until(lambda: len(read_pids(run_dir / "robot" / "pids")) == names or launch.poll() is not None, 60.0)
+        pids = list(read_pids(run_dir / "robot" / "pids").values())
         if quota_pct:
-            for i, plist in procs.items():
-                g = CpuQuota(f"af_bench_{os.getpid()}_robot_{i}", quota_pct)
-                groups.append(g)
-                for pid in plist:
-                    g.add(pid)
-        running = probe.spin_until(lambda: len(probe.values) == len(ids) and all(
-            v["_message"] == "running" for v in probe.values.values()) or launch.poll() is not None, 240.0)
-        if not running:
-            return {"layout": layout, "error": f"not every controller ran the mission: {probe.values and {k: v['_message'] for k, v in probe.values.items()}}"}
+            g = CpuQuota(f"af_bench_{os.getpid()}_robot_{rid}", quota_pct)
+            groups.append(g)
+            for pid in pids:
+                g.add(pid)
+        started = time.monotonic()
+
+        def fresh(message=None) -> bool:   # diagnostics of this launch's controller
+            return any(v["_t"] > started and (message is None or v["_message"] == message)
+                       for v in probe.values.values())
+
+        # the controller is up (diagnostics) before the mission start is published
+        probe.spin_until(lambda: fresh() or launch.poll() is not None, 300.0)
+        inputs = RobotInputs(probe, scenario, rid)
+        ok = probe.spin_until(lambda: fresh("running") or launch.poll() is not None, 60.0) and launch.poll() is None
+        if not ok:
+            return {"layout": layout, "error": "the controller did not run: " + str(
+                [(v["_message"], v.get("camera_accepted"), v.get("odometry")) for v in probe.values.values()])}
         probe.spin_for(2.0)
-        t0, c0, d0 = time.monotonic(), {i: sum(cpu_ticks(p) for p in pl) for i, pl in procs.items()}, probe.ticks()
-        thr0 = [g.throttled() for g in groups]
+        t0, c0, d0, thr0 = time.monotonic(), sum(cpu_ticks(p) for p in pids), probe.ticks(), [g.throttled() for g in groups]
         probe.spin_for(window_s)
+        t1, c1 = time.monotonic(), sum(cpu_ticks(p) for p in pids)
         probe.spin_for(1.2)      # the diagnostics of the window's end (published every second)
-        t1, c1, d1 = time.monotonic(), {i: sum(cpu_ticks(p) for p in pl) for i, pl in procs.items()}, probe.ticks()
-        dt = t1 - t0
-        rows = {}
-        for i, pl in procs.items():
-            key = next((k for k in d1 if k.endswith(f"robot_{i}")), None)
-            delta = [0] * len(probe.COUNTERS)
-            if key is not None and key in d0:
-                delta = [b - a for a, b in zip(d0[key], d1[key])]
-            rows[i] = {"cpu_pct": 100.0 * (c1[i] - c0[i]) / HZ / dt, "rss_mb": sum(rss_mb(p) for p in pl),
-                       "ticks": delta[0], "late": delta[1], "camera": delta[2:], "processes": len(pl)}
-        thr = [(b[0] - a[0], b[1] - a[1]) for a, b in zip(thr0, (g.throttled() for g in groups))]
-        return {"layout": layout, "quota_pct": quota_pct, "window_s": dt, "robots": rows, "throttled": thr}
+        d1 = probe.ticks()
+        key = next(iter(d1), None)
+        delta = [b - a for a, b in zip(d0.get(key, ()), d1.get(key, ()))] or [0] * len(probe.COUNTERS)
+        states = {v["_message"] for v in probe.values.values()}
+        thr = [(b[0] - a[0], round(b[1] - a[1], 3)) for a, b in zip(thr0, (g.throttled() for g in groups))]
+        return {"layout": layout, "quota_pct": quota_pct, "window_s": t1 - t0, "throttled": thr, "safety": states,
+                "robots": {rid: {"cpu_pct": 100.0 * (c1 - c0) / HZ / (t1 - t0), "rss_mb": sum(rss_mb(p) for p in pids),
+                                 "ticks": delta[0], "late": delta[1], "camera": delta[2:], "processes": len(pids)}}}
     finally:
-        if launch.poll() is None:
+        if inputs is not None:
+            inputs.close()
+        if launch is not None and launch.poll() is None:
             launch.send_signal(signal.SIGTERM)
             try:
                 launch.wait(timeout=30)
             except subprocess.TimeoutExpired:
                 launch.kill()
                 launch.wait()
+        board.send_signal(signal.SIGTERM)
+        try:
+            board.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            board.kill()
+            board.wait()
         for g in groups:
             g.remove()
 
@@ -327,19 +407,24 @@ def main() -> int:
     loopback_env(tmp / "ros_log")
     extra = ([] if args.rt_priority is None else ["--control-rt", str(args.rt_priority)]) + \
             ([] if args.control_nice is None else ["--control-nice", str(args.control_nice)])
+    robot_extra = ([] if args.rt_priority is None else ["--rt-priority", str(args.rt_priority)]) + \
+                  ([] if args.control_nice is None else ["--nice", str(args.control_nice)])   # launch_robot.sh
     if args.rt_priority is not None:
         os.environ["AF_CONTROL_RT_PRIORITY"] = str(args.rt_priority)   # formation run -> launch_sim.sh
     print(f"load average before: {os.getloadavg()}; {os.cpu_count()} cores; options: {' '.join(extra) or 'none'}")
     try:
         conditions = ([] if args.no_idle else [None]) + ([args.quota] if args.quota else [])
         if conditions:
-            probe = DiagProbe()
-            try:
+            if True:
                 print(f"{'layout':7} {'quota':>6} {'robot':>5} {'CPU %':>7} {'RSS MB':>7} {'ticks':>6} {'late':>5} "
                       f"{'late %':>7}  camera poses accepted/outlier/stale")
                 for q in conditions:
                     for layout in args.layouts:
-                        r = measure_cost(layout, q, args.window_s, tmp, probe, extra)
+                        probe = DiagProbe()      # a fresh participant per run: nothing carried over
+                        try:
+                            r = measure_cost(layout, q, args.window_s, tmp, probe, robot_extra)
+                        finally:
+                            probe.close()
                         if "error" in r:
                             print(f"{layout:7} {q or '-':>6} {r['error']}")
                             continue
@@ -350,8 +435,6 @@ def main() -> int:
                         if r["throttled"]:
                             print(f"        cgroup throttling in the window: {r['throttled']}")
                         print(f"        (window {r['window_s']:.1f} s, load average {os.getloadavg()[0]:.1f})")
-            finally:
-                probe.close()
         for cond in args.paper or ():
             r = paper_run(cond, args.quota or 25.0, tmp, extra)
             robots = r.get("robots", {})

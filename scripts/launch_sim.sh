@@ -86,14 +86,14 @@ af_start world "$AF_BIN/formation_world" --ros-args --params-file "$AF_PARAMS_DI
   -p scenario:="$scenario" -p pty_dir:="$pty_dir" \
   -p speed_factor:="$speed"
 # the emulated boards' ptys appear as RUN_DIR/pty/robot_<id>
-for _ in $(seq 1 200); do
+for _ in $(seq 1 1200); do   # up to 60 s: a busy machine imports slowly
   ready=1
   for id in $ids; do [ -e "$pty_dir/robot_$id" ] || ready=0; done
   [ "$ready" = 1 ] && break
   af_alive "${AF_PIDS[0]}" || { echo "formation_world exited early; see $run_dir/world.log" >&2; exit 1; }
   sleep 0.05
 done
-[ "$ready" = 1 ] || { echo "the world's ptys did not appear in 10 s" >&2; exit 1; }
+[ "$ready" = 1 ] || { echo "the world's ptys did not appear in 60 s" >&2; exit 1; }
 
 if [ -n "$team" ]; then
   # ceil(N/K) formation_team processes, robots in scenario order, K per process
