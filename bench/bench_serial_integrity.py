@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from ament_formation.core import cobs  # noqa: E402
 from ament_formation.core import serial_protocol as sp  # noqa: E402
-from ament_formation.core.byte_faults import mutate  # noqa: E402
+from ament_formation.core.byte_faults import MUTATION_KINDS, mutate  # noqa: E402
 
 POOL_SIZE = 4096
 
@@ -50,9 +50,9 @@ def _random_message(rng: random.Random, torque: bool) -> sp.Message:
     return cls(*values)
 
 
-def run_chunk(args: tuple[int, int, int]) -> dict:
-    """``n`` trials of protocol ``version`` with seed ``seed``: counts."""
-    n, version, seed = args
+def run_chunk(args: tuple[int, int, int, str | None]) -> dict:
+    """``n`` trials of protocol ``version`` with seed ``seed`` (mutations of kind ``only``, or all): counts."""
+    n, version, seed, only = args
     rng = random.Random(seed)
     pool = []
     for k in range(POOL_SIZE):
@@ -66,7 +66,7 @@ def run_chunk(args: tuple[int, int, int]) -> dict:
     unchanged = 0
     for _ in range(n):
         block = pool[rng.randrange(POOL_SIZE)]
-        bad, kind = mutate(block, rng)
+        bad, kind = mutate(block, rng, only)
         if bad == block:
             unchanged += 1
             continue
@@ -77,9 +77,10 @@ def run_chunk(args: tuple[int, int, int]) -> dict:
     return {"trials": n - unchanged, "accepted": accepted, "rejected": dict(dec.rejected)}
 
 
-def measure(total: int, version: int, workers: int, seed: int) -> dict:
+def measure(total: int, version: int, workers: int, seed: int, only: str | None = None) -> dict:
     chunk = 250_000
-    jobs = [(min(chunk, total - i), version, seed * 1_000_003 + k) for k, i in enumerate(range(0, total, chunk))]
+    jobs = [(min(chunk, total - i), version, seed * 1_000_003 + k, only)
+            for k, i in enumerate(range(0, total, chunk))]
     t0 = time.monotonic()
     cpu0 = os.times()
     if workers > 1:
@@ -99,6 +100,7 @@ def measure(total: int, version: int, workers: int, seed: int) -> dict:
             rejected[k] = rejected.get(k, 0) + v
     torque = [a for a in accepted if a["decoded"]["type"] == "TORQUE_CMD"]
     return {"protocol_version": version, "check": "CRC-16/CCITT-FALSE" if version == 1 else "CRC-32C",
+            "mutations": only or "all kinds",
             "mutated_frames": trials, "accepted_corrupted_frames": len(accepted),
             "accepted_corrupted_torque_commands": len(torque),
             "accepted_per_million": 1e6 * len(accepted) / max(trials, 1),
@@ -112,10 +114,12 @@ def main() -> int:
     ap.add_argument("--v1-frames", type=int, default=1_000_000, help="version-1 (CRC-16) baseline trials")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--only", choices=MUTATION_KINDS, default=None,
+                    help="one kind of corruption only (bytes_replaced: beyond a CRC-16's guarantees)")
     a = ap.parse_args()
     for n, version in ((a.v1_frames, 1), (a.frames, sp.PROTOCOL_VERSION)):
         if n > 0:
-            print(json.dumps(measure(n, version, a.workers, a.seed)), flush=True)
+            print(json.dumps(measure(n, version, a.workers, a.seed, a.only)), flush=True)
     return 0
 
 

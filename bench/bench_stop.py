@@ -3,11 +3,12 @@
 
     bench/run.sh bench_stop.py [--trials 5] [--speed-mps 0.8] [--json OUT.json] [--no-twin] [--no-firmware]
 
-Twin: formation_world's plant and emulated motor board (in this process, camera off, one robot of
-the reference parameters on an empty floor), the real formation_bridge as a subprocess on the
-board's pty, and a driver publishing wheel_torque (a speed loop on the true speed) until the robot
-holds ``--speed-mps``; then the bridge is SIGKILLed (no STOP, no last word: the board's watchdog
-is all that is left). Per trial: time and distance from the board's last command to rest (true
+Twin: formation_world's plant and emulated motor board (camera off, one robot of the reference
+parameters on an empty floor, the world at ``--speed-factor`` of real time), formation_bridge on the
+board's pty (in this process: a subprocess starves on a loaded machine), and a driver commanding
+torques (a speed loop on the true speed) until the robot holds ``--speed-mps``; then the bridge is
+killed the way SIGKILL kills it — its port closes, no STOP, no last frame: the board's watchdog
+is all that is left. Per trial: time and distance from the board's last command to rest (true
 speed below 5 mm/s for good) and to the release of the H-bridge, the peak brake torque.
 
 Firmware: the ATmega328P firmware in simavr (firmware/sim/harness.c: wheel + half the robot's
@@ -23,7 +24,6 @@ import argparse
 import json
 import math
 import os
-import signal
 import subprocess
 import sys
 import tempfile
@@ -60,17 +60,24 @@ obstacles: []
 """
 
 
-def analytic_bound(speed_mps: float, m_tilde_kg: float, r_m: float, tau_limit_nm: float) -> dict:
-    """Worst case of docs/safety.md: the last command is full forward torque, held for the watchdog,
-    then the brake at its bound until the wheel speed is in the linear range, then the linear
-    tail (time constant J/gain per wheel) to the one-count rest band, then the rest window."""
+MOTOR_TOP_SPEED_MPS = 12.0 / (0.0175 * 30.0) * 0.035   # firmware/src/config.h motor at 12 V: 0.80 m/s
+
+
+def analytic_bound(speed_mps: float, m_tilde_kg: float, r_m: float, tau_limit_nm: float,
+                   top_speed_mps: float = MOTOR_TOP_SPEED_MPS) -> dict:
+    """docs/safety.md: the last command (``tau_limit_nm`` forward on both wheels: the worst case;
+    0: the robot was holding its speed) stays applied for the 200 ms watchdog (the speed capped
+    at the motor's top speed), then the brake at its bound until the wheel speed is in the linear
+    range, then the linear tail (time constant J/gain per wheel) to the one-count rest band, then
+    the rest window."""
     from ament_formation.core import motor_board as mb
 
     wd = 0.2
     a_drive = 2 * tau_limit_nm / (r_m * m_tilde_kg)
     a_brake = 2 * mb.BRAKE_TORQUE_LIMIT_NM / (r_m * m_tilde_kg)
-    v1 = speed_mps + a_drive * wd
-    d1 = speed_mps * wd + 0.5 * a_drive * wd ** 2
+    v1 = min(speed_mps + a_drive * wd, max(top_speed_mps, speed_mps))
+    t_up = (v1 - speed_mps) / a_drive if a_drive > 0 else 0.0
+    d1 = speed_mps * t_up + 0.5 * a_drive * t_up ** 2 + v1 * (wd - t_up)
     w_lin = mb.BRAKE_TORQUE_LIMIT_NM / mb.BRAKE_GAIN_NM_PER_RADPS          # saturation below this [rad/s]
     v_lin = min(v1, w_lin * r_m)
     t2 = (v1 - v_lin) / a_brake
@@ -95,11 +102,12 @@ def twin_trials(n_trials: int, speed_mps: float, speed_factor: float) -> list[di
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
-    from sensor_msgs.msg import JointState
+    from rclpy.parameter import Parameter
 
+    from ament_formation.core import serial_link as sl
+    from ament_formation.nodes.bridge import BridgeNode
     from ament_formation.nodes.world import WorldNode, WorldParams
     from ament_formation.ros.executors import spin_until
-    from ament_formation.ros.qos import QOS_CONTROL
 
     tmp = Path(tempfile.mkdtemp(prefix="bench_stop_"))
     scenario = tmp / "scenario.yaml"
@@ -111,42 +119,42 @@ def twin_trials(n_trials: int, speed_mps: float, speed_factor: float) -> list[di
                                                       camera_enabled=False, exit_at_end=False,
                                                       speed_factor=speed_factor))
     driver = Node("bench_stop_driver", namespace="robot_0", context=ctx)
-    pub = driver.create_publisher(JointState, "wheel_torque", QOS_CONTROL)
     board = world.boards[0].board
     k = world.twin.k
     tau_lim = float(k.tau_max[0])
-    state = {"drive": False}
+    state = {"bridge": None}
     samples: list[tuple] = []
 
     def tick():
         s = world.twin.state[0]
         samples.append((world.plant_time_s, float(s[0]), float(s[1]), float(s[3]), float(s[4]),
                         bool(board.braking), tuple(board.applied_e4nm)))
-        if state["drive"]:
-            # speed loop on the true speed (both wheels alike), heading held by the torque difference
+        bridge = state["bridge"]
+        if bridge is not None:
+            # the controller's part: a speed loop on the true speed, heading held by the difference
             u = max(-tau_lim, min(tau_lim, 2.0 * (speed_mps - s[3])))
             dw = max(-0.02, min(0.02, -0.05 * s[4]))
-            msg = JointState()
-            msg.effort = [u - dw, u + dw]
-            pub.publish(msg)
+            bridge.command((u - dw, u + dw))
 
     driver.create_timer(0.01, tick)
     ex.add_node(world)
     ex.add_node(driver)
     results = []
-    bridge = None
     try:
         for trial in range(n_trials):
-            bridge = subprocess.Popen([str(ROOT / ".venv" / "bin" / "formation_bridge"), "--ros-args",
-                                       "-r", "__ns:=/robot_0", "-p", f"port:={tmp / 'pty' / 'robot_0'}",
-                                       "-p", f"torque_limit_nm:={tau_lim}"],
-                                      stdout=subprocess.DEVNULL, stderr=open(tmp / f"bridge_{trial}.log", "w"))
-            state["drive"] = True
+            # formation_bridge in this process (a subprocess starves on a loaded machine); it is
+            # "killed" the way SIGKILL kills a bridge process: no last frame, the OS closes its port
+            bridge = BridgeNode(context=ctx, namespace="/robot_0", torque_topic=False, parameter_overrides=[
+                Parameter("port", value=str(tmp / "pty" / "robot_0")), Parameter("torque_limit_nm", value=tau_lim)])
+            ex.add_node(bridge)
+            if not spin_until(ex, lambda: bridge.link.state == sl.UP, 30.0):
+                raise RuntimeError(f"trial {trial}: link not up ({bridge.link.state})")
+            state["bridge"] = bridge
             held = {"since": None}
 
             def at_speed():
                 v = world.twin.state[0, 3]
-                if abs(v - speed_mps) < 0.01 and board.last_command_s is not None and not board.braking:
+                if abs(v - speed_mps) < 0.01 and not board.braking:
                     held["since"] = held["since"] or world.plant_time_s
                     return world.plant_time_s - held["since"] > 0.5
                 held["since"] = None
@@ -154,32 +162,30 @@ def twin_trials(n_trials: int, speed_mps: float, speed_factor: float) -> list[di
 
             if not spin_until(ex, at_speed, 60.0 / speed_factor):
                 raise RuntimeError(f"trial {trial}: the robot did not reach {speed_mps} m/s "
-                                   f"(v = {world.twin.state[0, 3]:.3f} m/s); bridge: "
-                                   + (tmp / f"bridge_{trial}.log").read_text()[-2000:])
+                                   f"(v = {world.twin.state[0, 3]:.3f} m/s)")
             brakes0 = board.brakes
             overruns0 = world.overruns
-            bridge.send_signal(signal.SIGKILL)
-            bridge.wait(timeout=10)
-            state["drive"] = False
+            state["bridge"] = None
+            ex.remove_node(bridge)
+            bridge._close_port()          # SIGKILL: the port closes, nothing more is sent
             n0 = len(samples)
             if not spin_until(ex, lambda: board.brakes > brakes0 and board.brake_released_s is not None
                               and not board.braking, 10.0 / speed_factor):
                 raise RuntimeError(f"trial {trial}: the board did not brake and release")
             spin_until(ex, lambda: False, 0.3 / speed_factor)            # after the release: drift
+            Node.destroy_node(bridge)     # not BridgeNode.destroy_node: that would send STOP
             t_loss = board.last_command_s
-            rows = [r for r in samples[n0 - 50:] if r[0] >= t_loss - 0.011]
+            rows = [r for r in samples[max(0, n0 - 50):] if r[0] >= t_loss - 0.011]
             t = np.array([r[0] for r in rows])
             xy = np.array([(r[1], r[2]) for r in rows])
             v = np.array([r[3] for r in rows])
             path = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))])
             moving = np.flatnonzero(np.abs(v) >= REST_SPEED_MPS)
             i_rest = min(int(moving[-1]) + 1, len(t) - 1) if moving.size else 0
-            i_rel = int(np.searchsorted(t, board.brake_released_s))
-            i_rel = min(i_rel, len(t) - 1)
+            i_rel = min(int(np.searchsorted(t, board.brake_released_s)), len(t) - 1)
             peak = max((max(abs(a) for a in r[6]) for r in rows if r[5]), default=0) * 1e-4
             results.append({
                 "trial": trial, "speed_at_loss_mps": float(np.interp(t_loss, t, v)),
-                "peak_speed_mps": float(v.max()),
                 "brake_start_after_loss_s": board.brake_started_s - t_loss,
                 "time_to_rest_s": float(t[i_rest] - t_loss), "distance_to_rest_m": float(path[i_rest]),
                 "time_to_release_s": board.brake_released_s - t_loss, "distance_to_release_m": float(path[i_rel]),
@@ -187,12 +193,7 @@ def twin_trials(n_trials: int, speed_mps: float, speed_factor: float) -> list[di
                 "peak_brake_torque_nm": peak, "released_by": "rest" if board.brake_released_s
                 - board.brake_started_s < 0.99 else "timeout",
                 "world_overruns": world.overruns - overruns0})
-            bridge = None
-            # next trial starts from rest: wait for the drift to be counted, no more
     finally:
-        if bridge is not None and bridge.poll() is None:
-            bridge.kill()
-            bridge.wait(timeout=10)
         ex.remove_node(world)
         ex.remove_node(driver)
         world.close()
@@ -290,10 +291,13 @@ def main() -> int:
     tmp.rmdir()
     report: dict = {"load_avg_1min": os.getloadavg()[0], "cpus": os.cpu_count()}
     bound = analytic_bound(a.speed_mps, float(k.m_tilde[0]), float(k.r[0]), float(k.tau_max[0]))
+    hold = analytic_bound(a.speed_mps, float(k.m_tilde[0]), float(k.r[0]), 0.0)
     report["analytic_bound"] = bound
-    print(f"analytic worst case at {a.speed_mps} m/s (last command full torque for the 200 ms watchdog): "
-          f"rest after {bound['time_to_rest_s']:.3f} s, {bound['distance_m']:.3f} m "
-          f"(m~ = {float(k.m_tilde[0]):.3f} kg, brake {bound['brake_decel_mps2']:.2f} m/s^2)")
+    report["analytic_holding_speed"] = hold
+    print(f"analytic at {a.speed_mps} m/s (m~ = {float(k.m_tilde[0]):.3f} kg, brake {bound['brake_decel_mps2']:.2f} "
+          f"m/s^2, motor top speed {MOTOR_TOP_SPEED_MPS:.2f} m/s): last command holding the speed: rest after "
+          f"{hold['time_to_rest_s']:.3f} s, {hold['distance_m']:.3f} m; last command full torque: "
+          f"{bound['time_to_rest_s']:.3f} s, {bound['distance_m']:.3f} m")
     if not a.no_twin:
         rows = twin_trials(a.trials, a.speed_mps, a.speed_factor)
         report["twin"] = rows

@@ -92,15 +92,16 @@ class ByteFaults:
 MUTATION_KINDS = ("bit_flips", "byte_replaced", "byte_inserted", "byte_deleted", "burst", "bytes_replaced")
 
 
-def mutate(data: bytes, rng) -> tuple[bytes, str]:
+def mutate(data: bytes, rng, only: str | None = None) -> tuple[bytes, str]:
     """One random corruption of ``data`` (a frame's bytes) and its kind (MUTATION_KINDS), each
     with probability 1/7 except bit flips (2/7): 1-3 bit flips, one byte replaced, one byte
     inserted, one byte deleted, a burst of up to 16 bits, or 2-4 bytes anywhere replaced (line
     noise beyond what a CRC-16 is guaranteed to catch). ``rng`` is a ``random.Random`` (fast scalar
-    draws; seeded by the caller). The result can equal ``data``; callers skip those."""
+    draws; seeded by the caller). ``only`` (a MUTATION_KINDS name) restricts it to that kind. The
+    result can equal ``data``; callers skip those."""
     b = bytearray(data)
     n = len(b)
-    kind = rng.randrange(7)
+    kind = rng.randrange(7) if only is None else {k: i + (i > 0) for i, k in enumerate(MUTATION_KINDS)}[only]
     if kind <= 1:
         for pos in rng.sample(range(n * 8), rng.randint(1, 3)):
             b[pos >> 3] ^= 1 << (pos & 7)
