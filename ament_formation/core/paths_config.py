@@ -1,7 +1,7 @@
 """Locate files shipped in the package's config/ folder.
 
 Installed with colcon, config lives in ``share/ament_formation/config`` (found through the ament
-index when it is importable). With ``pip install -e`` (the .venv of scripts/setup.sh) data_files
+index when it is importable); ``config/params/<node>.yaml`` are the nodes' params files. With ``pip install -e`` (the .venv of scripts/setup.sh) data_files
 are not installed, so the fallback is the source tree's ``config/`` next to the package.
 This module is ROS-free: ament_index_python is pure Python and optional.
 """
@@ -32,6 +32,12 @@ def config_dir() -> Path:
     raise FileNotFoundError(
         "config/ of ament_formation not found (set AMENT_FORMATION_CONFIG_DIR)"
     )
+
+
+def params_file(node: str) -> Path:
+    """The params file of node ``node`` (``config/params/<node>.yaml``: ``/**/<node>:
+    ros__parameters:`` with every parameter and its default), for ``--ros-args --params-file``."""
+    return config_file(f"params/{node}.yaml")
 
 
 def config_file(relative: str) -> Path:

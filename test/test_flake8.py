@@ -1,0 +1,43 @@
+"""Lint: the package's Python sources pass flake8 with ament_flake8's configuration.
+
+The standard ament_python lint test: ``ament_flake8`` when it is installed (a ROS 2 Jazzy
+install), else plain flake8 with the same configuration (setup.cfg ``[flake8]``: ament's
+extend-ignore list, max-line-length 99, google import order, single quotes) and the plugins
+pinned in requirements.txt.
+
+Until scripts/lint_fix.sh has been run over the tree (it converts quotes and wraps long lines; the
+lead runs it once every helper's edits are in), this test is expected to fail: it is marked
+``xfail(strict=False)`` and reports the number of findings. Remove the mark once it passes.
+"""
+from pathlib import Path
+import shutil
+import subprocess
+import sys
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.flake8
+@pytest.mark.linter
+@pytest.mark.xfail(strict=False, reason='sources not yet converted by scripts/lint_fix.sh '
+                                        '(double quotes, lines over 99 columns)')
+def test_flake8():
+    try:
+        from ament_flake8.main import main_with_errors
+    except ImportError:
+        main_with_errors = None
+    if main_with_errors is not None:
+        rc, errors = main_with_errors(argv=[str(ROOT)])
+        assert rc == 0, f'Found {len(errors)} code style errors / warnings:\n' + \
+            '\n'.join(errors[:50])
+        return
+    flake8 = shutil.which('flake8', path=str(Path(sys.executable).parent)) or shutil.which('flake8')
+    if flake8 is None:
+        pytest.skip('neither ament_flake8 nor flake8 is installed (requirements.txt pins flake8)')
+    proc = subprocess.run([flake8, '--no-show-source', '--count', '.'], cwd=ROOT,
+                          capture_output=True, text=True, timeout=600)
+    lines = proc.stdout.strip().splitlines()
+    assert proc.returncode == 0, f'flake8 found {lines[-1] if lines else "?"} problems:\n' + \
+        '\n'.join(lines[:50])
