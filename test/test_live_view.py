@@ -16,11 +16,9 @@ import base64
 import hashlib
 import json
 import math
-import os
 import shutil
 import socket
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -351,8 +349,8 @@ def test_console_script_serves_what_is_published_only_while_watched(tmp_path, ro
     pub_graph.publish(msgs.graph_msg(msgs.GraphMessage(4, {0: None, 1: 0}, {1: (0.0, 1.2)}, (0,), now_s(), start_s)))
     states = {0: np.array([0.35, 0.12, 0.4, 0.05, 0.1]), 1: np.array([0.05, 1.1, -0.2, 0.04, 0.0])}
     torques = {0: (0.0125, -0.03), 1: (-0.002, 0.004)}
-    modes = {0: dict(mode="obstacle", target="O1", direction="ccw", avoiding=True),
-             1: dict(mode="coordination", target=None, direction=None, avoiding=False)}
+    modes = {0: {"mode": "obstacle", "target": "O1", "direction": "ccw", "avoiding": True},
+             1: {"mode": "coordination", "target": None, "direction": None, "avoiding": False}}
     pattern = np.tile(np.linspace(20, 230, 640, dtype=np.uint8), (480, 1))
     pattern[200:260, 300:380] = 255
 
