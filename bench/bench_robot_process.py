@@ -349,7 +349,7 @@ def hog() -> subprocess.Popen:
 def paper_run(condition: str, quota_pct: float, tmp: Path, extra: list[str]) -> dict:
     out = tmp / f"paper_{condition}"
     cmd = [str(ROOT / ".venv" / "bin" / "formation"), "run", str(SCENARIO), "--out", str(out), "--team", "1",
-           "--no-figure", "--quiet", *extra]
+           "--no-figure", "--quiet", "--startup-timeout", "400", *extra]
     hogs = [hog(), hog()] if condition == "hogs" else []
     groups: list[CpuQuota] = []
     t0 = time.monotonic()
@@ -380,6 +380,9 @@ def paper_run(condition: str, quota_pct: float, tmp: Path, extra: list[str]) -> 
     mpath = out / "metrics.json"
     if mpath.exists():
         m = json.loads(mpath.read_text())
+        if "robots" not in m:
+            res["failure"] = m.get("failure")
+            return res
         res["prohibited_entries"] = m["prohibited_entries"]
         res["robots"] = {rid: {"rms_mm": 1e3 * r["formation_rms_settled_m"], "entries": r["avoidance_entries"]}
                          for rid, r in m["robots"].items()}
@@ -436,8 +439,12 @@ def main() -> int:
                             print(f"        cgroup throttling in the window: {r['throttled']}")
                         print(f"        (window {r['window_s']:.1f} s, load average {os.getloadavg()[0]:.1f})")
         for cond in args.paper or ():
-            r = paper_run(cond, args.quota or 25.0, tmp, extra)
+            r = paper_run(cond, args.quota or 25.0, tmp,   # formation run: priority from the environment
+                          [] if args.control_nice is None else ["--control-nice", str(args.control_nice)])
             robots = r.get("robots", {})
+            if "robots" not in r:
+                print(f"paper {cond:6}: FAILED: {r.get('failure')}")
+                continue
             print(f"paper {cond:6}: prohibited entries {r.get('prohibited_entries')}, settled RMS "
                   + ", ".join(f"R{k} {v['rms_mm']:.1f} mm" for k, v in robots.items()) + ", avoidance entries "
                   + ", ".join(f"R{k} {v['entries']}" for k, v in robots.items())
