@@ -629,11 +629,13 @@ def test_scene_robots_are_the_newest_published_states(live_run):
                 continue
             shown += 1
             p = ents[f"robot_{rid}"]["cylinders"][0]["pose"]["position"]
-            hit = np.flatnonzero((states[:, 0] == p["x"]) & (states[:, 1] == p["y"]))
-            if len(hit):
-                lags.append(m["logTimeNs"] * 1e-9 - stamps[hit[-1]])
+            t_scene = m["logTimeNs"] * 1e-9
+            hit = stamps[(states[:, 0] == p["x"]) & (states[:, 1] == p["y"])]
+            hit = hit[hit <= t_scene + 0.01]            # published before the scene (a standing robot
+            if len(hit):                                # repeats its state: take the newest of those)
+                lags.append(t_scene - hit.max())
         assert shown >= 40 and len(lags) >= 0.9 * shown, (rid, shown, len(lags))
-        assert np.median(lags) < 0.05 and min(lags) > -0.01, (np.median(lags), min(lags))
+        assert np.median(lags) < 0.05, np.median(lags)
 
 
 @LIVE
@@ -721,9 +723,11 @@ def test_series_match_the_run(live_run):
                                            obs.semi_axes_m[:, 0], obs.semi_axes_m[:, 1])
             clear_diff.append(abs(s["clearance_m"] - float(d.min())))
             assert s["nearest_obstacle"] == field.names[int(np.argmin(d))] or abs(np.sort(d)[1] - d.min()) < 0.05
-            tau.append((s["torque_left_nm"], s["torque_right_nm"]))
+            if s["torque_left_nm"] is not None:       # None until the first torque is heard
+                tau.append((s["torque_left_nm"], s["torque_right_nm"]))
         assert np.median(err_diff) < 0.01 and np.percentile(err_diff, 90) < 0.03, (np.median(err_diff), max(err_diff))
         assert np.median(clear_diff) < 0.01 and np.percentile(clear_diff, 90) < 0.03
+        assert len(tau) >= 0.9 * len(started)
         tau = np.array(tau, dtype=float)
         limit = scenario.robot(rid).params.torque_limit_nm
         assert np.all(np.abs(tau) <= limit + 1e-9) and np.abs(tau).max() > 1e-3
