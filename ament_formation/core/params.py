@@ -13,7 +13,7 @@ from typing import Any
 from ament_formation.core.errors import ConfigError
 
 
-def param(default: Any, description: str, *, range: tuple[float, float] | None = None,
+def param(default: Any, description: str, *, range: tuple[float, float] | None = None,  # noqa: A002
           live: bool = False, dynamic_typing: bool = False) -> Any:
     """A dataclass field that is also a ROS parameter (ros/params.py ``declare_dataclass``).
 
