@@ -23,17 +23,18 @@ from sensor_msgs.msg import CameraInfo, Image
 
 from ament_formation.core.camera_model import CameraSetup
 from ament_formation.core.synthetic_camera import RenderOptions, SyntheticCamera
-from ament_formation.hw.mjpeg_stream import MjpegServer
+from ament_formation.hw.mjpeg_stream import MjpegServer, free_port
 from ament_formation.ros.executors import spin_until
 from ament_formation.ros.messages import pose_from_msg, stamp_to_ns
 from ament_formation.ros.qos import QOS_CONTROL, QOS_DIAGNOSTICS, QOS_IMAGE
 
 ROOT = Path(__file__).resolve().parents[1]
 TRACKER = ROOT / ".venv" / "bin" / "formation_tracker"
-MARKERS, ROBOTS = (3, 7), (0, 1)
+MARKERS, ROBOTS = (3, 7), (60, 61)   # robot ids no simulation uses: a run that happens to share
+                                     # our DDS domain on a busy machine does not feed our topics
 N_FRAMES = 90
 CLOCK_STEP_M = 0.01       # robot 0 moves 1 cm per frame along x: its pose tells the frame index
-START_TIMEOUT_S = 90.0    # first pose: process start-up on a loaded 2-core machine
+START_TIMEOUT_S = 180.0   # first pose: process start-up on a loaded 2-core machine
 
 
 def truth(k: np.ndarray | int) -> np.ndarray:
@@ -71,7 +72,16 @@ def params_file(tmp_path: Path, **params) -> Path:
 
 def start_tracker(tmp_path: Path, *ros_args: str, **params) -> subprocess.Popen:
     args = [str(TRACKER), "--ros-args", "--params-file", str(params_file(tmp_path, **params)), *ros_args]
-    return subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=os.environ.copy())
+    err = open(tmp_path / f"tracker_{time.monotonic_ns()}.err", "w+")
+    proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=err, text=True, env=os.environ.copy())
+    proc.err_file = err
+    return proc
+
+
+def stderr_of(proc: subprocess.Popen) -> str:
+    """What the tracker wrote on stderr so far."""
+    proc.err_file.flush()
+    return Path(proc.err_file.name).read_text()
 
 
 def finish(proc: subprocess.Popen, sig: int = signal.SIGINT, timeout_s: float = 20.0) -> tuple[int, str]:
@@ -79,31 +89,36 @@ def finish(proc: subprocess.Popen, sig: int = signal.SIGINT, timeout_s: float = 
     if proc.poll() is None:
         proc.send_signal(sig)
     try:
-        _, err = proc.communicate(timeout=timeout_s)
+        proc.wait(timeout=timeout_s)
     except subprocess.TimeoutExpired:
         proc.kill()
-        _, err = proc.communicate()
+        proc.wait()
         pytest.fail(f"formation_tracker did not end within {timeout_s} s of signal {sig}")
-    return proc.returncode, err
+    return proc.returncode, stderr_of(proc)
 
 
 class Probe(Node):
-    """Everything the tracker publishes, with receive times."""
+    """Everything the tracker publishes, with receive times; diagnostics of the tracker whose
+    hardware_id is ``source`` (set it before starting the tracker)."""
 
-    def __init__(self, context):
-        super().__init__("tracker_source_probe", context=context)
-        self.poses: dict[int, list[tuple[PoseStamped, int]]] = {r: [] for r in ROBOTS}
+    def __init__(self, context, robots: tuple[int, ...] = ROBOTS, name: str = "tracker_source_probe"):
+        super().__init__(name, context=context)
+        self.source = ""
+        self.robots = robots
+        self.poses: dict[int, list[tuple[PoseStamped, int]]] = {r: [] for r in robots}
         self.diags: list[DiagnosticStatus] = []
         self.infos: list[CameraInfo] = []
         self.images: list[Image] = []
         clock = self.get_clock()
-        for r in ROBOTS:
+        for r in robots:
             self.create_subscription(
                 PoseStamped, f"/robot_{r}/pose",
                 lambda m, r=r: self.poses[r].append((m, clock.now().nanoseconds)), QOS_CONTROL)
         self.create_subscription(DiagnosticArray, "/diagnostics",
                                  lambda m: self.diags.extend(s for s in m.status
-                                                             if s.name.startswith("formation_tracker")),
+                                                             if s.name.startswith("formation_tracker")
+                                                             and s.name.endswith("camera tracking")
+                                                             and s.hardware_id == self.source),
                                  QOS_DIAGNOSTICS)
         self.create_subscription(CameraInfo, "/camera/camera_info", self.infos.append, QOS_IMAGE)
         self.create_subscription(Image, "/camera/image_raw", self.images.append, QOS_IMAGE)
@@ -123,12 +138,12 @@ def pose_errors(probe: Probe, since_ns: int = 0) -> dict:
 
     Returns frame indices, stamps, and position [m] / heading [rad] errors of both robots.
     """
-    by_stamp: dict[int, dict[int, np.ndarray]] = {}
-    for r in ROBOTS:
+    by_stamp: dict[int, dict[int, np.ndarray]] = {}     # stamp -> {robot index: pose}
+    for i, r in enumerate(probe.robots):
         for m, _ in probe.poses[r]:
             ns = stamp_to_ns(m.header.stamp)
             if ns >= since_ns:
-                by_stamp.setdefault(ns, {})[r] = pose_from_msg(m)[0]
+                by_stamp.setdefault(ns, {})[i] = pose_from_msg(m)[0]
     frames, pos_err, head_err = [], [], []
     for ns in sorted(by_stamp):
         poses = by_stamp[ns]
@@ -150,37 +165,43 @@ def levels_seen(probe: Probe) -> list[tuple[int, str]]:
 def assert_tracked_like_truth(probe: Probe, since_ns: int, min_frames: int) -> dict:
     res = pose_errors(probe, since_ns)
     assert len(res["frames"]) >= min_frames, f"only {len(res['frames'])} frames tracked"
-    # JPEG (quality 90 in the stream, MJPG in the file) on top of sensor noise: about 1 mm
-    assert np.percentile(res["pos"], 95) < 2.5e-3 and res["pos"].max() < 6e-3, res["pos"]
-    assert np.percentile(res["head"], 95) < np.radians(1.0), np.degrees(res["head"])
+    # JPEG (quality 90 in the stream, MJPG in the file) on top of sensor noise: well under 1 mm
+    # typically; a few mm on frames where the constant-velocity prediction is far off (track
+    # start, the ping-pong reversal, frames skipped on a busy machine). A frame matched to the
+    # wrong truth would be off by a frame's motion (8-10 mm) on every pose.
+    pos, head = res["pos"], res["head"]
+    assert np.median(pos) < 1e-3 and np.percentile(pos, 95) < 5e-3 and pos.max() < 10e-3, pos
+    assert np.median(head) < np.radians(0.5) and np.percentile(head, 95) < np.radians(1.5), np.degrees(head)
     return res
 
 
 def test_video_file_becomes_poses_with_capture_stamps(tmp_path, probe, executor):
     video = write_video(tmp_path / "overhead.avi", render_frames())
     t_start_ns = probe.get_clock().now().nanoseconds
+    probe.source = str(video)
     proc = start_tracker(tmp_path, source=str(video))
     try:
         assert spin_until(executor, lambda: proc.poll() is not None or any(
             s.message == "video file ended" for s in probe.diags), START_TIMEOUT_S + N_FRAMES / 30.0), \
             "the file did not play to its end"
-        assert proc.poll() is None, proc.communicate()[1]
+        assert proc.poll() is None, stderr_of(proc)
         res = assert_tracked_like_truth(probe, 0, min_frames=N_FRAMES // 3)
         # a frame's poses carry the time it was grabbed: after the test started, before receipt
-        for r in ROBOTS:
+        for r in probe.robots:
             for m, received_ns in probe.poses[r]:
                 assert t_start_ns < stamp_to_ns(m.header.stamp) <= received_ns
-        # the file plays at its own 30 fps: stamp differences follow the frame index
+        # the file plays at its own 30 fps (frames skipped rather than played late on a busy
+        # machine): stamp differences follow the frame index
         ks = np.array([k for _, k in res["frames"]])
         ns = np.array([n for n, _ in res["frames"]])
         rate_hz = (ks[-1] - ks[0]) / ((ns[-1] - ns[0]) * 1e-9)
-        assert 20.0 < rate_hz < 40.0, rate_hz
+        assert 24.0 < rate_hz < 36.0, rate_hz
         # camera_info next to the frames: the calibration, with frame stamps
         assert probe.infos, "no camera_info"
         info = probe.infos[-1]
         assert (info.width, info.height, info.distortion_model) == (640, 480, "plumb_bob")
         assert info.k[0] == pytest.approx(540.0) and info.d[0] == pytest.approx(-0.18)
-        pose_stamps = {stamp_to_ns(m.header.stamp) for m, _ in probe.poses[0]}
+        pose_stamps = {stamp_to_ns(m.header.stamp) for m, _ in probe.poses[ROBOTS[0]]}
         assert pose_stamps & {stamp_to_ns(i.header.stamp) for i in probe.infos}
         # the captured frames themselves, while someone subscribes
         assert probe.images and probe.images[-1].encoding == "mono8"
@@ -195,12 +216,13 @@ def test_stream_on_loopback_and_camera_loss(tmp_path, probe, executor):
     server = MjpegServer()
     url = server.start()
     server.play(render_frames(), fps_hz=30.0)
+    probe.source = url
     proc = start_tracker(tmp_path, source=url, source_timeout_s=0.5)
     try:
         # 1. decoded stream frames -> poses like the truth
         assert spin_until(executor, lambda: proc.poll() is not None or len(pose_errors(probe)["frames"]) >= 60,
                           START_TIMEOUT_S), "no poses from the stream"
-        assert proc.poll() is None, proc.communicate()[1]
+        assert proc.poll() is None, stderr_of(proc)
         assert_tracked_like_truth(probe, 0, min_frames=60)
         assert any(lv == DiagnosticStatus.OK for lv, _ in levels_seen(probe)), levels_seen(probe)
         # 2. the stream is cut: diagnostics ERROR, no poses of frames after the cut
@@ -211,12 +233,12 @@ def test_stream_on_loopback_and_camera_loss(tmp_path, probe, executor):
             s.level == DiagnosticStatus.ERROR and "camera lost" in s.message for s in probe.diags[n_diag:]), 20.0), \
             levels_seen(probe)[n_diag:]
         lost_ns = probe.get_clock().now().nanoseconds
-        assert all(stamp_to_ns(m.header.stamp) <= cut_ns for m, rx in probe.poses[0] if rx > lost_ns)
+        assert all(stamp_to_ns(m.header.stamp) <= cut_ns for m, rx in probe.poses[ROBOTS[0]] if rx > lost_ns)
         # 3. the stream is back on the same port: tracking resumes, diagnostics OK again
         back_ns = probe.get_clock().now().nanoseconds
         server.start()
-        assert spin_until(executor, lambda: len(pose_errors(probe, back_ns)["frames"]) >= 30, 30.0), \
-            "tracking did not resume"
+        assert spin_until(executor, lambda: len(pose_errors(probe, back_ns)["frames"]) >= 30, 60.0), \
+            f"tracking did not resume: {levels_seen(probe)[-5:]}\n{stderr_of(proc)}"
         assert_tracked_like_truth(probe, back_ns, min_frames=30)
         n_diag = len(probe.diags)
         assert spin_until(executor, lambda: any(s.level == DiagnosticStatus.OK for s in probe.diags[n_diag:]), 10.0)
@@ -235,15 +257,44 @@ def test_stream_on_loopback_and_camera_loss(tmp_path, probe, executor):
 ])
 def test_missing_source_is_one_line_and_status_1(tmp_path, source, line):
     proc = start_tracker(tmp_path, source=source)
-    _, err = proc.communicate(timeout=120)
+    proc.wait(timeout=180)
+    err = stderr_of(proc)
     assert proc.returncode == 1
     assert len(err.strip().splitlines()) == 1 and err.startswith(line), err
+
+
+def test_waiting_for_a_camera_that_appears_late(tmp_path, probe, executor):
+    """source_wait_s: the node runs with diagnostics ERROR while it retries; the stream starts ->
+    poses; a camera that never appears ends the process with the one line and status 1."""
+    server = MjpegServer(port=free_port())
+    probe.source = server.url
+    proc = start_tracker(tmp_path, source=server.url, source_wait_s=300.0)
+    try:
+        assert spin_until(executor, lambda: proc.poll() is not None or any(
+            s.level == DiagnosticStatus.ERROR and s.message.startswith("waiting for the camera")
+            for s in probe.diags), START_TIMEOUT_S), levels_seen(probe)
+        assert proc.poll() is None
+        server.start()
+        server.play(render_frames(), fps_hz=30.0)
+        assert spin_until(executor, lambda: len(pose_errors(probe)["frames"]) >= 30, 60.0), "no poses"
+        assert_tracked_like_truth(probe, 0, min_frames=30)
+    finally:
+        server.close()
+        status, err = finish(proc, signal.SIGINT)
+    assert status == 0 and "Traceback" not in err, err
+    late = start_tracker(tmp_path, source="/nonexistent/overhead.avi", source_wait_s=1.0)
+    late.wait(timeout=180)
+    err = stderr_of(late)
+    assert late.returncode == 1
+    assert err.strip().splitlines()[-1] == ("formation_tracker: source '/nonexistent/overhead.avi': "
+                                            "no such file (waited 1 s)"), err
 
 
 @pytest.mark.skipif(os.path.exists("/dev/video0"), reason="this machine has a /dev/video0")
 def test_device_index_from_the_command_line(tmp_path):
     proc = start_tracker(tmp_path, "-p", "source:=0")    # an INTEGER parameter
-    _, err = proc.communicate(timeout=120)
+    proc.wait(timeout=180)
+    err = stderr_of(proc)
     assert proc.returncode == 1
     assert err.strip() == "formation_tracker: source '0': no such video device /dev/video0", err
 
@@ -279,7 +330,7 @@ def test_launch_base_with_camera_0(tmp_path):
     assert "InvalidParameterType" not in log and "Traceback" not in log
 
 
-def test_launch_base_with_camera_file(tmp_path, probe, executor):
+def test_launch_base_with_camera_file(tmp_path, ros_context, executor):
     """The camera PC's launcher with --camera FILE: the scenario's robots tracked from the file."""
     from processes import alive
 
@@ -291,6 +342,8 @@ def test_launch_base_with_camera_file(tmp_path, probe, executor):
     params = tmp_path / "base.yaml"
     params.write_text(yaml.safe_dump({"/**/formation_tracker": {"ros__parameters": {
         "source_loop": True, "marker_ids": [0, 1], "robot_ids": [5, 6]}}}))   # ids: the scenario wins
+    probe = Probe(ros_context, robots=(0, 1), name="launch_base_probe")    # the scenario's robots
+    executor.add_node(probe)
     proc, run_dir = _launch_base(tmp_path, "--scenario", str(scenario), "--camera", str(video),
                                  "--params", str(params))
     try:
@@ -303,6 +356,8 @@ def test_launch_base_with_camera_file(tmp_path, probe, executor):
         if proc.poll() is None:
             proc.send_signal(signal.SIGTERM)
         out, _ = proc.communicate(timeout=60)
+        executor.remove_node(probe)
+        probe.destroy_node()
     assert proc.returncode == 143, out
     assert pids and not any(alive(pid) for pid in pids)
     assert "Traceback" not in (run_dir / "tracker.log").read_text()

@@ -154,7 +154,8 @@ class FrameGrabber(threading.Thread):
     ``state`` is ``"closed"`` (never opened yet), ``"open"``, ``"lost"`` (was open, reopening)
     or ``"ended"`` (a file ran out without ``loop``). Counters: ``frames`` grabbed, ``errors``
     (failed retrieves), ``open_attempts`` failed since the last success, ``reopens`` (successful
-    reopens after a loss). Monotonic times [s]: ``lost_since_s``, ``last_frame_s``.
+    reopens after a loss). Monotonic times [s]: ``lost_since_s``, ``last_frame_s`` (the last frame,
+    or when the source was opened if no frame came since).
     """
 
     def __init__(self, spec: SourceSpec, now: Callable[[], Any], *, loop: bool = False,
@@ -180,7 +181,7 @@ class FrameGrabber(threading.Thread):
         self.open_attempts = 0
         self.reopens = 0
         self.lost_since_s: float | None = None
-        self.last_frame_s: float | None = None
+        self.last_frame_s = time.monotonic()
         self.frame_size_px: tuple[int, int] | None = None
         self.fps_hz = 0.0
 
@@ -215,6 +216,7 @@ class FrameGrabber(threading.Thread):
         self._cap = cap
         self.open_attempts = 0
         self.lost_since_s = None
+        self.last_frame_s = time.monotonic()     # silence is counted from here
         fps = cap.get(cv2.CAP_PROP_FPS)
         self.fps_hz = float(fps) if fps and 0.0 < fps < 1000.0 else 0.0
         self.state = "open"
@@ -256,18 +258,23 @@ class FrameGrabber(threading.Thread):
     def _grab_until_failure(self) -> None:
         """Grab frames until the source fails (or a file ends, or :meth:`stop`)."""
         cap = self._cap
-        # a file plays at its own frame rate, like a camera would (30 fps when it does not say)
+        # a file plays at its own frame rate, like a camera would (30 fps when it does not say):
+        # frame n is due n periods after the start; frames already overdue by more than a period
+        # are skipped, as a camera's frames are lost when nobody reads them
         period_s = (1.0 / (self.fps_hz or 30.0)) if self.spec.kind == FILE else 0.0
-        next_s = time.monotonic()
+        start_s, n = time.monotonic(), 0
         failed_retrieves = 0
         while not self._halt.is_set():
             if period_s:
-                next_s += period_s
-                delay_s = next_s - time.monotonic()
+                delay_s = start_s + n * period_s - time.monotonic()
                 if delay_s > 0.0:
                     self._halt.wait(delay_s)
-                elif delay_s < -period_s:
-                    next_s = time.monotonic()    # fell behind (slow decode, busy machine)
+                while delay_s < -period_s:          # behind: skip a frame
+                    if not cap.grab():
+                        return
+                    n += 1
+                    delay_s += period_s
+                n += 1
             if not cap.grab():
                 return
             stamp = self._now()

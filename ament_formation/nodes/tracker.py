@@ -239,6 +239,9 @@ class TrackerNode(Node):
             return
         item = g.take()
         if item is None:
+            if g.state == "open" and time.monotonic() - g.last_frame_s > self.prm.source_timeout_s:
+                self.get_logger().warn(f"source {g.spec.text!r} open but silent for more than "
+                                       f"{self.prm.source_timeout_s:g} s", throttle_duration_sec=5.0)
             return
         frame, stamp = item
         self.capture_delay_s.append(max(self.get_clock().now().nanoseconds - stamp_to_ns(stamp), 0) * 1e-9)
@@ -340,7 +343,7 @@ class TrackerNode(Node):
             return diag.ERROR, f"camera lost {lost_s:.1f} s ago, reopening (attempt {g.open_attempts})"
         if g.state == "ended":
             return diag.ERROR, "video file ended"
-        silent_s = now - (g.last_frame_s or self._stats_t0)
+        silent_s = now - g.last_frame_s
         if silent_s > max(self.prm.source_timeout_s, 2.0 / max(self.camera.fps_hz, 1e-3)):
             return diag.ERROR, f"no frames for {silent_s:.1f} s"
         return None
