@@ -175,6 +175,8 @@ class ControlLoop:
     starts late is run at once and the schedule moves on (the controllers count the late tick).
     ``priority`` > 0: the thread runs under SCHED_FIFO ``priority``."""
 
+    MIN_READ_GAP_S = 0.002    # event-driven serial reads: at most 500 per second
+
     def __init__(self, team: "TeamNode", rate_hz: float, priority: int = 0):
         self.team = team
         self.period_s = 1.0 / rate_hz
@@ -220,6 +222,9 @@ class ControlLoop:
                     if ready:
                         with lock:
                             self._poll_all()      # telemetry as it arrives
+                        # at most one read per MIN_READ_GAP_S: a port that stays readable without
+                        # data (a hung-up pty) must not turn this (real-time) thread into a busy loop
+                        self._stop.wait(min(self.MIN_READ_GAP_S, max(0.0, next_s - time.monotonic())))
                     continue
                 with lock:
                     self._poll_all()
