@@ -253,7 +253,9 @@ def firmware_trials(n_trials: int, build_dir: Path) -> list[dict]:
                 "time_to_release_s": released["pwm_change_t_s"] - t_loss,
                 "wheel_travel_to_release_m": (released["wheel_rad"][0] - at_loss["wheel_rad"][0]) * wheel_r_m,
                 "wheel_speed_at_release_radps": max(abs(w) for w in released["wheel_radps"]),
-                "peak_applied_e4nm": max((abs(a) for s in brake for a in s["board"]["applied_e4nm"]), default=0)})
+                # STATUS (every 200 ms) carries the applied torque with its own flags
+                "peak_applied_e4nm": max((abs(a) for s in lines if s["board"]["flags"] & sp.FLAG_BRAKING
+                                          for a in s["board"]["applied_e4nm"]), default=0)})
         finally:
             link.close()
             harness.close()
