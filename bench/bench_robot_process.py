@@ -384,8 +384,12 @@ def paper_run(condition: str, quota_pct: float, tmp: Path, extra: list[str]) -> 
             res["failure"] = m.get("failure")
             return res
         res["prohibited_entries"] = m["prohibited_entries"]
-        res["robots"] = {rid: {"rms_mm": 1e3 * r["formation_rms_settled_m"], "entries": r["avoidance_entries"]}
+        res["robots"] = {rid: {"rms_mm": (float("nan") if r["formation_rms_settled_m"] is None
+                                          else 1e3 * r["formation_rms_settled_m"]),
+                               "final_mm": 1e3 * r["final_error_m"], "entries": r["avoidance_entries"]}
                          for rid, r in m["robots"].items()}
+        if m.get("failure"):
+            res["failure"] = m["failure"]
     logs = "".join(p.read_text(errors="replace") for p in (out / "processes").glob("team_*.log"))
     res["stopped_pose"] = logs.count("-> stopped_pose")
     res["hold_parent"] = logs.count("-> hold_parent")
@@ -446,10 +450,12 @@ def main() -> int:
                 print(f"paper {cond:6}: FAILED: {r.get('failure')}")
                 continue
             print(f"paper {cond:6}: prohibited entries {r.get('prohibited_entries')}, settled RMS "
-                  + ", ".join(f"R{k} {v['rms_mm']:.1f} mm" for k, v in robots.items()) + ", avoidance entries "
+                  + ", ".join(f"R{k} {v['rms_mm']:.1f} mm (final {v['final_mm']:.0f} mm)" for k, v in robots.items())
+                  + ", avoidance entries "
                   + ", ".join(f"R{k} {v['entries']}" for k, v in robots.items())
                   + f"; stopped_pose {r['stopped_pose']}, hold_parent {r['hold_parent']} (rc {r['rc']}, "
-                  f"{r['wall_s']:.0f} s wall, load {os.getloadavg()[0]:.1f})")
+                  f"{r['wall_s']:.0f} s wall, load {os.getloadavg()[0]:.1f})"
+                  + (f"\n        run checks failed: {r['failure']}" if r.get("failure") else ""))
     finally:
         if args.keep:
             print(f"run folders kept in {tmp}")
