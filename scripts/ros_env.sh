@@ -5,8 +5,29 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST
 export FASTRTPS_DEFAULT_PROFILES_FILE="${FASTRTPS_DEFAULT_PROFILES_FILE:-$_af_root/config/fastdds_localhost.xml}"
 export RMW_IMPLEMENTATION="${RMW_IMPLEMENTATION:-rmw_fastrtps_cpp}"
 # A run-unique domain (1..200) unless the caller chose one (e.g. a multi-machine deployment).
+# Unique on this machine, not just random: concurrent runs in one domain see each other's nodes
+# and topics (another run's world, graph or start), and share Fast DDS's shared-memory ports.
+# The shell holds an exclusive lock on $AF_DOMAIN_LOCK_DIR/<id>.lock (flock, on an inherited file
+# descriptor: held while this shell or any process it started is alive, released by the kernel
+# when the last of them exits, even on SIGKILL); the next shell takes the next free id.
 if [ -z "${ROS_DOMAIN_ID:-}" ]; then
-  export ROS_DOMAIN_ID=$(( ( $$ + $(date +%N | sed 's/^0*//;s/^$/0/') ) % 200 + 1 ))
+  _af_first=$(( ( $$ + $(date +%N | sed 's/^0*//;s/^$/0/') ) % 200 ))
+  if command -v flock >/dev/null 2>&1 \
+      && mkdir -p "${AF_DOMAIN_LOCK_DIR:=${TMPDIR:-/tmp}/ament_formation_domains}" 2>/dev/null; then
+    for _af_i in $(seq 0 199); do
+      _af_d=$(( (_af_first + _af_i) % 200 + 1 ))
+      exec {AF_DOMAIN_LOCK_FD}>>"$AF_DOMAIN_LOCK_DIR/$_af_d.lock" || continue
+      if flock -n "$AF_DOMAIN_LOCK_FD"; then
+        export ROS_DOMAIN_ID=$_af_d
+        break
+      fi
+      exec {AF_DOMAIN_LOCK_FD}>&-
+    done
+    unset _af_i _af_d
+  fi
+  # no flock, or all 200 ids taken: a random one, as before
+  [ -n "${ROS_DOMAIN_ID:-}" ] || export ROS_DOMAIN_ID=$(( _af_first + 1 ))
+  unset _af_first
 fi
 export ROS_LOG_DIR="${1:-${ROS_LOG_DIR:-$(mktemp -d -t ament_formation_log.XXXXXX)}}"
 mkdir -p "$ROS_LOG_DIR"
