@@ -270,9 +270,11 @@ def test_waiting_for_a_camera_that_appears_late(tmp_path, probe, executor):
     probe.source = server.url
     proc = start_tracker(tmp_path, source=server.url, source_wait_s=300.0)
     try:
+        assert spin_until(executor, lambda: proc.poll() is not None or "retrying for 300 s" in stderr_of(proc),
+                          START_TIMEOUT_S), stderr_of(proc)
         assert spin_until(executor, lambda: proc.poll() is not None or any(
             s.level == DiagnosticStatus.ERROR and s.message.startswith("waiting for the camera")
-            for s in probe.diags), START_TIMEOUT_S), levels_seen(probe)
+            for s in probe.diags), 30.0), f"{levels_seen(probe)}\n{stderr_of(proc)}"
         assert proc.poll() is None
         server.start()
         server.play(render_frames(), fps_hz=30.0)
