@@ -1,25 +1,29 @@
-"""scripts/ros_env.sh gives concurrent shells different ROS_DOMAIN_IDs (a lock per id), and frees an
-id when the shell that took it (and everything it started) is gone."""
+"""scripts/ros_env.sh: concurrent shells get different ROS_DOMAIN_IDs (a lock per id).
+
+An id is free again when the shell that took it (and everything it started) is gone.
+"""
+
 import fcntl
 import os
-import subprocess
 from pathlib import Path
+import subprocess
 
 ROOT = Path(__file__).resolve().parents[1]
-SCRIPT = ROOT / "scripts" / "ros_env.sh"
+SCRIPT = ROOT / 'scripts' / 'ros_env.sh'
 # source the script, print the domain, then hold it until stdin closes
 HOLD = f'source "{SCRIPT}" "$LOGDIR" >/dev/null; echo "$ROS_DOMAIN_ID"; read -r _ || true'
 
 
 def _env(tmp_path, lock_dir):
-    env = {k: v for k, v in os.environ.items() if k != "ROS_DOMAIN_ID"}
-    env.update(AF_DOMAIN_LOCK_DIR=str(lock_dir), LOGDIR=str(tmp_path / "log"))
+    env = {k: v for k, v in os.environ.items() if k != 'ROS_DOMAIN_ID'}
+    env.update(AF_DOMAIN_LOCK_DIR=str(lock_dir), LOGDIR=str(tmp_path / 'log'))
     return env
 
 
 def _shell(env):
-    p = subprocess.Popen(["bash", "-c", HOLD], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                         text=True, env=env)
+    p = subprocess.Popen(
+        ['bash', '-c', HOLD], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env
+    )
     return p, int(p.stdout.readline())
 
 
@@ -29,22 +33,22 @@ def _stop(p):
 
 
 def test_concurrent_shells_get_free_domains_and_release_them(tmp_path):
-    lock_dir = tmp_path / "locks"
+    lock_dir = tmp_path / 'locks'
     lock_dir.mkdir()
     free = {17, 141}
     held = []
-    for d in range(1, 201):                 # everything but two ids is taken by "other runs"
+    for d in range(1, 201):  # everything but two ids is taken by "other runs"
         if d in free:
             continue
-        f = open(lock_dir / f"{d}.lock", "a")
+        f = open(lock_dir / f'{d}.lock', 'a')
         fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
         held.append(f)
     env = _env(tmp_path, lock_dir)
     try:
         first, d1 = _shell(env)
         second, d2 = _shell(env)
-        assert {d1, d2} == free             # both free ids, never one twice
-        _stop(first)                        # the first run ends: its id is free again
+        assert {d1, d2} == free  # both free ids, never one twice
+        _stop(first)  # the first run ends: its id is free again
         third, d3 = _shell(env)
         assert d3 == d1
         _stop(second)
@@ -55,8 +59,14 @@ def test_concurrent_shells_get_free_domains_and_release_them(tmp_path):
 
 
 def test_a_chosen_domain_is_kept(tmp_path):
-    env = _env(tmp_path, tmp_path / "locks")
-    env["ROS_DOMAIN_ID"] = "42"
-    out = subprocess.run(["bash", "-c", f'source "{SCRIPT}" "$LOGDIR"; echo "$ROS_DOMAIN_ID"'],
-                         env=env, capture_output=True, text=True, timeout=30, check=True)
-    assert out.stdout.split() == ["42"]
+    env = _env(tmp_path, tmp_path / 'locks')
+    env['ROS_DOMAIN_ID'] = '42'
+    out = subprocess.run(
+        ['bash', '-c', f'source "{SCRIPT}" "$LOGDIR"; echo "$ROS_DOMAIN_ID"'],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=30,
+        check=True,
+    )
+    assert out.stdout.split() == ['42']
