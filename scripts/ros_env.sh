@@ -1,6 +1,17 @@
 # Sourced by every script: keep DDS on loopback, give the run its own domain and log folder.
 # Usage: source scripts/ros_env.sh [LOG_DIR]
 _af_root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+# AMENT_FORMATION_DDS=udp: loopback UDP only, no Fast DDS shared memory (docs/executors.md "The
+# frozen runs": with ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST rmw_fastrtps always adds its
+# shared-memory transport, whatever the profile says, and a publish can then wait on another
+# process's shared-memory port lock while holding the GIL). It leaves the range to the project's
+# loopback profile (UDP bound to 127.0.0.1, 127.0.0.1 as the only peer) by setting it to SUBNET,
+# which only happens when that profile is the one in use.
+if [ "${AMENT_FORMATION_DDS:-}" = "udp" ] && [ -z "${ROS_AUTOMATIC_DISCOVERY_RANGE:-}" ] \
+    && [ "${FASTRTPS_DEFAULT_PROFILES_FILE:-$_af_root/config/fastdds_localhost.xml}" \
+         = "$_af_root/config/fastdds_localhost.xml" ]; then
+  export ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET
+fi
 export ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}"
 export FASTRTPS_DEFAULT_PROFILES_FILE="${FASTRTPS_DEFAULT_PROFILES_FILE:-$_af_root/config/fastdds_localhost.xml}"
 export RMW_IMPLEMENTATION="${RMW_IMPLEMENTATION:-rmw_fastrtps_cpp}"
