@@ -14,7 +14,8 @@
 #      D403, D205 where the summary is one line), whitespace before ':' in slices (E203) that the
 #      formatter writes but pycodestyle refuses.
 #   3. Comments and docstring lines still over 99 columns are wrapped at a space (text only; a
-#      markdown table row, a doctest or a line without a space is left alone).
+#      markdown table row, a doctest or a line without a space is left alone); the space the
+#      formatter writes before ':' in slices is removed (pycodestyle E203; ruff's E203 allows it).
 #   4. flake8 reports what is left (a human decides: long string literals, D401 imperative mood,
 #      names shadowing builtins, ...).
 set -euo pipefail
@@ -84,6 +85,34 @@ def wrap(line, prefix):
     return [head + out[0]] + [prefix + part for part in out[1:]]
 
 
+def slice_colons(src):
+    """Remove the space the formatter writes before ':' in slices (``x[a + 1 :]``: E203)."""
+    import io
+    import tokenize
+
+    cuts = []   # (row, start col of the space, col of ':')
+    stack, prev = [], None
+    for tok in tokenize.generate_tokens(io.StringIO(src).readline):
+        if tok.type == tokenize.OP and tok.string in '([{':
+            stack.append(tok.string)
+        elif tok.type == tokenize.OP and tok.string in ')]}':
+            stack and stack.pop()
+        elif tok.type == tokenize.OP and tok.string == ':' and stack and stack[-1] == '[' \
+                and prev is not None and prev.end[0] == tok.start[0] and prev.end[1] < tok.start[1] \
+                and (prev.type in (tokenize.NAME, tokenize.NUMBER, tokenize.STRING)
+                     or prev.string in ')]}'):   # an operand ends there (not ', :2')
+            cuts.append((tok.start[0], prev.end[1], tok.start[1]))
+        if tok.type not in (tokenize.NL, tokenize.COMMENT):
+            prev = tok
+    if not cuts:
+        return src
+    lines = src.split('\n')
+    for row, start, end in sorted(cuts, reverse=True):
+        line = lines[row - 1]
+        lines[row - 1] = line[:start] + line[end:]
+    return '\n'.join(lines)
+
+
 changed = 0
 for path in sys.argv[1:]:
     src = open(path, encoding='utf-8').read()
@@ -91,6 +120,9 @@ for path in sys.argv[1:]:
         tree = ast.parse(src)
     except SyntaxError:
         continue
+    fixed = slice_colons(src)
+    if fixed != src and ast.dump(ast.parse(fixed)) == ast.dump(tree):
+        src = fixed
     doc = docstring_lines(tree)
     lines = src.split('\n')
     out = []
@@ -108,7 +140,7 @@ for path in sys.argv[1:]:
         else:
             out.append(line)
     new = '\n'.join(out)
-    if new != src:
+    if new != open(path, encoding='utf-8').read():
         ast.parse(new)   # still valid Python
         open(path, 'w', encoding='utf-8').write(new)
         changed += 1
