@@ -70,3 +70,27 @@ def test_a_chosen_domain_is_kept(tmp_path):
         check=True,
     )
     assert out.stdout.split() == ['42']
+
+
+def test_formation_run_takes_a_free_domain_too(tmp_path):
+    """`formation run` without ros_env.sh (tools/run_cmd.loopback_env) uses the same locks."""
+    lock_dir = tmp_path / 'locks'
+    lock_dir.mkdir()
+    held = []
+    for d in range(1, 201):
+        if d != 77:
+            f = open(lock_dir / f'{d}.lock', 'a')
+            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            held.append(f)
+    env = _env(tmp_path, lock_dir)
+    code = (
+        'from pathlib import Path; import os; from ament_formation.tools import run_cmd; '
+        "run_cmd.loopback_env(Path('log')); print(os.environ['ROS_DOMAIN_ID'])"
+    )
+    try:
+        out = subprocess.run([str(ROOT / '.venv' / 'bin' / 'python'), '-c', code], env=env,
+                             cwd=tmp_path, capture_output=True, text=True, timeout=120, check=True)
+        assert out.stdout.split() == ['77']
+    finally:
+        for f in held:
+            f.close()

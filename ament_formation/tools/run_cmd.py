@@ -66,12 +66,46 @@ def register(subparsers) -> None:
     p.set_defaults(func=run_system)
 
 
+_DOMAIN_LOCK = None   # the open lock file of the domain this process took (held until exit)
+
+
+def _free_domain_id() -> str:
+    """Take a domain id no other run on this machine holds (scripts/ros_env.sh's lock files)."""
+    global _DOMAIN_LOCK
+    import fcntl
+
+    first = (os.getpid() + time.time_ns() // 1000) % 200
+    lock_dir = Path(os.environ.get("AF_DOMAIN_LOCK_DIR")
+                    or Path(os.environ.get("TMPDIR") or "/tmp") / "ament_formation_domains")
+    try:
+        lock_dir.mkdir(parents=True, exist_ok=True)
+        for i in range(200):
+            d = (first + i) % 200 + 1
+            f = open(lock_dir / f"{d}.lock", "a")
+            try:
+                fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                f.close()
+                continue
+            _DOMAIN_LOCK = f
+            return str(d)
+    except OSError:
+        pass
+    return str(first + 1)
+
+
 def loopback_env(log_dir: Path) -> None:
     """The environment of scripts/ros_env.sh, for callers that did not source it."""
+    profile = str(_ROOT / "config" / "fastdds_localhost.xml")
+    env = os.environ
+    if (env.get("AMENT_FORMATION_DDS") == "udp" and not env.get("ROS_AUTOMATIC_DISCOVERY_RANGE")
+            and env.get("FASTRTPS_DEFAULT_PROFILES_FILE", profile) == profile):
+        env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "SUBNET"   # loopback UDP only (see ros_env.sh)
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    os.environ.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(_ROOT / "config" / "fastdds_localhost.xml"))
+    os.environ.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", profile)
     os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
-    os.environ.setdefault("ROS_DOMAIN_ID", str((os.getpid() + time.time_ns() // 1000) % 200 + 1))
+    if not os.environ.get("ROS_DOMAIN_ID"):
+        os.environ["ROS_DOMAIN_ID"] = _free_domain_id()
     os.environ.setdefault("ROS_LOG_DIR", str(log_dir))
 
 
