@@ -27,44 +27,45 @@ Options: --window-s S (default 15), --layouts split robot, --no-idle, --quota [P
 --control-rt), --control-nice N. The machine's other load is printed (load average): figures
 from a shared machine are only comparable within one run.
 """
+
 from __future__ import annotations
 
 import argparse
 import json
 import math
 import os
+from pathlib import Path
 import shutil
 import signal
 import subprocess
 import sys
 import tempfile
 import time
-from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from ament_formation.tools.run_cmd import loopback_env  # noqa: E402
 
-SCENARIO = ROOT / "config" / "scenarios" / "paper.yaml"
-HZ = os.sysconf("SC_CLK_TCK")
+SCENARIO = ROOT / 'config' / 'scenarios' / 'paper.yaml'
+HZ = os.sysconf('SC_CLK_TCK')
 
 
 # ------------------------------------------------------------------ /proc
 def cpu_ticks(pid: int) -> int:
-    """utime + stime of ``pid`` (all its threads) [clock ticks]; 0 once it is gone."""
+    """Utime + stime of ``pid`` (all its threads) [clock ticks]; 0 once it is gone."""
     try:
-        text = Path(f"/proc/{pid}/stat").read_text()
+        text = Path(f'/proc/{pid}/stat').read_text()
     except OSError:
         return 0
-    fields = text[text.rindex(")") + 2:].split()
+    fields = text[text.rindex(')') + 2:].split()
     return int(fields[11]) + int(fields[12])
 
 
 def rss_mb(pid: int) -> float:
     try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
+        for line in Path(f'/proc/{pid}/status').read_text().splitlines():
+            if line.startswith('VmRSS:'):
                 return int(line.split()[1]) / 1024.0
     except OSError:
         pass
@@ -88,54 +89,55 @@ class CpuQuota:
     """A child cgroup with a CPU quota of ``pct`` % of one core (v2 cpu.max, else v1 cpu
     controller: CFS quota and, when the kernel groups real-time tasks, the same real-time runtime,
     so SCHED_FIFO threads are held to it too). :meth:`add` moves a process (all its threads) in;
-    :meth:`remove` moves what is left back to the parent and deletes the group."""
+    :meth:`remove` moves what is left back to the parent and deletes the group.
+    """
 
     PERIOD_US = 100_000
 
     def __init__(self, name: str, pct: float):
         quota = int(self.PERIOD_US * pct / 100.0)
-        v2 = Path("/sys/fs/cgroup/cgroup.controllers")
-        if v2.exists() and "cpu" in v2.read_text().split():
-            self.parent = Path("/sys/fs/cgroup")
-            sub = self.parent / "cgroup.subtree_control"
-            if "cpu" not in sub.read_text().split():
-                sub.write_text("+cpu")
+        v2 = Path('/sys/fs/cgroup/cgroup.controllers')
+        if v2.exists() and 'cpu' in v2.read_text().split():
+            self.parent = Path('/sys/fs/cgroup')
+            sub = self.parent / 'cgroup.subtree_control'
+            if 'cpu' not in sub.read_text().split():
+                sub.write_text('+cpu')
             self.path = self.parent / name
             self.path.mkdir(exist_ok=True)
-            (self.path / "cpu.max").write_text(f"{quota} {self.PERIOD_US}")
-        elif Path("/sys/fs/cgroup/cpu/cpu.cfs_quota_us").exists():
-            self.parent = Path("/sys/fs/cgroup/cpu")
+            (self.path / 'cpu.max').write_text(f'{quota} {self.PERIOD_US}')
+        elif Path('/sys/fs/cgroup/cpu/cpu.cfs_quota_us').exists():
+            self.parent = Path('/sys/fs/cgroup/cpu')
             self.path = self.parent / name
             self.path.mkdir(exist_ok=True)
-            (self.path / "cpu.cfs_period_us").write_text(str(self.PERIOD_US))
-            (self.path / "cpu.cfs_quota_us").write_text(str(quota))
-            if (self.path / "cpu.rt_runtime_us").exists():
-                (self.path / "cpu.rt_period_us").write_text(str(self.PERIOD_US))
-                (self.path / "cpu.rt_runtime_us").write_text(str(quota))
+            (self.path / 'cpu.cfs_period_us').write_text(str(self.PERIOD_US))
+            (self.path / 'cpu.cfs_quota_us').write_text(str(quota))
+            if (self.path / 'cpu.rt_runtime_us').exists():
+                (self.path / 'cpu.rt_period_us').write_text(str(self.PERIOD_US))
+                (self.path / 'cpu.rt_runtime_us').write_text(str(quota))
         else:
-            raise SystemExit("no cgroup cpu controller found under /sys/fs/cgroup")
+            raise SystemExit('no cgroup cpu controller found under /sys/fs/cgroup')
 
     def add(self, pid: int) -> None:
-        (self.path / "cgroup.procs").write_text(str(pid))
+        (self.path / 'cgroup.procs').write_text(str(pid))
 
     def throttled(self) -> tuple[int, float]:
         """(periods throttled, seconds throttled) so far."""
         stat = {}
         try:
-            for line in (self.path / "cpu.stat").read_text().splitlines():
+            for line in (self.path / 'cpu.stat').read_text().splitlines():
                 k, v = line.split()
                 stat[k] = int(v)
         except OSError:
             return 0, 0.0
-        if "throttled_usec" in stat:
-            return stat.get("nr_throttled", 0), stat["throttled_usec"] * 1e-6
-        return stat.get("nr_throttled", 0), stat.get("throttled_time", 0) * 1e-9
+        if 'throttled_usec' in stat:
+            return stat.get('nr_throttled', 0), stat['throttled_usec'] * 1e-6
+        return stat.get('nr_throttled', 0), stat.get('throttled_time', 0) * 1e-9
 
     def remove(self) -> None:
         try:
-            for pid in (self.path / "cgroup.procs").read_text().split():
+            for pid in (self.path / 'cgroup.procs').read_text().split():
                 try:
-                    (self.parent / "cgroup.procs").write_text(pid)
+                    (self.parent / 'cgroup.procs').write_text(pid)
                 except OSError:
                     pass
             self.path.rmdir()
@@ -148,8 +150,8 @@ class DiagProbe:
     """Latest controller diagnostics values per robot (ticks, late_ticks, safety)."""
 
     def __init__(self):
-        import rclpy
         from diagnostic_msgs.msg import DiagnosticArray
+        import rclpy
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
 
@@ -157,20 +159,20 @@ class DiagProbe:
 
         self.ctx = Context()
         rclpy.init(context=self.ctx)
-        self.node = rclpy.create_node("_bench_robot_probe", context=self.ctx)
+        self.node = rclpy.create_node('_bench_robot_probe', context=self.ctx)
         self.ex = SingleThreadedExecutor(context=self.ctx)
         self.ex.add_node(self.node)
         self.values: dict[str, dict] = {}
-        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on, QOS_DIAGNOSTICS)
+        self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on, QOS_DIAGNOSTICS)
 
     def _on(self, msg) -> None:
         for st in msg.status:
-            if not st.name.startswith("formation_controller"):
+            if not st.name.startswith('formation_controller'):
                 continue
             vals = {kv.key: kv.value for kv in st.values}
-            if "late_ticks" in vals and "safety" in vals:
+            if 'late_ticks' in vals and 'safety' in vals:
                 robot = (st.hardware_id or st.name.split()[-1]).strip()
-                self.values[robot] = {**vals, "_message": st.message, "_t": time.monotonic()}
+                self.values[robot] = {**vals, '_message': st.message, '_t': time.monotonic()}
 
     def spin_for(self, seconds: float) -> None:
         end = time.monotonic() + seconds
@@ -185,7 +187,7 @@ class DiagProbe:
             self.ex.spin_once(timeout_sec=0.05)
         return pred()
 
-    COUNTERS = ("ticks", "late_ticks", "camera_accepted", "rejected_outlier", "rejected_stale")
+    COUNTERS = ('ticks', 'late_ticks', 'camera_accepted', 'rejected_outlier', 'rejected_stale')
 
     def ticks(self) -> dict[str, tuple[int, ...]]:
         """Per robot: the :data:`COUNTERS` (ticks, late ticks, camera poses accepted / rejected)."""
@@ -203,10 +205,12 @@ class RobotInputs:
     """What a robot's computer receives from the rest of the lab, published from this process:
     its camera pose at 30 fps (``robot_<rid>/pose``, capture stamp 20 ms old), its parent's state
     and commanded acceleration at 100 Hz, the parent's camera pose and mode, and
-    ``/formation/graph`` with the mission start; plus a probe of the controllers' diagnostics."""
+    ``/formation/graph`` with the mission start; plus a probe of the controllers' diagnostics.
+    """
 
     def __init__(self, probe: DiagProbe, scenario: Path, rid: int):
         from geometry_msgs.msg import AccelStamped, PoseStamped
+        import rclpy
         from std_msgs.msg import String
 
         from ament_formation.core.graph import FormationGraph
@@ -214,26 +218,37 @@ class RobotInputs:
         from ament_formation.ros import messages as m
         from ament_formation.ros.qos import QOS_CONTROL, QOS_GRAPH
 
-        import rclpy
-
         self.m, self.rid, self.probe = m, rid, probe
-        self.node = rclpy.create_node("_bench_robot_inputs", context=probe.ctx)
+        self.node = rclpy.create_node('_bench_robot_inputs', context=probe.ctx)
         probe.ex.add_node(self.node)
         sc = load_scenario(scenario)
         fg = FormationGraph.from_scenario(sc)
         self.parent = fg.original_parent.get(rid)
         self.pose = {r.id: [float(v) for v in r.initial_pose] for r in sc.robots}
         n = self.node
-        self.pub_pose = {k: n.create_publisher(PoseStamped, f"/robot_{k}/pose", QOS_CONTROL) for k in self.pose}
-        self.pub_state = n.create_publisher(m.Odometry, f"/robot_{self.parent}/state", QOS_CONTROL)
-        self.pub_accel = n.create_publisher(AccelStamped, f"/robot_{self.parent}/accel", QOS_CONTROL)
-        self.pub_mode = n.create_publisher(String, f"/robot_{self.parent}/mode", QOS_CONTROL)
-        self.pub_graph = n.create_publisher(String, "/formation/graph", QOS_GRAPH)
+        self.pub_pose = {
+            k: n.create_publisher(PoseStamped, f'/robot_{k}/pose', QOS_CONTROL) for k in self.pose
+        }
+        self.pub_state = n.create_publisher(m.Odometry, f'/robot_{self.parent}/state', QOS_CONTROL)
+        self.pub_accel = n.create_publisher(
+            AccelStamped, f'/robot_{self.parent}/accel', QOS_CONTROL
+        )
+        self.pub_mode = n.create_publisher(String, f'/robot_{self.parent}/mode', QOS_CONTROL)
+        self.pub_graph = n.create_publisher(String, '/formation/graph', QOS_GRAPH)
         now = self.now_s()
         parents = {r.id: fg.original_parent.get(r.id) for r in sc.robots}
-        offsets = {c: tuple(float(v) for v in fg.offset(c, p)) for c, p in parents.items() if p is not None}
-        self.pub_graph.publish(m.graph_msg(m.GraphMessage(revision=1, parents=parents, offsets_m=offsets,
-                                                          stamp_s=now, start_s=now + 2.0)))
+        offsets = {
+            c: tuple(float(v) for v in fg.offset(c, p))
+            for c, p in parents.items()
+            if p is not None
+        }
+        self.pub_graph.publish(
+            m.graph_msg(
+                m.GraphMessage(
+                    revision=1, parents=parents, offsets_m=offsets, stamp_s=now, start_s=now + 2.0
+                )
+            )
+        )
         self.ticks = 0
         n.create_timer(0.01, self._tick)
 
@@ -251,75 +266,145 @@ class RobotInputs:
         self.ticks += 1
         px, py, pth = self.pose[self.parent]
         stamp = m.stamp_from_s(now)
-        self.pub_state.publish(m.odometry([px, py, pth, 0.0, 0.0], stamp, f"robot_{self.parent}"))
+        self.pub_state.publish(m.odometry([px, py, pth, 0.0, 0.0], stamp, f'robot_{self.parent}'))
         self.pub_accel.publish(m.accel_stamped([0.0, 0.0], stamp))
-        if self.ticks % 3 == 0:      # the camera: 30 fps (every robot's pose, as the tracker sends)
+        if self.ticks % 3 == 0:  # the camera: 30 fps (every robot's pose, as the tracker sends)
             for k, (x, y, th) in self.pose.items():
                 msg = PoseStamped()
-                msg.header.frame_id = "world"
+                msg.header.frame_id = 'world'
                 msg.header.stamp = m.stamp_from_s(now - 0.02)
                 msg.pose.position.x, msg.pose.position.y = x, y
                 msg.pose.orientation.z, msg.pose.orientation.w = math.sin(th / 2), math.cos(th / 2)
                 self.pub_pose[k].publish(msg)
         if self.ticks % 100 == 0:
-            self.pub_mode.publish(m.mode_msg(mode="coordination", target=None, direction=None, avoiding=False))
+            self.pub_mode.publish(
+                m.mode_msg(mode='coordination', target=None, direction=None, avoiding=False)
+            )
 
 
-def measure_cost(layout: str, quota_pct: float | None, window_s: float, tmp: Path, probe: DiagProbe,
-                 extra: list[str], scenario: Path = SCENARIO, rid: int = 1) -> dict:
+def measure_cost(
+    layout: str,
+    quota_pct: float | None,
+    window_s: float,
+    tmp: Path,
+    probe: DiagProbe,
+    extra: list[str],
+    scenario: Path = SCENARIO,
+    rid: int = 1,
+) -> dict:
     """Robot ``rid`` of ``scenario`` on its own: its emulated motor board on a pty (`formation
     board`, not counted), scripts/launch_robot.sh (``split``: --split), inputs from
-    :class:`RobotInputs`; CPU and RSS of the launcher's processes, late ticks from diagnostics."""
-    run_dir = tmp / f"cost_{layout}_{'quota' if quota_pct else 'idle'}"
+    :class:`RobotInputs`; CPU and RSS of the launcher's processes, late ticks from diagnostics.
+    """
+    run_dir = tmp / f'cost_{layout}_{"quota" if quota_pct else "idle"}'
     run_dir.mkdir(parents=True, exist_ok=True)
-    link = run_dir / f"robot_{rid}.tty"
-    board = subprocess.Popen([str(ROOT / ".venv" / "bin" / "formation"), "board", "--pty", "--link", str(link)],
-                             stdout=open(run_dir / "board.log", "w"), stderr=subprocess.STDOUT)
+    link = run_dir / f'robot_{rid}.tty'
+    board = subprocess.Popen(
+        [str(ROOT / '.venv' / 'bin' / 'formation'), 'board', '--pty', '--link', str(link)],
+        stdout=open(run_dir / 'board.log', 'w'),
+        stderr=subprocess.STDOUT,
+    )
     groups: list[CpuQuota] = []
     launch = None
     probe.values.clear()
     inputs = None
     try:
         probe.spin_until(lambda: link.exists() or board.poll() is not None, 60.0)
-        cmd = [str(ROOT / "scripts" / "launch_robot.sh"), "--id", str(rid), "--port", str(link),
-               "--scenario", str(scenario), "--run-dir", str(run_dir / "robot"),
-               *(["--split"] if layout == "split" else []), *extra]
-        launch = subprocess.Popen(cmd, stdout=open(run_dir / "launch.out", "w"), stderr=subprocess.STDOUT,
-                                  start_new_session=True)
-        names = {"split": 2, "robot": 1}[layout]
-        probe.spin_until(lambda: len(read_pids(run_dir / "robot" / "pids")) == names or launch.poll() is not None, 60.0)
-        pids = list(read_pids(run_dir / "robot" / "pids").values())
+        cmd = [
+            str(ROOT / 'scripts' / 'launch_robot.sh'),
+            '--id',
+            str(rid),
+            '--port',
+            str(link),
+            '--scenario',
+            str(scenario),
+            '--run-dir',
+            str(run_dir / 'robot'),
+            *(['--split'] if layout == 'split' else []),
+            *extra,
+        ]
+        launch = subprocess.Popen(
+            cmd,
+            stdout=open(run_dir / 'launch.out', 'w'),
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
+        names = {'split': 2, 'robot': 1}[layout]
+        probe.spin_until(
+            lambda: (
+                len(read_pids(run_dir / 'robot' / 'pids')) == names or launch.poll() is not None
+            ),
+            60.0,
+        )
+        pids = list(read_pids(run_dir / 'robot' / 'pids').values())
         if quota_pct:
-            g = CpuQuota(f"af_bench_{os.getpid()}_robot_{rid}", quota_pct)
+            g = CpuQuota(f'af_bench_{os.getpid()}_robot_{rid}', quota_pct)
             groups.append(g)
             for pid in pids:
                 g.add(pid)
         started = time.monotonic()
 
-        def fresh(message=None) -> bool:   # diagnostics of this launch's controller
-            return any(v["_t"] > started and (message is None or v["_message"] == message)
-                       for v in probe.values.values())
+        def fresh(message=None) -> bool:  # diagnostics of this launch's controller
+            return any(
+                v['_t'] > started and (message is None or v['_message'] == message)
+                for v in probe.values.values()
+            )
 
         # the controller is up (diagnostics) before the mission start is published
         probe.spin_until(lambda: fresh() or launch.poll() is not None, 300.0)
         inputs = RobotInputs(probe, scenario, rid)
-        ok = probe.spin_until(lambda: fresh("running") or launch.poll() is not None, 60.0) and launch.poll() is None
+        ok = (
+            probe.spin_until(lambda: fresh('running') or launch.poll() is not None, 60.0)
+            and launch.poll() is None
+        )
         if not ok:
-            return {"layout": layout, "error": "the controller did not run: " + str(
-                [(v["_message"], v.get("camera_accepted"), v.get("odometry")) for v in probe.values.values()])}
+            return {
+                'layout': layout,
+                'error': 'the controller did not run: '
+                + str(
+                    [
+                        (v['_message'], v.get('camera_accepted'), v.get('odometry'))
+                        for v in probe.values.values()
+                    ]
+                ),
+            }
         probe.spin_for(2.0)
-        t0, c0, d0, thr0 = time.monotonic(), sum(cpu_ticks(p) for p in pids), probe.ticks(), [g.throttled() for g in groups]
+        t0, c0, d0, thr0 = (
+            time.monotonic(),
+            sum(cpu_ticks(p) for p in pids),
+            probe.ticks(),
+            [g.throttled() for g in groups],
+        )
         probe.spin_for(window_s)
         t1, c1 = time.monotonic(), sum(cpu_ticks(p) for p in pids)
-        probe.spin_for(1.2)      # the diagnostics of the window's end (published every second)
+        probe.spin_for(1.2)  # the diagnostics of the window's end (published every second)
         d1 = probe.ticks()
         key = next(iter(d1), None)
-        delta = [b - a for a, b in zip(d0.get(key, ()), d1.get(key, ()))] or [0] * len(probe.COUNTERS)
-        states = {v["_message"] for v in probe.values.values()}
-        thr = [(b[0] - a[0], round(b[1] - a[1], 3)) for a, b in zip(thr0, (g.throttled() for g in groups))]
-        return {"layout": layout, "quota_pct": quota_pct, "window_s": t1 - t0, "throttled": thr, "safety": states,
-                "robots": {rid: {"cpu_pct": 100.0 * (c1 - c0) / HZ / (t1 - t0), "rss_mb": sum(rss_mb(p) for p in pids),
-                                 "ticks": delta[0], "late": delta[1], "camera": delta[2:], "processes": len(pids)}}}
+        delta = [b - a for a, b in zip(d0.get(key, ()), d1.get(key, ()))] or [0] * len(
+            probe.COUNTERS
+        )
+        states = {v['_message'] for v in probe.values.values()}
+        thr = [
+            (b[0] - a[0], round(b[1] - a[1], 3))
+            for a, b in zip(thr0, (g.throttled() for g in groups))
+        ]
+        return {
+            'layout': layout,
+            'quota_pct': quota_pct,
+            'window_s': t1 - t0,
+            'throttled': thr,
+            'safety': states,
+            'robots': {
+                rid: {
+                    'cpu_pct': 100.0 * (c1 - c0) / HZ / (t1 - t0),
+                    'rss_mb': sum(rss_mb(p) for p in pids),
+                    'ticks': delta[0],
+                    'late': delta[1],
+                    'camera': delta[2:],
+                    'processes': len(pids),
+                }
+            },
+        }
     finally:
         if inputs is not None:
             inputs.close()
@@ -343,25 +428,41 @@ def measure_cost(layout: str, quota_pct: float | None, window_s: float, tmp: Pat
 # ------------------------------------------------------------------ part 2
 def hog() -> subprocess.Popen:
     """A CPU-bound process (a busy loop) beside the system."""
-    return subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    return subprocess.Popen([sys.executable, '-c', 'while True: pass'])
 
 
 def paper_run(condition: str, quota_pct: float, tmp: Path, extra: list[str]) -> dict:
-    out = tmp / f"paper_{condition}"
-    cmd = [str(ROOT / ".venv" / "bin" / "formation"), "run", str(SCENARIO), "--out", str(out), "--team", "1",
-           "--no-figure", "--quiet", "--startup-timeout", "400", *extra]
-    hogs = [hog(), hog()] if condition == "hogs" else []
+    out = tmp / f'paper_{condition}'
+    cmd = [
+        str(ROOT / '.venv' / 'bin' / 'formation'),
+        'run',
+        str(SCENARIO),
+        '--out',
+        str(out),
+        '--team',
+        '1',
+        '--no-figure',
+        '--quiet',
+        '--startup-timeout',
+        '400',
+        *extra,
+    ]
+    hogs = [hog(), hog()] if condition == 'hogs' else []
     groups: list[CpuQuota] = []
     t0 = time.monotonic()
-    run = subprocess.Popen(cmd, stdout=open(tmp / f"paper_{condition}.out", "w"), stderr=subprocess.STDOUT,
-                           start_new_session=True)
+    run = subprocess.Popen(
+        cmd,
+        stdout=open(tmp / f'paper_{condition}.out', 'w'),
+        stderr=subprocess.STDOUT,
+        start_new_session=True,
+    )
     try:
         moved: set[int] = set()
         while run.poll() is None:
-            if condition == "quota":
-                for name, pid in read_pids(out / "processes" / "pids").items():
-                    if name.startswith("team_") and pid not in moved:
-                        g = CpuQuota(f"af_bench_{os.getpid()}_{name}", quota_pct)
+            if condition == 'quota':
+                for name, pid in read_pids(out / 'processes' / 'pids').items():
+                    if name.startswith('team_') and pid not in moved:
+                        g = CpuQuota(f'af_bench_{os.getpid()}_{name}', quota_pct)
                         groups.append(g)
                         g.add(pid)
                         moved.add(pid)
@@ -376,93 +477,145 @@ def paper_run(condition: str, quota_pct: float, tmp: Path, extra: list[str]) -> 
             run.wait(timeout=60)
         for g in groups:
             g.remove()
-    res = {"condition": condition, "rc": rc, "wall_s": time.monotonic() - t0}
-    mpath = out / "metrics.json"
+    res = {'condition': condition, 'rc': rc, 'wall_s': time.monotonic() - t0}
+    mpath = out / 'metrics.json'
     if mpath.exists():
         m = json.loads(mpath.read_text())
-        if "robots" not in m:
-            res["failure"] = m.get("failure")
+        if 'robots' not in m:
+            res['failure'] = m.get('failure')
             return res
-        res["prohibited_entries"] = m["prohibited_entries"]
-        res["robots"] = {rid: {"rms_mm": (float("nan") if r["formation_rms_settled_m"] is None
-                                          else 1e3 * r["formation_rms_settled_m"]),
-                               "final_mm": 1e3 * r["final_error_m"], "entries": r["avoidance_entries"]}
-                         for rid, r in m["robots"].items()}
-        if m.get("failure"):
-            res["failure"] = m["failure"]
-    logs = "".join(p.read_text(errors="replace") for p in (out / "processes").glob("team_*.log"))
-    res["stopped_pose"] = logs.count("-> stopped_pose")
-    res["hold_parent"] = logs.count("-> hold_parent")
+        res['prohibited_entries'] = m['prohibited_entries']
+        res['robots'] = {
+            rid: {
+                'rms_mm': (
+                    float('nan')
+                    if r['formation_rms_settled_m'] is None
+                    else 1e3 * r['formation_rms_settled_m']
+                ),
+                'final_mm': 1e3 * r['final_error_m'],
+                'entries': r['avoidance_entries'],
+            }
+            for rid, r in m['robots'].items()
+        }
+        if m.get('failure'):
+            res['failure'] = m['failure']
+    logs = ''.join(p.read_text(errors='replace') for p in (out / 'processes').glob('team_*.log'))
+    res['stopped_pose'] = logs.count('-> stopped_pose')
+    res['hold_parent'] = logs.count('-> hold_parent')
     return res
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--window-s", type=float, default=15.0)
-    ap.add_argument("--layouts", nargs="+", choices=("split", "robot"), default=["split", "robot"])
-    ap.add_argument("--no-idle", action="store_true", help="skip the runs without a quota")
-    ap.add_argument("--quota", type=float, nargs="?", const=25.0, default=None, metavar="PCT",
-                    help="also run with every robot's processes under a CPU quota of PCT %% of a core (default 25)")
-    ap.add_argument("--paper", nargs="*", choices=("idle", "hogs", "quota"), default=None,
-                    help="paper scenario through `formation run --team 1` under these conditions")
-    ap.add_argument("--rt-priority", type=int, default=None, metavar="P",
-                    help="control loops under SCHED_FIFO priority P (launch_sim.sh --control-rt)")
-    ap.add_argument("--control-nice", type=int, default=None, metavar="N")
-    ap.add_argument("--keep", action="store_true", help="keep the run folders")
+    ap.add_argument('--window-s', type=float, default=15.0)
+    ap.add_argument('--layouts', nargs='+', choices=('split', 'robot'), default=['split', 'robot'])
+    ap.add_argument('--no-idle', action='store_true', help='skip the runs without a quota')
+    ap.add_argument(
+        '--quota',
+        type=float,
+        nargs='?',
+        const=25.0,
+        default=None,
+        metavar='PCT',
+        help="also run with every robot's processes under a CPU quota of PCT %% of a core (default 25)",
+    )
+    ap.add_argument(
+        '--paper',
+        nargs='*',
+        choices=('idle', 'hogs', 'quota'),
+        default=None,
+        help='paper scenario through `formation run --team 1` under these conditions',
+    )
+    ap.add_argument(
+        '--rt-priority',
+        type=int,
+        default=None,
+        metavar='P',
+        help='control loops under SCHED_FIFO priority P (launch_sim.sh --control-rt)',
+    )
+    ap.add_argument('--control-nice', type=int, default=None, metavar='N')
+    ap.add_argument('--keep', action='store_true', help='keep the run folders')
     args = ap.parse_args()
-    tmp = Path(tempfile.mkdtemp(prefix="ament_formation_bench_robot_"))
-    loopback_env(tmp / "ros_log")
-    extra = ([] if args.rt_priority is None else ["--control-rt", str(args.rt_priority)]) + \
-            ([] if args.control_nice is None else ["--control-nice", str(args.control_nice)])
-    robot_extra = ([] if args.rt_priority is None else ["--rt-priority", str(args.rt_priority)]) + \
-                  ([] if args.control_nice is None else ["--nice", str(args.control_nice)])   # launch_robot.sh
+    tmp = Path(tempfile.mkdtemp(prefix='ament_formation_bench_robot_'))
+    loopback_env(tmp / 'ros_log')
+    extra = ([] if args.rt_priority is None else ['--control-rt', str(args.rt_priority)]) + (
+        [] if args.control_nice is None else ['--control-nice', str(args.control_nice)]
+    )
+    robot_extra = (
+        [] if args.rt_priority is None else ['--rt-priority', str(args.rt_priority)]
+    ) + (
+        [] if args.control_nice is None else ['--nice', str(args.control_nice)]
+    )  # launch_robot.sh
     if args.rt_priority is not None:
-        os.environ["AF_CONTROL_RT_PRIORITY"] = str(args.rt_priority)   # formation run -> launch_sim.sh
-    print(f"load average before: {os.getloadavg()}; {os.cpu_count()} cores; options: {' '.join(extra) or 'none'}")
+        os.environ['AF_CONTROL_RT_PRIORITY'] = str(
+            args.rt_priority
+        )  # formation run -> launch_sim.sh
+    print(
+        f'load average before: {os.getloadavg()}; {os.cpu_count()} cores; options: {" ".join(extra) or "none"}'
+    )
     try:
         conditions = ([] if args.no_idle else [None]) + ([args.quota] if args.quota else [])
         if conditions:
             if True:
-                print(f"{'layout':7} {'quota':>6} {'robot':>5} {'CPU %':>7} {'RSS MB':>7} {'ticks':>6} {'late':>5} "
-                      f"{'late %':>7}  camera poses accepted/outlier/stale")
+                print(
+                    f'{"layout":7} {"quota":>6} {"robot":>5} {"CPU %":>7} {"RSS MB":>7} {"ticks":>6} {"late":>5} '
+                    f'{"late %":>7}  camera poses accepted/outlier/stale'
+                )
                 for q in conditions:
                     for layout in args.layouts:
-                        probe = DiagProbe()      # a fresh participant per run: nothing carried over
+                        probe = DiagProbe()  # a fresh participant per run: nothing carried over
                         try:
                             r = measure_cost(layout, q, args.window_s, tmp, probe, robot_extra)
                         finally:
                             probe.close()
-                        if "error" in r:
-                            print(f"{layout:7} {q or '-':>6} {r['error']}")
+                        if 'error' in r:
+                            print(f'{layout:7} {q or "-":>6} {r["error"]}')
                             continue
-                        for i, row in r["robots"].items():
-                            pct = 100.0 * row["late"] / row["ticks"] if row["ticks"] else float("nan")
-                            print(f"{layout:7} {q or '-':>6} {i:5d} {row['cpu_pct']:7.1f} {row['rss_mb']:7.0f} "
-                                  f"{row['ticks']:6d} {row['late']:5d} {pct:7.2f}  {'/'.join(map(str, row['camera']))}")
-                        if r["throttled"]:
-                            print(f"        cgroup throttling in the window: {r['throttled']}")
-                        print(f"        (window {r['window_s']:.1f} s, load average {os.getloadavg()[0]:.1f})")
+                        for i, row in r['robots'].items():
+                            pct = (
+                                100.0 * row['late'] / row['ticks']
+                                if row['ticks']
+                                else float('nan')
+                            )
+                            print(
+                                f'{layout:7} {q or "-":>6} {i:5d} {row["cpu_pct"]:7.1f} {row["rss_mb"]:7.0f} '
+                                f'{row["ticks"]:6d} {row["late"]:5d} {pct:7.2f}  {"/".join(map(str, row["camera"]))}'
+                            )
+                        if r['throttled']:
+                            print(f'        cgroup throttling in the window: {r["throttled"]}')
+                        print(
+                            f'        (window {r["window_s"]:.1f} s, load average {os.getloadavg()[0]:.1f})'
+                        )
         for cond in args.paper or ():
-            r = paper_run(cond, args.quota or 25.0, tmp,   # formation run: priority from the environment
-                          [] if args.control_nice is None else ["--control-nice", str(args.control_nice)])
-            robots = r.get("robots", {})
-            if "robots" not in r:
-                print(f"paper {cond:6}: FAILED: {r.get('failure')}")
+            r = paper_run(
+                cond,
+                args.quota or 25.0,
+                tmp,  # formation run: priority from the environment
+                [] if args.control_nice is None else ['--control-nice', str(args.control_nice)],
+            )
+            robots = r.get('robots', {})
+            if 'robots' not in r:
+                print(f'paper {cond:6}: FAILED: {r.get("failure")}')
                 continue
-            print(f"paper {cond:6}: prohibited entries {r.get('prohibited_entries')}, settled RMS "
-                  + ", ".join(f"R{k} {v['rms_mm']:.1f} mm (final {v['final_mm']:.0f} mm)" for k, v in robots.items())
-                  + ", avoidance entries "
-                  + ", ".join(f"R{k} {v['entries']}" for k, v in robots.items())
-                  + f"; stopped_pose {r['stopped_pose']}, hold_parent {r['hold_parent']} (rc {r['rc']}, "
-                  f"{r['wall_s']:.0f} s wall, load {os.getloadavg()[0]:.1f})"
-                  + (f"\n        run checks failed: {r['failure']}" if r.get("failure") else ""))
+            print(
+                f'paper {cond:6}: prohibited entries {r.get("prohibited_entries")}, settled RMS '
+                + ', '.join(
+                    f'R{k} {v["rms_mm"]:.1f} mm (final {v["final_mm"]:.0f} mm)'
+                    for k, v in robots.items()
+                )
+                + ', avoidance entries '
+                + ', '.join(f'R{k} {v["entries"]}' for k, v in robots.items())
+                + f'; stopped_pose {r["stopped_pose"]}, hold_parent {r["hold_parent"]} (rc {r["rc"]}, '
+                f'{r["wall_s"]:.0f} s wall, load {os.getloadavg()[0]:.1f})'
+                + (f'\n        run checks failed: {r["failure"]}' if r.get('failure') else '')
+            )
     finally:
         if args.keep:
-            print(f"run folders kept in {tmp}")
+            print(f'run folders kept in {tmp}')
         else:
             shutil.rmtree(tmp, ignore_errors=True)
     return 0
 
 
-if __name__ == "__main__":
+if __name__ == '__main__':
     sys.exit(main())

@@ -21,17 +21,18 @@ start count: the start-up (processes discovering each other, kernels loading) is
 Baseline for the ratios: the wire time of one torque frame at 115200 baud and the 10 ms control
 period.
 """
+
 from __future__ import annotations
 
 import argparse
 import os
-import signal
+from pathlib import Path
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
 import time
-from pathlib import Path
 
 import numpy as np
 import yaml
@@ -41,8 +42,10 @@ sys.path.insert(0, str(ROOT))
 
 from ament_formation.tools.run_cmd import loopback_env  # noqa: E402
 
-SCENARIO = ROOT / "test" / "data" / "paper_short.yaml"
-SETTLE_S = 1.0   # latency counts poses captured this long after the mission start (not the start-up)
+SCENARIO = ROOT / 'test' / 'data' / 'paper_short.yaml'
+SETTLE_S = (
+    1.0  # latency counts poses captured this long after the mission start (not the start-up)
+)
 
 
 class LatencyProbe:
@@ -54,14 +57,22 @@ class LatencyProbe:
         from ament_formation.ros import messages as m
         from ament_formation.ros.qos import QOS_CONTROL
 
-        self.poses: list[tuple[float, float]] = []      # (capture stamp, arrival wall)
+        self.poses: list[tuple[float, float]] = []  # (capture stamp, arrival wall)
         self.torques: list[tuple[float, np.ndarray]] = []  # (publish stamp, efforts)
-        node.create_subscription(m.PoseStamped, f"/robot_{rid}/pose",
-                                 lambda msg: self.poses.append((m.stamp_to_s(msg.header.stamp), time.time())),
-                                 QOS_CONTROL)
-        node.create_subscription(JointState, f"/robot_{rid}/wheel_torque",
-                                 lambda msg: self.torques.append((m.stamp_to_s(msg.header.stamp),
-                                                                  np.array(msg.effort))), QOS_CONTROL)
+        node.create_subscription(
+            m.PoseStamped,
+            f'/robot_{rid}/pose',
+            lambda msg: self.poses.append((m.stamp_to_s(msg.header.stamp), time.time())),
+            QOS_CONTROL,
+        )
+        node.create_subscription(
+            JointState,
+            f'/robot_{rid}/wheel_torque',
+            lambda msg: self.torques.append(
+                (m.stamp_to_s(msg.header.stamp), np.array(msg.effort))
+            ),
+            QOS_CONTROL,
+        )
 
     def latencies_s(self, board_log: list, after_s: float = -np.inf) -> np.ndarray:
         """Capture -> board receive [s] per pose captured after ``after_s`` (wall clock)."""
@@ -102,9 +113,11 @@ def _spin_for(executor, seconds: float) -> None:
 
 def _percentiles(lat: np.ndarray) -> str:
     if len(lat) == 0:
-        return "no samples"
-    return (f"p50 {1e3 * np.percentile(lat, 50):6.1f} ms  p99 {1e3 * np.percentile(lat, 99):6.1f} ms  "
-            f"(n = {len(lat)})")
+        return 'no samples'
+    return (
+        f'p50 {1e3 * np.percentile(lat, 50):6.1f} ms  p99 {1e3 * np.percentile(lat, 99):6.1f} ms  '
+        f'(n = {len(lat)})'
+    )
 
 
 def latency_in_process(seconds: float) -> np.ndarray:
@@ -120,7 +133,7 @@ def latency_in_process(seconds: float) -> np.ndarray:
     system = build_system(ctx, SCENARIO, ex, start_delay_s=0.5)
     log: list = []
     system.world.boards[0].board.command_log = log
-    probe_node = rclpy.create_node("_bench_probe", context=ctx)
+    probe_node = rclpy.create_node('_bench_probe', context=ctx)
     probe = LatencyProbe(probe_node)
     ex.add_node(probe_node)
     try:
@@ -134,7 +147,9 @@ def latency_in_process(seconds: float) -> np.ndarray:
 
 
 def _start(cmd: list[str], log_dir: Path, name: str) -> subprocess.Popen:
-    return subprocess.Popen(cmd, stdout=open(log_dir / f"{name}.log", "w"), stderr=subprocess.STDOUT)
+    return subprocess.Popen(
+        cmd, stdout=open(log_dir / f'{name}.log', 'w'), stderr=subprocess.STDOUT
+    )
 
 
 def _stop(procs: list[subprocess.Popen]) -> None:
@@ -149,53 +164,124 @@ def _stop(procs: list[subprocess.Popen]) -> None:
             p.wait()
 
 
-def node_processes(scenario_path: Path, pty_dir: Path, log_dir: Path, team: int = 0,
-                   control_nice: int | None = None) -> list[subprocess.Popen]:
+def node_processes(
+    scenario_path: Path,
+    pty_dir: Path,
+    log_dir: Path,
+    team: int = 0,
+    control_nice: int | None = None,
+) -> list[subprocess.Popen]:
     """Bridge + controller per robot, tracker, coordinator as processes (not the world).
     ``team`` > 0: the robots' bridges and controllers composed ``team`` robots per formation_team
-    process (nodes/team.py) instead of two processes per robot."""
+    process (nodes/team.py) instead of two processes per robot.
+    """
     from ament_formation.core.scenario import load_scenario
 
     sc = load_scenario(scenario_path)
-    b = ROOT / ".venv" / "bin"
-    ctl = [] if control_nice is None else ["nice", "-n", str(control_nice)]   # the control path
-    controller = [*ctl, str(b / "formation_controller")]
+    b = ROOT / '.venv' / 'bin'
+    ctl = [] if control_nice is None else ['nice', '-n', str(control_nice)]  # the control path
+    controller = [*ctl, str(b / 'formation_controller')]
     procs = []
     ids = [r.id for r in sc.robots]
     for k in range(0, len(ids), team) if team > 0 else ():
-        group = ids[k:k + team]
-        procs.append(_start([*ctl, str(b / "formation_team"), "--ros-args",
-                             "-r", f"formation_team:__node:=formation_team_{k // team}", "-p", f"scenario:={scenario_path}",
-                             "-p", f"robot_ids:={group}", "-p", f"port_template:={pty_dir}/robot_{{id}}",
-                             "-p", "poll_rate_hz:=200.0"], log_dir, f"team_{k // team}"))
+        group = ids[k: k + team]
+        procs.append(
+            _start(
+                [
+                    *ctl,
+                    str(b / 'formation_team'),
+                    '--ros-args',
+                    '-r',
+                    f'formation_team:__node:=formation_team_{k // team}',
+                    '-p',
+                    f'scenario:={scenario_path}',
+                    '-p',
+                    f'robot_ids:={group}',
+                    '-p',
+                    f'port_template:={pty_dir}/robot_{{id}}',
+                    '-p',
+                    'poll_rate_hz:=200.0',
+                ],
+                log_dir,
+                f'team_{k // team}',
+            )
+        )
     for r in sc.robots if team <= 0 else ():
-        ns = ["--ros-args", "-r", f"__ns:=/robot_{r.id}"]
-        procs.append(_start([*ctl, str(b / "formation_bridge"), *ns, "-p", f"port:={pty_dir}/robot_{r.id}",
-                             "-p", f"torque_limit_nm:={r.params.torque_limit_nm}", "-p", "poll_rate_hz:=200.0"],
-                            log_dir, f"bridge_{r.id}"))
-        procs.append(_start([*controller, *ns, "-p", f"scenario:={scenario_path}",
-                             "-p", f"robot_id:={r.id}"], log_dir, f"controller_{r.id}"))
-    procs.append(_start([str(b / "formation_tracker"), "--ros-args", "-p", f"robot_ids:={ids}",
-                         "-p", f"marker_ids:={[r.marker_id for r in sc.robots]}"], log_dir, "tracker"))
-    procs.append(_start([str(b / "formation_coordinator"), "--ros-args", "-p", f"scenario:={scenario_path}",
-                         "-p", "start_delay_s:=0.5"], log_dir, "coordinator"))
+        ns = ['--ros-args', '-r', f'__ns:=/robot_{r.id}']
+        procs.append(
+            _start(
+                [
+                    *ctl,
+                    str(b / 'formation_bridge'),
+                    *ns,
+                    '-p',
+                    f'port:={pty_dir}/robot_{r.id}',
+                    '-p',
+                    f'torque_limit_nm:={r.params.torque_limit_nm}',
+                    '-p',
+                    'poll_rate_hz:=200.0',
+                ],
+                log_dir,
+                f'bridge_{r.id}',
+            )
+        )
+        procs.append(
+            _start(
+                [*controller, *ns, '-p', f'scenario:={scenario_path}', '-p', f'robot_id:={r.id}'],
+                log_dir,
+                f'controller_{r.id}',
+            )
+        )
+    procs.append(
+        _start(
+            [
+                str(b / 'formation_tracker'),
+                '--ros-args',
+                '-p',
+                f'robot_ids:={ids}',
+                '-p',
+                f'marker_ids:={[r.marker_id for r in sc.robots]}',
+            ],
+            log_dir,
+            'tracker',
+        )
+    )
+    procs.append(
+        _start(
+            [
+                str(b / 'formation_coordinator'),
+                '--ros-args',
+                '-p',
+                f'scenario:={scenario_path}',
+                '-p',
+                'start_delay_s:=0.5',
+            ],
+            log_dir,
+            'coordinator',
+        )
+    )
     return procs
 
 
-def latency_multi_process(seconds: float, tmp: Path, team: int = 0, control_nice: int | None = None) -> np.ndarray:
+def latency_multi_process(
+    seconds: float, tmp: Path, team: int = 0, control_nice: int | None = None
+) -> np.ndarray:
     import rclpy
     from rclpy.context import Context
+
     from ament_formation.nodes.world import WorldNode, WorldParams
     from ament_formation.ros.executors import make_executor
 
     ctx = Context()
     rclpy.init(context=ctx)
     ex = make_executor(context=ctx)
-    pty_dir = tmp / "pty_lat"
-    world = WorldNode(context=ctx, params=WorldParams(scenario=str(SCENARIO), pty_dir=str(pty_dir)))
+    pty_dir = tmp / 'pty_lat'
+    world = WorldNode(
+        context=ctx, params=WorldParams(scenario=str(SCENARIO), pty_dir=str(pty_dir))
+    )
     log: list = []
     world.boards[0].board.command_log = log
-    probe_node = rclpy.create_node("_bench_probe", context=ctx)
+    probe_node = rclpy.create_node('_bench_probe', context=ctx)
     probe = LatencyProbe(probe_node)
     ex.add_node(world)
     ex.add_node(probe_node)
@@ -217,58 +303,88 @@ def line_scenario(n: int, path: Path) -> Path:
     """A leader on a straight line and N - 1 followers in rows of five behind it (0.45 m apart), all
     inside the camera's floor area (config/camera.yaml: 3 x 2.4 m around (1.2, 0.6); up to 21
     robots); star graph; no obstacles."""
-    robots = [{"id": 0, "leader": True, "slot_m": [0.0, 0.0], "initial_pose": [1.8, 0.6, 0.0], "marker_id": 0,
-               "path": {"type": "line", "start_m": [1.8, 0.6], "heading_rad": 0.0, "speed_mps": 0.03}}]
+    robots = [
+        {
+            'id': 0,
+            'leader': True,
+            'slot_m': [0.0, 0.0],
+            'initial_pose': [1.8, 0.6, 0.0],
+            'marker_id': 0,
+            'path': {'type': 'line', 'start_m': [1.8, 0.6], 'heading_rad': 0.0, 'speed_mps': 0.03},
+        }
+    ]
     for i in range(1, n):
         row, col = divmod(i - 1, 5)
         dx, dy = -0.5 - 0.45 * row, -0.9 + 0.45 * col
-        robots.append({"id": i, "slot_m": [dx, dy], "initial_pose": [1.8 + dx, 0.6 + dy, 0.0], "marker_id": i})
+        robots.append(
+            {
+                'id': i,
+                'slot_m': [dx, dy],
+                'initial_pose': [1.8 + dx, 0.6 + dy, 0.0],
+                'marker_id': i,
+            }
+        )
     edges = [[0, i] for i in range(1, n)]
-    path.write_text(yaml.safe_dump({"name": f"line_{n}", "duration_s": 25.0, "robots": robots,
-                                    "graph": {"edges": edges}}, sort_keys=False))
+    path.write_text(
+        yaml.safe_dump(
+            {'name': f'line_{n}', 'duration_s': 25.0, 'robots': robots, 'graph': {'edges': edges}},
+            sort_keys=False,
+        )
+    )
     return path
 
 
-def robot_count(n: int, seconds: float, tmp: Path, team: int = 0, control_nice: int | None = None) -> dict:
+def robot_count(
+    n: int, seconds: float, tmp: Path, team: int = 0, control_nice: int | None = None
+) -> dict:
     """Run N robots through the whole system; missed-deadline fraction and world overruns."""
-    import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
+    import rclpy
     from rclpy.context import Context
+
     from ament_formation.nodes.world import WorldNode, WorldParams
     from ament_formation.ros.executors import make_executor
     from ament_formation.ros.qos import QOS_DIAGNOSTICS
 
-    scenario = line_scenario(n, tmp / f"line_{n}.yaml")
+    scenario = line_scenario(n, tmp / f'line_{n}.yaml')
     ctx = Context()
     rclpy.init(context=ctx)
     ex = make_executor(context=ctx)
-    pty_dir = tmp / f"pty_{n}"
-    world = WorldNode(context=ctx, params=WorldParams(scenario=str(scenario), pty_dir=str(pty_dir)))
+    pty_dir = tmp / f'pty_{n}'
+    world = WorldNode(
+        context=ctx, params=WorldParams(scenario=str(scenario), pty_dir=str(pty_dir))
+    )
     diag: dict[str, dict] = {}
-    probe = rclpy.create_node("_bench_diag", context=ctx)
+    probe = rclpy.create_node('_bench_diag', context=ctx)
 
     def on_diag(msg):
         for st in msg.status:
-            if st.name.startswith("formation_controller"):
+            if st.name.startswith('formation_controller'):
                 diag[st.name] = {kv.key: kv.value for kv in st.values}
 
-    probe.create_subscription(DiagnosticArray, "/diagnostics", on_diag, QOS_DIAGNOSTICS)
+    probe.create_subscription(DiagnosticArray, '/diagnostics', on_diag, QOS_DIAGNOSTICS)
     ex.add_node(world)
     ex.add_node(probe)
     procs = node_processes(scenario, pty_dir, tmp, team, control_nice)
     try:
         started = _wait_for_start(ex, world, 90.0)
         _spin_for(ex, 1.5)
-        before = {k: (int(v["ticks"]), int(v["late_ticks"])) for k, v in diag.items()}
+        before = {k: (int(v['ticks']), int(v['late_ticks'])) for k, v in diag.items()}
         over0 = world.overruns
         _spin_for(ex, seconds)
-        after = {k: (int(v["ticks"]), int(v["late_ticks"])) for k, v in diag.items()}
+        after = {k: (int(v['ticks']), int(v['late_ticks'])) for k, v in diag.items()}
         ticks = sum(after[k][0] - before.get(k, (0, 0))[0] for k in after)
         late = sum(after[k][1] - before.get(k, (0, 0))[1] for k in after)
-        return {"n": n, "started": started, "controllers_reporting": len(after), "ticks": ticks,
-                "late": late, "missed_fraction": late / ticks if ticks else float("nan"),
-                "world_overruns": world.overruns - over0,
-                "expected_ticks": int(100 * seconds * n)}
+        return {
+            'n': n,
+            'started': started,
+            'controllers_reporting': len(after),
+            'ticks': ticks,
+            'late': late,
+            'missed_fraction': late / ticks if ticks else float('nan'),
+            'world_overruns': world.overruns - over0,
+            'expected_ticks': int(100 * seconds * n),
+        }
     finally:
         _stop(procs)
         world.destroy_node()
@@ -278,60 +394,95 @@ def robot_count(n: int, seconds: float, tmp: Path, team: int = 0, control_nice: 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="shorter windows, fewer robot counts")
-    ap.add_argument("--counts", type=int, nargs="*", default=None, help="robot counts to try")
-    ap.add_argument("--skip-latency", action="store_true", help="only the robot-count table")
-    ap.add_argument("--dds", choices=("udp", "shm"), default="udp",
-                    help="Fast DDS profile: udp = config/fastdds_localhost.xml (loopback UDP only), "
-                         "shm = config/fastdds_localhost_shm.xml (shared memory + loopback UDP)")
-    ap.add_argument("--executor", choices=("events", "single"), default="events",
-                    help="executor of the node processes and of the world (ros/executors.py)")
-    ap.add_argument("--team", type=int, default=0, metavar="K",
-                    help="compose K robots' bridges and controllers per formation_team process "
-                         "(0: a bridge and a controller process per robot)")
-    ap.add_argument("--control-nice", type=int, default=None, metavar="N",
-                    help="start the bridge/controller/team processes under `nice -n N` (like "
-                         "scripts/launch_sim.sh --control-nice; negative needs root)")
+    ap.add_argument('--quick', action='store_true', help='shorter windows, fewer robot counts')
+    ap.add_argument('--counts', type=int, nargs='*', default=None, help='robot counts to try')
+    ap.add_argument('--skip-latency', action='store_true', help='only the robot-count table')
+    ap.add_argument(
+        '--dds',
+        choices=('udp', 'shm'),
+        default='udp',
+        help='Fast DDS profile: udp = config/fastdds_localhost.xml (loopback UDP only), '
+        'shm = config/fastdds_localhost_shm.xml (shared memory + loopback UDP)',
+    )
+    ap.add_argument(
+        '--executor',
+        choices=('events', 'single'),
+        default='events',
+        help='executor of the node processes and of the world (ros/executors.py)',
+    )
+    ap.add_argument(
+        '--team',
+        type=int,
+        default=0,
+        metavar='K',
+        help="compose K robots' bridges and controllers per formation_team process "
+        '(0: a bridge and a controller process per robot)',
+    )
+    ap.add_argument(
+        '--control-nice',
+        type=int,
+        default=None,
+        metavar='N',
+        help='start the bridge/controller/team processes under `nice -n N` (like '
+        'scripts/launch_sim.sh --control-nice; negative needs root)',
+    )
     args = ap.parse_args()
-    tmp = Path(tempfile.mkdtemp(prefix="ament_formation_bench_"))
-    profile = "fastdds_localhost_shm.xml" if args.dds == "shm" else "fastdds_localhost.xml"
-    os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(ROOT / "config" / profile)
-    os.environ["AMENT_FORMATION_EXECUTOR"] = args.executor
-    print(f"DDS profile {profile}; executor {args.executor}; "
-          + (f"{args.team} robots per formation_team process" if args.team else "a process per node")
-          + ("" if args.control_nice is None else f"; control processes at nice {args.control_nice}"))
+    tmp = Path(tempfile.mkdtemp(prefix='ament_formation_bench_'))
+    profile = 'fastdds_localhost_shm.xml' if args.dds == 'shm' else 'fastdds_localhost.xml'
+    os.environ['FASTRTPS_DEFAULT_PROFILES_FILE'] = str(ROOT / 'config' / profile)
+    os.environ['AMENT_FORMATION_EXECUTOR'] = args.executor
+    print(
+        f'DDS profile {profile}; executor {args.executor}; '
+        + (f'{args.team} robots per formation_team process' if args.team else 'a process per node')
+        + ('' if args.control_nice is None else f'; control processes at nice {args.control_nice}')
+    )
     try:
-        loopback_env(tmp / "ros_log")
+        loopback_env(tmp / 'ros_log')
         window = 5.0 if args.quick else 12.0
-        wire_ms = 1e3 * 10 * 10 / 115200   # one 10-byte torque frame at 115200 baud, 10 bits/byte
-        print(f"baseline: torque frame wire time {wire_ms:.2f} ms; control period 10 ms")
+        wire_ms = 1e3 * 10 * 10 / 115200  # one 10-byte torque frame at 115200 baud, 10 bits/byte
+        print(f'baseline: torque frame wire time {wire_ms:.2f} ms; control period 10 ms')
         if args.skip_latency:
             lat1 = lat2 = np.zeros(0)
         else:
             lat1 = latency_in_process(window)
-            print(f"latency capture -> board, one process:    {_percentiles(lat1)}")
+            print(f'latency capture -> board, one process:    {_percentiles(lat1)}')
             lat2 = latency_multi_process(window, tmp, args.team, args.control_nice)
-            print(f"latency capture -> board, processes:      {_percentiles(lat2)}")
+            print(f'latency capture -> board, processes:      {_percentiles(lat2)}')
         if len(lat1) and len(lat2):
-            print(f"  ratio p50 processes / one process: {np.percentile(lat2, 50) / np.percentile(lat1, 50):.2f}; "
-                  f"p50 / wire time: {1e3 * np.percentile(lat2, 50) / wire_ms:.1f}")
+            print(
+                f'  ratio p50 processes / one process: {np.percentile(lat2, 50) / np.percentile(lat1, 50):.2f}; '
+                f'p50 / wire time: {1e3 * np.percentile(lat2, 50) / wire_ms:.1f}'
+            )
         counts = args.counts or ([2, 4, 6] if args.quick else [2, 4, 6, 8, 10, 12])
-        print(f"{'robots':>6} {'ticks':>7} {'late':>6} {'missed %':>9} {'world overruns':>15}")
+        print(f'{"robots":>6} {"ticks":>7} {"late":>6} {"missed %":>9} {"world overruns":>15}')
         best = 0
         for n in counts:
             r = robot_count(n, window, tmp, args.team, args.control_nice)
-            print(f"{n:6d} {r['ticks']:7d} {r['late']:6d} {100 * r['missed_fraction']:9.2f} {r['world_overruns']:15d}"
-                  + ("" if r["started"] and r["controllers_reporting"] == n else "  (did not start / not all up)"))
-            if r["started"] and r["controllers_reporting"] == n and r["missed_fraction"] < 0.01 \
-                    and r["ticks"] >= 0.9 * r["expected_ticks"] and r["world_overruns"] <= 0.01 * 100 * window:
+            print(
+                f'{n:6d} {r["ticks"]:7d} {r["late"]:6d} {100 * r["missed_fraction"]:9.2f} {r["world_overruns"]:15d}'
+                + (
+                    ''
+                    if r['started'] and r['controllers_reporting'] == n
+                    else '  (did not start / not all up)'
+                )
+            )
+            if (
+                r['started']
+                and r['controllers_reporting'] == n
+                and r['missed_fraction'] < 0.01
+                and r['ticks'] >= 0.9 * r['expected_ticks']
+                and r['world_overruns'] <= 0.01 * 100 * window
+            ):
                 best = n if best == counts[counts.index(n) - 1] or n == counts[0] else best
-            elif r["missed_fraction"] > 0.5 or not r["started"]:
+            elif r['missed_fraction'] > 0.5 or not r['started']:
                 break
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
-    print(f"largest robot count held in real time (< 1 % missed deadlines, every count up to it): {best}")
+    print(
+        f'largest robot count held in real time (< 1 % missed deadlines, every count up to it): {best}'
+    )
     return 0
 
 
-if __name__ == "__main__":
+if __name__ == '__main__':
     sys.exit(main())

@@ -20,17 +20,18 @@ run with `bench/run.sh bench_tracker_source.py [--frames 300] [--robots 4] [--se
 
 The machine is shared: say what else ran when quoting numbers.
 """
+
 from __future__ import annotations
 
 import argparse
 import json
 import os
+from pathlib import Path
 import signal
 import subprocess
 import sys
 import tempfile
 import time
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -41,22 +42,28 @@ sys.path.insert(0, str(ROOT))
 
 from ament_formation.tools.run_cmd import loopback_env  # noqa: E402
 
-BIN = ROOT / ".venv" / "bin"
+BIN = ROOT / '.venv' / 'bin'
 FPS_HZ = 30.0
-CLOCK_MARKER = 40                         # the clock robot: marker id = robot id
+CLOCK_MARKER = 40  # the clock robot: marker id = robot id
 CLOCK_CENTER_M, CLOCK_RADIUS_M = (0.3, 0.6), 0.45
-SCENARIO = ROOT / "test" / "data" / "paper_short.yaml"
+SCENARIO = ROOT / 'test' / 'data' / 'paper_short.yaml'
 
 
 # ---------------------------------------------------------------------- rendered truth
 def truth(k: np.ndarray, n_frames: int, n_robots: int) -> np.ndarray:
     """(len(k), 1 + n_robots, 3) poses at frame indices k: the clock robot (one lap of its circle
-    per n_frames), then robots on Lissajous curves in cells of the right part of the floor."""
+    per n_frames), then robots on Lissajous curves in cells of the right part of the floor.
+    """
     k = np.asarray(k, dtype=float)
     phi = 2 * np.pi * k / n_frames
     out = np.zeros((len(k), 1 + n_robots, 3))
-    out[:, 0] = np.column_stack([CLOCK_CENTER_M[0] + CLOCK_RADIUS_M * np.cos(phi),
-                                 CLOCK_CENTER_M[1] + CLOCK_RADIUS_M * np.sin(phi), phi + np.pi / 2])
+    out[:, 0] = np.column_stack(
+        [
+            CLOCK_CENTER_M[0] + CLOCK_RADIUS_M * np.cos(phi),
+            CLOCK_CENTER_M[1] + CLOCK_RADIUS_M * np.sin(phi),
+            phi + np.pi / 2,
+        ]
+    )
     t = k / FPS_HZ
     for i in range(n_robots):
         row, col = divmod(i, 2)
@@ -87,12 +94,12 @@ def render(n_frames: int, n_robots: int) -> list[np.ndarray]:
 # ---------------------------------------------------------------------- processes
 def cpu_s(pid: int) -> float:
     """User + system CPU time [s] of process ``pid`` so far."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
 
 
 def start(cmd: list[str], log: Path) -> subprocess.Popen:
-    return subprocess.Popen(cmd, stdout=open(log, "w"), stderr=subprocess.STDOUT)
+    return subprocess.Popen(cmd, stdout=open(log, 'w'), stderr=subprocess.STDOUT)
 
 
 def stop(procs: list[subprocess.Popen]) -> None:
@@ -109,10 +116,12 @@ def stop(procs: list[subprocess.Popen]) -> None:
 
 
 def tracker_cmd(tmp: Path, name: str, params: dict) -> list[str]:
-    path = tmp / f"{name}.yaml"
-    params = {k: list(v) if isinstance(v, list) else v for k, v in params.items()}   # no YAML aliases
-    path.write_text(yaml.safe_dump({"/**/formation_tracker": {"ros__parameters": params}}))
-    return [str(BIN / "formation_tracker"), "--ros-args", "--params-file", str(path)]
+    path = tmp / f'{name}.yaml'
+    params = {
+        k: list(v) if isinstance(v, list) else v for k, v in params.items()
+    }  # no YAML aliases
+    path.write_text(yaml.safe_dump({'/**/formation_tracker': {'ros__parameters': params}}))
+    return [str(BIN / 'formation_tracker'), '--ros-args', '--params-file', str(path)]
 
 
 # ---------------------------------------------------------------------- 1 + 2: accuracy, rate
@@ -127,10 +136,14 @@ class PoseProbe:
         clock = node.get_clock()
 
         def on_pose(msg, r):
-            self.poses[r].append((stamp_to_ns(msg.header.stamp), clock.now().nanoseconds, pose_from_msg(msg)[0]))
+            self.poses[r].append(
+                (stamp_to_ns(msg.header.stamp), clock.now().nanoseconds, pose_from_msg(msg)[0])
+            )
 
         for r in robot_ids:
-            node.create_subscription(PoseStamped, f"/robot_{r}/pose", lambda m, r=r: on_pose(m, r), QOS_CONTROL)
+            node.create_subscription(
+                PoseStamped, f'/robot_{r}/pose', lambda m, r=r: on_pose(m, r), QOS_CONTROL
+            )
 
     def count(self) -> int:
         return len(self.poses[CLOCK_MARKER])
@@ -151,21 +164,23 @@ def evaluate(probe: PoseProbe, n_frames: int, n_robots: int, t0_ns: int, t1_ns: 
             head.append(abs((p[2] - t[2] + np.pi) % (2 * np.pi) - np.pi))
             delay.append((rx - ns) * 1e-9)
             seen += 1
-    span_s = (max(stamps) - min(stamps)) * 1e-9 if len(stamps) > 1 else float("nan")
+    span_s = (max(stamps) - min(stamps)) * 1e-9 if len(stamps) > 1 else float('nan')
     pos, head, delay = np.array(pos), np.array(head), np.array(delay)
     return {
-        "frames": len(stamps),
-        "fps": (len(stamps) - 1) / span_s if len(stamps) > 1 else 0.0,
-        "detection": seen / (len(clock) * n_robots) if clock else 0.0,
-        "pos_p95_mm": float(np.percentile(pos, 95) * 1e3) if len(pos) else float("nan"),
-        "pos_max_mm": float(pos.max() * 1e3) if len(pos) else float("nan"),
-        "head_p95_deg": float(np.degrees(np.percentile(head, 95))) if len(head) else float("nan"),
-        "delay_p50_ms": float(np.percentile(delay, 50) * 1e3) if len(delay) else float("nan"),
-        "delay_p95_ms": float(np.percentile(delay, 95) * 1e3) if len(delay) else float("nan"),
+        'frames': len(stamps),
+        'fps': (len(stamps) - 1) / span_s if len(stamps) > 1 else 0.0,
+        'detection': seen / (len(clock) * n_robots) if clock else 0.0,
+        'pos_p95_mm': float(np.percentile(pos, 95) * 1e3) if len(pos) else float('nan'),
+        'pos_max_mm': float(pos.max() * 1e3) if len(pos) else float('nan'),
+        'head_p95_deg': float(np.degrees(np.percentile(head, 95))) if len(head) else float('nan'),
+        'delay_p50_ms': float(np.percentile(delay, 50) * 1e3) if len(delay) else float('nan'),
+        'delay_p95_ms': float(np.percentile(delay, 95) * 1e3) if len(delay) else float('nan'),
     }
 
 
-def run_source(ctx, kind: str, frames: list[np.ndarray], n_robots: int, seconds: float, tmp: Path) -> dict:
+def run_source(
+    ctx, kind: str, frames: list[np.ndarray], n_robots: int, seconds: float, tmp: Path
+) -> dict:
     """Track ``frames`` from a video file or a loopback MJPEG stream; the metrics of evaluate()."""
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
@@ -174,9 +189,11 @@ def run_source(ctx, kind: str, frames: list[np.ndarray], n_robots: int, seconds:
 
     n_frames = len(frames)
     server = None
-    if kind == "file":
-        source = str(tmp / "overhead.avi")
-        writer = cv2.VideoWriter(source, cv2.VideoWriter_fourcc(*"MJPG"), FPS_HZ, (640, 480), isColor=False)
+    if kind == 'file':
+        source = str(tmp / 'overhead.avi')
+        writer = cv2.VideoWriter(
+            source, cv2.VideoWriter_fourcc(*'MJPG'), FPS_HZ, (640, 480), isColor=False
+        )
         for f in frames:
             writer.write(f)
         writer.release()
@@ -186,26 +203,37 @@ def run_source(ctx, kind: str, frames: list[np.ndarray], n_robots: int, seconds:
         server.play(frames, FPS_HZ)
     robot_ids = [CLOCK_MARKER, *range(n_robots)]
     ex = SingleThreadedExecutor(context=ctx)
-    node = rclpy.create_node(f"_bench_tracker_probe_{kind}", context=ctx)
+    node = rclpy.create_node(f'_bench_tracker_probe_{kind}', context=ctx)
     probe = PoseProbe(node, robot_ids)
     ex.add_node(node)
-    proc = start(tracker_cmd(tmp, kind, {"source": source, "source_loop": kind == "file",
-                                         "marker_ids": robot_ids, "robot_ids": robot_ids,
-                                         "publish_covariance": False}), tmp / f"tracker_{kind}.log")
+    proc = start(
+        tracker_cmd(
+            tmp,
+            kind,
+            {
+                'source': source,
+                'source_loop': kind == 'file',
+                'marker_ids': robot_ids,
+                'robot_ids': robot_ids,
+                'publish_covariance': False,
+            },
+        ),
+        tmp / f'tracker_{kind}.log',
+    )
     try:
         deadline = time.monotonic() + 120.0
         while probe.count() < 10 and time.monotonic() < deadline and proc.poll() is None:
             ex.spin_once(timeout_sec=0.05)
         if probe.count() < 10:
-            log = (tmp / f"tracker_{kind}.log").read_text().strip().splitlines()[-5:]
-            raise SystemExit(f"{kind}: no poses; the tracker's log ends:\n" + "\n".join(log))
+            log = (tmp / f'tracker_{kind}.log').read_text().strip().splitlines()[-5:]
+            raise SystemExit(f"{kind}: no poses; the tracker's log ends:\n" + '\n'.join(log))
         t0_ns, c0 = node.get_clock().now().nanoseconds, cpu_s(proc.pid)
         end = time.monotonic() + seconds
         while time.monotonic() < end:
             ex.spin_once(timeout_sec=0.05)
         t1_ns, c1 = node.get_clock().now().nanoseconds, cpu_s(proc.pid)
         res = evaluate(probe, n_frames, n_robots, t0_ns, t1_ns)
-        res["cpu_pct"] = 100.0 * (c1 - c0) / seconds
+        res['cpu_pct'] = 100.0 * (c1 - c0) / seconds
         return res
     finally:
         stop([proc])
@@ -216,10 +244,11 @@ def run_source(ctx, kind: str, frames: list[np.ndarray], n_robots: int, seconds:
         ex.shutdown()
 
 
-# ---------------------------------------------------------------------- 3: camera loss in the system
+# ---------------------------------------------------------------------- 3: camera loss in the
+# system
 def camera_loss(ctx, tmp: Path, run_s: float) -> dict:
-    import rclpy
     from geometry_msgs.msg import PoseStamped
+    import rclpy
     from std_msgs.msg import String
 
     from ament_formation.core.scenario import load_scenario
@@ -234,17 +263,20 @@ def camera_loss(ctx, tmp: Path, run_s: float) -> dict:
     sc = load_scenario(SCENARIO)
     ids = [r.id for r in sc.robots]
     ctl = ControllerParams.__dataclass_fields__
-    pose_timeout_s = ctl["pose_timeout_s"].default
-    period_s = 1.0 / ctl["control_rate_hz"].default
+    pose_timeout_s = ctl['pose_timeout_s'].default
+    period_s = 1.0 / ctl['control_rate_hz'].default
     ex = make_executor(context=ctx)
-    pty = tmp / "pty"
-    world = WorldNode(context=ctx, params=WorldParams(scenario=str(SCENARIO), pty_dir=str(pty), exit_at_end=False))
+    pty = tmp / 'pty'
+    world = WorldNode(
+        context=ctx,
+        params=WorldParams(scenario=str(SCENARIO), pty_dir=str(pty), exit_at_end=False),
+    )
     server = MjpegServer(quality=90)
     url = server.start()
-    node = rclpy.create_node("_bench_loss_probe", context=ctx)
+    node = rclpy.create_node('_bench_loss_probe', context=ctx)
     publish_image = world.pub_image.publish
 
-    def camera_out(msg) -> None:       # every rendered frame also goes out on the MJPEG stream
+    def camera_out(msg) -> None:  # every rendered frame also goes out on the MJPEG stream
         server.publish(image_to_mono8(msg))
         publish_image(msg)
 
@@ -259,29 +291,73 @@ def camera_loss(ctx, tmp: Path, run_s: float) -> dict:
     resumed_at: dict[int, float] = {}
 
     def on_mode(msg, r):
-        before, modes[r] = modes.get(r), json.loads(msg.data).get("mode", "")
-        if modes[r] == "stopped" and r not in stopped_at:
+        before, modes[r] = modes.get(r), json.loads(msg.data).get('mode', '')
+        if modes[r] == 'stopped' and r not in stopped_at:
             stopped_at[r] = time.time()
-        if before == "stopped" and modes[r] != "stopped" and r not in resumed_at:
+        if before == 'stopped' and modes[r] != 'stopped' and r not in resumed_at:
             resumed_at[r] = time.time()
 
     for r in ids:
-        node.create_subscription(PoseStamped, f"/robot_{r}/pose", lambda m, r=r: on_pose(m, r), QOS_CONTROL)
-        node.create_subscription(String, f"/robot_{r}/mode", lambda m, r=r: on_mode(m, r), QOS_CONTROL)
+        node.create_subscription(
+            PoseStamped, f'/robot_{r}/pose', lambda m, r=r: on_pose(m, r), QOS_CONTROL
+        )
+        node.create_subscription(
+            String, f'/robot_{r}/mode', lambda m, r=r: on_mode(m, r), QOS_CONTROL
+        )
     ex.add_node(world)
     ex.add_node(node)
     procs = []
     for r in sc.robots:
-        ns = ["--ros-args", "-r", f"__ns:=/robot_{r.id}"]
-        procs.append(start([str(BIN / "formation_bridge"), *ns, "-p", f"port:={pty}/robot_{r.id}",
-                            "-p", f"torque_limit_nm:={r.params.torque_limit_nm}"], tmp / f"bridge_{r.id}.log"))
-        procs.append(start([str(BIN / "formation_controller"), *ns, "-p", f"scenario:={SCENARIO}",
-                            "-p", f"robot_id:={r.id}"], tmp / f"controller_{r.id}.log"))
-    procs.append(start(tracker_cmd(tmp, "system", {"source": url, "robot_ids": ids,
-                                                   "marker_ids": [r.marker_id for r in sc.robots]}),
-                       tmp / "tracker_system.log"))
-    procs.append(start([str(BIN / "formation_coordinator"), "--ros-args", "-p", f"scenario:={SCENARIO}",
-                        "-p", "start_delay_s:=0.5"], tmp / "coordinator.log"))
+        ns = ['--ros-args', '-r', f'__ns:=/robot_{r.id}']
+        procs.append(
+            start(
+                [
+                    str(BIN / 'formation_bridge'),
+                    *ns,
+                    '-p',
+                    f'port:={pty}/robot_{r.id}',
+                    '-p',
+                    f'torque_limit_nm:={r.params.torque_limit_nm}',
+                ],
+                tmp / f'bridge_{r.id}.log',
+            )
+        )
+        procs.append(
+            start(
+                [
+                    str(BIN / 'formation_controller'),
+                    *ns,
+                    '-p',
+                    f'scenario:={SCENARIO}',
+                    '-p',
+                    f'robot_id:={r.id}',
+                ],
+                tmp / f'controller_{r.id}.log',
+            )
+        )
+    procs.append(
+        start(
+            tracker_cmd(
+                tmp,
+                'system',
+                {'source': url, 'robot_ids': ids, 'marker_ids': [r.marker_id for r in sc.robots]},
+            ),
+            tmp / 'tracker_system.log',
+        )
+    )
+    procs.append(
+        start(
+            [
+                str(BIN / 'formation_coordinator'),
+                '--ros-args',
+                '-p',
+                f'scenario:={SCENARIO}',
+                '-p',
+                'start_delay_s:=0.5',
+            ],
+            tmp / 'coordinator.log',
+        )
+    )
 
     def spin_for(seconds: float, until=None) -> bool:
         end = time.monotonic() + seconds
@@ -297,13 +373,17 @@ def camera_loss(ctx, tmp: Path, run_s: float) -> dict:
 
     try:
         if not spin_for(120.0, lambda: world.start_s is not None):
-            raise SystemExit("camera loss: the mission did not start (see the logs in " + str(tmp) + ")")
+            raise SystemExit(
+                'camera loss: the mission did not start (see the logs in ' + str(tmp) + ')'
+            )
         spin_for(run_s)
 
-        def tracked() -> bool:   # every controller drives on fresh camera poses
+        def tracked() -> bool:  # every controller drives on fresh camera poses
             now_ns = node.get_clock().now().nanoseconds
-            return all(modes.get(r) not in (None, "hold", "stopped") and now_ns - last_pose_ns[r] < 0.2e9
-                       for r in ids)
+            return all(
+                modes.get(r) not in (None, 'hold', 'stopped') and now_ns - last_pose_ns[r] < 0.2e9
+                for r in ids
+            )
 
         steady_since = None
         deadline = time.monotonic() + 120.0
@@ -316,10 +396,14 @@ def camera_loss(ctx, tmp: Path, run_s: float) -> dict:
             elif time.monotonic() - steady_since > 2.0:
                 break
         else:
-            tails = "\n".join(f"--- {log.name}\n" + "\n".join(log.read_text().splitlines()[-6:])
-                              for log in sorted(tmp.glob("*.log")))
-            raise SystemExit(f"camera loss: robots not driving on camera poses (modes {modes}, last pose "
-                             f"{[(time.time_ns() - last_pose_ns[r]) * 1e-9 for r in ids]} s ago)\n{tails}")
+            tails = '\n'.join(
+                f'--- {log.name}\n' + '\n'.join(log.read_text().splitlines()[-6:])
+                for log in sorted(tmp.glob('*.log'))
+            )
+            raise SystemExit(
+                f'camera loss: robots not driving on camera poses (modes {modes}, last pose '
+                f'{[(time.time_ns() - last_pose_ns[r]) * 1e-9 for r in ids]} s ago)\n{tails}'
+            )
         v_before, w_before = speeds()
         stopped_at.clear()
         server.stop()
@@ -334,26 +418,42 @@ def camera_loss(ctx, tmp: Path, run_s: float) -> dict:
                     at_rest_s = time.time()
             else:
                 at_rest_s = None
-            if at_rest_s is not None and len(stopped_at) == len(ids) and time.time() - at_rest_s > 1.0:
+            if (
+                at_rest_s is not None
+                and len(stopped_at) == len(ids)
+                and time.time() - at_rest_s > 1.0
+            ):
                 break
         last_pose_s = max(last_pose_ns.values()) * 1e-9
-        if os.environ.get("BENCH_DEBUG"):
-            print("modes after the cut:", modes, "stopped_at:", stopped_at,
-                  "last pose ages:", [time.time() - last_pose_ns[r] * 1e-9 for r in ids])
-            for log in sorted(tmp.glob("*.log")):
-                print(f"--- {log.name}\n" + "\n".join(log.read_text().splitlines()[-8:]))
+        if os.environ.get('BENCH_DEBUG'):
+            print(
+                'modes after the cut:',
+                modes,
+                'stopped_at:',
+                stopped_at,
+                'last pose ages:',
+                [time.time() - last_pose_ns[r] * 1e-9 for r in ids],
+            )
+            for log in sorted(tmp.glob('*.log')):
+                print(f'--- {log.name}\n' + '\n'.join(log.read_text().splitlines()[-8:]))
         # the stream back: poses again, controllers leave the stop, robots drive
         back_s = time.time()
         resumed_at.clear()
         server.start()
         moving = spin_for(30.0, lambda: len(resumed_at) == len(ids) and speeds()[0] > 0.01)
         return {
-            "pose_timeout_s": pose_timeout_s, "control_period_s": period_s,
-            "speed_before_mps": v_before, "omega_before_radps": w_before,
-            "cut_after_last_pose_s": cut_s - last_pose_s,
-            "stop_after_last_pose_s": {r: stopped_at[r] - last_pose_ns[r] * 1e-9 for r in stopped_at},
-            "rest_after_last_pose_s": None if at_rest_s is None else at_rest_s - last_pose_s,
-            "driving_again_after_s": (time.time() - back_s) if moving and len(stopped_at) == len(ids) else None,
+            'pose_timeout_s': pose_timeout_s,
+            'control_period_s': period_s,
+            'speed_before_mps': v_before,
+            'omega_before_radps': w_before,
+            'cut_after_last_pose_s': cut_s - last_pose_s,
+            'stop_after_last_pose_s': {
+                r: stopped_at[r] - last_pose_ns[r] * 1e-9 for r in stopped_at
+            },
+            'rest_after_last_pose_s': None if at_rest_s is None else at_rest_s - last_pose_s,
+            'driving_again_after_s': (time.time() - back_s)
+            if moving and len(stopped_at) == len(ids)
+            else None,
         }
     finally:
         stop(procs)
@@ -366,54 +466,73 @@ def camera_loss(ctx, tmp: Path, run_s: float) -> dict:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--frames", type=int, default=300, help="rendered frames (one lap of the clock robot)")
-    ap.add_argument("--robots", type=int, default=4, help="robots besides the clock robot (<= 6)")
-    ap.add_argument("--seconds", type=float, default=10.0, help="measured window per source [s]")
-    ap.add_argument("--sources", default="file,stream", help="which of file,stream to measure")
-    ap.add_argument("--no-system", action="store_true", help="skip the camera-loss system run")
-    ap.add_argument("--system-run-s", type=float, default=5.0, help="mission time before the cut [s]")
+    ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    ap.add_argument(
+        '--frames', type=int, default=300, help='rendered frames (one lap of the clock robot)'
+    )
+    ap.add_argument('--robots', type=int, default=4, help='robots besides the clock robot (<= 6)')
+    ap.add_argument('--seconds', type=float, default=10.0, help='measured window per source [s]')
+    ap.add_argument('--sources', default='file,stream', help='which of file,stream to measure')
+    ap.add_argument('--no-system', action='store_true', help='skip the camera-loss system run')
+    ap.add_argument(
+        '--system-run-s', type=float, default=5.0, help='mission time before the cut [s]'
+    )
     args = ap.parse_args()
     if not 1 <= args.robots <= 6:
-        ap.error("--robots: 1..6")
-    with tempfile.TemporaryDirectory(prefix="bench_tracker_source_") as tmp_name:
+        ap.error('--robots: 1..6')
+    with tempfile.TemporaryDirectory(prefix='bench_tracker_source_') as tmp_name:
         tmp = Path(tmp_name)
-        loopback_env(tmp / "ros_log")
+        loopback_env(tmp / 'ros_log')
         import rclpy
         from rclpy.context import Context
 
         ctx = Context()
         rclpy.init(context=ctx)
-        print(f"load average before: {os.getloadavg()[0]:.1f} (2 cores shared)")
+        print(f'load average before: {os.getloadavg()[0]:.1f} (2 cores shared)')
         frames = render(args.frames, args.robots)
-        print(f"{args.frames} frames, {args.robots} robots + the clock robot, {args.seconds:g} s per source")
-        print("| source | frames/s | detection | position p95 (max) | heading p95 | capture→pose p50 / p95 | tracker CPU |")
-        print("|---|---|---|---|---|---|---|")
-        for kind in [k for k in args.sources.split(",") if k]:
+        print(
+            f'{args.frames} frames, {args.robots} robots + the clock robot, {args.seconds:g} s per source'
+        )
+        print(
+            '| source | frames/s | detection | position p95 (max) | heading p95 | capture→pose p50 / p95 | tracker CPU |'
+        )
+        print('|---|---|---|---|---|---|---|')
+        for kind in [k for k in args.sources.split(',') if k]:
             r = run_source(ctx, kind, frames, args.robots, args.seconds, tmp)
-            print(f"| {kind} | {r['fps']:.1f} | {100 * r['detection']:.2f} % | {r['pos_p95_mm']:.2f} "
-                  f"({r['pos_max_mm']:.2f}) mm | {r['head_p95_deg']:.2f}° | {r['delay_p50_ms']:.1f} / "
-                  f"{r['delay_p95_ms']:.1f} ms | {r['cpu_pct']:.0f} % |", flush=True)
+            print(
+                f'| {kind} | {r["fps"]:.1f} | {100 * r["detection"]:.2f} % | {r["pos_p95_mm"]:.2f} '
+                f'({r["pos_max_mm"]:.2f}) mm | {r["head_p95_deg"]:.2f}° | {r["delay_p50_ms"]:.1f} / '
+                f'{r["delay_p95_ms"]:.1f} ms | {r["cpu_pct"]:.0f} % |',
+                flush=True,
+            )
         if not args.no_system:
             r = camera_loss(ctx, tmp, args.system_run_s)
-            bound = r["pose_timeout_s"] + r["control_period_s"]
-            print(f"\ncamera loss ({SCENARIO.name}, stream cut {args.system_run_s:g} s "
-                  f"into the mission; robots at up to {r['speed_before_mps']:.3f} m/s, "
-                  f"{r['omega_before_radps']:.2f} rad/s):")
+            bound = r['pose_timeout_s'] + r['control_period_s']
+            print(
+                f'\ncamera loss ({SCENARIO.name}, stream cut {args.system_run_s:g} s '
+                f'into the mission; robots at up to {r["speed_before_mps"]:.3f} m/s, '
+                f'{r["omega_before_radps"]:.2f} rad/s):'
+            )
             print(f"  cut {r['cut_after_last_pose_s']:.3f} s after the last pose's capture")
-            for rid, s in sorted(r["stop_after_last_pose_s"].items()):
-                print(f"  robot {rid}: controlled stop {s:.3f} s after its last pose "
-                      f"(pose_timeout_s + one control period = {bound:.3f} s)")
-            rest = r["rest_after_last_pose_s"]
-            print(f"  all robots at rest (|v| < 5 mm/s, |ω| < 0.05 rad/s): "
-                  f"{'not within 10 s' if rest is None else f'{rest:.3f} s after the last pose'}")
-            again = r["driving_again_after_s"]
-            print(f"  stream back: robots driving again after "
-                  f"{'(not within 30 s)' if again is None else f'{again:.2f} s'}")
-        print(f"load average after: {os.getloadavg()[0]:.1f}")
+            for rid, s in sorted(r['stop_after_last_pose_s'].items()):
+                print(
+                    f'  robot {rid}: controlled stop {s:.3f} s after its last pose '
+                    f'(pose_timeout_s + one control period = {bound:.3f} s)'
+                )
+            rest = r['rest_after_last_pose_s']
+            print(
+                f'  all robots at rest (|v| < 5 mm/s, |ω| < 0.05 rad/s): '
+                f'{"not within 10 s" if rest is None else f"{rest:.3f} s after the last pose"}'
+            )
+            again = r['driving_again_after_s']
+            print(
+                f'  stream back: robots driving again after '
+                f'{"(not within 30 s)" if again is None else f"{again:.2f} s"}'
+            )
+        print(f'load average after: {os.getloadavg()[0]:.1f}')
         rclpy.try_shutdown(context=ctx)
     return 0
 
 
-if __name__ == "__main__":
+if __name__ == '__main__':
     sys.exit(main())

@@ -4,6 +4,7 @@
 sets ids="0 1", robot_ids_list="[0, 1]", marker_ids_list="[0, 1]", torque_<id>=<N m>.
 Bad scenario: one line on stderr, exit code 2.
 """
+
 import shlex
 import sys
 
@@ -16,8 +17,8 @@ except ConfigError as err:
     print(err, file=sys.stderr)
     sys.exit(2)
 ids = [r.id for r in sc.robots]
-print(f"ids={shlex.quote(' '.join(map(str, ids)))}")
-print(f"robot_ids_list={shlex.quote(str(ids))}")
-print(f"marker_ids_list={shlex.quote(str([r.marker_id for r in sc.robots]))}")
+print(f'ids={shlex.quote(" ".join(map(str, ids)))}')
+print(f'robot_ids_list={shlex.quote(str(ids))}')
+print(f'marker_ids_list={shlex.quote(str([r.marker_id for r in sc.robots]))}')
 for r in sc.robots:
-    print(f"torque_{r.id}={r.params.torque_limit_nm!r}")
+    print(f'torque_{r.id}={r.params.torque_limit_nm!r}')

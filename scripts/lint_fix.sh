@@ -5,6 +5,7 @@
 #
 # Usage: scripts/lint_fix.sh [--check] [DIR]      (DIR: the repository, default: this one)
 #   --check   change nothing: only report what flake8 finds
+#   LINT_EXCLUDE=REGEX  leave the paths matching REGEX alone (e.g. files someone is editing)
 #
 # Steps (ruff and flake8 are pinned in requirements.txt; .venv from scripts/setup.sh):
 #   1. ruff format, line length 99, single quotes (flake8-quotes Q000): a formatter that keeps
@@ -30,7 +31,8 @@ done
 cd "$root"
 # the Python files of the repository (tracked or new, not ignored), outside vendored folders
 mapfile -t files < <( (git ls-files -co --exclude-standard -- '*.py' 2>/dev/null || find . -name '*.py') \
-  | grep -vE '(^|/)(\.venv|build|install|log|node_modules|firmware)/' | sort -u)
+  | grep -vE '(^|/)(\.venv|build|install|log|node_modules|firmware)/' \
+  | grep -vE "${LINT_EXCLUDE:-^\$}" | sort -u)
 [ ${#files[@]} -gt 0 ] || { echo "lint_fix: no Python files under $root" >&2; exit 2; }
 
 ruff_cfg=(

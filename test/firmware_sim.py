@@ -10,23 +10,24 @@ Used by test/test_firmware.py and bench/bench_firmware.py. Not a test module its
 - ``CodecLink``: the Python codec (ament_formation.core.serial_protocol) on the pty, for tests
   that need to speak to the board frame by frame.
 """
+
 from __future__ import annotations
 
 import json
 import os
+from pathlib import Path
 import re
 import select
 import shutil
 import signal
 import subprocess
 import time
-from pathlib import Path
 from typing import Callable
 
 ROOT = Path(__file__).resolve().parents[1]
-FIRMWARE_DIR = ROOT / "firmware"
-VECTORS_PATH = ROOT / "docs" / "serial-protocol-vectors.json"
-SIMAVR_HEADER = Path("/usr/include/simavr/sim_avr.h")
+FIRMWARE_DIR = ROOT / 'firmware'
+VECTORS_PATH = ROOT / 'docs' / 'serial-protocol-vectors.json'
+SIMAVR_HEADER = Path('/usr/include/simavr/sim_avr.h')
 # The harness is paced to the wall clock but runs slower than real time when the host is busy;
 # tests assert in emulated time, and every wall-clock timeout is scaled by this upper bound.
 WALL_TIMEOUT_SCALE = 5.0
@@ -34,23 +35,32 @@ WALL_TIMEOUT_SCALE = 5.0
 
 def toolchain_missing() -> list[str]:
     """Names of the missing tools (empty when the firmware can be built and emulated)."""
-    missing = [tool for tool in ("avr-gcc", "avr-objcopy", "avr-size", "make", "gcc") if shutil.which(tool) is None]
+    missing = [
+        tool
+        for tool in ('avr-gcc', 'avr-objcopy', 'avr-size', 'make', 'gcc')
+        if shutil.which(tool) is None
+    ]
     if not SIMAVR_HEADER.exists():
-        missing.append("libsimavr-dev")
+        missing.append('libsimavr-dev')
     return missing
 
 
 def build_firmware(build_dir: Path) -> subprocess.CompletedProcess:
     """Build the firmware ELF/HEX and the host tools into ``build_dir``; raises on failure."""
-    return subprocess.run(["make", "-C", str(FIRMWARE_DIR), f"BUILD={build_dir}", "all", "host"],
-                          check=True, capture_output=True, text=True, timeout=180)
+    return subprocess.run(
+        ['make', '-C', str(FIRMWARE_DIR), f'BUILD={build_dir}', 'all', 'host'],
+        check=True,
+        capture_output=True,
+        text=True,
+        timeout=180,
+    )
 
 
 def config_constants() -> dict[str, float]:
     """Numeric #defines of firmware/src/config.h (the motor model the tests check against)."""
     values: dict[str, float] = {}
-    pattern = re.compile(r"^#define\s+(\w+)\s+\(?([-+0-9.eE]+)[fFuUlL]*\)?")
-    for line in (FIRMWARE_DIR / "src" / "config.h").read_text().splitlines():
+    pattern = re.compile(r'^#define\s+(\w+)\s+\(?([-+0-9.eE]+)[fFuUlL]*\)?')
+    for line in (FIRMWARE_DIR / 'src' / 'config.h').read_text().splitlines():
         m = pattern.match(line.strip())
         if m:
             values[m.group(1)] = float(m.group(2))
@@ -59,36 +69,48 @@ def config_constants() -> dict[str, float]:
 
 def expected_duty(torque_nm: float, wheel_speed_radps: float, c: dict[str, float]) -> float:
     """The documented DC-motor model (firmware/src/motor_model.h), duty clamped to [-1, 1]."""
-    gear = c["MOTOR_GEAR_RATIO"]
-    kt = c["MOTOR_TORQUE_CONSTANT_NM_PER_A"]
-    current_a = torque_nm / (gear * c["MOTOR_GEAR_EFFICIENCY"]) / kt
-    volts = current_a * c["MOTOR_RESISTANCE_OHM"] + kt * gear * wheel_speed_radps
-    return max(-1.0, min(1.0, volts / c["MOTOR_SUPPLY_V"]))
+    gear = c['MOTOR_GEAR_RATIO']
+    kt = c['MOTOR_TORQUE_CONSTANT_NM_PER_A']
+    current_a = torque_nm / (gear * c['MOTOR_GEAR_EFFICIENCY']) / kt
+    volts = current_a * c['MOTOR_RESISTANCE_OHM'] + kt * gear * wheel_speed_radps
+    return max(-1.0, min(1.0, volts / c['MOTOR_SUPPLY_V']))
 
 
 class Harness:
     """The simavr harness running the firmware ELF, UART on a pty; end it with ``close()``."""
 
-    def __init__(self, build_dir: Path, work_dir: Path, *, freeze_wheels: bool = False,
-                 start_timeout_s: float = 10.0) -> None:
-        self.status_path = work_dir / "fw_status.jsonl"
-        self.control_path = work_dir / "fw_control"
-        self.set_mode("pass")
+    def __init__(
+        self,
+        build_dir: Path,
+        work_dir: Path,
+        *,
+        freeze_wheels: bool = False,
+        start_timeout_s: float = 10.0,
+    ) -> None:
+        self.status_path = work_dir / 'fw_status.jsonl'
+        self.control_path = work_dir / 'fw_control'
+        self.set_mode('pass')
         self._offset = 0
-        self._partial = ""
+        self._partial = ''
         self.lines: list[dict] = []
-        cmd = [str(build_dir / "host" / "formation_fw_sim"), str(build_dir / "motor_board.elf"),
-               "--status", str(self.status_path), "--control", str(self.control_path)]
+        cmd = [
+            str(build_dir / 'host' / 'formation_fw_sim'),
+            str(build_dir / 'motor_board.elf'),
+            '--status',
+            str(self.status_path),
+            '--control',
+            str(self.control_path),
+        ]
         if freeze_wheels:
-            cmd.append("--freeze-wheels")
-        self.stderr_path = work_dir / "fw_sim.stderr"
-        with open(self.stderr_path, "wb") as err:
+            cmd.append('--freeze-wheels')
+        self.stderr_path = work_dir / 'fw_sim.stderr'
+        with open(self.stderr_path, 'wb') as err:
             self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=err)
         self.pty = self._read_pty_line(start_timeout_s)
 
     def _read_pty_line(self, timeout_s: float) -> str:
         fd = self.proc.stdout.fileno()
-        buf = b""
+        buf = b''
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             ready, _, _ = select.select([fd], [], [], max(0.0, deadline - time.monotonic()))
@@ -98,28 +120,28 @@ class Harness:
             if not chunk:
                 break
             buf += chunk
-            for line in buf.decode(errors="replace").splitlines():
-                if line.startswith("PTY ") and buf.endswith(b"\n"):
+            for line in buf.decode(errors='replace').splitlines():
+                if line.startswith('PTY ') and buf.endswith(b'\n'):
                     return line.split()[1]
         self.close()
-        raise RuntimeError(f"formation_fw_sim printed no PTY line within {timeout_s} s")
+        raise RuntimeError(f'formation_fw_sim printed no PTY line within {timeout_s} s')
 
     def set_mode(self, mode: str) -> None:
         """Fault injection on the host -> board line: pass, cut or corrupt (atomic file swap)."""
-        tmp = self.control_path.with_suffix(".tmp")
-        tmp.write_text(mode + "\n")
+        tmp = self.control_path.with_suffix('.tmp')
+        tmp.write_text(mode + '\n')
         os.replace(tmp, self.control_path)
 
     def poll(self) -> list[dict]:
         """New status lines since the last call (also appended to ``self.lines``)."""
         if not self.status_path.exists():
             return []
-        with open(self.status_path, encoding="utf-8") as f:
+        with open(self.status_path, encoding='utf-8') as f:
             f.seek(self._offset)
             chunk = f.read()
             self._offset = f.tell()
         text = self._partial + chunk
-        parts = text.split("\n")
+        parts = text.split('\n')
         self._partial = parts.pop()
         new = [json.loads(p) for p in parts if p]
         self.lines.extend(new)
@@ -129,8 +151,12 @@ class Harness:
         self.poll()
         return self.lines[-1] if self.lines else None
 
-    def wait_for(self, predicate: Callable[[dict], bool], timeout_s: float,
-                 pump: Callable[[], None] | None = None) -> dict:
+    def wait_for(
+        self,
+        predicate: Callable[[dict], bool],
+        timeout_s: float,
+        pump: Callable[[], None] | None = None,
+    ) -> dict:
         """First new status line for which ``predicate`` holds; ``pump`` runs between polls."""
         deadline = time.monotonic() + timeout_s * WALL_TIMEOUT_SCALE
         while time.monotonic() < deadline:
@@ -140,9 +166,11 @@ class Harness:
                 if predicate(line):
                     return line
             if self.proc.poll() is not None:
-                raise RuntimeError(f"formation_fw_sim exited: {self.stderr_path.read_text(errors='replace')}")
+                raise RuntimeError(
+                    f'formation_fw_sim exited: {self.stderr_path.read_text(errors="replace")}'
+                )
             time.sleep(0.002)
-        raise TimeoutError(f"no harness status line met the condition within {timeout_s} s")
+        raise TimeoutError(f'no harness status line met the condition within {timeout_s} s')
 
     def close(self) -> dict | None:
         """End the harness by its PID; returns its final status line."""
@@ -172,7 +200,7 @@ class CodecLink:
         self.decoder = sp.FrameDecoder()
         self.seq = 0
         self.frames: list = []
-        self.received = bytearray()       # every byte read, for diagnosing rejections
+        self.received = bytearray()  # every byte read, for diagnosing rejections
 
     def send(self, msg) -> None:
         self.port.write(self.sp.encode_frame(msg, self.seq, leading_delimiter=True))
@@ -192,12 +220,12 @@ class CodecLink:
                 if frame.msg.TYPE == msg_type and predicate(frame):
                     return frame
             time.sleep(0.002)
-        raise TimeoutError(f"no {msg_type.name} frame within {timeout_s} s")
+        raise TimeoutError(f'no {msg_type.name} frame within {timeout_s} s')
 
     def rejected_blocks(self) -> list[tuple[str, str]]:
         """(reason, block hex) of every received block the codec rejects."""
         out = []
-        for block in bytes(self.received).split(b"\x00"):
+        for block in bytes(self.received).split(b'\x00'):
             if block:
                 res = self.sp.FrameDecoder()._decode_block(block)
                 if isinstance(res, str):
@@ -206,7 +234,8 @@ class CodecLink:
 
     def handshake(self, timeout_s: float = 3.0):
         """HELLO every 0.2 s until HELLO_ACK (docs/serial-protocol.md §5.1: bytes sent before the
-        firmware has enabled its UART are lost, as on a real board); returns the HELLO_ACK frame."""
+        firmware has enabled its UART are lost, as on a real board); returns the HELLO_ACK frame.
+        """
         deadline = time.monotonic() + timeout_s * WALL_TIMEOUT_SCALE
         while time.monotonic() < deadline:
             self.send(self.sp.Hello(self.sp.PROTOCOL_VERSION))
@@ -214,7 +243,7 @@ class CodecLink:
                 return self.wait_frame(self.sp.MsgType.HELLO_ACK, 0.2 / WALL_TIMEOUT_SCALE)
             except TimeoutError:
                 continue
-        raise TimeoutError(f"no HELLO_ACK within {timeout_s} s")
+        raise TimeoutError(f'no HELLO_ACK within {timeout_s} s')
 
     def close(self) -> None:
         self.port.close()

@@ -1,4 +1,5 @@
 """Process helpers shared by the launcher tests."""
+
 from __future__ import annotations
 
 import os
@@ -12,6 +13,6 @@ def alive(pid: int) -> bool:
     except ProcessLookupError:
         return False
     try:
-        return Path(f"/proc/{pid}/stat").read_text().split()[2] != "Z"
+        return Path(f'/proc/{pid}/stat').read_text().split()[2] != 'Z'
     except OSError:
         return False

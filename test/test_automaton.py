@@ -1,13 +1,21 @@
 """S8 switching automaton: exit dwell and T_min, cool-down, emergency override, exit item 3, the
-S14.2 rotating-obstacle entry test (decisions evaluated with the compiled ``decide``)."""
+S14.2 rotating-obstacle entry test (decisions evaluated with the compiled ``decide``).
+"""
+
 import numpy as np
 import pytest
 
 from ament_formation.core.automaton import (
-    MODE_C, MODE_OBSTACLE, AutomatonState, SwitchingParams, choose_direction, exit_conditions,
-    ray_time, segment_hits,
+    AutomatonState,
+    choose_direction,
+    exit_conditions,
+    MODE_C,
+    MODE_OBSTACLE,
+    ray_time,
+    segment_hits,
+    SwitchingParams,
 )
-from ament_formation.core.encounters import KIND_OBSTACLE, decide_once
+from ament_formation.core.encounters import decide_once, KIND_OBSTACLE
 
 PRM = SwitchingParams().as_array()
 AV = SwitchingParams().avoidance
@@ -15,21 +23,37 @@ AV = SwitchingParams().avoidance
 
 def obstacle(axes=(0.4, 0.15), phi=0.0, phi_dot=0.0, center=(0.0, 0.0), vel=(0.0, 0.0)):
     static = phi_dot == 0.0 and vel == (0.0, 0.0)
-    return (np.array([center], float), np.array([vel], float), np.array([phi]),
-            np.array([phi_dot]), np.array([axes], float), np.array([static]))
+    return (
+        np.array([center], float),
+        np.array([vel], float),
+        np.array([phi]),
+        np.array([phi_dot]),
+        np.array([axes], float),
+        np.array([static]),
+    )
 
 
 def step(state, t, p, pd, goal=(2.0, 0.0), goal_dot=(0.05, 0.0), vc=None, obs=None):
     vc = pd if vc is None else vc
-    return decide_once(t, state, np.array([p], float), np.array([pd], float),
-                       np.array([goal], float), np.array([goal_dot], float), np.array([vc], float),
-                       np.zeros(1, np.int64), np.array([0.1]), obs or obstacle(), PRM)
+    return decide_once(
+        t,
+        state,
+        np.array([p], float),
+        np.array([pd], float),
+        np.array([goal], float),
+        np.array([goal_dot], float),
+        np.array([vc], float),
+        np.zeros(1, np.int64),
+        np.array([0.1]),
+        obs or obstacle(),
+        PRM,
+    )
 
 
 def run_until_exit(state, times, vc_of_t, p=(0.6, 0.0)):
     for t in times:
         events = step(state, t, p, (0.05, 0.0), vc=vc_of_t(t))
-        if any(e[2] == "exit" for e in events):
+        if any(e[2] == 'exit' for e in events):
             return t
     return None
 
@@ -38,7 +62,7 @@ def test_exit_waits_for_min_time_in_avoidance():
     st = AutomatonState(1)
     st.set_mode(0, MODE_OBSTACLE, 0, 1.0, 0.0)
     t_exit = run_until_exit(st, np.round(np.arange(0.0, 3.0, 0.1), 10), lambda t: (0.05, 0.0))
-    assert t_exit == pytest.approx(AV.min_avoid_s)          # conditions held from t = 0: T_min rules
+    assert t_exit == pytest.approx(AV.min_avoid_s)  # conditions held from t = 0: T_min rules
     assert st.mode[0] == MODE_C
 
 
@@ -64,10 +88,16 @@ def test_exit_item3_blocks_exit_while_coordination_field_heads_into_obstacle():
     st = AutomatonState(1)
     st.set_mode(0, MODE_OBSTACLE, 0, 1.0, 0.0)
     # items 1 and 2 hold (segment to the goal clear, outside E) but V_c heads back into I
-    assert run_until_exit(st, np.round(np.arange(0.0, 5.0, 0.1), 10), lambda t: (-0.05, 0.001)) is None
+    assert (
+        run_until_exit(st, np.round(np.arange(0.0, 5.0, 0.1), 10), lambda t: (-0.05, 0.001))
+        is None
+    )
     assert st.mode[0] == MODE_OBSTACLE
     # the same geometry with V_c pointing away: exit
-    assert run_until_exit(st, np.round(np.arange(5.0, 7.0, 0.1), 10), lambda t: (0.05, 0.0)) is not None
+    assert (
+        run_until_exit(st, np.round(np.arange(5.0, 7.0, 0.1), 10), lambda t: (0.05, 0.0))
+        is not None
+    )
 
 
 def test_item1_goal_behind_obstacle_blocks_exit():
@@ -84,10 +114,10 @@ def test_heading_entry_and_cooldown_block_only_that_obstacle_for_t_cool():
     p, pd = (0.6, 0.0), (-0.05, 0.0)
     st = AutomatonState(1)
     st.last_kind[0], st.last_tgt[0], st.last_exit[0] = KIND_OBSTACLE, 0, 10.0
-    assert step(st, 10.5, p, pd) == []                                  # in cool-down
+    assert step(st, 10.5, p, pd) == []  # in cool-down
     assert step(st, 10.0 + AV.cooldown_s - 0.01, p, pd) == []
     events = step(st, 10.0 + AV.cooldown_s + 0.01, p, pd)
-    assert [(e[2], e[3], e[4]) for e in events] == [("enter", MODE_OBSTACLE, 0)]
+    assert [(e[2], e[3], e[4]) for e in events] == [('enter', MODE_OBSTACLE, 0)]
     # a different obstacle is not blocked by the cool-down of obstacle 0
     st2 = AutomatonState(1)
     st2.last_kind[0], st2.last_tgt[0], st2.last_exit[0] = KIND_OBSTACLE, 7, 10.0
@@ -96,8 +126,8 @@ def test_heading_entry_and_cooldown_block_only_that_obstacle_for_t_cool():
 
 def test_no_entry_when_not_heading_toward_obstacle():
     st = AutomatonState(1)
-    assert step(st, 0.0, (0.6, 0.0), (0.0, 0.05)) == []      # tangential: ray misses I
-    assert step(st, 0.0, (0.6, 0.0), (0.05, 0.0)) == []      # receding: h_dot > 0
+    assert step(st, 0.0, (0.6, 0.0), (0.0, 0.05)) == []  # tangential: ray misses I
+    assert step(st, 0.0, (0.6, 0.0), (0.05, 0.0)) == []  # receding: h_dot > 0
     assert st.mode[0] == MODE_C
 
 
@@ -106,12 +136,12 @@ def test_emergency_overrides_heading_and_cooldown():
     st.last_kind[0], st.last_tgt[0], st.last_exit[0] = KIND_OBSTACLE, 0, 10.0
     # inside E (rho_em = 1.05) but outside P, moving away, in cool-down: avoidance is forced
     events = step(st, 10.1, (0.41, 0.0), (0.05, 0.0))
-    assert [(e[2], e[3]) for e in events] == [("enter", MODE_OBSTACLE)]
+    assert [(e[2], e[3]) for e in events] == [('enter', MODE_OBSTACLE)]
 
 
 def test_rotating_bar_sweeping_toward_a_standing_robot_triggers_entry():
     """S14.2: the relative velocity of the material point includes the obstacle's rotation."""
-    p, pd = (0.35, 0.15), (0.0, 0.0)              # inside Q of a 0.4 x 0.1 bar, outside E
+    p, pd = (0.35, 0.15), (0.0, 0.0)  # inside Q of a 0.4 x 0.1 bar, outside E
     for phi_dot, expect in ((0.0, 0), (-0.3, 0), (0.3, 1)):
         st = AutomatonState(1)
         events = step(st, 0.0, p, pd, obs=obstacle(axes=(0.4, 0.1), phi_dot=phi_dot))
@@ -120,8 +150,14 @@ def test_rotating_bar_sweeping_toward_a_standing_robot_triggers_entry():
 
 def test_emergency_does_not_replace_a_target_that_is_itself_an_emergency():
     c = np.array([[0.0, 0.0], [0.0, 0.44]])
-    obs = (c, np.zeros((2, 2)), np.zeros(2), np.zeros(2), np.array([[0.4, 0.1], [0.4, 0.1]]),
-           np.array([True, True]))
+    obs = (
+        c,
+        np.zeros((2, 2)),
+        np.zeros(2),
+        np.zeros(2),
+        np.array([[0.4, 0.1], [0.4, 0.1]]),
+        np.array([True, True]),
+    )
     st = AutomatonState(1)
     st.set_mode(0, MODE_OBSTACLE, 0, 1.0, 0.0)
     # p is inside E of both bars: keep the current target (no flip every decision)
@@ -136,17 +172,31 @@ def test_geometry_helpers():
     assert ray_time(0.1, 0.0, 1.0, 0.0, 0.0, 0.5, 0.2) == 0.0
     assert segment_hits(-1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.5, 0.2)
     assert not segment_hits(-1.0, 0.3, 1.0, 0.3, 0.0, 0.0, 0.0, 0.5, 0.2)
-    assert exit_conditions(0.6, 0.0, 2.0, 0.0, 0.05, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.4, 0.15, PRM)
+    assert exit_conditions(
+        0.6, 0.0, 2.0, 0.0, 0.05, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.4, 0.15, PRM
+    )
 
 
 def test_direction_choice_takes_shorter_arc_and_breaks_ties_by_motion():
     # robot left of an ellipse (z = (-0.6, 0)), goal up-right: CW (over the top) is shorter? The
-    # goal at anomaly ~ +60 deg is reached CW from 180 deg through 90 deg: that is the CCW... check both
+    # goal at anomaly ~ +60 deg is reached CW from 180 deg through 90 deg: that is the CCW... check
+    # both
     s_up = choose_direction(-0.6, 0.0, 0.05, 0.0, 0.3, 0.5, 0.0, 0.0, 0.0, 0.44, 0.165, 0.0, True)
-    s_down = choose_direction(-0.6, 0.0, 0.05, 0.0, 0.3, -0.5, 0.0, 0.0, 0.0, 0.44, 0.165, 0.0, True)
-    assert s_up == -1.0 and s_down == 1.0         # over the top = clockwise seen from above
+    s_down = choose_direction(
+        -0.6, 0.0, 0.05, 0.0, 0.3, -0.5, 0.0, 0.0, 0.0, 0.44, 0.165, 0.0, True
+    )
+    assert s_up == -1.0 and s_down == 1.0  # over the top = clockwise seen from above
     # goal straight behind: tie -> continue the current tangential motion (rule 4) ...
-    assert choose_direction(-0.6, 0.0, 0.05, 0.02, 0.6, 0.0, 0.0, 0.0, 0.0, 0.44, 0.165, 0.0, True) == -1.0
-    assert choose_direction(-0.6, 0.0, 0.05, -0.02, 0.6, 0.0, 0.0, 0.0, 0.0, 0.44, 0.165, 0.0, True) == 1.0
+    assert (
+        choose_direction(-0.6, 0.0, 0.05, 0.02, 0.6, 0.0, 0.0, 0.0, 0.0, 0.44, 0.165, 0.0, True)
+        == -1.0
+    )
+    assert (
+        choose_direction(-0.6, 0.0, 0.05, -0.02, 0.6, 0.0, 0.0, 0.0, 0.0, 0.44, 0.165, 0.0, True)
+        == 1.0
+    )
     # ... or +1 for a yielding robot (rule 7)
-    assert choose_direction(-0.6, 0.0, 0.05, 0.02, 0.6, 0.0, 0.0, 0.0, 0.0, 0.44, 0.44, 0.0, False) == 1.0
+    assert (
+        choose_direction(-0.6, 0.0, 0.05, 0.02, 0.6, 0.0, 0.0, 0.0, 0.0, 0.44, 0.44, 0.0, False)
+        == 1.0
+    )

@@ -1,5 +1,7 @@
 """RobotController (one robot, for the ROS node) reproduces the simulator: same compiled decision
-and law functions, driven robot by robot from Python."""
+and law functions, driven robot by robot from Python.
+"""
+
 import math
 
 import numpy as np
@@ -19,8 +21,15 @@ def closed_loop_with_controllers(sc, duration_s, dt=0.001):
     graph = FormationGraph.from_scenario(sc)
     ctrls = {}
     for r in robots:
-        c = RobotController(r.id, r.params, sc.control, sc.avoidance, sc.obstacles,
-                            leader_path=r.path if r.leader else None, team=sc.team_leader(r.id))
+        c = RobotController(
+            r.id,
+            r.params,
+            sc.control,
+            sc.avoidance,
+            sc.obstacles,
+            leader_path=r.path if r.leader else None,
+            team=sc.team_leader(r.id),
+        )
         p0 = graph.original_parent[r.id]
         off = None if p0 is None else np.asarray(r.slot_m) - np.asarray(sc.slot(p0))
         c.set_graph(p0, off if off is not None else (0, 0), p0, off if off is not None else (0, 0))
@@ -28,37 +37,65 @@ def closed_loop_with_controllers(sc, duration_s, dt=0.001):
     dist = Disturbance.from_bounds(len(robots), sc.disturbance.accel_bound, sc.disturbance.seed)
     x = {r.id: np.array([*r.initial_pose, 0.0, 0.0]) for r in robots}
     acc = {r.id: np.zeros(2) for r in robots}
-    modes = {r.id: ("coordination", None) for r in robots}
+    modes = {r.id: ('coordination', None) for r in robots}
     events = []
     for k in range(int(round(duration_s / dt))):
         t = k * dt
-        nbs = {r.id: NeighbourState(x[r.id], acc[r.id], team=sc.team_leader(r.id),
-                                    mode=modes[r.id][0], target=modes[r.id][1]) for r in robots}
+        nbs = {
+            r.id: NeighbourState(
+                x[r.id],
+                acc[r.id],
+                team=sc.team_leader(r.id),
+                mode=modes[r.id][0],
+                target=modes[r.id][1],
+            )
+            for r in robots
+        }
         torques = {}
-        for r in robots:                       # parents first (ids ascending here)
+        for r in robots:  # parents first (ids ascending here)
             c = ctrls[r.id]
             p0 = graph.original_parent[r.id]
             nbs[r.id] = NeighbourState(x[r.id], acc[r.id], team=sc.team_leader(r.id))
-            out = c.step(t, x[r.id], parent=nbs.get(c._parent), original_parent=nbs.get(p0),
-                         neighbours={i: s for i, s in nbs.items() if i != r.id})
+            out = c.step(
+                t,
+                x[r.id],
+                parent=nbs.get(c._parent),
+                original_parent=nbs.get(p0),
+                neighbours={i: s for i, s in nbs.items() if i != r.id},
+            )
             torques[r.id] = out.torque_nm
             acc[r.id] = out.accel_cmd_mps2
-            nbs[r.id] = NeighbourState(x[r.id], acc[r.id], team=sc.team_leader(r.id),
-                                       mode=out.mode, target=out.target)
+            nbs[r.id] = NeighbourState(
+                x[r.id], acc[r.id], team=sc.team_leader(r.id), mode=out.mode, target=out.target
+            )
             modes[r.id] = (out.mode, out.target)
             events.extend(out.events)
         g = [dist(t), dist(t + dt / 2), dist(t + dt)]
         for q, r in enumerate(robots):
             p = r.params
-            x[r.id] = np.array(rk4_step_k(*x[r.id], *torques[r.id], *g[0][q], *g[1][q], *g[2][q], dt,
-                                          p.mass_tilde_kg, p.inertia_tilde_kgm2, p.wheel_radius_m,
-                                          p.axle_length_m, p.com_offset_m, p.platform_mass_kg))
+            x[r.id] = np.array(
+                rk4_step_k(
+                    *x[r.id],
+                    *torques[r.id],
+                    *g[0][q],
+                    *g[1][q],
+                    *g[2][q],
+                    dt,
+                    p.mass_tilde_kg,
+                    p.inertia_tilde_kgm2,
+                    p.wheel_radius_m,
+                    p.axle_length_m,
+                    p.com_offset_m,
+                    p.platform_mass_kg,
+                )
+            )
     return x, events
 
 
 def test_controllers_reproduce_the_simulator_on_paper_start():
-    sc = load_scenario(config_file("scenarios/paper.yaml"))
+    sc = load_scenario(config_file('scenarios/paper.yaml'))
     import dataclasses
+
     short = dataclasses.replace(sc, duration_s=2.0)
     res = simulate(short)
     x, _ = closed_loop_with_controllers(short, 2.0)
@@ -70,21 +107,31 @@ def test_controllers_reproduce_the_simulator_on_paper_start():
 
 
 def test_controller_enters_and_reports_obstacle_mode():
-    sc = load_scenario(config_file("scenarios/paper.yaml"))
+    sc = load_scenario(config_file('scenarios/paper.yaml'))
     r0 = sc.robots[0]
     c = RobotController(0, r0.params, sc.control, sc.avoidance, sc.obstacles, leader_path=r0.path)
     # p on the minor axis of O1 (phi = 2 pi/3), 0.22 m from the centre: inside Q, outside I,
     # heading at the centre
-    out = c.step(13.0, np.array([1.0 - 0.22 * math.sin(2 * math.pi / 3),
-                                 -0.2 + 0.22 * math.cos(2 * math.pi / 3), math.pi / 6, 0.05, 0.0]))
-    assert out.mode == "obstacle" and out.target == "O1" and out.direction in ("cw", "ccw")
-    assert [e["event"] for e in out.events] == ["enter"]
-    assert out.mode_dict() == {"mode": "obstacle", "target": "O1", "direction": out.direction}
+    out = c.step(
+        13.0,
+        np.array(
+            [
+                1.0 - 0.22 * math.sin(2 * math.pi / 3),
+                -0.2 + 0.22 * math.cos(2 * math.pi / 3),
+                math.pi / 6,
+                0.05,
+                0.0,
+            ]
+        ),
+    )
+    assert out.mode == 'obstacle' and out.target == 'O1' and out.direction in ('cw', 'ccw')
+    assert [e['event'] for e in out.events] == ['enter']
+    assert out.mode_dict() == {'mode': 'obstacle', 'target': 'O1', 'direction': out.direction}
     assert np.all(np.abs(out.torque_nm) <= r0.params.torque_limit_nm)
 
 
 def test_two_controllers_head_on_form_the_same_mutual_pair():
-    sc = load_scenario(config_file("scenarios/paper.yaml"))
+    sc = load_scenario(config_file('scenarios/paper.yaml'))
     p = sc.robots[0].params
     a = RobotController(3, p, sc.control, sc.avoidance, (), team=3)
     b = RobotController(7, p, sc.control, sc.avoidance, (), team=7)
@@ -92,56 +139,68 @@ def test_two_controllers_head_on_form_the_same_mutual_pair():
     xb = np.array([0.2, 0.0, math.pi, 0.05, 0.0])
     oa = a.step(5.0, xa, neighbours={7: NeighbourState(xb, team=7)})
     ob = b.step(5.0, xb, neighbours={3: NeighbourState(xa, team=3)})
-    assert (oa.mode, oa.target, oa.direction) == ("mutual", "robot_7", "ccw")
-    assert (ob.mode, ob.target, ob.direction) == ("mutual", "robot_3", "ccw")
+    assert (oa.mode, oa.target, oa.direction) == ('mutual', 'robot_7', 'ccw')
+    assert (ob.mode, ob.target, ob.direction) == ('mutual', 'robot_3', 'ccw')
     np.testing.assert_allclose(a._state.wc[0], b._state.wc[0], atol=1e-12)
 
 
 def test_assignment_overrides_robot_decision_and_bad_input_is_named():
-    sc = load_scenario(config_file("scenarios/paper.yaml"))
+    sc = load_scenario(config_file('scenarios/paper.yaml'))
     p = sc.robots[0].params
     c = RobotController(1, p, sc.control, sc.avoidance, (), team=1)
     far = NeighbourState(np.array([3.0, 3.0, 0.0, 0.0, 0.0]), team=2)
-    out = c.step(1.0, np.zeros(5), neighbours={2: far},
-                 assignment=EncounterAssignment("yield", 2, direction=-1.0))
-    assert (out.mode, out.target, out.direction) == ("yield", "robot_2", "cw")
-    with pytest.raises(ValueError, match="own_state"):
+    out = c.step(
+        1.0,
+        np.zeros(5),
+        neighbours={2: far},
+        assignment=EncounterAssignment('yield', 2, direction=-1.0),
+    )
+    assert (out.mode, out.target, out.direction) == ('yield', 'robot_2', 'cw')
+    with pytest.raises(ValueError, match='own_state'):
         c.step(1.01, np.array([np.nan, 0, 0, 0, 0]))
-    with pytest.raises(ValueError, match="mode"):
-        EncounterAssignment("dance", 2)
+    with pytest.raises(ValueError, match='mode'):
+        EncounterAssignment('dance', 2)
 
 
 def test_per_robot_controllers_on_the_plant_twin_reproduce_the_simulators_mode_events():
     """Moved from test_robot_law.py: RobotController at 100 Hz, closed robot by robot on the plant
     twin, gives the simulator's mode events (enter/exit O1 within 50 ms) and final errors on the
-    shortened paper scenario, with torques within the limit."""
+    shortened paper scenario, with torques within the limit.
+    """
     from pathlib import Path
 
     from ament_formation.core.twin import PlantTwin
 
-    sc = load_scenario(Path(__file__).resolve().parent / "data" / "paper_short.yaml")
+    sc = load_scenario(Path(__file__).resolve().parent / 'data' / 'paper_short.yaml')
     ref = simulate(sc, dt_s=0.001)
     twin = PlantTwin(sc)
     twin.start()
     r0, r1 = sc.robot(0), sc.robot(1)
-    c0 = RobotController(0, r0.params, sc.control, sc.avoidance, sc.obstacles, leader_path=r0.path, team=0)
+    c0 = RobotController(
+        0, r0.params, sc.control, sc.avoidance, sc.obstacles, leader_path=r0.path, team=0
+    )
     c1 = RobotController(1, r1.params, sc.control, sc.avoidance, sc.obstacles, team=0)
     c1.set_graph(0, (0.0, 1.2), 0, (0.0, 1.2))
     ev0, ev1, peak = [], [], 0.0
     for k in range(int(round(sc.duration_s / 0.01))):
         t = 0.01 * k
         o0 = c0.step(t, twin.state[0], neighbours={1: NeighbourState(twin.state[1], team=0)})
-        lead = NeighbourState(twin.state[0], o0.accel_cmd_mps2, team=0, mode=o0.mode, target=o0.target)
+        lead = NeighbourState(
+            twin.state[0], o0.accel_cmd_mps2, team=0, mode=o0.mode, target=o0.target
+        )
         o1 = c1.step(t, twin.state[1], parent=lead, original_parent=lead)
         ev0.extend(o0.events)
         ev1.extend(o1.events)
         tau = np.array([o0.torque_nm, o1.torque_nm])
         peak = max(peak, float(np.max(np.abs(tau))))
         twin.advance(0.01, tau)
-    ref_ev = [e for e in ref.mode_events if e["robot"] == 0]
-    assert [(e["event"], e["target"]) for e in ev0] == [(e["event"], e["target"]) for e in ref_ev] \
-        == [("enter", "O1"), ("exit", "O1")]
-    assert all(abs(a["t_s"] - b["t_s"]) <= 0.05 for a, b in zip(ev0, ref_ev))   # 100 Hz vs 1 kHz
+    ref_ev = [e for e in ref.mode_events if e['robot'] == 0]
+    assert (
+        [(e['event'], e['target']) for e in ev0]
+        == [(e['event'], e['target']) for e in ref_ev]
+        == [('enter', 'O1'), ('exit', 'O1')]
+    )
+    assert all(abs(a['t_s'] - b['t_s']) <= 0.05 for a, b in zip(ev0, ref_ev))  # 100 Hz vs 1 kHz
     assert ev1 == []
     err_lead = np.hypot(*(twin.state[0, :2] - r0.path.reference(sc.duration_s)[0]))
     err_fol = np.hypot(*(twin.state[1, :2] - twin.state[0, :2] - [0.0, 1.2]))
@@ -152,59 +211,82 @@ def test_per_robot_controllers_on_the_plant_twin_reproduce_the_simulators_mode_e
 def test_release_ends_an_assigned_encounter_but_never_inside_the_emergency_circle():
     """The coordinator withdraws a mutual assignment (its joint exit, S8.3): ``release`` ends the
     encounter at once (event, S8.4 cool-down record) -- but not while the robot is inside the
-    partner's emergency circle (h_em < 0: rho_em R_aa = 1.05 * 0.25 m), where it stays."""
-    sc = load_scenario(config_file("scenarios/paper.yaml"))
+    partner's emergency circle (h_em < 0: rho_em R_aa = 1.05 * 0.25 m), where it stays.
+    """
+    sc = load_scenario(config_file('scenarios/paper.yaml'))
     p = sc.robots[0].params
     c = RobotController(3, p, sc.control, sc.avoidance, (), team=3)
-    mutual = EncounterAssignment("mutual", 7, t_entry_s=1.0, drift_mps=(0.0, 0.0))
+    mutual = EncounterAssignment('mutual', 7, t_entry_s=1.0, drift_mps=(0.0, 0.0))
     me = np.array([0.0, 0.0, 0.0, 0.0, 0.0])
-    close = NeighbourState(np.array([0.25, 0.0, np.pi, 0.0, 0.0]), team=7, mode="mutual", target="robot_3")
+    close = NeighbourState(
+        np.array([0.25, 0.0, np.pi, 0.0, 0.0]), team=7, mode='mutual', target='robot_3'
+    )
     out = c.step(1.0, me, neighbours={7: close}, assignment=mutual)
-    assert (out.mode, out.target) == ("mutual", "robot_7")
+    assert (out.mode, out.target) == ('mutual', 'robot_7')
     # inside E (0.25 m < 0.2625 m): the release is refused, the robot stays in the pair
     out = c.step(1.01, me, neighbours={7: close}, release=7)
-    assert (out.mode, out.target) == ("mutual", "robot_7") and out.events == ()
+    assert (out.mode, out.target) == ('mutual', 'robot_7') and out.events == ()
     # a release naming another robot is ignored
-    far = NeighbourState(np.array([0.27, 0.0, np.pi, 0.0, 0.0]), team=7, mode="mutual", target="robot_3")
-    out = c.step(1.02, me, neighbours={7: far, 9: NeighbourState(np.array([5.0, 5, 0, 0, 0]))}, release=9)
-    assert out.mode == "mutual"
+    far = NeighbourState(
+        np.array([0.27, 0.0, np.pi, 0.0, 0.0]), team=7, mode='mutual', target='robot_3'
+    )
+    out = c.step(
+        1.02, me, neighbours={7: far, 9: NeighbourState(np.array([5.0, 5, 0, 0, 0]))}, release=9
+    )
+    assert out.mode == 'mutual'
     # just outside E (0.27 m): it leaves, with an exit event and the robot cool-down record
     out = c.step(1.03, me, neighbours={7: far}, release=7)
-    assert (out.mode, out.target, out.direction) == ("coordination", None, None)
-    assert [(e["event"], e["mode"], e["target"]) for e in out.events] == [("exit", "mutual", "robot_7")]
+    assert (out.mode, out.target, out.direction) == ('coordination', None, None)
+    assert [(e['event'], e['mode'], e['target']) for e in out.events] == [
+        ('exit', 'mutual', 'robot_7')
+    ]
     assert (c._state.last_kind[0], c._state.last_tgt[0], c._state.last_exit[0]) == (2, 7, 1.03)
     # the same withdrawn assignment is not re-entered from a stale copy in the same decision
     c2 = RobotController(3, p, sc.control, sc.avoidance, (), team=3)
     c2.step(1.0, me, neighbours={7: close}, assignment=mutual)
     out = c2.step(1.03, me, neighbours={7: far}, assignment=mutual, release=7)
-    assert out.mode == "coordination"      # left at this decision: not re-entered from the copy
-    assert [e["event"] for e in out.events] == ["exit"]
+    assert out.mode == 'coordination'  # left at this decision: not re-entered from the copy
+    assert [e['event'] for e in out.events] == ['exit']
 
 
 def test_neighbour_goal_feeds_the_partners_side_of_the_exit_test():
     """The partner's goal (``goal_m``) enters its side of the joint S8.3 exit test: a partner
     that has moved away but whose goal lies beyond this robot (segment [p_k, g_k] crosses the
-    robot's circle, item 1) keeps the pair; with its goal unknown (= its position) the pair exits."""
-    sc = load_scenario(config_file("scenarios/paper.yaml"))
+    robot's circle, item 1) keeps the pair; with its goal unknown (= its position) the pair exits.
+    """
+    sc = load_scenario(config_file('scenarios/paper.yaml'))
     p = sc.robots[0].params
 
     def run(with_goal: bool):
-        c = RobotController(0, p, sc.control, sc.avoidance, (), team=0,
-                            leader_path=sc.robots[0].path)
+        c = RobotController(
+            0, p, sc.control, sc.avoidance, (), team=0, leader_path=sc.robots[0].path
+        )
         r, rd, _ = sc.robots[0].path.reference(5.0)
         # me at my goal, moving along; partner 0.6 m behind me, moving away from me
         me = np.array([r[0], r[1], math.atan2(rd[1], rd[0]), float(np.hypot(*rd)), 0.0])
         back = -np.asarray(rd) / np.hypot(*rd)
-        xk = np.array([r[0] + 0.6 * back[0], r[1] + 0.6 * back[1], math.atan2(back[1], back[0]), 0.08, 0.0])
-        goal = (r - 2.0 * back) if with_goal else None          # 2 m beyond me
-        nb = NeighbourState(xk, team=5, mode="mutual", target="robot_0",
-                            goal_m=goal, goal_dot_mps=None if goal is None else np.zeros(2))
-        c.step(3.0, me, neighbours={5: nb}, assignment=EncounterAssignment("mutual", 5, t_entry_s=3.0))
-        return [c.step(3.0 + 0.01 * k, me, neighbours={5: nb}).mode   # T_min 1 s, T_dwell 0.3 s
-                for k in range(1, 160)]
+        xk = np.array(
+            [r[0] + 0.6 * back[0], r[1] + 0.6 * back[1], math.atan2(back[1], back[0]), 0.08, 0.0]
+        )
+        goal = (r - 2.0 * back) if with_goal else None  # 2 m beyond me
+        nb = NeighbourState(
+            xk,
+            team=5,
+            mode='mutual',
+            target='robot_0',
+            goal_m=goal,
+            goal_dot_mps=None if goal is None else np.zeros(2),
+        )
+        c.step(
+            3.0, me, neighbours={5: nb}, assignment=EncounterAssignment('mutual', 5, t_entry_s=3.0)
+        )
+        return [
+            c.step(3.0 + 0.01 * k, me, neighbours={5: nb}).mode  # T_min 1 s, T_dwell 0.3 s
+            for k in range(1, 160)
+        ]
 
     with_goal, without = run(True), run(False)
-    assert without[-1] == "coordination" and "coordination" not in without[:95]   # not before T_min
-    assert set(with_goal) == {"mutual"}
-    with pytest.raises(Exception, match="goal_m"):
+    assert without[-1] == 'coordination' and 'coordination' not in without[:95]  # not before T_min
+    assert set(with_goal) == {'mutual'}
+    with pytest.raises(Exception, match='goal_m'):
         NeighbourState(np.zeros(5), goal_m=(np.nan, 0.0))

@@ -1,6 +1,8 @@
 """What a controller hears (issue "Robots as separate hosts"): full-rate state/accel of its parents
 and of the robots within hearing range only (range from the camera poses, S7), so per-robot traffic
-grows linearly with the team instead of every robot hearing every robot at 100 Hz."""
+grows linearly with the team instead of every robot hearing every robot at 100 Hz.
+"""
+
 from __future__ import annotations
 
 import numpy as np
@@ -14,53 +16,82 @@ from ament_formation.ros.qos import QOS_CONTROL
 
 def _scenario(tmp_path):
     """Leader 0, followers 1 and 2 of it, 2 m apart (far outside each other's S7 region Q)."""
-    robots = [{"id": 0, "leader": True, "slot_m": [0.0, 0.0], "initial_pose": [0.0, 0.0, 0.0],
-               "path": {"type": "line", "start_m": [0.0, 0.0], "heading_rad": 0.0, "speed_mps": 0.05}},
-              {"id": 1, "slot_m": [0.0, 1.0], "initial_pose": [0.0, 1.0, 0.0]},
-              {"id": 2, "slot_m": [0.0, -1.0], "initial_pose": [0.0, -1.0, 0.0]}]
-    path = tmp_path / "three.yaml"
-    path.write_text(yaml.safe_dump({"name": "three", "duration_s": 10.0, "robots": robots,
-                                    "graph": {"edges": [[0, 1], [0, 2]]}}, sort_keys=False))
+    robots = [
+        {
+            'id': 0,
+            'leader': True,
+            'slot_m': [0.0, 0.0],
+            'initial_pose': [0.0, 0.0, 0.0],
+            'path': {'type': 'line', 'start_m': [0.0, 0.0], 'heading_rad': 0.0, 'speed_mps': 0.05},
+        },
+        {'id': 1, 'slot_m': [0.0, 1.0], 'initial_pose': [0.0, 1.0, 0.0]},
+        {'id': 2, 'slot_m': [0.0, -1.0], 'initial_pose': [0.0, -1.0, 0.0]},
+    ]
+    path = tmp_path / 'three.yaml'
+    path.write_text(
+        yaml.safe_dump(
+            {
+                'name': 'three',
+                'duration_s': 10.0,
+                'robots': robots,
+                'graph': {'edges': [[0, 1], [0, 2]]},
+            },
+            sort_keys=False,
+        )
+    )
     return path
 
 
-@pytest.mark.parametrize("kind", ["single", "events"])
+@pytest.mark.parametrize('kind', ['single', 'events'])
 def test_controller_hears_parent_always_and_others_only_in_range(ros_context, tmp_path, kind):
     """Subscriptions made and dropped while spinning, under both executors the programs use."""
+    from geometry_msgs.msg import PoseStamped
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.experimental import EventsExecutor
-    from geometry_msgs.msg import PoseStamped
 
-    from ament_formation.nodes.controller import HEAR_HYSTERESIS_M, ControllerNode, ControllerParams
+    from ament_formation.nodes.controller import (
+        ControllerNode,
+        ControllerParams,
+        HEAR_HYSTERESIS_M,
+    )
 
-    ctl = ControllerNode(context=ros_context, namespace="/robot_1",
-                         params=ControllerParams(scenario=str(_scenario(tmp_path)), robot_id=1))
-    pub_node = rclpy.create_node("_hearing_probe", context=ros_context)
-    pose_pub = pub_node.create_publisher(PoseStamped, "/robot_2/pose", QOS_CONTROL)
-    state_pub = pub_node.create_publisher(m.Odometry, "/robot_2/state", QOS_CONTROL)
-    executor = (SingleThreadedExecutor if kind == "single" else EventsExecutor)(context=ros_context)
+    ctl = ControllerNode(
+        context=ros_context,
+        namespace='/robot_1',
+        params=ControllerParams(scenario=str(_scenario(tmp_path)), robot_id=1),
+    )
+    pub_node = rclpy.create_node('_hearing_probe', context=ros_context)
+    pose_pub = pub_node.create_publisher(PoseStamped, '/robot_2/pose', QOS_CONTROL)
+    state_pub = pub_node.create_publisher(m.Odometry, '/robot_2/state', QOS_CONTROL)
+    executor = (SingleThreadedExecutor if kind == 'single' else EventsExecutor)(
+        context=ros_context
+    )
     executor.add_node(ctl)
     executor.add_node(pub_node)
     try:
         parent, other = ctl.neighbours[0], ctl.neighbours[2]
-        assert len(parent.subs) == 2 and other.subs == []          # pi0 at full rate, robot 2 not
+        assert len(parent.subs) == 2 and other.subs == []  # pi0 at full rate, robot 2 not
         reach = ctl._hear_range_m[2]
-        # S7: Q of robot 2 seen by robot 1 is kappa (R1 + R2 + margin) = 1.8 * 0.25 m; plus the margin
+        # S7: Q of robot 2 seen by robot 1 is kappa (R1 + R2 + margin) = 1.8 * 0.25 m; plus the
+        # margin
         assert reach == np.float64(1.8 * 0.25 + ctl.prm.hear_margin_m)
         ctl._own_xy = (0.0, 1.0)
 
         def pose(y):
             msg = PoseStamped()
-            msg.header.frame_id = "world"
+            msg.header.frame_id = 'world'
             msg.header.stamp = m.stamp_from_s(ctl.now_s())
             msg.pose.position.y = float(y)
             msg.pose.orientation.w = 1.0
             return msg
 
         def state():
-            return m.odometry(np.array([0.0, 1.0 - reach + 0.1, 0.0, 0.05, 0.0]),
-                              m.stamp_from_s(ctl.now_s()), "robot_2")
+            return m.odometry(
+                np.array([0.0, 1.0 - reach + 0.1, 0.0, 0.05, 0.0]),
+                m.stamp_from_s(ctl.now_s()),
+                'robot_2',
+            )
 
         # far: never heard at full rate, whatever it publishes
         for _ in range(5):
@@ -69,7 +100,11 @@ def test_controller_hears_parent_always_and_others_only_in_range(ros_context, tm
             executor.spin_once(timeout_sec=0.02)
         assert other.subs == [] and other.state is None
         # its camera pose comes within range: state heard from then on
-        assert spin_until(executor, lambda: (pose_pub.publish(pose(1.0 - reach + 0.1)), bool(other.subs))[1], 10.0)
+        assert spin_until(
+            executor,
+            lambda: (pose_pub.publish(pose(1.0 - reach + 0.1)), bool(other.subs))[1],
+            10.0,
+        )
 
         def heard():
             state_pub.publish(state())
@@ -82,10 +117,15 @@ def test_controller_hears_parent_always_and_others_only_in_range(ros_context, tm
             pose_pub.publish(pose(1.0 - reach - 0.5 * HEAR_HYSTERESIS_M))
             executor.spin_once(timeout_sec=0.02)
         assert other.subs
-        assert spin_until(executor, lambda: (pose_pub.publish(pose(1.0 - reach - 2 * HEAR_HYSTERESIS_M)),
-                                             not other.subs)[1], 10.0)
-        assert other.state is None                                   # no longer used
-        assert len(parent.subs) == 2                                 # the parent stays heard
+        assert spin_until(
+            executor,
+            lambda: (pose_pub.publish(pose(1.0 - reach - 2 * HEAR_HYSTERESIS_M)), not other.subs)[
+                1
+            ],
+            10.0,
+        )
+        assert other.state is None  # no longer used
+        assert len(parent.subs) == 2  # the parent stays heard
     finally:
         for n in (ctl, pub_node):
             executor.remove_node(n)
@@ -96,8 +136,11 @@ def test_controller_hears_parent_always_and_others_only_in_range(ros_context, tm
 def test_hear_all_subscribes_every_robot(ros_context, tmp_path):
     from ament_formation.nodes.controller import ControllerNode, ControllerParams
 
-    ctl = ControllerNode(context=ros_context, namespace="/robot_1",
-                         params=ControllerParams(scenario=str(_scenario(tmp_path)), robot_id=1, hear_all=True))
+    ctl = ControllerNode(
+        context=ros_context,
+        namespace='/robot_1',
+        params=ControllerParams(scenario=str(_scenario(tmp_path)), robot_id=1, hear_all=True),
+    )
     try:
         assert all(len(nb.subs) == 2 for nb in ctl.neighbours.values())
     finally:

@@ -1,5 +1,7 @@
 """formation_coordinator in-process: mission start, S9 rewiring on /formation/graph, markers that
-replace and delete as a viewer sees them, diagnostics."""
+replace and delete as a viewer sees them, diagnostics.
+"""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -10,7 +12,7 @@ from ament_formation.ros import messages as m
 from ament_formation.ros.executors import spin_until
 from ament_formation.ros.qos import QOS_CONTROL, QOS_GRAPH, QOS_MARKERS
 
-DATA = Path(__file__).resolve().parent / "data"
+DATA = Path(__file__).resolve().parent / 'data'
 
 
 def test_redundant_edge_rewiring_seen_on_graph(ros_context, executor):
@@ -20,55 +22,73 @@ def test_redundant_edge_rewiring_seen_on_graph(ros_context, executor):
 
     from ament_formation.nodes.coordinator import CoordinatorNode, CoordinatorParams
 
-    coord = CoordinatorNode(context=ros_context, params=CoordinatorParams(
-        scenario=str(DATA / "redundant_chain.yaml"), start_delay_s=0.5, markers_rate_hz=20.0))
-    fake = rclpy.create_node("fake_controllers", context=ros_context)
-    state_pubs = {i: fake.create_publisher(m.Odometry, f"/robot_{i}/state", QOS_CONTROL) for i in range(4)}
-    mode_pubs = {i: fake.create_publisher(String, f"/robot_{i}/mode", QOS_CONTROL) for i in range(4)}
+    coord = CoordinatorNode(
+        context=ros_context,
+        params=CoordinatorParams(
+            scenario=str(DATA / 'redundant_chain.yaml'), start_delay_s=0.5, markers_rate_hz=20.0
+        ),
+    )
+    fake = rclpy.create_node('fake_controllers', context=ros_context)
+    state_pubs = {
+        i: fake.create_publisher(m.Odometry, f'/robot_{i}/state', QOS_CONTROL) for i in range(4)
+    }
+    mode_pubs = {
+        i: fake.create_publisher(String, f'/robot_{i}/mode', QOS_CONTROL) for i in range(4)
+    }
     graphs: list[m.GraphMessage] = []
     markers: list = []
-    fake.create_subscription(String, "/formation/graph", lambda msg: graphs.append(m.graph_from_msg(msg)),
-                             QOS_GRAPH)
-    fake.create_subscription(MarkerArray, "/formation/markers", markers.append, QOS_MARKERS)
+    fake.create_subscription(
+        String, '/formation/graph', lambda msg: graphs.append(m.graph_from_msg(msg)), QOS_GRAPH
+    )
+    fake.create_subscription(MarkerArray, '/formation/markers', markers.append, QOS_MARKERS)
     executor.add_node(coord)
     executor.add_node(fake)
 
-    assert spin_until(executor, lambda: graphs and all(p.get_subscription_count() for p in state_pubs.values())
-                      and all(p.get_subscription_count() for p in mode_pubs.values()), 10.0)
+    assert spin_until(
+        executor,
+        lambda: (
+            graphs
+            and all(p.get_subscription_count() for p in state_pubs.values())
+            and all(p.get_subscription_count() for p in mode_pubs.values())
+        ),
+        10.0,
+    )
     first = graphs[-1]
     assert first.start_s is None
     assert first.parents == {0: None, 1: 0, 2: 1, 3: 0}
-    assert first.offsets_m[2] == pytest.approx((-0.5, -0.5))   # c_2 - c_1
+    assert first.offsets_m[2] == pytest.approx((-0.5, -0.5))  # c_2 - c_1
 
     # not every controller is up: no start yet
     for i in (0, 1, 2):
-        state_pubs[i].publish(m.odometry([0, 0, 0, 0, 0], m.stamp_from_s(1.0), f"robot_{i}"))
+        state_pubs[i].publish(m.odometry([0, 0, 0, 0, 0], m.stamp_from_s(1.0), f'robot_{i}'))
     assert spin_until(executor, lambda: len(coord.states) == 3, 5.0)
     assert coord.start_s is None
-    state_pubs[3].publish(m.odometry([0, 0, 0, 0, 0], m.stamp_from_s(1.0), "robot_3"))
+    state_pubs[3].publish(m.odometry([0, 0, 0, 0, 0], m.stamp_from_s(1.0), 'robot_3'))
     assert spin_until(executor, lambda: graphs[-1].start_s is not None, 5.0)
     started = graphs[-1]
-    assert 0.3 < started.start_s - started.stamp_s <= 0.5  # start_delay_s after the last robot came up
+    assert (
+        0.3 < started.start_s - started.stamp_s <= 0.5
+    )  # start_delay_s after the last robot came up
 
     def latest_with(pred):
         return spin_until(executor, lambda: bool(graphs) and pred(graphs[-1]), 5.0)
 
     # robot 1 (the middle of the chain 0 -> 1 -> 2) starts avoiding: 2 is re-parented to 3 (S9)
-    mode_pubs[1].publish(m.mode_msg("obstacle", "O1", "ccw", avoiding=True))
+    mode_pubs[1].publish(m.mode_msg('obstacle', 'O1', 'ccw', avoiding=True))
     assert latest_with(lambda g: g.avoiding == (1,))
     avoid = graphs[-1]
     assert avoid.revision == started.revision + 1
     assert avoid.parents == {0: None, 1: None, 2: 3, 3: 0}
-    assert avoid.offsets_m[2] == pytest.approx((-0.5, 0.5))    # c_2 - c_3
+    assert avoid.offsets_m[2] == pytest.approx((-0.5, 0.5))  # c_2 - c_3
     assert avoid.start_s == started.start_s
 
     # a mode message that does not change the avoiding set does not make a new revision
-    mode_pubs[0].publish(m.mode_msg("coordination", avoiding=False))
+    mode_pubs[0].publish(m.mode_msg('coordination', avoiding=False))
     spin_until(executor, lambda: coord.modes.get(0) is not None, 5.0)
     assert coord.revision == avoid.revision
 
     # robot 1 exits: the original tree is restored (S9 step 6)
-    mode_pubs[1].publish(m.mode_msg("coordination", avoiding=False))
+    mode_pubs[1].publish(m.mode_msg('coordination', avoiding=False))
     assert latest_with(lambda g: g.avoiding == ())
     restored = graphs[-1]
     assert restored.revision == avoid.revision + 1
@@ -78,13 +98,21 @@ def test_redundant_edge_rewiring_seen_on_graph(ros_context, executor):
     # arrow; they published a state within ROBOT_SILENT_S), one arrow per edge of the original tree
     # (an array already in flight at the restoration may still show the pruned tree)
     def edges(arr):
-        return sorted(mk.id for mk in arr.markers if mk.ns == "graph_edges" and mk.action == mk.ADD)
+        return sorted(
+            mk.id for mk in arr.markers if mk.ns == 'graph_edges' and mk.action == mk.ADD
+        )
 
     for i in range(4):
-        state_pubs[i].publish(m.odometry([0.1 * i, 0, 0, 0, 0], m.stamp_from_s(2.0), f"robot_{i}"))
+        state_pubs[i].publish(m.odometry([0.1 * i, 0, 0, 0, 0], m.stamp_from_s(2.0), f'robot_{i}'))
     n_before = len(markers)
-    assert spin_until(executor, lambda: any(sum(mk.action == mk.ADD for mk in a.markers) == 3 + 8 + 3
-                                            and edges(a) == [1, 2, 3] for a in markers[n_before:]), 5.0)
+    assert spin_until(
+        executor,
+        lambda: any(
+            sum(mk.action == mk.ADD for mk in a.markers) == 3 + 8 + 3 and edges(a) == [1, 2, 3]
+            for a in markers[n_before:]
+        ),
+        5.0,
+    )
     fake.destroy_node()
     coord.destroy_node()
 
@@ -93,20 +121,21 @@ def test_bad_parameters_name_the_field():
     from ament_formation.core.errors import ConfigError
     from ament_formation.nodes.coordinator import CoordinatorParams
 
-    with pytest.raises(ConfigError, match="scenario"):
+    with pytest.raises(ConfigError, match='scenario'):
         CoordinatorParams()
-    with pytest.raises(ConfigError, match="start_delay_s"):
-        CoordinatorParams(scenario="x.yaml", start_delay_s=-1.0)
+    with pytest.raises(ConfigError, match='start_delay_s'):
+        CoordinatorParams(scenario='x.yaml', start_delay_s=-1.0)
 
 
 class MarkerViewer:
     """What RViz/Foxglove hold after a sequence of MarkerArrays: ADD replaces (ns, id), DELETE
     removes it, DELETEALL removes everything; a marker with a lifetime expires that long after it
-    was received (``now_s``: receive time [s])."""
+    was received (``now_s``: receive time [s]).
+    """
 
     def __init__(self):
-        self.live: dict[tuple[str, int], float] = {}     # (ns, id) -> expiry [s] (inf: none)
-        self.actions = {"add": 0, "delete": 0, "deleteall": 0}
+        self.live: dict[tuple[str, int], float] = {}  # (ns, id) -> expiry [s] (inf: none)
+        self.actions = {'add': 0, 'delete': 0, 'deleteall': 0}
         self.max_adds_per_array = 0
 
     def apply(self, arr, now_s: float) -> None:
@@ -116,14 +145,14 @@ class MarkerViewer:
         for mk in arr.markers:
             if mk.action == Marker.DELETEALL:
                 self.live.clear()
-                self.actions["deleteall"] += 1
+                self.actions['deleteall'] += 1
             elif mk.action == Marker.DELETE:
                 self.live.pop((mk.ns, mk.id), None)
-                self.actions["delete"] += 1
+                self.actions['delete'] += 1
             else:
                 life = mk.lifetime.sec + mk.lifetime.nanosec * 1e-9
-                self.live[(mk.ns, mk.id)] = now_s + life if life > 0 else float("inf")
-                self.actions["add"] += 1
+                self.live[(mk.ns, mk.id)] = now_s + life if life > 0 else float('inf')
+                self.actions['add'] += 1
                 adds += 1
         self.max_adds_per_array = max(self.max_adds_per_array, adds)
 
@@ -132,33 +161,52 @@ class MarkerViewer:
 
 
 def expected_markers(robots, edge_children, obstacles=1):
-    keys = {(f"ellipse_{s}", j) for s in "PLQ" for j in range(obstacles)}
-    keys |= {("robots", i) for i in robots} | {("headings", i) for i in robots}
-    return keys | {("graph_edges", c) for c in edge_children}
+    keys = {(f'ellipse_{s}', j) for s in 'PLQ' for j in range(obstacles)}
+    keys |= {('robots', i) for i in robots} | {('headings', i) for i in robots}
+    return keys | {('graph_edges', c) for c in edge_children}
 
 
 def test_markers_replace_and_delete_over_a_run(ros_context, executor):
     """A run in three layouts (all robots; robot 1 avoiding, the graph re-parents 2 under 3;
-    robot 3 silent): the viewer always shows exactly the live objects, never more."""
+    robot 3 silent): the viewer always shows exactly the live objects, never more.
+    """
     import time
 
     import rclpy
     from visualization_msgs.msg import MarkerArray
 
-    from ament_formation.nodes.coordinator import ROBOT_SILENT_S, CoordinatorNode, CoordinatorParams
+    from ament_formation.nodes.coordinator import (
+        CoordinatorNode,
+        CoordinatorParams,
+        ROBOT_SILENT_S,
+    )
 
-    coord = CoordinatorNode(context=ros_context, params=CoordinatorParams(
-        scenario=str(DATA / "redundant_chain.yaml"), start_delay_s=0.0, markers_rate_hz=20.0,
-        encounter_rate_hz=0.0))
-    fake = rclpy.create_node("fake_controllers", context=ros_context)
+    coord = CoordinatorNode(
+        context=ros_context,
+        params=CoordinatorParams(
+            scenario=str(DATA / 'redundant_chain.yaml'),
+            start_delay_s=0.0,
+            markers_rate_hz=20.0,
+            encounter_rate_hz=0.0,
+        ),
+    )
+    fake = rclpy.create_node('fake_controllers', context=ros_context)
     from std_msgs.msg import String
 
-    state_pubs = {i: fake.create_publisher(m.Odometry, f"/robot_{i}/state", QOS_CONTROL) for i in range(4)}
-    mode_pub = fake.create_publisher(String, "/robot_1/mode", QOS_CONTROL)
+    state_pubs = {
+        i: fake.create_publisher(m.Odometry, f'/robot_{i}/state', QOS_CONTROL) for i in range(4)
+    }
+    mode_pub = fake.create_publisher(String, '/robot_1/mode', QOS_CONTROL)
     alive = {0, 1, 2, 3}
-    fake.create_timer(0.05, lambda: [state_pubs[i].publish(m.odometry([0.3 * i, 0.1, 0, 0, 0],
-                                                                      m.stamp_from_s(1.0), f"robot_{i}"))
-                                     for i in sorted(alive)])
+    fake.create_timer(
+        0.05,
+        lambda: [
+            state_pubs[i].publish(
+                m.odometry([0.3 * i, 0.1, 0, 0, 0], m.stamp_from_s(1.0), f'robot_{i}')
+            )
+            for i in sorted(alive)
+        ],
+    )
     viewer = MarkerViewer()
     arrays = []
 
@@ -169,7 +217,7 @@ def test_markers_replace_and_delete_over_a_run(ros_context, executor):
         # never more than the objects of the scenario on screen (3 ellipses, 4 robots x 2, 3 edges)
         assert len(viewer.shown(now)) <= 3 + 8 + 3
 
-    fake.create_subscription(MarkerArray, "/formation/markers", on_markers, QOS_MARKERS)
+    fake.create_subscription(MarkerArray, '/formation/markers', on_markers, QOS_MARKERS)
     executor.add_node(coord)
     executor.add_node(fake)
 
@@ -179,7 +227,7 @@ def test_markers_replace_and_delete_over_a_run(ros_context, executor):
     assert shows(expected_markers(range(4), [1, 2, 3])), viewer.shown(time.monotonic())
     # robot 1 avoids: edge 0 -> 1 goes, 2 is re-parented to 3 (same marker id 2, new end points)
     assert spin_until(executor, lambda: mode_pub.get_subscription_count() > 0, 5.0)
-    mode_pub.publish(m.mode_msg("obstacle", "O1", "ccw", avoiding=True))
+    mode_pub.publish(m.mode_msg('obstacle', 'O1', 'ccw', avoiding=True))
     assert shows(expected_markers(range(4), [2, 3]))
     # robot 3 falls silent: its disc, heading and both edges touching it disappear
     alive.discard(3)
@@ -192,7 +240,7 @@ def test_markers_replace_and_delete_over_a_run(ros_context, executor):
     # subscription may miss one: the lifetimes then remove what it still shows)
     for arr in arrays:
         assert all(mk.action != mk.DELETEALL for mk in arr.markers[1:])
-    assert viewer.actions["deleteall"] >= 2, viewer.actions
+    assert viewer.actions['deleteall'] >= 2, viewer.actions
     # a DELETEALL exactly when the set of objects changes (checked on the arrays as built)
     now = coord.now_s()
 
@@ -201,17 +249,17 @@ def test_markers_replace_and_delete_over_a_run(ros_context, executor):
 
     coord.marker_array(now)
     assert not has_deleteall(coord.marker_array(now))
-    coord._heard_mono[0] = -1e9                        # robot 0 falls silent too
+    coord._heard_mono[0] = -1e9  # robot 0 falls silent too
     arr = coord.marker_array(now)
-    assert has_deleteall(arr) and ("robots", 0) not in {(mk.ns, mk.id) for mk in arr.markers}
+    assert has_deleteall(arr) and ('robots', 0) not in {(mk.ns, mk.id) for mk in arr.markers}
     assert not has_deleteall(coord.marker_array(now))
     assert viewer.max_adds_per_array <= 3 + 8 + 3
-    assert viewer.actions["add"] <= n * (3 + 8 + 3)
-    print(f"{n} arrays: {viewer.actions}")
+    assert viewer.actions['add'] <= n * (3 + 8 + 3)
+    print(f'{n} arrays: {viewer.actions}')
     # robot and edge markers expire when not re-sent; ellipses stay until replaced
     last = arrays[-1]
     lifetimes = {mk.ns: mk.lifetime.sec + mk.lifetime.nanosec * 1e-9 for mk in last.markers}
-    assert lifetimes["robots"] >= 1.0 and lifetimes["ellipse_P"] == 0.0
+    assert lifetimes['robots'] >= 1.0 and lifetimes['ellipse_P'] == 0.0
     fake.destroy_node()
     coord.destroy_node()
 
@@ -220,37 +268,52 @@ def test_diagnostics_of_the_coordinator(ros_context, executor):
     """Names '<node>: <component>', a bad mode payload counted (WARN), a stalled timer reported."""
     import time
 
-    import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
+    import rclpy
     from std_msgs.msg import String
 
     from ament_formation.nodes.coordinator import CoordinatorNode, CoordinatorParams
     from ament_formation.ros import diagnostics as diag
     from ament_formation.ros.qos import QOS_DIAGNOSTICS
 
-    coord = CoordinatorNode(context=ros_context, params=CoordinatorParams(
-        scenario=str(DATA / "redundant_chain.yaml"), start_delay_s=0.0, wait_for_robots=False))
-    probe = rclpy.create_node("probe", context=ros_context)
+    coord = CoordinatorNode(
+        context=ros_context,
+        params=CoordinatorParams(
+            scenario=str(DATA / 'redundant_chain.yaml'), start_delay_s=0.0, wait_for_robots=False
+        ),
+    )
+    probe = rclpy.create_node('probe', context=ros_context)
     statuses: dict[str, list] = {}
 
     def on_diag(arr):
         for st in arr.status:
             statuses.setdefault(st.name, []).append(st)
 
-    probe.create_subscription(DiagnosticArray, "/diagnostics", on_diag, QOS_DIAGNOSTICS)
-    mode_pub = probe.create_publisher(String, "/robot_2/mode", QOS_CONTROL)
+    probe.create_subscription(DiagnosticArray, '/diagnostics', on_diag, QOS_DIAGNOSTICS)
+    mode_pub = probe.create_publisher(String, '/robot_2/mode', QOS_CONTROL)
     executor.add_node(coord)
     executor.add_node(probe)
-    names = {"formation_coordinator: graph", "formation_coordinator: robots", "formation_coordinator: inputs",
-             "formation_coordinator: arbitration loop", "formation_coordinator: markers loop"}
+    names = {
+        'formation_coordinator: graph',
+        'formation_coordinator: robots',
+        'formation_coordinator: inputs',
+        'formation_coordinator: arbitration loop',
+        'formation_coordinator: markers loop',
+    }
     assert spin_until(executor, lambda: names <= set(statuses), 60.0), set(statuses)
 
     assert spin_until(executor, lambda: mode_pub.get_subscription_count() > 0, 5.0)
-    mode_pub.publish(String(data='{"mode": "obstacle"}'))      # no schema: rejected, counted
-    assert spin_until(executor, lambda: any(
-        diag.level_int(s.level) == diag.WARN and {kv.key: kv.value for kv in s.values}["rejected_mode"] == "1"
-        for s in statuses["formation_coordinator: inputs"]), 5.0)
-    assert coord.rejected["mode"] == 1
+    mode_pub.publish(String(data='{"mode": "obstacle"}'))  # no schema: rejected, counted
+    assert spin_until(
+        executor,
+        lambda: any(
+            diag.level_int(s.level) == diag.WARN
+            and {kv.key: kv.value for kv in s.values}['rejected_mode'] == '1'
+            for s in statuses['formation_coordinator: inputs']
+        ),
+        5.0,
+    )
+    assert coord.rejected['mode'] == 1
 
     # the executor is blocked for 0.3 s (15 arbitration periods): the stall is published at once
     # (the first arbitrations may load compiled kernels: wait until the loop runs steadily)
@@ -258,14 +321,14 @@ def test_diagnostics_of_the_coordinator(ros_context, executor):
     ticks0 = watch.ticks
     assert spin_until(executor, lambda: watch.ticks > ticks0 + 20, 120.0)
     stalls0 = watch.stalls
-    n_before = len(statuses["formation_coordinator: arbitration loop"])
+    n_before = len(statuses['formation_coordinator: arbitration loop'])
     blocker = probe.create_timer(0.05, lambda: (time.sleep(0.3), blocker.cancel()))
 
     def stall_seen():
-        for s in statuses["formation_coordinator: arbitration loop"][n_before:]:
+        for s in statuses['formation_coordinator: arbitration loop'][n_before:]:
             values = {kv.key: kv.value for kv in s.values}
-            if diag.level_int(s.level) == diag.WARN and int(values["stalls"]) > stalls0:
-                return float(values["last_stall_gap_s"])
+            if diag.level_int(s.level) == diag.WARN and int(values['stalls']) > stalls0:
+                return float(values['last_stall_gap_s'])
         return None
 
     assert spin_until(executor, lambda: stall_seen() is not None, 5.0)

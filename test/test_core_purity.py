@@ -1,9 +1,10 @@
 """core/ stays ROS-free: no rclpy, rosidl or message-package import anywhere in it."""
+
 import ast
 from pathlib import Path
 
-CORE = Path(__file__).resolve().parents[1] / "ament_formation" / "core"
-FORBIDDEN_PREFIXES = ("rclpy", "rosidl", "rmw", "launch", "builtin_interfaces")
+CORE = Path(__file__).resolve().parents[1] / 'ament_formation' / 'core'
+FORBIDDEN_PREFIXES = ('rclpy', 'rosidl', 'rmw', 'launch', 'builtin_interfaces')
 
 
 def _imported_modules(path: Path):
@@ -17,26 +18,28 @@ def _imported_modules(path: Path):
 
 
 def _is_forbidden(module: str) -> bool:
-    top = module.split(".")[0]
-    return top.startswith(FORBIDDEN_PREFIXES) or top.endswith("_msgs") or top.endswith("_interfaces")
+    top = module.split('.')[0]
+    return (
+        top.startswith(FORBIDDEN_PREFIXES) or top.endswith('_msgs') or top.endswith('_interfaces')
+    )
 
 
 def test_core_has_modules():
-    assert len(list(CORE.glob("*.py"))) >= 2
+    assert len(list(CORE.glob('*.py'))) >= 2
 
 
 def test_core_imports_no_ros():
     offenders = {
-        f"{path.name}: {module}"
-        for path in CORE.rglob("*.py")
+        f'{path.name}: {module}'
+        for path in CORE.rglob('*.py')
         for module in _imported_modules(path)
         if _is_forbidden(module)
     }
-    assert not offenders, f"ROS imports in core/: {sorted(offenders)}"
+    assert not offenders, f'ROS imports in core/: {sorted(offenders)}'
 
 
 def test_purity_check_detects_ros_imports(tmp_path):
-    probe = tmp_path / "probe.py"
-    probe.write_text("import rclpy\nfrom sensor_msgs.msg import Image\nimport numpy\n")
+    probe = tmp_path / 'probe.py'
+    probe.write_text('import rclpy\nfrom sensor_msgs.msg import Image\nimport numpy\n')
     found = [m for m in _imported_modules(probe) if _is_forbidden(m)]
-    assert found == ["rclpy", "sensor_msgs.msg"]
+    assert found == ['rclpy', 'sensor_msgs.msg']

@@ -1,10 +1,12 @@
 """/diagnostics (ros/diagnostics.py): stall detection with an injected clock, publication on change,
 the naming scheme, and node-level checks on the controller (a stalled executor is reported with its
-gap; a safety stop is published when it happens, at the level of the state)."""
+gap; a safety stop is published when it happens, at the level of the state).
+"""
+
 from __future__ import annotations
 
-import time
 from pathlib import Path
+import time
 
 import numpy as np
 import pytest
@@ -12,8 +14,8 @@ import pytest
 from ament_formation.ros import diagnostics as diag
 from ament_formation.ros.executors import spin_until
 
-DATA = Path(__file__).resolve().parent / "data"
-MS = 1_000_000   # [ns]
+DATA = Path(__file__).resolve().parent / 'data'
+MS = 1_000_000  # [ns]
 
 
 class FakeClock:
@@ -28,33 +30,39 @@ class FakeClock:
 def test_period_watch_counts_stalls_on_its_clock():
     clock = FakeClock()
     stalls = []
-    w = diag.PeriodWatch(0.01, clock, late_periods=3.0, min_late_s=0.0, warn_hold_s=5.0,
-                         on_stall=lambda watch: stalls.append(watch.last_gap_s))
+    w = diag.PeriodWatch(
+        0.01,
+        clock,
+        late_periods=3.0,
+        min_late_s=0.0,
+        warn_hold_s=5.0,
+        on_stall=lambda watch: stalls.append(watch.last_gap_s),
+    )
     rng = np.random.default_rng(3)
-    for _ in range(100):             # on time, with jitter up to 2.9 periods
+    for _ in range(100):  # on time, with jitter up to 2.9 periods
         w.tick()
         clock.t += int(rng.uniform(5, 29) * MS)
     assert w.stalls == 0 and w.status()[0] == diag.OK
-    assert w.status()[1] == "on time"
-    clock.t += 200 * MS               # the callback runs 0.2 s + one jitter late
+    assert w.status()[1] == 'on time'
+    clock.t += 200 * MS  # the callback runs 0.2 s + one jitter late
     assert w.tick() is True
     assert w.stalls == 1 and len(stalls) == 1 and 0.2 < stalls[0] < 0.23
     level, message, values = w.status()
-    assert level == diag.WARN and "stalled 0.2" in message and "1 stalls" in message
-    assert values["stalls"] == 1 and values["max_gap_s"] == pytest.approx(stalls[0])
-    for _ in range(600):              # 6 s on time: back to OK after warn_hold_s, the count stays
+    assert level == diag.WARN and 'stalled 0.2' in message and '1 stalls' in message
+    assert values['stalls'] == 1 and values['max_gap_s'] == pytest.approx(stalls[0])
+    for _ in range(600):  # 6 s on time: back to OK after warn_hold_s, the count stays
         clock.t += 10 * MS
         w.tick()
-    assert w.status()[0] == diag.OK and w.status()[1] == "on time (1 stalls so far)"
+    assert w.status()[0] == diag.OK and w.status()[1] == 'on time (1 stalls so far)'
 
 
 def test_period_watch_ignores_clock_start_and_jumps_back():
-    clock = FakeClock(0)              # sim time before the first /clock
+    clock = FakeClock(0)  # sim time before the first /clock
     w = diag.PeriodWatch(0.01, clock, min_late_s=0.0)
     w.tick()
-    clock.t = 5_000 * MS              # /clock arrives: not a stall
+    clock.t = 5_000 * MS  # /clock arrives: not a stall
     assert w.tick() is False
-    clock.t = 1_000 * MS              # time went backward (a replay restarted): not a stall
+    clock.t = 1_000 * MS  # time went backward (a replay restarted): not a stall
     assert w.tick() is False
     clock.t += 10 * MS
     assert w.tick() is False and w.stalls == 0
@@ -63,89 +71,104 @@ def test_period_watch_ignores_clock_start_and_jumps_back():
 def test_period_watch_reports_work_that_stopped_running():
     clock = FakeClock()
     w = diag.PeriodWatch(0.01, clock, warn_hold_s=5.0)
-    assert w.status() == (diag.OK, "not started", w.status()[2])
+    assert w.status() == (diag.OK, 'not started', w.status()[2])
     w.tick()
-    clock.t += 2_000 * MS             # no tick for 2 s (more than warn_hold_s / 5)
+    clock.t += 2_000 * MS  # no tick for 2 s (more than warn_hold_s / 5)
     level, message, _ = w.status()
-    assert level == diag.WARN and message.startswith("stalled: not run for 2")
+    assert level == diag.WARN and message.startswith('stalled: not run for 2')
 
 
 def test_period_watch_floor_and_validation():
     w = diag.PeriodWatch(0.002, FakeClock(), late_periods=3.0, min_late_s=0.02)
-    assert w.threshold_ns == 20 * MS          # 3 periods of a 500 Hz poll would be 6 ms
-    with pytest.raises(ValueError, match="period_s"):
+    assert w.threshold_ns == 20 * MS  # 3 periods of a 500 Hz poll would be 6 ms
+    with pytest.raises(ValueError, match='period_s'):
         diag.PeriodWatch(0.0, FakeClock())
-    with pytest.raises(ValueError, match="late_periods"):
+    with pytest.raises(ValueError, match='late_periods'):
         diag.PeriodWatch(0.01, FakeClock(), late_periods=1.0)
 
 
 def test_naming_helpers():
-    assert diag.status_name("formation_controller", "robot_3 control") == "formation_controller: robot_3 control"
-    assert diag.robot_of_namespace("/robot_3") == "robot_3"
-    assert diag.robot_of_namespace("/lab/robot_12/") == "robot_12"
-    assert diag.robot_of_namespace("/") is None and diag.robot_of_namespace("/robot_x") is None
-    st = diag.status("n: c", "robot_1", diag.ERROR, "m", {"t_s": 1796152600.1234, "x": 0.5})
-    assert diag.level_int(st.level) == diag.ERROR and diag.level_name(st.level) == "ERROR"
-    assert {kv.key: kv.value for kv in st.values} == {"t_s": "1796152600.123", "x": "0.5"}
+    assert (
+        diag.status_name('formation_controller', 'robot_3 control')
+        == 'formation_controller: robot_3 control'
+    )
+    assert diag.robot_of_namespace('/robot_3') == 'robot_3'
+    assert diag.robot_of_namespace('/lab/robot_12/') == 'robot_12'
+    assert diag.robot_of_namespace('/') is None and diag.robot_of_namespace('/robot_x') is None
+    st = diag.status('n: c', 'robot_1', diag.ERROR, 'm', {'t_s': 1796152600.1234, 'x': 0.5})
+    assert diag.level_int(st.level) == diag.ERROR and diag.level_name(st.level) == 'ERROR'
+    assert {kv.key: kv.value for kv in st.values} == {'t_s': '1796152600.123', 'x': '0.5'}
 
 
 # --------------------------------------------------------------------------- Diagnostics publisher
 def test_publishes_periodically_and_at_once_on_change(ros_context, executor):
-    import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
+    import rclpy
 
     from ament_formation.ros.qos import QOS_DIAGNOSTICS
 
-    node = rclpy.create_node("widget", namespace="/robot_4", context=ros_context)
-    state = {"level": diag.OK, "message": "fine", "n": 0}
-    d = diag.Diagnostics(node, period_s=30.0)          # the periodic publication is far away
-    d.add("robot_4 widget", lambda: (state["level"], state["message"], {"n": state["n"]}), hardware_id="robot_4")
-    probe = rclpy.create_node("probe", context=ros_context)
+    node = rclpy.create_node('widget', namespace='/robot_4', context=ros_context)
+    state = {'level': diag.OK, 'message': 'fine', 'n': 0}
+    d = diag.Diagnostics(node, period_s=30.0)  # the periodic publication is far away
+    d.add(
+        'robot_4 widget',
+        lambda: (state['level'], state['message'], {'n': state['n']}),
+        hardware_id='robot_4',
+    )
+    probe = rclpy.create_node('probe', context=ros_context)
     got = []
-    probe.create_subscription(DiagnosticArray, "/diagnostics", got.append, QOS_DIAGNOSTICS)
+    probe.create_subscription(DiagnosticArray, '/diagnostics', got.append, QOS_DIAGNOSTICS)
     executor.add_node(node)
     executor.add_node(probe)
     assert spin_until(executor, lambda: d.pub.get_subscription_count() > 0, 10.0)
 
-    assert d.changed() is True            # never published: published now
-    state["n"] = 5
-    assert d.changed() is False           # values alone do not make a change
-    state["level"], state["message"] = diag.ERROR, "broken"
+    assert d.changed() is True  # never published: published now
+    state['n'] = 5
+    assert d.changed() is False  # values alone do not make a change
+    state['level'], state['message'] = diag.ERROR, 'broken'
     assert d.changed() is True
     assert spin_until(executor, lambda: len(got) == 2, 5.0)
     st = got[-1].status[0]
     assert (st.name, st.hardware_id, diag.level_int(st.level), st.message) == (
-        "widget: robot_4 widget", "robot_4", diag.ERROR, "broken")
-    assert {kv.key: kv.value for kv in st.values} == {"n": "5"}
+        'widget: robot_4 widget',
+        'robot_4',
+        diag.ERROR,
+        'broken',
+    )
+    assert {kv.key: kv.value for kv in st.values} == {'n': '5'}
     node.destroy_node()
     probe.destroy_node()
 
 
-# --------------------------------------------------------------------------- node level: controller
+# --------------------------------------------------------------------------- node level:
+# controller
 @pytest.fixture
 def controller(ros_context, executor):
-    import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
+    import rclpy
 
     from ament_formation.nodes.controller import ControllerNode, ControllerParams
     from ament_formation.ros.qos import QOS_DIAGNOSTICS
 
-    ctrl = ControllerNode(context=ros_context, namespace="/robot_1",
-                          params=ControllerParams(scenario=str(DATA / "redundant_chain.yaml"), robot_id=1))
-    probe = rclpy.create_node("probe", context=ros_context)
+    ctrl = ControllerNode(
+        context=ros_context,
+        namespace='/robot_1',
+        params=ControllerParams(scenario=str(DATA / 'redundant_chain.yaml'), robot_id=1),
+    )
+    probe = rclpy.create_node('probe', context=ros_context)
     statuses: dict[str, list] = {}
 
     def on_diag(arr):
         for st in arr.status:
             statuses.setdefault(st.name, []).append((time.monotonic(), st))
 
-    probe.create_subscription(DiagnosticArray, "/diagnostics", on_diag, QOS_DIAGNOSTICS)
+    probe.create_subscription(DiagnosticArray, '/diagnostics', on_diag, QOS_DIAGNOSTICS)
     executor.add_node(ctrl)
     executor.add_node(probe)
-    names = {f"formation_controller: robot_1 {c}" for c in ("control", "control loop", "inputs")}
+    names = {f'formation_controller: robot_1 {c}' for c in ('control', 'control loop', 'inputs')}
     assert spin_until(executor, lambda: names <= set(statuses), 30.0), set(statuses)
     for name in names:
-        assert statuses[name][-1][1].hardware_id == "robot_1"
+        assert statuses[name][-1][1].hardware_id == 'robot_1'
     yield ctrl, probe, statuses
     probe.destroy_node()
     ctrl.destroy_node()
@@ -153,63 +176,71 @@ def controller(ros_context, executor):
 
 def test_controller_reports_a_stalled_control_loop(controller, executor):
     ctrl, probe, statuses = controller
-    name = "formation_controller: robot_1 control loop"
+    name = 'formation_controller: robot_1 control loop'
     watch = ctrl.control_watch
     ticks0 = watch.ticks
     assert spin_until(executor, lambda: watch.ticks > ticks0 + 50, 30.0)
     stalls0 = watch.stalls
     n0 = len(statuses[name])
-    blocker = probe.create_timer(0.01, lambda: (time.sleep(0.4), blocker.cancel()))   # 40 periods
+    blocker = probe.create_timer(0.01, lambda: (time.sleep(0.4), blocker.cancel()))  # 40 periods
 
     def stall_status():
         for _, st in statuses[name][n0:]:
             values = {kv.key: kv.value for kv in st.values}
-            if diag.level_int(st.level) == diag.WARN and int(values["stalls"]) > stalls0:
+            if diag.level_int(st.level) == diag.WARN and int(values['stalls']) > stalls0:
                 return st, values
         return None
 
     assert spin_until(executor, lambda: stall_status() is not None, 5.0)
     st, values = stall_status()
-    assert float(values["last_stall_gap_s"]) >= 0.35
-    assert st.message.startswith("stalled 0.")
+    assert float(values['last_stall_gap_s']) >= 0.35
+    assert st.message.startswith('stalled 0.')
 
 
 def test_controller_safety_stop_is_published_when_it_happens(controller, executor):
     """A robot that stops (here: its wheel data stops) is ERROR on /diagnostics at once, not at the
-    next 1 s sample, and back to OK when it runs again; a brief stop between two samples is seen."""
+    next 1 s sample, and back to OK when it runs again; a brief stop between two samples is seen.
+    """
     ctrl, probe, statuses = controller
-    name = "formation_controller: robot_1 control"
+    name = 'formation_controller: robot_1 control'
     n0 = len(statuses[name])
     published0 = ctrl.diag.published
-    ctrl._safety("stopped_wheels")            # what the control period does on a wheel timeout
+    ctrl._safety('stopped_wheels')  # what the control period does on a wheel timeout
     assert ctrl.diag.published == published0 + 1
-    ctrl._safety("waiting")
+    ctrl._safety('waiting')
     assert ctrl.diag.published == published0 + 2
     assert spin_until(executor, lambda: len(statuses[name]) >= n0 + 2, 5.0)
-    levels = [(diag.level_int(st.level), st.message) for _, st in statuses[name][n0:n0 + 2]]
-    assert levels == [(diag.ERROR, "stopped_wheels"), (diag.OK, "waiting")]
-    ctrl._safety("hold_parent")
-    assert spin_until(executor, lambda: any(st.message == "hold_parent" and diag.level_int(st.level) == diag.WARN
-                                            for _, st in statuses[name][n0:]), 5.0)
+    levels = [(diag.level_int(st.level), st.message) for _, st in statuses[name][n0: n0 + 2]]
+    assert levels == [(diag.ERROR, 'stopped_wheels'), (diag.OK, 'waiting')]
+    ctrl._safety('hold_parent')
+    assert spin_until(
+        executor,
+        lambda: any(
+            st.message == 'hold_parent' and diag.level_int(st.level) == diag.WARN
+            for _, st in statuses[name][n0:]
+        ),
+        5.0,
+    )
 
 
 def test_a_change_during_shutdown_is_not_an_error():
     """A bridge closing its port in destroy_node reports the lost link: after the context is shut
-    down this must be a no-op, not an exception that turns a clean exit into a traceback."""
+    down this must be a no-op, not an exception that turns a clean exit into a traceback.
+    """
     import os
 
     import rclpy
     from rclpy.context import Context
 
     ctx = Context()
-    rclpy.init(context=ctx, domain_id=int(os.environ["ROS_DOMAIN_ID"]))
-    node = rclpy.create_node("closing", context=ctx)
-    state = {"level": diag.OK}
+    rclpy.init(context=ctx, domain_id=int(os.environ['ROS_DOMAIN_ID']))
+    node = rclpy.create_node('closing', context=ctx)
+    state = {'level': diag.OK}
     d = diag.Diagnostics(node)
-    d.add("link", lambda: (state["level"], str(state["level"]), {}))
+    d.add('link', lambda: (state['level'], str(state['level']), {}))
     assert d.changed() is True
     rclpy.shutdown(context=ctx)
-    state["level"] = diag.ERROR
+    state['level'] = diag.ERROR
     assert d.changed() is False
     d.publish()
     node.destroy_node()

@@ -1,15 +1,28 @@
 """S7 robot-robot encounters: mutual pairs (common s = +1, shared w_c, reciprocal field), yielding
 to stand-on robots, the acyclic reacts-to rule, S14.3 teammates, and closed-loop tie cases where
-only safety and settling are checked (S14.4: never which way a robot went round)."""
+only safety and settling are checked (S14.4: never which way a robot went round).
+"""
+
 import math
 
+from hypothesis import given, settings
+from hypothesis import strategies as st
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
 
 from ament_formation.core.automaton import (
-    MODE_C, MODE_MUTUAL, MODE_OBSTACLE, MODE_YIELD, P_KEEPOUT_MARGIN, P_L, P_TAU_G, P_BETA0,
-    P_VTAN_AGENT, AutomatonState, SwitchingParams, design_gains,
+    AutomatonState,
+    design_gains,
+    MODE_C,
+    MODE_MUTUAL,
+    MODE_OBSTACLE,
+    MODE_YIELD,
+    P_BETA0,
+    P_KEEPOUT_MARGIN,
+    P_L,
+    P_TAU_G,
+    P_VTAN_AGENT,
+    SwitchingParams,
 )
 from ament_formation.core.encounters import decide_once, reacts_to
 from ament_formation.core.kernels import ellipse_field_k, gain_schedule_k
@@ -18,8 +31,14 @@ from ament_formation.core.scenario import parse_scenario
 from ament_formation.core.simulator import robot_law, simulate
 
 PRM = SwitchingParams().as_array()
-NO_OBS = (np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros((0, 2)),
-          np.zeros(0, bool))
+NO_OBS = (
+    np.zeros((0, 2)),
+    np.zeros((0, 2)),
+    np.zeros(0),
+    np.zeros(0),
+    np.zeros((0, 2)),
+    np.zeros(0, bool),
+)
 R_AA = 0.25
 
 
@@ -39,8 +58,10 @@ def test_head_on_free_robots_form_a_mutual_pair_with_common_sense_and_drift():
     p = [(-0.2, 0.01), (0.2, 0.0)]
     pd = [(0.05, 0.0), (-0.04, 0.002)]
     events = decide(st_, 3.0, p, pd)
-    assert sorted((e[1], e[2], e[3]) for e in events) == [(0, "enter", MODE_MUTUAL),
-                                                          (1, "enter", MODE_MUTUAL)]
+    assert sorted((e[1], e[2], e[3]) for e in events) == [
+        (0, 'enter', MODE_MUTUAL),
+        (1, 'enter', MODE_MUTUAL),
+    ]
     assert list(st_.mode) == [MODE_MUTUAL, MODE_MUTUAL] and list(st_.tgt) == [1, 0]
     assert list(st_.sdir) == [1.0, 1.0] and st_.t_entry[0] == st_.t_entry[1] == 3.0
     np.testing.assert_allclose(st_.wc[0], st_.wc[1])
@@ -52,31 +73,73 @@ def test_mutual_law_is_reciprocal_relative_motion_follows_f():
     n = 2
     x = np.array([[-0.2, 0.03, 0.1, 0.05, 0.2], [0.15, -0.02, 3.0, 0.04, -0.1]])
     d = 0.05
-    pd = np.array([[x[i, 3] * math.cos(x[i, 2]) - d * x[i, 4] * math.sin(x[i, 2]),
-                    x[i, 3] * math.sin(x[i, 2]) + d * x[i, 4] * math.cos(x[i, 2])] for i in range(n)])
+    pd = np.array(
+        [
+            [
+                x[i, 3] * math.cos(x[i, 2]) - d * x[i, 4] * math.sin(x[i, 2]),
+                x[i, 3] * math.sin(x[i, 2]) + d * x[i, 4] * math.cos(x[i, 2]),
+            ]
+            for i in range(n)
+        ]
+    )
     st_ = AutomatonState(n)
     st_.set_mode(0, MODE_MUTUAL, 1, 1.0, 1.0)
     st_.set_mode(1, MODE_MUTUAL, 0, 1.0, 1.0)
     st_.wc[:] = [0.01, -0.02]
     st_.wtgt[:] = [0.03, 0.0]
-    coeffs = np.array([[2.8, 2.8], [0.02598, 0.02598], [0.035, 0.035], [0.2, 0.2], [d, d],
-                       [2.5, 2.5], [0.15, 0.15]])
+    coeffs = np.array(
+        [
+            [2.8, 2.8],
+            [0.02598, 0.02598],
+            [0.035, 0.035],
+            [0.2, 0.2],
+            [d, d],
+            [2.5, 2.5],
+            [0.15, 0.15],
+        ]
+    )
     gains = np.array([0.27, 0.01, 0.5, 0.05, 0.15])
     zeros = np.zeros((0, 2))
-    args = (x, pd, np.zeros((n, 2)), np.full(n, -1), np.zeros((n, 2)), np.zeros((n, 6)),
-            np.zeros((n, 2)), np.zeros((n, 2)), st_.mode, st_.tgt, st_.sdir, st_.t_entry, st_.wc,
-            st_.wtgt, zeros, zeros, zeros, np.zeros(0), np.zeros(0), np.zeros(0), zeros,
-            np.full(n, 0.1), coeffs, gains, PRM)
+    args = (
+        x,
+        pd,
+        np.zeros((n, 2)),
+        np.full(n, -1),
+        np.zeros((n, 2)),
+        np.zeros((n, 6)),
+        np.zeros((n, 2)),
+        np.zeros((n, 2)),
+        st_.mode,
+        st_.tgt,
+        st_.sdir,
+        st_.t_entry,
+        st_.wc,
+        st_.wtgt,
+        zeros,
+        zeros,
+        zeros,
+        np.zeros(0),
+        np.zeros(0),
+        np.zeros(0),
+        zeros,
+        np.full(n, 0.1),
+        coeffs,
+        gains,
+        PRM,
+    )
     t = 2.2
     out = [robot_law(i, t, *args) for i in range(n)]
-    vd = [pd[i] - np.array(out[i][2:4]) for i in range(n)]          # sigma = p_dot - V_d
+    vd = [pd[i] - np.array(out[i][2:4]) for i in range(n)]  # sigma = p_dot - V_d
     r = 0.1 + 0.1 + PRM[P_KEEPOUT_MARGIN]
     psi_max, c_max = design_gains(r, r, PRM[P_VTAN_AGENT], PRM)
-    psd, psdd, c, cd = gain_schedule_k(t - 1.0, psi_max, c_max, 1.0, 1.0, 0.0, PRM[P_BETA0], PRM[P_TAU_G])
+    psd, psdd, c, cd = gain_schedule_k(
+        t - 1.0, psi_max, c_max, 1.0, 1.0, 0.0, PRM[P_BETA0], PRM[P_TAU_G]
+    )
     z = x[0, :2] - x[1, :2]
     zd = pd[0] - pd[1]
-    f = ellipse_field_k(z[0], z[1], zd[0], zd[1], 0.0, 0.0, 0.0, PRM[P_L] * r, PRM[P_L] * r,
-                        psd, psdd, c, cd)
+    f = ellipse_field_k(
+        z[0], z[1], zd[0], zd[1], 0.0, 0.0, 0.0, PRM[P_L] * r, PRM[P_L] * r, psd, psdd, c, cd
+    )
     np.testing.assert_allclose(vd[0] - vd[1], f[:2], atol=1e-12)
     np.testing.assert_allclose(vd[0] + vd[1], 2 * st_.wc[0], atol=1e-12)
     # both robots integrate the same w_c derivative, so their w_c stay identical
@@ -85,21 +148,27 @@ def test_mutual_law_is_reciprocal_relative_motion_follows_f():
 
 def test_free_robot_yields_to_stand_on_robot():
     st_ = AutomatonState(2)
-    far = (np.array([[5.0, 5.0]]), np.zeros((1, 2)), np.zeros(1), np.zeros(1),
-           np.array([[0.3, 0.2]]), np.array([True]))
-    st_.set_mode(0, MODE_OBSTACLE, 0, 1.0, 0.0)                       # robot 0 is stand-on
+    far = (
+        np.array([[5.0, 5.0]]),
+        np.zeros((1, 2)),
+        np.zeros(1),
+        np.zeros(1),
+        np.array([[0.3, 0.2]]),
+        np.array([True]),
+    )
+    st_.set_mode(0, MODE_OBSTACLE, 0, 1.0, 0.0)  # robot 0 is stand-on
     events = decide(st_, 2.0, [(0.0, 0.0), (0.35, 0.02)], [(0.0, 0.0), (-0.05, 0.0)], obs=far)
     assert st_.mode[1] == MODE_YIELD and st_.tgt[1] == 0
     assert st_.mode[0] == MODE_OBSTACLE
-    assert [e[1] for e in events if e[2] == "enter"] == [1]
+    assert [e[1] for e in events if e[2] == 'enter'] == [1]
 
 
 def test_robot_does_not_react_to_a_robot_that_already_yields_to_it():
     st_ = AutomatonState(2)
-    st_.set_mode(1, MODE_YIELD, 0, 1.0, 0.0)                          # 1 reacts to 0
+    st_.set_mode(1, MODE_YIELD, 0, 1.0, 0.0)  # 1 reacts to 0
     # closing at 4 cm/s: a threat (contact with I in 1.6 s) but no emergency (P in 2.5 s)
     decide(st_, 2.0, [(0.0, 0.0), (0.35, 0.02)], [(0.02, 0.0), (-0.02, 0.0)])
-    assert st_.mode[0] == MODE_C                                      # 1 is responsible
+    assert st_.mode[0] == MODE_C  # 1 is responsible
     assert reacts_to(1, 0, st_.mode, st_.tgt) and not reacts_to(0, 1, st_.mode, st_.tgt)
 
 
@@ -112,7 +181,7 @@ def test_emergency_converts_yield_into_mutual_pair():
 
 def test_teammates_holding_slots_are_not_threats_but_strangers_are():
     p = [(0.0, 0.0), (0.35, 0.0)]
-    pd = [(0.05, 0.0), (0.042, 0.0)]               # closing at 8 mm/s: contact with I in ~8 s
+    pd = [(0.05, 0.0), (0.042, 0.0)]  # closing at 8 mm/s: contact with I in ~8 s
     same = AutomatonState(2)
     assert decide(same, 1.0, p, pd, team=[0, 0]) == []
     other = AutomatonState(2)
@@ -155,16 +224,29 @@ def _meeting(n_robots, radius=1.5, duration=75.0, seed=3):
         ang = 2 * math.pi * i / n_robots
         start = [radius * math.cos(ang), radius * math.sin(ang)]
         head = ang + math.pi
-        robots.append({"id": i, "leader": True, "slot_m": [0, 0], "marker_id": i,
-                       "initial_pose": [start[0], start[1], head],
-                       "path": {"type": "line", "start_m": start, "heading_rad": head,
-                                "speed_mps": 0.05}})
-    return parse_scenario({"name": f"meet{n_robots}", "duration_s": duration, "robots": robots,
-                           "graph": {"edges": []}, "obstacles": [],
-                           "disturbance": {"accel_bound": [0.05, 0.5], "seed": seed}})
+        robots.append(
+            {
+                'id': i,
+                'leader': True,
+                'slot_m': [0, 0],
+                'marker_id': i,
+                'initial_pose': [start[0], start[1], head],
+                'path': {'type': 'line', 'start_m': start, 'heading_rad': head, 'speed_mps': 0.05},
+            }
+        )
+    return parse_scenario(
+        {
+            'name': f'meet{n_robots}',
+            'duration_s': duration,
+            'robots': robots,
+            'graph': {'edges': []},
+            'obstacles': [],
+            'disturbance': {'accel_bound': [0.05, 0.5], 'seed': seed},
+        }
+    )
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope='module')
 def meetings():
     out = {}
     for n in (2, 3, 4):
@@ -174,24 +256,25 @@ def meetings():
     return out
 
 
-@pytest.mark.parametrize("n", [2, 3, 4])
+@pytest.mark.parametrize('n', [2, 3, 4])
 def test_symmetric_meetings_are_safe_and_settle(meetings, n):
     """Exact ties (S6.6 rule 4, S14.4) and 3-4 robots meeting at once (S14.1): safety + settling."""
     res, m = meetings[n]
-    assert m["prohibited_entries"] == 0
-    assert m["min_inter_robot_distance_m"] > R_AA
-    assert all(r["final_error_m"] < 0.01 for r in m["robots"].values())
-    assert not res.avoiding[-1].any()                 # everybody exited: no livelock
-    assert any(e["mode"] == "mutual" for e in res.mode_events)
-    done = [r for r in res.reaching if r["completed"]]
-    assert done and all(r["t_reach_s"] <= r["bound_s"] + 1e-9 for r in done)
-    assert all(r["t_reach_s"] <= r["bound_s"] + 1e-9 for r in res.reaching if not r["completed"])
+    assert m['prohibited_entries'] == 0
+    assert m['min_inter_robot_distance_m'] > R_AA
+    assert all(r['final_error_m'] < 0.01 for r in m['robots'].values())
+    assert not res.avoiding[-1].any()  # everybody exited: no livelock
+    assert any(e['mode'] == 'mutual' for e in res.mode_events)
+    done = [r for r in res.reaching if r['completed']]
+    assert done and all(r['t_reach_s'] <= r['bound_s'] + 1e-9 for r in done)
+    assert all(r['t_reach_s'] <= r['bound_s'] + 1e-9 for r in res.reaching if not r['completed'])
 
 
 @settings(max_examples=25, deadline=None)
 @given(seed=st.integers(0, 2**31 - 1), n=st.integers(2, 400), size=st.floats(0.3, 40.0))
 def test_grid_culling_finds_exactly_the_close_pairs(seed, n, size):
     from ament_formation.core.encounters import candidate_pairs
+
     q = np.random.default_rng(seed).uniform(0.0, size, (n, 2))
     got = {tuple(r) for r in candidate_pairs(q, 0.45)}
     d = np.linalg.norm(q[:, None] - q[None], axis=2)

@@ -1,23 +1,36 @@
 """S10 pose fusion: odometry arcs, latency-compensated camera correction, rejection and gating."""
+
 from __future__ import annotations
 
 import math
 
-import numpy as np
-import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+import numpy as np
+import pytest
 
 from ament_formation.core.errors import ConfigError
-from ament_formation.core.estimator import (EstimatorParams, PoseEstimator, _Step, fold_steps, fold_to_end,
-                                            wheel_to_body, wrap_angle)
+from ament_formation.core.estimator import (
+    _Step,
+    EstimatorParams,
+    fold_steps,
+    fold_to_end,
+    PoseEstimator,
+    wheel_to_body,
+    wrap_angle,
+)
 
 R, A, D = 0.035, 0.20, 0.05
 
 
 @settings(max_examples=80, deadline=None)
-@given(v=st.floats(-0.3, 0.3), w=st.floats(-3.0, 3.0), th0=st.floats(-3.1, 3.1),
-       k=st.integers(1, 50), t=st.floats(0.05, 3.0))
+@given(
+    v=st.floats(-0.3, 0.3),
+    w=st.floats(-3.0, 3.0),
+    th0=st.floats(-3.1, 3.1),
+    k=st.integers(1, 50),
+    t=st.floats(0.05, 3.0),
+)
 def test_fold_steps_is_exact_for_constant_rates(v, w, th0, k, t):
     axle, th = fold_steps([0.3, -0.2], th0, np.full(k, v * t / k), np.full(k, w * t / k))
     if abs(w) > 1e-9:
@@ -30,8 +43,10 @@ def test_fold_steps_is_exact_for_constant_rates(v, w, th0, k, t):
 
 
 @settings(max_examples=80, deadline=None)
-@given(steps=st.lists(st.tuples(st.floats(-0.01, 0.01), st.floats(-0.2, 0.2)), max_size=40),
-       th0=st.floats(-3.1, 3.1))
+@given(
+    steps=st.lists(st.tuples(st.floats(-0.01, 0.01), st.floats(-0.2, 0.2)), max_size=40),
+    th0=st.floats(-3.1, 3.1),
+)
 def test_scalar_fold_matches_the_array_fold(steps, th0):
     """fold_to_end (the per-sample scalar path) ends where fold_steps ends, tiny arcs included."""
     axle, th = fold_to_end([0.3, -0.2], th0, [_Step(0.0, ds, dth) for ds, dth in steps])
@@ -39,7 +54,9 @@ def test_scalar_fold_matches_the_array_fold(steps, th0):
         assert axle.tolist() == [0.3, -0.2] and th == th0
         return
     ref_axle, ref_th = fold_steps([0.3, -0.2], th0, [s[0] for s in steps], [s[1] for s in steps])
-    assert axle == pytest.approx(ref_axle[-1], abs=1e-12) and th == pytest.approx(ref_th[-1], abs=1e-12)
+    assert axle == pytest.approx(ref_axle[-1], abs=1e-12) and th == pytest.approx(
+        ref_th[-1], abs=1e-12
+    )
 
 
 def test_wheel_to_body_matches_s2_kinematics():
@@ -53,8 +70,13 @@ def _truth(t_end_s, dt_s=0.001, seed=0):
     t = np.arange(0.0, t_end_s + 1e-12, dt_s)
     f = rng.uniform(0.1, 0.6, size=2)
     ph = rng.uniform(0, 2 * np.pi, size=2)
-    rate = np.stack([2.0 + 1.5 * np.sin(2 * np.pi * f[0] * t + ph[0]),
-                     2.4 + 1.5 * np.sin(2 * np.pi * f[1] * t + ph[1])], axis=1)  # rad/s
+    rate = np.stack(
+        [
+            2.0 + 1.5 * np.sin(2 * np.pi * f[0] * t + ph[0]),
+            2.4 + 1.5 * np.sin(2 * np.pi * f[1] * t + ph[1]),
+        ],
+        axis=1,
+    )  # rad/s
     q = np.concatenate([[[0.0, 0.0]], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * dt_s, axis=0)])
     ds, dth = wheel_to_body(np.diff(q, axis=0), R, A)
     th0 = 0.4
@@ -65,8 +87,19 @@ def _truth(t_end_s, dt_s=0.001, seed=0):
     return t, q, rate, pose
 
 
-def _run(est, t, q, rate, pose, cam_period_s, latency_s, noise=(0.0, 0.0), scale=1.0, seed=1,
-         stamp_at_arrival=False):
+def _run(
+    est,
+    t,
+    q,
+    rate,
+    pose,
+    cam_period_s,
+    latency_s,
+    noise=(0.0, 0.0),
+    scale=1.0,
+    seed=1,
+    stamp_at_arrival=False,
+):
     """Feed 100 Hz encoders and delayed camera frames; return |position error| at every 10 ms."""
     rng = np.random.default_rng(seed)
     errs = []
@@ -75,7 +108,9 @@ def _run(est, t, q, rate, pose, cam_period_s, latency_s, noise=(0.0, 0.0), scale
     for k in range(0, len(t), 10):
         now = t[k]
         if now >= next_cam - 1e-9:
-            noisy = pose[k] + np.array([rng.normal(0, noise[0]), rng.normal(0, noise[0]), rng.normal(0, noise[1])])
+            noisy = pose[k] + np.array(
+                [rng.normal(0, noise[0]), rng.normal(0, noise[0]), rng.normal(0, noise[1])]
+            )
             queue.append((now + latency_s, now, noisy))
             next_cam += cam_period_s
         est.wheel_update(now, q[k] * scale, rate[k] * scale)
@@ -89,7 +124,9 @@ def _run(est, t, q, rate, pose, cam_period_s, latency_s, noise=(0.0, 0.0), scale
 
 def test_exact_inputs_give_the_truth_despite_latency():
     t, q, rate, pose = _truth(6.0)
-    est = PoseEstimator(EstimatorParams(wheel_radius_m=R, axle_length_m=A, com_offset_m=D, camera_gain=1.0))
+    est = PoseEstimator(
+        EstimatorParams(wheel_radius_m=R, axle_length_m=A, com_offset_m=D, camera_gain=1.0)
+    )
     errs = _run(est, t, q, rate, pose, cam_period_s=1 / 30, latency_s=0.12)
     assert errs.max() < 2e-5
     assert est.counters.camera_accepted > 150 and est.counters.rejected_outlier == 0
@@ -98,19 +135,30 @@ def test_exact_inputs_give_the_truth_despite_latency():
 def test_latency_compensation_beats_applying_late_frames_as_current():
     t, q, rate, pose = _truth(10.0, seed=3)
     prm = EstimatorParams(wheel_radius_m=R, axle_length_m=A, com_offset_m=D, camera_gain=0.5)
-    # 4 % wheel-radius error in the estimator's odometry, 4 mm / 0.03 rad camera noise, 150 ms latency
+    # 4 % wheel-radius error in the estimator's odometry, 4 mm / 0.03 rad camera noise, 150 ms
+    # latency
     comp = _run(PoseEstimator(prm), t, q, rate, pose, 1 / 30, 0.15, (0.004, 0.03), scale=1.04)
-    naive = _run(PoseEstimator(prm), t, q, rate, pose, 1 / 30, 0.15, (0.004, 0.03), scale=1.04,
-                 stamp_at_arrival=True)
+    naive = _run(
+        PoseEstimator(prm),
+        t,
+        q,
+        rate,
+        pose,
+        1 / 30,
+        0.15,
+        (0.004, 0.03),
+        scale=1.04,
+        stamp_at_arrival=True,
+    )
     odo_only = PoseEstimator(prm)
     odo_only.initialize(pose[0], 0.0)
     drift = 0.0
     for k in range(0, len(t), 10):
         odo_only.wheel_update(t[k], q[k] * 1.04, rate[k] * 1.04)
         drift = max(drift, np.hypot(*(odo_only.pose()[:2] - pose[k, :2])))
-    assert np.sqrt(np.mean(comp ** 2)) < 0.006
-    assert np.sqrt(np.mean(naive ** 2)) > 2.0 * np.sqrt(np.mean(comp ** 2))
-    assert drift > 4.0 * np.sqrt(np.mean(comp ** 2))  # odometry alone drifts (4 % of 0.8 m)
+    assert np.sqrt(np.mean(comp**2)) < 0.006
+    assert np.sqrt(np.mean(naive**2)) > 2.0 * np.sqrt(np.mean(comp**2))
+    assert drift > 4.0 * np.sqrt(np.mean(comp**2))  # odometry alone drifts (4 % of 0.8 m)
 
 
 def test_two_fps_camera_with_odometry_stays_within_a_centimetre():
@@ -123,30 +171,36 @@ def test_two_fps_camera_with_odometry_stays_within_a_centimetre():
 def test_rejections_are_counted_and_leave_the_estimate_alone():
     est = PoseEstimator(EstimatorParams(wheel_radius_m=R, axle_length_m=A, com_offset_m=D))
     assert not est.initialized
-    assert est.camera_update(0.0, [np.nan, 0, 0]) == "rejected_nonfinite"
-    assert est.camera_update(0.0, [1.0, 2.0, 0.5]) == "initialized"
+    assert est.camera_update(0.0, [np.nan, 0, 0]) == 'rejected_nonfinite'
+    assert est.camera_update(0.0, [1.0, 2.0, 0.5]) == 'initialized'
     before = est.state().copy()
     assert not est.wheel_update(0.01, [np.inf, 0.0], [0.0, 0.0])
     assert est.wheel_update(0.01, [0.0, 0.0], [0.0, 0.0])
     assert not est.wheel_update(0.02, [50.0, 0.0], [0.0, 0.0])  # 5000 rad/s: encoder glitch
     assert not est.wheel_update(0.015, [50.0, 0.0], [0.0, 0.0])  # older stamp: stale
-    assert est.wheel_update(0.03, [50.0, 0.0], [0.0, 0.0])      # resynchronised: no jump applied
+    assert est.wheel_update(0.03, [50.0, 0.0], [0.0, 0.0])  # resynchronised: no jump applied
     np.testing.assert_allclose(est.state(), before)
-    assert est.camera_update(-1.0, [1.0, 2.0, 0.5]) == "rejected_stale"
+    assert est.camera_update(-1.0, [1.0, 2.0, 0.5]) == 'rejected_stale'
     for k in range(4):
-        assert est.camera_update(0.1 + 0.01 * k, [3.0, 2.0, 0.5]) == "rejected_outlier"
+        assert est.camera_update(0.1 + 0.01 * k, [3.0, 2.0, 0.5]) == 'rejected_outlier'
     np.testing.assert_allclose(est.state(), before)
-    assert est.camera_update(0.2, [3.0, 2.0, 0.5]) == "relocked"  # 5th disagreeing frame in a row
+    assert est.camera_update(0.2, [3.0, 2.0, 0.5]) == 'relocked'  # 5th disagreeing frame in a row
     np.testing.assert_allclose(est.pose(), [3.0, 2.0, 0.5])
     c = est.counters
-    assert (c.rejected_nonfinite, c.rejected_glitch, c.rejected_stale, c.rejected_outlier, c.relocks) == (2, 1, 2, 4, 1)
+    assert (
+        c.rejected_nonfinite,
+        c.rejected_glitch,
+        c.rejected_stale,
+        c.rejected_outlier,
+        c.relocks,
+    ) == (2, 1, 2, 4, 1)
 
 
 def test_samples_batched_under_one_stamp_are_all_applied():
     est = PoseEstimator(EstimatorParams(wheel_radius_m=R, axle_length_m=A, com_offset_m=D))
     est.initialize([0.0, 0.0, 0.0], 0.0)
     est.wheel_update(0.0, [0.0, 0.0], [2.0, 2.0])
-    for q in (0.02, 0.04, 0.06):           # three telemetry frames read in one poll
+    for q in (0.02, 0.04, 0.06):  # three telemetry frames read in one poll
         assert est.wheel_update(0.03, [q, q], [2.0, 2.0])
     assert est.pose()[0] == pytest.approx(R * 0.06)
 
@@ -155,24 +209,33 @@ def test_odometry_before_the_first_frame_is_replayed_after_it():
     est = PoseEstimator(EstimatorParams(wheel_radius_m=R, axle_length_m=A, com_offset_m=D))
     for k in range(11):  # straight ahead at 2 rad/s on both wheels: 0.07 m/s
         est.wheel_update(0.01 * k, [0.02 * k, 0.02 * k], [2.0, 2.0])
-    assert est.camera_update(0.05, [0.0, 0.0, 0.0]) == "initialized"
+    assert est.camera_update(0.05, [0.0, 0.0, 0.0]) == 'initialized'
     np.testing.assert_allclose(est.state(), [0.07 * 0.05, 0.0, 0.0, 0.07, 0.0], atol=1e-12)
     np.testing.assert_allclose(est.state_at(0.12)[:2], [0.07 * 0.07, 0.0], atol=1e-12)
-    np.testing.assert_allclose(est.state_at(5.0)[:2], [0.07 * 0.1, 0.0], atol=1e-12)  # capped at 50 ms
+    np.testing.assert_allclose(
+        est.state_at(5.0)[:2], [0.07 * 0.1, 0.0], atol=1e-12
+    )  # capped at 50 ms
     assert est.camera_age_s(0.25) == pytest.approx(0.2)
 
 
 @settings(max_examples=40, deadline=None)
-@given(st.lists(st.tuples(st.sampled_from(["wheel", "camera"]),
-                          st.floats(allow_nan=True, allow_infinity=True, width=32),
-                          st.floats(allow_nan=True, allow_infinity=True, width=32)), max_size=60))
+@given(
+    st.lists(
+        st.tuples(
+            st.sampled_from(['wheel', 'camera']),
+            st.floats(allow_nan=True, allow_infinity=True, width=32),
+            st.floats(allow_nan=True, allow_infinity=True, width=32),
+        ),
+        max_size=60,
+    )
+)
 def test_garbage_never_makes_the_estimate_non_finite(events):
     est = PoseEstimator(EstimatorParams(wheel_radius_m=R, axle_length_m=A, com_offset_m=D))
     est.initialize([0.0, 0.0, 0.0], 0.0)
     t = 0.0
     for kind, a, b in events:
         t += 0.01
-        if kind == "wheel":
+        if kind == 'wheel':
             est.wheel_update(t, [a, b], [a, b])
         else:
             est.camera_update(t, [a, b, a])
@@ -181,8 +244,8 @@ def test_garbage_never_makes_the_estimate_non_finite(events):
 
 
 def test_params_validate():
-    with pytest.raises(ConfigError, match="camera_gain"):
+    with pytest.raises(ConfigError, match='camera_gain'):
         EstimatorParams(camera_gain=0.0)
-    with pytest.raises(ConfigError, match="gate_position_m"):
-        EstimatorParams(gate_position_m=float("nan"))
+    with pytest.raises(ConfigError, match='gate_position_m'):
+        EstimatorParams(gate_position_m=float('nan'))
     assert float(wrap_angle(3 * math.pi)) == pytest.approx(-math.pi)

@@ -9,6 +9,7 @@ Until scripts/lint_fix.sh has been run over the tree (it converts quotes and wra
 lead runs it once every helper's edits are in), this test is expected to fail: it is marked
 ``xfail(strict=False)`` and reports the number of findings. Remove the mark once it passes.
 """
+
 from pathlib import Path
 import shutil
 import subprocess
@@ -21,9 +22,12 @@ ROOT = Path(__file__).resolve().parents[1]
 
 @pytest.mark.flake8
 @pytest.mark.linter
-@pytest.mark.timeout(900)   # about 4 min on two busy cores
-@pytest.mark.xfail(strict=False, reason='sources not yet converted by scripts/lint_fix.sh '
-                                        '(double quotes, lines over 99 columns)')
+@pytest.mark.timeout(900)  # about 4 min on two busy cores
+@pytest.mark.xfail(
+    strict=False,
+    reason='sources not yet converted by scripts/lint_fix.sh '
+    '(double quotes, lines over 99 columns)',
+)
 def test_flake8(monkeypatch):
     try:
         from ament_flake8.main import main_with_errors
@@ -33,14 +37,23 @@ def test_flake8(monkeypatch):
         # setup.cfg [flake8] is ament_flake8.ini plus the folders that are not package sources
         monkeypatch.chdir(ROOT)
         rc, errors = main_with_errors(argv=['--config', str(ROOT / 'setup.cfg'), str(ROOT)])
-        assert rc == 0, f'Found {len(errors)} code style errors / warnings:\n' + \
-            '\n'.join(errors[:50])
+        assert rc == 0, f'Found {len(errors)} code style errors / warnings:\n' + '\n'.join(
+            errors[:50]
+        )
         return
-    flake8 = shutil.which('flake8', path=str(Path(sys.executable).parent)) or shutil.which('flake8')
+    flake8 = shutil.which('flake8', path=str(Path(sys.executable).parent)) or shutil.which(
+        'flake8'
+    )
     if flake8 is None:
         pytest.skip('neither ament_flake8 nor flake8 is installed (requirements.txt pins flake8)')
-    proc = subprocess.run([flake8, '--no-show-source', '--count', '.'], cwd=ROOT,
-                          capture_output=True, text=True, timeout=600)
+    proc = subprocess.run(
+        [flake8, '--no-show-source', '--count', '.'],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     lines = proc.stdout.strip().splitlines()
-    assert proc.returncode == 0, f'flake8 found {lines[-1] if lines else "?"} problems:\n' + \
-        '\n'.join(lines[:50])
+    assert proc.returncode == 0, (
+        f'flake8 found {lines[-1] if lines else "?"} problems:\n' + '\n'.join(lines[:50])
+    )

@@ -1,8 +1,10 @@
 """Coordination mode (S4): Phi/DPhi, leader and follower fields, closed-loop formation keeping."""
+
 from __future__ import annotations
 
+from hypothesis import given, settings
+from hypothesis import strategies as st
 import numpy as np
-from hypothesis import given, settings, strategies as st
 
 from ament_formation.core import kernels as kn
 from ament_formation.core.disturbance import Disturbance
@@ -22,24 +24,37 @@ def test_phi_bounded_and_dphi_is_its_jacobian(seed, alpha, v_cap):
     e = rng.normal(size=(32, 2)) * rng.choice([1e-3, 0.1, 3.0], (32, 1))
     f = phi(e, alpha, v_cap)
     assert np.all(np.linalg.norm(f, axis=1) < v_cap)
-    h = 1e-4 * v_cap / alpha    # well inside the scale v_cap/alpha of the nonlinearity
-    fd = np.stack([(phi(e + h * ev, alpha, v_cap) - phi(e - h * ev, alpha, v_cap)) / (2 * h)
-                   for ev in np.eye(2)], axis=-1)                     # (N, 2, 2) columns d/de_j
+    h = 1e-4 * v_cap / alpha  # well inside the scale v_cap/alpha of the nonlinearity
+    fd = np.stack(
+        [
+            (phi(e + h * ev, alpha, v_cap) - phi(e - h * ev, alpha, v_cap)) / (2 * h)
+            for ev in np.eye(2)
+        ],
+        axis=-1,
+    )  # (N, 2, 2) columns d/de_j
     jac = dphi(e, alpha, v_cap)
     assert np.max(np.abs(jac - fd)) < 1e-7 * alpha
     np.testing.assert_allclose(jac, np.swapaxes(jac, 1, 2), atol=1e-15)  # symmetric
-    small = phi(np.array([[1e-8, -2e-8]]), alpha, v_cap)      # linear for small e: Phi ~ alpha e
+    small = phi(np.array([[1e-8, -2e-8]]), alpha, v_cap)  # linear for small e: Phi ~ alpha e
     np.testing.assert_allclose(small, alpha * np.array([[1e-8, -2e-8]]), rtol=1e-9)
 
 
 def _poly(rng, n):
-    return rng.uniform(-1, 1, (n, 2)), rng.uniform(-0.1, 0.1, (n, 2)), rng.uniform(-0.1, 0.1, (n, 2)), \
-        rng.uniform(-0.1, 0.1, (n, 2))
+    return (
+        rng.uniform(-1, 1, (n, 2)),
+        rng.uniform(-0.1, 0.1, (n, 2)),
+        rng.uniform(-0.1, 0.1, (n, 2)),
+        rng.uniform(-0.1, 0.1, (n, 2)),
+    )
 
 
 def _eval(c, t):
     a0, a1, a2, a3 = c
-    return (a0 + a1 * t + a2 * t**2 + a3 * t**3, a1 + 2 * a2 * t + 3 * a3 * t**2, 2 * a2 + 6 * a3 * t)
+    return (
+        a0 + a1 * t + a2 * t**2 + a3 * t**3,
+        a1 + 2 * a2 * t + 3 * a3 * t**2,
+        2 * a2 + 6 * a3 * t,
+    )
 
 
 @settings(max_examples=20, deadline=None)
@@ -90,7 +105,8 @@ def test_kernel_matches_numpy_tracking_field():
 
 def test_closed_loop_leader_follower_formation_converges():
     """Leader on a circle-like reference and a follower at offset (0, 1.2) m under disturbance:
-    both errors settle below 1 cm (S4 with S3.2), torques stay below the limit."""
+    both errors settle below 1 cm (S4 with S3.2), torques stay below the limit.
+    """
     k = PlantCoeffs.from_params([RobotParams()] * 2)
     dist = Disturbance.from_bounds(2, (0.05, 0.5), seed=4)
     dt, t_end = 2e-3, 30.0
@@ -115,19 +131,35 @@ def test_closed_loop_leader_follower_formation_converges():
         r, rd, rdd = ref(t)
         pl = kn.point_velocity_k(x[0, 2], x[0, 3], x[0, 4], co[0][4])
         pf = kn.point_velocity_k(x[1, 2], x[1, 3], x[1, 4], co[1][4])
-        vl = kn.tracking_field_k(x[0, 0] - r[0, 0], x[0, 1] - r[0, 1], *rd[0], *rdd[0], *pl, al, vc)
+        vl = kn.tracking_field_k(
+            x[0, 0] - r[0, 0], x[0, 1] - r[0, 1], *rd[0], *rdd[0], *pl, al, vc
+        )
         tl = kn.smc_torque_k(x[0, 2], x[0, 3], x[0, 4], *vl, *co[0], k.tau_max[0], kk, kk, eps)
-        vf = kn.tracking_field_k(x[1, 0] - x[0, 0] - delta[0], x[1, 1] - x[0, 1] - delta[1], *pl,
-                                 tl[5], tl[6], *pf, al, vc)
+        vf = kn.tracking_field_k(
+            x[1, 0] - x[0, 0] - delta[0],
+            x[1, 1] - x[0, 1] - delta[1],
+            *pl,
+            tl[5],
+            tl[6],
+            *pf,
+            al,
+            vc,
+        )
         tf = kn.smc_torque_k(x[1, 2], x[1, 3], x[1, 4], *vf, *co[1], k.tau_max[1], kk, kk, eps)
         torque = np.array([[tl[0], tl[1]], [tf[0], tf[1]]])
         if t < 1.0:
             pd = point_velocity(x, k.d)
-            nl = sliding_mode_torque(x[:1], *leader_field(x[:1, :2], pd[:1], r, rd, rdd, GAINS),
-                                     k.take([0]), GAINS)
-            nf = sliding_mode_torque(x[1:], *follower_field(x[1:, :2], pd[1:], x[:1, :2], pd[:1],
-                                                             nl.accel_cmd_mps2, delta, GAINS),
-                                     k.take([1]), GAINS)
+            nl = sliding_mode_torque(
+                x[:1], *leader_field(x[:1, :2], pd[:1], r, rd, rdd, GAINS), k.take([0]), GAINS
+            )
+            nf = sliding_mode_torque(
+                x[1:],
+                *follower_field(
+                    x[1:, :2], pd[1:], x[:1, :2], pd[:1], nl.accel_cmd_mps2, delta, GAINS
+                ),
+                k.take([1]),
+                GAINS,
+            )
             np.testing.assert_allclose(np.vstack((nl.torque_nm, nf.torque_nm)), torque, atol=1e-13)
         peak = max(peak, np.abs(torque).max())
         errs.append((np.linalg.norm(x[0, :2] - r[0]), np.linalg.norm(x[1, :2] - x[0, :2] - delta)))

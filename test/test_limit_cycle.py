@@ -1,17 +1,29 @@
 """Elliptical limit-cycle field (S6.2-S6.6), ray/segment tests (S8) and exact ellipse distance."""
+
 from __future__ import annotations
 
+from hypothesis import given, settings
+from hypothesis import strategies as st
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
 
 from ament_formation.core import kernels as kn
-from ament_formation.core.params import AvoidanceParams
 from ament_formation.core.limit_cycle import (
-    EllipseGains, choose_direction, design_gains, ellipse_coeffs, ellipse_h, ellipse_h_dot,
-    ellipse_perimeter, field, gain_schedule, parking_factor, ray_hits_ellipse,
-    segment_hits_ellipse, signed_distance_to_ellipse,
+    choose_direction,
+    design_gains,
+    ellipse_coeffs,
+    ellipse_h,
+    ellipse_h_dot,
+    ellipse_perimeter,
+    EllipseGains,
+    field,
+    gain_schedule,
+    parking_factor,
+    ray_hits_ellipse,
+    segment_hits_ellipse,
+    signed_distance_to_ellipse,
 )
+from ament_formation.core.params import AvoidanceParams
 
 SEEDS = st.integers(0, 2**31 - 1)
 FEW = settings(max_examples=25, deadline=None)
@@ -27,11 +39,23 @@ def _ellipses(rng, n):
 def _motion(rng, n):
     """Random smooth motion: polynomial coefficients (value, rate, second rate) at t = 0."""
     m = {}
-    m["p"] = (rng.uniform(-2, 2, (n, 2)), rng.uniform(-0.3, 0.3, (n, 2)), rng.uniform(-0.5, 0.5, (n, 2)))
-    m["x"] = (rng.uniform(-1, 1, (n, 2)), rng.uniform(-0.2, 0.2, (n, 2)), rng.uniform(-0.3, 0.3, (n, 2)))
-    m["phi"] = (rng.uniform(-np.pi, np.pi, n), rng.uniform(-0.5, 0.5, n), rng.uniform(-0.5, 0.5, n))
-    m["psi"] = (rng.uniform(-0.5, 0.5, n), rng.uniform(-0.3, 0.3, n), rng.uniform(-0.2, 0.2, n))
-    m["c"] = (rng.uniform(0.0, 0.2, n), rng.uniform(-0.1, 0.1, n), rng.uniform(-0.05, 0.05, n))
+    m['p'] = (
+        rng.uniform(-2, 2, (n, 2)),
+        rng.uniform(-0.3, 0.3, (n, 2)),
+        rng.uniform(-0.5, 0.5, (n, 2)),
+    )
+    m['x'] = (
+        rng.uniform(-1, 1, (n, 2)),
+        rng.uniform(-0.2, 0.2, (n, 2)),
+        rng.uniform(-0.3, 0.3, (n, 2)),
+    )
+    m['phi'] = (
+        rng.uniform(-np.pi, np.pi, n),
+        rng.uniform(-0.5, 0.5, n),
+        rng.uniform(-0.5, 0.5, n),
+    )
+    m['psi'] = (rng.uniform(-0.5, 0.5, n), rng.uniform(-0.3, 0.3, n), rng.uniform(-0.2, 0.2, n))
+    m['c'] = (rng.uniform(0.0, 0.2, n), rng.uniform(-0.1, 0.1, n), rng.uniform(-0.05, 0.05, n))
     return m
 
 
@@ -41,11 +65,11 @@ def _at(m, key, t):
 
 
 def _field_at(m, t, r1, r2):
-    p, pd, _ = _at(m, "p", t)
-    x, xd, _ = _at(m, "x", t)
-    phi, phid, phidd = _at(m, "phi", t)
-    psi, psid, _ = _at(m, "psi", t)
-    c, cd, _ = _at(m, "c", t)
+    p, pd, _ = _at(m, 'p', t)
+    x, xd, _ = _at(m, 'x', t)
+    phi, phid, phidd = _at(m, 'phi', t)
+    psi, psid, _ = _at(m, 'psi', t)
+    c, cd, _ = _at(m, 'c', t)
     return field(p - x, pd - xd, phi, phid, phidd, r1, r2, psi, psid, c, cd)
 
 
@@ -66,14 +90,17 @@ def test_h_dot_on_surface_is_minus_2ch_h_plus_1(seed):
     scale = 1.0 + np.abs(expected) + np.abs(phid) * np.abs(out.h + 1) + np.abs(psid) * (out.h + 1)
     assert np.max(np.abs(on_surface.h_dot - expected) / scale) < 1e-11
     np.testing.assert_allclose(on_surface.h, ellipse_h(z, phi, r1, r2), rtol=1e-14, atol=1e-14)
-    np.testing.assert_allclose(on_surface.h_dot, ellipse_h_dot(z, out.f, phi, phid, r1, r2), atol=1e-12)
+    np.testing.assert_allclose(
+        on_surface.h_dot, ellipse_h_dot(z, out.f, phi, phid, r1, r2), atol=1e-12
+    )
     # and the closed-form h_dot is the true rate of change of h(z(t), phi(t)) (rotating obstacle)
     zd = rng.uniform(-0.3, 0.3, (n, 2))
     dt = 1e-6
     hp = ellipse_h(z + dt * zd, phi + dt * phid, r1, r2)
     hm = ellipse_h(z - dt * zd, phi - dt * phid, r1, r2)
-    np.testing.assert_allclose(ellipse_h_dot(z, zd, phi, phid, r1, r2), (hp - hm) / (2 * dt),
-                               rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(
+        ellipse_h_dot(z, zd, phi, phid, r1, r2), (hp - hm) / (2 * dt), rtol=1e-6, atol=1e-6
+    )
 
 
 @FEW
@@ -86,7 +113,7 @@ def test_field_derivative_matches_finite_difference(seed):
     m = _motion(rng, n)
     h = 1e-3
     f = [_field_at(m, s * h, r1, r2).f for s in (-2, -1, 1, 2)]
-    fd = (f[0] - 8 * f[1] + 8 * f[2] - f[3]) / (12 * h)           # 4th-order central difference
+    fd = (f[0] - 8 * f[1] + 8 * f[2] - f[3]) / (12 * h)  # 4th-order central difference
     exact = _field_at(m, 0.0, r1, r2).f_dot
     rel = np.linalg.norm(exact - fd, axis=1) / (np.linalg.norm(exact, axis=1) + 1e-3)
     assert np.max(rel) < 1e-6
@@ -104,9 +131,11 @@ def test_tangential_term_alone_keeps_h_and_traverses_ccw():
     out = field(z, np.zeros((n, 2)), phi, 0.0, 0.0, r1, r2, 0.7, 0.0, 0.0, 0.0)
     # d/dpsi of the point, times psi_dot
     du, dw = -kk * r1 * np.sin(psi), kk * r2 * np.cos(psi)
-    dz = np.stack((np.cos(phi) * du - np.sin(phi) * dw, np.sin(phi) * du + np.cos(phi) * dw), axis=1)
+    dz = np.stack(
+        (np.cos(phi) * du - np.sin(phi) * dw, np.sin(phi) * du + np.cos(phi) * dw), axis=1
+    )
     np.testing.assert_allclose(out.f, 0.7 * dz, atol=1e-12)
-    assert np.all(z[:, 0] * out.f[:, 1] - z[:, 1] * out.f[:, 0] > 0)   # counter-clockwise
+    assert np.all(z[:, 0] * out.f[:, 1] - z[:, 1] * out.f[:, 0] > 0)  # counter-clockwise
     h1, h2, h3 = ellipse_coeffs(phi, r1, r2)
     np.testing.assert_allclose(h2 * h3 - h1 * h1, (r1 * r2) ** 2, rtol=1e-12)
 
@@ -125,7 +154,7 @@ def test_closed_loop_on_field_converges_to_limit_cycle_without_entering():
         return field(zz, np.zeros((n, 2)), phi0 + 0.3 * t, 0.3, 0.0, r1, r2, 0.5, 0.0, c, 0.0).f
 
     h_min = np.inf
-    for i in range(1000):     # RK4 of z_dot = F(t, z), 20 s
+    for i in range(1000):  # RK4 of z_dot = F(t, z), 20 s
         t = i * dt
         k1 = rhs(t, z)
         k2 = rhs(t + dt / 2, z + dt / 2 * k1)
@@ -135,7 +164,7 @@ def test_closed_loop_on_field_converges_to_limit_cycle_without_entering():
         h_min = min(h_min, ellipse_h(z, phi0 + 0.3 * (t + dt), r1, r2).min())
     h_end = ellipse_h(z, phi0 + 0.3 * 20.0, r1, r2)
     assert h_min > 0
-    q = h0 / (1 + h0) * np.exp(-2 * c * 20.0)        # S6.3(c) closed-form solution
+    q = h0 / (1 + h0) * np.exp(-2 * c * 20.0)  # S6.3(c) closed-form solution
     np.testing.assert_allclose(h_end, q / (1 - q), rtol=1e-4)
 
 
@@ -148,7 +177,9 @@ def test_paper_gains_s6_5():
     assert g.psi_dot_max_radps == pytest.approx(0.2969, abs=1e-4)
     assert g.c_max_per_s == pytest.approx(0.0541, abs=1e-4)
     # inward speed at the boundary of Q ~ v_rad (design rule)
-    assert float(c_max) * 1.8 * np.sqrt(0.06) * ((1.8 / 1.1) ** 2 - 1) == pytest.approx(0.04, rel=1e-12)
+    assert float(c_max) * 1.8 * np.sqrt(0.06) * ((1.8 / 1.1) ** 2 - 1) == pytest.approx(
+        0.04, rel=1e-12
+    )
 
 
 def test_gain_schedule_values_and_derivatives():
@@ -165,8 +196,12 @@ def test_gain_schedule_values_and_derivatives():
     np.testing.assert_allclose(psi_dd[1:], ((pp[0] - pm[0]) / (2 * h))[1:], atol=1e-8)
     np.testing.assert_allclose(c_d[1:], ((pp[2] - pm[2]) / (2 * h))[1:], atol=1e-8)
     for i in range(0, 41, 5):
-        np.testing.assert_allclose(kn.gain_schedule_k(t[i], 0.3, 0.05, -1.0, mu[i], mu_dot[i], 0.3, 1.5),
-                                   (psi[i], psi_dd[i], c[i], c_d[i]), rtol=1e-12, atol=1e-16)
+        np.testing.assert_allclose(
+            kn.gain_schedule_k(t[i], 0.3, 0.05, -1.0, mu[i], mu_dot[i], 0.3, 1.5),
+            (psi[i], psi_dd[i], c[i], c_d[i]),
+            rtol=1e-12,
+            atol=1e-16,
+        )
 
 
 @FEW
@@ -180,10 +215,10 @@ def test_parking_factor_range_and_derivative(seed):
     s = rng.choice([-1.0, 1.0], n)
 
     def at(t):
-        p, pd, _ = _at(m, "p", t)
-        x, xd, _ = _at(m, "x", t)
+        p, pd, _ = _at(m, 'p', t)
+        x, xd, _ = _at(m, 'x', t)
         gg, gd, _ = g[0] + g[1] * t, g[1], 0
-        phi, phid, _ = _at(m, "phi", t)
+        phi, phid, _ = _at(m, 'phi', t)
         return parking_factor(p - x, pd - xd, gg - x, gd - xd, phi, phid, r1, r2, s, 0.5)
 
     mu, mu_dot = at(0.0)
@@ -194,29 +229,40 @@ def test_parking_factor_range_and_derivative(seed):
     np.testing.assert_allclose(mu_dot[lin], fd[lin], rtol=1e-5, atol=1e-6)
     assert np.all(mu_dot[np.abs(mu) == 1.0] == 0.0)
     # kernel twin
-    p, pd, _ = _at(m, "p", 0.0)
-    x, xd, _ = _at(m, "x", 0.0)
-    phi, phid, _ = _at(m, "phi", 0.0)
+    p, pd, _ = _at(m, 'p', 0.0)
+    x, xd, _ = _at(m, 'x', 0.0)
+    phi, phid, _ = _at(m, 'phi', 0.0)
     for i in range(n):
-        res = kn.parking_factor_k(*(p[i] - x[i]), *(pd[i] - xd[i]), *(g[0][i] - x[i]), *(g[1][i] - xd[i]),
-                                  phi[i], phid[i], r1[i], r2[i], s[i], 0.5)
+        res = kn.parking_factor_k(
+            *(p[i] - x[i]),
+            *(pd[i] - xd[i]),
+            *(g[0][i] - x[i]),
+            *(g[1][i] - xd[i]),
+            phi[i],
+            phid[i],
+            r1[i],
+            r2[i],
+            s[i],
+            0.5,
+        )
         np.testing.assert_allclose(res, (mu[i], mu_dot[i]), rtol=1e-12, atol=1e-14)
 
 
 def test_parking_factor_is_zero_at_goal_anomaly_and_positive_ahead():
     z = np.array([[1.0, 0.0]])
-    goal_ahead = np.array([[0.0, 1.0]])          # 90 deg CCW
+    goal_ahead = np.array([[0.0, 1.0]])  # 90 deg CCW
     mu, _ = parking_factor(z, 0 * z, goal_ahead, 0 * z, 0.0, 0.0, 1.0, 1.0, 1.0, 0.5)
     assert mu[0] == 1.0
     mu, _ = parking_factor(z, 0 * z, goal_ahead, 0 * z, 0.0, 0.0, 1.0, 1.0, -1.0, 0.5)
-    assert mu[0] == -1.0                         # goal behind for CW: back up towards it
+    assert mu[0] == -1.0  # goal behind for CW: back up towards it
     mu, _ = parking_factor(z, 0 * z, np.array([[2.0, 0.2]]), 0 * z, 0.0, 0.0, 1.0, 1.0, 1.0, 0.5)
     assert mu[0] == pytest.approx(np.arctan2(0.2, 2.0) / 0.5)
 
 
 def test_choose_direction_rules():
     r1, r2, phi = 0.44, 0.165, 0.0
-    # goal straight behind, agent slightly above the axis moving +x: tie -> continue the motion (CW)
+    # goal straight behind, agent slightly above the axis moving +x: tie -> continue the motion
+    # (CW)
     z = np.array([[-1.0, 0.1], [-1.0, -0.1]])
     zd = np.array([[0.05, 0.0], [0.05, 0.0]])
     goal = np.array([[1.0, 0.0], [1.0, 0.0]])
@@ -224,16 +270,35 @@ def test_choose_direction_rules():
     s = choose_direction(z, zd, goal, gd, np.zeros((2, 2)), phi, r1, r2, 1.44)
     np.testing.assert_array_equal(s, [-1.0, 1.0])
     # rule 7: yielding agents resolve ties to +1
-    s = choose_direction(z, zd, goal, gd, np.zeros((2, 2)), phi, r1, r2, 1.44, velocity_tie_break=False)
+    s = choose_direction(
+        z, zd, goal, gd, np.zeros((2, 2)), phi, r1, r2, 1.44, velocity_tie_break=False
+    )
     np.testing.assert_array_equal(s, [1.0, 1.0])
     # clear preference: goal well above -> CW from the left side (over the top), below -> CCW
     goal = np.array([[0.3, 1.0], [0.3, -1.0]])
-    s = choose_direction(np.array([[-1.0, 0.0]] * 2), zd, goal, np.zeros((2, 2)), np.zeros((2, 2)),
-                         phi, r1, r2, 1.44)
+    s = choose_direction(
+        np.array([[-1.0, 0.0]] * 2),
+        zd,
+        goal,
+        np.zeros((2, 2)),
+        np.zeros((2, 2)),
+        phi,
+        r1,
+        r2,
+        1.44,
+    )
     np.testing.assert_array_equal(s, [-1.0, 1.0])
     # rule 1 look-ahead: a goal above the obstacle but moving down fast is taken below it
-    args = (np.array([[-1.0, 0.05]]), np.array([[0.05, 0.0]]), np.array([[0.3, 0.5]]),
-            np.array([[0.0, -0.1]]), np.zeros((1, 2)), phi, r1, r2)
+    args = (
+        np.array([[-1.0, 0.05]]),
+        np.array([[0.05, 0.0]]),
+        np.array([[0.3, 0.5]]),
+        np.array([[0.0, -0.1]]),
+        np.zeros((1, 2)),
+        phi,
+        r1,
+        r2,
+    )
     assert choose_direction(*args, 0.0)[0] == -1.0
     assert choose_direction(*args, 2 * 1.8 * 0.4)[0] == 1.0
     # a moving obstacle: only the goal velocity relative to the centre counts
@@ -277,7 +342,9 @@ def test_ray_and_segment_tests_agree_with_brute_force(seed):
     for i in range(0, n, 3):
         rh, rl = kn.ray_hits_ellipse_k(*z[i], *zd[i], phi[i], r1[i], r2[i])
         assert rh == hit[i] and (rl == lam[i] or abs(rl - lam[i]) <= 1e-12 * max(1.0, lam[i]))
-        assert kn.segment_hits_ellipse_k(*p0[i], *p1[i], *center[i], phi[i], r1[i], r2[i]) == seg[i]
+        assert (
+            kn.segment_hits_ellipse_k(*p0[i], *p1[i], *center[i], phi[i], r1[i], r2[i]) == seg[i]
+        )
 
 
 @settings(max_examples=8, deadline=None)
@@ -288,12 +355,12 @@ def test_signed_distance_matches_brute_force_sampling(seed):
     phi, r1, r2 = _ellipses(rng, 1)
     center = rng.uniform(-1, 1, 2)
     pts = center + rng.uniform(-2.5, 2.5, (k, 2)) * r1[0]
-    pts[:10] = center                           # centre and on-axis special cases
+    pts[:10] = center  # centre and on-axis special cases
     pts[10:20, 1] = center[1]
     d = signed_distance_to_ellipse(pts, center, phi[0], r1[0], r2[0])
     c, s = np.cos(phi[0]), np.sin(phi[0])
 
-    def nearest(psi):          # (K, S) anomalies -> (K,) min distance to those boundary samples
+    def nearest(psi):  # (K, S) anomalies -> (K,) min distance to those boundary samples
         bx, by = r1[0] * np.cos(psi), r2[0] * np.sin(psi)
         gx = center[0] + c * bx - s * by
         gy = center[1] + s * bx + c * by
@@ -306,8 +373,8 @@ def test_signed_distance_matches_brute_force_sampling(seed):
     brute, _ = nearest(best[:, None] + np.linspace(-2 * step, 2 * step, 4001)[None, :])
     inside = ellipse_h(pts - center, phi[0], r1[0], r2[0]) < 0
     np.testing.assert_array_equal(d < 0, inside)
-    assert np.all(np.abs(d) <= brute + 1e-12)               # exact is never farther than a sample
-    assert np.max(brute - np.abs(d)) < 1e-7                 # and sampling converges to it
+    assert np.all(np.abs(d) <= brute + 1e-12)  # exact is never farther than a sample
+    assert np.max(brute - np.abs(d)) < 1e-7  # and sampling converges to it
     # centre: distance is the minor semi-axis
     np.testing.assert_allclose(d[:10], -min(r1[0], r2[0]), rtol=1e-12)
 
@@ -316,9 +383,19 @@ def test_kernel_field_matches_numpy():
     rng = np.random.default_rng(9)
     n = 300
     phi, r1, r2 = _ellipses(rng, n)
-    args = (rng.uniform(-2, 2, (n, 2)), rng.uniform(-0.3, 0.3, (n, 2)), phi, rng.uniform(-1, 1, n),
-            rng.uniform(-1, 1, n), r1, r2, rng.uniform(-1, 1, n), rng.uniform(-1, 1, n),
-            rng.uniform(0, 0.5, n), rng.uniform(-0.1, 0.1, n))
+    args = (
+        rng.uniform(-2, 2, (n, 2)),
+        rng.uniform(-0.3, 0.3, (n, 2)),
+        phi,
+        rng.uniform(-1, 1, n),
+        rng.uniform(-1, 1, n),
+        r1,
+        r2,
+        rng.uniform(-1, 1, n),
+        rng.uniform(-1, 1, n),
+        rng.uniform(0, 0.5, n),
+        rng.uniform(-0.1, 0.1, n),
+    )
     out = field(*args)
     z, zd = args[0], args[1]
     for i in range(n):
@@ -326,4 +403,6 @@ def test_kernel_field_matches_numpy():
         np.testing.assert_allclose(res[0:2], out.f[i], rtol=1e-12, atol=1e-14)
         np.testing.assert_allclose(res[2:4], out.f_dot[i], rtol=1e-12, atol=1e-14)
         np.testing.assert_allclose(res[4:6], (out.h[i], out.h_dot[i]), rtol=1e-12, atol=1e-14)
-        assert kn.ellipse_h_k(*z[i], phi[i], r1[i], r2[i]) == pytest.approx(out.h[i], rel=1e-12, abs=1e-14)
+        assert kn.ellipse_h_k(*z[i], phi[i], r1[i], r2[i]) == pytest.approx(
+            out.h[i], rel=1e-12, abs=1e-14
+        )

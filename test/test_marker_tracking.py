@@ -3,22 +3,31 @@
 The accuracy numbers are printed (run with -s to see them) and asserted against the targets:
 detection rate >= 99 %, position error p95 <= 5 mm, heading error p95 <= 1 deg.
 """
+
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
 from ament_formation.core.camera_model import CameraSetup
-from ament_formation.core.marker_tracking import (MarkerTracker, TrackerConfig, UndistortLookup,
-                                                  make_detector, measure)
+from ament_formation.core.marker_tracking import (
+    make_detector,
+    MarkerTracker,
+    measure,
+    TrackerConfig,
+    UndistortLookup,
+)
 from ament_formation.core.robot_marker import MarkerLayout
 from ament_formation.core.synthetic_camera import Obstacles, RenderOptions, SyntheticCamera
 
 SETUP = CameraSetup()
 CAM, FLOOR = SETUP.camera, SETUP.floor
-LAYOUT = MarkerLayout()                       # the default marker: 0.12 m DICT_4X4_50
-OBST = Obstacles(np.array([[1.0, -0.2], [2.0, 1.2]]), np.array([[0.4, 0.15], [0.3, 0.2]]),
-                 np.array([2.0944, 0.3]))
+LAYOUT = MarkerLayout()  # the default marker: 0.12 m DICT_4X4_50
+OBST = Obstacles(
+    np.array([[1.0, -0.2], [2.0, 1.2]]),
+    np.array([[0.4, 0.15], [0.3, 0.2]]),
+    np.array([2.0944, 0.3]),
+)
 
 
 def _wrap(a):
@@ -27,17 +36,20 @@ def _wrap(a):
 
 def _random_robots(rng, n: int) -> np.ndarray:
     """(n, 3) controlled-point poses anywhere on the 3 x 2.4 m floor (robot body inside it),
-    bodies not overlapping (>= 0.3 m apart)."""
+    bodies not overlapping (>= 0.3 m apart).
+    """
     x0, x1, y0, y1 = FLOOR.bounds_m
     while True:
-        xy = np.column_stack([rng.uniform(x0 + 0.1, x1 - 0.1, n), rng.uniform(y0 + 0.1, y1 - 0.1, n)])
+        xy = np.column_stack(
+            [rng.uniform(x0 + 0.1, x1 - 0.1, n), rng.uniform(y0 + 0.1, y1 - 0.1, n)]
+        )
         centers = LAYOUT.marker_centers_w(np.column_stack([xy, np.zeros(n)]))
         d = np.linalg.norm(centers[:, None] - centers[None], axis=2) + 9 * np.eye(n)
         if d.min() > 0.3:
             return np.column_stack([xy, rng.uniform(-np.pi, np.pi, n)])
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope='module')
 def renderer():
     return SyntheticCamera(CAM, LAYOUT, RenderOptions(noise_std=2.0), FLOOR)
 
@@ -61,13 +73,15 @@ def test_accuracy_over_the_floor_meets_the_targets(renderer):
             pos_err.append(np.hypot(e[0], e[1]))
             head_err.append(abs(_wrap(e[2])))
             sigma.append(m.sigma_xy_m[hit[0]])
-        assert set(m.ids.tolist()) <= set(ids.tolist())      # no false ids
+        assert set(m.ids.tolist()) <= set(ids.tolist())  # no false ids
     pos_err, head_deg = np.array(pos_err), np.degrees(head_err)
     rate = found / total
     p95_mm, h95 = np.percentile(pos_err, 95) * 1e3, np.percentile(head_deg, 95)
-    print(f"\n[camera accuracy] {total} markers: detection {rate:.2%}, position p50 "
-          f"{np.median(pos_err) * 1e3:.2f} mm p95 {p95_mm:.2f} mm max {pos_err.max() * 1e3:.2f} mm, "
-          f"heading p50 {np.median(head_deg):.3f} p95 {h95:.3f} max {head_deg.max():.3f} deg")
+    print(
+        f'\n[camera accuracy] {total} markers: detection {rate:.2%}, position p50 '
+        f'{np.median(pos_err) * 1e3:.2f} mm p95 {p95_mm:.2f} mm max {pos_err.max() * 1e3:.2f} mm, '
+        f'heading p50 {np.median(head_deg):.3f} p95 {h95:.3f} max {head_deg.max():.3f} deg'
+    )
     assert rate >= 0.99
     assert p95_mm <= 5.0
     assert h95 <= 1.0
@@ -78,9 +92,13 @@ def test_accuracy_over_the_floor_meets_the_targets(renderer):
 def test_roi_tracking_matches_full_frame_and_searches_fewer_pixels(renderer):
     rng = np.random.default_rng(7)
     poses = _random_robots(rng, 10)
-    rates = np.column_stack([0.2 * np.cos(poses[:, 2]), 0.2 * np.sin(poses[:, 2]), rng.uniform(-1, 1, 10)])
+    rates = np.column_stack(
+        [0.2 * np.cos(poses[:, 2]), 0.2 * np.sin(poses[:, 2]), rng.uniform(-1, 1, 10)]
+    )
     ids = np.arange(10)
-    roi = MarkerTracker(CAM, LAYOUT, TrackerConfig(full_frame_period=1000), expected_ids=tuple(ids))
+    roi = MarkerTracker(
+        CAM, LAYOUT, TrackerConfig(full_frame_period=1000), expected_ids=tuple(ids)
+    )
     full = MarkerTracker(CAM, LAYOUT, TrackerConfig(use_roi=False), expected_ids=tuple(ids))
     roi_frames, searched, predicted = 0, [], []
     for k in range(30):
@@ -92,15 +110,15 @@ def test_roi_tracking_matches_full_frame_and_searches_fewer_pixels(renderer):
         assert sorted(a.accepted.ids.tolist()) == sorted(b.accepted.ids.tolist()) == list(ids)
         pa = a.accepted.poses[np.argsort(a.accepted.ids)]
         pb = b.accepted.poses[np.argsort(b.accepted.ids)]
-        assert np.abs(pa[:, :2] - pb[:, :2]).max() < 2e-3      # same measurement up to the detector
+        assert np.abs(pa[:, :2] - pb[:, :2]).max() < 2e-3  # same measurement up to the detector
         assert np.abs(pa[:, :2] - truth[:, :2]).max() < 5e-3
         if not a.full_frame:
             roi_frames += 1
             searched.append(a.roi_pixels)
             predicted.append(a.predicted)
-    assert roi_frames == 29                                    # only the first frame is full-frame
+    assert roi_frames == 29  # only the first frame is full-frame
     assert max(searched) < 0.25 * CAM.width_px * CAM.height_px
-    assert np.mean(np.array(predicted) == 10) > 0.9            # mostly without any detection
+    assert np.mean(np.array(predicted) == 10) > 0.9  # mostly without any detection
 
 
 def test_predicted_corners_are_only_accepted_with_the_right_code(renderer):
@@ -112,7 +130,7 @@ def test_predicted_corners_are_only_accepted_with_the_right_code(renderer):
     # marker 1 is swapped for marker 5 at the very same place: the prediction for 1 fits the
     # edges perfectly but the code cells read 5 -> not accepted as 1; detection finds 5
     r = tracker.step(renderer.render(poses, [5, 2], frame_index=2), 2 / 30)
-    assert r.full_frame                                        # 1 missing -> full-frame search
+    assert r.full_frame  # 1 missing -> full-frame search
     assert sorted(r.accepted.ids.tolist()) == [2, 5]
 
 
@@ -125,9 +143,12 @@ def test_lost_marker_triggers_a_full_frame_search_and_is_found_again(renderer):
     # robot 2 leaves the picture (covered): ROI misses it -> fallback to the full frame
     r = tracker.step(renderer.render(poses[:1], ids[:1]), 2 / 30)
     assert r.full_frame and r.accepted.ids.tolist() == [1]
-    # it comes back far away (picked up, moved 0.3 m in 0.1 s: a jump) -> rejected, then re-acquired
+    # it comes back far away (picked up, moved 0.3 m in 0.1 s: a jump) -> rejected, then
+    # re-acquired
     moved = np.array([[0.5, 0.2, 0.0], [1.5, 0.9, 1.0]])
-    outcomes = [tracker.step(renderer.render(moved, ids, frame_index=k), (3 + k) / 30) for k in range(6)]
+    outcomes = [
+        tracker.step(renderer.render(moved, ids, frame_index=k), (3 + k) / 30) for k in range(6)
+    ]
     assert outcomes[0].rejected_ids == (2,)
     accepted_at = [k for k, o in enumerate(outcomes) if 2 in o.accepted.ids.tolist()]
     assert accepted_at and accepted_at[0] == TrackerConfig().reacquire_after - 1
@@ -139,11 +160,17 @@ def test_implausible_jumps_are_rejected_plausible_motion_is_not(renderer):
     tracker = MarkerTracker(CAM, LAYOUT, TrackerConfig(max_speed_mps=1.0, reacquire_after=100))
     pose = np.array([[1.0, 0.5, 0.0]])
     tracker.step(renderer.render(pose, [4]), 0.0)
-    ok = tracker.step(renderer.render(pose + [0.03, 0.0, 0.1], [4], frame_index=1), 1 / 30)   # 0.9 m/s
+    ok = tracker.step(
+        renderer.render(pose + [0.03, 0.0, 0.1], [4], frame_index=1), 1 / 30
+    )  # 0.9 m/s
     assert ok.accepted.ids.tolist() == [4]
-    jump = tracker.step(renderer.render(pose + [0.25, 0.0, 0.0], [4], frame_index=2), 2 / 30)  # 6.6 m/s
+    jump = tracker.step(
+        renderer.render(pose + [0.25, 0.0, 0.0], [4], frame_index=2), 2 / 30
+    )  # 6.6 m/s
     assert jump.accepted.ids.tolist() == [] and jump.rejected_ids == (4,)
-    flip = tracker.step(renderer.render(pose + [0.03, 0.0, 2.5], [4], frame_index=3), 3 / 30)  # 75 rad/s
+    flip = tracker.step(
+        renderer.render(pose + [0.03, 0.0, 2.5], [4], frame_index=3), 3 / 30
+    )  # 75 rad/s
     assert flip.rejected_ids == (4,)
 
 
@@ -155,7 +182,7 @@ def test_duplicate_ids_keep_the_marker_nearest_the_prediction(renderer):
     r = tracker.step(renderer.render(both, [9, 9], frame_index=1), 1 / 30)
     assert r.accepted.ids.tolist() == [9]
     assert np.abs(r.accepted.poses[0, :2] - both[0, :2]).max() < 5e-3
-    fresh = MarkerTracker(CAM, LAYOUT)                      # untracked and ambiguous: neither
+    fresh = MarkerTracker(CAM, LAYOUT)  # untracked and ambiguous: neither
     assert len(fresh.step(renderer.render(both, [9, 9]), 0.0).accepted) == 0
 
 
@@ -165,22 +192,27 @@ def test_uncertainty_grows_with_noise():
     sig = {}
     for noise in (1.0, 12.0):
         sc = SyntheticCamera(CAM, LAYOUT, RenderOptions(noise_std=noise))
-        sig[noise] = np.mean([measure(sc.render(pose, [0], frame_index=k), det, CAM, LAYOUT).sigma_xy_m[0]
-                              for k in range(10)])
+        sig[noise] = np.mean(
+            [
+                measure(sc.render(pose, [0], frame_index=k), det, CAM, LAYOUT).sigma_xy_m[0]
+                for k in range(10)
+            ]
+        )
     assert sig[12.0] > 1.5 * sig[1.0]
 
 
 def test_undistort_lookup_matches_exact_undistortion():
     from ament_formation.core.camera_model import undistort_normalized
+
     rng = np.random.default_rng(1)
     px = rng.uniform([0, 0], [639, 479], (2000, 2))
     exact = undistort_normalized(px, CAM.k, CAM.dist)
-    assert np.abs(UndistortLookup(CAM)(px) - exact).max() * CAM.fx_px < 2e-3   # < 0.002 px
+    assert np.abs(UndistortLookup(CAM)(px) - exact).max() * CAM.fx_px < 2e-3  # < 0.002 px
 
 
 def test_tracker_refuses_wrong_images():
     tracker = MarkerTracker(CAM, LAYOUT)
-    with pytest.raises(ValueError, match="mono8"):
+    with pytest.raises(ValueError, match='mono8'):
         tracker.step(np.zeros((480, 640, 3), np.uint8), 0.0)
-    with pytest.raises(ValueError, match="320x240"):
+    with pytest.raises(ValueError, match='320x240'):
         tracker.step(np.zeros((240, 320), np.uint8), 0.0)

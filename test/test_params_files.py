@@ -5,14 +5,15 @@ The process tests start the real console scripts (``.venv/bin/formation_*``) wit
 params file and talk to them with a small rclpy client (rcl_interfaces GetParameters,
 DescribeParameters, SetParameters), as ``ros2 param`` would.
 """
+
 from __future__ import annotations
 
 import dataclasses
 import importlib
 import os
+from pathlib import Path
 import signal
 import subprocess
-from pathlib import Path
 
 import pytest
 import yaml
@@ -36,7 +37,7 @@ NODES = {
 }
 # parameters a params file leaves to the command line (required, or not writable in ROS YAML)
 COMMAND_LINE_ONLY = {'scenario', 'robot_id'}
-EMPTY_LIST_ONLY = {'formation_team': {'robot_ids'}}   # [] cannot be written in a ROS params file
+EMPTY_LIST_ONLY = {'formation_team': {'robot_ids'}}  # [] cannot be written in a ROS params file
 REQUIRED = {'scenario': 'x.yaml', 'robot_id': 0}
 
 
@@ -73,7 +74,8 @@ def test_params_file_lists_every_parameter_with_its_default(node):
 @pytest.mark.parametrize('node', sorted(NODES))
 def test_every_parameter_has_a_description_and_ranges_match_the_validation(node):
     """Each field is declared with ``param`` (a description); a value just outside a declared
-    range is also refused by the dataclass, so the descriptor never rejects a valid value."""
+    range is also refused by the dataclass, so the descriptor never rejects a valid value.
+    """
     cls = _params_class(node)
     base = _required_for(cls)
     for f in dataclasses.fields(cls):
@@ -94,8 +96,10 @@ def test_params_files_are_installed_by_setup_py():
     import ast
 
     tree = ast.parse((ROOT / 'setup.py').read_text())
-    walked = any(isinstance(n, ast.Call) and getattr(n.func, 'id', '') == 'config_files'
-                 for n in ast.walk(tree))
+    walked = any(
+        isinstance(n, ast.Call) and getattr(n.func, 'id', '') == 'config_files'
+        for n in ast.walk(tree)
+    )
     assert walked, 'setup.py data_files must walk config/ (config/params/ lands in share/)'
     assert sorted(p.stem for p in (ROOT / 'config' / 'params').glob('*.yaml')) == sorted(NODES)
 
@@ -117,8 +121,11 @@ def _node(ctx, name='demo', **overrides):
     from rclpy.node import Node
     from rclpy.parameter import Parameter
 
-    return Node(name, context=ctx,
-                parameter_overrides=[Parameter(k, value=v) for k, v in overrides.items()])
+    return Node(
+        name,
+        context=ctx,
+        parameter_overrides=[Parameter(k, value=v) for k, v in overrides.items()],
+    )
 
 
 def test_descriptors_carry_type_description_range_and_read_only(ros_context):
@@ -129,11 +136,15 @@ def test_descriptors_carry_type_description_range_and_read_only(ros_context):
     node = _node(ros_context)
     try:
         declare_dataclass(node, _Demo)
-        rate, label, count, gains = node.describe_parameters(['rate_hz', 'label', 'count', 'gains'])
+        rate, label, count, gains = node.describe_parameters(
+            ['rate_hz', 'label', 'count', 'gains']
+        )
         assert rate.type == ParameterType.PARAMETER_DOUBLE and rate.description == 'a rate [Hz]'
-        assert (rate.floating_point_range[0].from_value, rate.floating_point_range[0].to_value) \
-            == (1.0, 100.0)
-        assert rate.read_only   # live, but nobody applies it (no on_change)
+        assert (
+            rate.floating_point_range[0].from_value,
+            rate.floating_point_range[0].to_value,
+        ) == (1.0, 100.0)
+        assert rate.read_only  # live, but nobody applies it (no on_change)
         assert label.read_only and label.type == ParameterType.PARAMETER_STRING
         assert count.integer_range[0].from_value == 0 and count.integer_range[0].to_value == 10
         assert gains.type == ParameterType.PARAMETER_DOUBLE_ARRAY
@@ -151,10 +162,12 @@ def test_integer_for_float_is_taken_and_wrong_types_name_the_parameter(ros_conte
         assert obj.gains == (1.0, 3.0) and all(isinstance(g, float) for g in obj.gains)
     finally:
         node.destroy_node()
-    for name, value, expected in (('rate_hz', 'fast', 'expected a float'),
-                                  ('label', 7, 'expected a string'),
-                                  ('count', 2.5, 'expected an integer'),
-                                  ('gains', ['a'], 'expected a list of floats')):
+    for name, value, expected in (
+        ('rate_hz', 'fast', 'expected a float'),
+        ('label', 7, 'expected a string'),
+        ('count', 2.5, 'expected an integer'),
+        ('gains', ['a'], 'expected a list of floats'),
+    ):
         node = _node(ros_context, 'bad', **{name: value})
         try:
             with pytest.raises(ConfigError) as err:
@@ -207,26 +220,65 @@ def test_live_parameter_is_validated_by_the_dataclass_and_applied(ros_context):
 def _launches(tmp: Path) -> dict:
     scen = f'scenario:={SCENARIO}'
     return {
-        'formation_world': (['-p', scen, '-p', f'pty_dir:={tmp / "ptys"}', '-p',
-                             'exit_at_end:=false', '-p', 'camera_enabled:=false'],
-                            '/formation_world', ('tick_s', 0.02)),
+        'formation_world': (
+            [
+                '-p',
+                scen,
+                '-p',
+                f'pty_dir:={tmp / "ptys"}',
+                '-p',
+                'exit_at_end:=false',
+                '-p',
+                'camera_enabled:=false',
+            ],
+            '/formation_world',
+            ('tick_s', 0.02),
+        ),
         'formation_tracker': ([], '/formation_tracker', ('max_speed_mps', 2.0)),
-        'formation_bridge': (['-r', '__ns:=/robot_0', '-p', f'port:={tmp / "no_board"}', '-p', 'wait_for_port:=true'],
-                             '/robot_0/formation_bridge', ('command_rate_hz', 50.0)),
-        'formation_controller': (['-r', '__ns:=/robot_0', '-p', scen, '-p', 'robot_id:=0'],
-                                 '/robot_0/formation_controller', ('pose_timeout_s', 0.7)),
-        'formation_coordinator': (['-p', scen], '/formation_coordinator',
-                                  ('markers_rate_hz', 2.0)),
-        'formation_team': (['-p', scen, '-p', 'robot_ids:=[1]', '-p', 'wait_for_port:=true', '--params-file',
-                            str(config_file('params/formation_controller.yaml'))],
-                           '/formation_team', ('port_template', f'{tmp}/no_board_{{id}}')),
+        'formation_bridge': (
+            [
+                '-r',
+                '__ns:=/robot_0',
+                '-p',
+                f'port:={tmp / "no_board"}',
+                '-p',
+                'wait_for_port:=true',
+            ],
+            '/robot_0/formation_bridge',
+            ('command_rate_hz', 50.0),
+        ),
+        'formation_controller': (
+            ['-r', '__ns:=/robot_0', '-p', scen, '-p', 'robot_id:=0'],
+            '/robot_0/formation_controller',
+            ('pose_timeout_s', 0.7),
+        ),
+        'formation_coordinator': (
+            ['-p', scen],
+            '/formation_coordinator',
+            ('markers_rate_hz', 2.0),
+        ),
+        'formation_team': (
+            [
+                '-p',
+                scen,
+                '-p',
+                'robot_ids:=[1]',
+                '-p',
+                'wait_for_port:=true',
+                '--params-file',
+                str(config_file('params/formation_controller.yaml')),
+            ],
+            '/formation_team',
+            ('port_template', f'{tmp}/no_board_{{id}}'),
+        ),
     }
 
 
 @pytest.fixture(scope='module')
 def node_processes(tmp_path_factory):
     """Every node process, started with its installed params file (and a copy of it with one
-    value changed, given second)."""
+    value changed, given second).
+    """
     tmp = tmp_path_factory.mktemp('params_nodes')
     procs = {}
     try:
@@ -234,11 +286,22 @@ def node_processes(tmp_path_factory):
             changed = {f'/**/{node}': {'ros__parameters': {name: value}}}
             copy = tmp / f'{node}.yaml'
             copy.write_text(yaml.safe_dump(changed))
-            cmd = [str(BIN / node), '--ros-args', '--params-file',
-                   str(config_file(f'params/{node}.yaml')), '--params-file', str(copy), *extra]
+            cmd = [
+                str(BIN / node),
+                '--ros-args',
+                '--params-file',
+                str(config_file(f'params/{node}.yaml')),
+                '--params-file',
+                str(copy),
+                *extra,
+            ]
             log = open(tmp / f'{node}.log', 'w')
-            procs[node] = (subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT), fqn,
-                           (name, value), tmp / f'{node}.log')
+            procs[node] = (
+                subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT),
+                fqn,
+                (name, value),
+                tmp / f'{node}.log',
+            )
             log.close()
         yield procs
     finally:
@@ -256,7 +319,8 @@ def node_processes(tmp_path_factory):
 def _call(node, executor, srv_type, name, request, timeout_s=120.0):
     """Call service ``name``; a request is sent again every 10 s without an answer (a response
     can be lost while discovery of the reply reader is still under way, slow on a busy machine;
-    the calls made here are idempotent)."""
+    the calls made here are idempotent).
+    """
     import time
 
     from ament_formation.ros.executors import spin_until
@@ -279,8 +343,13 @@ def _get(node, executor, fqn, names):
     from rcl_interfaces.srv import GetParameters
     from rclpy.parameter import parameter_value_to_python
 
-    res = _call(node, executor, GetParameters, f'{fqn}/get_parameters',
-                GetParameters.Request(names=list(names)))
+    res = _call(
+        node,
+        executor,
+        GetParameters,
+        f'{fqn}/get_parameters',
+        GetParameters.Request(names=list(names)),
+    )
     return {n: parameter_value_to_python(v) for n, v in zip(names, res.values)}
 
 
@@ -306,13 +375,22 @@ def test_node_starts_with_its_installed_params_file(node, node_processes, ros_co
         got = _get(client, executor, fqn, list(want))
         _alive_or_log(procs, node)
         for name, v in want.items():
-            assert got[name] == pytest.approx(v) if isinstance(v, float) else got[name] == v, \
-                (name, got[name], v)
-        desc = _call(client, executor, DescribeParameters, f'{fqn}/describe_parameters',
-                     DescribeParameters.Request(names=list(want))).descriptors
-        assert all(d.read_only and d.description for d in desc), \
-            [d.name for d in desc if not (d.read_only and d.description)]
-        if node == 'formation_team':   # hosted controllers read formation_controller.yaml
+            assert got[name] == pytest.approx(v) if isinstance(v, float) else got[name] == v, (
+                name,
+                got[name],
+                v,
+            )
+        desc = _call(
+            client,
+            executor,
+            DescribeParameters,
+            f'{fqn}/describe_parameters',
+            DescribeParameters.Request(names=list(want)),
+        ).descriptors
+        assert all(d.read_only and d.description for d in desc), [
+            d.name for d in desc if not (d.read_only and d.description)
+        ]
+        if node == 'formation_team':  # hosted controllers read formation_controller.yaml
             hosted = _get(client, executor, '/robot_1/formation_controller', ['control_rate_hz'])
             assert hosted == {'control_rate_hz': 100.0}
     finally:
@@ -321,8 +399,9 @@ def test_node_starts_with_its_installed_params_file(node, node_processes, ros_co
 
 
 @pytest.mark.timeout(300)
-def test_run_time_change_of_a_read_only_or_out_of_range_value_is_rejected(node_processes,
-                                                                          ros_context, executor):
+def test_run_time_change_of_a_read_only_or_out_of_range_value_is_rejected(
+    node_processes, ros_context, executor
+):
     from rcl_interfaces.msg import Parameter as ParameterMsg
     from rcl_interfaces.srv import SetParameters
     from rclpy.parameter import Parameter
@@ -331,11 +410,20 @@ def test_run_time_change_of_a_read_only_or_out_of_range_value_is_rejected(node_p
     client = _node(ros_context, 'set_client')
     executor.add_node(client)
     try:
-        for name, value in (('torque_limit_nm', -5.0), ('torque_limit_nm', 0.1),
-                            ('torque_limit_nm', 'abc'), ('port', '/dev/null')):
+        for name, value in (
+            ('torque_limit_nm', -5.0),
+            ('torque_limit_nm', 0.1),
+            ('torque_limit_nm', 'abc'),
+            ('port', '/dev/null'),
+        ):
             msg: ParameterMsg = Parameter(name, value=value).to_parameter_msg()
-            res = _call(client, executor, SetParameters, f'{fqn}/set_parameters',
-                        SetParameters.Request(parameters=[msg])).results[0]
+            res = _call(
+                client,
+                executor,
+                SetParameters,
+                f'{fqn}/set_parameters',
+                SetParameters.Request(parameters=[msg]),
+            ).results[0]
             assert not res.successful and res.reason, (name, value, res)
         assert _get(client, executor, fqn, ['torque_limit_nm']) == {'torque_limit_nm': 0.15}
         _alive_or_log(node_processes, 'formation_bridge')
@@ -344,23 +432,47 @@ def test_run_time_change_of_a_read_only_or_out_of_range_value_is_rejected(node_p
         client.destroy_node()
 
 
-@pytest.mark.parametrize('exe, args, parameter, expected', [
-    ('formation_bridge', ['-p', 'torque_limit_nm:=abc'], 'torque_limit_nm', 'expected a float'),
-    ('formation_tracker', ['-p', 'camera_config:=0'], 'camera_config', 'expected a string'),
-    ('formation_controller', ['-p', f'scenario:={SCENARIO}', '-p', 'robot_id:=zero'],
-     'robot_id', 'expected an integer'),
-    ('formation_coordinator', ['-p', f'scenario:={SCENARIO}', '-p', 'markers_rate_hz:=500.0'],
-     'markers_rate_hz', 'must be in [0, 100]'),
-])
+@pytest.mark.parametrize(
+    'exe, args, parameter, expected',
+    [
+        (
+            'formation_bridge',
+            ['-p', 'torque_limit_nm:=abc'],
+            'torque_limit_nm',
+            'expected a float',
+        ),
+        ('formation_tracker', ['-p', 'camera_config:=0'], 'camera_config', 'expected a string'),
+        (
+            'formation_controller',
+            ['-p', f'scenario:={SCENARIO}', '-p', 'robot_id:=zero'],
+            'robot_id',
+            'expected an integer',
+        ),
+        (
+            'formation_coordinator',
+            ['-p', f'scenario:={SCENARIO}', '-p', 'markers_rate_hz:=500.0'],
+            'markers_rate_hz',
+            'must be in [0, 100]',
+        ),
+    ],
+)
 def test_wrong_type_at_start_is_one_line_and_exit_2(exe, args, parameter, expected):
     node = exe
-    proc = subprocess.run([str(BIN / exe), '--ros-args', '--params-file',
-                           str(config_file(f'params/{node}.yaml')), *args],
-                          capture_output=True, text=True, timeout=120,
-                          env={**os.environ, 'RCUTILS_LOGGING_USE_STDOUT': '0'})
+    proc = subprocess.run(
+        [
+            str(BIN / exe),
+            '--ros-args',
+            '--params-file',
+            str(config_file(f'params/{node}.yaml')),
+            *args,
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, 'RCUTILS_LOGGING_USE_STDOUT': '0'},
+    )
     assert proc.returncode == 2, proc.stderr
     assert 'Traceback' not in proc.stderr
     lines = [ln for ln in proc.stderr.strip().splitlines() if not ln.startswith('[')]
     assert len(lines) == 1, proc.stderr
     assert lines[0].startswith(f'{node}: /{node}: {parameter}: {expected}'), lines[0]
-

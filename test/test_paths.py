@@ -1,16 +1,18 @@
 """Leader reference paths (S4): closed-form derivatives against finite differences, constant path
-speed, bounded acceleration of the waypoint path."""
+speed, bounded acceleration of the waypoint path.
+"""
+
 from __future__ import annotations
 
 import math
 
-import numpy as np
-import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
+import numpy as np
+import pytest
 
 from ament_formation.core.errors import ConfigError
-from ament_formation.core.paths import LinePath, SinusoidPath, WaypointPath, path_from_config
+from ament_formation.core.paths import LinePath, path_from_config, SinusoidPath, WaypointPath
 
 
 def _fd(path, t, h=1e-4):
@@ -26,26 +28,43 @@ def test_paper_sinusoid_matches_spec_s4_formulas():
     x = r[:, 0]
     k = 0.2 * math.pi
     xd = 0.05 / np.sqrt(1 + k**2 * np.cos(math.pi * x) ** 2)
-    xdd = 0.05 * k**2 * math.pi * np.cos(math.pi * x) * np.sin(math.pi * x) * xd / (
-        1 + k**2 * np.cos(math.pi * x) ** 2) ** 1.5
+    xdd = (
+        0.05
+        * k**2
+        * math.pi
+        * np.cos(math.pi * x)
+        * np.sin(math.pi * x)
+        * xd
+        / (1 + k**2 * np.cos(math.pi * x) ** 2) ** 1.5
+    )
     np.testing.assert_allclose(r[:, 1], 0.2 * np.sin(math.pi * x), atol=1e-15)
     np.testing.assert_allclose(rd[:, 0], xd, atol=1e-15)
     np.testing.assert_allclose(rd[:, 1], k * np.cos(math.pi * x) * xd, atol=1e-15)
     np.testing.assert_allclose(rdd[:, 0], xdd, atol=1e-15)
-    np.testing.assert_allclose(rdd[:, 1], -0.2 * math.pi**2 * np.sin(math.pi * x) * xd**2
-                               + k * np.cos(math.pi * x) * xdd, atol=1e-15)
-    np.testing.assert_allclose(np.linalg.norm(rd, axis=1), 0.05, atol=1e-14)   # constant path speed
+    np.testing.assert_allclose(
+        rdd[:, 1],
+        -0.2 * math.pi**2 * np.sin(math.pi * x) * xd**2 + k * np.cos(math.pi * x) * xdd,
+        atol=1e-15,
+    )
+    np.testing.assert_allclose(np.linalg.norm(rd, axis=1), 0.05, atol=1e-14)  # constant path speed
     # arc length travelled equals v0 t (trapezoid on a fine grid)
     tf = np.linspace(0.0, 20.0, 40001)
     rf, _, _ = p.reference(tf)
-    assert np.sum(np.linalg.norm(np.diff(rf, axis=0), axis=1)) == pytest.approx(0.05 * 20.0, rel=1e-7)
+    assert np.sum(np.linalg.norm(np.diff(rf, axis=0), axis=1)) == pytest.approx(
+        0.05 * 20.0, rel=1e-7
+    )
     assert p.reference(0.0)[0] == pytest.approx([0.0, 0.0], abs=1e-15)
 
 
 @settings(max_examples=40, deadline=None)
-@given(amp=st.floats(0.0, 0.5), k=st.floats(0.5, 8.0), v=st.floats(0.01, 0.3),
-       heading=st.floats(-math.pi, math.pi), t=st.floats(-30.0, 200.0))
-@example(amp=0.5, k=8.0, v=0.25, heading=0.0, t=42.0)   # failed the plain difference's tolerance
+@given(
+    amp=st.floats(0.0, 0.5),
+    k=st.floats(0.5, 8.0),
+    v=st.floats(0.01, 0.3),
+    heading=st.floats(-math.pi, math.pi),
+    t=st.floats(-30.0, 200.0),
+)
+@example(amp=0.5, k=8.0, v=0.25, heading=0.0, t=42.0)  # failed the plain difference's tolerance
 @example(amp=0.5, k=7.0, v=0.25, heading=0.0, t=11.0)
 def test_sinusoid_derivatives_match_finite_differences(amp, k, v, heading, t):
     p = SinusoidPath((0.3, -0.1), amp, k, v, heading)
@@ -75,9 +94,9 @@ def test_waypoints_bounded_acceleration_c1_and_stop_at_the_end():
     t = np.linspace(-2.0, p.arrival_time_s + 5.0, 40001)
     r, rd, rdd = p.reference(t)
     assert np.linalg.norm(rdd, axis=1).max() <= 0.02 + 1e-12
-    assert np.linalg.norm(rdd, axis=1).max() >= 0.02 - 1e-12       # the bound is used in the turns
-    np.testing.assert_allclose(r[0], [-0.1, 0.0], atol=1e-12)       # before t = 0: back along segment 0
-    np.testing.assert_allclose(r[-1], [2.0, 1.5], atol=1e-12)       # rests on the last waypoint
+    assert np.linalg.norm(rdd, axis=1).max() >= 0.02 - 1e-12  # the bound is used in the turns
+    np.testing.assert_allclose(r[0], [-0.1, 0.0], atol=1e-12)  # before t = 0: back along segment 0
+    np.testing.assert_allclose(r[-1], [2.0, 1.5], atol=1e-12)  # rests on the last waypoint
     np.testing.assert_allclose(rd[-1], [0.0, 0.0], atol=1e-15)
     # continuous position and velocity (C1): no jumps larger than the grid step allows
     dt = t[1] - t[0]
@@ -93,14 +112,21 @@ def test_waypoints_bounded_acceleration_c1_and_stop_at_the_end():
 
 
 def test_path_from_config_and_errors():
-    p = path_from_config({"type": "waypoints", "points_m": [[0, 0], [2, 0]], "speed_mps": 0.05})
+    p = path_from_config({'type': 'waypoints', 'points_m': [[0, 0], [2, 0]], 'speed_mps': 0.05})
     assert isinstance(p, WaypointPath) and p.length_m == pytest.approx(2.0)
     with pytest.raises(ConfigError, match="type: unknown path type 'circle'"):
-        path_from_config({"type": "circle"})
-    with pytest.raises(ConfigError, match="amplitude_m: must be a number"):
-        path_from_config({"type": "sinusoid", "start_m": [0, 0], "amplitude_m": "big",
-                          "wavenumber_radpm": 3.0, "speed_mps": 0.05})
-    with pytest.raises(ConfigError, match=r"points_m\[2\]: repeats the previous point"):
+        path_from_config({'type': 'circle'})
+    with pytest.raises(ConfigError, match='amplitude_m: must be a number'):
+        path_from_config(
+            {
+                'type': 'sinusoid',
+                'start_m': [0, 0],
+                'amplitude_m': 'big',
+                'wavenumber_radpm': 3.0,
+                'speed_mps': 0.05,
+            }
+        )
+    with pytest.raises(ConfigError, match=r'points_m\[2\]: repeats the previous point'):
         WaypointPath(((0, 0), (1, 0), (1, 0)), 0.05)
-    with pytest.raises(ConfigError, match="reverses"):
+    with pytest.raises(ConfigError, match='reverses'):
         WaypointPath(((0, 0), (1, 0), (0, 0)), 0.05)

@@ -1,17 +1,19 @@
 """Versioned JSON payloads (ros/payloads.py): the schemas in docs/schemas/ are the ones the nodes
 use, good payloads round-trip, bad ones are rejected with a message naming the member, and a
 fuzz of >= 1,000 bad payloads into the controller (/formation/graph, /formation/encounters) and the
-coordinator (robot_<id>/mode) crashes nothing and is counted in their diagnostics."""
+coordinator (robot_<id>/mode) crashes nothing and is counted in their diagnostics.
+"""
+
 from __future__ import annotations
 
 import copy
 import json
 import os
+from pathlib import Path
 import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -20,93 +22,127 @@ from ament_formation.ros import messages as m
 from ament_formation.ros import payloads as pl
 
 ROOT = Path(__file__).resolve().parents[1]
-DATA = Path(__file__).resolve().parent / "data"
+DATA = Path(__file__).resolve().parent / 'data'
 
 
 def _good_graph() -> dict:
-    return json.loads(m.graph_msg(m.GraphMessage(7, {0: None, 1: 0}, {1: (0.0, 1.2)}, (), 12.5, 13.5)).data)
+    return json.loads(
+        m.graph_msg(m.GraphMessage(7, {0: None, 1: 0}, {1: (0.0, 1.2)}, (), 12.5, 13.5)).data
+    )
 
 
 def _good_encounters() -> dict:
     from ament_formation.core.controller import EncounterAssignment
 
-    return json.loads(m.encounters_msg(4, {0: EncounterAssignment("yield", 1, -1.0, 3.0, None),
-                                           1: EncounterAssignment("mutual", 0, 1.0, 3.0, (0.1, 0.0))}, 2.0).data)
+    return json.loads(
+        m.encounters_msg(
+            4,
+            {
+                0: EncounterAssignment('yield', 1, -1.0, 3.0, None),
+                1: EncounterAssignment('mutual', 0, 1.0, 3.0, (0.1, 0.0)),
+            },
+            2.0,
+        ).data
+    )
 
 
 def _good_mode() -> dict:
-    return json.loads(m.mode_msg("obstacle", "O1", "ccw", avoiding=True).data)
+    return json.loads(m.mode_msg('obstacle', 'O1', 'ccw', avoiding=True).data)
 
 
 GOOD = {pl.GRAPH_V1: _good_graph, pl.ENCOUNTERS_V1: _good_encounters, pl.MODE_V1: _good_mode}
 
 
-# --------------------------------------------------------------------------- schemas and round trips
+# --------------------------------------------------------------------------- schemas and round
+# trips
 def test_docs_schemas_are_the_ones_in_use():
-    folder = ROOT / "docs" / "schemas"
+    folder = ROOT / 'docs' / 'schemas'
     for sid in pl.SCHEMAS:
         path = folder / pl.schema_filename(sid)
-        assert path.read_text() == pl.schema_text(sid), f"{path} is stale: python -m ament_formation.ros.payloads"
+        assert path.read_text() == pl.schema_text(sid), (
+            f'{path} is stale: python -m ament_formation.ros.payloads'
+        )
         doc = json.loads(path.read_text())
-        assert doc["$id"] == sid and doc["properties"]["schema"] == {"const": sid}
+        assert doc['$id'] == sid and doc['properties']['schema'] == {'const': sid}
 
 
 def test_round_trips_carry_the_schema_version():
     for sid, make in GOOD.items():
         data = make()
-        assert data["schema"] == sid
+        assert data['schema'] == sid
         assert pl.decode(json.dumps(data), sid) == data
     g = m.graph_from_msg(m.String(data=json.dumps(_good_graph())))
-    assert (g.revision, g.parents, g.offsets_m, g.start_s) == (7, {0: None, 1: 0}, {1: (0.0, 1.2)}, 13.5)
+    assert (g.revision, g.parents, g.offsets_m, g.start_s) == (
+        7,
+        {0: None, 1: 0},
+        {1: (0.0, 1.2)},
+        13.5,
+    )
     rev, assignments = m.encounters_from_msg(m.String(data=json.dumps(_good_encounters())))
     assert rev == 4 and assignments[0].direction == -1.0 and assignments[1].drift_mps == (0.1, 0.0)
     mode = m.mode_from_msg(m.String(data=json.dumps(_good_mode())))
-    assert mode == {"mode": "obstacle", "target": "O1", "direction": "ccw", "avoiding": True}
+    assert mode == {'mode': 'obstacle', 'target': 'O1', 'direction': 'ccw', 'avoiding': True}
 
 
-@pytest.mark.parametrize("text, where", [
-    ('{"schema": "ament_formation/graph/v2", "revision": 1}', "/schema: expected"),
-    ('{"revision": 1, "parents": {}, "offsets_m": {}, "avoiding": [], "stamp_s": 0, "start_s": null}',
-     "missing member 'schema'"),
-    (None, "/revision: must be of type integer"),       # revision true (a boolean is not an integer)
-    (pl.encode(_good_graph()).replace('"stamp_s":12.5', '"stamp_s":NaN'), "NaN is not a JSON number"),
-    (pl.encode(_good_graph()).replace('"stamp_s":12.5', '"stamp_s":1e400'), "/stamp_s: must be a finite"),
-    ("[" * 100_000 + "]" * 100_000, "nested too deeply"),
-    ('{"a": "' + "x" * (pl.MAX_PAYLOAD_BYTES + 1) + '"}', "exceeds"),
-    (b"\xff\xfe", "not JSON"),
-])
+@pytest.mark.parametrize(
+    'text, where',
+    [
+        ('{"schema": "ament_formation/graph/v2", "revision": 1}', '/schema: expected'),
+        (
+            '{"revision": 1, "parents": {}, "offsets_m": {}, "avoiding": [], "stamp_s": 0, "start_s": null}',
+            "missing member 'schema'",
+        ),
+        (
+            None,
+            '/revision: must be of type integer',
+        ),  # revision true (a boolean is not an integer)
+        (
+            pl.encode(_good_graph()).replace('"stamp_s":12.5', '"stamp_s":NaN'),
+            'NaN is not a JSON number',
+        ),
+        (
+            pl.encode(_good_graph()).replace('"stamp_s":12.5', '"stamp_s":1e400'),
+            '/stamp_s: must be a finite',
+        ),
+        ('[' * 100_000 + ']' * 100_000, 'nested too deeply'),
+        ('{"a": "' + 'x' * (pl.MAX_PAYLOAD_BYTES + 1) + '"}', 'exceeds'),
+        (b'\xff\xfe', 'not JSON'),
+    ],
+)
 def test_bad_graph_payloads_name_the_problem(text, where):
     if text is None:
         data = _good_graph()
-        data["revision"] = True
+        data['revision'] = True
         text = json.dumps(data)
-    with pytest.raises(pl.PayloadError, match=f"^{pl.GRAPH_V1}: .*" + where.replace("[", r"\[")[:30]):
+    with pytest.raises(
+        pl.PayloadError, match=f'^{pl.GRAPH_V1}: .*' + where.replace('[', r'\[')[:30]
+    ):
         pl.decode(text, pl.GRAPH_V1)
 
 
 def test_specific_members():
     data = _good_graph()
-    data["parents"]["x1"] = 0
-    with pytest.raises(ValueError, match="/parents/x1: must match"):
+    data['parents']['x1'] = 0
+    with pytest.raises(ValueError, match='/parents/x1: must match'):
         m.graph_from_msg(m.String(data=json.dumps(data)))
     data = _good_encounters()
-    data["assignments"]["0"]["direction"] = 0.5
-    with pytest.raises(ValueError, match="/assignments/0/direction: must be one of"):
+    data['assignments']['0']['direction'] = 0.5
+    with pytest.raises(ValueError, match='/assignments/0/direction: must be one of'):
         m.encounters_from_msg(m.String(data=json.dumps(data)))
     data = _good_graph()
-    data["extra"] = 1
+    data['extra'] = 1
     with pytest.raises(ValueError, match="unexpected member 'extra'"):
         m.graph_from_msg(m.String(data=json.dumps(data)))
     data = _good_mode()
-    data["since_s"] = 3.0                     # a mode may carry more members (ignored)
-    assert m.mode_from_msg(m.String(data=json.dumps(data)))["since_s"] == 3.0
-    data["direction"] = "up"
-    with pytest.raises(ValueError, match="/direction"):
+    data['since_s'] = 3.0  # a mode may carry more members (ignored)
+    assert m.mode_from_msg(m.String(data=json.dumps(data)))['since_s'] == 3.0
+    data['direction'] = 'up'
+    with pytest.raises(ValueError, match='/direction'):
         m.mode_from_msg(m.String(data=json.dumps(data)))
 
 
 # --------------------------------------------------------------------------- fuzz
-_BAD_VALUE = {"__bad__": [1]}     # wrong wherever a schema member is: never a valid value or key
+_BAD_VALUE = {'__bad__': [1]}  # wrong wherever a schema member is: never a valid value or key
 
 
 def _paths(value, prefix=()):
@@ -136,22 +172,25 @@ def _delete(data, path):
 def bad_payloads(schema_id: str, n: int, seed: int) -> list[str]:
     """``n`` payloads, each invalid for ``schema_id`` by construction: truncated JSON text, a
     member replaced by an object, a required member deleted, an unknown member or schema version,
-    a NaN, random bytes, a JSON value of another kind."""
+    a NaN, random bytes, a JSON value of another kind.
+    """
     rng = np.random.default_rng(seed)
     good = GOOD[schema_id]()
     text = json.dumps(good)
     known = [p for p in _paths(good) if not (schema_id == pl.MODE_V1 and len(p) > 1)]
     schema = pl.SCHEMAS[schema_id]
-    required = [(k,) for k in schema["required"]]
+    required = [(k,) for k in schema['required']]
     if schema_id == pl.ENCOUNTERS_V1:
-        item = schema["properties"]["assignments"]["additionalProperties"]
-        required += [("assignments", rid, k) for rid in good["assignments"] for k in item["required"]]
+        item = schema['properties']['assignments']['additionalProperties']
+        required += [
+            ('assignments', rid, k) for rid in good['assignments'] for k in item['required']
+        ]
     out = []
     while len(out) < n:
         kind = len(out) % 8
         data = copy.deepcopy(good)
         if kind == 0:
-            out.append(text[: int(rng.integers(0, len(text)))])          # truncated: never closed
+            out.append(text[: int(rng.integers(0, len(text)))])  # truncated: never closed
         elif kind == 1:
             _set(data, known[int(rng.integers(len(known)))], _BAD_VALUE)
             out.append(json.dumps(data))
@@ -159,21 +198,21 @@ def bad_payloads(schema_id: str, n: int, seed: int) -> list[str]:
             _delete(data, required[int(rng.integers(len(required)))])
             out.append(json.dumps(data))
         elif kind == 3:
-            data["schema"] = f"{schema_id[:-1]}{int(rng.integers(2, 9))}"
+            data['schema'] = f'{schema_id[:-1]}{int(rng.integers(2, 9))}'
             out.append(json.dumps(data))
         elif kind == 4:
             path = known[int(rng.integers(len(known)))]
-            _set(data, path, float("nan"))
-            out.append(json.dumps(data))                                  # NaN token
+            _set(data, path, float('nan'))
+            out.append(json.dumps(data))  # NaN token
         elif kind == 5:
-            out.append(rng.bytes(int(rng.integers(1, 64))).decode("latin-1"))
+            out.append(rng.bytes(int(rng.integers(1, 64))).decode('latin-1'))
         elif kind == 6:
-            out.append(json.dumps([good, 1, "x", None][int(rng.integers(1, 4))]))
+            out.append(json.dumps([good, 1, 'x', None][int(rng.integers(1, 4))]))
         else:
             if schema_id == pl.MODE_V1:
-                data["mode"] = "Obstacle avoidance!"                      # not a mode name
+                data['mode'] = 'Obstacle avoidance!'  # not a mode name
             else:
-                data[f"extra_{int(rng.integers(100))}"] = 1
+                data[f'extra_{int(rng.integers(100))}'] = 1
             out.append(json.dumps(data))
     return out
 
@@ -188,18 +227,24 @@ def test_fuzzed_payloads_are_all_rejected_with_value_errors():
 def test_fuzz_into_controller_and_coordinator(ros_context):
     """1,000 bad /formation/graph and 1,000 bad /formation/encounters payloads through the
     controller's callbacks, 1,000 bad robot_<id>/mode payloads through the coordinator's: nothing
-    raises, every one is counted and reported (WARN) on /diagnostics, and good payloads still work."""
+    raises, every one is counted and reported (WARN) on /diagnostics, and good payloads still work.
+    """
     from std_msgs.msg import String
 
     from ament_formation.nodes.controller import ControllerNode, ControllerParams
     from ament_formation.nodes.coordinator import CoordinatorNode, CoordinatorParams
     from ament_formation.ros import diagnostics as diag
 
-    scenario = str(DATA / "redundant_chain.yaml")
-    ctrl = ControllerNode(context=ros_context, params=ControllerParams(scenario=scenario, robot_id=2),
-                          tick_timer=False)
-    coord = CoordinatorNode(context=ros_context, params=CoordinatorParams(scenario=scenario, encounter_rate_hz=0.0,
-                                                                          markers_rate_hz=0.0))
+    scenario = str(DATA / 'redundant_chain.yaml')
+    ctrl = ControllerNode(
+        context=ros_context,
+        params=ControllerParams(scenario=scenario, robot_id=2),
+        tick_timer=False,
+    )
+    coord = CoordinatorNode(
+        context=ros_context,
+        params=CoordinatorParams(scenario=scenario, encounter_rate_hz=0.0, markers_rate_hz=0.0),
+    )
     try:
         for text in bad_payloads(pl.GRAPH_V1, 1000, 11):
             ctrl._on_graph(String(data=text))
@@ -207,17 +252,23 @@ def test_fuzz_into_controller_and_coordinator(ros_context):
             ctrl._on_encounters(String(data=text))
         for k, text in enumerate(bad_payloads(pl.MODE_V1, 1000, 13)):
             coord._on_mode(k % 4, String(data=text))
-        assert ctrl.rejected["graph"] == 1000 and ctrl.rejected["encounters"] == 1000
-        assert coord.rejected["mode"] == 1000
+        assert ctrl.rejected['graph'] == 1000 and ctrl.rejected['encounters'] == 1000
+        assert coord.rejected['mode'] == 1000
         level, _, values = ctrl._inputs_status()
-        assert level == diag.WARN and values["rejected_graph"] == 1000 and values["rejected_encounters"] == 1000
+        assert (
+            level == diag.WARN
+            and values['rejected_graph'] == 1000
+            and values['rejected_encounters'] == 1000
+        )
         level, _, values = coord._inputs_status()
-        assert level == diag.WARN and values["rejected_mode"] == 1000
-        assert ctrl.graph is None and coord.modes == {}          # nothing bad was taken
+        assert level == diag.WARN and values['rejected_mode'] == 1000
+        assert ctrl.graph is None and coord.modes == {}  # nothing bad was taken
         # still working: a good graph (robot 2 follows 3) and a good mode are taken
-        ctrl._on_graph(m.graph_msg(m.GraphMessage(5, {0: None, 1: 0, 2: 3, 3: 0}, {2: (-0.5, 0.5)})))
+        ctrl._on_graph(
+            m.graph_msg(m.GraphMessage(5, {0: None, 1: 0, 2: 3, 3: 0}, {2: (-0.5, 0.5)}))
+        )
         assert ctrl.graph.revision == 5 and ctrl.parent.rid == 3
-        coord._on_mode(1, m.mode_msg("obstacle", "O1", "ccw", avoiding=True))
+        coord._on_mode(1, m.mode_msg('obstacle', 'O1', 'ccw', avoiding=True))
         assert coord.avoiding == {1}
     finally:
         ctrl.destroy_node()
@@ -226,9 +277,10 @@ def test_fuzz_into_controller_and_coordinator(ros_context):
 
 def test_running_controller_process_survives_bad_payloads(tmp_path):
     """Sanity check on the real program: formation_controller gets 60 bad graphs and 60 bad
-    encounter payloads over DDS, stays up and reports each one in /diagnostics."""
-    import rclpy
+    encounter payloads over DDS, stays up and reports each one in /diagnostics.
+    """
     from diagnostic_msgs.msg import DiagnosticArray
+    import rclpy
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import HistoryPolicy, QoSProfile
@@ -237,45 +289,70 @@ def test_running_controller_process_survives_bad_payloads(tmp_path):
     from ament_formation.ros.executors import spin_until
     from ament_formation.ros.qos import QOS_DIAGNOSTICS, QOS_GRAPH
 
-    exe = ROOT / ".venv" / "bin" / "formation_controller"
+    exe = ROOT / '.venv' / 'bin' / 'formation_controller'
     if not exe.exists():
-        exe = Path(sys.executable).parent / "formation_controller"
-    proc = subprocess.Popen([str(exe), "--ros-args", "-r", "__ns:=/robot_1", "-p",
-                             f"scenario:={DATA / 'redundant_chain.yaml'}", "-p", "robot_id:=1"],
-                            stdout=open(tmp_path / "controller.log", "w"), stderr=subprocess.STDOUT,
-                            start_new_session=True)
+        exe = Path(sys.executable).parent / 'formation_controller'
+    proc = subprocess.Popen(
+        [
+            str(exe),
+            '--ros-args',
+            '-r',
+            '__ns:=/robot_1',
+            '-p',
+            f'scenario:={DATA / "redundant_chain.yaml"}',
+            '-p',
+            'robot_id:=1',
+        ],
+        stdout=open(tmp_path / 'controller.log', 'w'),
+        stderr=subprocess.STDOUT,
+        start_new_session=True,
+    )
     ctx = Context()
-    rclpy.init(context=ctx, domain_id=int(os.environ["ROS_DOMAIN_ID"]))
-    node = rclpy.create_node("fuzzer", context=ctx)
+    rclpy.init(context=ctx, domain_id=int(os.environ['ROS_DOMAIN_ID']))
+    node = rclpy.create_node('fuzzer', context=ctx)
     ex = SingleThreadedExecutor(context=ctx)
     ex.add_node(node)
     inputs: list[dict] = []
 
     def on_diag(arr):
         for st in arr.status:
-            if st.name == "formation_controller: robot_1 inputs":
+            if st.name == 'formation_controller: robot_1 inputs':
                 inputs.append({kv.key: kv.value for kv in st.values})
 
-    node.create_subscription(DiagnosticArray, "/diagnostics", on_diag, QOS_DIAGNOSTICS)
+    node.create_subscription(DiagnosticArray, '/diagnostics', on_diag, QOS_DIAGNOSTICS)
     # keep every sample until acknowledged (the controller's subscriptions keep the newest only)
-    qos = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=QOS_GRAPH.reliability,
-                     durability=QOS_GRAPH.durability)
-    graph_pub = node.create_publisher(String, "/formation/graph", qos)
-    enc_pub = node.create_publisher(String, "/formation/encounters", qos)
+    qos = QoSProfile(
+        history=HistoryPolicy.KEEP_ALL,
+        reliability=QOS_GRAPH.reliability,
+        durability=QOS_GRAPH.durability,
+    )
+    graph_pub = node.create_publisher(String, '/formation/graph', qos)
+    enc_pub = node.create_publisher(String, '/formation/encounters', qos)
     try:
-        assert spin_until(ex, lambda: bool(inputs) and graph_pub.get_subscription_count() > 0
-                          and enc_pub.get_subscription_count() > 0, 60.0), (tmp_path / "controller.log").read_text()
+        assert spin_until(
+            ex,
+            lambda: (
+                bool(inputs)
+                and graph_pub.get_subscription_count() > 0
+                and enc_pub.get_subscription_count() > 0
+            ),
+            60.0,
+        ), (tmp_path / 'controller.log').read_text()
         n = 60
         for g, e in zip(bad_payloads(pl.GRAPH_V1, n, 21), bad_payloads(pl.ENCOUNTERS_V1, n, 22)):
             graph_pub.publish(String(data=g))
             enc_pub.publish(String(data=e))
-            spin_until(ex, lambda: False, 0.04)      # pace: the subscriptions keep the newest only
+            spin_until(ex, lambda: False, 0.04)  # pace: the subscriptions keep the newest only
 
         def counted():
-            return bool(inputs) and inputs[-1]["rejected_graph"] == str(n) and inputs[-1]["rejected_encounters"] == str(n)
+            return (
+                bool(inputs)
+                and inputs[-1]['rejected_graph'] == str(n)
+                and inputs[-1]['rejected_encounters'] == str(n)
+            )
 
         assert spin_until(ex, counted, 15.0), inputs[-1:]
-        assert proc.poll() is None, (tmp_path / "controller.log").read_text()
+        assert proc.poll() is None, (tmp_path / 'controller.log').read_text()
     finally:
         node.destroy_node()
         rclpy.try_shutdown(context=ctx)
@@ -286,4 +363,4 @@ def test_running_controller_process_survives_bad_payloads(tmp_path):
             except subprocess.TimeoutExpired:
                 os.killpg(proc.pid, signal.SIGKILL)
                 proc.wait()
-    assert "Traceback" not in (tmp_path / "controller.log").read_text()
+    assert 'Traceback' not in (tmp_path / 'controller.log').read_text()

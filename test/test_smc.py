@@ -1,17 +1,26 @@
 """Sliding-mode law (S3.1, S3.2, S3.5, S3.6) and the finite-time reaching bound (S3.3, S3.4)."""
+
 from __future__ import annotations
 
+from hypothesis import given, settings
+from hypothesis import strategies as st
 import numpy as np
-from hypothesis import given, settings, strategies as st
 
 from ament_formation.core import kernels as kn
 from ament_formation.core.disturbance import Disturbance
 from ament_formation.core.dynamics import (
-    PlantCoeffs, point_accel, point_velocity, rk4_step, s1_inv,
+    PlantCoeffs,
+    point_accel,
+    point_velocity,
+    rk4_step,
+    s1_inv,
 )
 from ament_formation.core.params import ControlGains, RobotParams
 from ament_formation.core.smc import (
-    reaching_time_bound, saturate_torque, sliding_mode_torque, sliding_mode_torque_raw,
+    reaching_time_bound,
+    saturate_torque,
+    sliding_mode_torque,
+    sliding_mode_torque_raw,
     switching_gain_for,
 )
 
@@ -79,7 +88,9 @@ def test_torque_saturation_keeps_ratio_and_never_exceeds_limit(seed, tau_max):
     # unsaturated rows keep exactly the free torque
     np.testing.assert_array_equal(out.torque_nm[~out.saturated], free[~out.saturated])
     # the reported commanded acceleration is the one of the applied (scaled) torque
-    np.testing.assert_allclose(out.accel_cmd_mps2, point_accel(x, out.torque_nm, None, k), atol=1e-12)
+    np.testing.assert_allclose(
+        out.accel_cmd_mps2, point_accel(x, out.torque_nm, None, k), atol=1e-12
+    )
     tq, flag = saturate_torque(np.array([[0.3, -0.1], [0.05, 0.02]]), np.array([0.15, 0.15]))
     np.testing.assert_allclose(tq, [[0.15, -0.05], [0.05, 0.02]])
     np.testing.assert_array_equal(flag, [True, False])
@@ -110,7 +121,7 @@ def test_reaching_time_never_exceeds_s3_4_bound(seed):
     x = np.zeros((n, 5))
     x[:, :2] = rng.uniform(-1, 1, (n, 2))
     x[:, 2] = rng.uniform(-np.pi, np.pi, n)
-    x[:, 3:] = np.einsum("nij,nj->ni", s1_inv(x[:, 2], k.d), v0 + sigma0)   # sigma(0) = sigma0
+    x[:, 3:] = np.einsum('nij,nj->ni', s1_inv(x[:, 2], k.d), v0 + sigma0)  # sigma(0) = sigma0
     bound_k = np.maximum(np.abs(sigma0) - eps, 0.0) / lam
     horizon = float(bound_k.max()) + 0.3
     reached = np.where(np.abs(sigma0) <= eps, 0.0, np.inf)
@@ -126,15 +137,17 @@ def test_reaching_time_never_exceeds_s3_4_bound(seed):
         assert not out.saturated.any()
         inside = np.abs(out.sigma_mps) <= eps
         reached = np.where(np.isinf(reached) & inside, t, reached)
-        max_after = np.where(np.isfinite(reached), np.maximum(max_after, np.abs(out.sigma_mps)), max_after)
+        max_after = np.where(
+            np.isfinite(reached), np.maximum(max_after, np.abs(out.sigma_mps)), max_after
+        )
         x = rk4_step(x, out.torque_nm, dist, t, dt, k)
     np.testing.assert_allclose(first, sigma0, atol=1e-14)
     assert np.all(np.isfinite(reached))
-    assert np.all(reached <= bound_k + dt)                      # componentwise (boundary layer)
+    assert np.all(reached <= bound_k + dt)  # componentwise (boundary layer)
     t_reach = reached.max(axis=1)
     assert np.all(t_reach <= np.max(np.abs(sigma0), axis=1) / lam)  # S3.4 bound
     np.testing.assert_allclose(reaching_time_bound(sigma0, lam, eps), bound_k.max(axis=1))
-    assert np.all(max_after <= eps * (1 + 1e-9))                 # stays in the layer afterwards
+    assert np.all(max_after <= eps * (1 + 1e-9))  # stays in the layer afterwards
     # the reaching phase is not trivially short: the bound is tight to within a factor ~2
     assert np.max(t_reach / np.maximum(bound_k.max(axis=1), 1e-9)) > 0.5
 
@@ -142,8 +155,10 @@ def test_reaching_time_never_exceeds_s3_4_bound(seed):
 def test_kernel_matches_numpy_law():
     rng = np.random.default_rng(21)
     n = 300
-    params = [RobotParams(com_offset_m=rng.uniform(0.02, 0.1), torque_limit_nm=rng.uniform(0.02, 0.3))
-              for _ in range(n)]
+    params = [
+        RobotParams(com_offset_m=rng.uniform(0.02, 0.1), torque_limit_nm=rng.uniform(0.02, 0.3))
+        for _ in range(n)
+    ]
     k = PlantCoeffs.from_params(params)
     x = _states(rng, n, w_max=4.0)
     v_d = rng.uniform(-0.5, 0.5, (n, 2))
@@ -152,9 +167,23 @@ def test_kernel_matches_numpy_law():
         ref = sliding_mode_torque_raw(x, v_d, v_d_dot, k, 0.27, eps)
         assert 0 < ref.saturated.sum() < n
         for i in range(n):
-            res = kn.smc_torque_k(x[i, 2], x[i, 3], x[i, 4], *v_d[i], *v_d_dot[i], k.m_tilde[i],
-                                  k.I_tilde[i], k.r[i], k.a[i], k.d[i], k.m_c[i], k.tau_max[i],
-                                  0.27, 0.27, eps)
+            res = kn.smc_torque_k(
+                x[i, 2],
+                x[i, 3],
+                x[i, 4],
+                *v_d[i],
+                *v_d_dot[i],
+                k.m_tilde[i],
+                k.I_tilde[i],
+                k.r[i],
+                k.a[i],
+                k.d[i],
+                k.m_c[i],
+                k.tau_max[i],
+                0.27,
+                0.27,
+                eps,
+            )
             np.testing.assert_allclose(res[0:2], ref.torque_nm[i], rtol=1e-12, atol=1e-15)
             np.testing.assert_allclose(res[2:4], ref.sigma_mps[i], rtol=1e-12, atol=1e-15)
             assert res[4] == ref.saturated[i]

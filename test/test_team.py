@@ -1,9 +1,11 @@
 """formation_team (nodes/team.py): several robots' bridge and controller nodes in one process.
-The closed loop through a team is tested in test_system.py (head-on encounter, both layouts)."""
+The closed loop through a team is tested in test_system.py (head-on encounter, both layouts).
+"""
+
 from __future__ import annotations
 
-import subprocess
 from pathlib import Path
+import subprocess
 
 import numpy as np
 import pytest
@@ -12,15 +14,18 @@ from ament_formation.core.errors import ConfigError
 from ament_formation.nodes.team import TeamNode, TeamParams
 
 ROOT = Path(__file__).resolve().parents[1]
-SCENARIO = ROOT / "test" / "data" / "paper_short.yaml"
+SCENARIO = ROOT / 'test' / 'data' / 'paper_short.yaml'
 
 
-@pytest.mark.parametrize("kwargs, field", [
-    ({}, "scenario"),
-    ({"scenario": "x.yaml", "robot_ids": (0, 0)}, "robot_ids"),
-    ({"scenario": "x.yaml", "robot_ids": (-1,)}, "robot_ids"),
-    ({"scenario": "x.yaml", "port_template": "/dev/ttyACM0"}, "port_template"),
-])
+@pytest.mark.parametrize(
+    'kwargs, field',
+    [
+        ({}, 'scenario'),
+        ({'scenario': 'x.yaml', 'robot_ids': (0, 0)}, 'robot_ids'),
+        ({'scenario': 'x.yaml', 'robot_ids': (-1,)}, 'robot_ids'),
+        ({'scenario': 'x.yaml', 'port_template': '/dev/ttyACM0'}, 'port_template'),
+    ],
+)
 def test_team_params_are_validated(kwargs, field):
     with pytest.raises(ConfigError) as err:
         TeamParams(**kwargs)
@@ -28,39 +33,50 @@ def test_team_params_are_validated(kwargs, field):
 
 
 def test_unknown_robot_is_rejected(ros_context):
-    with pytest.raises(ConfigError, match="robot_ids.*not robots of"):
+    with pytest.raises(ConfigError, match='robot_ids.*not robots of'):
         TeamNode(context=ros_context, params=TeamParams(scenario=str(SCENARIO), robot_ids=(0, 7)))
 
 
 def test_one_tick_runs_every_hosted_controller_and_peers_read_in_process(ros_context):
     """One team tick = one control period of every hosted controller, in id order; a controller
-    sees its peer's state, accel and mode exactly as the peer published them (no DDS subscription)."""
+    sees its peer's state, accel and mode exactly as the peer published them (no DDS subscription).
+    """
     from ament_formation.core.scenario import load_scenario
     from ament_formation.ros import messages as msgs
 
     sc = load_scenario(SCENARIO)
-    team = TeamNode(context=ros_context, params=TeamParams(scenario=str(SCENARIO)), control_thread=False)
+    team = TeamNode(
+        context=ros_context, params=TeamParams(scenario=str(SCENARIO)), control_thread=False
+    )
     try:
         assert sorted(team.controllers) == [0, 1] and team.bridges == {}
         c0, c1 = team.controllers[0], team.controllers[1]
-        assert c1.neighbours[0] is team.peers.records[0] and c0.neighbours[1] is team.peers.records[1]
-        assert c1.neighbours[0].subs == [] and c1.neighbours[0].state is None   # nothing published yet
+        assert (
+            c1.neighbours[0] is team.peers.records[0] and c0.neighbours[1] is team.peers.records[1]
+        )
+        assert (
+            c1.neighbours[0].subs == [] and c1.neighbours[0].state is None
+        )  # nothing published yet
         now = c0.now_s()
-        for c in (c0, c1):                               # a camera pose and wheel data for each
+        for c in (c0, c1):  # a camera pose and wheel data for each
             c.estimator.wheel_update(now, np.zeros(2), np.zeros(2))
             c.last_wheel_s = now
-            c.estimator.camera_update(now - 0.03, np.asarray(sc.robot(c.rid).initial_pose, dtype=float))
+            c.estimator.camera_update(
+                now - 0.03, np.asarray(sc.robot(c.rid).initial_pose, dtype=float)
+            )
         team._control()
         assert (c0.ticks, c1.ticks) == (1, 1)
         seen = c1.neighbours[0]
-        published, stamp_s = msgs.state_from_odometry(c0._msg_state)    # what went out on robot_0/state
+        published, stamp_s = msgs.state_from_odometry(
+            c0._msg_state
+        )  # what went out on robot_0/state
         np.testing.assert_allclose(seen.state, published, atol=1e-12)
         np.testing.assert_allclose(seen.state[:2], sc.robot(0).initial_pose[:2], atol=1e-3)
         assert seen.stamp_s == pytest.approx(stamp_s, abs=1e-9) and seen.stamp_s >= now
-        assert (seen.mode, seen.target) == ("coordination", None)
-        c0.mode = {"mode": "obstacle", "target": "O1", "direction": "cw", "avoiding": True}
+        assert (seen.mode, seen.target) == ('coordination', None)
+        c0.mode = {'mode': 'obstacle', 'target': 'O1', 'direction': 'cw', 'avoiding': True}
         c0._send(np.zeros(2), np.array([0.01, -0.02]), c0.now_s())
-        assert (seen.mode, seen.target) == ("obstacle", "O1")
+        assert (seen.mode, seen.target) == ('obstacle', 'O1')
         np.testing.assert_array_equal(seen.accel, [0.01, -0.02])
     finally:
         team.destroy_node()
@@ -68,9 +84,13 @@ def test_one_tick_runs_every_hosted_controller_and_peers_read_in_process(ros_con
 
 
 def test_process_exits_2_on_bad_parameters(tmp_path):
-    exe = ROOT / ".venv" / "bin" / "formation_team"
-    proc = subprocess.run([str(exe), "--ros-args", "-p", f"scenario:={SCENARIO}", "-p", "robot_ids:=[0, 9]"],
-                          capture_output=True, text=True, timeout=60)
+    exe = ROOT / '.venv' / 'bin' / 'formation_team'
+    proc = subprocess.run(
+        [str(exe), '--ros-args', '-p', f'scenario:={SCENARIO}', '-p', 'robot_ids:=[0, 9]'],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert proc.returncode == 2, proc.stderr
     lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1 and "robot_ids" in lines[0] and "9" in lines[0], proc.stderr
+    assert len(lines) == 1 and 'robot_ids' in lines[0] and '9' in lines[0], proc.stderr

@@ -11,6 +11,7 @@ before every decision the arbiter copies each robot's reported obstacle mode int
 state, so static obstacles beat robots (S7) and a robot avoiding an obstacle is stand-on. The
 arbiter keeps its own yield/mutual state between calls (dwell, joint exits, cool-downs, S8.3-S8.4).
 """
+
 from __future__ import annotations
 
 from typing import Mapping
@@ -18,11 +19,16 @@ from typing import Mapping
 import numpy as np
 
 from ament_formation.core.automaton import (
-    MODE_C, MODE_MUTUAL, MODE_OBSTACLE, MODE_YIELD, AutomatonState, SwitchingParams,
+    AutomatonState,
+    MODE_C,
+    MODE_MUTUAL,
+    MODE_OBSTACLE,
+    MODE_YIELD,
+    SwitchingParams,
 )
 from ament_formation.core.controller import EncounterAssignment
 from ament_formation.core.dynamics import PlantCoeffs
-from ament_formation.core.encounters import KIND_OBSTACLE, decide
+from ament_formation.core.encounters import decide, KIND_OBSTACLE
 from ament_formation.core.graph import FormationGraph
 from ament_formation.core.simulator import goal_fields, obstacle_arrays, obstacle_states
 
@@ -32,7 +38,8 @@ class EncounterArbiter:
 
     ``EncounterArbiter(scenario, switching=None)``; ``decide(t_s, states, modes)`` with ``t_s``
     scenario time [s], ``states`` {robot id: (5,) [x_m, y_m, theta_rad, v_mps, omega_radps]}
-    (robots without a state are left out of the decision), ``modes`` {robot id: the JSON dict of its
+    (robots without a state are left out of the decision), ``modes`` {robot id: the JSON dict of
+    its
     ``mode`` topic: mode, target, direction}. Returns {robot id: EncounterAssignment} for every
     robot the arbiter has in yield or mutual mode (``t_entry_s`` in scenario time, ``drift_mps``
     the pair's current w_c).
@@ -44,27 +51,55 @@ class EncounterArbiter:
         self.index = {rid: q for q, rid in enumerate(self.ids)}
         n = len(robots)
         base = switching or SwitchingParams()
-        self.switching = SwitchingParams(avoidance=scenario.avoidance, **{
-            f: getattr(base, f) for f in ("decision_period_s", "imminent_s", "agent_horizon_s",
-                                          "teammate_rel_speed_mps", "mutual_drift_tau_s",
-                                          "mutual_drift_cap_mps")})
+        self.switching = SwitchingParams(
+            avoidance=scenario.avoidance,
+            **{
+                f: getattr(base, f)
+                for f in (
+                    'decision_period_s',
+                    'imminent_s',
+                    'agent_horizon_s',
+                    'teammate_rel_speed_mps',
+                    'mutual_drift_tau_s',
+                    'mutual_drift_cap_mps',
+                )
+            },
+        )
         self._prm = self.switching.as_array()
         g = scenario.control
-        self._gains = np.array([g.switching_gain_mps2, g.boundary_layer_mps, g.formation_gain_per_s,
-                                g.formation_speed_cap_mps, g.reaching_rate_mps2], dtype=float)
+        self._gains = np.array(
+            [
+                g.switching_gain_mps2,
+                g.boundary_layer_mps,
+                g.formation_gain_per_s,
+                g.formation_speed_cap_mps,
+                g.reaching_rate_mps2,
+            ],
+            dtype=float,
+        )
         self._d = PlantCoeffs.from_params([r.params for r in robots]).d
         self._rbody = np.array([r.params.body_radius_m for r in robots], dtype=float)
         graph = FormationGraph.from_scenario(scenario)
         self._orig = {rid: graph.original_parent.get(rid) for rid in self.ids}
-        self._orig_off = {rid: (graph.offset(rid, p) if p is not None else np.zeros(2))
-                          for rid, p in self._orig.items()}
+        self._orig_off = {
+            rid: (graph.offset(rid, p) if p is not None else np.zeros(2))
+            for rid, p in self._orig.items()
+        }
         self._team = {rid: scenario.team_leader(rid) for rid in self.ids}
         self._paths = {r.id: (r.path if r.leader else None) for r in robots}
         self.obstacle_names = tuple(o.name for o in scenario.obstacles)
-        (self._c0, self._v, self._amp, self._w, self._phi0, self._phid, self._axes,
-         self._static) = obstacle_arrays(scenario.obstacles)
-        self.state = AutomatonState(n)      # all robots, rows in robot-id order
-        self.events: list[dict] = []        # robot-robot events decided here (ids, scenario time)
+        (
+            self._c0,
+            self._v,
+            self._amp,
+            self._w,
+            self._phi0,
+            self._phid,
+            self._axes,
+            self._static,
+        ) = obstacle_arrays(scenario.obstacles)
+        self.state = AutomatonState(n)  # all robots, rows in robot-id order
+        self.events: list[dict] = []  # robot-robot events decided here (ids, scenario time)
         self._drift_t: float | None = None
 
     # ------------------------------------------------------------------ reported obstacle modes
@@ -74,13 +109,15 @@ class EncounterArbiter:
             q = self.index.get(int(rid))
             if q is None or not isinstance(md, dict):
                 continue
-            name = md.get("mode")
-            if name == "obstacle" and md.get("target") in self.obstacle_names:
-                j = self.obstacle_names.index(md["target"])
+            name = md.get('mode')
+            if name == 'obstacle' and md.get('target') in self.obstacle_names:
+                j = self.obstacle_names.index(md['target'])
                 if st.mode[q] != MODE_OBSTACLE or st.tgt[q] != j:
                     self._drop_partner(q)
-                    st.set_mode(q, MODE_OBSTACLE, j, -1.0 if md.get("direction") == "cw" else 1.0, t_s)
-            elif st.mode[q] == MODE_OBSTACLE:           # the robot left its obstacle
+                    st.set_mode(
+                        q, MODE_OBSTACLE, j, -1.0 if md.get('direction') == 'cw' else 1.0, t_s
+                    )
+            elif st.mode[q] == MODE_OBSTACLE:  # the robot left its obstacle
                 st.last_kind[q] = KIND_OBSTACLE
                 st.last_tgt[q] = st.tgt[q]
                 st.last_exit[q] = t_s
@@ -89,7 +126,7 @@ class EncounterArbiter:
                 st.since[q] = -1.0
 
     def _drop_partner(self, q: int) -> None:
-        """q leaves a mutual pair: its partner becomes a plain yielder (S8.3)."""
+        """Q leaves a mutual pair: its partner becomes a plain yielder (S8.3)."""
         st = self.state
         if st.mode[q] == MODE_MUTUAL:
             k = st.tgt[q]
@@ -98,8 +135,9 @@ class EncounterArbiter:
                 st.since[k] = -1.0
 
     # ------------------------------------------------------------------ decision
-    def decide(self, t_s: float, states: Mapping[int, np.ndarray],
-               modes: Mapping[int, dict]) -> dict[int, EncounterAssignment]:
+    def decide(
+        self, t_s: float, states: Mapping[int, np.ndarray], modes: Mapping[int, dict]
+    ) -> dict[int, EncounterAssignment]:
         """One S7/S8 decision over every robot with a known state; see the class docstring."""
         t_s = float(t_s)
         self._sync_reported(t_s, modes)
@@ -109,11 +147,19 @@ class EncounterArbiter:
         if n == 0:
             return {}
         row = {rid: q for q, rid in enumerate(known)}
-        x = np.ascontiguousarray(np.stack([np.asarray(states[r], dtype=float).reshape(5) for r in known]))
+        x = np.ascontiguousarray(
+            np.stack([np.asarray(states[r], dtype=float).reshape(5) for r in known])
+        )
         d = self._d[rows]
-        pd = np.ascontiguousarray(np.stack(
-            [x[:, 3] * np.cos(x[:, 2]) - d * x[:, 4] * np.sin(x[:, 2]),
-             x[:, 3] * np.sin(x[:, 2]) + d * x[:, 4] * np.cos(x[:, 2])], axis=1))
+        pd = np.ascontiguousarray(
+            np.stack(
+                [
+                    x[:, 3] * np.cos(x[:, 2]) - d * x[:, 4] * np.sin(x[:, 2]),
+                    x[:, 3] * np.sin(x[:, 2]) + d * x[:, 4] * np.cos(x[:, 2]),
+                ],
+                axis=1,
+            )
+        )
         ref = np.zeros((n, 6))
         orig_parent = np.full(n, -1, dtype=np.int64)
         orig_offset = np.zeros((n, 2))
@@ -126,60 +172,117 @@ class EncounterArbiter:
             elif p0 is not None and p0 in row:
                 orig_parent[q] = row[p0]
                 orig_offset[q] = self._orig_off[rid]
-            else:                                  # goal unknown: its own position
+            else:  # goal unknown: its own position
                 ref[q, 0:2] = x[q, 0:2]
                 ref[q, 2:4] = pd[q]
         goal, goal_dot, vc = goal_fields(x, pd, ref, orig_parent, orig_offset, self._gains)
-        team = np.array([row.get(self._team[r], -1 - self.index[r]) for r in known], dtype=np.int64)
+        team = np.array(
+            [row.get(self._team[r], -1 - self.index[r]) for r in known], dtype=np.int64
+        )
         m = len(self.obstacle_names)
         oc, ov, oa = np.empty((m, 2)), np.empty((m, 2)), np.empty((m, 2))
         ophi, ophid, ophidd = np.empty(m), np.empty(m), np.empty(m)
-        obstacle_states(t_s, self._c0, self._v, self._amp, self._w, self._phi0, self._phid,
-                        oc, ov, oa, ophi, ophid, ophidd)
+        obstacle_states(
+            t_s,
+            self._c0,
+            self._v,
+            self._amp,
+            self._w,
+            self._phi0,
+            self._phid,
+            oc,
+            ov,
+            oa,
+            ophi,
+            ophid,
+            ophidd,
+        )
 
         # sub-state of the known robots (robot targets as rows of the sub-problem)
         full = self.state
         sub = AutomatonState(n)
-        for name in ("mode", "tgt", "sdir", "t_entry", "since", "last_kind", "last_tgt",
-                     "last_exit", "wc", "wtgt"):
+        for name in (
+            'mode',
+            'tgt',
+            'sdir',
+            't_entry',
+            'since',
+            'last_kind',
+            'last_tgt',
+            'last_exit',
+            'wc',
+            'wtgt',
+        ):
             getattr(sub, name)[:] = getattr(full, name)[rows]
         idx_row = {self.index[r]: q for q, r in enumerate(known)}
         for q in range(n):
             if sub.mode[q] in (MODE_YIELD, MODE_MUTUAL):
                 sub.tgt[q] = idx_row.get(int(sub.tgt[q]), -1)
-                if sub.tgt[q] < 0:                 # partner silent: back to coordination
+                if sub.tgt[q] < 0:  # partner silent: back to coordination
                     sub.mode[q] = MODE_C
             if sub.last_kind[q] == 2:
                 sub.last_tgt[q] = idx_row.get(int(sub.last_tgt[q]), -1)
-        if self._drift_t is not None:              # w_c relaxes toward w_tgt (S14.1), as the law does
+        if self._drift_t is not None:  # w_c relaxes toward w_tgt (S14.1), as the law does
             tau = self.switching.mutual_drift_tau_s
             a = min(1.0, max(0.0, t_s - self._drift_t) / tau) if tau > 0 else 1.0
             sub.wc += a * (sub.wtgt - sub.wc) * (sub.mode == MODE_MUTUAL)[:, None]
         self._drift_t = t_s
         ev = np.zeros((8 * n + 16, 6))
-        nev = decide(t_s, np.ascontiguousarray(x[:, :2]), pd, goal, goal_dot, vc, team, self._rbody[rows],
-                     oc, ov, ophi, ophid, self._axes, self._static, *sub.arrays(), self._prm, ev, 0)
-        for r_ in ev[:min(nev, ev.shape[0])]:
+        nev = decide(
+            t_s,
+            np.ascontiguousarray(x[:, :2]),
+            pd,
+            goal,
+            goal_dot,
+            vc,
+            team,
+            self._rbody[rows],
+            oc,
+            ov,
+            ophi,
+            ophid,
+            self._axes,
+            self._static,
+            *sub.arrays(),
+            self._prm,
+            ev,
+            0,
+        )
+        for r_ in ev[: min(nev, ev.shape[0])]:
             md = int(r_[3])
             if md in (MODE_YIELD, MODE_MUTUAL):
-                self.events.append({"t_s": float(r_[0]), "robot": known[int(r_[1])],
-                                    "event": "enter" if r_[2] > 0.5 else "exit",
-                                    "mode": "yield" if md == MODE_YIELD else "mutual",
-                                    "target": f"robot_{known[int(r_[4])]}"})
+                self.events.append(
+                    {
+                        't_s': float(r_[0]),
+                        'robot': known[int(r_[1])],
+                        'event': 'enter' if r_[2] > 0.5 else 'exit',
+                        'mode': 'yield' if md == MODE_YIELD else 'mutual',
+                        'target': f'robot_{known[int(r_[4])]}',
+                    }
+                )
         # write back (robot targets as full-state rows); obstacle modes stay the robots' own
         for q, rid in enumerate(known):
             i = self.index[rid]
-            reported_obstacle = (modes.get(rid) or {}).get("mode") == "obstacle"
-            if sub.mode[q] == MODE_OBSTACLE and not reported_obstacle and full.mode[i] != MODE_OBSTACLE:
-                continue                            # the arbiter does not decide obstacle entries
-            for name in ("mode", "sdir", "t_entry", "since", "last_kind", "last_exit"):
+            reported_obstacle = (modes.get(rid) or {}).get('mode') == 'obstacle'
+            if (
+                sub.mode[q] == MODE_OBSTACLE
+                and not reported_obstacle
+                and full.mode[i] != MODE_OBSTACLE
+            ):
+                continue  # the arbiter does not decide obstacle entries
+            for name in ('mode', 'sdir', 't_entry', 'since', 'last_kind', 'last_exit'):
                 getattr(full, name)[i] = getattr(sub, name)[q]
             full.wc[i] = sub.wc[q]
             full.wtgt[i] = sub.wtgt[q]
-            full.tgt[i] = (self.index[known[int(sub.tgt[q])]]
-                           if sub.mode[q] in (MODE_YIELD, MODE_MUTUAL) else sub.tgt[q])
+            full.tgt[i] = (
+                self.index[known[int(sub.tgt[q])]]
+                if sub.mode[q] in (MODE_YIELD, MODE_MUTUAL)
+                else sub.tgt[q]
+            )
             lt = int(sub.last_tgt[q])
-            full.last_tgt[i] = (self.index[known[lt]] if sub.last_kind[q] == 2 and 0 <= lt < n else lt)
+            full.last_tgt[i] = (
+                self.index[known[lt]] if sub.last_kind[q] == 2 and 0 <= lt < n else lt
+            )
         return self.assignments()
 
     def assignments(self) -> dict[int, EncounterAssignment]:
@@ -189,8 +292,12 @@ class EncounterArbiter:
         for i, rid in enumerate(self.ids):
             if st.mode[i] in (MODE_YIELD, MODE_MUTUAL):
                 out[rid] = EncounterAssignment(
-                    "yield" if st.mode[i] == MODE_YIELD else "mutual", self.ids[int(st.tgt[i])],
+                    'yield' if st.mode[i] == MODE_YIELD else 'mutual',
+                    self.ids[int(st.tgt[i])],
                     direction=1.0 if st.mode[i] == MODE_MUTUAL else float(st.sdir[i]),
                     t_entry_s=float(st.t_entry[i]),
-                    drift_mps=(float(st.wc[i, 0]), float(st.wc[i, 1])) if st.mode[i] == MODE_MUTUAL else None)
+                    drift_mps=(float(st.wc[i, 0]), float(st.wc[i, 1]))
+                    if st.mode[i] == MODE_MUTUAL
+                    else None,
+                )
         return out

@@ -23,13 +23,14 @@ Departures from the letter of S8, each motivated by S14:
 * S14.2 -- an emergency may not replace a current target that is itself in emergency (no
   flip-flopping between two emergency zones every step).
 """
+
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
+import math
 
-import numpy as np
 from numba import njit
+import numpy as np
 
 from ament_formation.core.errors import ConfigError
 from ament_formation.core.params import AvoidanceParams
@@ -38,7 +39,7 @@ MODE_C = 0
 MODE_OBSTACLE = 1
 MODE_YIELD = 2
 MODE_MUTUAL = 3
-MODE_NAMES = ("coordination", "obstacle", "yield", "mutual")
+MODE_NAMES = ('coordination', 'obstacle', 'yield', 'mutual')
 
 INF = math.inf
 
@@ -52,19 +53,25 @@ class SwitchingParams:
     """
 
     avoidance: AvoidanceParams = AvoidanceParams()
-    decision_period_s: float = 0.01        # automaton/encounter evaluation period (100 Hz)
-    imminent_s: float = 1.5                # S14.2: ray reaches P within this time -> emergency
-    agent_horizon_s: float = 12.0          # S14.3: agent threat only if contact with I within this
-    teammate_rel_speed_mps: float = 0.02   # S14.3: teammates holding slots below this are no threat
-    mutual_drift_tau_s: float = 2.0        # S14.1: w_c relaxes toward the pair's mean V_c
-    mutual_drift_cap_mps: float = 0.05     # |w_c target| cap
+    decision_period_s: float = 0.01  # automaton/encounter evaluation period (100 Hz)
+    imminent_s: float = 1.5  # S14.2: ray reaches P within this time -> emergency
+    agent_horizon_s: float = 12.0  # S14.3: agent threat only if contact with I within this
+    teammate_rel_speed_mps: float = 0.02  # S14.3: teammates holding slots below this are no threat
+    mutual_drift_tau_s: float = 2.0  # S14.1: w_c relaxes toward the pair's mean V_c
+    mutual_drift_cap_mps: float = 0.05  # |w_c target| cap
 
     def __post_init__(self) -> None:
-        for name in ("decision_period_s", "imminent_s", "agent_horizon_s",
-                     "teammate_rel_speed_mps", "mutual_drift_tau_s", "mutual_drift_cap_mps"):
+        for name in (
+            'decision_period_s',
+            'imminent_s',
+            'agent_horizon_s',
+            'teammate_rel_speed_mps',
+            'mutual_drift_tau_s',
+            'mutual_drift_cap_mps',
+        ):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ConfigError(f"must be a finite number > 0 (got {value!r})", name)
+                raise ConfigError(f'must be a finite number > 0 (got {value!r})', name)
 
     def as_array(self) -> np.ndarray:
         """Packed (24,) float vector for the compiled code (see ``P_*`` indices)."""
@@ -93,13 +100,33 @@ class SwitchingParams:
         return out
 
 
-(P_EM, P_L, P_IN, P_CLR, P_KAPPA, P_VTAN, P_VTAN_AGENT, P_VRAD, P_BETA0, P_TAU_G, P_PSI_SLOW,
- P_DWELL, P_TMIN, P_COOL, P_KEEPOUT_MARGIN, P_IMMINENT, P_HORIZON, P_TEAM_VREL, P_DRIFT_TAU,
- P_DRIFT_CAP) = range(20)
+(
+    P_EM,
+    P_L,
+    P_IN,
+    P_CLR,
+    P_KAPPA,
+    P_VTAN,
+    P_VTAN_AGENT,
+    P_VRAD,
+    P_BETA0,
+    P_TAU_G,
+    P_PSI_SLOW,
+    P_DWELL,
+    P_TMIN,
+    P_COOL,
+    P_KEEPOUT_MARGIN,
+    P_IMMINENT,
+    P_HORIZON,
+    P_TEAM_VREL,
+    P_DRIFT_TAU,
+    P_DRIFT_CAP,
+) = range(20)
 P_LEN = 24
 
 
 # --------------------------------------------------------------------------- ellipse geometry
+
 
 @njit(cache=True)
 def ellipse_coords(zx, zy, phi, r1, r2):
@@ -175,7 +202,8 @@ def h_dot_sign_value(zx, zy, rvx, rvy, phi, r1, r2):
 def threat_test(zx, zy, rvx, rvy, phi, r1, r2, prm):
     """S8.1 entry test for one target (ellipse r1, r2 = P) seen from z with relative velocity rv.
 
-    Returns (triggered, emergency, lam_in, h_em, h_l): ``triggered`` = inside Q, the ray meets I and
+    Returns (triggered, emergency, lam_in, h_em, h_l): ``triggered`` = inside Q, the ray meets I
+    and
     dh/dt < 0 (cool-down is the caller's business); ``emergency`` = inside E, or (S14.2) inside Q
     and approaching with the ray reaching P within ``imminent_s``.
     """
@@ -237,8 +265,9 @@ def arc_length(psi0, dpsi, r1, r2):
 
 
 @njit(cache=True)
-def choose_direction(zx, zy, zdx, zdy, gx, gy, gdx, gdy, phi, big_r1, big_r2, look_ahead_m,
-                     velocity_tiebreak):
+def choose_direction(
+    zx, zy, zdx, zdy, gx, gy, gdx, gdy, phi, big_r1, big_r2, look_ahead_m, velocity_tiebreak
+):
     """Rotation sense s (+1 CCW, -1 CW) at entry, S6.6 rules 1-4 and 7.
 
     z, z_dot: robot relative to the target centre; g, g_dot: goal relative to the centre and its
@@ -338,12 +367,23 @@ class AutomatonState:
 
     def arrays(self) -> tuple:
         """(mode, tgt, sdir, t_entry, since, last_kind, last_tgt, last_exit, wc, wtgt)."""
-        return (self.mode, self.tgt, self.sdir, self.t_entry, self.since, self.last_kind,
-                self.last_tgt, self.last_exit, self.wc, self.wtgt)
+        return (
+            self.mode,
+            self.tgt,
+            self.sdir,
+            self.t_entry,
+            self.since,
+            self.last_kind,
+            self.last_tgt,
+            self.last_exit,
+            self.wc,
+            self.wtgt,
+        )
 
     def set_mode(self, i: int, mode: int, target: int, direction: float, t_entry_s: float) -> None:
         """Put robot row ``i`` into ``mode`` toward ``target`` (for tests and for a coordinator's
-        encounter assignment)."""
+        encounter assignment).
+        """
         self.mode[i] = mode
         self.tgt[i] = target
         self.sdir[i] = direction

@@ -1,6 +1,8 @@
 """Fault injection on a byte stream (one direction of a serial link): drop, corrupt or delay bytes
 with given probabilities. Order is preserved, as on a real UART: a delayed byte holds back the
-bytes behind it. Randomness comes from the numpy Generator passed in."""
+bytes behind it. Randomness comes from the numpy Generator passed in.
+"""
+
 from __future__ import annotations
 
 from collections import deque
@@ -19,12 +21,12 @@ class FaultSpec:
     delay_s: float = 0.02
 
     def __post_init__(self) -> None:
-        for name in ("drop_prob", "corrupt_prob", "delay_prob"):
+        for name in ('drop_prob', 'corrupt_prob', 'delay_prob'):
             value = getattr(self, name)
             if not 0.0 <= value <= 1.0:
-                raise ValueError(f"FaultSpec.{name}: {value} is not a probability in [0, 1]")
+                raise ValueError(f'FaultSpec.{name}: {value} is not a probability in [0, 1]')
         if not 0.0 <= self.delay_s <= 10.0:
-            raise ValueError(f"FaultSpec.delay_s: {self.delay_s} s not in [0, 10] s")
+            raise ValueError(f'FaultSpec.delay_s: {self.delay_s} s not in [0, 10] s')
 
     @property
     def active(self) -> bool:
@@ -61,12 +63,12 @@ class ByteFaults:
                 self.delayed += 1
                 data, suffix = arr[:first].tobytes(), arr[first:].tobytes()
             else:
-                data, suffix = arr.tobytes(), b""
+                data, suffix = arr.tobytes(), b''
         else:
-            suffix = b""
+            suffix = b''
         if self._held:  # bytes behind a delayed byte wait for it
             self._hold(data, now_s)
-            data = b""
+            data = b''
         self._hold(suffix, now_s + spec.delay_s)
         return data + self.release(now_s)
 
@@ -89,7 +91,14 @@ class ByteFaults:
         self._held.clear()
 
 
-MUTATION_KINDS = ("bit_flips", "byte_replaced", "byte_inserted", "byte_deleted", "burst", "bytes_replaced")
+MUTATION_KINDS = (
+    'bit_flips',
+    'byte_replaced',
+    'byte_inserted',
+    'byte_deleted',
+    'burst',
+    'bytes_replaced',
+)
 
 
 def mutate(data: bytes, rng, only: str | None = None) -> tuple[bytes, str]:
@@ -98,10 +107,15 @@ def mutate(data: bytes, rng, only: str | None = None) -> tuple[bytes, str]:
     inserted, one byte deleted, a burst of up to 16 bits, or 2-4 bytes anywhere replaced (line
     noise beyond what a CRC-16 is guaranteed to catch). ``rng`` is a ``random.Random`` (fast scalar
     draws; seeded by the caller). ``only`` (a MUTATION_KINDS name) restricts it to that kind. The
-    result can equal ``data``; callers skip those."""
+    result can equal ``data``; callers skip those.
+    """
     b = bytearray(data)
     n = len(b)
-    kind = rng.randrange(7) if only is None else {k: i + (i > 0) for i, k in enumerate(MUTATION_KINDS)}[only]
+    kind = (
+        rng.randrange(7)
+        if only is None
+        else {k: i + (i > 0) for i, k in enumerate(MUTATION_KINDS)}[only]
+    )
     if kind <= 1:
         for pos in rng.sample(range(n * 8), rng.randint(1, 3)):
             b[pos >> 3] ^= 1 << (pos & 7)

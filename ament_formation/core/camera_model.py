@@ -21,11 +21,12 @@ Distortion is OpenCV's 5-coefficient model (k1, k2, p1, p2, k3).
 The YAML file (``config/camera.yaml``) is read and written by :func:`load_camera_yaml` and
 :func:`save_camera_yaml`; ``floor`` gives the tracked floor area (centre and size, world frame).
 """
+
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field, fields, replace
 from functools import cached_property
+import math
 from pathlib import Path
 
 import cv2
@@ -34,7 +35,9 @@ import yaml
 
 from ament_formation.core.errors import ConfigError
 
-_R0 = np.diag([1.0, -1.0, -1.0])  # camera looking straight down: image +u = world +x, +v = world -y
+_R0 = np.diag(
+    [1.0, -1.0, -1.0]
+)  # camera looking straight down: image +u = world +x, +v = world -y
 
 
 def _rz(a: float) -> np.ndarray:
@@ -49,9 +52,9 @@ def _rx(a: float) -> np.ndarray:
 
 def _finite(name: str, value: float, positive: bool = False) -> None:
     if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
-        raise ConfigError(f"must be a finite number (got {value!r})", name)
+        raise ConfigError(f'must be a finite number (got {value!r})', name)
     if positive and not value > 0:
-        raise ConfigError(f"must be > 0 (got {value!r})", name)
+        raise ConfigError(f'must be > 0 (got {value!r})', name)
 
 
 def undistort_normalized(pixels_px: np.ndarray, k: np.ndarray, dist: np.ndarray) -> np.ndarray:
@@ -64,7 +67,7 @@ def undistort_normalized(pixels_px: np.ndarray, k: np.ndarray, dist: np.ndarray)
     if len(pts) == 0:
         return np.zeros((0, 2))
     criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
-    if hasattr(cv2, "undistortPointsIter"):  # OpenCV 4.x
+    if hasattr(cv2, 'undistortPointsIter'):  # OpenCV 4.x
         out = cv2.undistortPointsIter(pts, k, dist, None, None, criteria)
     else:  # OpenCV 5.x
         out = cv2.undistortPoints(pts, k, dist, None, None, None, criteria)
@@ -79,12 +82,12 @@ def rotation_vector(r: np.ndarray) -> np.ndarray:
     """
     r = np.asarray(r, dtype=np.float64)
     w = 0.5 * np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])  # sin(theta) a
-    c = 0.5 * (np.trace(r) - 1.0)                                                   # cos(theta)
+    c = 0.5 * (np.trace(r) - 1.0)  # cos(theta)
     s = float(np.linalg.norm(w))
     theta = math.atan2(s, c)
-    if c > 0.0:                    # theta < pi/2: the skew part is well conditioned
+    if c > 0.0:  # theta < pi/2: the skew part is well conditioned
         return w if s < 1e-15 else w * (theta / s)
-    b = (0.5 * (r + r.T) - c * np.eye(3)) / (1.0 - c)   # symmetric part: a a^T
+    b = (0.5 * (r + r.T) - c * np.eye(3)) / (1.0 - c)  # symmetric part: a a^T
     k = int(np.argmax(np.diag(b)))
     a = b[:, k] / math.sqrt(b[k, k])
     if float(a @ w) < 0.0:
@@ -104,42 +107,49 @@ class CameraModel:
     cx_px: float = 319.5
     cy_px: float = 239.5
     distortion: tuple[float, float, float, float, float] = (-0.18, 0.03, 0.0005, -0.0003, 0.0)
-    position_m: tuple[float, float] = (0.0, 0.0)   # floor point below the optical centre
-    height_m: float = 2.86                          # optical centre above the floor
+    position_m: tuple[float, float] = (0.0, 0.0)  # floor point below the optical centre
+    height_m: float = 2.86  # optical centre above the floor
     yaw_rad: float = 0.0
     tilt_rad: float = 0.0
     roll_rad: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ("width_px", "height_px"):
+        for name in ('width_px', 'height_px'):
             v = getattr(self, name)
             if not isinstance(v, int) or isinstance(v, bool) or not 16 <= v <= 16384:
-                raise ConfigError(f"must be an integer in [16, 16384] px (got {v!r})", name)
-        for name in ("fps_hz", "fx_px", "fy_px", "height_m"):
+                raise ConfigError(f'must be an integer in [16, 16384] px (got {v!r})', name)
+        for name in ('fps_hz', 'fx_px', 'fy_px', 'height_m'):
             _finite(name, getattr(self, name), positive=True)
-        for name in ("cx_px", "cy_px", "yaw_rad", "tilt_rad", "roll_rad"):
+        for name in ('cx_px', 'cy_px', 'yaw_rad', 'tilt_rad', 'roll_rad'):
             _finite(name, getattr(self, name))
         if not (0.0 <= self.cx_px <= self.width_px and 0.0 <= self.cy_px <= self.height_px):
-            raise ConfigError(f"principal point ({self.cx_px}, {self.cy_px}) px lies outside the "
-                              f"{self.width_px}x{self.height_px} image", "cx_px")
+            raise ConfigError(
+                f'principal point ({self.cx_px}, {self.cy_px}) px lies outside the '
+                f'{self.width_px}x{self.height_px} image',
+                'cx_px',
+            )
         if len(self.distortion) != 5:
-            raise ConfigError(f"needs 5 coefficients k1 k2 p1 p2 k3 (got {len(self.distortion)})",
-                              "distortion")
+            raise ConfigError(
+                f'needs 5 coefficients k1 k2 p1 p2 k3 (got {len(self.distortion)})', 'distortion'
+            )
         for i, v in enumerate(self.distortion):
-            _finite(f"distortion[{i}]", v)
+            _finite(f'distortion[{i}]', v)
         if len(self.position_m) != 2:
-            raise ConfigError("needs [x, y] in m", "position_m")
+            raise ConfigError('needs [x, y] in m', 'position_m')
         for i, v in enumerate(self.position_m):
-            _finite(f"position_m[{i}]", v)
+            _finite(f'position_m[{i}]', v)
         if abs(self.tilt_rad) >= math.radians(80):
-            raise ConfigError(f"must be within ±80° of straight down (got {self.tilt_rad} rad)",
-                              "tilt_rad")
+            raise ConfigError(
+                f'must be within ±80° of straight down (got {self.tilt_rad} rad)', 'tilt_rad'
+            )
 
     # ---------------------------------------------------------------- matrices
     @cached_property
     def k(self) -> np.ndarray:
         """(3, 3) camera matrix K."""
-        return np.array([[self.fx_px, 0.0, self.cx_px], [0.0, self.fy_px, self.cy_px], [0.0, 0.0, 1.0]])
+        return np.array(
+            [[self.fx_px, 0.0, self.cx_px], [0.0, self.fy_px, self.cy_px], [0.0, 0.0, 1.0]]
+        )
 
     @cached_property
     def dist(self) -> np.ndarray:
@@ -197,7 +207,7 @@ class CameraModel:
         Rays that do not hit the plane in front of the camera give NaN.
         """
         d = self.rays_w(pixels_px)
-        with np.errstate(divide="ignore", invalid="ignore"):
+        with np.errstate(divide='ignore', invalid='ignore'):
             t = (float(z_m) - self.center_w[2]) / d[:, 2]
         t = np.where(t > 0, t, np.nan)
         return self.center_w[:2] + t[:, None] * d[:, :2]
@@ -214,7 +224,7 @@ class CameraModel:
 
     # ---------------------------------------------------------------- constructors
     @classmethod
-    def from_pose(cls, rvec: np.ndarray, tvec: np.ndarray, **intrinsics) -> "CameraModel":
+    def from_pose(cls, rvec: np.ndarray, tvec: np.ndarray, **intrinsics) -> 'CameraModel':
         """Camera from an OpenCV world → camera pose (rvec, tvec) plus intrinsic fields."""
         r_cw = cv2.Rodrigues(np.asarray(rvec, dtype=np.float64).reshape(3, 1))[0]
         r_wc = r_cw.T
@@ -228,21 +238,45 @@ class CameraModel:
         else:
             yaw = -math.atan2(m[0, 2], -m[1, 2])
             roll = math.atan2(m[2, 0], m[2, 1])
-        return cls(position_m=(float(center[0]), float(center[1])), height_m=float(center[2]),
-                   yaw_rad=yaw, tilt_rad=tilt, roll_rad=roll, **intrinsics)
+        return cls(
+            position_m=(float(center[0]), float(center[1])),
+            height_m=float(center[2]),
+            yaw_rad=yaw,
+            tilt_rad=tilt,
+            roll_rad=roll,
+            **intrinsics,
+        )
 
     def intrinsic_fields(self) -> dict:
         """The fields that do not describe the mounting (to rebuild with another pose)."""
-        keep = ("width_px", "height_px", "fps_hz", "fx_px", "fy_px", "cx_px", "cy_px", "distortion")
+        keep = (
+            'width_px',
+            'height_px',
+            'fps_hz',
+            'fx_px',
+            'fy_px',
+            'cx_px',
+            'cy_px',
+            'distortion',
+        )
         return {f.name: getattr(self, f.name) for f in fields(self) if f.name in keep}
 
-    def with_intrinsics(self, k: np.ndarray, dist: np.ndarray, size_px: tuple[int, int]) -> "CameraModel":
+    def with_intrinsics(
+        self, k: np.ndarray, dist: np.ndarray, size_px: tuple[int, int]
+    ) -> 'CameraModel':
         """The same mounting with a new camera matrix (3, 3), distortion (5,) and image size."""
         d = np.asarray(dist, dtype=float).reshape(-1)[:5]
         d = np.concatenate([d, np.zeros(5 - len(d))])
-        return replace(self, width_px=int(size_px[0]), height_px=int(size_px[1]),
-                       fx_px=float(k[0, 0]), fy_px=float(k[1, 1]), cx_px=float(k[0, 2]),
-                       cy_px=float(k[1, 2]), distortion=tuple(float(v) for v in d))
+        return replace(
+            self,
+            width_px=int(size_px[0]),
+            height_px=int(size_px[1]),
+            fx_px=float(k[0, 0]),
+            fy_px=float(k[1, 1]),
+            cx_px=float(k[0, 2]),
+            cy_px=float(k[1, 2]),
+            distortion=tuple(float(v) for v in d),
+        )
 
 
 @dataclass(frozen=True)
@@ -253,12 +287,12 @@ class FloorArea:
     size_m: tuple[float, float] = (3.0, 2.4)
 
     def __post_init__(self) -> None:
-        for name in ("center_m", "size_m"):
+        for name in ('center_m', 'size_m'):
             v = getattr(self, name)
             if len(v) != 2:
-                raise ConfigError("needs two values [x, y] in m", name)
+                raise ConfigError('needs two values [x, y] in m', name)
             for i, x in enumerate(v):
-                _finite(f"{name}[{i}]", x, positive=(name == "size_m"))
+                _finite(f'{name}[{i}]', x, positive=(name == 'size_m'))
 
     @property
     def bounds_m(self) -> tuple[float, float, float, float]:
@@ -277,56 +311,74 @@ class CameraSetup:
 
 
 # ------------------------------------------------------------------------ YAML
-_TOP_KEYS = {"width_px", "height_px", "fps_hz", "intrinsics", "distortion", "mounting", "floor",
-             "calibration"}
+_TOP_KEYS = {
+    'width_px',
+    'height_px',
+    'fps_hz',
+    'intrinsics',
+    'distortion',
+    'mounting',
+    'floor',
+    'calibration',
+}
 
 
 def _expect_keys(d: dict, allowed: set[str], where: str, file: str) -> None:
     if not isinstance(d, dict):
-        raise ConfigError("must be a mapping", where or None, file)
+        raise ConfigError('must be a mapping', where or None, file)
     unknown = sorted(set(d) - allowed)
     if unknown:
-        key = f"{where}.{unknown[0]}" if where else unknown[0]
-        raise ConfigError(f"unknown key (allowed: {', '.join(sorted(allowed))})", key, file)
+        key = f'{where}.{unknown[0]}' if where else unknown[0]
+        raise ConfigError(f'unknown key (allowed: {", ".join(sorted(allowed))})', key, file)
 
 
-def camera_setup_from_dict(data: dict, file: str = "camera.yaml") -> CameraSetup:
+def camera_setup_from_dict(data: dict, file: str = 'camera.yaml') -> CameraSetup:
     """Build a validated CameraSetup from the YAML mapping; errors name file and field."""
-    _expect_keys(data, _TOP_KEYS, "", file)
+    _expect_keys(data, _TOP_KEYS, '', file)
     kw: dict = {}
     try:
-        for key in ("width_px", "height_px", "fps_hz"):
+        for key in ('width_px', 'height_px', 'fps_hz'):
             if key in data:
                 kw[key] = data[key]
-        intr = data.get("intrinsics", {})
-        _expect_keys(intr, {"fx_px", "fy_px", "cx_px", "cy_px"}, "intrinsics", file)
+        intr = data.get('intrinsics', {})
+        _expect_keys(intr, {'fx_px', 'fy_px', 'cx_px', 'cy_px'}, 'intrinsics', file)
         kw.update(intr)
-        dist = data.get("distortion", {})
-        _expect_keys(dist, {"k1", "k2", "p1", "p2", "k3"}, "distortion", file)
+        dist = data.get('distortion', {})
+        _expect_keys(dist, {'k1', 'k2', 'p1', 'p2', 'k3'}, 'distortion', file)
         if dist:
-            kw["distortion"] = tuple(float(dist.get(n, 0.0)) for n in ("k1", "k2", "p1", "p2", "k3"))
-        mount = data.get("mounting", {})
-        _expect_keys(mount, {"position_m", "height_m", "yaw_rad", "tilt_rad", "roll_rad"}, "mounting", file)
+            kw['distortion'] = tuple(
+                float(dist.get(n, 0.0)) for n in ('k1', 'k2', 'p1', 'p2', 'k3')
+            )
+        mount = data.get('mounting', {})
+        _expect_keys(
+            mount, {'position_m', 'height_m', 'yaw_rad', 'tilt_rad', 'roll_rad'}, 'mounting', file
+        )
         for key, value in mount.items():
-            kw[key] = tuple(value) if key == "position_m" else value
+            kw[key] = tuple(value) if key == 'position_m' else value
         camera = CameraModel(**kw)
     except ConfigError as err:
-        prefix = ("intrinsics" if err.field in {"fx_px", "fy_px", "cx_px", "cy_px"} else
-                  "mounting" if err.field and err.field.split("[")[0] in
-                  {"position_m", "height_m", "yaw_rad", "tilt_rad", "roll_rad"} else None)
+        prefix = (
+            'intrinsics'
+            if err.field in {'fx_px', 'fy_px', 'cx_px', 'cy_px'}
+            else 'mounting'
+            if err.field
+            and err.field.split('[')[0]
+            in {'position_m', 'height_m', 'yaw_rad', 'tilt_rad', 'roll_rad'}
+            else None
+        )
         err = err.under(prefix) if prefix else err
         raise err.with_file(file) from None
     except TypeError as err:
         raise ConfigError(str(err), None, file) from None
-    floor_d = data.get("floor", {})
-    _expect_keys(floor_d, {"center_m", "size_m"}, "floor", file)
+    floor_d = data.get('floor', {})
+    _expect_keys(floor_d, {'center_m', 'size_m'}, 'floor', file)
     try:
         floor = FloorArea(**{k: tuple(v) for k, v in floor_d.items()})
     except ConfigError as err:
-        raise err.under("floor").with_file(file) from None
-    calibration = data.get("calibration", {}) or {}
+        raise err.under('floor').with_file(file) from None
+    calibration = data.get('calibration', {}) or {}
     if not isinstance(calibration, dict):
-        raise ConfigError("must be a mapping", "calibration", file)
+        raise ConfigError('must be a mapping', 'calibration', file)
     return CameraSetup(camera, floor, dict(calibration))
 
 
@@ -335,20 +387,30 @@ def camera_setup_to_dict(setup: CameraSetup) -> dict:
     c = setup.camera
     k1, k2, p1, p2, k3 = (float(v) for v in c.distortion)
     out = {
-        "width_px": c.width_px,
-        "height_px": c.height_px,
-        "fps_hz": float(c.fps_hz),
-        "intrinsics": {"fx_px": float(c.fx_px), "fy_px": float(c.fy_px),
-                       "cx_px": float(c.cx_px), "cy_px": float(c.cy_px)},
-        "distortion": {"k1": k1, "k2": k2, "p1": p1, "p2": p2, "k3": k3},
-        "mounting": {"position_m": [float(v) for v in c.position_m], "height_m": float(c.height_m),
-                     "yaw_rad": float(c.yaw_rad), "tilt_rad": float(c.tilt_rad),
-                     "roll_rad": float(c.roll_rad)},
-        "floor": {"center_m": [float(v) for v in setup.floor.center_m],
-                  "size_m": [float(v) for v in setup.floor.size_m]},
+        'width_px': c.width_px,
+        'height_px': c.height_px,
+        'fps_hz': float(c.fps_hz),
+        'intrinsics': {
+            'fx_px': float(c.fx_px),
+            'fy_px': float(c.fy_px),
+            'cx_px': float(c.cx_px),
+            'cy_px': float(c.cy_px),
+        },
+        'distortion': {'k1': k1, 'k2': k2, 'p1': p1, 'p2': p2, 'k3': k3},
+        'mounting': {
+            'position_m': [float(v) for v in c.position_m],
+            'height_m': float(c.height_m),
+            'yaw_rad': float(c.yaw_rad),
+            'tilt_rad': float(c.tilt_rad),
+            'roll_rad': float(c.roll_rad),
+        },
+        'floor': {
+            'center_m': [float(v) for v in setup.floor.center_m],
+            'size_m': [float(v) for v in setup.floor.size_m],
+        },
     }
     if setup.calibration:
-        out["calibration"] = dict(setup.calibration)
+        out['calibration'] = dict(setup.calibration)
     return out
 
 
@@ -358,9 +420,11 @@ def load_camera_yaml(path: str | Path) -> CameraSetup:
     try:
         data = yaml.safe_load(path.read_text()) or {}
     except OSError as err:
-        raise ConfigError(f"cannot read ({err.strerror})", None, str(path)) from None
+        raise ConfigError(f'cannot read ({err.strerror})', None, str(path)) from None
     except yaml.YAMLError as err:
-        raise ConfigError(f"not valid YAML ({str(err).splitlines()[0]})", None, str(path)) from None
+        raise ConfigError(
+            f'not valid YAML ({str(err).splitlines()[0]})', None, str(path)
+        ) from None
     return camera_setup_from_dict(data, str(path))
 
 
@@ -376,6 +440,8 @@ def save_camera_yaml(setup: CameraSetup, path: str | Path) -> Path:
     """Write ``setup`` to ``path`` (parent folders created); returns the path."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    text = yaml.safe_dump(camera_setup_to_dict(setup), sort_keys=False, default_flow_style=None, width=100)
+    text = yaml.safe_dump(
+        camera_setup_to_dict(setup), sort_keys=False, default_flow_style=None, width=100
+    )
     path.write_text(_HEADER + text)
     return path

@@ -1,6 +1,8 @@
 """Consistent Overhead Byte Stuffing (COBS): remove every 0x00 from a frame so that 0x00 can
 delimit frames on a byte stream (Cheshire & Baker 1999). Strict decoding: a frame whose code
-bytes do not end exactly at its last byte, or that contains 0x00, is rejected."""
+bytes do not end exactly at its last byte, or that contains 0x00, is rejected.
+"""
+
 from __future__ import annotations
 
 
@@ -45,19 +47,19 @@ def decode(data: bytes) -> bytes:
     """
     n = len(data)
     if n == 0:
-        raise CobsError("empty frame")
+        raise CobsError('empty frame')
     out = bytearray()
     i = 0
     while i < n:
         code = data[i]
         if code == 0:
-            raise CobsError(f"0x00 inside frame at byte {i}")
+            raise CobsError(f'0x00 inside frame at byte {i}')
         end = i + code
         if end > n:
-            raise CobsError(f"code byte {code} at {i} runs past the frame end ({n} bytes)")
-        block = data[i + 1:end]
+            raise CobsError(f'code byte {code} at {i} runs past the frame end ({n} bytes)')
+        block = data[i + 1: end]
         if 0 in block:
-            raise CobsError(f"0x00 inside frame after byte {i}")
+            raise CobsError(f'0x00 inside frame after byte {i}')
         out += block
         i = end
         if code != 0xFF and i < n:

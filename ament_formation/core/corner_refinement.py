@@ -2,7 +2,8 @@
 tracker's hot loops).
 
 For each of a marker's four outer edges, ``EDGE_SAMPLES`` intensity profiles across the edge are
-sampled bilinearly from the image (``_PROFILE`` samples over ±``half`` px); the edge point on each profile is
+sampled bilinearly from the image (``_PROFILE`` samples over ±``half`` px); the edge point on each
+profile is
 the centroid of the intensity gradient (small gradients, below 20 % of the largest, ignored). Edge
 points are undistorted (Brown–Conrady model inverted by Newton's method) and a
 straight line is fitted to each edge by total least squares; adjacent lines intersect at the
@@ -13,17 +14,18 @@ skipped when the first pass moved no corner by more than ``_SETTLED_PX`` (a good
 The per-marker corner σ [px] follows from the scatter of the edge points about their lines: a
 corner is extrapolated from M points spread over 70 % of the edge, σ_corner² ≈ 7.1 σ_edge² / M.
 """
+
 from __future__ import annotations
 
 import math
 
-import numpy as np
 from numba import njit
+import numpy as np
 
 EDGE_SAMPLES = 8
 _PROFILE = 13
 N_PASSES = 2
-_SETTLED_PX = 0.25   # skip the second pass when the first moved no corner farther
+_SETTLED_PX = 0.25  # skip the second pass when the first moved no corner farther
 
 
 @njit(cache=True)
@@ -49,7 +51,8 @@ def _bilinear(img, x, y):
 @njit(cache=True)
 def _undistort(u, v, fx, fy, cx, cy, d):
     """Pixel (u, v) → ideal normalized (x, y): Newton's method on the distortion model
-    (converges in 3–5 steps to 1e-14; OpenCV's fixed-point iteration needs tens)."""
+    (converges in 3–5 steps to 1e-14; OpenCV's fixed-point iteration needs tens).
+    """
     k1, k2, p1, p2, k3 = d[0], d[1], d[2], d[3], d[4]
     xd = (u - cx) / fx
     yd = (v - cy) / fy
@@ -58,7 +61,7 @@ def _undistort(u, v, fx, fy, cx, cy, d):
     for _ in range(20):
         r2 = x * x + y * y
         radial = 1.0 + ((k3 * r2 + k2) * r2 + k1) * r2
-        drad = k1 + (2.0 * k2 + 3.0 * k3 * r2) * r2                     # d radial / d r2
+        drad = k1 + (2.0 * k2 + 3.0 * k3 * r2) * r2  # d radial / d r2
         ex = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x) - xd
         ey = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y - yd
         jxx = radial + 2.0 * x * x * drad + 2.0 * p1 * y + 6.0 * p2 * x
@@ -89,8 +92,9 @@ def _distort(x, y, fx, fy, cx, cy, d):
 
 @njit(cache=True)
 def refine_kernel(img, corners, fx, fy, cx, cy, dist, bits, out_norm, out_sigma):
-    """img (H, W) uint8 or float; corners (K, 4, 2) px → out_norm (K, 4, 2) ideal normalized corners,
-    out_sigma (K,) corner σ [px] (NaN: refinement failed, the detector's corners are used)."""
+    """Img (H, W) uint8 or float; corners (K, 4, 2) px → out_norm (K, 4, 2) ideal normalized corners,
+    out_sigma (K,) corner σ [px] (NaN: refinement failed, the detector's corners are used).
+    """
     n_markers = corners.shape[0]
     m_samples = EDGE_SAMPLES
     vals = np.empty(_PROFILE)
@@ -106,7 +110,9 @@ def refine_kernel(img, corners, fx, fy, cx, cy, dist, bits, out_norm, out_sigma)
         for pass_ in range(N_PASSES):
             side = 0.0
             for e in range(4):
-                side += math.hypot(cur[(e + 1) % 4, 0] - cur[e, 0], cur[(e + 1) % 4, 1] - cur[e, 1])
+                side += math.hypot(
+                    cur[(e + 1) % 4, 0] - cur[e, 0], cur[(e + 1) % 4, 1] - cur[e, 1]
+                )
             cell = side / 4.0 / (bits + 2)
             half = min(2.0, 0.6 * cell) if pass_ == 0 else min(1.4, 0.45 * cell)
             for e in range(4):
@@ -159,7 +165,7 @@ def refine_kernel(img, corners, fx, fy, cx, cy, dist, bits, out_norm, out_sigma)
                 cxx = sxx - m * mx * mx
                 cyy = syy - m * my * my
                 cxy = sxy - m * mx * my
-                ang = 0.5 * math.atan2(2.0 * cxy, cxx - cyy)       # principal direction
+                ang = 0.5 * math.atan2(2.0 * cxy, cxx - cyy)  # principal direction
                 cen[e, 0], cen[e, 1] = mx, my
                 dirs[e, 0], dirs[e, 1] = math.cos(ang), math.sin(ang)
                 tr = 0.5 * (cxx + cyy)
@@ -167,7 +173,7 @@ def refine_kernel(img, corners, fx, fy, cx, cy, dist, bits, out_norm, out_sigma)
                 evar[e] = max(lam_min, 0.0) / max(m - 2.0, 1.0)
             if failed:
                 break
-            for j in range(4):   # corner j = edge (j-1) ∩ edge j
+            for j in range(4):  # corner j = edge (j-1) ∩ edge j
                 a = (j + 3) % 4
                 ax, ay = dirs[a, 0], dirs[a, 1]
                 bx_, by_ = dirs[j, 0], dirs[j, 1]
@@ -196,12 +202,16 @@ def refine_kernel(img, corners, fx, fy, cx, cy, dist, bits, out_norm, out_sigma)
                 out_norm[k, j, 1] = yn
             out_sigma[k] = np.nan
         else:
-            out_sigma[k] = math.sqrt(0.25 * (evar[0] + evar[1] + evar[2] + evar[3])) * fx * math.sqrt(
-                7.1 / m_samples)
+            out_sigma[k] = (
+                math.sqrt(0.25 * (evar[0] + evar[1] + evar[2] + evar[3]))
+                * fx
+                * math.sqrt(7.1 / m_samples)
+            )
 
 
-def refine(image: np.ndarray, corners_px: np.ndarray, k: np.ndarray, dist: np.ndarray,
-           bits: int = 4) -> tuple[np.ndarray, np.ndarray]:
+def refine(
+    image: np.ndarray, corners_px: np.ndarray, k: np.ndarray, dist: np.ndarray, bits: int = 4
+) -> tuple[np.ndarray, np.ndarray]:
     """Corners (K, 4, 2) [px] in mono8 ``image`` → (ideal normalized corners (K, 4, 2), σ (K,) [px]).
 
     ``k`` (3, 3) camera matrix and ``dist`` (5,) distortion of the image's camera.
@@ -213,8 +223,18 @@ def refine(image: np.ndarray, corners_px: np.ndarray, k: np.ndarray, dist: np.nd
         d = np.zeros(5)
         dd = np.asarray(dist, dtype=np.float64).reshape(-1)[:5]
         d[: len(dd)] = dd
-        refine_kernel(np.ascontiguousarray(image), corners, float(k[0, 0]), float(k[1, 1]),
-                      float(k[0, 2]), float(k[1, 2]), d, int(bits), out, sigma)
+        refine_kernel(
+            np.ascontiguousarray(image),
+            corners,
+            float(k[0, 0]),
+            float(k[1, 1]),
+            float(k[0, 2]),
+            float(k[1, 2]),
+            d,
+            int(bits),
+            out,
+            sigma,
+        )
     return out, sigma
 
 
@@ -222,7 +242,8 @@ def refine(image: np.ndarray, corners_px: np.ndarray, k: np.ndarray, dist: np.nd
 def _verify_kernel(img, corners, expected, n, min_contrast, out):
     """Read the (n + 2)² cell centres (quiet ring, border, code) of each quad, bilinearly
     interpolated between its corners; out[k] = True when contrast >= min_contrast and at most
-    one border/code cell disagrees with ``expected[k]`` (flattened, True = white)."""
+    one border/code cell disagrees with ``expected[k]`` (flattened, True = white).
+    """
     g = n + 2
     vals = np.empty(g * g)
     for k in range(corners.shape[0]):
@@ -238,8 +259,18 @@ def _verify_kernel(img, corners, expected, n, min_contrast, out):
                 w1 = u * (1 - v)
                 w2 = u * v
                 w3 = (1 - u) * v
-                x = w0 * corners[k, 0, 0] + w1 * corners[k, 1, 0] + w2 * corners[k, 2, 0] + w3 * corners[k, 3, 0]
-                y = w0 * corners[k, 0, 1] + w1 * corners[k, 1, 1] + w2 * corners[k, 2, 1] + w3 * corners[k, 3, 1]
+                x = (
+                    w0 * corners[k, 0, 0]
+                    + w1 * corners[k, 1, 0]
+                    + w2 * corners[k, 2, 0]
+                    + w3 * corners[k, 3, 0]
+                )
+                y = (
+                    w0 * corners[k, 0, 1]
+                    + w1 * corners[k, 1, 1]
+                    + w2 * corners[k, 2, 1]
+                    + w3 * corners[k, 3, 1]
+                )
                 val = _bilinear(img, x, y)
                 vals[r * g + c] = val
                 if r == 0 or c == 0 or r == g - 1 or c == g - 1:
@@ -262,28 +293,52 @@ def _verify_kernel(img, corners, expected, n, min_contrast, out):
         out[k] = wrong <= 1
 
 
-def verify_codes(image: np.ndarray, corners_px: np.ndarray, expected: np.ndarray, bits: int,
-                 min_contrast: float) -> np.ndarray:
+def verify_codes(
+    image: np.ndarray, corners_px: np.ndarray, expected: np.ndarray, bits: int, min_contrast: float
+) -> np.ndarray:
     """(K,) True where the quads ``corners_px`` (K, 4, 2) [px] read the codes ``expected``
-    (K, (bits + 4)²) bool (True = white; quiet ring, border, code cells, row by row)."""
+    (K, (bits + 4)²) bool (True = white; quiet ring, border, code cells, row by row).
+    """
     corners = np.ascontiguousarray(corners_px, dtype=np.float64).reshape(-1, 4, 2)
     out = np.zeros(len(corners), dtype=np.bool_)
     if len(corners):
-        _verify_kernel(np.ascontiguousarray(image), corners, np.ascontiguousarray(expected, dtype=np.bool_),
-                       int(bits) + 2, float(min_contrast), out)
+        _verify_kernel(
+            np.ascontiguousarray(image),
+            corners,
+            np.ascontiguousarray(expected, dtype=np.bool_),
+            int(bits) + 2,
+            float(min_contrast),
+            out,
+        )
     return out
 
 
 @njit(cache=True)
-def poses_kernel(normalized, r_wc, center_w, plane_z, size, off_x, off_y, fx, fy, dist,
-                 pixel_noise_px, corner_sigma_px, out_pose, out_sigma_xy, out_sigma_th):
+def poses_kernel(
+    normalized,
+    r_wc,
+    center_w,
+    plane_z,
+    size,
+    off_x,
+    off_y,
+    fx,
+    fy,
+    dist,
+    pixel_noise_px,
+    corner_sigma_px,
+    out_pose,
+    out_sigma_xy,
+    out_sigma_th,
+):
     """Ideal normalized corners (K, 4, 2) → controlled-point poses (K, 3) and 1-σ (K,), (K,).
 
     Corners are intersected with the plane z = ``plane_z``; the marker centre is their mean, the
     heading the mean direction of the marker x axis (TL→TR, BL→BR and the y edges turned by −90°);
     the controlled point is the centre minus the rotated body-frame offset. Per-corner σ (per
     axis) = RMS of the misfit to the ideal square, ``corner_sigma_px`` and ``pixel_noise_px``,
-    pixel terms scaled by the ground sample (depth / f over the local lens magnification)."""
+    pixel terms scaled by the ground sample (depth / f over the local lens magnification).
+    """
     k1, k2, k3 = dist[0], dist[1], dist[4]
     lever = math.hypot(off_x, off_y)
     half = 0.5 * size
@@ -310,7 +365,7 @@ def poses_kernel(normalized, r_wc, center_w, plane_z, size, off_x, off_y, fx, fy
         cy = 0.25 * (py[0] + py[1] + py[2] + py[3])
         ex = (px[1] - px[0]) + (px[2] - px[3])
         ey = (py[1] - py[0]) + (py[2] - py[3])
-        fx_ = (px[0] - px[3]) + (px[1] - px[2])   # marker y axis, turned by −90°: (y, −x)
+        fx_ = (px[0] - px[3]) + (px[1] - px[2])  # marker y axis, turned by −90°: (y, −x)
         fy_ = (py[0] - py[3]) + (py[1] - py[2])
         th = math.atan2(ey - fx_, ex + fy_)
         c, s = math.cos(th), math.sin(th)
@@ -322,7 +377,7 @@ def poses_kernel(normalized, r_wc, center_w, plane_z, size, off_x, off_y, fx, fy
             dx = px[j] - (cx + c * ideal_x[j] - s * ideal_y[j])
             dy = py[j] - (cy + s * ideal_x[j] + c * ideal_y[j])
             res += dx * dx + dy * dy
-        res /= 8.0                                   # per-axis mean square [m²]
+        res /= 8.0  # per-axis mean square [m²]
         r2 = xm * xm + ym * ym
         tang = 1.0 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2
         rad = 1.0 + 3.0 * k1 * r2 + 5.0 * k2 * r2 * r2 + 7.0 * k3 * r2 * r2 * r2
@@ -342,5 +397,20 @@ def warm_up() -> None:
     k = np.array([[100.0, 0.0, 16.0], [0.0, 100.0, 16.0], [0.0, 0.0, 1.0]])
     normalized, sigma = refine(img, corners, k, np.zeros(5))
     verify_codes(img, corners, np.ones((1, 64), bool), 4, 30.0)
-    poses_kernel(normalized, np.eye(3), np.array([0.0, 0.0, 2.0]), 0.0, 0.1, 0.0, 0.0, 100.0, 100.0,
-                 np.zeros(5), 0.03, np.zeros(1), np.empty((1, 3)), np.empty(1), np.empty(1))
+    poses_kernel(
+        normalized,
+        np.eye(3),
+        np.array([0.0, 0.0, 2.0]),
+        0.0,
+        0.1,
+        0.0,
+        0.0,
+        100.0,
+        100.0,
+        np.zeros(5),
+        0.03,
+        np.zeros(1),
+        np.empty((1, 3)),
+        np.empty(1),
+        np.empty(1),
+    )

@@ -4,6 +4,7 @@ Check value: ``crc16(b"123456789") == 0x29B1``. Detects every error of 1, 2 or 3
 every burst of at most 16 bits in frames shorter than 4095 bytes; other errors pass with
 probability 2**-16.
 """
+
 from __future__ import annotations
 
 

@@ -4,8 +4,10 @@
 Check value: ``crc32c(b"123456789") == 0xE3069283``. For the frames of the serial protocol
 (version 2: at most 22 bytes of header and body, 176 bits) its Hamming distance is 8: every error
 of up to 7 flipped bits is detected, as is every burst of at most 32 bits; any other error passes
-with probability 2**-32 (Koopman, "32-bit cyclic redundancy codes for Internet applications", 2002).
+with probability 2**-32 (Koopman, "32-bit cyclic redundancy codes for Internet applications",
+2002).
 """
+
 from __future__ import annotations
 
 POLY_REFLECTED = 0x82F63B78

@@ -3,12 +3,14 @@
 g_k(t) = sum_m A_km sin(2 pi f_km t + phi_km) per robot, with A_km >= 0 and sum_m A_km = g_bar_k,
 so |g1| <= g1_bar [m/s^2] and |g2| <= g2_bar [rad/s^2] hold exactly, g is C-infinity and the
 derivatives are bounded. Frequencies and phases are drawn from ``numpy.random.default_rng(seed)``:
-the same seed gives the same disturbance. Numba twin: :func:`ament_formation.core.kernels.disturbance_k`.
+the same seed gives the same disturbance. Numba twin:
+:func:`ament_formation.core.kernels.disturbance_k`.
 """
+
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
+import math
 
 import numpy as np
 
@@ -29,18 +31,20 @@ class Disturbance:
 
     def __post_init__(self) -> None:
         shape = None
-        for name in ("amplitude", "freq_hz", "phase_rad"):
+        for name in ('amplitude', 'freq_hz', 'phase_rad'):
             value = np.ascontiguousarray(np.asarray(getattr(self, name), dtype=float))
             if value.ndim != 3 or value.shape[1] != 2:
-                raise ConfigError(f"must have shape (N, 2, M) (got {value.shape})", name)
+                raise ConfigError(f'must have shape (N, 2, M) (got {value.shape})', name)
             if shape is not None and value.shape != shape:
-                raise ConfigError(f"must have the shape of amplitude {shape} (got {value.shape})", name)
+                raise ConfigError(
+                    f'must have the shape of amplitude {shape} (got {value.shape})', name
+                )
             if not np.all(np.isfinite(value)):
-                raise ConfigError("must be finite", name)
+                raise ConfigError('must be finite', name)
             shape = value.shape
             object.__setattr__(self, name, value)
         if np.any(self.amplitude < 0):
-            raise ConfigError("must be >= 0", "amplitude")
+            raise ConfigError('must be >= 0', 'amplitude')
 
     @property
     def n(self) -> int:
@@ -52,22 +56,33 @@ class Disturbance:
         return self.amplitude.sum(axis=2)
 
     @classmethod
-    def from_bounds(cls, n_robots: int, bound, seed: int, n_terms: int = 4,
-                    f_min_hz: float = 0.05, f_max_hz: float = 1.0) -> "Disturbance":
+    def from_bounds(
+        cls,
+        n_robots: int,
+        bound,
+        seed: int,
+        n_terms: int = 4,
+        f_min_hz: float = 0.05,
+        f_max_hz: float = 1.0,
+    ) -> 'Disturbance':
         """Deterministic disturbance with |g_k| <= bound[k] for ``n_robots`` robots.
 
         ``bound`` (2,) [g1_bar_mps2, g2_bar_radps2] (or (N, 2)); ``seed`` int; ``n_terms`` M >= 1;
         frequencies uniform in [f_min_hz, f_max_hz], phases uniform, weights Dirichlet(1).
         """
         if int(n_robots) != n_robots or n_robots < 0:
-            raise ConfigError(f"must be an integer >= 0 (got {n_robots!r})", "n_robots")
+            raise ConfigError(f'must be an integer >= 0 (got {n_robots!r})', 'n_robots')
         if int(n_terms) != n_terms or n_terms < 1:
-            raise ConfigError(f"must be an integer >= 1 (got {n_terms!r})", "n_terms")
+            raise ConfigError(f'must be an integer >= 1 (got {n_terms!r})', 'n_terms')
         bound = np.broadcast_to(np.asarray(bound, dtype=float), (int(n_robots), 2))
         if not (np.all(np.isfinite(bound)) and np.all(bound >= 0)):
-            raise ConfigError(f"must be finite and >= 0 (got {np.asarray(bound).tolist()!r})", "bound")
+            raise ConfigError(
+                f'must be finite and >= 0 (got {np.asarray(bound).tolist()!r})', 'bound'
+            )
         if not (0 < f_min_hz <= f_max_hz and math.isfinite(f_max_hz)):
-            raise ConfigError(f"need 0 < f_min_hz <= f_max_hz (got {f_min_hz}, {f_max_hz})", "f_min_hz")
+            raise ConfigError(
+                f'need 0 < f_min_hz <= f_max_hz (got {f_min_hz}, {f_max_hz})', 'f_min_hz'
+            )
         rng = np.random.default_rng(seed)
         shape = (int(n_robots), 2, int(n_terms))
         weights = rng.dirichlet(np.ones(int(n_terms)), size=(int(n_robots), 2))
@@ -76,25 +91,29 @@ class Disturbance:
         return cls(weights * bound[:, :, None], freq, phase)
 
     @classmethod
-    def zero(cls, n_robots: int) -> "Disturbance":
-        """g == 0 for ``n_robots`` robots."""
+    def zero(cls, n_robots: int) -> 'Disturbance':
+        """G == 0 for ``n_robots`` robots."""
         z = np.zeros((int(n_robots), 2, 1))
         return cls(z, z + 1.0, z)
 
     def __call__(self, t_s: float) -> np.ndarray:
         """g(t_s) (N, 2)."""
-        return np.sum(self.amplitude * np.sin(2.0 * math.pi * self.freq_hz * t_s + self.phase_rad),
-                      axis=2)
+        return np.sum(
+            self.amplitude * np.sin(2.0 * math.pi * self.freq_hz * t_s + self.phase_rad), axis=2
+        )
 
     def step_rotation(self, h_s: float) -> tuple[np.ndarray, np.ndarray]:
         """(cos, sin) of the phase advance 2 pi f h_s of every term, each (N, 2, M), for
-        :func:`ament_formation.core.kernels.disturbance_phasor_advance_k`."""
+        :func:`ament_formation.core.kernels.disturbance_phasor_advance_k`.
+        """
         ang = 2.0 * math.pi * self.freq_hz * h_s
         return np.cos(ang), np.sin(ang)
 
-    def take(self, index) -> "Disturbance":
+    def take(self, index) -> 'Disturbance':
         """The disturbance of the robots selected by ``index``."""
         m = self.amplitude.shape[2]
-        return Disturbance(self.amplitude[index].reshape(-1, 2, m),
-                           self.freq_hz[index].reshape(-1, 2, m),
-                           self.phase_rad[index].reshape(-1, 2, m))
+        return Disturbance(
+            self.amplitude[index].reshape(-1, 2, m),
+            self.freq_hz[index].reshape(-1, 2, m),
+            self.phase_rad[index].reshape(-1, 2, m),
+        )

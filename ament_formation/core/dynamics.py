@@ -9,6 +9,7 @@ Conventions: N robots; ``state`` (N, 5) rows [x_m, y_m, theta_rad, v_mps, omega_
 is the controlled point p (CoM, distance d ahead of the axle midpoint); ``torque`` (N, 2) rows
 [left, right] N m; ``disturbance`` (N, 2) rows [g1_mps2, g2_radps2]; world frame.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -27,7 +28,8 @@ class PlantCoeffs:
     """Per-robot plant coefficients, each an (N,) float array (S2.2, S2.3).
 
     Attributes: ``m_tilde`` [kg], ``I_tilde`` [kg m^2], ``r`` wheel radius [m], ``a`` axle length
-    [m], ``d`` CoM offset [m], ``m_c`` platform mass [kg], ``tau_max`` per-wheel torque limit [N m].
+    [m], ``d`` CoM offset [m], ``m_c`` platform mass [kg], ``tau_max`` per-wheel torque limit [N
+    m].
     """
 
     m_tilde: np.ndarray
@@ -40,16 +42,18 @@ class PlantCoeffs:
 
     def __post_init__(self) -> None:
         n = None
-        for name in ("m_tilde", "I_tilde", "r", "a", "d", "m_c", "tau_max"):
+        for name in ('m_tilde', 'I_tilde', 'r', 'a', 'd', 'm_c', 'tau_max'):
             value = np.ascontiguousarray(np.asarray(getattr(self, name), dtype=float))
             if value.ndim != 1:
-                raise ConfigError(f"must be a 1-D array (got shape {value.shape})", name)
+                raise ConfigError(f'must be a 1-D array (got shape {value.shape})', name)
             if n is None:
                 n = value.shape[0]
             elif value.shape[0] != n:
-                raise ConfigError(f"must have {n} entries like m_tilde (got {value.shape[0]})", name)
+                raise ConfigError(
+                    f'must have {n} entries like m_tilde (got {value.shape[0]})', name
+                )
             if not (np.all(np.isfinite(value)) and np.all(value > 0)):
-                raise ConfigError("must be finite and > 0", name)
+                raise ConfigError('must be finite and > 0', name)
             object.__setattr__(self, name, value)
 
     @property
@@ -58,7 +62,7 @@ class PlantCoeffs:
         return int(self.m_tilde.shape[0])
 
     @classmethod
-    def from_params(cls, params: Sequence[RobotParams]) -> "PlantCoeffs":
+    def from_params(cls, params: Sequence[RobotParams]) -> 'PlantCoeffs':
         """Coefficients of robots ``params`` (length N), m~ and I~ derived as in S2.2."""
         params = list(params)
         return cls(
@@ -71,10 +75,14 @@ class PlantCoeffs:
             tau_max=np.array([p.torque_limit_nm for p in params], dtype=float),
         )
 
-    def take(self, index) -> "PlantCoeffs":
+    def take(self, index) -> 'PlantCoeffs':
         """The coefficients of the robots selected by ``index`` (int array, slice or mask)."""
-        return PlantCoeffs(*(np.atleast_1d(getattr(self, f)[index]) for f in
-                             ("m_tilde", "I_tilde", "r", "a", "d", "m_c", "tau_max")))
+        return PlantCoeffs(
+            *(
+                np.atleast_1d(getattr(self, f)[index])
+                for f in ('m_tilde', 'I_tilde', 'r', 'a', 'd', 'm_c', 'tau_max')
+            )
+        )
 
 
 def f2(state: np.ndarray, k: PlantCoeffs) -> np.ndarray:
@@ -167,8 +175,9 @@ def commanded_point_accel(state: np.ndarray, torque: np.ndarray, k: PlantCoeffs)
     return _s1_apply(state[:, 2], k.d, _x2dot(state, torque, k)) + s1dot_x2(state, k.d)
 
 
-def point_accel(state: np.ndarray, torque: np.ndarray, disturbance: np.ndarray | None,
-                k: PlantCoeffs) -> np.ndarray:
+def point_accel(
+    state: np.ndarray, torque: np.ndarray, disturbance: np.ndarray | None, k: PlantCoeffs
+) -> np.ndarray:
     """True point acceleration p_ddot = S1 (f2 + B2 u + g) + S1dot x2 (S2.2). Returns (N, 2)."""
     x2dot = _x2dot(state, torque, k)
     if disturbance is not None:
@@ -176,9 +185,10 @@ def point_accel(state: np.ndarray, torque: np.ndarray, disturbance: np.ndarray |
     return _s1_apply(state[:, 2], k.d, x2dot) + s1dot_x2(state, k.d)
 
 
-def state_derivative(state: np.ndarray, torque: np.ndarray, disturbance: np.ndarray | None,
-                     k: PlantCoeffs) -> np.ndarray:
-    """xdot of (16)-(20) for every robot. ``disturbance`` (N, 2) or None (= 0). Returns (N, 5)."""
+def state_derivative(
+    state: np.ndarray, torque: np.ndarray, disturbance: np.ndarray | None, k: PlantCoeffs
+) -> np.ndarray:
+    """Xdot of (16)-(20) for every robot. ``disturbance`` (N, 2) or None (= 0). Returns (N, 5)."""
     th = state[:, 2]
     v = state[:, 3]
     w = state[:, 4]
@@ -189,9 +199,9 @@ def state_derivative(state: np.ndarray, torque: np.ndarray, disturbance: np.ndar
     t1 = torque[:, 0]
     t2 = torque[:, 1]
     out = np.empty(state.shape)
-    out[:, 0] = v * c - d * w * s                                        # (16)
-    out[:, 1] = v * s + d * w * c                                        # (17)
-    out[:, 2] = w                                                        # (18)
+    out[:, 0] = v * c - d * w * s  # (16)
+    out[:, 1] = v * s + d * w * c  # (17)
+    out[:, 2] = w  # (18)
     out[:, 3] = mcd / k.m_tilde * w * w + (t1 + t2) / (k.m_tilde * k.r)  # (19)
     out[:, 4] = -mcd / k.I_tilde * w * v + k.a / (2.0 * k.I_tilde * k.r) * (t2 - t1)  # (20)
     if disturbance is not None:
@@ -200,8 +210,14 @@ def state_derivative(state: np.ndarray, torque: np.ndarray, disturbance: np.ndar
     return out
 
 
-def rk4_step(state: np.ndarray, torque: np.ndarray, disturbance_fn: DisturbanceFn | None,
-             t_s: float, dt_s: float, k: PlantCoeffs) -> np.ndarray:
+def rk4_step(
+    state: np.ndarray,
+    torque: np.ndarray,
+    disturbance_fn: DisturbanceFn | None,
+    t_s: float,
+    dt_s: float,
+    k: PlantCoeffs,
+) -> np.ndarray:
     """One classical RK4 step of length ``dt_s`` with the torque held constant (ZOH).
 
     ``disturbance_fn(t_s) -> (N, 2)`` is evaluated at t, t + dt/2 (once, shared by the two

@@ -11,18 +11,22 @@ the robots it knows about). It
    circle of radius R_aa = R_body,i + R_body,k + margin, the neighbour's velocity is x~dot);
 3. runs the obstacle transitions of the automaton (entry, S8.2 re-targeting, S8.3 exit);
 4. arbitrates robot-robot encounters over *all* robots together (S7 rules, S14.1):
-   * static obstacles beat robots; a robot avoiding an obstacle is stand-on, a free robot yields to it;
+   * static obstacles beat robots; a robot avoiding an obstacle is stand-on, a free robot yields to
+   it;
    * two free robots that threaten each other form a **mutual pair** (common s = +1, mu = 1, shared
      w_c);
    * the directed reacts-to graph (i -> k when i uses k's velocity) stays acyclic except for mutual
-     pairs: if k already reacts to i, directly or through a chain, i does not react, unless it is in
-     an emergency, in which case the pair is converted to a mutual pair (k drops its target, a third
+     pairs: if k already reacts to i, directly or through a chain, i does not react, unless it is
+     in
+     an emergency, in which case the pair is converted to a mutual pair (k drops its target, a
+     third
      robot that was mutual with i or k becomes a plain yielder);
    * two stand-on robots: the higher ID yields, and only in an emergency;
    * every robot picks its most urgent admissible threat among all robots (so a robot yielding to a
      busy robot re-targets to that robot's partner when the partner becomes more urgent, S14.1);
 5. runs the S8.3 exits of yielding robots and the joint exit of mutual pairs;
-6. refreshes the drift target of each mutual pair: w_c relaxes (time constant ``mutual_drift_tau_s``)
+6. refreshes the drift target of each mutual pair: w_c relaxes (time constant
+``mutual_drift_tau_s``)
    from the frozen 1/2 (p_dot_i + p_dot_k)(t_s) toward the mean of the two coordination fields, so
    the drift does not outlive its reason (S14.1); the relative motion z_dot = F(z) is unaffected.
 
@@ -33,23 +37,40 @@ contact with I within ``agent_horizon_s``.
 Mode events are written to ``ev`` rows [t_s, robot_index, event (1 enter, 0 exit), mode, target,
 direction]; the call returns the new event count.
 """
+
 from __future__ import annotations
 
 import math
 
-import numpy as np
 from numba import njit
+import numpy as np
 
 from ament_formation.core.automaton import (
-    INF, MODE_C, MODE_MUTUAL, MODE_OBSTACLE, MODE_YIELD, P_DRIFT_CAP, P_HORIZON, P_KAPPA,
-    P_DWELL, P_KEEPOUT_MARGIN, P_L, P_TEAM_VREL, choose_direction, exit_conditions, exit_timer, h_value,
-    in_cooldown, relative_velocity, threat_test,
+    choose_direction,
+    exit_conditions,
+    exit_timer,
+    h_value,
+    in_cooldown,
+    INF,
+    MODE_C,
+    MODE_MUTUAL,
+    MODE_OBSTACLE,
+    MODE_YIELD,
+    P_DRIFT_CAP,
+    P_DWELL,
+    P_HORIZON,
+    P_KAPPA,
+    P_KEEPOUT_MARGIN,
+    P_L,
+    P_TEAM_VREL,
+    relative_velocity,
+    threat_test,
 )
 
-KIND_OBSTACLE = 1   # cool-down bookkeeping: last target was an obstacle
-KIND_AGENT = 2      # ... or a robot
-MAX_THREATS = 8     # robot threats kept per robot and decision
-RETARGET_MARGIN = 0.1   # S8.2 between robots: the new h_L must be lower by this (hysteresis)
+KIND_OBSTACLE = 1  # cool-down bookkeeping: last target was an obstacle
+KIND_AGENT = 2  # ... or a robot
+MAX_THREATS = 8  # robot threats kept per robot and decision
+RETARGET_MARGIN = 0.1  # S8.2 between robots: the new h_L must be lower by this (hysteresis)
 
 
 @njit(cache=True)
@@ -87,7 +108,7 @@ def candidate_pairs(p, cell_m):
         iy[i] = int(math.floor((p[i, 1] - y0) / cell_m))
     nx = ix.max() + 1
     ny = iy.max() + 1
-    if nx * ny > 16 * n + 4096:          # sparse, huge arena: fall back to one cell column per x
+    if nx * ny > 16 * n + 4096:  # sparse, huge arena: fall back to one cell column per x
         ny = 1
         for i in range(n):
             iy[i] = 0
@@ -140,7 +161,7 @@ def reacts_to(k, i, mode, tgt):
         if nxt == i:
             return True
         if mode[cur] == MODE_MUTUAL:
-            return False          # the partner only reacts back to cur
+            return False  # the partner only reacts back to cur
         cur = nxt
     return False
 
@@ -200,19 +221,41 @@ def _obstacle_dir(i, j, p, pd, goal, goal_dot, oc, ov, ophi, ophid, oaxes, prm):
     zx = p[i, 0] - oc[j, 0]
     zy = p[i, 1] - oc[j, 1]
     rvx, rvy = relative_velocity(zx, zy, pd[i, 0], pd[i, 1], ov[j, 0], ov[j, 1], ophid[j])
-    return choose_direction(zx, zy, rvx, rvy, goal[i, 0] - oc[j, 0], goal[i, 1] - oc[j, 1],
-                            goal_dot[i, 0] - ov[j, 0], goal_dot[i, 1] - ov[j, 1], ophi[j],
-                            prm[P_L] * oaxes[j, 0], prm[P_L] * oaxes[j, 1],
-                            2.0 * prm[P_KAPPA] * oaxes[j, 0], True)
+    return choose_direction(
+        zx,
+        zy,
+        rvx,
+        rvy,
+        goal[i, 0] - oc[j, 0],
+        goal[i, 1] - oc[j, 1],
+        goal_dot[i, 0] - ov[j, 0],
+        goal_dot[i, 1] - ov[j, 1],
+        ophi[j],
+        prm[P_L] * oaxes[j, 0],
+        prm[P_L] * oaxes[j, 1],
+        2.0 * prm[P_KAPPA] * oaxes[j, 0],
+        True,
+    )
 
 
 @njit(cache=True)
 def _agent_dir(i, k, p, pd, goal, goal_dot, rbody, prm):
     r = keepout_radius(rbody, i, k, prm)
-    return choose_direction(p[i, 0] - p[k, 0], p[i, 1] - p[k, 1], pd[i, 0] - pd[k, 0],
-                            pd[i, 1] - pd[k, 1], goal[i, 0] - p[k, 0], goal[i, 1] - p[k, 1],
-                            goal_dot[i, 0] - pd[k, 0], goal_dot[i, 1] - pd[k, 1], 0.0,
-                            prm[P_L] * r, prm[P_L] * r, 2.0 * prm[P_KAPPA] * r, False)
+    return choose_direction(
+        p[i, 0] - p[k, 0],
+        p[i, 1] - p[k, 1],
+        pd[i, 0] - pd[k, 0],
+        pd[i, 1] - pd[k, 1],
+        goal[i, 0] - p[k, 0],
+        goal[i, 1] - p[k, 1],
+        goal_dot[i, 0] - pd[k, 0],
+        goal_dot[i, 1] - pd[k, 1],
+        0.0,
+        prm[P_L] * r,
+        prm[P_L] * r,
+        2.0 * prm[P_KAPPA] * r,
+        False,
+    )
 
 
 @njit(cache=True)
@@ -221,8 +264,9 @@ def _agent_urgency(i, k, p, pd, rbody, prm):
     r = keepout_radius(rbody, i, k, prm)
     zx = p[i, 0] - p[k, 0]
     zy = p[i, 1] - p[k, 1]
-    trig, em, lam, h_em, h_l = threat_test(zx, zy, pd[i, 0] - pd[k, 0], pd[i, 1] - pd[k, 1],
-                                           0.0, r, r, prm)
+    trig, em, lam, h_em, h_l = threat_test(
+        zx, zy, pd[i, 0] - pd[k, 0], pd[i, 1] - pd[k, 1], 0.0, r, r, prm
+    )
     return em, h_l
 
 
@@ -241,8 +285,9 @@ def _better(em, key_em, lam, best_set, best_em, best_key_em, best_lam):
 
 
 @njit(cache=True)
-def _form_mutual(i, k, t, pd, mode, tgt, sdir, t_entry, since, last_kind, last_tgt, last_exit,
-                 wc, ev, nev):
+def _form_mutual(
+    i, k, t, pd, mode, tgt, sdir, t_entry, since, last_kind, last_tgt, last_exit, wc, ev, nev
+):
     """Convert/enter the mutual pair (i, k): s = +1, same t_s, w_c = 1/2 (p_dot_i + p_dot_k)(t_s) (S7)."""
     for a in (i, k):
         if mode[a] == MODE_MUTUAL:
@@ -266,8 +311,35 @@ def _form_mutual(i, k, t, pd, mode, tgt, sdir, t_entry, since, last_kind, last_t
 
 
 @njit(cache=True)
-def decide(t, p, pd, goal, goal_dot, vc, team, rbody, oc, ov, ophi, ophid, oaxes, ostatic,
-           mode, tgt, sdir, t_entry, since, last_kind, last_tgt, last_exit, wc, wtgt, prm, ev, nev):
+def decide(
+    t,
+    p,
+    pd,
+    goal,
+    goal_dot,
+    vc,
+    team,
+    rbody,
+    oc,
+    ov,
+    ophi,
+    ophid,
+    oaxes,
+    ostatic,
+    mode,
+    tgt,
+    sdir,
+    t_entry,
+    since,
+    last_kind,
+    last_tgt,
+    last_exit,
+    wc,
+    wtgt,
+    prm,
+    ev,
+    nev,
+):
     """One decision of every robot's automaton (S8) with robot encounters arbitrated jointly (S7).
 
     Parameters
@@ -284,7 +356,8 @@ def decide(t, p, pd, goal, goal_dot, vc, team, rbody, oc, ov, ophi, ophid, oaxes
         in place (``since`` < 0: exit conditions not holding; ``last_*``: cool-down bookkeeping).
     wc, wtgt : (N, 2) mutual-pair drift w_c and its relaxation target (updated in place).
     prm : packed :class:`~ament_formation.core.automaton.SwitchingParams`.
-    ev : (E, 6) event buffer, nev : events already in it. Returns the new event count (may exceed E:
+    ev : (E, 6) event buffer, nev : events already in it. Returns the new event count (may exceed
+    E:
         the caller must then enlarge the buffer; rows beyond E are dropped).
     """
     n = p.shape[0]
@@ -297,7 +370,7 @@ def decide(t, p, pd, goal, goal_dot, vc, team, rbody, oc, ov, ophi, ophid, oaxes
     ob_hl = np.full(n, INF)
     cur_em = np.zeros(n, dtype=np.bool_)
     cur_hl = np.full(n, INF)
-    reach2 = np.empty(m)        # culling: outside the circle of radius kappa r1 nothing triggers
+    reach2 = np.empty(m)  # culling: outside the circle of radius kappa r1 nothing triggers
     for j in range(m):
         reach2[j] = (prm[P_KAPPA] * max(oaxes[j, 0], oaxes[j, 1])) ** 2
     for i in range(n):
@@ -307,15 +380,17 @@ def decide(t, p, pd, goal, goal_dot, vc, team, rbody, oc, ov, ophi, ophid, oaxes
             if zx * zx + zy * zy >= reach2[j] and not (mode[i] == MODE_OBSTACLE and tgt[i] == j):
                 continue
             rvx, rvy = relative_velocity(zx, zy, pd[i, 0], pd[i, 1], ov[j, 0], ov[j, 1], ophid[j])
-            trig, em, lam, h_em, h_l = threat_test(zx, zy, rvx, rvy, ophi[j], oaxes[j, 0],
-                                                   oaxes[j, 1], prm)
+            trig, em, lam, h_em, h_l = threat_test(
+                zx, zy, rvx, rvy, ophi[j], oaxes[j, 0], oaxes[j, 1], prm
+            )
             if mode[i] == MODE_OBSTACLE and tgt[i] == j:
                 cur_em[i] = em
                 cur_hl[i] = h_l
                 continue
             if not em:
-                if not trig or in_cooldown(KIND_OBSTACLE, j, t, last_kind[i], last_tgt[i],
-                                           last_exit[i], prm):
+                if not trig or in_cooldown(
+                    KIND_OBSTACLE, j, t, last_kind[i], last_tgt[i], last_exit[i], prm
+                ):
                     continue
             if _better(em, h_em, lam, ob_j[i] >= 0, ob_em[i], ob_hem[i], ob_lam[i]):
                 ob_j[i] = j
@@ -343,8 +418,14 @@ def decide(t, p, pd, goal, goal_dot, vc, team, rbody, oc, ov, ophi, ophid, oaxes
             trig, em, lam, h_em, h_l = threat_test(zx, zy, rvx, rvy, 0.0, r, r, prm)
             if trig and lam > prm[P_HORIZON]:
                 trig = False
-            if (trig and not em and team[i] == team[k] and mode[i] == MODE_C and mode[k] == MODE_C
-                    and math.hypot(rvx, rvy) < prm[P_TEAM_VREL]):
+            if (
+                trig
+                and not em
+                and team[i] == team[k]
+                and mode[i] == MODE_C
+                and mode[k] == MODE_C
+                and math.hypot(rvx, rvy) < prm[P_TEAM_VREL]
+            ):
                 trig = False
             if not (trig or em):
                 continue
@@ -353,14 +434,22 @@ def decide(t, p, pd, goal, goal_dot, vc, team, rbody, oc, ov, ophi, ophid, oaxes
                 if c < MAX_THREATS:
                     slot = c
                     th_cnt[a] = c + 1
-                else:       # replace the least urgent
+                else:  # replace the least urgent
                     slot = 0
                     for s in range(1, MAX_THREATS):
-                        if _better(th_em[a, slot], th_hem[a, slot], th_lam[a, slot], True,
-                                   th_em[a, s], th_hem[a, s], th_lam[a, s]):
+                        if _better(
+                            th_em[a, slot],
+                            th_hem[a, slot],
+                            th_lam[a, slot],
+                            True,
+                            th_em[a, s],
+                            th_hem[a, s],
+                            th_lam[a, s],
+                        ):
                             slot = s
-                    if not _better(em, h_em, lam, True, th_em[a, slot], th_hem[a, slot],
-                                   th_lam[a, slot]):
+                    if not _better(
+                        em, h_em, lam, True, th_em[a, slot], th_hem[a, slot], th_lam[a, slot]
+                    ):
                         continue
                 th_k[a, slot] = b
                 th_em[a, slot] = em
@@ -373,15 +462,31 @@ def decide(t, p, pd, goal, goal_dot, vc, team, rbody, oc, ov, ophi, ophid, oaxes
             jn = ob_j[i]
             if jn >= 0 and not cur_em[i] and (ob_em[i] or ob_hl[i] < cur_hl[i]):
                 if ostatic[j] and ostatic[jn]:
-                    s = sdir[i]                     # S6.6 rule 5: keep the sweep direction
+                    s = sdir[i]  # S6.6 rule 5: keep the sweep direction
                 else:
-                    s = _obstacle_dir(i, jn, p, pd, goal, goal_dot, oc, ov, ophi, ophid, oaxes, prm)
+                    s = _obstacle_dir(
+                        i, jn, p, pd, goal, goal_dot, oc, ov, ophi, ophid, oaxes, prm
+                    )
                 nev = _leave(i, t, mode, tgt, sdir, since, last_kind, last_tgt, last_exit, ev, nev)
                 nev = _enter(i, t, MODE_OBSTACLE, jn, s, mode, tgt, sdir, t_entry, since, ev, nev)
                 continue
-            cond = exit_conditions(p[i, 0], p[i, 1], goal[i, 0], goal[i, 1], vc[i, 0], vc[i, 1],
-                                   oc[j, 0], oc[j, 1], ov[j, 0], ov[j, 1], ophi[j], ophid[j],
-                                   oaxes[j, 0], oaxes[j, 1], prm)
+            cond = exit_conditions(
+                p[i, 0],
+                p[i, 1],
+                goal[i, 0],
+                goal[i, 1],
+                vc[i, 0],
+                vc[i, 1],
+                oc[j, 0],
+                oc[j, 1],
+                ov[j, 0],
+                ov[j, 1],
+                ophi[j],
+                ophid[j],
+                oaxes[j, 0],
+                oaxes[j, 1],
+                prm,
+            )
             ok, since[i] = exit_timer(cond, t, since[i], t_entry[i], prm)
             if ok:
                 nev = _leave(i, t, mode, tgt, sdir, since, last_kind, last_tgt, last_exit, ev, nev)
@@ -392,8 +497,9 @@ def decide(t, p, pd, goal, goal_dot, vc, team, rbody, oc, ov, ophi, ophid, oaxes
                 em_k, hl_k = _agent_urgency(i, tgt[i], p, pd, rbody, prm)
                 if em_k and not ob_em[i]:
                     continue
-                nev = _release(i, t, mode, tgt, sdir, t_entry, since, last_kind, last_tgt,
-                               last_exit, ev, nev)
+                nev = _release(
+                    i, t, mode, tgt, sdir, t_entry, since, last_kind, last_tgt, last_exit, ev, nev
+                )
             jn = ob_j[i]
             s = _obstacle_dir(i, jn, p, pd, goal, goal_dot, oc, ov, ophi, ophid, oaxes, prm)
             nev = _enter(i, t, MODE_OBSTACLE, jn, s, mode, tgt, sdir, t_entry, since, ev, nev)
@@ -426,10 +532,12 @@ def decide(t, p, pd, goal, goal_dot, vc, team, rbody, oc, ov, ophi, ophid, oaxes
             em = th_em[i, q]
             if (mode[i] == MODE_YIELD or mode[i] == MODE_MUTUAL) and tgt[i] == k:
                 continue
-            if not em and in_cooldown(KIND_AGENT, k, t, last_kind[i], last_tgt[i], last_exit[i], prm):
+            if not em and in_cooldown(
+                KIND_AGENT, k, t, last_kind[i], last_tgt[i], last_exit[i], prm
+            ):
                 continue
             if not em and reacts_to(k, i, mode, tgt):
-                continue                          # k is responsible (S7 acyclicity)
+                continue  # k is responsible (S7 acyclicity)
             if _better(em, th_hem[i, q], th_lam[i, q], best >= 0, b_em, b_hem, b_lam):
                 best = k
                 b_em = em
@@ -440,7 +548,7 @@ def decide(t, p, pd, goal, goal_dot, vc, team, rbody, oc, ov, ophi, ophid, oaxes
         k = best
         if mode[i] != MODE_C:
             if t - t_entry[i] < prm[P_DWELL]:
-                continue                          # S14.2: no re-target within T_dwell of a switch
+                continue  # S14.2: no re-target within T_dwell of a switch
             em_cur, hl_cur = _agent_urgency(i, tgt[i], p, pd, rbody, prm)
             if em_cur:
                 continue
@@ -452,41 +560,116 @@ def decide(t, p, pd, goal, goal_dot, vc, team, rbody, oc, ov, ophi, ophid, oaxes
             # emergency against a robot that already reacts to i: convert to a mutual pair
             if t - t_entry[k] < prm[P_DWELL]:
                 continue
-            nev = _form_mutual(i, k, t, pd, mode, tgt, sdir, t_entry, since, last_kind, last_tgt,
-                               last_exit, wc, ev, nev)
+            nev = _form_mutual(
+                i,
+                k,
+                t,
+                pd,
+                mode,
+                tgt,
+                sdir,
+                t_entry,
+                since,
+                last_kind,
+                last_tgt,
+                last_exit,
+                wc,
+                ev,
+                nev,
+            )
         elif mode[k] == MODE_C and (mode[i] == MODE_C or mode[i] == MODE_YIELD):
             # two free robots: reciprocal avoidance (S7 mutual)
-            nev = _release(i, t, mode, tgt, sdir, t_entry, since, last_kind, last_tgt, last_exit,
-                           ev, nev)
-            nev = _form_mutual(i, k, t, pd, mode, tgt, sdir, t_entry, since, last_kind, last_tgt,
-                               last_exit, wc, ev, nev)
+            nev = _release(
+                i, t, mode, tgt, sdir, t_entry, since, last_kind, last_tgt, last_exit, ev, nev
+            )
+            nev = _form_mutual(
+                i,
+                k,
+                t,
+                pd,
+                mode,
+                tgt,
+                sdir,
+                t_entry,
+                since,
+                last_kind,
+                last_tgt,
+                last_exit,
+                wc,
+                ev,
+                nev,
+            )
         else:
             # k is busy (stand-on, yielding or in a pair): i yields to k
             s = _agent_dir(i, k, p, pd, goal, goal_dot, rbody, prm)
-            nev = _release(i, t, mode, tgt, sdir, t_entry, since, last_kind, last_tgt, last_exit,
-                           ev, nev)
+            nev = _release(
+                i, t, mode, tgt, sdir, t_entry, since, last_kind, last_tgt, last_exit, ev, nev
+            )
             nev = _enter(i, t, MODE_YIELD, k, s, mode, tgt, sdir, t_entry, since, ev, nev)
     # ---- 5. exits of yielding robots and mutual pairs (S8.3)
     for i in range(n):
         if mode[i] == MODE_YIELD:
             k = tgt[i]
             r = keepout_radius(rbody, i, k, prm)
-            cond = exit_conditions(p[i, 0], p[i, 1], goal[i, 0], goal[i, 1], vc[i, 0], vc[i, 1],
-                                   p[k, 0], p[k, 1], pd[k, 0], pd[k, 1], 0.0, 0.0, r, r, prm)
+            cond = exit_conditions(
+                p[i, 0],
+                p[i, 1],
+                goal[i, 0],
+                goal[i, 1],
+                vc[i, 0],
+                vc[i, 1],
+                p[k, 0],
+                p[k, 1],
+                pd[k, 0],
+                pd[k, 1],
+                0.0,
+                0.0,
+                r,
+                r,
+                prm,
+            )
             ok, since[i] = exit_timer(cond, t, since[i], t_entry[i], prm)
             if ok:
                 nev = _leave(i, t, mode, tgt, sdir, since, last_kind, last_tgt, last_exit, ev, nev)
         elif mode[i] == MODE_MUTUAL and tgt[i] > i:
             k = tgt[i]
             r = keepout_radius(rbody, i, k, prm)
-            cond = (exit_conditions(p[i, 0], p[i, 1], goal[i, 0], goal[i, 1], vc[i, 0], vc[i, 1],
-                                    p[k, 0], p[k, 1], vc[k, 0], vc[k, 1], 0.0, 0.0, r, r, prm)
-                    and exit_conditions(p[k, 0], p[k, 1], goal[k, 0], goal[k, 1], vc[k, 0],
-                                        vc[k, 1], p[i, 0], p[i, 1], vc[i, 0], vc[i, 1], 0.0, 0.0,
-                                        r, r, prm))
+            cond = exit_conditions(
+                p[i, 0],
+                p[i, 1],
+                goal[i, 0],
+                goal[i, 1],
+                vc[i, 0],
+                vc[i, 1],
+                p[k, 0],
+                p[k, 1],
+                vc[k, 0],
+                vc[k, 1],
+                0.0,
+                0.0,
+                r,
+                r,
+                prm,
+            ) and exit_conditions(
+                p[k, 0],
+                p[k, 1],
+                goal[k, 0],
+                goal[k, 1],
+                vc[k, 0],
+                vc[k, 1],
+                p[i, 0],
+                p[i, 1],
+                vc[i, 0],
+                vc[i, 1],
+                0.0,
+                0.0,
+                r,
+                r,
+                prm,
+            )
             ok, since[i] = exit_timer(cond, t, since[i], t_entry[i], prm)
             since[k] = since[i]
-            if ok:                                     # pairs exit jointly
+            if ok:  # pairs exit jointly
                 nev = _leave(i, t, mode, tgt, sdir, since, last_kind, last_tgt, last_exit, ev, nev)
                 nev = _leave(k, t, mode, tgt, sdir, since, last_kind, last_tgt, last_exit, ev, nev)
     # ---- 6. drift target of mutual pairs (S14.1)
@@ -505,23 +688,60 @@ def decide(t, p, pd, goal, goal_dot, vc, team, rbody, oc, ov, ophi, ophid, oaxes
     return nev
 
 
-def decide_once(t_s: float, state, p, pd, goal, goal_dot, vc, team, rbody, obstacles, prm,
-                ev_capacity: int | None = None) -> list[tuple]:
+def decide_once(
+    t_s: float,
+    state,
+    p,
+    pd,
+    goal,
+    goal_dot,
+    vc,
+    team,
+    rbody,
+    obstacles,
+    prm,
+    ev_capacity: int | None = None,
+) -> list[tuple]:
     """Python convenience around :func:`decide` (tests, controller): returns the events as tuples
     (t_s, robot_row, 'enter'|'exit', mode, target, direction).
 
     ``state`` : :class:`~ament_formation.core.automaton.AutomatonState`; ``obstacles`` : tuple
-    (centres (M, 2), velocities (M, 2), phi (M,), phi_dot (M,), semi-axes (M, 2), static (M,) bool);
+    (centres (M, 2), velocities (M, 2), phi (M,), phi_dot (M,), semi-axes (M, 2), static (M,)
+    bool);
     other arrays as in :func:`decide`.
     """
     n = state.n
     ev = np.zeros((ev_capacity or 8 * n + 16, 6))
     oc, ov, ophi, ophid, oaxes, ostatic = obstacles
     f = lambda a: np.ascontiguousarray(a, dtype=float)
-    nev = decide(float(t_s), f(p), f(pd), f(goal), f(goal_dot), f(vc),
-                 np.ascontiguousarray(team, dtype=np.int64), f(rbody), f(oc).reshape(-1, 2),
-                 f(ov).reshape(-1, 2), f(ophi).reshape(-1), f(ophid).reshape(-1),
-                 f(oaxes).reshape(-1, 2), np.ascontiguousarray(ostatic, dtype=np.bool_).reshape(-1),
-                 *state.arrays(), prm, ev, 0)
-    return [(float(r[0]), int(r[1]), "enter" if r[2] > 0.5 else "exit", int(r[3]), int(r[4]),
-             float(r[5])) for r in ev[:min(nev, ev.shape[0])]]
+    nev = decide(
+        float(t_s),
+        f(p),
+        f(pd),
+        f(goal),
+        f(goal_dot),
+        f(vc),
+        np.ascontiguousarray(team, dtype=np.int64),
+        f(rbody),
+        f(oc).reshape(-1, 2),
+        f(ov).reshape(-1, 2),
+        f(ophi).reshape(-1),
+        f(ophid).reshape(-1),
+        f(oaxes).reshape(-1, 2),
+        np.ascontiguousarray(ostatic, dtype=np.bool_).reshape(-1),
+        *state.arrays(),
+        prm,
+        ev,
+        0,
+    )
+    return [
+        (
+            float(r[0]),
+            int(r[1]),
+            'enter' if r[2] > 0.5 else 'exit',
+            int(r[3]),
+            int(r[4]),
+            float(r[5]),
+        )
+        for r in ev[: min(nev, ev.shape[0])]
+    ]

@@ -1,4 +1,5 @@
 """Configuration errors that name the file, the field and the problem in one line."""
+
 from __future__ import annotations
 
 
@@ -17,15 +18,15 @@ class ConfigError(ValueError):
 
     def _line(self) -> str:
         parts = [p for p in (self.file, self.field) if p]
-        return ": ".join(parts + [self.problem])
+        return ': '.join(parts + [self.problem])
 
-    def with_file(self, file: str) -> "ConfigError":
+    def with_file(self, file: str) -> 'ConfigError':
         """The same error, naming ``file``."""
         return ConfigError(self.problem, self.field, file)
 
-    def under(self, prefix: str) -> "ConfigError":
+    def under(self, prefix: str) -> 'ConfigError':
         """The same error with ``prefix`` prepended to the field path (``robots[1]`` + ``.slot_m``)."""
-        field = f"{prefix}.{self.field}" if self.field else prefix
-        if self.field and self.field.startswith("["):
-            field = f"{prefix}{self.field}"
+        field = f'{prefix}.{self.field}' if self.field else prefix
+        if self.field and self.field.startswith('['):
+            field = f'{prefix}{self.field}'
         return ConfigError(self.problem, field, self.file)

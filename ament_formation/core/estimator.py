@@ -12,11 +12,12 @@ Conventions: pose (3,) [x_m, y_m, theta_rad] of the controlled point p (distance
 axle midpoint); state (5,) [x_m, y_m, theta_rad, v_mps, omega_radps]; wheel arrays (2,)
 [left, right]; times [s] on one clock (the node's).
 """
+
 from __future__ import annotations
 
-import math
 from collections import deque
 from dataclasses import dataclass
+import math
 
 import numpy as np
 
@@ -36,32 +37,47 @@ class EstimatorParams:
     wheel_radius_m: float = 0.035
     axle_length_m: float = 0.20
     com_offset_m: float = 0.05
-    camera_gain: float = 0.5             # fraction of the innovation applied per frame, (0, 1]
-    gate_position_m: float = 0.25        # reject camera poses further than this from the prediction
+    camera_gain: float = 0.5  # fraction of the innovation applied per frame, (0, 1]
+    gate_position_m: float = 0.25  # reject camera poses further than this from the prediction
     gate_heading_rad: float = 0.6
-    relock_after: int = 5                # this many consecutive gated frames: accept (gain 1)
-    history_s: float = 1.0               # odometry kept for latency compensation
+    relock_after: int = 5  # this many consecutive gated frames: accept (gain 1)
+    history_s: float = 1.0  # odometry kept for latency compensation
     max_wheel_speed_radps: float = 200.0  # larger encoder jumps are glitches
-    max_extrapolation_s: float = 0.05    # state_at() extrapolates at most this far past odometry
+    max_extrapolation_s: float = 0.05  # state_at() extrapolates at most this far past odometry
 
     def __post_init__(self) -> None:
-        for name in ("wheel_radius_m", "axle_length_m", "com_offset_m", "gate_position_m",
-                     "gate_heading_rad", "history_s", "max_wheel_speed_radps"):
+        for name in (
+            'wheel_radius_m',
+            'axle_length_m',
+            'com_offset_m',
+            'gate_position_m',
+            'gate_heading_rad',
+            'history_s',
+            'max_wheel_speed_radps',
+        ):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise ConfigError(f"must be a finite number > 0 (got {v!r})", name)
+                raise ConfigError(f'must be a finite number > 0 (got {v!r})', name)
         if not (0.0 < self.camera_gain <= 1.0):
-            raise ConfigError(f"must be in (0, 1] (got {self.camera_gain!r})", "camera_gain")
+            raise ConfigError(f'must be in (0, 1] (got {self.camera_gain!r})', 'camera_gain')
         if not (isinstance(self.relock_after, int) and self.relock_after >= 1):
-            raise ConfigError(f"must be an integer >= 1 (got {self.relock_after!r})", "relock_after")
+            raise ConfigError(
+                f'must be an integer >= 1 (got {self.relock_after!r})', 'relock_after'
+            )
         if not (math.isfinite(self.max_extrapolation_s) and self.max_extrapolation_s >= 0):
-            raise ConfigError(f"must be >= 0 s (got {self.max_extrapolation_s!r})", "max_extrapolation_s")
+            raise ConfigError(
+                f'must be >= 0 s (got {self.max_extrapolation_s!r})', 'max_extrapolation_s'
+            )
 
     @classmethod
-    def from_robot(cls, robot: RobotParams, **tuning) -> "EstimatorParams":
+    def from_robot(cls, robot: RobotParams, **tuning) -> 'EstimatorParams':
         """Geometry from a robot's parameters (S2.3) plus any tuning fields."""
-        return cls(wheel_radius_m=robot.wheel_radius_m, axle_length_m=robot.axle_length_m,
-                   com_offset_m=robot.com_offset_m, **tuning)
+        return cls(
+            wheel_radius_m=robot.wheel_radius_m,
+            axle_length_m=robot.axle_length_m,
+            com_offset_m=robot.com_offset_m,
+            **tuning,
+        )
 
 
 def wheel_to_body(dq_rad, r_m: float, a_m: float) -> tuple[np.ndarray, np.ndarray]:
@@ -83,12 +99,14 @@ def fold_steps(axle_xy, theta: float, ds, dth) -> tuple[np.ndarray, np.ndarray]:
     dth = np.asarray(dth, dtype=float)
     th_end = theta + np.cumsum(dth)
     th_mid = th_end - 0.5 * dth
-    chord = ds * np.sinc(dth / (2.0 * np.pi))      # np.sinc(x) = sin(pi x) / (pi x)
+    chord = ds * np.sinc(dth / (2.0 * np.pi))  # np.sinc(x) = sin(pi x) / (pi x)
     steps = np.stack([chord * np.cos(th_mid), chord * np.sin(th_mid)], axis=-1)
     return np.asarray(axle_xy, dtype=float) + np.cumsum(steps, axis=0), th_end
 
 
-def arc_step(x: float, y: float, theta: float, ds: float, dth: float) -> tuple[float, float, float]:
+def arc_step(
+    x: float, y: float, theta: float, ds: float, dth: float
+) -> tuple[float, float, float]:
     """One step of :func:`fold_steps` in scalars (the per-sample path: no array overhead)."""
     h = 0.5 * dth
     chord = ds * (math.sin(h) / h if abs(h) > 1e-9 else 1.0 - h * h / 6.0)
@@ -99,7 +117,8 @@ def arc_step(x: float, y: float, theta: float, ds: float, dth: float) -> tuple[f
 def fold_to_end(axle_xy, theta: float, steps) -> tuple[np.ndarray, float]:
     """The end pose of :func:`fold_steps` for a few ``_Step`` (a scalar loop: the estimator folds
     the handful of odometry steps between camera frames, where arrays cost more than they save).
-    Returns (axle position (2,), heading [rad])."""
+    Returns (axle position (2,), heading [rad]).
+    """
     x, y, th = float(axle_xy[0]), float(axle_xy[1]), float(theta)
     for step in steps:
         x, y, th = arc_step(x, y, th, step.ds_m, step.dth_rad)
@@ -124,7 +143,7 @@ class EstimatorCounters:
 
 @dataclass
 class _Step:
-    t_s: float      # end time of the step
+    t_s: float  # end time of the step
     ds_m: float
     dth_rad: float
 
@@ -135,19 +154,19 @@ class PoseEstimator:
     def __init__(self, params: EstimatorParams):
         self.p = params
         self.counters = EstimatorCounters()
-        self._anchor_t: float | None = None        # time of the anchor pose
+        self._anchor_t: float | None = None  # time of the anchor pose
         self._anchor_axle = np.zeros(2)
         self._anchor_th = 0.0
         self._steps: deque[_Step] = deque()
-        self._axle = np.zeros(2)                   # current (end of odometry) axle pose
+        self._axle = np.zeros(2)  # current (end of odometry) axle pose
         self._th = 0.0
-        self._last_q: tuple[float, float] | None = None   # wheel angles [left, right]
+        self._last_q: tuple[float, float] | None = None  # wheel angles [left, right]
         self._last_q_t: float | None = None
-        self._rates = np.zeros(2)                  # [v_mps, omega_radps] from the wheel rates
-        self._odom_t: float | None = None          # time of the newest odometry sample
-        self.last_camera_s: float | None = None    # capture stamp of the newest accepted frame
+        self._rates = np.zeros(2)  # [v_mps, omega_radps] from the wheel rates
+        self._odom_t: float | None = None  # time of the newest odometry sample
+        self.last_camera_s: float | None = None  # capture stamp of the newest accepted frame
         self._rejected_in_row = 0
-        self._pending: list[_Step] = []            # steps before the first camera pose
+        self._pending: list[_Step] = []  # steps before the first camera pose
 
     # ---------------------------------------------------------------- geometry
     def _to_axle(self, pose) -> np.ndarray:
@@ -156,7 +175,9 @@ class PoseEstimator:
 
     def _to_point(self, axle, th) -> np.ndarray:
         d = self.p.com_offset_m
-        return np.array([axle[0] + d * math.cos(th), axle[1] + d * math.sin(th), float(wrap_angle(th))])
+        return np.array(
+            [axle[0] + d * math.cos(th), axle[1] + d * math.sin(th), float(wrap_angle(th))]
+        )
 
     @property
     def initialized(self) -> bool:
@@ -167,7 +188,9 @@ class PoseEstimator:
         """Set the pose of p at ``t_s`` (drops the odometry history)."""
         pose = np.asarray(pose_xyt, dtype=float)
         if pose.shape != (3,) or not np.all(np.isfinite(pose)) or not math.isfinite(t_s):
-            raise ValueError(f"pose_xyt: expected 3 finite values and a finite time (got {pose}, {t_s})")
+            raise ValueError(
+                f'pose_xyt: expected 3 finite values and a finite time (got {pose}, {t_s})'
+            )
         self._anchor_t = float(t_s)
         self._anchor_axle = self._to_axle(pose)
         self._anchor_th = float(pose[2])
@@ -204,14 +227,15 @@ class PoseEstimator:
             self.counters.rejected_stale += 1
             return False
         dql, dqr = ql - self._last_q[0], qr - self._last_q[1]
-        # samples batched under one stamp (dt = 0) are fine; the jump test allows >= 10 ms of motion
+        # samples batched under one stamp (dt = 0) are fine; the jump test allows >= 10 ms of
+        # motion
         wmax = self.p.max_wheel_speed_radps
         if max(abs(dql), abs(dqr)) > wmax * max(dt, 0.01) or max(abs(wl), abs(wr)) > wmax:
             self.counters.rejected_glitch += 1
-            self._last_q, self._last_q_t = (ql, qr), t_s   # resynchronise, drop the jump
+            self._last_q, self._last_q_t = (ql, qr), t_s  # resynchronise, drop the jump
             return False
         self._last_q, self._last_q_t = (ql, qr), t_s
-        step = _Step(t_s, r * 0.5 * (dqr + dql), r * (dqr - dql) / a)     # wheel_to_body, scalars
+        step = _Step(t_s, r * 0.5 * (dqr + dql), r * (dqr - dql) / a)  # wheel_to_body, scalars
         self._rates = np.array([r * 0.5 * (wr + wl), r * (wr - wl) / a])
         self._odom_t = t_s
         self.counters.odometry += 1
@@ -222,7 +246,9 @@ class PoseEstimator:
                 self._pending.pop(0)
             return True
         self._steps.append(step)
-        x, y, self._th = arc_step(float(self._axle[0]), float(self._axle[1]), self._th, step.ds_m, step.dth_rad)
+        x, y, self._th = arc_step(
+            float(self._axle[0]), float(self._axle[1]), self._th, step.ds_m, step.dth_rad
+        )
         self._axle = np.array([x, y])
         self._trim(t_s)
         return True
@@ -234,7 +260,9 @@ class PoseEstimator:
         while self._steps and self._steps[0].t_s < cutoff:
             old.append(self._steps.popleft())
         if old:
-            self._anchor_axle, self._anchor_th = fold_to_end(self._anchor_axle, self._anchor_th, old)
+            self._anchor_axle, self._anchor_th = fold_to_end(
+                self._anchor_axle, self._anchor_th, old
+            )
             self._anchor_t = old[-1].t_s
 
     # ---------------------------------------------------------------- camera
@@ -263,26 +291,29 @@ class PoseEstimator:
         pose = np.asarray(pose_xyt, dtype=float)
         if pose.shape != (3,) or not np.all(np.isfinite(pose)) or not math.isfinite(t_s):
             self.counters.rejected_nonfinite += 1
-            return "rejected_nonfinite"
+            return 'rejected_nonfinite'
         if self._anchor_t is None:
             self._initialize_from_camera(t_s, pose)
-            return "initialized"
+            return 'initialized'
         if t_s < self._anchor_t or (self.last_camera_s is not None and t_s <= self.last_camera_s):
             self.counters.rejected_stale += 1
-            return "rejected_stale"
+            return 'rejected_stale'
         before, after = self._split_at(t_s)
         axle_c, th_c = fold_to_end(self._anchor_axle, self._anchor_th, before)
         predicted = self._to_point(axle_c, th_c)
         innov = pose - predicted
         innov[2] = float(wrap_angle(innov[2]))
-        outcome = "accepted"
+        outcome = 'accepted'
         gain = self.p.camera_gain
-        if np.hypot(innov[0], innov[1]) > self.p.gate_position_m or abs(innov[2]) > self.p.gate_heading_rad:
+        if (
+            np.hypot(innov[0], innov[1]) > self.p.gate_position_m
+            or abs(innov[2]) > self.p.gate_heading_rad
+        ):
             self._rejected_in_row += 1
             if self._rejected_in_row < self.p.relock_after:
                 self.counters.rejected_outlier += 1
-                return "rejected_outlier"
-            outcome, gain = "relocked", 1.0
+                return 'rejected_outlier'
+            outcome, gain = 'relocked', 1.0
             self.counters.relocks += 1
         self._rejected_in_row = 0
         corrected = predicted + gain * innov
@@ -317,15 +348,23 @@ class PoseEstimator:
 
     def state_at(self, t_s: float) -> np.ndarray:
         """(5,) state extrapolated with the latest (v, omega) to ``t_s`` (at most
-        ``max_extrapolation_s`` past the newest odometry sample; never backwards)."""
+        ``max_extrapolation_s`` past the newest odometry sample; never backwards).
+        """
         if self._odom_t is None:
             return self.state()
         dt = min(max(0.0, t_s - self._odom_t), self.p.max_extrapolation_s)
         v, w = self._rates.tolist()
         x, y, th = arc_step(float(self._axle[0]), float(self._axle[1]), self._th, v * dt, w * dt)
         d = self.p.com_offset_m
-        return np.array([x + d * math.cos(th), y + d * math.sin(th),
-                         (th + math.pi) % (2.0 * math.pi) - math.pi, v, w])
+        return np.array(
+            [
+                x + d * math.cos(th),
+                y + d * math.sin(th),
+                (th + math.pi) % (2.0 * math.pi) - math.pi,
+                v,
+                w,
+            ]
+        )
 
     def camera_age_s(self, now_s: float) -> float:
         """Time since the capture stamp of the newest accepted camera pose (inf if none)."""

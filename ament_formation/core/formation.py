@@ -2,13 +2,15 @@
 
 Implements S4: the smoothly saturated position feedback Phi(e) = alpha e / s,
 s = sqrt(1 + alpha^2 |e|^2 / v_cap^2), its Jacobian DPhi, the leader field (tracking r(t)) and the
-follower field (tracking its current parent j plus the offset delta_ij, with j's broadcast commanded
+follower field (tracking its current parent j plus the offset delta_ij, with j's broadcast
+commanded
 point acceleration a_j as feed-forward). Every field returns (V_d, V_d_dot) for the S3 law.
 Numba twin: :func:`ament_formation.core.kernels.tracking_field_k`.
 
 Shapes: positions/velocities/accelerations (N, 2) [m, m/s, m/s^2]; gains are a ControlGains
 (``formation_gain_per_s`` = alpha, ``formation_speed_cap_mps`` = v_cap).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -37,8 +39,13 @@ def dphi(e: np.ndarray, alpha, v_cap) -> np.ndarray:
     ex, ey, q, s = _phi_terms(e, alpha, v_cap)
     g = alpha / s
     k = alpha * q / (s * s * s)
-    return np.stack((np.stack((g - k * ex * ex, -k * ex * ey), -1),
-                     np.stack((-k * ex * ey, g - k * ey * ey), -1)), axis=-2)
+    return np.stack(
+        (
+            np.stack((g - k * ex * ex, -k * ex * ey), -1),
+            np.stack((-k * ex * ey, g - k * ey * ey), -1),
+        ),
+        axis=-2,
+    )
 
 
 def tracking_field(e, ref_vel, ref_acc, p_dot, alpha, v_cap):
@@ -57,23 +64,35 @@ def tracking_field(e, ref_vel, ref_acc, p_dot, alpha, v_cap):
     ry = p_dot[..., 1] - ref_vel[..., 1]
     proj = k * (ex * rx + ey * ry)
     v_d = np.stack((ref_vel[..., 0] - g * ex, ref_vel[..., 1] - g * ey), axis=-1)
-    v_d_dot = np.stack((ref_acc[..., 0] - (g * rx - proj * ex),
-                        ref_acc[..., 1] - (g * ry - proj * ey)), axis=-1)
+    v_d_dot = np.stack(
+        (ref_acc[..., 0] - (g * rx - proj * ex), ref_acc[..., 1] - (g * ry - proj * ey)), axis=-1
+    )
     return v_d, v_d_dot
 
 
 def leader_field(p, p_dot, r, r_dot, r_ddot, gains: ControlGains):
     """S4 leader: e = p - r, V_d = r_dot - Phi(e), V_d_dot = r_ddot - DPhi(e)(p_dot - r_dot)."""
     e = np.asarray(p, dtype=float) - r
-    return tracking_field(e, np.asarray(r_dot, dtype=float), np.asarray(r_ddot, dtype=float),
-                          np.asarray(p_dot, dtype=float), gains.formation_gain_per_s,
-                          gains.formation_speed_cap_mps)
+    return tracking_field(
+        e,
+        np.asarray(r_dot, dtype=float),
+        np.asarray(r_ddot, dtype=float),
+        np.asarray(p_dot, dtype=float),
+        gains.formation_gain_per_s,
+        gains.formation_speed_cap_mps,
+    )
 
 
 def follower_field(p_i, p_dot_i, p_j, p_dot_j, a_j, delta, gains: ControlGains):
     """S4 follower of parent j: e = p_i - p_j - delta_ij, V_d = p_dot_j - Phi(e),
-    V_d_dot = a_j - DPhi(e)(p_dot_i - p_dot_j), with a_j j's broadcast commanded acceleration."""
+    V_d_dot = a_j - DPhi(e)(p_dot_i - p_dot_j), with a_j j's broadcast commanded acceleration.
+    """
     e = np.asarray(p_i, dtype=float) - p_j - delta
-    return tracking_field(e, np.asarray(p_dot_j, dtype=float), np.asarray(a_j, dtype=float),
-                          np.asarray(p_dot_i, dtype=float), gains.formation_gain_per_s,
-                          gains.formation_speed_cap_mps)
+    return tracking_field(
+        e,
+        np.asarray(p_dot_j, dtype=float),
+        np.asarray(a_j, dtype=float),
+        np.asarray(p_dot_i, dtype=float),
+        gains.formation_gain_per_s,
+        gains.formation_speed_cap_mps,
+    )

@@ -1,6 +1,7 @@
 """Numba scalar kernels of the closed-loop hot path (twins of the numpy API, same spec labels).
 
-Each ``*_k`` function takes scalars (and small arrays where stated) of ONE robot and returns a tuple,
+Each ``*_k`` function takes scalars (and small arrays where stated) of ONE robot and returns a
+tuple,
 so a compiled per-step loop over robots (the simulator) can call them without allocating. They
 mirror, operation for operation, the vectorised numpy functions:
 
@@ -20,6 +21,7 @@ Plant coefficients are passed as scalars in the order (mt, It, r, a, d, mc[, tau
 torque limit [N m]): the fields of :class:`ament_formation.core.dynamics.PlantCoeffs`.
 All kernels are ``@njit(cache=True, fastmath=False)``.
 """
+
 from __future__ import annotations
 
 import math
@@ -32,9 +34,10 @@ TWO_PI = 2.0 * math.pi
 
 # ---------------------------------------------------------------------------------------- S2.2
 
+
 @njit(**_JIT)
 def state_derivative_k(x, y, th, v, w, t1, t2, g1, g2, mt, It, r, a, d, mc):
-    """xdot of (16)-(20) for one robot -> (xdot, ydot, thdot, vdot, wdot)."""
+    """Xdot of (16)-(20) for one robot -> (xdot, ydot, thdot, vdot, wdot)."""
     c = math.cos(th)
     s = math.sin(th)
     mcd = mc * d
@@ -50,28 +53,95 @@ def rk4_step_k(x, y, th, v, w, t1, t2, g0a, g0b, gha, ghb, g1a, g1b, dt, mt, It,
     """One RK4 step with ZOH torque; g0 at t, gh at t + dt/2, g1 at t + dt. -> new 5-tuple state."""
     h = 0.5 * dt
     k1 = state_derivative_k(x, y, th, v, w, t1, t2, g0a, g0b, mt, It, r, a, d, mc)
-    k2 = state_derivative_k(x + h * k1[0], y + h * k1[1], th + h * k1[2], v + h * k1[3],
-                            w + h * k1[4], t1, t2, gha, ghb, mt, It, r, a, d, mc)
-    k3 = state_derivative_k(x + h * k2[0], y + h * k2[1], th + h * k2[2], v + h * k2[3],
-                            w + h * k2[4], t1, t2, gha, ghb, mt, It, r, a, d, mc)
-    k4 = state_derivative_k(x + dt * k3[0], y + dt * k3[1], th + dt * k3[2], v + dt * k3[3],
-                            w + dt * k3[4], t1, t2, g1a, g1b, mt, It, r, a, d, mc)
+    k2 = state_derivative_k(
+        x + h * k1[0],
+        y + h * k1[1],
+        th + h * k1[2],
+        v + h * k1[3],
+        w + h * k1[4],
+        t1,
+        t2,
+        gha,
+        ghb,
+        mt,
+        It,
+        r,
+        a,
+        d,
+        mc,
+    )
+    k3 = state_derivative_k(
+        x + h * k2[0],
+        y + h * k2[1],
+        th + h * k2[2],
+        v + h * k2[3],
+        w + h * k2[4],
+        t1,
+        t2,
+        gha,
+        ghb,
+        mt,
+        It,
+        r,
+        a,
+        d,
+        mc,
+    )
+    k4 = state_derivative_k(
+        x + dt * k3[0],
+        y + dt * k3[1],
+        th + dt * k3[2],
+        v + dt * k3[3],
+        w + dt * k3[4],
+        t1,
+        t2,
+        g1a,
+        g1b,
+        mt,
+        It,
+        r,
+        a,
+        d,
+        mc,
+    )
     s6 = dt / 6.0
-    return (x + s6 * (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0]),
-            y + s6 * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1]),
-            th + s6 * (k1[2] + 2.0 * k2[2] + 2.0 * k3[2] + k4[2]),
-            v + s6 * (k1[3] + 2.0 * k2[3] + 2.0 * k3[3] + k4[3]),
-            w + s6 * (k1[4] + 2.0 * k2[4] + 2.0 * k3[4] + k4[4]))
+    return (
+        x + s6 * (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0]),
+        y + s6 * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1]),
+        th + s6 * (k1[2] + 2.0 * k2[2] + 2.0 * k3[2] + k4[2]),
+        v + s6 * (k1[3] + 2.0 * k2[3] + 2.0 * k3[3] + k4[3]),
+        w + s6 * (k1[4] + 2.0 * k2[4] + 2.0 * k3[4] + k4[4]),
+    )
 
 
 @njit(**_JIT)
 def rk4_step_all(state, torque, g0, gh, g1, dt, mt, It, r, a, d, mc, out):
     """rk4_step_k over all rows: state (N, 5), torque/g0/gh/g1 (N, 2), coefficient arrays (N,);
-    writes the new state into ``out`` (N, 5) (may be ``state`` itself)."""
+    writes the new state into ``out`` (N, 5) (may be ``state`` itself).
+    """
     for i in range(state.shape[0]):
-        nx = rk4_step_k(state[i, 0], state[i, 1], state[i, 2], state[i, 3], state[i, 4],
-                        torque[i, 0], torque[i, 1], g0[i, 0], g0[i, 1], gh[i, 0], gh[i, 1],
-                        g1[i, 0], g1[i, 1], dt, mt[i], It[i], r[i], a[i], d[i], mc[i])
+        nx = rk4_step_k(
+            state[i, 0],
+            state[i, 1],
+            state[i, 2],
+            state[i, 3],
+            state[i, 4],
+            torque[i, 0],
+            torque[i, 1],
+            g0[i, 0],
+            g0[i, 1],
+            gh[i, 0],
+            gh[i, 1],
+            g1[i, 0],
+            g1[i, 1],
+            dt,
+            mt[i],
+            It[i],
+            r[i],
+            a[i],
+            d[i],
+            mc[i],
+        )
         for j in range(5):
             out[i, j] = nx[j]
     return out
@@ -87,7 +157,7 @@ def point_velocity_k(th, v, w, d):
 
 @njit(**_JIT)
 def commanded_point_accel_k(th, v, w, t1, t2, mt, It, r, a, d, mc):
-    """a = S1 (f2 + B2 u) + S1dot x2 (disturbance-free) -> (ax, ay)."""
+    """A = S1 (f2 + B2 u) + S1dot x2 (disturbance-free) -> (ax, ay)."""
     c = math.cos(th)
     s = math.sin(th)
     mcd = mc * d
@@ -99,6 +169,7 @@ def commanded_point_accel_k(th, v, w, t1, t2, mt, It, r, a, d, mc):
 
 
 # ---------------------------------------------------------------------------------------- S2.3
+
 
 @njit(**_JIT)
 def disturbance_k(t, amp, freq, phase):
@@ -151,6 +222,7 @@ def disturbance_phasor_advance_k(amp, sin_st, cos_st, cos_step, sin_step):
 
 
 # ---------------------------------------------------------------------------------------- S3
+
 
 @njit(**_JIT)
 def _switch(sig, gain, eps):
@@ -209,11 +281,13 @@ def smc_torque_k(th, v, w, vdx, vdy, vddx, vddy, mt, It, r, a, d, mc, tau_max, k
 
 # ---------------------------------------------------------------------------------------- S4
 
+
 @njit(**_JIT)
 def tracking_field_k(ex, ey, rvx, rvy, rax, ray, pdx, pdy, alpha, v_cap):
     """S4 field V_d = ref_vel - Phi(e), V_d_dot = ref_acc - DPhi(e)(p_dot - ref_vel).
 
-    Leader: e = p - r, ref = (r_dot, r_ddot). Follower: e = p_i - p_j - delta, ref = (p_dot_j, a_j).
+    Leader: e = p - r, ref = (r_dot, r_ddot). Follower: e = p_i - p_j - delta, ref = (p_dot_j,
+    a_j).
     Returns (vdx, vdy, vddx, vddy).
     """
     q = alpha * alpha / (v_cap * v_cap)
@@ -227,6 +301,7 @@ def tracking_field_k(ex, ey, rvx, rvy, rax, ray, pdx, pdy, alpha, v_cap):
 
 
 # ---------------------------------------------------------------------------------------- S6
+
 
 @njit(**_JIT)
 def ellipse_h_k(zx, zy, phi, r1, r2):
@@ -267,10 +342,18 @@ def ellipse_field_k(zx, zy, zdx, zdy, phi, phi_dot, phi_ddot, r1, r2, psi_dot, p
     h3p = dab * sin2
     mdx = phi_dot * (h1p * zx - h2p * zy) + h1 * zdx - h2 * zdy
     mdy = phi_dot * (h3p * zx - h1p * zy) + h3 * zdx - h1 * zdy
-    fdx = (-zdy * phi_dot - zy * phi_ddot + (psi_ddot * mx + psi_dot * mdx) * inv_ab
-           - (c_dot * zx * h + c * zdx * h + c * zx * hd))
-    fdy = (zdx * phi_dot + zx * phi_ddot + (psi_ddot * my + psi_dot * mdy) * inv_ab
-           - (c_dot * zy * h + c * zdy * h + c * zy * hd))
+    fdx = (
+        -zdy * phi_dot
+        - zy * phi_ddot
+        + (psi_ddot * mx + psi_dot * mdx) * inv_ab
+        - (c_dot * zx * h + c * zdx * h + c * zx * hd)
+    )
+    fdy = (
+        zdx * phi_dot
+        + zx * phi_ddot
+        + (psi_ddot * my + psi_dot * mdy) * inv_ab
+        - (c_dot * zy * h + c * zdy * h + c * zy * hd)
+    )
     return fx, fy, fdx, fdy, h, hd
 
 
@@ -282,7 +365,12 @@ def gain_schedule_k(t_since_entry_s, psi_dot_max, c_max, direction, mu, mu_dot, 
     beta = 1.0 - decay
     beta_dot = decay / tau_g_s
     scale = direction * psi_dot_max
-    return scale * mu * beta, scale * (mu * beta_dot + mu_dot * beta), c_max * beta, c_max * beta_dot
+    return (
+        scale * mu * beta,
+        scale * (mu * beta_dot + mu_dot * beta),
+        c_max * beta,
+        c_max * beta_dot,
+    )
 
 
 @njit(**_JIT)
@@ -301,7 +389,9 @@ def _anomaly_and_rate(zx, zy, zdx, zdy, cphi, sphi, phi_dot, r1, r2):
 
 
 @njit(**_JIT)
-def parking_factor_k(zx, zy, zdx, zdy, gx, gy, gdx, gdy, phi, phi_dot, r1, r2, direction, psi_slow):
+def parking_factor_k(
+    zx, zy, zdx, zdy, gx, gy, gdx, gdy, phi, phi_dot, r1, r2, direction, psi_slow
+):
     """S6.5 parking factor: agent z, goal g (both relative to the centre) -> (mu, mu_dot)."""
     cphi = math.cos(phi)
     sphi = math.sin(phi)

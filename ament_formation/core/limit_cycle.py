@@ -2,7 +2,8 @@
 
 Implements:
 * S6.2 ellipse function h = z^T A z - 1 and the coefficients h~1, h~2, h~3 of (27)-(29);
-* S6.3 the field F = H - C~ z h (rigid co-rotation, tangential term at eccentric-anomaly rate psi_dot,
+* S6.3 the field F = H - C~ z h (rigid co-rotation, tangential term at eccentric-anomaly rate
+psi_dot,
   radial attraction c h), for which h_dot = -2 c h (h + 1) on the surface when c1 = c2;
 * S6.4 the closed-form total derivative F_dot along the measured relative motion, including moving
   (x~dot) and rotating (phi_dot, phi_ddot) obstacles and time-varying psi_dot, c;
@@ -16,10 +17,11 @@ or scalars (broadcast). Semi-axes passed to :func:`field` and :func:`ellipse_h` 
 ellipse that is used (L_j = rho_L P_j for the limit cycle). Numba twins live in
 :mod:`ament_formation.core.kernels`.
 """
+
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
+import math
 
 import numpy as np
 
@@ -43,9 +45,11 @@ class FieldOutput:
 # S6.2 ellipse function
 # ----------------------------------------------------------------------------------------------
 
+
 def ellipse_coeffs(phi, r1, r2):
     """(h~1, h~2, h~3) of (27)-(29): h~1 = (R1^2-R2^2) sin cos, h~2 = R1^2 cos^2 + R2^2 sin^2,
-    h~3 = R1^2 sin^2 + R2^2 cos^2. Each broadcast over the inputs."""
+    h~3 = R1^2 sin^2 + R2^2 cos^2. Each broadcast over the inputs.
+    """
     c = np.cos(phi)
     s = np.sin(phi)
     a2 = np.multiply(r1, r1)
@@ -81,6 +85,7 @@ def ellipse_h_dot(z: np.ndarray, z_dot: np.ndarray, phi, phi_dot, r1, r2) -> np.
 # S6.3 / S6.4 field and its closed-form derivative
 # ----------------------------------------------------------------------------------------------
 
+
 def field(z, z_dot, phi, phi_dot, phi_ddot, r1, r2, psi_dot, psi_ddot, c, c_dot) -> FieldOutput:
     """Limit-cycle field F (S6.3) and its total derivative F_dot (S6.4), c1 = c2 = c (S11.10).
 
@@ -103,11 +108,11 @@ def field(z, z_dot, phi, phi_dot, phi_ddot, r1, r2, psi_dot, psi_ddot, c, c_dot)
     a2 = np.multiply(r1, r1)
     b2 = np.multiply(r2, r2)
     dab = a2 - b2
-    h1 = dab * sphi * cphi                      # (27)-(29)
+    h1 = dab * sphi * cphi  # (27)-(29)
     h2 = a2 * cphi * cphi + b2 * sphi * sphi
     h3 = a2 * sphi * sphi + b2 * cphi * cphi
     inv_ab = 1.0 / np.multiply(r1, r2)
-    u = cphi * zx + sphi * zy                   # S6.2
+    u = cphi * zx + sphi * zy  # S6.2
     w = -sphi * zx + cphi * zy
     h = u * u / a2 + w * w / b2 - 1.0
     ud = cphi * zdx + sphi * zdy + phi_dot * w  # S6.4
@@ -115,7 +120,7 @@ def field(z, z_dot, phi, phi_dot, phi_ddot, r1, r2, psi_dot, psi_ddot, c, c_dot)
     hd = 2.0 * u * ud / a2 + 2.0 * w * wd / b2
     mx = h1 * zx - h2 * zy
     my = h3 * zx - h1 * zy
-    fx = -zy * phi_dot + psi_dot * inv_ab * mx - c * zx * h     # S6.3
+    fx = -zy * phi_dot + psi_dot * inv_ab * mx - c * zx * h  # S6.3
     fy = zx * phi_dot + psi_dot * inv_ab * my - c * zy * h
     cos2 = cphi * cphi - sphi * sphi
     sin2 = 2.0 * sphi * cphi
@@ -124,16 +129,25 @@ def field(z, z_dot, phi, phi_dot, phi_ddot, r1, r2, psi_dot, psi_ddot, c, c_dot)
     h3p = dab * sin2
     mdx = phi_dot * (h1p * zx - h2p * zy) + h1 * zdx - h2 * zdy
     mdy = phi_dot * (h3p * zx - h1p * zy) + h3 * zdx - h1 * zdy
-    fdx = (-zdy * phi_dot - zy * phi_ddot + (psi_ddot * mx + psi_dot * mdx) * inv_ab
-           - (c_dot * zx * h + c * zdx * h + c * zx * hd))
-    fdy = (zdx * phi_dot + zx * phi_ddot + (psi_ddot * my + psi_dot * mdy) * inv_ab
-           - (c_dot * zy * h + c * zdy * h + c * zy * hd))
+    fdx = (
+        -zdy * phi_dot
+        - zy * phi_ddot
+        + (psi_ddot * mx + psi_dot * mdx) * inv_ab
+        - (c_dot * zx * h + c * zdx * h + c * zx * hd)
+    )
+    fdy = (
+        zdx * phi_dot
+        + zx * phi_ddot
+        + (psi_ddot * my + psi_dot * mdy) * inv_ab
+        - (c_dot * zy * h + c * zdy * h + c * zy * hd)
+    )
     return FieldOutput(np.stack((fx, fy), axis=-1), np.stack((fdx, fdy), axis=-1), h, hd)
 
 
 # ----------------------------------------------------------------------------------------------
 # S6.5 gains
 # ----------------------------------------------------------------------------------------------
+
 
 @dataclass(frozen=True)
 class EllipseGains:
@@ -143,14 +157,15 @@ class EllipseGains:
     c_max_per_s: float
 
     def __post_init__(self) -> None:
-        for name in ("psi_dot_max_radps", "c_max_per_s"):
+        for name in ('psi_dot_max_radps', 'c_max_per_s'):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
-                raise ConfigError(f"must be finite and > 0 (got {value!r})", name)
+                raise ConfigError(f'must be finite and > 0 (got {value!r})', name)
 
     @classmethod
-    def design(cls, r1_m: float, r2_m: float, avoidance: AvoidanceParams,
-               v_tan_mps: float | None = None) -> "EllipseGains":
+    def design(
+        cls, r1_m: float, r2_m: float, avoidance: AvoidanceParams, v_tan_mps: float | None = None
+    ) -> 'EllipseGains':
         psi, c = design_gains(r1_m, r2_m, avoidance, v_tan_mps)
         return cls(float(psi), float(c))
 
@@ -173,8 +188,16 @@ def design_gains(r1, r2, avoidance: AvoidanceParams, v_tan=None):
     return psi_dot_max, c_max
 
 
-def gain_schedule(t_since_entry_s, psi_dot_max, c_max, direction=1.0, mu=1.0, mu_dot=0.0,
-                  beta0: float = 0.3, tau_g_s: float = 1.5):
+def gain_schedule(
+    t_since_entry_s,
+    psi_dot_max,
+    c_max,
+    direction=1.0,
+    mu=1.0,
+    mu_dot=0.0,
+    beta0: float = 0.3,
+    tau_g_s: float = 1.5,
+):
     """S6.5 schedule from the entry instant: returns (psi_dot, psi_ddot, c, c_dot), broadcast.
 
     beta = 1 - (1 - beta0) exp(-t/tau_g), beta_dot = (1 - beta0) exp(-t/tau_g)/tau_g;
@@ -195,6 +218,7 @@ def gain_schedule(t_since_entry_s, psi_dot_max, c_max, direction=1.0, mu=1.0, mu
 # S6.5 parking factor
 # ----------------------------------------------------------------------------------------------
 
+
 def _anomaly_and_rate(z, z_dot, cphi, sphi, phi_dot, r1, r2):
     """Eccentric anomaly psi = atan2(w/R2, u/R1) and its rate (U W_dot - W U_dot)/(U^2 + W^2)."""
     zx = z[..., 0]
@@ -212,7 +236,7 @@ def _anomaly_and_rate(z, z_dot, cphi, sphi, phi_dot, r1, r2):
 
 
 def eccentric_anomaly(z, phi, r1, r2):
-    """psi = atan2(w/R2, u/R1) of z (N, 2) relative to the centre (S6.5). Returns (N,) [rad]."""
+    """Psi = atan2(w/R2, u/R1) of z (N, 2) relative to the centre (S6.5). Returns (N,) [rad]."""
     u, w = body_coords(np.asarray(z, dtype=float), phi)
     return np.arctan2(w / r2, u / r1)
 
@@ -220,7 +244,8 @@ def eccentric_anomaly(z, phi, r1, r2):
 def parking_factor(z, z_dot, goal, goal_dot, phi, phi_dot, r1, r2, direction, psi_slow):
     """S6.5 parking factor mu = sat(D/psi_slow) and mu_dot.
 
-    ``z``, ``z_dot`` agent and ``goal``, ``goal_dot`` goal position/velocity RELATIVE to the obstacle
+    ``z``, ``z_dot`` agent and ``goal``, ``goal_dot`` goal position/velocity RELATIVE to the
+    obstacle
     centre (g - x~, g_dot - x~_dot), (N, 2). D = ((s(psi_g - psi_a) + pi/2) mod 2 pi) - pi/2;
     mu_dot = s(psi_g_dot - psi_a_dot)/psi_slow inside the linear zone, 0 outside.
     Returns (mu (N,), mu_dot (N,)).
@@ -229,9 +254,12 @@ def parking_factor(z, z_dot, goal, goal_dot, phi, phi_dot, r1, r2, direction, ps
     goal = np.asarray(goal, dtype=float)
     cphi = np.cos(phi)
     sphi = np.sin(phi)
-    psi_a, rate_a = _anomaly_and_rate(z, np.asarray(z_dot, dtype=float), cphi, sphi, phi_dot, r1, r2)
-    psi_g, rate_g = _anomaly_and_rate(goal, np.asarray(goal_dot, dtype=float), cphi, sphi, phi_dot,
-                                      r1, r2)
+    psi_a, rate_a = _anomaly_and_rate(
+        z, np.asarray(z_dot, dtype=float), cphi, sphi, phi_dot, r1, r2
+    )
+    psi_g, rate_g = _anomaly_and_rate(
+        goal, np.asarray(goal_dot, dtype=float), cphi, sphi, phi_dot, r1, r2
+    )
     dd = np.mod(direction * (psi_g - psi_a) + 0.5 * math.pi, TWO_PI) - 0.5 * math.pi
     q = dd / psi_slow
     linear = (q < 1.0) & (q > -1.0)
@@ -249,7 +277,8 @@ _GL_X, _GL_W = np.polynomial.legendre.leggauss(48)
 
 def ellipse_arc_length(psi_from, delta, r1, r2):
     """Arc length of the ellipse (R1 cos psi, R2 sin psi) over psi in [psi_from, psi_from + delta]
-    (delta >= 0), 48-point Gauss-Legendre on each of 4 sub-intervals. Broadcast, returns [m]."""
+    (delta >= 0), 48-point Gauss-Legendre on each of 4 sub-intervals. Broadcast, returns [m].
+    """
     psi_from = np.asarray(psi_from, dtype=float)[..., None]
     delta = np.asarray(delta, dtype=float)[..., None]
     r1 = np.asarray(r1, dtype=float)[..., None]
@@ -270,15 +299,17 @@ def ellipse_perimeter(r1, r2):
     return ellipse_arc_length(0.0 * np.asarray(r1, dtype=float), TWO_PI, r1, r2)
 
 
-def choose_direction(z, z_dot, goal, goal_dot, obstacle_vel, phi, r1, r2, lookahead_m,
-                     velocity_tie_break=True):
+def choose_direction(
+    z, z_dot, goal, goal_dot, obstacle_vel, phi, r1, r2, lookahead_m, velocity_tie_break=True
+):
     """S6.6 rules 1-4 (obstacle) or rules 1-3 and 7 (yielding agent: ``velocity_tie_break=False``).
 
     Parameters
     ----------
     z, z_dot : (N, 2) agent position relative to the centre [m] and relative velocity
         p_dot - x~_dot [m/s] (rule 4 tie-break).
-    goal : (N, 2) goal g_i relative to the centre (g - x~) [m]; goal_dot (N, 2) g_dot (world) [m/s].
+    goal : (N, 2) goal g_i relative to the centre (g - x~) [m]; goal_dot (N, 2) g_dot (world)
+    [m/s].
     obstacle_vel : (N, 2) x~_dot of the centre [m/s].
     phi, r1, r2 : orientation and semi-axes of the limit-cycle ellipse L_j [rad, m].
     lookahead_m : rule 1 look-ahead length 2 kappa r1j (r1j of P_j) [m].
@@ -292,22 +323,22 @@ def choose_direction(z, z_dot, goal, goal_dot, obstacle_vel, phi, r1, r2, lookah
     rel = np.asarray(goal_dot, dtype=float) - np.asarray(obstacle_vel, dtype=float)
     speed = np.hypot(rel[..., 0], rel[..., 1])
     scale = np.where(speed > 0.0, lookahead_m / np.where(speed > 0.0, speed, 1.0), 0.0)
-    g_la = goal + scale[..., None] * rel                                    # rule 1
+    g_la = goal + scale[..., None] * rel  # rule 1
     psi_a = eccentric_anomaly(z, phi, r1, r2)
     psi_g = eccentric_anomaly(g_la, phi, r1, r2)
-    d_plus = np.mod(psi_g - psi_a, TWO_PI)                                  # rule 2
+    d_plus = np.mod(psi_g - psi_a, TWO_PI)  # rule 2
     l_plus = ellipse_arc_length(psi_a, d_plus, r1, r2)
     perimeter = ellipse_perimeter(r1, r2)
     l_minus = perimeter - l_plus
-    margin = 0.1 * perimeter                                                # rule 3
+    margin = 0.1 * perimeter  # rule 3
     s = np.where(l_plus < l_minus - margin, 1.0, np.where(l_minus < l_plus - margin, -1.0, 0.0))
-    if velocity_tie_break:                                                  # rule 4
+    if velocity_tie_break:  # rule 4
         h1, h2, h3 = ellipse_coeffs(phi, r1, r2)
         mx = h1 * z[..., 0] - h2 * z[..., 1]
         my = h3 * z[..., 0] - h1 * z[..., 1]
         tie = np.sign(mx * z_dot[..., 0] + my * z_dot[..., 1])
         tie = np.where(tie == 0.0, 1.0, tie)
-    else:                                                                   # rule 7
+    else:  # rule 7
         tie = 1.0
     return np.where(s == 0.0, tie, s)
 
@@ -315,6 +346,7 @@ def choose_direction(z, z_dot, goal, goal_dot, obstacle_vel, phi, r1, r2, lookah
 # ----------------------------------------------------------------------------------------------
 # S8 helpers: ray / segment tests
 # ----------------------------------------------------------------------------------------------
+
 
 def _quadratic(z, dz, phi, r1, r2):
     c = np.cos(phi)
@@ -332,7 +364,7 @@ def _quadratic(z, dz, phi, r1, r2):
 
 
 def ray_hits_ellipse(z, z_dot, phi, r1, r2):
-    """Does the ray {z + lam z_dot, lam >= 0} meet the closed ellipse (h <= 0)? (S8.1 heading test)
+    """Does the ray {z + lam z_dot, lam >= 0} meet the closed ellipse (h <= 0)? (S8.1 heading test).
 
     ``z`` (N, 2) relative to the centre, ``z_dot`` (N, 2) direction (relative velocity).
     Returns (hit (N,) bool, lam (N,) first contact parameter [s if z_dot is a velocity];
@@ -350,7 +382,7 @@ def ray_hits_ellipse(z, z_dot, phi, r1, r2):
 
 
 def segment_hits_ellipse(p0, p1, center, phi, r1, r2):
-    """Does the segment [p0, p1] (N, 2) meet the closed ellipse at ``center``? (S8.3 cleared test)
+    """Does the segment [p0, p1] (N, 2) meet the closed ellipse at ``center``? (S8.3 cleared test).
 
     Minimises h along the segment in closed form. Returns (N,) bool.
     """
@@ -364,6 +396,7 @@ def segment_hits_ellipse(p0, p1, center, phi, r1, r2):
 # ----------------------------------------------------------------------------------------------
 # Exact signed distance (metrics)
 # ----------------------------------------------------------------------------------------------
+
 
 def _distance_first_quadrant(y0, y1, e0, e1, iterations=200):
     """Eberly's robust point-ellipse distance for y0, y1 >= 0, e0 >= e1 > 0 (vectorised)."""
@@ -386,7 +419,7 @@ def _distance_first_quadrant(y0, y1, e0, e1, iterations=200):
         s0 = np.where(pos, s, s0)
         s1 = np.where(pos, s1, s)
         if it % 8 == 7 and not np.any(s1 - s0 > 2.0 * tiny * np.maximum(np.abs(s), 1.0)):
-            break                       # every bracket has collapsed to rounding level
+            break  # every bracket has collapsed to rounding level
     s = 0.5 * (s0 + s1)
     x0 = r0 * y0 / (s + r0)
     x1 = y1 / (s + 1.0)
@@ -418,12 +451,12 @@ def signed_distance_to_ellipse(points, center, phi, r1, r2):
     r1 = np.broadcast_to(np.asarray(r1, dtype=float), (k,))
     r2 = np.broadcast_to(np.asarray(r2, dtype=float), (k,))
     u, w = body_coords(z, phi)
-    swap = r2 > r1                     # make e0 >= e1 along the first coordinate
+    swap = r2 > r1  # make e0 >= e1 along the first coordinate
     e0 = np.where(swap, r2, r1)
     e1 = np.where(swap, r1, r2)
     y0 = np.abs(np.where(swap, w, u))
     y1 = np.abs(np.where(swap, u, w))
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide='ignore', invalid='ignore'):
         dist = _distance_first_quadrant(y0, y1, e0, e1)
     inside = (y0 / e0) ** 2 + (y1 / e1) ** 2 < 1.0
     return np.where(inside, -dist, dist)

@@ -7,10 +7,11 @@ No I/O and no clock: bytes and the time ``now_s`` [s] are passed in, bytes to se
 In the simulated twin the plant feeds wheel angles/velocities (``set_wheel_state``) and reads
 ``applied_torque_nm``; standalone, the board integrates a first-order wheel model itself.
 """
+
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
+import math
 
 import numpy as np
 
@@ -29,12 +30,13 @@ BRAKE_GAIN_NM_PER_RADPS = 0.05
 BRAKE_TORQUE_LIMIT_NM = 0.10
 BRAKE_REST_S = 0.05
 BRAKE_MAX_S = 1.0
-CONTROL_PERIOD_S = 0.01          # the firmware's control step (speed measurement, brake update)
+CONTROL_PERIOD_S = 0.01  # the firmware's control step (speed measurement, brake update)
 
 
 def brake_torque_e4nm(speed_radps: float, limit_e4nm: int) -> int:
     """Brake torque [1e-4 N·m] for a measured wheel speed [rad/s]: -gain * speed, rounded, clamped
-    to +-min(BRAKE_TORQUE_LIMIT_NM, limit)."""
+    to +-min(BRAKE_TORQUE_LIMIT_NM, limit).
+    """
     bound = min(int(round(BRAKE_TORQUE_LIMIT_NM / sp.TORQUE_LSB_NM)), limit_e4nm)
     tau = int(round(-BRAKE_GAIN_NM_PER_RADPS * speed_radps / sp.TORQUE_LSB_NM))
     return max(-bound, min(bound, tau))
@@ -52,22 +54,30 @@ class BoardConfig:
     firmware_major: int = 2
     firmware_minor: int = 0
     protocol_version: int = sp.PROTOCOL_VERSION
-    wheel_inertia_kgm2: float = 5e-4     # standalone wheel model: J dω/dt = τ − b ω
+    wheel_inertia_kgm2: float = 5e-4  # standalone wheel model: J dω/dt = τ − b ω
     wheel_damping_nms: float = 1e-2
 
     def __post_init__(self) -> None:
         if not 1 <= self.ticks_per_rev <= 0xFFFF:
-            raise ValueError(f"BoardConfig.ticks_per_rev: {self.ticks_per_rev} not in [1, 65535]")
+            raise ValueError(f'BoardConfig.ticks_per_rev: {self.ticks_per_rev} not in [1, 65535]')
         if not 0.0 < self.hard_torque_limit_nm <= 0xFFFF * sp.TORQUE_LSB_NM:
-            raise ValueError(f"BoardConfig.hard_torque_limit_nm: {self.hard_torque_limit_nm} N·m not in (0, 6.5535]")
+            raise ValueError(
+                f'BoardConfig.hard_torque_limit_nm: {self.hard_torque_limit_nm} N·m not in (0, 6.5535]'
+            )
         if not 0.02 <= self.watchdog_s <= 0.5:
-            raise ValueError(f"BoardConfig.watchdog_s: {self.watchdog_s} s not in [0.02, 0.5]")
+            raise ValueError(f'BoardConfig.watchdog_s: {self.watchdog_s} s not in [0.02, 0.5]')
         if not 0.005 <= self.telemetry_period_s <= 1.0:
-            raise ValueError(f"BoardConfig.telemetry_period_s: {self.telemetry_period_s} s not in [0.005, 1]")
+            raise ValueError(
+                f'BoardConfig.telemetry_period_s: {self.telemetry_period_s} s not in [0.005, 1]'
+            )
         if not 0.01 <= self.status_period_s <= 10.0:
-            raise ValueError(f"BoardConfig.status_period_s: {self.status_period_s} s not in [0.01, 10]")
+            raise ValueError(
+                f'BoardConfig.status_period_s: {self.status_period_s} s not in [0.01, 10]'
+            )
         if self.wheel_inertia_kgm2 <= 0 or self.wheel_damping_nms < 0:
-            raise ValueError("BoardConfig.wheel_inertia_kgm2 must be > 0 and wheel_damping_nms >= 0")
+            raise ValueError(
+                'BoardConfig.wheel_inertia_kgm2 must be > 0 and wheel_damping_nms >= 0'
+            )
 
 
 WATCHDOG_RANGE_MS = (20, 500)
@@ -86,8 +96,13 @@ class MotorBoard:
     TORQUE_CMD: the tests use it to prove that no corrupted command is ever applied.
     """
 
-    def __init__(self, config: BoardConfig = BoardConfig(), now_s: float = 0.0, standalone: bool = False,
-                 command_log: list | None = None) -> None:
+    def __init__(
+        self,
+        config: BoardConfig = BoardConfig(),
+        now_s: float = 0.0,
+        standalone: bool = False,
+        command_log: list | None = None,
+    ) -> None:
         self.config = config
         self.standalone = standalone
         self.command_log = command_log
@@ -124,9 +139,9 @@ class MotorBoard:
         self.brakes = 0
         self._rest_since_s: float | None = None
         self._next_brake_step_s = now_s
-        self._brake_armed = False        # a TORQUE_CMD since the last brake: the next stop brakes
+        self._brake_armed = False  # a TORQUE_CMD since the last brake: the next stop brakes
         self.stops_received = 0
-        if not hasattr(self, "wheel_pos_rad"):
+        if not hasattr(self, 'wheel_pos_rad'):
             self.wheel_pos_rad = np.zeros(2)
             self.wheel_vel_radps = np.zeros(2)
         self._last_step_s = now_s
@@ -155,13 +170,16 @@ class MotorBoard:
     # -- byte interface ------------------------------------------------------------------------
     def receive(self, data: bytes, now_s: float) -> None:
         """Process bytes from the host. A rejected frame is answered at once by a TELEMETRY with
-        RX_ERROR (a negative acknowledgement; at most one per half telemetry period)."""
+        RX_ERROR (a negative acknowledgement; at most one per half telemetry period).
+        """
         rejected_before = self.decoder.rejected_total
         for frame in self.decoder.feed(data):
             self._count_gap(frame.seq)
             self._handle(frame.msg, now_s)
-        if (self.decoder.rejected_total != rejected_before
-                and now_s - self._last_telemetry_s >= 0.5e-3 * self.telemetry_period_ms):
+        if (
+            self.decoder.rejected_total != rejected_before
+            and now_s - self._last_telemetry_s >= 0.5e-3 * self.telemetry_period_ms
+        ):
             self._send_telemetry(now_s)
 
     def step(self, now_s: float) -> None:
@@ -190,14 +208,18 @@ class MotorBoard:
             self._send(self.status(now_s))
             self._next_status_s = max(self._next_status_s + self.config.status_period_s, now_s)
 
-    # -- stop brake (docs/safety.md) ---------------------------------------------------------------
+    # -- stop brake (docs/safety.md)
+    # ---------------------------------------------------------------
     def measured_speed_radps(self) -> np.ndarray:
         """Wheel speed [rad/s] as the firmware measures it, shape (2,): the encoder counts of the
         last control period (the quantised angle now minus the quantised angle one period ago,
-        at the present speed) over the period; a count is 2 pi / ticks_per_rev."""
+        at the present speed) over the period; a count is 2 pi / ticks_per_rev.
+        """
         counts_per_rad = self.config.ticks_per_rev / TWO_PI
         now = np.floor(self.wheel_pos_rad * counts_per_rad)
-        before = np.floor((self.wheel_pos_rad - self.wheel_vel_radps * CONTROL_PERIOD_S) * counts_per_rad)
+        before = np.floor(
+            (self.wheel_pos_rad - self.wheel_vel_radps * CONTROL_PERIOD_S) * counts_per_rad
+        )
         return (now - before) / (counts_per_rad * CONTROL_PERIOD_S)
 
     def _stop(self, now_s: float) -> None:
@@ -240,8 +262,9 @@ class MotorBoard:
         # steps: a plant that stalled between updates is not a wheel at rest)
         counts_per_rad = self.config.ticks_per_rev / TWO_PI
         window = np.floor(self.wheel_pos_rad * counts_per_rad) - np.floor(
-            (self.wheel_pos_rad - self.wheel_vel_radps * BRAKE_REST_S) * counts_per_rad)
-        if np.any(np.abs(window) > 1):   # moving: restart the rest window
+            (self.wheel_pos_rad - self.wheel_vel_radps * BRAKE_REST_S) * counts_per_rad
+        )
+        if np.any(np.abs(window) > 1):  # moving: restart the rest window
             self._rest_since_s = now_s
         at_rest = now_s - self._rest_since_s >= BRAKE_REST_S - 1e-9
         if at_rest or now_s - self.brake_started_s >= BRAKE_MAX_S - 1e-9:
@@ -261,20 +284,27 @@ class MotorBoard:
         u16 = 0xFFFF
         return sp.Status(
             uptime_ms=int((now_s - self._boot_s) * 1000) & 0xFFFFFFFF,
-            left_applied_e4nm=self.applied_e4nm[0], right_applied_e4nm=self.applied_e4nm[1],
-            crc_errors=rej["crc"] & u16,
-            frame_errors=(rej["oversize"] + rej["cobs"] + rej["length"]) & u16,
-            type_errors=(rej["type"] + rej["version"] + rej["value"]) & u16,
-            rx_gaps=self.rx_gaps & u16, watchdog_trips=self.watchdog_trips & u16,
-            flags=self._flags_now(), cmd_seq=self.cmd_seq)
+            left_applied_e4nm=self.applied_e4nm[0],
+            right_applied_e4nm=self.applied_e4nm[1],
+            crc_errors=rej['crc'] & u16,
+            frame_errors=(rej['oversize'] + rej['cobs'] + rej['length']) & u16,
+            type_errors=(rej['type'] + rej['version'] + rej['value']) & u16,
+            rx_gaps=self.rx_gaps & u16,
+            watchdog_trips=self.watchdog_trips & u16,
+            flags=self._flags_now(),
+            cmd_seq=self.cmd_seq,
+        )
 
     def telemetry(self) -> sp.Telemetry:
         ticks = self.encoder_ticks
         return sp.Telemetry(
-            left_ticks=sp.wrap_int16(int(ticks[0])), right_ticks=sp.wrap_int16(int(ticks[1])),
+            left_ticks=sp.wrap_int16(int(ticks[0])),
+            right_ticks=sp.wrap_int16(int(ticks[1])),
             left_vel_mradps=sp.velocity_to_wire(float(self.wheel_vel_radps[0])),
             right_vel_mradps=sp.velocity_to_wire(float(self.wheel_vel_radps[1])),
-            cmd_seq=self.cmd_seq, flags=self._flags_now())
+            cmd_seq=self.cmd_seq,
+            flags=self._flags_now(),
+        )
 
     def _flags_now(self) -> int:
         flags = self.flags
@@ -327,8 +357,16 @@ class MotorBoard:
 
     def hello_ack(self) -> sp.HelloAck:
         cfg = self.config
-        return sp.HelloAck(cfg.protocol_version, cfg.firmware_major, cfg.firmware_minor, cfg.ticks_per_rev,
-                           self.limit_e4nm, self.hard_limit_e4nm, self.watchdog_ms, self.telemetry_period_ms)
+        return sp.HelloAck(
+            cfg.protocol_version,
+            cfg.firmware_major,
+            cfg.firmware_minor,
+            cfg.ticks_per_rev,
+            self.limit_e4nm,
+            self.hard_limit_e4nm,
+            self.watchdog_ms,
+            self.telemetry_period_ms,
+        )
 
     def _torque(self, msg: sp.TorqueCommand, now_s: float) -> None:
         self.cmd_seq = self._last_host_seq if self._last_host_seq is not None else 0
@@ -344,7 +382,9 @@ class MotorBoard:
             lim = self.limit_e4nm
             applied = [_clamp(msg.left_e4nm, -lim, lim), _clamp(msg.right_e4nm, -lim, lim)]
             clamped = applied != [msg.left_e4nm, msg.right_e4nm]
-            self.flags = (self.flags | sp.FLAG_CLAMPED) if clamped else (self.flags & ~sp.FLAG_CLAMPED)
+            self.flags = (
+                (self.flags | sp.FLAG_CLAMPED) if clamped else (self.flags & ~sp.FLAG_CLAMPED)
+            )
             self.applied_e4nm = applied
         self.flags &= ~sp.FLAG_WATCHDOG
         self._last_cmd_s = now_s
@@ -355,5 +395,6 @@ class MotorBoard:
         cfg = self.config
         tau = self.applied_torque_nm
         self.wheel_vel_radps = (self.wheel_vel_radps + dt_s * tau / cfg.wheel_inertia_kgm2) / (
-            1.0 + dt_s * cfg.wheel_damping_nms / cfg.wheel_inertia_kgm2)
+            1.0 + dt_s * cfg.wheel_damping_nms / cfg.wheel_inertia_kgm2
+        )
         self.wheel_pos_rad = self.wheel_pos_rad + dt_s * self.wheel_vel_radps

@@ -4,10 +4,11 @@ A centre moves with constant velocity plus an optional sinusoidal oscillation; t
 turns at a constant rate. States for all M obstacles at time t come back as arrays, so the
 vectorised field code never loops over obstacles in Python.
 """
+
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
+import math
 
 import numpy as np
 
@@ -20,28 +21,34 @@ class ObstacleSpec:
 
     name: str
     center_m: tuple[float, float]
-    semi_axes_m: tuple[float, float]            # (r1, r2) of P_j, r1 >= r2 > 0 after normalisation
-    orientation_rad: float = 0.0                # phi_j(0)
+    semi_axes_m: tuple[float, float]  # (r1, r2) of P_j, r1 >= r2 > 0 after normalisation
+    orientation_rad: float = 0.0  # phi_j(0)
     velocity_mps: tuple[float, float] = (0.0, 0.0)
     angular_velocity_radps: float = 0.0
     oscillation_amplitude_m: tuple[float, float] = (0.0, 0.0)  # centre += A sin(2 pi t / T)
-    oscillation_period_s: float = 0.0                           # 0: no oscillation
+    oscillation_period_s: float = 0.0  # 0: no oscillation
 
     def __post_init__(self) -> None:
         if not self.name or not isinstance(self.name, str):
-            raise ConfigError("must be a non-empty string", "name")
+            raise ConfigError('must be a non-empty string', 'name')
         r1, r2 = self.semi_axes_m
         if not (math.isfinite(r1) and math.isfinite(r2) and r1 > 0 and r2 > 0):
-            raise ConfigError(f"semi-axes must be finite and > 0 m (got {list(self.semi_axes_m)})",
-                              "semi_axes_m")
-        if any(a != 0.0 for a in self.oscillation_amplitude_m) and not self.oscillation_period_s > 0:
-            raise ConfigError("must be > 0 s when an oscillation amplitude is set",
-                              "oscillation_period_s")
+            raise ConfigError(
+                f'semi-axes must be finite and > 0 m (got {list(self.semi_axes_m)})', 'semi_axes_m'
+            )
+        if (
+            any(a != 0.0 for a in self.oscillation_amplitude_m)
+            and not self.oscillation_period_s > 0
+        ):
+            raise ConfigError(
+                'must be > 0 s when an oscillation amplitude is set', 'oscillation_period_s'
+            )
 
     @property
     def moves(self) -> bool:
         return any(v != 0.0 for v in self.velocity_mps) or any(
-            a != 0.0 for a in self.oscillation_amplitude_m)
+            a != 0.0 for a in self.oscillation_amplitude_m
+        )
 
     @property
     def rotates(self) -> bool:
@@ -52,13 +59,13 @@ class ObstacleSpec:
 class ObstacleStates:
     """All M obstacles at one instant. Shapes: (M, 2) or (M,); world frame, SI units."""
 
-    center_m: np.ndarray        # (M, 2) x~_j
-    velocity_mps: np.ndarray    # (M, 2) x~dot_j
-    accel_mps2: np.ndarray      # (M, 2) x~ddot_j
-    phi_rad: np.ndarray         # (M,)   phi_j
-    phi_dot_radps: np.ndarray   # (M,)
+    center_m: np.ndarray  # (M, 2) x~_j
+    velocity_mps: np.ndarray  # (M, 2) x~dot_j
+    accel_mps2: np.ndarray  # (M, 2) x~ddot_j
+    phi_rad: np.ndarray  # (M,)   phi_j
+    phi_dot_radps: np.ndarray  # (M,)
     phi_ddot_radps2: np.ndarray  # (M,)
-    semi_axes_m: np.ndarray     # (M, 2) (r1, r2) of P_j
+    semi_axes_m: np.ndarray  # (M, 2) (r1, r2) of P_j
 
 
 class ObstacleField:
@@ -70,7 +77,9 @@ class ObstacleField:
         m = len(self.specs)
         self._c0 = np.array([s.center_m for s in self.specs], dtype=float).reshape(m, 2)
         self._v = np.array([s.velocity_mps for s in self.specs], dtype=float).reshape(m, 2)
-        self._amp = np.array([s.oscillation_amplitude_m for s in self.specs], dtype=float).reshape(m, 2)
+        self._amp = np.array([s.oscillation_amplitude_m for s in self.specs], dtype=float).reshape(
+            m, 2
+        )
         period = np.array([s.oscillation_period_s for s in self.specs], dtype=float)
         self._w = np.where(period > 0, 2 * np.pi / np.where(period > 0, period, 1.0), 0.0)
         self._phi0 = np.array([s.orientation_rad for s in self.specs], dtype=float)

@@ -16,10 +16,11 @@ r_ddot [m/s^2].
   acceleration never exceeds ``accel_mps2``; the path is C1), travelled at constant speed, then a
   constant deceleration a_max on the last segment to rest at the final waypoint.
 """
+
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
+import math
 from typing import Union
 
 import numpy as np
@@ -47,6 +48,7 @@ def _rotation(heading_rad: float) -> np.ndarray:
 # Sinusoid (S4)
 # ------------------------------------------------------------------------------------------------
 
+
 @dataclass(frozen=True)
 class SinusoidPath:
     """y = A sin(k x) in a frame at ``start_m`` turned by ``heading_rad``, at path speed v0 (S4).
@@ -67,11 +69,11 @@ class SinusoidPath:
     heading_rad: float = 0.0
 
     def __post_init__(self) -> None:
-        _check_vec2(self.start_m, "start_m")
-        _check_number(self.amplitude_m, "amplitude_m", minimum=0.0)
-        _check_number(self.wavenumber_radpm, "wavenumber_radpm", positive=True)
-        _check_number(self.speed_mps, "speed_mps", positive=True)
-        _check_number(self.heading_rad, "heading_rad")
+        _check_vec2(self.start_m, 'start_m')
+        _check_number(self.amplitude_m, 'amplitude_m', minimum=0.0)
+        _check_number(self.wavenumber_radpm, 'wavenumber_radpm', positive=True)
+        _check_number(self.speed_mps, 'speed_mps', positive=True)
+        _check_number(self.heading_rad, 'heading_rad')
 
     # arc length from 0 to x of sqrt(1 + a^2 cos^2(k x)), a = A k: Gauss-Legendre on ceil(a) equal
     # panels of the part-period (one panel for a <= 1); the integrand's complex singularities lie
@@ -127,11 +129,11 @@ class SinusoidPath:
         x = self.abscissa(t)
         ckx, skx = np.cos(k * x), np.sin(k * x)
         den = 1.0 + (a * ckx) ** 2
-        xd = v0 / np.sqrt(den)                                   # S4 x_r'
-        xdd = v0 * a * a * k * ckx * skx * xd / den ** 1.5       # S4 x_r''
+        xd = v0 / np.sqrt(den)  # S4 x_r'
+        xdd = v0 * a * a * k * ckx * skx * xd / den**1.5  # S4 x_r''
         y = amp * skx
-        yd = a * ckx * xd                                        # S4 y_r'
-        ydd = -amp * k * k * skx * xd * xd + a * ckx * xdd       # S4 y_r''
+        yd = a * ckx * xd  # S4 y_r'
+        ydd = -amp * k * k * skx * xd * xd + a * ckx * xdd  # S4 y_r''
         rot = _rotation(self.heading_rad)
         r = np.stack([x, y], axis=-1) @ rot.T + np.asarray(self.start_m, dtype=float)
         r_dot = np.stack([xd, yd], axis=-1) @ rot.T
@@ -143,6 +145,7 @@ class SinusoidPath:
 # Line
 # ------------------------------------------------------------------------------------------------
 
+
 @dataclass(frozen=True)
 class LinePath:
     """r(t) = start + v0 t (cos heading, sin heading)."""
@@ -152,9 +155,9 @@ class LinePath:
     speed_mps: float
 
     def __post_init__(self) -> None:
-        _check_vec2(self.start_m, "start_m")
-        _check_number(self.heading_rad, "heading_rad")
-        _check_number(self.speed_mps, "speed_mps", minimum=0.0)
+        _check_vec2(self.start_m, 'start_m')
+        _check_number(self.heading_rad, 'heading_rad')
+        _check_number(self.speed_mps, 'speed_mps', minimum=0.0)
 
     def reference(self, t_s):
         """(r, r_dot, r_ddot) at ``t_s`` [s]: each (2,) for a scalar time, (T, 2) for an array."""
@@ -169,6 +172,7 @@ class LinePath:
 # ------------------------------------------------------------------------------------------------
 # Waypoints with bounded acceleration
 # ------------------------------------------------------------------------------------------------
+
 
 @dataclass(frozen=True)
 class WaypointPath:
@@ -188,14 +192,14 @@ class WaypointPath:
     _table: dict = field(init=False, repr=False, compare=False, hash=False)
 
     def __post_init__(self) -> None:
-        _check_number(self.speed_mps, "speed_mps", positive=True)
-        _check_number(self.accel_mps2, "accel_mps2", positive=True)
+        _check_number(self.speed_mps, 'speed_mps', positive=True)
+        _check_number(self.accel_mps2, 'accel_mps2', positive=True)
         pts = self.points_m
         if not isinstance(pts, (list, tuple)) or len(pts) < 2:
-            raise ConfigError("must list at least 2 points [[x, y], ...]", "points_m")
+            raise ConfigError('must list at least 2 points [[x, y], ...]', 'points_m')
         for i, p in enumerate(pts):
-            _check_vec2(p, f"points_m[{i}]")
-        object.__setattr__(self, "_table", self._build())
+            _check_vec2(p, f'points_m[{i}]')
+        object.__setattr__(self, '_table', self._build())
 
     def _build(self) -> dict:
         pts = np.asarray(self.points_m, dtype=float)
@@ -203,9 +207,11 @@ class WaypointPath:
         length = np.linalg.norm(seg, axis=1)
         for i, ell in enumerate(length):
             if ell < 1e-9:
-                raise ConfigError(f"repeats the previous point {pts[i].tolist()}", f"points_m[{i + 1}]")
+                raise ConfigError(
+                    f'repeats the previous point {pts[i].tolist()}', f'points_m[{i + 1}]'
+                )
         unit = seg / length[:, None]
-        radius = self.speed_mps ** 2 / self.accel_mps2
+        radius = self.speed_mps**2 / self.accel_mps2
         # corner i (at pts[i], 1 <= i <= K-2): turn angle and tangent length R tan(|turn|/2)
         n_corner = len(pts) - 2
         turn = np.zeros(n_corner)
@@ -214,20 +220,23 @@ class WaypointPath:
             u_in, u_out = unit[c], unit[c + 1]
             ang = math.atan2(u_in[0] * u_out[1] - u_in[1] * u_out[0], float(u_in @ u_out))
             if abs(abs(ang) - math.pi) < 1e-9:
-                raise ConfigError("the path reverses here (180 degree turn)", f"points_m[{c + 1}]")
+                raise ConfigError('the path reverses here (180 degree turn)', f'points_m[{c + 1}]')
             turn[c] = ang
             tangent[c] = radius * math.tan(abs(ang) / 2.0)
-        # each segment must hold the tangent lengths at its ends (and the braking distance at the end)
-        brake = self.speed_mps ** 2 / (2.0 * self.accel_mps2)
+        # each segment must hold the tangent lengths at its ends (and the braking distance at the
+        # end)
+        brake = self.speed_mps**2 / (2.0 * self.accel_mps2)
         for i in range(len(length)):
             need = (tangent[i - 1] if i >= 1 else 0.0) + (tangent[i] if i < n_corner else 0.0)
             if i == len(length) - 1:
                 need += brake
             if need > length[i] + 1e-12:
                 raise ConfigError(
-                    f"segment {i} -> {i + 1} is {length[i]:.3f} m long but needs {need:.3f} m to turn "
-                    f"(radius v^2/a = {radius:.3f} m) and brake at accel_mps2 = {self.accel_mps2}; "
-                    "space the points out, lower speed_mps or raise accel_mps2", "points_m")
+                    f'segment {i} -> {i + 1} is {length[i]:.3f} m long but needs {need:.3f} m to turn '
+                    f'(radius v^2/a = {radius:.3f} m) and brake at accel_mps2 = {self.accel_mps2}; '
+                    'space the points out, lower speed_mps or raise accel_mps2',
+                    'points_m',
+                )
         # primitives: (kind, s0, length, start point, direction / centre data)
         prims = []
         s = 0.0
@@ -236,7 +245,7 @@ class WaypointPath:
             t_in = tangent[i - 1] if i >= 1 else 0.0
             t_out = tangent[i] if i < n_corner else 0.0
             straight = length[i] - t_in - t_out
-            prims.append(("line", s, straight, pos.copy(), unit[i].copy(), 0.0, 0.0))
+            prims.append(('line', s, straight, pos.copy(), unit[i].copy(), 0.0, 0.0))
             s += straight
             pos = pos + straight * unit[i]
             if i < n_corner and abs(turn[i]) > 1e-12:
@@ -245,33 +254,38 @@ class WaypointPath:
                 centre = pos + radius * normal
                 start_ang = math.atan2(pos[1] - centre[1], pos[0] - centre[0])
                 arc = radius * abs(turn[i])
-                prims.append(("arc", s, arc, centre, np.zeros(2), start_ang, sign))
+                prims.append(('arc', s, arc, centre, np.zeros(2), start_ang, sign))
                 s += arc
                 pos = pts[i + 1] + t_out * unit[i + 1]
-        return {"prims": prims, "total": s, "radius": radius,
-                "brake_s": s - brake, "t_brake": (s - brake) / self.speed_mps,
-                "t_end": (s - brake) / self.speed_mps + self.speed_mps / self.accel_mps2}
+        return {
+            'prims': prims,
+            'total': s,
+            'radius': radius,
+            'brake_s': s - brake,
+            't_brake': (s - brake) / self.speed_mps,
+            't_end': (s - brake) / self.speed_mps + self.speed_mps / self.accel_mps2,
+        }
 
     @property
     def length_m(self) -> float:
         """Total path length [m]."""
-        return float(self._table["total"])
+        return float(self._table['total'])
 
     @property
     def arrival_time_s(self) -> float:
         """Time at which the reference comes to rest on the last waypoint [s]."""
-        return float(self._table["t_end"])
+        return float(self._table['t_end'])
 
     def _progress(self, t: np.ndarray):
         """Arc length s(t), s_dot, s_ddot: cruise at v, then brake at a_max to rest."""
         tab = self._table
         v, acc = self.speed_mps, self.accel_mps2
-        tb = tab["t_brake"]
+        tb = tab['t_brake']
         tau = np.clip(t - tb, 0.0, v / acc)
         cruise = t <= tb
-        s = np.where(cruise, v * t, tab["brake_s"] + v * tau - 0.5 * acc * tau * tau)
+        s = np.where(cruise, v * t, tab['brake_s'] + v * tau - 0.5 * acc * tau * tau)
         s_dot = np.where(cruise, v, v - acc * tau)
-        braking = (~cruise) & (t < tab["t_end"])
+        braking = (~cruise) & (t < tab['t_end'])
         s_ddot = np.where(braking, -acc, 0.0)
         return s, s_dot, s_ddot
 
@@ -283,19 +297,19 @@ class WaypointPath:
         t, scalar = _as_time(t_s)
         t = np.atleast_1d(t)
         s, s_dot, s_ddot = self._progress(t)
-        prims = self._table["prims"]
+        prims = self._table['prims']
         starts = np.array([p[1] for p in prims])
-        idx = np.clip(np.searchsorted(starts, s, side="right") - 1, 0, len(prims) - 1)
+        idx = np.clip(np.searchsorted(starts, s, side='right') - 1, 0, len(prims) - 1)
         r = np.zeros((t.size, 2))
         tang = np.zeros((t.size, 2))
-        curv_vec = np.zeros((t.size, 2))   # kappa * normal (points to the centre)
-        radius = self._table["radius"]
+        curv_vec = np.zeros((t.size, 2))  # kappa * normal (points to the centre)
+        radius = self._table['radius']
         for j, (kind, s0, ell, p0, direction, ang0, sign) in enumerate(prims):
             sel = idx == j
             if not np.any(sel):
                 continue
             ds = s[sel] - s0
-            if kind == "line":
+            if kind == 'line':
                 r[sel] = p0 + ds[:, None] * direction
                 tang[sel] = direction
             else:
@@ -305,84 +319,98 @@ class WaypointPath:
                 tang[sel] = sign * np.stack([-np.sin(ang), np.cos(ang)], axis=-1)
                 curv_vec[sel] = -radial / radius
         r_dot = s_dot[:, None] * tang
-        r_ddot = s_ddot[:, None] * tang + (s_dot ** 2)[:, None] * curv_vec
+        r_ddot = s_ddot[:, None] * tang + (s_dot**2)[:, None] * curv_vec
         return _out(r, scalar), _out(r_dot, scalar), _out(r_ddot, scalar)
 
 
 Path = Union[SinusoidPath, LinePath, WaypointPath]
 
 _PATH_KEYS = {
-    "sinusoid": ({"start_m", "amplitude_m", "wavenumber_radpm", "speed_mps"}, {"heading_rad"}),
-    "line": ({"start_m", "heading_rad", "speed_mps"}, set()),
-    "waypoints": ({"points_m", "speed_mps"}, {"accel_mps2"}),
+    'sinusoid': ({'start_m', 'amplitude_m', 'wavenumber_radpm', 'speed_mps'}, {'heading_rad'}),
+    'line': ({'start_m', 'heading_rad', 'speed_mps'}, set()),
+    'waypoints': ({'points_m', 'speed_mps'}, {'accel_mps2'}),
 }
 
 
-_SCALAR_KEYS = {"amplitude_m", "wavenumber_radpm", "speed_mps", "heading_rad", "accel_mps2"}
+_SCALAR_KEYS = {'amplitude_m', 'wavenumber_radpm', 'speed_mps', 'heading_rad', 'accel_mps2'}
 
 
 def path_from_config(cfg) -> Path:
     """Build a path from its scenario mapping (DESIGN §5), e.g. ``{type: line, start_m: [0, 0],
-    heading_rad: 0, speed_mps: 0.05}``. Raises ConfigError naming the key (relative to the path)."""
+    heading_rad: 0, speed_mps: 0.05}``. Raises ConfigError naming the key (relative to the path).
+    """
     if not isinstance(cfg, dict):
         raise ConfigError(f"must be a mapping with a 'type' key (got {type(cfg).__name__})")
-    if "type" not in cfg:
-        raise ConfigError(f"missing required key (one of {sorted(_PATH_KEYS)})", "type")
-    kind = cfg["type"]
+    if 'type' not in cfg:
+        raise ConfigError(f'missing required key (one of {sorted(_PATH_KEYS)})', 'type')
+    kind = cfg['type']
     if kind not in _PATH_KEYS:
-        raise ConfigError(f"unknown path type {kind!r} (expected one of {sorted(_PATH_KEYS)})", "type")
+        raise ConfigError(
+            f'unknown path type {kind!r} (expected one of {sorted(_PATH_KEYS)})', 'type'
+        )
     required, optional = _PATH_KEYS[kind]
-    keys = set(cfg) - {"type"}
+    keys = set(cfg) - {'type'}
     for key in sorted(keys - required - optional):
-        raise ConfigError(f"unknown key for a {kind} path (allowed: {sorted(required | optional)})", key)
+        raise ConfigError(
+            f'unknown key for a {kind} path (allowed: {sorted(required | optional)})', key
+        )
     for key in sorted(required - keys):
-        raise ConfigError(f"missing required key of a {kind} path", key)
+        raise ConfigError(f'missing required key of a {kind} path', key)
     args = {k: cfg[k] for k in keys}
     for key in sorted(keys & _SCALAR_KEYS):
         _check_number(args[key], key)
-    if kind == "sinusoid":
-        return SinusoidPath(start_m=_vec2(args["start_m"], "start_m"),
-                            amplitude_m=float(args["amplitude_m"]),
-                            wavenumber_radpm=float(args["wavenumber_radpm"]),
-                            speed_mps=float(args["speed_mps"]),
-                            heading_rad=float(args.get("heading_rad", 0.0)))
-    if kind == "line":
-        return LinePath(start_m=_vec2(args["start_m"], "start_m"),
-                        heading_rad=float(args["heading_rad"]),
-                        speed_mps=float(args["speed_mps"]))
-    pts = args["points_m"]
+    if kind == 'sinusoid':
+        return SinusoidPath(
+            start_m=_vec2(args['start_m'], 'start_m'),
+            amplitude_m=float(args['amplitude_m']),
+            wavenumber_radpm=float(args['wavenumber_radpm']),
+            speed_mps=float(args['speed_mps']),
+            heading_rad=float(args.get('heading_rad', 0.0)),
+        )
+    if kind == 'line':
+        return LinePath(
+            start_m=_vec2(args['start_m'], 'start_m'),
+            heading_rad=float(args['heading_rad']),
+            speed_mps=float(args['speed_mps']),
+        )
+    pts = args['points_m']
     if not isinstance(pts, (list, tuple)):
-        raise ConfigError("must be a list of [x, y] points [m]", "points_m")
-    return WaypointPath(points_m=tuple(_vec2(p, f"points_m[{i}]") for i, p in enumerate(pts)),
-                        speed_mps=float(args["speed_mps"]),
-                        accel_mps2=float(args.get("accel_mps2", 0.02)))
+        raise ConfigError('must be a list of [x, y] points [m]', 'points_m')
+    return WaypointPath(
+        points_m=tuple(_vec2(p, f'points_m[{i}]') for i, p in enumerate(pts)),
+        speed_mps=float(args['speed_mps']),
+        accel_mps2=float(args.get('accel_mps2', 0.02)),
+    )
 
 
 # ------------------------------------------------------------------------------------------------
 # small validators (ConfigError naming the field)
 # ------------------------------------------------------------------------------------------------
 
+
 def _is_number(value) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
-def _check_number(value, name: str, *, positive: bool = False, minimum: float | None = None) -> None:
+def _check_number(
+    value, name: str, *, positive: bool = False, minimum: float | None = None
+) -> None:
     if not _is_number(value):
-        raise ConfigError(f"must be a number (got {value!r})", name)
+        raise ConfigError(f'must be a number (got {value!r})', name)
     if not math.isfinite(value):
-        raise ConfigError(f"must be finite (got {value!r})", name)
+        raise ConfigError(f'must be finite (got {value!r})', name)
     if positive and not value > 0:
-        raise ConfigError(f"must be > 0 (got {value!r})", name)
+        raise ConfigError(f'must be > 0 (got {value!r})', name)
     if minimum is not None and value < minimum:
-        raise ConfigError(f"must be >= {minimum} (got {value!r})", name)
+        raise ConfigError(f'must be >= {minimum} (got {value!r})', name)
 
 
 def _check_vec2(value, name: str) -> None:
     if not isinstance(value, (list, tuple)) or len(value) != 2:
-        raise ConfigError(f"must be a pair [x, y] (got {value!r})", name)
+        raise ConfigError(f'must be a pair [x, y] (got {value!r})', name)
     for v in value:
         if not _is_number(v) or not math.isfinite(v):
-            raise ConfigError(f"must hold two finite numbers (got {value!r})", name)
+            raise ConfigError(f'must hold two finite numbers (got {value!r})', name)
 
 
 def _vec2(value, name: str) -> tuple[float, float]:

@@ -13,12 +13,14 @@ Default size 0.12 m: from 2.86 m with the default 640×480 lens (f = 540 px) one
 ≥ 3.2 px per code cell (6 cells with the border) everywhere on the 3 × 2.4 m floor: enough to
 decode through lens blur and noise, and long edges for sub-pixel heading. A 0.10 m marker drops
 to 2.7 px per cell at the corners and misses 0.17 % of the markers there (0.12 m: none); the
-measured numbers are in docs/camera.md. With a 1-cell quiet zone the white plate is 0.16 m, which fits a 0.2 m robot.
+measured numbers are in docs/camera.md. With a 1-cell quiet zone the white plate is 0.16 m, which
+fits a 0.2 m robot.
 """
+
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
+import math
 
 import cv2
 import numpy as np
@@ -29,14 +31,14 @@ from ament_formation.core.errors import ConfigError
 DICTIONARIES = {
     name: getattr(cv2.aruco, name)
     for name in dir(cv2.aruco)
-    if name.startswith("DICT_") and isinstance(getattr(cv2.aruco, name), int)
+    if name.startswith('DICT_') and isinstance(getattr(cv2.aruco, name), int)
 }
 
 
 def aruco_dictionary(name: str):
     """The cv2.aruco.Dictionary called ``name`` (e.g. "DICT_4X4_50"); ConfigError if unknown."""
     if name not in DICTIONARIES:
-        raise ConfigError(f"unknown ArUco dictionary {name!r} (e.g. DICT_4X4_50)", "dictionary")
+        raise ConfigError(f'unknown ArUco dictionary {name!r} (e.g. DICT_4X4_50)', 'dictionary')
     return cv2.aruco.getPredefinedDictionary(DICTIONARIES[name])
 
 
@@ -49,20 +51,28 @@ def dictionary_size(name: str) -> int:
 class MarkerLayout:
     """The marker every robot carries (all robots carry the same kind, with their own id)."""
 
-    dictionary: str = "DICT_4X4_50"
-    size_m: float = 0.12                       # side of the black square (outer border)
-    offset_m: tuple[float, float] = (-0.05, 0.0)  # marker centre in the controlled point's body frame
-    height_m: float = 0.08                     # marker plane above the floor
+    dictionary: str = 'DICT_4X4_50'
+    size_m: float = 0.12  # side of the black square (outer border)
+    offset_m: tuple[float, float] = (
+        -0.05,
+        0.0,
+    )  # marker centre in the controlled point's body frame
+    height_m: float = 0.08  # marker plane above the floor
 
     def __post_init__(self) -> None:
         aruco_dictionary(self.dictionary)
-        if not (isinstance(self.size_m, (int, float)) and math.isfinite(self.size_m)
-                and 0.01 <= self.size_m <= 1.0):
-            raise ConfigError(f"must be in [0.01, 1.0] m (got {self.size_m!r})", "size_m")
+        if not (
+            isinstance(self.size_m, (int, float))
+            and math.isfinite(self.size_m)
+            and 0.01 <= self.size_m <= 1.0
+        ):
+            raise ConfigError(f'must be in [0.01, 1.0] m (got {self.size_m!r})', 'size_m')
         if len(self.offset_m) != 2 or not all(math.isfinite(v) for v in self.offset_m):
-            raise ConfigError(f"needs two finite values [x, y] m (got {self.offset_m!r})", "offset_m")
+            raise ConfigError(
+                f'needs two finite values [x, y] m (got {self.offset_m!r})', 'offset_m'
+            )
         if not (math.isfinite(self.height_m) and 0.0 <= self.height_m <= 2.0):
-            raise ConfigError(f"must be in [0, 2] m (got {self.height_m!r})", "height_m")
+            raise ConfigError(f'must be in [0, 2] m (got {self.height_m!r})', 'height_m')
 
     @property
     def bits(self) -> int:
@@ -87,7 +97,7 @@ class MarkerLayout:
         centers = self.marker_centers_w(poses)
         c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
         rot = np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)  # (N, 2, 2)
-        return centers[:, None, :] + np.einsum("nij,kj->nki", rot, self.corners_marker_m())
+        return centers[:, None, :] + np.einsum('nij,kj->nki', rot, self.corners_marker_m())
 
     def controlled_point(self, marker_centers_w: np.ndarray, theta_rad: np.ndarray) -> np.ndarray:
         """Marker centres (N, 2) and headings (N,) → controlled points (N, 2) [m]."""

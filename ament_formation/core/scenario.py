@@ -1,6 +1,7 @@
 """Scenario files (DESIGN §5): load a YAML scenario and validate it completely and strictly.
 
-Every problem raises :class:`ConfigError` whose one-line text names the file, the field (a path such
+Every problem raises :class:`ConfigError` whose one-line text names the file, the field (a path
+such
 as ``robots[1].slot_m`` or ``obstacles[0].semi_axes_m``) and the problem. Checks:
 
 * structure: unknown keys at every level, missing required keys, wrong types (booleans are not
@@ -10,7 +11,8 @@ as ``robots[1].slot_m`` or ``obstacles[0].semi_axes_m``) and the problem. Checks
 * identities: duplicate robot ids, marker ids and obstacle names; edges between known robots,
   no self-loops or repeated edges;
 * teams (S1, S9): each weakly connected component of the graph has exactly one leader, every robot
-  is reachable from its team leader, leaders have a path and followers do not, a leader's slot is 0;
+  is reachable from its team leader, leaders have a path and followers do not, a leader's slot is
+  0;
 * geometry at start: no robot inside a prohibited region P_j, no two robots closer than the agent
   prohibited circle R_i + R_k + margin (S7);
 * geometry over the run: the limit cycles L_j = rho_L P_j of two obstacles never overlap
@@ -19,14 +21,15 @@ as ``robots[1].slot_m`` or ``obstacles[0].semi_axes_m``) and the problem. Checks
   core/metrics.check_run after `formation sim` and `formation run`): known keys, robot ids of the
   scenario, limits of the right sign, ranges with min <= max.
 """
+
 from __future__ import annotations
 
-import math
-import re
 from collections import deque
 from dataclasses import dataclass, field, fields
 from functools import cached_property
+import math
 from pathlib import Path as FsPath
+import re
 
 import numpy as np
 import yaml
@@ -37,13 +40,14 @@ from ament_formation.core.params import AvoidanceParams, ControlGains, RobotPara
 from ament_formation.core.paths import Path, path_from_config
 
 _OVERLAP_STEP_S = 0.25
-_NAME_RE = re.compile(r"[A-Za-z0-9_.\-]+")
+_NAME_RE = re.compile(r'[A-Za-z0-9_.\-]+')
 _BOUNDARY_SAMPLES = 256
 
 
 # ------------------------------------------------------------------------------------------------
 # Dataclasses
 # ------------------------------------------------------------------------------------------------
+
 
 @dataclass(frozen=True)
 class RobotSpec:
@@ -100,8 +104,13 @@ class ExpectSpec:
 
     @property
     def empty(self) -> bool:
-        return not (self.settled_rms_max_m or self.final_error_max_m or self.avoidance_entries
-                    or self.min_clearance_m is not None or self.min_inter_robot_distance_m is not None)
+        return not (
+            self.settled_rms_max_m
+            or self.final_error_max_m
+            or self.avoidance_entries
+            or self.min_clearance_m is not None
+            or self.min_inter_robot_distance_m is not None
+        )
 
 
 @dataclass(frozen=True)
@@ -186,6 +195,7 @@ def _weak_components(ids, edges) -> list[list[int]]:
 # Loading
 # ------------------------------------------------------------------------------------------------
 
+
 class _StrictLoader(yaml.SafeLoader):
     """SafeLoader that rejects a key repeated inside one mapping."""
 
@@ -196,7 +206,8 @@ def _construct_mapping(loader, node, deep=False):
         key = loader.construct_object(key_node, deep=deep)
         if key in seen:
             raise ConfigError(
-                f"duplicate key {key!r} (line {key_node.start_mark.line + 1}; first at line {seen[key]})")
+                f'duplicate key {key!r} (line {key_node.start_mark.line + 1}; first at line {seen[key]})'
+            )
         seen[key] = key_node.start_mark.line + 1
     return loader.construct_mapping(node, deep=deep)
 
@@ -211,18 +222,18 @@ def load_scenario(path) -> Scenario:
     try:
         text = path.read_text()
     except FileNotFoundError:
-        raise ConfigError("no such file", file=source) from None
+        raise ConfigError('no such file', file=source) from None
     except (IsADirectoryError, PermissionError, UnicodeDecodeError) as err:
-        raise ConfigError(f"cannot read: {err.__class__.__name__}", file=source) from None
+        raise ConfigError(f'cannot read: {err.__class__.__name__}', file=source) from None
     try:
         data = yaml.load(text, Loader=_StrictLoader)  # noqa: S506 - SafeLoader subclass
     except ConfigError as err:
         raise err.with_file(source) from None
     except yaml.YAMLError as err:
-        mark = getattr(err, "problem_mark", None)
-        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
-        problem = getattr(err, "problem", None) or str(err).splitlines()[0]
-        raise ConfigError(f"malformed YAML{where}: {problem}", file=source) from None
+        mark = getattr(err, 'problem_mark', None)
+        where = f' at line {mark.line + 1}, column {mark.column + 1}' if mark else ''
+        problem = getattr(err, 'problem', None) or str(err).splitlines()[0]
+        raise ConfigError(f'malformed YAML{where}: {problem}', file=source) from None
     return parse_scenario(data, source=source)
 
 
@@ -238,69 +249,85 @@ def parse_scenario(mapping, source: str | None = None) -> Scenario:
 # Field checks
 # ------------------------------------------------------------------------------------------------
 
-_TOP_REQUIRED = {"name", "duration_s", "robots"}
-_TOP_OPTIONAL = {"robot", "disturbance", "graph", "obstacles", "avoidance", "control", "camera", "expect"}
-_EXPECT_KEYS = {"settled_rms_max_m", "final_error_max_m", "avoidance_entries", "min_clearance_m",
-                "min_inter_robot_distance_m"}
-_ROBOT_KEYS_REQUIRED = {"id", "initial_pose"}
-_ROBOT_KEYS_OPTIONAL = {"leader", "path", "slot_m", "marker_id"}
+_TOP_REQUIRED = {'name', 'duration_s', 'robots'}
+_TOP_OPTIONAL = {
+    'robot',
+    'disturbance',
+    'graph',
+    'obstacles',
+    'avoidance',
+    'control',
+    'camera',
+    'expect',
+}
+_EXPECT_KEYS = {
+    'settled_rms_max_m',
+    'final_error_max_m',
+    'avoidance_entries',
+    'min_clearance_m',
+    'min_inter_robot_distance_m',
+}
+_ROBOT_KEYS_REQUIRED = {'id', 'initial_pose'}
+_ROBOT_KEYS_OPTIONAL = {'leader', 'path', 'slot_m', 'marker_id'}
 _PARAM_KEYS = set(RobotParams.field_names())
-_OBSTACLE_REQUIRED = {"name", "center_m", "semi_axes_m"}
-_OBSTACLE_OPTIONAL = {"orientation_rad", "velocity_mps", "angular_velocity_radps", "oscillation"}
+_OBSTACLE_REQUIRED = {'name', 'center_m', 'semi_axes_m'}
+_OBSTACLE_OPTIONAL = {'orientation_rad', 'velocity_mps', 'angular_velocity_radps', 'oscillation'}
 
 
 def _keys(mapping, where: str, required: set, optional: set) -> None:
     if not isinstance(mapping, dict):
-        raise ConfigError(f"must be a mapping (got {_kind(mapping)})", where or None)
+        raise ConfigError(f'must be a mapping (got {_kind(mapping)})', where or None)
     for key in mapping:
         if not isinstance(key, str):
-            raise ConfigError(f"keys must be strings (got {key!r})", where or None)
+            raise ConfigError(f'keys must be strings (got {key!r})', where or None)
     allowed = required | optional
     for key in sorted(set(mapping) - allowed):
-        raise ConfigError(f"unknown key (allowed: {', '.join(sorted(allowed))})", _join(where, key))
+        raise ConfigError(
+            f'unknown key (allowed: {", ".join(sorted(allowed))})', _join(where, key)
+        )
     for key in sorted(required - set(mapping)):
-        raise ConfigError("missing required key", _join(where, key))
+        raise ConfigError('missing required key', _join(where, key))
 
 
 def _join(where: str, key: str) -> str:
-    return f"{where}.{key}" if where else key
+    return f'{where}.{key}' if where else key
 
 
 def _kind(value) -> str:
-    return "null" if value is None else type(value).__name__
+    return 'null' if value is None else type(value).__name__
 
 
 def _number(value, where: str, *, positive=False, nonneg=False) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ConfigError(f"must be a number (got {_kind(value)} {value!r})", where)
+        raise ConfigError(f'must be a number (got {_kind(value)} {value!r})', where)
     if not math.isfinite(value):
-        raise ConfigError(f"must be finite (got {value!r})", where)
+        raise ConfigError(f'must be finite (got {value!r})', where)
     if positive and not value > 0:
-        raise ConfigError(f"must be > 0 (got {value!r})", where)
+        raise ConfigError(f'must be > 0 (got {value!r})', where)
     if nonneg and value < 0:
-        raise ConfigError(f"must be >= 0 (got {value!r})", where)
+        raise ConfigError(f'must be >= 0 (got {value!r})', where)
     return float(value)
 
 
 def _integer(value, where: str, *, nonneg=True) -> int:
     if isinstance(value, bool) or not isinstance(value, int):
-        raise ConfigError(f"must be an integer (got {_kind(value)} {value!r})", where)
+        raise ConfigError(f'must be an integer (got {_kind(value)} {value!r})', where)
     if nonneg and value < 0:
-        raise ConfigError(f"must be >= 0 (got {value!r})", where)
+        raise ConfigError(f'must be >= 0 (got {value!r})', where)
     return int(value)
 
 
 def _vector(value, where: str, n: int, **kw) -> tuple[float, ...]:
     if not isinstance(value, (list, tuple)) or len(value) != n:
-        raise ConfigError(f"must be a list of {n} numbers (got {value!r})", where)
-    return tuple(_number(v, f"{where}[{i}]", **kw) for i, v in enumerate(value))
+        raise ConfigError(f'must be a list of {n} numbers (got {value!r})', where)
+    return tuple(_number(v, f'{where}[{i}]', **kw) for i, v in enumerate(value))
 
 
 def _params_from(mapping: dict, where: str, cls, base: dict | None = None):
     """A parameter dataclass from ``base`` overridden by ``mapping`` (numbers only)."""
     values = dict(base or {})
     for key, value in mapping.items():
-        if value is None and key in {"wheel_spin_inertia_kgm2", "wheel_diameter_inertia_kgm2"}:
+        if value is None and key in {'wheel_spin_inertia_kgm2', 'wheel_diameter_inertia_kgm2'}:
             values[key] = None
             continue
         values[key] = _number(value, _join(where, key))
@@ -314,39 +341,50 @@ def _params_from(mapping: dict, where: str, cls, base: dict | None = None):
 # The parser
 # ------------------------------------------------------------------------------------------------
 
+
 def _parse(data, source) -> Scenario:
     if data is None:
-        raise ConfigError("the file is empty (expected a mapping with name, duration_s, robots)")
-    _keys(data, "", _TOP_REQUIRED, _TOP_OPTIONAL)
-    name = data["name"]
+        raise ConfigError('the file is empty (expected a mapping with name, duration_s, robots)')
+    _keys(data, '', _TOP_REQUIRED, _TOP_OPTIONAL)
+    name = data['name']
     if not isinstance(name, str) or not name.strip():
-        raise ConfigError(f"must be a non-empty string (got {name!r})", "name")
-    duration = _number(data["duration_s"], "duration_s", positive=True)
+        raise ConfigError(f'must be a non-empty string (got {name!r})', 'name')
+    duration = _number(data['duration_s'], 'duration_s', positive=True)
 
     # robot defaults
-    robot_defaults = data.get("robot", {}) or {}
-    _keys(robot_defaults, "robot", set(), _PARAM_KEYS)
-    default_params = _params_from(robot_defaults, "robot", RobotParams)
+    robot_defaults = data.get('robot', {}) or {}
+    _keys(robot_defaults, 'robot', set(), _PARAM_KEYS)
+    default_params = _params_from(robot_defaults, 'robot', RobotParams)
     base = {f.name: getattr(default_params, f.name) for f in fields(RobotParams)}
 
-    disturbance = _parse_disturbance(data.get("disturbance", {}))
-    avoidance = _parse_params_block(data, "avoidance", AvoidanceParams)
-    control = _parse_params_block(data, "control", ControlGains)
-    camera = _parse_camera(data.get("camera", {}))
+    disturbance = _parse_disturbance(data.get('disturbance', {}))
+    avoidance = _parse_params_block(data, 'avoidance', AvoidanceParams)
+    control = _parse_params_block(data, 'control', ControlGains)
+    camera = _parse_camera(data.get('camera', {}))
 
-    robots = _parse_robots(data["robots"], base)
+    robots = _parse_robots(data['robots'], base)
     ids = [r.id for r in robots]
-    edges = _parse_graph(data.get("graph", {"edges": []}), set(ids))
-    obstacles = _parse_obstacles(data.get("obstacles", []) or [])
+    edges = _parse_graph(data.get('graph', {'edges': []}), set(ids))
+    obstacles = _parse_obstacles(data.get('obstacles', []) or [])
 
     _check_teams(robots, edges)
     _check_start_geometry(robots, obstacles, avoidance)
     _check_limit_cycles(obstacles, avoidance, duration)
-    expect = _parse_expect(data.get("expect", {}), ids)
+    expect = _parse_expect(data.get('expect', {}), ids)
 
-    return Scenario(name=name.strip(), duration_s=duration, robots=tuple(robots), edges=tuple(edges),
-                    obstacles=tuple(obstacles), disturbance=disturbance, avoidance=avoidance,
-                    control=control, camera=camera, expect=expect, source=source)
+    return Scenario(
+        name=name.strip(),
+        duration_s=duration,
+        robots=tuple(robots),
+        edges=tuple(edges),
+        obstacles=tuple(obstacles),
+        disturbance=disturbance,
+        avoidance=avoidance,
+        control=control,
+        camera=camera,
+        expect=expect,
+        source=source,
+    )
 
 
 def _parse_params_block(data, key, cls):
@@ -359,52 +397,60 @@ def _parse_params_block(data, key, cls):
 
 def _parse_disturbance(block) -> DisturbanceSpec:
     block = {} if block is None else block
-    _keys(block, "disturbance", set(), {"accel_bound", "seed"})
-    bound = _vector(block.get("accel_bound", [0.0, 0.0]), "disturbance.accel_bound", 2, nonneg=True)
-    seed = _integer(block.get("seed", 0), "disturbance.seed")
+    _keys(block, 'disturbance', set(), {'accel_bound', 'seed'})
+    bound = _vector(
+        block.get('accel_bound', [0.0, 0.0]), 'disturbance.accel_bound', 2, nonneg=True
+    )
+    seed = _integer(block.get('seed', 0), 'disturbance.seed')
     return DisturbanceSpec(accel_bound=bound, seed=seed)
 
 
 def _parse_camera(block) -> CameraSpec:
     block = {} if block is None else block
-    _keys(block, "camera", set(), {"fps", "width_px", "height_px"})
-    fps = _number(block.get("fps", 30.0), "camera.fps", positive=True)
-    width = _integer(block.get("width_px", 640), "camera.width_px")
-    height = _integer(block.get("height_px", 480), "camera.height_px")
-    for key, value in (("width_px", width), ("height_px", height)):
+    _keys(block, 'camera', set(), {'fps', 'width_px', 'height_px'})
+    fps = _number(block.get('fps', 30.0), 'camera.fps', positive=True)
+    width = _integer(block.get('width_px', 640), 'camera.width_px')
+    height = _integer(block.get('height_px', 480), 'camera.height_px')
+    for key, value in (('width_px', width), ('height_px', height)):
         if value <= 0:
-            raise ConfigError(f"must be > 0 (got {value})", f"camera.{key}")
+            raise ConfigError(f'must be > 0 (got {value})', f'camera.{key}')
     return CameraSpec(fps=fps, width_px=width, height_px=height)
 
 
 def _per_robot(value, where: str, ids: list[int], parse_one) -> tuple:
     """A per-robot expectation: one value for every robot, or a mapping robot id -> value (ids as
-    integers or strings, e.g. ``{"0": 0.01, "1": 0.02}``). Returns ((id, value), ...) in robot order."""
+    integers or strings, e.g. ``{"0": 0.01, "1": 0.02}``). Returns ((id, value), ...) in robot
+    order.
+    """
     if not isinstance(value, dict):
         one = parse_one(value, where)
         return tuple((rid, one) for rid in ids)
     if not value:
-        raise ConfigError("must not be empty (a value, or a mapping robot id -> value)", where)
+        raise ConfigError('must not be empty (a value, or a mapping robot id -> value)', where)
     out = {}
     for key, item in value.items():
         rid = key
-        if isinstance(key, str) and re.fullmatch(r"[0-9]+", key.strip()):
+        if isinstance(key, str) and re.fullmatch(r'[0-9]+', key.strip()):
             rid = int(key.strip())
         if isinstance(rid, bool) or not isinstance(rid, int) or rid not in ids:
-            raise ConfigError(f"{key!r} is not a robot id of the scenario (ids: {sorted(ids)})", where)
+            raise ConfigError(
+                f'{key!r} is not a robot id of the scenario (ids: {sorted(ids)})', where
+            )
         if rid in out:
-            raise ConfigError(f"robot {rid} is listed twice", where)
-        out[rid] = parse_one(item, f"{where}.{key}")
+            raise ConfigError(f'robot {rid} is listed twice', where)
+        out[rid] = parse_one(item, f'{where}.{key}')
     return tuple((rid, out[rid]) for rid in ids if rid in out)
 
 
 def _entries_range(value, where: str) -> tuple[int, int]:
     if isinstance(value, (list, tuple)):
         if len(value) != 2:
-            raise ConfigError(f"must be a count or a [min, max] pair of counts (got {value!r})", where)
-        lo, hi = _integer(value[0], f"{where}[0]"), _integer(value[1], f"{where}[1]")
+            raise ConfigError(
+                f'must be a count or a [min, max] pair of counts (got {value!r})', where
+            )
+        lo, hi = _integer(value[0], f'{where}[0]'), _integer(value[1], f'{where}[1]')
         if lo > hi:
-            raise ConfigError(f"min must be <= max (got {list(value)})", where)
+            raise ConfigError(f'min must be <= max (got {list(value)})', where)
         return lo, hi
     n = _integer(value, where)
     return n, n
@@ -412,139 +458,175 @@ def _entries_range(value, where: str) -> tuple[int, int]:
 
 def _parse_expect(block, ids: list[int]) -> ExpectSpec:
     block = {} if block is None else block
-    _keys(block, "expect", set(), _EXPECT_KEYS)
+    _keys(block, 'expect', set(), _EXPECT_KEYS)
 
     def limit(value, where):
         return _number(value, where, positive=True)
 
     kw = {}
-    for key in ("settled_rms_max_m", "final_error_max_m"):
+    for key in ('settled_rms_max_m', 'final_error_max_m'):
         if key in block:
-            kw[key] = _per_robot(block[key], f"expect.{key}", ids, limit)
-    if "avoidance_entries" in block:
-        kw["avoidance_entries"] = _per_robot(block["avoidance_entries"], "expect.avoidance_entries", ids,
-                                             _entries_range)
-    for key in ("min_clearance_m", "min_inter_robot_distance_m"):
+            kw[key] = _per_robot(block[key], f'expect.{key}', ids, limit)
+    if 'avoidance_entries' in block:
+        kw['avoidance_entries'] = _per_robot(
+            block['avoidance_entries'], 'expect.avoidance_entries', ids, _entries_range
+        )
+    for key in ('min_clearance_m', 'min_inter_robot_distance_m'):
         if key in block:
-            kw[key] = _number(block[key], f"expect.{key}")
+            kw[key] = _number(block[key], f'expect.{key}')
     return ExpectSpec(**kw)
 
 
 def _parse_robots(items, base: dict) -> list[RobotSpec]:
     if not isinstance(items, list) or not items:
-        raise ConfigError(f"must be a non-empty list of robots (got {_kind(items)})", "robots")
+        raise ConfigError(f'must be a non-empty list of robots (got {_kind(items)})', 'robots')
     robots: list[RobotSpec] = []
     seen_ids: dict[int, int] = {}
     seen_markers: dict[int, int] = {}
     for i, item in enumerate(items):
-        where = f"robots[{i}]"
+        where = f'robots[{i}]'
         _keys(item, where, _ROBOT_KEYS_REQUIRED, _ROBOT_KEYS_OPTIONAL | _PARAM_KEYS)
-        rid = _integer(item["id"], f"{where}.id")
+        rid = _integer(item['id'], f'{where}.id')
         if rid in seen_ids:
-            raise ConfigError(f"duplicate robot id {rid} (also robots[{seen_ids[rid]}])", f"{where}.id")
+            raise ConfigError(
+                f'duplicate robot id {rid} (also robots[{seen_ids[rid]}])', f'{where}.id'
+            )
         seen_ids[rid] = i
-        leader = item.get("leader", False)
+        leader = item.get('leader', False)
         if not isinstance(leader, bool):
-            raise ConfigError(f"must be true or false (got {leader!r})", f"{where}.leader")
-        pose = _vector(item["initial_pose"], f"{where}.initial_pose", 3)
-        if "slot_m" in item:
-            slot = _vector(item["slot_m"], f"{where}.slot_m", 2)
+            raise ConfigError(f'must be true or false (got {leader!r})', f'{where}.leader')
+        pose = _vector(item['initial_pose'], f'{where}.initial_pose', 3)
+        if 'slot_m' in item:
+            slot = _vector(item['slot_m'], f'{where}.slot_m', 2)
         elif leader:
             slot = (0.0, 0.0)
         else:
-            raise ConfigError("missing required key (a follower needs its formation slot)",
-                              f"{where}.slot_m")
+            raise ConfigError(
+                'missing required key (a follower needs its formation slot)', f'{where}.slot_m'
+            )
         if leader and slot != (0.0, 0.0):
-            raise ConfigError(f"a team leader's slot must be [0, 0] (S1: c_leader = 0; got {list(slot)})",
-                              f"{where}.slot_m")
-        path_cfg = item.get("path")
+            raise ConfigError(
+                f"a team leader's slot must be [0, 0] (S1: c_leader = 0; got {list(slot)})",
+                f'{where}.slot_m',
+            )
+        path_cfg = item.get('path')
         if leader and path_cfg is None:
-            raise ConfigError("a leader needs a path (sinusoid, line or waypoints)", f"{where}.path")
+            raise ConfigError(
+                'a leader needs a path (sinusoid, line or waypoints)', f'{where}.path'
+            )
         if not leader and path_cfg is not None:
-            raise ConfigError("only a leader (leader: true) has a path; a follower tracks its parent",
-                              f"{where}.path")
+            raise ConfigError(
+                'only a leader (leader: true) has a path; a follower tracks its parent',
+                f'{where}.path',
+            )
         path = None
         if path_cfg is not None:
             try:
                 path = path_from_config(path_cfg)
             except ConfigError as err:
-                raise err.under(f"{where}.path") from None
-        marker = _integer(item.get("marker_id", rid), f"{where}.marker_id")
+                raise err.under(f'{where}.path') from None
+        marker = _integer(item.get('marker_id', rid), f'{where}.marker_id')
         if marker in seen_markers:
-            raise ConfigError(f"duplicate marker id {marker} (also robots[{seen_markers[marker]}])",
-                              f"{where}.marker_id")
+            raise ConfigError(
+                f'duplicate marker id {marker} (also robots[{seen_markers[marker]}])',
+                f'{where}.marker_id',
+            )
         seen_markers[marker] = i
         overrides = {k: v for k, v in item.items() if k in _PARAM_KEYS}
         params = _params_from(overrides, where, RobotParams, base)
-        robots.append(RobotSpec(id=rid, params=params, initial_pose=pose, slot_m=slot, leader=leader,
-                                path=path, marker_id=marker))
+        robots.append(
+            RobotSpec(
+                id=rid,
+                params=params,
+                initial_pose=pose,
+                slot_m=slot,
+                leader=leader,
+                path=path,
+                marker_id=marker,
+            )
+        )
     return robots
 
 
 def _parse_graph(block, ids: set[int]) -> list[tuple[int, int]]:
-    _keys(block, "graph", {"edges"}, set())
-    items = block["edges"]
+    _keys(block, 'graph', {'edges'}, set())
+    items = block['edges']
     if items is None:
         items = []
     if not isinstance(items, list):
-        raise ConfigError(f"must be a list of [parent, child] pairs (got {_kind(items)})", "graph.edges")
+        raise ConfigError(
+            f'must be a list of [parent, child] pairs (got {_kind(items)})', 'graph.edges'
+        )
     edges: list[tuple[int, int]] = []
     for k, edge in enumerate(items):
-        where = f"graph.edges[{k}]"
+        where = f'graph.edges[{k}]'
         if not isinstance(edge, (list, tuple)) or len(edge) != 2:
-            raise ConfigError(f"must be a [parent, child] pair (got {edge!r})", where)
-        parent = _integer(edge[0], f"{where}[0]")
-        child = _integer(edge[1], f"{where}[1]")
-        for end, rid in (("parent", parent), ("child", child)):
+            raise ConfigError(f'must be a [parent, child] pair (got {edge!r})', where)
+        parent = _integer(edge[0], f'{where}[0]')
+        child = _integer(edge[1], f'{where}[1]')
+        for end, rid in (('parent', parent), ('child', child)):
             if rid not in ids:
-                raise ConfigError(f"{end} {rid} is not a robot id (ids: {sorted(ids)})", where)
+                raise ConfigError(f'{end} {rid} is not a robot id (ids: {sorted(ids)})', where)
         if parent == child:
-            raise ConfigError(f"self-loop {parent} -> {child} is not allowed (S1)", where)
+            raise ConfigError(f'self-loop {parent} -> {child} is not allowed (S1)', where)
         if (parent, child) in edges:
-            raise ConfigError(f"edge {parent} -> {child} is listed twice", where)
+            raise ConfigError(f'edge {parent} -> {child} is listed twice', where)
         edges.append((parent, child))
     return edges
 
 
 def _parse_obstacles(items) -> list[ObstacleSpec]:
     if not isinstance(items, list):
-        raise ConfigError(f"must be a list of obstacles (got {_kind(items)})", "obstacles")
+        raise ConfigError(f'must be a list of obstacles (got {_kind(items)})', 'obstacles')
     out: list[ObstacleSpec] = []
     seen: dict[str, int] = {}
     for j, item in enumerate(items):
-        where = f"obstacles[{j}]"
+        where = f'obstacles[{j}]'
         _keys(item, where, _OBSTACLE_REQUIRED, _OBSTACLE_OPTIONAL)
-        name = item["name"]
+        name = item['name']
         if not isinstance(name, str) or not name.strip():
-            raise ConfigError(f"must be a non-empty string (got {name!r})", f"{where}.name")
+            raise ConfigError(f'must be a non-empty string (got {name!r})', f'{where}.name')
         if not _NAME_RE.fullmatch(name):
-            raise ConfigError(f"must use only letters, digits, '_', '-' and '.' (got {name!r})",
-                              f"{where}.name")
+            raise ConfigError(
+                f"must use only letters, digits, '_', '-' and '.' (got {name!r})", f'{where}.name'
+            )
         if name in seen:
-            raise ConfigError(f"duplicate obstacle name {name!r} (also obstacles[{seen[name]}])",
-                              f"{where}.name")
+            raise ConfigError(
+                f'duplicate obstacle name {name!r} (also obstacles[{seen[name]}])', f'{where}.name'
+            )
         seen[name] = j
-        center = _vector(item["center_m"], f"{where}.center_m", 2)
-        axes = _vector(item["semi_axes_m"], f"{where}.semi_axes_m", 2)
+        center = _vector(item['center_m'], f'{where}.center_m', 2)
+        axes = _vector(item['semi_axes_m'], f'{where}.semi_axes_m', 2)
         for k, a in enumerate(axes):
             if not a > 0:
-                raise ConfigError(f"semi-axes must be > 0 m (got {list(axes)})", f"{where}.semi_axes_m[{k}]")
-        phi = _number(item.get("orientation_rad", 0.0), f"{where}.orientation_rad")
+                raise ConfigError(
+                    f'semi-axes must be > 0 m (got {list(axes)})', f'{where}.semi_axes_m[{k}]'
+                )
+        phi = _number(item.get('orientation_rad', 0.0), f'{where}.orientation_rad')
         if axes[1] > axes[0]:  # normalise to r1 >= r2 (the same ellipse, turned by pi/2)
             axes = (axes[1], axes[0])
             phi += 0.5 * math.pi
-        vel = _vector(item.get("velocity_mps", [0.0, 0.0]), f"{where}.velocity_mps", 2)
-        omega = _number(item.get("angular_velocity_radps", 0.0), f"{where}.angular_velocity_radps")
+        vel = _vector(item.get('velocity_mps', [0.0, 0.0]), f'{where}.velocity_mps', 2)
+        omega = _number(item.get('angular_velocity_radps', 0.0), f'{where}.angular_velocity_radps')
         amp, period = (0.0, 0.0), 0.0
-        if "oscillation" in item:
-            osc = item["oscillation"]
-            _keys(osc, f"{where}.oscillation", {"amplitude_m", "period_s"}, set())
-            amp = _vector(osc["amplitude_m"], f"{where}.oscillation.amplitude_m", 2)
-            period = _number(osc["period_s"], f"{where}.oscillation.period_s", positive=True)
+        if 'oscillation' in item:
+            osc = item['oscillation']
+            _keys(osc, f'{where}.oscillation', {'amplitude_m', 'period_s'}, set())
+            amp = _vector(osc['amplitude_m'], f'{where}.oscillation.amplitude_m', 2)
+            period = _number(osc['period_s'], f'{where}.oscillation.period_s', positive=True)
         try:
-            out.append(ObstacleSpec(name=name, center_m=center, semi_axes_m=axes, orientation_rad=phi,
-                                    velocity_mps=vel, angular_velocity_radps=omega,
-                                    oscillation_amplitude_m=amp, oscillation_period_s=period))
+            out.append(
+                ObstacleSpec(
+                    name=name,
+                    center_m=center,
+                    semi_axes_m=axes,
+                    orientation_rad=phi,
+                    velocity_mps=vel,
+                    angular_velocity_radps=omega,
+                    oscillation_amplitude_m=amp,
+                    oscillation_period_s=period,
+                )
+            )
         except ConfigError as err:
             raise err.under(where) from None
     return out
@@ -553,6 +635,7 @@ def _parse_obstacles(items) -> list[ObstacleSpec]:
 # ------------------------------------------------------------------------------------------------
 # Cross checks
 # ------------------------------------------------------------------------------------------------
+
 
 def _check_teams(robots: list[RobotSpec], edges: list[tuple[int, int]]) -> None:
     ids = [r.id for r in robots]
@@ -563,11 +646,15 @@ def _check_teams(robots: list[RobotSpec], edges: list[tuple[int, int]]) -> None:
         if len(lead) == 0:
             raise ConfigError(
                 f"the team of robots {comp} has no leader (mark one robot 'leader: true' or connect "
-                "them to a leader through graph.edges)", f"robots[{index[comp[0]]}]")
+                'them to a leader through graph.edges)',
+                f'robots[{index[comp[0]]}]',
+            )
         if len(lead) > 1:
             raise ConfigError(
-                f"robots {lead} are leaders of one connected team {comp}: a team has exactly one "
-                "leader (split the graph or make one a follower)", f"robots[{index[lead[1]]}].leader")
+                f'robots {lead} are leaders of one connected team {comp}: a team has exactly one '
+                'leader (split the graph or make one a follower)',
+                f'robots[{index[lead[1]]}].leader',
+            )
         out = {v: [] for v in comp}
         for u, v in edges:
             if u in out:
@@ -583,8 +670,10 @@ def _check_teams(robots: list[RobotSpec], edges: list[tuple[int, int]]) -> None:
         missing = [v for v in comp if v not in reached]
         if missing:
             raise ConfigError(
-                f"robot {missing[0]} cannot be reached from its team leader {lead[0]} along "
-                "graph.edges [parent, child]", "graph.edges")
+                f'robot {missing[0]} cannot be reached from its team leader {lead[0]} along '
+                'graph.edges [parent, child]',
+                'graph.edges',
+            )
 
 
 def _check_start_geometry(robots, obstacles, avoidance: AvoidanceParams) -> None:
@@ -599,17 +688,25 @@ def _check_start_geometry(robots, obstacles, avoidance: AvoidanceParams) -> None
                 r1, r2 = field_.semi_axes_m[j]
                 if (u / r1) ** 2 + (w / r2) ** 2 < 1.0:
                     raise ConfigError(
-                        f"robot {r.id} starts inside the prohibited region P of obstacle {obs.name!r} "
-                        "(S13 #2: never start a mission in collision)", f"robots[{i}].initial_pose")
+                        f'robot {r.id} starts inside the prohibited region P of obstacle {obs.name!r} '
+                        '(S13 #2: never start a mission in collision)',
+                        f'robots[{i}].initial_pose',
+                    )
     for a in range(len(robots)):
         for b in range(a + 1, len(robots)):
             ra, rb = robots[a], robots[b]
-            keepout = ra.params.body_radius_m + rb.params.body_radius_m + avoidance.agent_keepout_margin_m
+            keepout = (
+                ra.params.body_radius_m
+                + rb.params.body_radius_m
+                + avoidance.agent_keepout_margin_m
+            )
             dist = math.dist(ra.initial_pose[:2], rb.initial_pose[:2])
             if dist < keepout:
                 raise ConfigError(
-                    f"robots {ra.id} and {rb.id} start {dist:.3f} m apart, inside the robot prohibited "
-                    f"circle {keepout:.3f} m (S7)", f"robots[{b}].initial_pose")
+                    f'robots {ra.id} and {rb.id} start {dist:.3f} m apart, inside the robot prohibited '
+                    f'circle {keepout:.3f} m (S7)',
+                    f'robots[{b}].initial_pose',
+                )
 
 
 def ellipses_overlap(c1, phi1, axes1, c2, phi2, axes2) -> np.ndarray:
@@ -660,88 +757,135 @@ def _check_limit_cycles(obstacles, avoidance: AvoidanceParams, duration_s: float
     for a in range(len(obstacles)):
         for b in range(a + 1, len(obstacles)):
             n_t = len(states) if (dynamic[a] or dynamic[b]) else 1
-            hit = ellipses_overlap(centers[:n_t, a], phis[:n_t, a], np.repeat(axes[a:a + 1], n_t, 0),
-                                   centers[:n_t, b], phis[:n_t, b], np.repeat(axes[b:b + 1], n_t, 0))
+            hit = ellipses_overlap(
+                centers[:n_t, a],
+                phis[:n_t, a],
+                np.repeat(axes[a: a + 1], n_t, 0),
+                centers[:n_t, b],
+                phis[:n_t, b],
+                np.repeat(axes[b: b + 1], n_t, 0),
+            )
             if np.any(hit):
                 t_hit = float(times[int(np.argmax(hit))]) if n_t > 1 else 0.0
-                kind = "" if n_t == 1 else f" at t = {t_hit:.2f} s"
+                kind = '' if n_t == 1 else f' at t = {t_hit:.2f} s'
                 raise ConfigError(
-                    f"the limit cycles (L = {avoidance.limit_cycle_scale} P) of obstacles "
-                    f"{obstacles[a].name!r} and {obstacles[b].name!r} overlap{kind}; move them apart or "
-                    "merge them into one enclosing ellipse (S13 #3)", f"obstacles[{b}]")
+                    f'the limit cycles (L = {avoidance.limit_cycle_scale} P) of obstacles '
+                    f'{obstacles[a].name!r} and {obstacles[b].name!r} overlap{kind}; move them apart or '
+                    'merge them into one enclosing ellipse (S13 #3)',
+                    f'obstacles[{b}]',
+                )
 
 
 # ------------------------------------------------------------------------------------------------
 # Writing a scenario back (run directories keep the exact scenario they ran)
 # ------------------------------------------------------------------------------------------------
 
+
 def _path_to_mapping(path) -> dict:
     from ament_formation.core.paths import LinePath, SinusoidPath, WaypointPath
 
     if isinstance(path, SinusoidPath):
-        return {"type": "sinusoid", "start_m": list(path.start_m), "amplitude_m": path.amplitude_m,
-                "wavenumber_radpm": path.wavenumber_radpm, "speed_mps": path.speed_mps,
-                "heading_rad": path.heading_rad}
+        return {
+            'type': 'sinusoid',
+            'start_m': list(path.start_m),
+            'amplitude_m': path.amplitude_m,
+            'wavenumber_radpm': path.wavenumber_radpm,
+            'speed_mps': path.speed_mps,
+            'heading_rad': path.heading_rad,
+        }
     if isinstance(path, LinePath):
-        return {"type": "line", "start_m": list(path.start_m), "heading_rad": path.heading_rad,
-                "speed_mps": path.speed_mps}
+        return {
+            'type': 'line',
+            'start_m': list(path.start_m),
+            'heading_rad': path.heading_rad,
+            'speed_mps': path.speed_mps,
+        }
     if isinstance(path, WaypointPath):
-        return {"type": "waypoints", "points_m": [list(p) for p in path.points_m],
-                "speed_mps": path.speed_mps, "accel_mps2": path.accel_mps2}
-    raise TypeError(f"unknown path {path!r}")
+        return {
+            'type': 'waypoints',
+            'points_m': [list(p) for p in path.points_m],
+            'speed_mps': path.speed_mps,
+            'accel_mps2': path.accel_mps2,
+        }
+    raise TypeError(f'unknown path {path!r}')
 
 
 def scenario_to_mapping(scenario: Scenario) -> dict:
     """The scenario as a mapping that :func:`parse_scenario` reads back to an equal Scenario.
 
-    Every robot lists all its parameters explicitly (no ``robot:`` defaults block)."""
+    Every robot lists all its parameters explicitly (no ``robot:`` defaults block).
+    """
+
     def floats(values):
         return [float(v) for v in values]
 
     robots = []
     for r in scenario.robots:
-        item = {"id": r.id, "leader": r.leader, "slot_m": floats(r.slot_m),
-                "initial_pose": floats(r.initial_pose), "marker_id": r.marker_id}
+        item = {
+            'id': r.id,
+            'leader': r.leader,
+            'slot_m': floats(r.slot_m),
+            'initial_pose': floats(r.initial_pose),
+            'marker_id': r.marker_id,
+        }
         if r.path is not None:
-            item["path"] = _path_to_mapping(r.path)
+            item['path'] = _path_to_mapping(r.path)
         for f in fields(RobotParams):
             value = getattr(r.params, f.name)
             item[f.name] = None if value is None else float(value)
         robots.append(item)
     obstacles = []
     for o in scenario.obstacles:
-        item = {"name": o.name, "center_m": floats(o.center_m), "semi_axes_m": floats(o.semi_axes_m),
-                "orientation_rad": float(o.orientation_rad), "velocity_mps": floats(o.velocity_mps),
-                "angular_velocity_radps": float(o.angular_velocity_radps)}
+        item = {
+            'name': o.name,
+            'center_m': floats(o.center_m),
+            'semi_axes_m': floats(o.semi_axes_m),
+            'orientation_rad': float(o.orientation_rad),
+            'velocity_mps': floats(o.velocity_mps),
+            'angular_velocity_radps': float(o.angular_velocity_radps),
+        }
         if o.oscillation_period_s > 0:
-            item["oscillation"] = {"amplitude_m": floats(o.oscillation_amplitude_m),
-                                   "period_s": float(o.oscillation_period_s)}
+            item['oscillation'] = {
+                'amplitude_m': floats(o.oscillation_amplitude_m),
+                'period_s': float(o.oscillation_period_s),
+            }
         obstacles.append(item)
     out = {
-        "name": scenario.name,
-        "duration_s": float(scenario.duration_s),
-        "disturbance": {"accel_bound": floats(scenario.disturbance.accel_bound),
-                        "seed": int(scenario.disturbance.seed)},
-        "robots": robots,
-        "graph": {"edges": [[int(u), int(v)] for u, v in scenario.edges]},
-        "obstacles": obstacles,
-        "avoidance": {f.name: float(getattr(scenario.avoidance, f.name)) for f in fields(AvoidanceParams)},
-        "control": {f.name: float(getattr(scenario.control, f.name)) for f in fields(ControlGains)},
-        "camera": {"fps": float(scenario.camera.fps), "width_px": int(scenario.camera.width_px),
-                   "height_px": int(scenario.camera.height_px)},
+        'name': scenario.name,
+        'duration_s': float(scenario.duration_s),
+        'disturbance': {
+            'accel_bound': floats(scenario.disturbance.accel_bound),
+            'seed': int(scenario.disturbance.seed),
+        },
+        'robots': robots,
+        'graph': {'edges': [[int(u), int(v)] for u, v in scenario.edges]},
+        'obstacles': obstacles,
+        'avoidance': {
+            f.name: float(getattr(scenario.avoidance, f.name)) for f in fields(AvoidanceParams)
+        },
+        'control': {
+            f.name: float(getattr(scenario.control, f.name)) for f in fields(ControlGains)
+        },
+        'camera': {
+            'fps': float(scenario.camera.fps),
+            'width_px': int(scenario.camera.width_px),
+            'height_px': int(scenario.camera.height_px),
+        },
     }
     e = scenario.expect
     if not e.empty:
         expect = {}
-        for key in ("settled_rms_max_m", "final_error_max_m"):
+        for key in ('settled_rms_max_m', 'final_error_max_m'):
             if getattr(e, key):
                 expect[key] = {int(rid): float(v) for rid, v in getattr(e, key)}
         if e.avoidance_entries:
-            expect["avoidance_entries"] = {int(rid): [int(lo), int(hi)] for rid, (lo, hi) in e.avoidance_entries}
-        for key in ("min_clearance_m", "min_inter_robot_distance_m"):
+            expect['avoidance_entries'] = {
+                int(rid): [int(lo), int(hi)] for rid, (lo, hi) in e.avoidance_entries
+            }
+        for key in ('min_clearance_m', 'min_inter_robot_distance_m'):
             if getattr(e, key) is not None:
                 expect[key] = float(getattr(e, key))
-        out["expect"] = expect
+        out['expect'] = expect
     return out
 
 

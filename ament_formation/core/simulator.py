@@ -18,25 +18,45 @@ Structure (fast path, numba ``cache=True``):
   sigma0 = ||sigma(t_s)||_inf and the time until ||sigma||_inf <= epsilon; the S3.4 bound is
   ||sigma0||_inf / lambda.
 """
+
 from __future__ import annotations
 
 import math
 import time
 from typing import Callable
 
-import numpy as np
 from numba import njit
+import numpy as np
 
 from ament_formation.core.automaton import (
-    MODE_C, MODE_MUTUAL, MODE_NAMES, MODE_OBSTACLE, P_BETA0, P_DRIFT_TAU, P_L,
-    P_PSI_SLOW, P_TAU_G, P_VTAN, P_VTAN_AGENT, SwitchingParams, design_gains,
+    design_gains,
+    MODE_C,
+    MODE_MUTUAL,
+    MODE_NAMES,
+    MODE_OBSTACLE,
+    P_BETA0,
+    P_DRIFT_TAU,
+    P_L,
+    P_PSI_SLOW,
+    P_TAU_G,
+    P_VTAN,
+    P_VTAN_AGENT,
+    SwitchingParams,
 )
 from ament_formation.core.disturbance import Disturbance
 from ament_formation.core.dynamics import PlantCoeffs
 from ament_formation.core.encounters import decide, keepout_radius
 from ament_formation.core.kernels import (
-    disturbance_k, disturbance_phasor_advance_k, disturbance_phasor_init_k, ellipse_field_k, gain_schedule_k,
-    parking_factor_k, point_velocity_k, rk4_step_k, smc_torque_k, tracking_field_k,
+    disturbance_k,
+    disturbance_phasor_advance_k,
+    disturbance_phasor_init_k,
+    ellipse_field_k,
+    gain_schedule_k,
+    parking_factor_k,
+    point_velocity_k,
+    rk4_step_k,
+    smc_torque_k,
+    tracking_field_k,
 )
 from ament_formation.core.trajectory import SimResult
 
@@ -46,11 +66,13 @@ G_K, G_EPS, G_ALPHA, G_VCAP, G_LAMBDA = range(5)
 
 # ------------------------------------------------------------------------------ obstacles (S6.1)
 
+
 @njit(cache=True)
 def obstacle_states(t, c0, vel, amp, omega, phi0, phid, oc, ov, oa, ophi, ophid, ophidd):
     """Centre, velocity, acceleration, orientation and rates of every obstacle at t (into the outputs).
 
-    Motion model of :class:`ament_formation.core.obstacles.ObstacleField`: c = c0 + v t + A sin(w t),
+    Motion model of :class:`ament_formation.core.obstacles.ObstacleField`: c = c0 + v t + A sin(w
+    t),
     phi = phi0 + phi_dot t.
     """
     for j in range(c0.shape[0]):
@@ -65,14 +87,16 @@ def obstacle_states(t, c0, vel, amp, omega, phi0, phid, oc, ov, oa, ophi, ophid,
         ophidd[j] = 0.0
 
 
-REF_SUB = 10   # leader references are tabulated every REF_SUB steps and interpolated
+REF_SUB = 10  # leader references are tabulated every REF_SUB steps and interpolated
 
 
 @njit(cache=True)
 def reference_at(step, sub, dt, tab, ref, rows):
     """Quintic Hermite interpolation of the tabulated leader references (exact r, r_dot, r_ddot at
-    the grid nodes, C2 in between; error ~ h^6 r^(6)) for step ``step`` of the chunk -> ``ref`` (N, 6)
-    rows ``rows`` (the leaders; other rows are left untouched)."""
+    the grid nodes, C2 in between; error ~ h^6 r^(6)) for step ``step`` of the chunk -> ``ref`` (N,
+    6)
+    rows ``rows`` (the leaders; other rows are left untouched).
+    """
     g = step // sub
     h = sub * dt
     s = (step - g * sub) / sub
@@ -113,9 +137,37 @@ def reference_at(step, sub, dt, tab, ref, rows):
 
 # ------------------------------------------------------------------------------ one robot's law
 
+
 @njit(cache=True)
-def robot_law(i, t, x, pd, acmd, parent, offset, ref, goal, goal_dot, mode, tgt, sdir, t_entry,
-              wc, wtgt, oc, ov, oa, ophi, ophid, ophidd, oaxes, rbody, coeffs, gains, prm):
+def robot_law(
+    i,
+    t,
+    x,
+    pd,
+    acmd,
+    parent,
+    offset,
+    ref,
+    goal,
+    goal_dot,
+    mode,
+    tgt,
+    sdir,
+    t_entry,
+    wc,
+    wtgt,
+    oc,
+    ov,
+    oa,
+    ophi,
+    ophid,
+    ophidd,
+    oaxes,
+    rbody,
+    coeffs,
+    gains,
+    prm,
+):
     """Torque of robot i at time t in its current mode (S3.2 with the mode's V_d, V_d_dot).
 
     Parameters
@@ -145,15 +197,32 @@ def robot_law(i, t, x, pd, acmd, parent, offset, ref, goal, goal_dot, mode, tgt,
     md = mode[i]
     if md == MODE_C:
         j = parent[i]
-        if j < 0:   # leader: e = p - r (S4)
+        if j < 0:  # leader: e = p - r (S4)
             vdx, vdy, vddx, vddy = tracking_field_k(
-                x[i, 0] - ref[i, 0], x[i, 1] - ref[i, 1], ref[i, 2], ref[i, 3], ref[i, 4],
-                ref[i, 5], pdx, pdy, gains[G_ALPHA], gains[G_VCAP])
-        else:       # follower: e = p_i - p_j - delta, feed-forward a_j (S4)
+                x[i, 0] - ref[i, 0],
+                x[i, 1] - ref[i, 1],
+                ref[i, 2],
+                ref[i, 3],
+                ref[i, 4],
+                ref[i, 5],
+                pdx,
+                pdy,
+                gains[G_ALPHA],
+                gains[G_VCAP],
+            )
+        else:  # follower: e = p_i - p_j - delta, feed-forward a_j (S4)
             vdx, vdy, vddx, vddy = tracking_field_k(
-                x[i, 0] - x[j, 0] - offset[i, 0], x[i, 1] - x[j, 1] - offset[i, 1],
-                pd[j, 0], pd[j, 1], acmd[j, 0], acmd[j, 1], pdx, pdy, gains[G_ALPHA],
-                gains[G_VCAP])
+                x[i, 0] - x[j, 0] - offset[i, 0],
+                x[i, 1] - x[j, 1] - offset[i, 1],
+                pd[j, 0],
+                pd[j, 1],
+                acmd[j, 0],
+                acmd[j, 1],
+                pdx,
+                pdy,
+                gains[G_ALPHA],
+                gains[G_VCAP],
+            )
     else:
         k = tgt[i]
         if md == MODE_OBSTACLE:
@@ -184,7 +253,7 @@ def robot_law(i, t, x, pd, acmd, parent, offset, ref, goal, goal_dot, mode, tgt,
             vtan = prm[P_VTAN_AGENT]
         big1 = prm[P_L] * r1
         big2 = prm[P_L] * r2
-        psi_max, c_max = design_gains(r1, r2, vtan, prm)       # S6.5
+        psi_max, c_max = design_gains(r1, r2, vtan, prm)  # S6.5
         zx = x[i, 0] - cx
         zy = x[i, 1] - cy
         zdx = pdx - cvx
@@ -194,14 +263,29 @@ def robot_law(i, t, x, pd, acmd, parent, offset, ref, goal, goal_dot, mode, tgt,
             mu = 1.0
             mud = 0.0
         else:
-            mu, mud = parking_factor_k(zx, zy, zdx, zdy, goal[i, 0] - cx, goal[i, 1] - cy,
-                                     goal_dot[i, 0] - cvx, goal_dot[i, 1] - cvy, phi, phd,
-                                     big1, big2, s, prm[P_PSI_SLOW])
-        psd, psdd, cc, ccd = gain_schedule_k(t - t_entry[i], psi_max, c_max, s, mu, mud,
-                                             prm[P_BETA0], prm[P_TAU_G])
-        fx, fy, fdx, fdy, h, hd = ellipse_field_k(zx, zy, zdx, zdy, phi, phd, phdd, big1, big2,
-                                                  psd, psdd, cc, ccd)
-        if md == MODE_MUTUAL:   # S7 reciprocal field: V_d = w_c + F/2
+            mu, mud = parking_factor_k(
+                zx,
+                zy,
+                zdx,
+                zdy,
+                goal[i, 0] - cx,
+                goal[i, 1] - cy,
+                goal_dot[i, 0] - cvx,
+                goal_dot[i, 1] - cvy,
+                phi,
+                phd,
+                big1,
+                big2,
+                s,
+                prm[P_PSI_SLOW],
+            )
+        psd, psdd, cc, ccd = gain_schedule_k(
+            t - t_entry[i], psi_max, c_max, s, mu, mud, prm[P_BETA0], prm[P_TAU_G]
+        )
+        fx, fy, fdx, fdy, h, hd = ellipse_field_k(
+            zx, zy, zdx, zdy, phi, phd, phdd, big1, big2, psd, psdd, cc, ccd
+        )
+        if md == MODE_MUTUAL:  # S7 reciprocal field: V_d = w_c + F/2
             tau = prm[P_DRIFT_TAU]
             wdx = (wtgt[i, 0] - wc[i, 0]) / tau
             wdy = (wtgt[i, 1] - wc[i, 1]) / tau
@@ -209,19 +293,37 @@ def robot_law(i, t, x, pd, acmd, parent, offset, ref, goal, goal_dot, mode, tgt,
             vdy = wc[i, 1] + 0.5 * fy
             vddx = wdx + 0.5 * fdx
             vddy = wdy + 0.5 * fdy
-        else:                   # S6.3/S6.4 (obstacle) and S7 yield: V_d = x~dot + F
+        else:  # S6.3/S6.4 (obstacle) and S7 yield: V_d = x~dot + F
             vdx = cvx + fx
             vdy = cvy + fy
             vddx = cax + fdx
             vddy = cay + fdy
     t1, t2, sx, sy, sat, acx, acy = smc_torque_k(
-        th, v, w, vdx, vdy, vddx, vddy, coeffs[0, i], coeffs[1, i], coeffs[2, i], coeffs[3, i],
-        coeffs[4, i], coeffs[5, i], coeffs[6, i], gains[G_K], gains[G_K], gains[G_EPS])
+        th,
+        v,
+        w,
+        vdx,
+        vdy,
+        vddx,
+        vddy,
+        coeffs[0, i],
+        coeffs[1, i],
+        coeffs[2, i],
+        coeffs[3, i],
+        coeffs[4, i],
+        coeffs[5, i],
+        coeffs[6, i],
+        gains[G_K],
+        gains[G_K],
+        gains[G_EPS],
+    )
     return t1, t2, sx, sy, sat, acx, acy, wdx, wdy
 
 
 @njit(cache=True)
-def goals_and_fields(x, pd, ref, orig_parent, orig_offset, gains, goal, goal_dot, vc, with_fields=True):
+def goals_and_fields(
+    x, pd, ref, orig_parent, orig_offset, gains, goal, goal_dot, vc, with_fields=True
+):
     """Formation goal g_i, its velocity and the coordination field V_c = g_dot - Phi(p - g) (S8.3).
 
     Leaders: g = r(t). Followers: g = p of the original parent + delta (S8.3 item 1). V_c only
@@ -242,16 +344,28 @@ def goals_and_fields(x, pd, ref, orig_parent, orig_offset, gains, goal, goal_dot
             goal_dot[i, 1] = pd[j, 1]
         if not with_fields:
             continue
-        vdx, vdy, _, _ = tracking_field_k(x[i, 0] - goal[i, 0], x[i, 1] - goal[i, 1],
-                                          goal_dot[i, 0], goal_dot[i, 1], 0.0, 0.0, pd[i, 0],
-                                          pd[i, 1], gains[G_ALPHA], gains[G_VCAP])
+        vdx, vdy, _, _ = tracking_field_k(
+            x[i, 0] - goal[i, 0],
+            x[i, 1] - goal[i, 1],
+            goal_dot[i, 0],
+            goal_dot[i, 1],
+            0.0,
+            0.0,
+            pd[i, 0],
+            pd[i, 1],
+            gains[G_ALPHA],
+            gains[G_VCAP],
+        )
         vc[i, 0] = vdx
         vc[i, 1] = vdy
 
 
-def goal_fields(x, pd, ref, orig_parent, orig_offset, gains) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def goal_fields(
+    x, pd, ref, orig_parent, orig_offset, gains
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`goals_and_fields` into new arrays: (goal, goal_dot, V_c), each (N, 2). For callers
-    that evaluate one snapshot (core/controller.py, core/arbiter.py); the simulator reuses buffers."""
+    that evaluate one snapshot (core/controller.py, core/arbiter.py); the simulator reuses buffers.
+    """
     n = x.shape[0]
     goal, goal_dot, vc = np.zeros((n, 2)), np.zeros((n, 2)), np.zeros((n, 2))
     goals_and_fields(x, pd, ref, orig_parent, orig_offset, gains, goal, goal_dot, vc, True)
@@ -260,16 +374,76 @@ def goal_fields(x, pd, ref, orig_parent, orig_offset, gains) -> tuple[np.ndarray
 
 # ------------------------------------------------------------------------------ the 1 kHz loop
 
+
 @njit(cache=True)
-def _run_segment(k0, k_end, skip_decide, dt, dec_every, rec_every, ref_k0, ref_sub, ref_tab,
-                 leader_rows,
-                 x, acmd, torque, sat_flag, pd, goal, goal_dot, vc, ref,
-                 parent, offset, order, orig_parent, orig_offset, team, rbody, coeffs, gains,
-                 d_amp, d_freq, d_phase, d_hc, d_hs,
-                 ob_c0, ob_v, ob_amp, ob_w, ob_phi0, ob_phid, oaxes, ostatic,
-                 mode, tgt, sdir, t_entry, since, last_kind, last_tgt, last_exit, wc, wtgt, prm,
-                 ev, reach_pending, reach_active, reach_t0, reach_sig0, reach_rec, nreach,
-                 rec_state, rec_torque, rec_goal, rec_avoid, rec_sat, rec_oc, rec_ophi):
+def _run_segment(
+    k0,
+    k_end,
+    skip_decide,
+    dt,
+    dec_every,
+    rec_every,
+    ref_k0,
+    ref_sub,
+    ref_tab,
+    leader_rows,
+    x,
+    acmd,
+    torque,
+    sat_flag,
+    pd,
+    goal,
+    goal_dot,
+    vc,
+    ref,
+    parent,
+    offset,
+    order,
+    orig_parent,
+    orig_offset,
+    team,
+    rbody,
+    coeffs,
+    gains,
+    d_amp,
+    d_freq,
+    d_phase,
+    d_hc,
+    d_hs,
+    ob_c0,
+    ob_v,
+    ob_amp,
+    ob_w,
+    ob_phi0,
+    ob_phid,
+    oaxes,
+    ostatic,
+    mode,
+    tgt,
+    sdir,
+    t_entry,
+    since,
+    last_kind,
+    last_tgt,
+    last_exit,
+    wc,
+    wtgt,
+    prm,
+    ev,
+    reach_pending,
+    reach_active,
+    reach_t0,
+    reach_sig0,
+    reach_rec,
+    nreach,
+    rec_state,
+    rec_torque,
+    rec_goal,
+    rec_avoid,
+    rec_sat,
+    rec_oc,
+    rec_ophi,
+):
     """Steps k0 .. k_end-1 of the closed loop. Returns (next step, number of new events)."""
     n = x.shape[0]
     m = ob_c0.shape[0]
@@ -283,15 +457,16 @@ def _run_segment(k0, k_end, skip_decide, dt, dec_every, rec_every, ref_k0, ref_s
     d_sin = np.empty_like(d_amp)
     d_cos = np.empty_like(d_amp)
     g_prev = np.empty((n, 2))
-    pos = np.empty((n, 2))      # contiguous positions for decide (one compiled specialisation)
-    nev0 = np.int64(0)          # not a literal 0: same specialisation as calls from Python
-    for i in range(n):      # (re-)start the disturbance phasors at t(k0): no drift accumulates
+    pos = np.empty((n, 2))  # contiguous positions for decide (one compiled specialisation)
+    nev0 = np.int64(0)  # not a literal 0: same specialisation as calls from Python
+    for i in range(n):  # (re-)start the disturbance phasors at t(k0): no drift accumulates
         disturbance_phasor_init_k(k0 * dt, d_freq[i], d_phase[i], d_sin[i], d_cos[i])
         g_prev[i, 0], g_prev[i, 1] = disturbance_k(k0 * dt, d_amp[i], d_freq[i], d_phase[i])
     for kk in range(k0, k_end):
         t = kk * dt
-        obstacle_states(t, ob_c0, ob_v, ob_amp, ob_w, ob_phi0, ob_phid, oc, ov, oa, ophi, ophid,
-                        ophidd)
+        obstacle_states(
+            t, ob_c0, ob_v, ob_amp, ob_w, ob_phi0, ob_phid, oc, ov, oa, ophi, ophid, ophidd
+        )
         reference_at(kk - ref_k0, ref_sub, dt, ref_tab, ref, leader_rows)
         for i in range(n):
             pvx, pvy = point_velocity_k(x[i, 2], x[i, 3], x[i, 4], coeffs[4, i])
@@ -303,17 +478,69 @@ def _run_segment(k0, k_end, skip_decide, dt, dec_every, rec_every, ref_k0, ref_s
             for i in range(n):
                 pos[i, 0] = x[i, 0]
                 pos[i, 1] = x[i, 1]
-            nev = decide(t, pos, pd, goal, goal_dot, vc, team, rbody, oc, ov, ophi, ophid,
-                         oaxes, ostatic, mode, tgt, sdir, t_entry, since, last_kind, last_tgt,
-                         last_exit, wc, wtgt, prm, ev, nev0)
+            nev = decide(
+                t,
+                pos,
+                pd,
+                goal,
+                goal_dot,
+                vc,
+                team,
+                rbody,
+                oc,
+                ov,
+                ophi,
+                ophid,
+                oaxes,
+                ostatic,
+                mode,
+                tgt,
+                sdir,
+                t_entry,
+                since,
+                last_kind,
+                last_tgt,
+                last_exit,
+                wc,
+                wtgt,
+                prm,
+                ev,
+                nev0,
+            )
             if nev > 0:
                 return kk, nev
         # ---- law, parents before children (S4 feed-forward of the current a_j)
         for q in range(n):
             i = order[q]
             t1, t2, sx, sy, sat, acx, acy, wdx, wdy = robot_law(
-                i, t, x, pd, acmd, parent, offset, ref, goal, goal_dot, mode, tgt, sdir, t_entry,
-                wc, wtgt, oc, ov, oa, ophi, ophid, ophidd, oaxes, rbody, coeffs, gains, prm)
+                i,
+                t,
+                x,
+                pd,
+                acmd,
+                parent,
+                offset,
+                ref,
+                goal,
+                goal_dot,
+                mode,
+                tgt,
+                sdir,
+                t_entry,
+                wc,
+                wtgt,
+                oc,
+                ov,
+                oa,
+                ophi,
+                ophid,
+                ophidd,
+                oaxes,
+                rbody,
+                coeffs,
+                gains,
+                prm,
+            )
             torque[i, 0] = t1
             torque[i, 1] = t2
             sat_flag[i] = sat
@@ -331,7 +558,7 @@ def _run_segment(k0, k_end, skip_decide, dt, dec_every, rec_every, ref_k0, ref_s
                     reach_rec[r, 1] = reach_t0[i]
                     reach_rec[r, 2] = reach_sig0[i]
                     reach_rec[r, 3] = t - reach_t0[i]
-                    reach_rec[r, 4] = 0.0          # interrupted by the next switch
+                    reach_rec[r, 4] = 0.0  # interrupted by the next switch
                     nreach[0] = r + 1
                 reach_pending[i] = False
                 reach_active[i] = True
@@ -373,9 +600,28 @@ def _run_segment(k0, k_end, skip_decide, dt, dec_every, rec_every, ref_k0, ref_s
             g1a, g1b = disturbance_phasor_advance_k(d_amp[i], d_sin[i], d_cos[i], d_hc[i], d_hs[i])
             g_prev[i, 0] = g1a
             g_prev[i, 1] = g1b
-            nx = rk4_step_k(x[i, 0], x[i, 1], x[i, 2], x[i, 3], x[i, 4], torque[i, 0],
-                            torque[i, 1], g0a, g0b, gha, ghb, g1a, g1b, dt, coeffs[0, i],
-                            coeffs[1, i], coeffs[2, i], coeffs[3, i], coeffs[4, i], coeffs[5, i])
+            nx = rk4_step_k(
+                x[i, 0],
+                x[i, 1],
+                x[i, 2],
+                x[i, 3],
+                x[i, 4],
+                torque[i, 0],
+                torque[i, 1],
+                g0a,
+                g0b,
+                gha,
+                ghb,
+                g1a,
+                g1b,
+                dt,
+                coeffs[0, i],
+                coeffs[1, i],
+                coeffs[2, i],
+                coeffs[3, i],
+                coeffs[4, i],
+                coeffs[5, i],
+            )
             for q in range(5):
                 x[i, q] = nx[q]
     return k_end, 0
@@ -383,10 +629,12 @@ def _run_segment(k0, k_end, skip_decide, dt, dec_every, rec_every, ref_k0, ref_s
 
 # ------------------------------------------------------------------------------ Python driver
 
+
 def obstacle_arrays(obs) -> tuple:
     """Motion parameters of obstacle specs for :func:`obstacle_states`: (c0 (M, 2), v (M, 2),
     oscillation amplitude (M, 2), oscillation rate w (M,) [rad/s], phi0 (M,), phi_dot (M,),
-    semi-axes of P (M, 2), static (M,) bool)."""
+    semi-axes of P (M, 2), static (M,) bool).
+    """
     obs = tuple(obs)
     m = len(obs)
     c0 = np.array([o.center_m for o in obs], dtype=float).reshape(m, 2)
@@ -414,25 +662,50 @@ class _Setup:
         self.n = n
         self.robots = robots
         k = PlantCoeffs.from_params([r.params for r in robots])
-        self.coeffs = np.ascontiguousarray(np.stack(
-            [k.m_tilde, k.I_tilde, k.r, k.a, k.d, k.m_c, k.tau_max]))
+        self.coeffs = np.ascontiguousarray(
+            np.stack([k.m_tilde, k.I_tilde, k.r, k.a, k.d, k.m_c, k.tau_max])
+        )
         self.rbody = np.array([r.params.body_radius_m for r in robots], dtype=float)
         gains = scenario.control
-        self.gains = np.array([gains.switching_gain_mps2, gains.boundary_layer_mps,
-                               gains.formation_gain_per_s, gains.formation_speed_cap_mps,
-                               gains.reaching_rate_mps2], dtype=float)
-        self.prm = SwitchingParams(avoidance=scenario.avoidance,
-                                   **{f: getattr(switching, f) for f in (
-                                       "decision_period_s", "imminent_s", "agent_horizon_s",
-                                       "teammate_rel_speed_mps", "mutual_drift_tau_s",
-                                       "mutual_drift_cap_mps")}).as_array()
+        self.gains = np.array(
+            [
+                gains.switching_gain_mps2,
+                gains.boundary_layer_mps,
+                gains.formation_gain_per_s,
+                gains.formation_speed_cap_mps,
+                gains.reaching_rate_mps2,
+            ],
+            dtype=float,
+        )
+        self.prm = SwitchingParams(
+            avoidance=scenario.avoidance,
+            **{
+                f: getattr(switching, f)
+                for f in (
+                    'decision_period_s',
+                    'imminent_s',
+                    'agent_horizon_s',
+                    'teammate_rel_speed_mps',
+                    'mutual_drift_tau_s',
+                    'mutual_drift_cap_mps',
+                )
+            },
+        ).as_array()
         bound = np.asarray(scenario.disturbance.accel_bound, dtype=float)
         dist = Disturbance.from_bounds(n, bound, scenario.disturbance.seed)
         self.d_amp, self.d_freq, self.d_phase = dist.amplitude, dist.freq_hz, dist.phase_rad
-        self.d_hc, self.d_hs = dist.step_rotation(0.5 * dt_s)     # half-step phasor rotation
+        self.d_hc, self.d_hs = dist.step_rotation(0.5 * dt_s)  # half-step phasor rotation
         self.obstacle_names = tuple(o.name for o in scenario.obstacles)
-        (self.ob_c0, self.ob_v, self.ob_amp, self.ob_w, self.ob_phi0, self.ob_phid, self.oaxes,
-         self.ostatic) = obstacle_arrays(scenario.obstacles)
+        (
+            self.ob_c0,
+            self.ob_v,
+            self.ob_amp,
+            self.ob_w,
+            self.ob_phi0,
+            self.ob_phid,
+            self.oaxes,
+            self.ostatic,
+        ) = obstacle_arrays(scenario.obstacles)
         slots = {r.id: np.asarray(r.slot_m, dtype=float) for r in robots}
         self.slots = np.array([slots[rid] for rid in self.ids], dtype=float).reshape(n, 2)
         self.graph = FormationGraph.from_scenario(scenario)
@@ -473,13 +746,14 @@ class _Setup:
         while q < len(order):
             order.extend(children[order[q]])
             q += 1
-        if len(order) != n:   # a cycle cannot come out of S9; keep every robot anyway
+        if len(order) != n:  # a cycle cannot come out of S9; keep every robot anyway
             order += [i for i in range(n) if i not in set(order)]
         return parent, offset, np.array(order, dtype=np.int64)
 
     def reference_table(self, k0: int, k1: int, dt_s: float) -> np.ndarray:
         """(N, G, 6) leader references [r, r_dot, r_ddot] on the grid t = (k0 + REF_SUB g) dt_s
-        covering steps k0 .. k1-1 (zeros for followers); :func:`reference_at` interpolates."""
+        covering steps k0 .. k1-1 (zeros for followers); :func:`reference_at` interpolates.
+        """
         n_grid = (k1 - k0 - 1) // REF_SUB + 2
         tab = np.zeros((self.n, n_grid, 6))
         t = (k0 + REF_SUB * np.arange(n_grid)) * dt_s
@@ -495,12 +769,18 @@ class _Setup:
 def _target_name(setup: _Setup, mode: int, target: int) -> str:
     if mode == MODE_OBSTACLE:
         return setup.obstacle_names[target]
-    return f"robot_{setup.ids[target]}"
+    return f'robot_{setup.ids[target]}'
 
 
-def simulate(scenario, *, dt_s: float = 0.001, record_every_s: float = 0.01,
-             progress: Callable[[float, float], None] | None = None,
-             switching: SwitchingParams | None = None, chunk_s: float = 5.0) -> SimResult:
+def simulate(
+    scenario,
+    *,
+    dt_s: float = 0.001,
+    record_every_s: float = 0.01,
+    progress: Callable[[float, float], None] | None = None,
+    switching: SwitchingParams | None = None,
+    chunk_s: float = 5.0,
+) -> SimResult:
     """Run the closed loop of ``scenario`` for its ``duration_s`` and return the record.
 
     Parameters
@@ -515,7 +795,7 @@ def simulate(scenario, *, dt_s: float = 0.001, record_every_s: float = 0.01,
     """
     wall0 = time.perf_counter()
     if not (dt_s > 0 and math.isfinite(dt_s)):
-        raise ValueError(f"dt_s: must be a finite number > 0 (got {dt_s!r})")
+        raise ValueError(f'dt_s: must be a finite number > 0 (got {dt_s!r})')
     switching = switching or SwitchingParams(avoidance=scenario.avoidance)
     setup = _Setup(scenario, dt_s, switching)
     n = setup.n
@@ -564,16 +844,23 @@ def simulate(scenario, *, dt_s: float = 0.001, record_every_s: float = 0.01,
     parents = setup.graph.rewire(set())
     parent, offset, order = setup.parents_from(parents)
     mode_events: list[dict] = []
-    graph_events: list[dict] = [{"t_s": 0.0, "parents": _parents_json(parents)}]
+    graph_events: list[dict] = [{'t_s': 0.0, 'parents': _parents_json(parents)}]
     reaching: list[dict] = []
     lam = float(setup.gains[G_LAMBDA])
 
     def drain_reaching() -> None:
         for r in range(int(nreach[0])):
             i, t0, s0, tr, done = reach_rec[r]
-            reaching.append({"robot": setup.ids[int(i)], "t_s": float(t0),
-                             "sigma0_inf_mps": float(s0), "t_reach_s": float(tr),
-                             "bound_s": float(s0) / lam, "completed": bool(done)})
+            reaching.append(
+                {
+                    'robot': setup.ids[int(i)],
+                    't_s': float(t0),
+                    'sigma0_inf_mps': float(s0),
+                    't_reach_s': float(tr),
+                    'bound_s': float(s0) / lam,
+                    'completed': bool(done),
+                }
+            )
         nreach[0] = 0
 
     k = 0
@@ -584,35 +871,96 @@ def simulate(scenario, *, dt_s: float = 0.001, record_every_s: float = 0.01,
         ref_tab = setup.reference_table(k, k_chunk_end, dt_s)
         while k < k_chunk_end:
             k, nev = _run_segment(
-                k, k_chunk_end, skip, dt_s, dec_every, rec_every, ref_k0, REF_SUB, ref_tab,
+                k,
+                k_chunk_end,
+                skip,
+                dt_s,
+                dec_every,
+                rec_every,
+                ref_k0,
+                REF_SUB,
+                ref_tab,
                 setup.leader_rows,
-                x, acmd, torque, sat_flag, pd, goal, goal_dot, vc, ref,
-                parent, offset, order, setup.orig_parent, setup.orig_offset, setup.team,
-                setup.rbody, setup.coeffs, setup.gains, setup.d_amp, setup.d_freq, setup.d_phase,
-                setup.d_hc, setup.d_hs,
-                setup.ob_c0, setup.ob_v, setup.ob_amp, setup.ob_w, setup.ob_phi0, setup.ob_phid,
-                setup.oaxes, setup.ostatic, mode, tgt, sdir, t_entry, since, last_kind, last_tgt,
-                last_exit, wc, wtgt, setup.prm, ev, reach_pending, reach_active, reach_t0,
-                reach_sig0, reach_rec, nreach, rec_state, rec_torque, rec_goal, rec_avoid,
-                rec_sat, rec_oc, rec_ophi)
+                x,
+                acmd,
+                torque,
+                sat_flag,
+                pd,
+                goal,
+                goal_dot,
+                vc,
+                ref,
+                parent,
+                offset,
+                order,
+                setup.orig_parent,
+                setup.orig_offset,
+                setup.team,
+                setup.rbody,
+                setup.coeffs,
+                setup.gains,
+                setup.d_amp,
+                setup.d_freq,
+                setup.d_phase,
+                setup.d_hc,
+                setup.d_hs,
+                setup.ob_c0,
+                setup.ob_v,
+                setup.ob_amp,
+                setup.ob_w,
+                setup.ob_phi0,
+                setup.ob_phid,
+                setup.oaxes,
+                setup.ostatic,
+                mode,
+                tgt,
+                sdir,
+                t_entry,
+                since,
+                last_kind,
+                last_tgt,
+                last_exit,
+                wc,
+                wtgt,
+                setup.prm,
+                ev,
+                reach_pending,
+                reach_active,
+                reach_t0,
+                reach_sig0,
+                reach_rec,
+                nreach,
+                rec_state,
+                rec_torque,
+                rec_goal,
+                rec_avoid,
+                rec_sat,
+                rec_oc,
+                rec_ophi,
+            )
             if nreach[0] > reach_rec.shape[0] // 2:
                 drain_reaching()
             skip = False
             if nev == 0:
                 continue
             if nev > ev.shape[0]:
-                raise RuntimeError("mode event buffer overflow")   # cannot happen: <= 8 per robot
+                raise RuntimeError('mode event buffer overflow')  # cannot happen: <= 8 per robot
             skip = True
             changed = set()
             for row in ev[:nev]:
                 t_ev, i, enter, md, target, s = row
                 i = int(i)
                 changed.add(i)
-                mode_events.append({
-                    "t_s": round(float(t_ev), 9), "robot": setup.ids[i],
-                    "event": "enter" if enter > 0.5 else "exit",
-                    "mode": MODE_NAMES[int(md)], "target": _target_name(setup, int(md), int(target)),
-                    "direction": "ccw" if s > 0 else "cw"})
+                mode_events.append(
+                    {
+                        't_s': round(float(t_ev), 9),
+                        'robot': setup.ids[i],
+                        'event': 'enter' if enter > 0.5 else 'exit',
+                        'mode': MODE_NAMES[int(md)],
+                        'target': _target_name(setup, int(md), int(target)),
+                        'direction': 'ccw' if s > 0 else 'cw',
+                    }
+                )
             for i in changed:
                 reach_pending[i] = True
             now_avoiding = frozenset(setup.ids[i] for i in range(n) if mode[i] != MODE_C)
@@ -625,17 +973,30 @@ def simulate(scenario, *, dt_s: float = 0.001, record_every_s: float = 0.01,
                 parent = new_parent
                 if new_parents != parents:
                     parents = new_parents
-                    graph_events.append({"t_s": round(k * dt_s, 9),
-                                         "parents": _parents_json(parents)})
+                    graph_events.append(
+                        {'t_s': round(k * dt_s, 9), 'parents': _parents_json(parents)}
+                    )
         if progress is not None:
             progress(k * dt_s, scenario.duration_s)
     drain_reaching()
     return SimResult(
-        scenario_name=scenario.name, robot_ids=setup.ids, obstacle_names=setup.obstacle_names,
-        t_s=np.arange(n_rec) * rec_every * dt_s, state=rec_state, torque_nm=rec_torque,
-        goal_m=rec_goal, avoiding=rec_avoid, saturated=rec_sat, obstacle_center_m=rec_oc,
-        obstacle_phi_rad=rec_ophi, mode_events=mode_events, graph_events=graph_events,
-        reaching=reaching, dt_s=dt_s, wall_time_s=time.perf_counter() - wall0)
+        scenario_name=scenario.name,
+        robot_ids=setup.ids,
+        obstacle_names=setup.obstacle_names,
+        t_s=np.arange(n_rec) * rec_every * dt_s,
+        state=rec_state,
+        torque_nm=rec_torque,
+        goal_m=rec_goal,
+        avoiding=rec_avoid,
+        saturated=rec_sat,
+        obstacle_center_m=rec_oc,
+        obstacle_phi_rad=rec_ophi,
+        mode_events=mode_events,
+        graph_events=graph_events,
+        reaching=reaching,
+        dt_s=dt_s,
+        wall_time_s=time.perf_counter() - wall0,
+    )
 
 
 def _parents_json(parents: dict) -> dict:

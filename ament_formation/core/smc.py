@@ -5,13 +5,14 @@ identical to paper (8)), S3.5 (boundary layer: sign -> sat(sigma/eps)) and S3.6 
 by uniform scaling, which keeps the torque ratio). S3.3/S3.4 (gain condition, reaching-time bound)
 are helpers here too. Numba twin: :func:`ament_formation.core.kernels.smc_torque_k`.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
 
-from ament_formation.core.dynamics import PlantCoeffs, commanded_point_accel
+from ament_formation.core.dynamics import commanded_point_accel, PlantCoeffs
 from ament_formation.core.params import ControlGains
 
 
@@ -50,8 +51,14 @@ def saturate_torque(torque: np.ndarray, tau_max: np.ndarray) -> tuple[np.ndarray
     return torque * scale[:, None], saturated
 
 
-def sliding_mode_torque_raw(state: np.ndarray, v_d: np.ndarray, v_d_dot: np.ndarray,
-                            k: PlantCoeffs, gain_mps2, eps_mps: float) -> SmcOutput:
+def sliding_mode_torque_raw(
+    state: np.ndarray,
+    v_d: np.ndarray,
+    v_d_dot: np.ndarray,
+    k: PlantCoeffs,
+    gain_mps2,
+    eps_mps: float,
+) -> SmcOutput:
     """S3.1, S3.2, S3.5, S3.6 with an explicit switching gain K (scalar or (2,) or (N, 2)) and eps.
 
     u = B2^-1 { S1^-1 [ V_d_dot - S1dot x2 - K sat(sigma/eps) ] - f2 }, all in closed form.
@@ -90,24 +97,35 @@ def sliding_mode_torque_raw(state: np.ndarray, v_d: np.ndarray, v_d_dot: np.ndar
     return SmcOutput(torque, sigma, saturated, accel)
 
 
-def sliding_mode_torque(state: np.ndarray, v_d: np.ndarray, v_d_dot: np.ndarray,
-                        k: PlantCoeffs, gains: ControlGains) -> SmcOutput:
+def sliding_mode_torque(
+    state: np.ndarray, v_d: np.ndarray, v_d_dot: np.ndarray, k: PlantCoeffs, gains: ControlGains
+) -> SmcOutput:
     """Sliding-mode wheel torques for the field (V_d, V_d_dot), each (N, 2) (S3.1, S3.2, S3.5, S3.6).
 
     ``state`` (N, 5); the gain is ``gains.switching_gain_mps2`` (K) and the layer
     ``gains.boundary_layer_mps`` (eps).
     """
-    return sliding_mode_torque_raw(state, v_d, v_d_dot, k, gains.switching_gain_mps2,
-                                   gains.boundary_layer_mps)
+    return sliding_mode_torque_raw(
+        state, v_d, v_d_dot, k, gains.switching_gain_mps2, gains.boundary_layer_mps
+    )
 
 
-def switching_gain_for(reaching_rate_mps2: float, g1_bar_mps2: float, g2_bar_radps2: float,
-                       d_m: float, delta_a_bound_mps2: float = 0.0) -> float:
+def switching_gain_for(
+    reaching_rate_mps2: float,
+    g1_bar_mps2: float,
+    g2_bar_radps2: float,
+    d_m: float,
+    delta_a_bound_mps2: float = 0.0,
+) -> float:
     """S3.3: K = lambda + sqrt(g1_bar^2 + d^2 g2_bar^2) + sup|Delta a| [m/s^2]."""
-    return reaching_rate_mps2 + float(np.hypot(g1_bar_mps2, d_m * g2_bar_radps2)) + delta_a_bound_mps2
+    return (
+        reaching_rate_mps2 + float(np.hypot(g1_bar_mps2, d_m * g2_bar_radps2)) + delta_a_bound_mps2
+    )
 
 
-def reaching_time_bound(sigma0: np.ndarray, reaching_rate_mps2, eps_mps: float = 0.0) -> np.ndarray:
+def reaching_time_bound(
+    sigma0: np.ndarray, reaching_rate_mps2, eps_mps: float = 0.0
+) -> np.ndarray:
     """S3.4: T_reach <= max_k (|sigma_k(t_s)| - eps)^+ / lambda_k [s]. ``sigma0`` (N, 2) -> (N,)."""
     excess = np.maximum(np.abs(sigma0) - eps_mps, 0.0)
     return np.max(excess / reaching_rate_mps2, axis=-1)

@@ -1,5 +1,7 @@
 """The record of one closed-loop run: what the simulator (or the ROS recorder) produces and what
-metrics, plots and files consume. Shapes use T samples, N robots, M obstacles."""
+metrics, plots and files consume. Shapes use T samples, N robots, M obstacles.
+"""
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -14,9 +16,11 @@ class SimResult:
     Attributes
     ----------
     t_s : (T,) sample times [s]
-    state : (T, N, 5) rows [x_m, y_m, theta_rad, v_mps, omega_radps]; (x, y) is the controlled point p
+    state : (T, N, 5) rows [x_m, y_m, theta_rad, v_mps, omega_radps]; (x, y) is the controlled
+    point p
     torque_nm : (T, N, 2) applied wheel torques [left, right] after saturation (ZOH value)
-    goal_m : (T, N, 2) formation goal g_i (leader: r(t); follower: p of its original parent + delta)
+    goal_m : (T, N, 2) formation goal g_i (leader: r(t); follower: p of its original parent +
+    delta)
     avoiding : (T, N) bool, robot in any avoidance mode
     saturated : (T, N) bool, torque was scaled down by S3.6 at this sample
     obstacle_center_m : (T, M, 2) and obstacle_phi_rad : (T, M): obstacle poses at each sample

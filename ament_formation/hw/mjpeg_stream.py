@@ -6,25 +6,26 @@ Used to exercise the tracker's stream source and its loss handling without a cam
 benchmarks serve rendered frames, cut the stream (:meth:`MjpegServer.stop`) and bring it back on
 the same port (:meth:`MjpegServer.start`). Binds 127.0.0.1 unless told otherwise.
 """
+
 from __future__ import annotations
 
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 import socket
 import threading
 import time
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Sequence
 
 import cv2
 import numpy as np
 
-BOUNDARY = "frame"
+BOUNDARY = 'frame'
 
 
 def encode_jpeg(frame: np.ndarray, quality: int = 90) -> bytes:
     """JPEG bytes of a mono8 or bgr8 frame."""
-    ok, buf = cv2.imencode(".jpg", frame, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    ok, buf = cv2.imencode('.jpg', frame, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
     if not ok:
-        raise ValueError(f"frame: cannot encode {frame.shape} {frame.dtype} as JPEG")
+        raise ValueError(f'frame: cannot encode {frame.shape} {frame.dtype} as JPEG')
     return buf.tobytes()
 
 
@@ -41,7 +42,7 @@ class MjpegServer:
     ``frames_sent`` counts frames written to clients; ``clients`` is the number connected now.
     """
 
-    def __init__(self, host: str = "127.0.0.1", port: int = 0, quality: int = 90) -> None:
+    def __init__(self, host: str = '127.0.0.1', port: int = 0, quality: int = 90) -> None:
         self.host = host
         self.port = port
         self.quality = quality
@@ -57,7 +58,7 @@ class MjpegServer:
 
     @property
     def url(self) -> str:
-        return f"http://{self.host}:{self.port}/stream.mjpg"
+        return f'http://{self.host}:{self.port}/stream.mjpg'
 
     # ------------------------------------------------------------------ frames
     def publish(self, frame: np.ndarray | bytes) -> None:
@@ -82,7 +83,7 @@ class MjpegServer:
                 self._stop_play.wait(max(next_s - time.monotonic(), 0.0))
 
         self._stop_play = threading.Event()
-        self._player = threading.Thread(target=run, daemon=True, name="mjpeg_player")
+        self._player = threading.Thread(target=run, daemon=True, name='mjpeg_player')
         self._player.start()
 
     # ------------------------------------------------------------------ serving
@@ -93,20 +94,26 @@ class MjpegServer:
         class Handler(BaseHTTPRequestHandler):
             def do_GET(self) -> None:  # noqa: N802 - http.server API
                 self.send_response(200)
-                self.send_header("Content-Type", f"multipart/x-mixed-replace; boundary={BOUNDARY}")
-                self.send_header("Cache-Control", "no-cache")
+                self.send_header('Content-Type', f'multipart/x-mixed-replace; boundary={BOUNDARY}')
+                self.send_header('Cache-Control', 'no-cache')
                 self.end_headers()
                 owner.clients += 1
                 seq = 0
                 try:
                     while not owner._halt.is_set():
                         with owner._cond:
-                            owner._cond.wait_for(lambda: owner._seq != seq or owner._halt.is_set(), 0.1)
+                            owner._cond.wait_for(
+                                lambda: owner._seq != seq or owner._halt.is_set(), 0.1
+                            )
                             if owner._halt.is_set() or owner._seq == seq or owner._jpeg is None:
                                 continue
                             seq, jpeg = owner._seq, owner._jpeg
-                        self.wfile.write(f"--{BOUNDARY}\r\nContent-Type: image/jpeg\r\n"
-                                         f"Content-Length: {len(jpeg)}\r\n\r\n".encode() + jpeg + b"\r\n")
+                        self.wfile.write(
+                            f'--{BOUNDARY}\r\nContent-Type: image/jpeg\r\n'
+                            f'Content-Length: {len(jpeg)}\r\n\r\n'.encode()
+                            + jpeg
+                            + b'\r\n'
+                        )
                         owner.frames_sent += 1
                 except (BrokenPipeError, ConnectionResetError):
                     pass
@@ -119,8 +126,12 @@ class MjpegServer:
         self._halt.clear()
         self._server = _Server((self.host, self.port), Handler)
         self.port = self._server.server_address[1]
-        self._thread = threading.Thread(target=self._server.serve_forever, kwargs={"poll_interval": 0.05},
-                                        daemon=True, name="mjpeg_server")
+        self._thread = threading.Thread(
+            target=self._server.serve_forever,
+            kwargs={'poll_interval': 0.05},
+            daemon=True,
+            name='mjpeg_server',
+        )
         self._thread.start()
         return self.url
 
@@ -136,7 +147,7 @@ class MjpegServer:
         self._thread.join(timeout=2.0)
         self._server = None
         deadline = time.monotonic() + 2.0
-        while self.clients and time.monotonic() < deadline:   # handlers see the halt within 0.1 s
+        while self.clients and time.monotonic() < deadline:  # handlers see the halt within 0.1 s
             time.sleep(0.01)
 
     def close(self) -> None:
@@ -148,7 +159,7 @@ class MjpegServer:
         self.stop()
 
 
-def free_port(host: str = "127.0.0.1") -> int:
+def free_port(host: str = '127.0.0.1') -> int:
     """A TCP port free on ``host`` now."""
     with socket.socket() as s:
         s.bind((host, 0))

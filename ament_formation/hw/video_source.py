@@ -19,36 +19,40 @@ OpenCV's and FFmpeg's own console messages are silenced (set ``OPENCV_LOG_LEVEL`
 ``OPENCV_FFMPEG_LOGLEVEL`` in the environment to see them): the caller reports failures in its
 own words (:func:`open_problem`).
 """
+
 from __future__ import annotations
 
+from dataclasses import dataclass
 import os
+from pathlib import Path
 import re
 import sys
 import threading
 import time
-from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, Callable
 
-os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")   # AV_LOG_QUIET, read when FFmpeg is first used
+os.environ.setdefault(
+    'OPENCV_FFMPEG_LOGLEVEL', '-8'
+)  # AV_LOG_QUIET, read when FFmpeg is first used
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 from ament_formation.core.errors import ConfigError  # noqa: E402
 
-if "OPENCV_LOG_LEVEL" not in os.environ:
+if 'OPENCV_LOG_LEVEL' not in os.environ:
     cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
 
-DEVICE, FILE, STREAM = "device", "file", "stream"
-_SCHEME = re.compile(r"^[A-Za-z][A-Za-z0-9+.-]*://")
-_LINUX = sys.platform.startswith("linux")
+DEVICE, FILE, STREAM = 'device', 'file', 'stream'
+_SCHEME = re.compile(r'^[A-Za-z][A-Za-z0-9+.-]*://')
+_LINUX = sys.platform.startswith('linux')
 
 
 @dataclass(frozen=True)
 class SourceSpec:
     """A parsed ``source``: ``kind`` (device, file, stream), ``target`` (device index or path,
-    file path, URL) and ``text``, the value as given (for messages)."""
+    file path, URL) and ``text``, the value as given (for messages).
+    """
 
     kind: str
     target: int | str
@@ -59,7 +63,7 @@ class SourceSpec:
         """The device node of a device source (``/dev/video<N>`` for an index), else None."""
         if self.kind != DEVICE:
             return None
-        return f"/dev/video{self.target}" if isinstance(self.target, int) else str(self.target)
+        return f'/dev/video{self.target}' if isinstance(self.target, int) else str(self.target)
 
 
 def parse_source(value: Any) -> SourceSpec | None:
@@ -68,14 +72,17 @@ def parse_source(value: Any) -> SourceSpec | None:
     Raises ConfigError naming ``source`` for values of another type (float, bool, list) or a
     negative device index.
     """
-    if value is None or value == "":
+    if value is None or value == '':
         return None
     if isinstance(value, bool) or not isinstance(value, (int, str)):
-        raise ConfigError(f"expected a device index, a device path, a video file or a stream URL "
-                          f"(got {value!r})", "source")
+        raise ConfigError(
+            f'expected a device index, a device path, a video file or a stream URL '
+            f'(got {value!r})',
+            'source',
+        )
     if isinstance(value, int):
         if value < 0:
-            raise ConfigError(f"a device index is >= 0 (got {value})", "source")
+            raise ConfigError(f'a device index is >= 0 (got {value})', 'source')
         return SourceSpec(DEVICE, value, str(value))
     text = value.strip()
     if not text:
@@ -84,7 +91,7 @@ def parse_source(value: Any) -> SourceSpec | None:
         return SourceSpec(DEVICE, int(text), text)
     if _SCHEME.match(text):
         return SourceSpec(STREAM, text, text)
-    if text.startswith("/dev/"):
+    if text.startswith('/dev/'):
         return SourceSpec(DEVICE, text, text)
     return SourceSpec(FILE, str(Path(text).expanduser()), text)
 
@@ -94,22 +101,28 @@ def open_problem(spec: SourceSpec) -> str:
     if spec.kind == DEVICE:
         path = spec.device_path
         if _LINUX and not os.path.exists(path):
-            return f"no such video device {path}"
+            return f'no such video device {path}'
         if _LINUX and not os.access(path, os.R_OK | os.W_OK):
             return f"no permission to open {path} (add the user to group 'video')"
-        return f"cannot open {path} (busy, or not a video capture device)"
+        return f'cannot open {path} (busy, or not a video capture device)'
     if spec.kind == FILE:
         path = Path(spec.target)
         if not path.exists():
-            return "no such file"
+            return 'no such file'
         if not path.is_file():
-            return "not a file"
-        return "cannot read it as a video"
-    return "cannot open the stream (refused, unreachable, timed out or not a video)"
+            return 'not a file'
+        return 'cannot read it as a video'
+    return 'cannot open the stream (refused, unreachable, timed out or not a video)'
 
 
-def open_capture(spec: SourceSpec, *, size_px: tuple[int, int] | None = None, fps_hz: float | None = None,
-                 open_timeout_s: float = 3.0, read_timeout_s: float = 1.0) -> cv2.VideoCapture | None:
+def open_capture(
+    spec: SourceSpec,
+    *,
+    size_px: tuple[int, int] | None = None,
+    fps_hz: float | None = None,
+    open_timeout_s: float = 3.0,
+    read_timeout_s: float = 1.0,
+) -> cv2.VideoCapture | None:
     """An opened cv2.VideoCapture for ``spec``, or None.
 
     A device is asked for ``size_px`` (width, height) and ``fps_hz`` (best effort; the frames say
@@ -130,9 +143,16 @@ def open_capture(spec: SourceSpec, *, size_px: tuple[int, int] | None = None, fp
             return None
         cap = cv2.VideoCapture(str(spec.target), cv2.CAP_FFMPEG)
     else:
-        cap = cv2.VideoCapture(str(spec.target), cv2.CAP_FFMPEG,
-                               [cv2.CAP_PROP_OPEN_TIMEOUT_MSEC, int(open_timeout_s * 1000),
-                                cv2.CAP_PROP_READ_TIMEOUT_MSEC, int(read_timeout_s * 1000)])
+        cap = cv2.VideoCapture(
+            str(spec.target),
+            cv2.CAP_FFMPEG,
+            [
+                cv2.CAP_PROP_OPEN_TIMEOUT_MSEC,
+                int(open_timeout_s * 1000),
+                cv2.CAP_PROP_READ_TIMEOUT_MSEC,
+                int(read_timeout_s * 1000),
+            ],
+        )
     if not cap.isOpened():
         cap.release()
         return None
@@ -158,24 +178,38 @@ class FrameGrabber(threading.Thread):
     or when the source was opened if no frame came since).
     """
 
-    def __init__(self, spec: SourceSpec, now: Callable[[], Any], *, loop: bool = False,
-                 size_px: tuple[int, int] | None = None, fps_hz: float | None = None,
-                 open_timeout_s: float = 3.0, read_timeout_s: float = 1.0,
-                 backoff_s: tuple[float, float] = (0.1, 2.0),
-                 opener: Callable[[SourceSpec], Any] | None = None) -> None:
-        super().__init__(daemon=True, name="video_source")
+    def __init__(
+        self,
+        spec: SourceSpec,
+        now: Callable[[], Any],
+        *,
+        loop: bool = False,
+        size_px: tuple[int, int] | None = None,
+        fps_hz: float | None = None,
+        open_timeout_s: float = 3.0,
+        read_timeout_s: float = 1.0,
+        backoff_s: tuple[float, float] = (0.1, 2.0),
+        opener: Callable[[SourceSpec], Any] | None = None,
+    ) -> None:
+        super().__init__(daemon=True, name='video_source')
         self.spec = spec
         self._now = now
         self._loop = loop
         self._backoff_s = backoff_s
-        self._open = opener or (lambda s: open_capture(s, size_px=size_px, fps_hz=fps_hz,
-                                                       open_timeout_s=open_timeout_s,
-                                                       read_timeout_s=read_timeout_s))
+        self._open = opener or (
+            lambda s: open_capture(
+                s,
+                size_px=size_px,
+                fps_hz=fps_hz,
+                open_timeout_s=open_timeout_s,
+                read_timeout_s=read_timeout_s,
+            )
+        )
         self._halt = threading.Event()
         self._lock = threading.Lock()
         self._latest: tuple[np.ndarray, Any] | None = None
         self._cap = None
-        self.state = "closed"
+        self.state = 'closed'
         self.frames = 0
         self.errors = 0
         self.open_attempts = 0
@@ -211,24 +245,24 @@ class FrameGrabber(threading.Thread):
         if cap is None:
             self.open_attempts += 1
             return False
-        if self.state == "lost":
+        if self.state == 'lost':
             self.reopens += 1
         self._cap = cap
         self.open_attempts = 0
         self.lost_since_s = None
-        self.last_frame_s = time.monotonic()     # silence is counted from here
+        self.last_frame_s = time.monotonic()  # silence is counted from here
         fps = cap.get(cv2.CAP_PROP_FPS)
         self.fps_hz = float(fps) if fps and 0.0 < fps < 1000.0 else 0.0
-        self.state = "open"
+        self.state = 'open'
         return True
 
     def _lose(self) -> None:
         if self._cap is not None:
             self._cap.release()
             self._cap = None
-        if self.state == "open":
+        if self.state == 'open':
             self.lost_since_s = time.monotonic()
-        self.state = "lost"
+        self.state = 'lost'
 
     def run(self) -> None:
         backoff_s = self._backoff_s[0]
@@ -248,7 +282,7 @@ class FrameGrabber(threading.Thread):
                 self._cap = None
                 if self._loop:
                     continue
-                self.state = "ended"
+                self.state = 'ended'
                 return
             self._lose()
         if self._cap is not None:
@@ -269,7 +303,7 @@ class FrameGrabber(threading.Thread):
                 delay_s = start_s + n * period_s - time.monotonic()
                 if delay_s > 0.0:
                     self._halt.wait(delay_s)
-                while delay_s < -period_s:          # behind: skip a frame
+                while delay_s < -period_s:  # behind: skip a frame
                     if not cap.grab():
                         return
                     n += 1
@@ -282,12 +316,14 @@ class FrameGrabber(threading.Thread):
             if not ok or frame is None:
                 self.errors += 1
                 failed_retrieves += 1
-                if failed_retrieves >= 30:      # a source that delivers nothing usable is lost
+                if failed_retrieves >= 30:  # a source that delivers nothing usable is lost
                     return
                 continue
             failed_retrieves = 0
             if frame.ndim == 3:
-                frame = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY if frame.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
+                frame = cv2.cvtColor(
+                    frame, cv2.COLOR_BGR2GRAY if frame.shape[2] == 3 else cv2.COLOR_BGRA2GRAY
+                )
             frame = np.ascontiguousarray(frame)
             with self._lock:
                 self._latest = (frame, stamp)

@@ -11,7 +11,8 @@ Contract (namespace ``robot_<id>``; protocol: docs/serial-protocol.md)
 Parameters (core.serial_link.LinkParams): port (path or pyserial URL, "/dev/ttyACM0"),
 baud_rate (115200), torque_limit_nm (0.15 N·m), watchdog_s (0.2 s, sent to the board),
 input_timeout_s (0.2 s: older wheel_torque -> STOP: the board brakes), command_rate_hz (100 Hz),
-telemetry_period_s (0.01 s), ack_timeout_s (0.006 s), link_timeout_s (0.5 s), hello_retry_s (0.2 s),
+telemetry_period_s (0.01 s), ack_timeout_s (0.006 s), link_timeout_s (0.5 s), hello_retry_s (0.2
+s),
 heartbeat_period_s (1 s), reconnect_initial_s (0.05 s) doubling to reconnect_max_s (0.5 s),
 poll_rate_hz (500 Hz), diagnostics_period_s (1 s), wait_for_port (false).
 
@@ -19,18 +20,20 @@ A port that cannot be opened at start ends the process with one line on stderr n
 code 2), unless ``wait_for_port`` is true: then the bridge waits for it, reopening with backoff.
 
 The port is read and written only non-blocking, from a timer: the executor never blocks. Safety
-(DESIGN §7): NaN/inf inputs are rejected and counted, torques clamped, stale input -> STOP (the board brakes to rest),
+(DESIGN §7): NaN/inf inputs are rejected and counted, torques clamped, stale input -> STOP (the
+board brakes to rest),
 a vanished port is reopened with backoff, STOP is sent on shutdown.
 """
+
 from __future__ import annotations
 
 import os
 import sys
 import time
 
-import serial
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
+import serial
 
 from ament_formation.core import serial_link as sl
 from ament_formation.core.errors import ConfigError
@@ -44,8 +47,9 @@ from ament_formation.ros.wheels import torques_from_joint_state
 
 def _open_error(err: Exception) -> str:
     """The reason of an open failure without pyserial's repetitions ("[Errno 2] could not open
-    port X: [Errno 2] No such file or directory: 'X'" -> "No such file or directory")."""
-    errno = getattr(err, "errno", None)
+    port X: [Errno 2] No such file or directory: 'X'" -> "No such file or directory").
+    """
+    errno = getattr(err, 'errno', None)
     if errno:
         return os.strerror(errno)
     return str(err).splitlines()[0] if str(err) else type(err).__name__
@@ -53,8 +57,16 @@ def _open_error(err: Exception) -> str:
 
 def open_port(url: str, baud_rate: int) -> serial.SerialBase:
     """Open ``url`` non-blocking without touching DTR/RTS flow control (works on ptys)."""
-    port = serial.serial_for_url(url, baudrate=baud_rate, timeout=0, write_timeout=0, rtscts=False,
-                                 dsrdtr=False, xonxoff=False, do_not_open=True)
+    port = serial.serial_for_url(
+        url,
+        baudrate=baud_rate,
+        timeout=0,
+        write_timeout=0,
+        rtscts=False,
+        dsrdtr=False,
+        xonxoff=False,
+        do_not_open=True,
+    )
     port.open()
     return port
 
@@ -62,44 +74,65 @@ def open_port(url: str, baud_rate: int) -> serial.SerialBase:
 class BridgeNode(Node):
     """Thin shell around :class:`~ament_formation.core.serial_link.LinkHost` (the protocol logic)."""
 
-    def __init__(self, *, context=None, clock=time.monotonic, poll_timer: bool = True, torque_topic: bool = True,
-                 **kwargs) -> None:
+    def __init__(
+        self,
+        *,
+        context=None,
+        clock=time.monotonic,
+        poll_timer: bool = True,
+        torque_topic: bool = True,
+        **kwargs,
+    ) -> None:
         """``poll_timer=False``: no poll timer of its own; the owner calls :meth:`poll` at
         ``poll_rate_hz`` (nodes/team.py). ``torque_topic=False``: no wheel_torque subscription;
         the owner's controller calls :meth:`command` (a team: the controller in the same process).
         ``telemetry_sinks``: callables ``(position_rad (2,), velocity_radps (2,), stamp_s)`` given
-        every wheel sample; with a sink, wheel_state is published only while someone subscribes."""
-        super().__init__("formation_bridge", context=context, **kwargs)
+        every wheel sample; with a sink, wheel_state is published only while someone subscribes.
+        """
+        super().__init__('formation_bridge', context=context, **kwargs)
         self.params = declare_dataclass(self, sl.LinkParams)
         self.link = sl.LinkHost(self.params)
         self._mono = clock
         self._port: serial.SerialBase | None = None
         self._backoff = sl.Backoff(self.params.reconnect_initial_s, self.params.reconnect_max_s)
         self._next_open_s = 0.0
-        self._last_error = ""
+        self._last_error = ''
         self._rx_frames_at_diag = (clock(), 0)
         self.link_up_since_s: float | None = None
-        if not self.params.wait_for_port:   # a port missing at start is a configuration error
+        if not self.params.wait_for_port:  # a port missing at start is a configuration error
             try:
                 self._port = open_port(self.params.port, self.params.baud_rate)
             except (serial.SerialException, OSError, ValueError) as err:
                 name = self.get_fully_qualified_name()
                 Node.destroy_node(self)
-                raise ConfigError(f"cannot open {self.params.port}: {_open_error(err)} (wait_for_port:=true "
-                                  "waits for it)", "port", name) from None
+                raise ConfigError(
+                    f'cannot open {self.params.port}: {_open_error(err)} (wait_for_port:=true '
+                    'waits for it)',
+                    'port',
+                    name,
+                ) from None
             self._write(self.link.connected(clock()))
-        self._pub_state = self.create_publisher(JointState, "wheel_state", QOS_CONTROL)
+        self._pub_state = self.create_publisher(JointState, 'wheel_state', QOS_CONTROL)
         self.diag = diag.Diagnostics(self, self.params.diagnostics_period_s)
         robot = diag.robot_of_namespace(self.get_namespace())
-        self.diag.add(f"{robot} serial link" if robot else "serial link", self._link_status,
-                      hardware_id=robot or self.params.port)
-        self.poll_watch = (self.diag.watch(f"{robot} serial poll" if robot else "serial poll",
-                                           1.0 / self.params.poll_rate_hz, hardware_id=robot or self.params.port)
-                           if poll_timer else None)   # in a team, the team watches its poll timer
+        self.diag.add(
+            f'{robot} serial link' if robot else 'serial link',
+            self._link_status,
+            hardware_id=robot or self.params.port,
+        )
+        self.poll_watch = (
+            self.diag.watch(
+                f'{robot} serial poll' if robot else 'serial poll',
+                1.0 / self.params.poll_rate_hz,
+                hardware_id=robot or self.params.port,
+            )
+            if poll_timer
+            else None
+        )  # in a team, the team watches its poll timer
         self._link_state_seen = self.link.state
         self.telemetry_sinks: list = []
         if torque_topic:
-            self.create_subscription(JointState, "wheel_torque", self._on_torque, QOS_CONTROL)
+            self.create_subscription(JointState, 'wheel_torque', self._on_torque, QOS_CONTROL)
         if poll_timer:
             self.create_timer(1.0 / self.params.poll_rate_hz, self._timed_poll)
 
@@ -109,10 +142,14 @@ class BridgeNode(Node):
 
     def command(self, torques_nm: tuple[float, float] | None) -> bool:
         """Take (left, right) wheel torques [N m] as the new input and send them to the board now
-        (what a wheel_torque message does). False (counted, logged) for anything but two finite values."""
+        (what a wheel_torque message does). False (counted, logged) for anything but two finite
+        values.
+        """
         now = self._mono()
         if not self.link.set_input(torques_nm, now):
-            self.get_logger().warn("wheel_torque rejected (need 2 finite efforts)", throttle_duration_sec=1.0)
+            self.get_logger().warn(
+                'wheel_torque rejected (need 2 finite efforts)', throttle_duration_sec=1.0
+            )
             return False
         self._write(self.link.command_now(now))
         return True
@@ -131,29 +168,34 @@ class BridgeNode(Node):
             if now >= self._next_open_s:
                 self._try_open(now)
             return
-        try:   # ask the driver first: an empty poll is one ioctl instead of pyserial's select loop
+        try:  # ask the driver first: an empty poll is one ioctl instead of pyserial's select loop
             waiting = self._port.in_waiting
-            data = self._port.read(min(waiting, 4096)) if waiting else b""
+            data = self._port.read(min(waiting, 4096)) if waiting else b''
         except (serial.SerialException, OSError) as err:
-            self._lost(now, f"read: {err}")
+            self._lost(now, f'read: {err}')
             return
-        samples, answer = self.link.receive(data, now) if data else ([], b"")
+        samples, answer = self.link.receive(data, now) if data else ([], b'')
         for s in samples:
             stamp = self.get_clock().now()
             for sink in self.telemetry_sinks:
                 sink(s.position_rad, s.velocity_radps, stamp.nanoseconds * 1e-9)
             if not self.telemetry_sinks or self._pub_state.get_subscription_count():
-                self._pub_state.publish(wheel_state(s.position_rad, s.velocity_radps, stamp.to_msg()))
+                self._pub_state.publish(
+                    wheel_state(s.position_rad, s.velocity_radps, stamp.to_msg())
+                )
         self._write(answer + self.link.poll(now))
-        if self.link.state == sl.VERSION_MISMATCH and self._last_error != self.link.version_mismatch_text():
-            self._last_error = self.link.version_mismatch_text()   # once per connection
-            self.get_logger().error(f"{self.params.port}: {self._last_error}")
+        if (
+            self.link.state == sl.VERSION_MISMATCH
+            and self._last_error != self.link.version_mismatch_text()
+        ):
+            self._last_error = self.link.version_mismatch_text()  # once per connection
+            self.get_logger().error(f'{self.params.port}: {self._last_error}')
         if self.link.state == sl.UP and self.link_up_since_s is None:
             self.link_up_since_s = now
-            self.get_logger().info(f"link up on {self.params.port}")
+            self.get_logger().info(f'link up on {self.params.port}')
         if self._port is not None and self.link.timed_out(now):
-            self._lost(now, "no valid frame from the board")
-        if self.link.state != self._link_state_seen:   # published when it happens
+            self._lost(now, 'no valid frame from the board')
+        if self.link.state != self._link_state_seen:  # published when it happens
             self._link_state_seen = self.link.state
             self.diag.changed()
 
@@ -161,9 +203,11 @@ class BridgeNode(Node):
         try:
             self._port = open_port(self.params.port, self.params.baud_rate)
         except (serial.SerialException, OSError, ValueError) as err:
-            self._last_error = f"open: {err}"
+            self._last_error = f'open: {err}'
             self._next_open_s = now + self._backoff.next_delay()
-            self.get_logger().warn(f"cannot open {self.params.port}: {err}", throttle_duration_sec=2.0)
+            self.get_logger().warn(
+                f'cannot open {self.params.port}: {err}', throttle_duration_sec=2.0
+            )
             return
         self._backoff.reset()
         self._write(self.link.connected(now))
@@ -174,17 +218,17 @@ class BridgeNode(Node):
         try:
             self._port.write(data)
         except (serial.SerialException, OSError) as err:
-            self._lost(self._mono(), f"write: {err}")
+            self._lost(self._mono(), f'write: {err}')
 
     def _lost(self, now: float, why: str) -> None:
         self._last_error = why
-        self.get_logger().warn(f"serial link lost ({why}); reopening", throttle_duration_sec=1.0)
+        self.get_logger().warn(f'serial link lost ({why}); reopening', throttle_duration_sec=1.0)
         self._close_port()
         self.link.disconnected()
         self.link_up_since_s = None
         self._next_open_s = now + self._backoff.next_delay()
         self._link_state_seen = self.link.state
-        self.diag.changed()          # a lost link is published when it happens
+        self.diag.changed()  # a lost link is published when it happens
 
     def _close_port(self) -> None:
         if self._port is not None:
@@ -198,27 +242,52 @@ class BridgeNode(Node):
     def diagnostics_values(self) -> dict:
         now = self._mono()
         t0, n0 = self._rx_frames_at_diag
-        rx = self.link.stats["rx_frames"]
+        rx = self.link.stats['rx_frames']
         self._rx_frames_at_diag = (now, rx)
         p50, p99 = self.link.rtt_percentiles_s()
-        values = {"link": self.link.state, "port": self.params.port, "rx_frames_per_s": (rx - n0) / max(now - t0, 1e-9)}
+        values = {
+            'link': self.link.state,
+            'port': self.params.port,
+            'rx_frames_per_s': (rx - n0) / max(now - t0, 1e-9),
+        }
         values.update(self.link.stats)
-        values.update({f"host_rejected_{k}": v for k, v in self.link.decoder.rejected.items()})
-        values.update({"rtt_p50_ms": p50 * 1e3, "rtt_p99_ms": p99 * 1e3, "board_flags": self.link.flags,
-                       "last_error": self._last_error})
+        values.update({f'host_rejected_{k}': v for k, v in self.link.decoder.rejected.items()})
+        values.update(
+            {
+                'rtt_p50_ms': p50 * 1e3,
+                'rtt_p99_ms': p99 * 1e3,
+                'board_flags': self.link.flags,
+                'last_error': self._last_error,
+            }
+        )
         st = self.link.board_status
         if st is not None:
-            values.update({"board_crc_errors": st.crc_errors, "board_frame_errors": st.frame_errors,
-                           "board_type_errors": st.type_errors, "board_rx_gaps": st.rx_gaps,
-                           "board_watchdog_trips": st.watchdog_trips})
+            values.update(
+                {
+                    'board_crc_errors': st.crc_errors,
+                    'board_frame_errors': st.frame_errors,
+                    'board_type_errors': st.type_errors,
+                    'board_rx_gaps': st.rx_gaps,
+                    'board_watchdog_trips': st.watchdog_trips,
+                }
+            )
         return values
 
     def _link_status(self) -> tuple[int, str, dict]:
         values = self.diagnostics_values()
         state = self.link.state
-        level = diag.OK if state == sl.UP else diag.WARN if state in (sl.HANDSHAKE, sl.CONFIGURING) else diag.ERROR
-        message = {"up": "link up", "down": "link down", "version_mismatch": self.link.version_mismatch_text()}.get(
-            state, "connecting")
+        level = (
+            diag.OK
+            if state == sl.UP
+            else diag.WARN
+            if state in (sl.HANDSHAKE, sl.CONFIGURING)
+            else diag.ERROR
+        )
+        message = {
+            'up': 'link up',
+            'down': 'link down',
+            'version_mismatch': self.link.version_mismatch_text(),
+        }.get(state, 'connecting')
         return level, message, values
 
     # -- shutdown ------------------------------------------------------------------------------
@@ -239,8 +308,8 @@ class BridgeNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    return run_node("formation_bridge", BridgeNode, args)
+    return run_node('formation_bridge', BridgeNode, args)
 
 
-if __name__ == "__main__":
+if __name__ == '__main__':
     sys.exit(main())

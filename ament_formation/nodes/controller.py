@@ -21,29 +21,43 @@ robot holds (brakes); NaN/inf inputs are rejected and counted; torques are clamp
 Before the mission start (``start_s`` of the graph) the robot stands still (zero torque).
 
 Topics (namespace robot_<id>; QoS from ros/qos.py)
-  sub  pose                     geometry_msgs/PoseStamped (camera, stamp = capture time)  QOS_CONTROL
-  sub  wheel_state              sensor_msgs/JointState (wheel angles rad, rates rad/s)     QOS_CONTROL
+  sub  pose                     geometry_msgs/PoseStamped (camera, stamp = capture time)
+  QOS_CONTROL
+  sub  wheel_state              sensor_msgs/JointState (wheel angles rad, rates rad/s)
+  QOS_CONTROL
                                 (in a team: samples straight from the hosted bridge instead)
-  sub  /formation/graph         std_msgs/String JSON (parents, offsets_m, start_s)         QOS_GRAPH
+  sub  /formation/graph         std_msgs/String JSON (parents, offsets_m, start_s)
+  QOS_GRAPH
   sub  /formation/encounters    std_msgs/String JSON {revision, assignments: {id: {mode,
-                                partner, direction, t_entry_s, drift_mps}}} (S7)           QOS_GRAPH
-  sub  /robot_<k>/state         nav_msgs/Odometry, every other robot k of the scenario      QOS_CONTROL
-  sub  /robot_<k>/accel         geometry_msgs/AccelStamped, every other robot k             QOS_CONTROL
-  sub  /robot_<k>/mode          std_msgs/String JSON, every other robot k (S7 acyclicity)  QOS_CONTROL
-  pub  wheel_torque             sensor_msgs/JointState effort [left, right] N m            QOS_CONTROL
-                                (in a team: handed to the hosted bridge, published while subscribed)
-  pub  state                    nav_msgs/Odometry (fused pose; twist v, omega)             QOS_CONTROL
-  pub  accel                    geometry_msgs/AccelStamped (commanded point accel, S4)     QOS_CONTROL
+                                partner, direction, t_entry_s, drift_mps}}} (S7)
+                                QOS_GRAPH
+  sub  /robot_<k>/state         nav_msgs/Odometry, every other robot k of the scenario
+  QOS_CONTROL
+  sub  /robot_<k>/accel         geometry_msgs/AccelStamped, every other robot k
+  QOS_CONTROL
+  sub  /robot_<k>/mode          std_msgs/String JSON, every other robot k (S7 acyclicity)
+  QOS_CONTROL
+  pub  wheel_torque             sensor_msgs/JointState effort [left, right] N m
+  QOS_CONTROL
+                                (in a team: handed to the hosted bridge, published while
+                                subscribed)
+  pub  state                    nav_msgs/Odometry (fused pose; twist v, omega)
+  QOS_CONTROL
+  pub  accel                    geometry_msgs/AccelStamped (commanded point accel, S4)
+  QOS_CONTROL
                                 (while anyone subscribes)
-  pub  mode                     std_msgs/String JSON {mode, target, direction, avoiding}   QOS_CONTROL
+  pub  mode                     std_msgs/String JSON {mode, target, direction, avoiding}
+  QOS_CONTROL
                                 (on change and every second)
   pub  /diagnostics             diagnostic_msgs/DiagnosticArray (docs/diagnostics.md), every
                                 second and at once on a change: "formation_controller: robot_<id>
                                 control" (safety state: running/waiting OK, hold_parent WARN,
                                 stopped_* ERROR; ticks, late ticks, estimator counters),
                                 "... robot_<id> control loop" (stalls of the control period, WARN),
-                                "... robot_<id> inputs" (rejected inputs and payloads, WARN for 10 s
-                                after one)                                                 QOS_DIAGNOSTICS
+                                "... robot_<id> inputs" (rejected inputs and payloads, WARN for 10
+                                s
+                                after one)
+                                QOS_DIAGNOSTICS
 
 Parameters
   scenario          str    scenario YAML (required)
@@ -51,31 +65,32 @@ Parameters
   control_rate_hz   float  control loop rate [Hz]                                   default 100
   pose_timeout_s    float  no camera pose this long -> controlled stop [s]          default 0.5
   wheel_timeout_s   float  no wheel_state this long -> controlled stop [s]          default 0.1
-  parent_timeout_s  float  parent (or other robot) state older than this is extrapolated [s]  default 0.1
+  parent_timeout_s  float  parent (or other robot) state older than this is extrapolated [s]
+  default 0.1
   parent_hold_s     float  parent state older than this -> hold; other robots older than
                            this are ignored [s]                                      default 1.0
   stop_time_s       float  time constant of the controlled stop [s]                 default 0.3
   camera_gain       float  S10 complementary gain per camera frame, (0, 1]          default 0.5
 """
+
 from __future__ import annotations
 
 import contextlib
+from dataclasses import dataclass
 import math
 import sys
-from dataclasses import dataclass
-
-import numpy as np
 import time
 
 from geometry_msgs.msg import AccelStamped, PoseStamped
+import numpy as np
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
-from ament_formation.core.dynamics import PlantCoeffs, b2_inv, f2
+from ament_formation.core.controller import fast_reference, NeighbourState, RobotController
+from ament_formation.core.dynamics import b2_inv, f2, PlantCoeffs
 from ament_formation.core.errors import ConfigError
 from ament_formation.core.estimator import EstimatorParams, PoseEstimator
-from ament_formation.core.controller import NeighbourState, RobotController, fast_reference
 from ament_formation.core.graph import FormationGraph
 from ament_formation.core.params import ControlGains, param
 from ament_formation.core.scenario import load_scenario
@@ -85,55 +100,84 @@ from ament_formation.ros.executors import run_node
 from ament_formation.ros.params import declare_dataclass
 from ament_formation.ros.qos import QOS_CONTROL, QOS_GRAPH
 
-
-HEAR_HYSTERESIS_M = 0.3   # a robot stays heard until this much beyond the hearing range
+HEAR_HYSTERESIS_M = 0.3  # a robot stays heard until this much beyond the hearing range
 
 
 @dataclass(frozen=True)
 class ControllerParams:
-    scenario: str = param("", "scenario YAML path (required)")
+    scenario: str = param('', 'scenario YAML path (required)')
     robot_id: int = param(-1, "this robot's id in the scenario (required, >= 0)")
-    control_rate_hz: float = param(100.0, "control loop rate [Hz]", range=(1.0, 2000.0))
-    pose_timeout_s: float = param(0.5, "no camera pose this long -> controlled stop [s]",
-                                  range=(0.01, 10.0))
-    wheel_timeout_s: float = param(0.1, "no wheel_state this long -> controlled stop [s]",
-                                   range=(0.005, 10.0))
-    parent_timeout_s: float = param(0.1, "older parent/other robot state is extrapolated [s]",
-                                    range=(0.0, 10.0))
-    parent_hold_s: float = param(1.0, "older parent state -> hold; other robots ignored [s], "
-                                 ">= parent_timeout_s", range=(0.0, 60.0))
-    stop_time_s: float = param(0.3, "time constant of the controlled stop [s]", range=(0.01, 10.0))
-    camera_gain: float = param(0.5, "S10 complementary gain per camera frame, (0, 1]")
-    hear_all: bool = param(False, "subscribe every robot's state and accel at full rate (off: only "
-                           "the parents and the robots within hearing range, S7)")
-    hear_margin_m: float = param(0.6, "hearing range beyond a robot's S7 region Q: full-rate state "
-                                 "from a robot whose camera pose is closer than kappa R_aa + this [m]",
-                                 range=(0.0, 100.0))
-    realtime_priority: int = param(0, "SCHED_FIFO priority of the control loop (1..98; 0: normal "
-                                   "scheduling; needs root or CAP_SYS_NICE)", range=(0, 98))
+    control_rate_hz: float = param(100.0, 'control loop rate [Hz]', range=(1.0, 2000.0))
+    pose_timeout_s: float = param(
+        0.5, 'no camera pose this long -> controlled stop [s]', range=(0.01, 10.0)
+    )
+    wheel_timeout_s: float = param(
+        0.1, 'no wheel_state this long -> controlled stop [s]', range=(0.005, 10.0)
+    )
+    parent_timeout_s: float = param(
+        0.1, 'older parent/other robot state is extrapolated [s]', range=(0.0, 10.0)
+    )
+    parent_hold_s: float = param(
+        1.0,
+        'older parent state -> hold; other robots ignored [s], >= parent_timeout_s',
+        range=(0.0, 60.0),
+    )
+    stop_time_s: float = param(0.3, 'time constant of the controlled stop [s]', range=(0.01, 10.0))
+    camera_gain: float = param(0.5, 'S10 complementary gain per camera frame, (0, 1]')
+    hear_all: bool = param(
+        False,
+        "subscribe every robot's state and accel at full rate (off: only "
+        'the parents and the robots within hearing range, S7)',
+    )
+    hear_margin_m: float = param(
+        0.6,
+        "hearing range beyond a robot's S7 region Q: full-rate state "
+        'from a robot whose camera pose is closer than kappa R_aa + this [m]',
+        range=(0.0, 100.0),
+    )
+    realtime_priority: int = param(
+        0,
+        'SCHED_FIFO priority of the control loop (1..98; 0: normal '
+        'scheduling; needs root or CAP_SYS_NICE)',
+        range=(0, 98),
+    )
 
     def __post_init__(self) -> None:
         if not self.scenario:
-            raise ConfigError("is required (path of a scenario YAML)", "scenario")
+            raise ConfigError('is required (path of a scenario YAML)', 'scenario')
         if not (isinstance(self.robot_id, int) and self.robot_id >= 0):
-            raise ConfigError(f"is required: an integer >= 0 (got {self.robot_id!r})", "robot_id")
-        for name, lo, hi in (("control_rate_hz", 1.0, 2000.0), ("pose_timeout_s", 0.01, 10.0),
-                             ("wheel_timeout_s", 0.005, 10.0), ("parent_timeout_s", 0.0, 10.0),
-                             ("parent_hold_s", 0.0, 60.0), ("stop_time_s", 0.01, 10.0)):
+            raise ConfigError(f'is required: an integer >= 0 (got {self.robot_id!r})', 'robot_id')
+        for name, lo, hi in (
+            ('control_rate_hz', 1.0, 2000.0),
+            ('pose_timeout_s', 0.01, 10.0),
+            ('wheel_timeout_s', 0.005, 10.0),
+            ('parent_timeout_s', 0.0, 10.0),
+            ('parent_hold_s', 0.0, 60.0),
+            ('stop_time_s', 0.01, 10.0),
+        ):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and lo <= v <= hi):
-                raise ConfigError(f"must be in [{lo:g}, {hi:g}] (got {v!r})", name)
+                raise ConfigError(f'must be in [{lo:g}, {hi:g}] (got {v!r})', name)
         if self.parent_hold_s < self.parent_timeout_s:
-            raise ConfigError("must be >= parent_timeout_s", "parent_hold_s")
-        if not (isinstance(self.hear_margin_m, (int, float)) and math.isfinite(self.hear_margin_m)
-                and 0.0 <= self.hear_margin_m <= 100.0):
-            raise ConfigError(f"must be in [0, 100] m (got {self.hear_margin_m!r})", "hear_margin_m")
+            raise ConfigError('must be >= parent_timeout_s', 'parent_hold_s')
+        if not (
+            isinstance(self.hear_margin_m, (int, float))
+            and math.isfinite(self.hear_margin_m)
+            and 0.0 <= self.hear_margin_m <= 100.0
+        ):
+            raise ConfigError(
+                f'must be in [0, 100] m (got {self.hear_margin_m!r})', 'hear_margin_m'
+            )
         if not (isinstance(self.realtime_priority, int) and 0 <= self.realtime_priority <= 98):
-            raise ConfigError(f"must be an integer in [0, 98] (got {self.realtime_priority!r})",
-                              "realtime_priority")
+            raise ConfigError(
+                f'must be an integer in [0, 98] (got {self.realtime_priority!r})',
+                'realtime_priority',
+            )
 
 
-def stop_torque(state: np.ndarray, k: PlantCoeffs, stop_time_s: float, gains: ControlGains) -> np.ndarray:
+def stop_torque(
+    state: np.ndarray, k: PlantCoeffs, stop_time_s: float, gains: ControlGains
+) -> np.ndarray:
     """Controlled stop (DESIGN §7): torques (N, 2) that bring (v, omega) to rest and hold them there
     against the bounded disturbance g.
 
@@ -147,7 +191,7 @@ def stop_torque(state: np.ndarray, k: PlantCoeffs, stop_time_s: float, gains: Co
     gain = gains.switching_gain_mps2 * np.stack((np.ones_like(k.d), 1.0 / k.d), axis=-1)
     eps = 0.5 * gains.boundary_layer_mps * np.stack((np.ones_like(k.d), 1.0 / k.d), axis=-1)
     x2dot = -x2 / stop_time_s - gain * np.clip(x2 / eps, -1.0, 1.0) - f2(state, k)
-    u = np.einsum("nij,nj->ni", b2_inv(k), x2dot)
+    u = np.einsum('nij,nj->ni', b2_inv(k), x2dot)
     scale = np.maximum(1.0, np.max(np.abs(u), axis=1) / k.tau_max)
     return u / scale[:, None]
 
@@ -156,62 +200,77 @@ def set_realtime(priority: int, logger=None) -> bool:
     """Put the calling thread under SCHED_FIFO ``priority`` (1..98), the scheduling a robot
     computer gives its control loop: it runs before every normal process as soon as it is ready
     (the kernel's real-time throttling, 95 % by default, still leaves the rest of the machine some
-    time). False, with a warning, when not permitted (needs root or CAP_SYS_NICE)."""
+    time). False, with a warning, when not permitted (needs root or CAP_SYS_NICE).
+    """
     import os
 
     try:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(int(priority)))
     except (OSError, AttributeError) as err:
         if logger is not None:
-            logger.warn(f"realtime_priority {priority}: cannot use SCHED_FIFO ({err}); normal scheduling")
+            logger.warn(
+                f'realtime_priority {priority}: cannot use SCHED_FIFO ({err}); normal scheduling'
+            )
         return False
     if logger is not None:
-        logger.info(f"control loop under SCHED_FIFO priority {priority}")
+        logger.info(f'control loop under SCHED_FIFO priority {priority}')
     return True
 
 
 def threat_mode(mode: dict) -> tuple[str, str | None]:
     """(mode, target) of another robot as its S7 acyclicity test reads it: an avoidance mode with
-    its target, anything else (coordination, hold, stopped, ...) as coordination."""
-    name, target = mode.get("mode"), mode.get("target")
-    if name in ("obstacle", "yield", "mutual") and isinstance(target, str):
+    its target, anything else (coordination, hold, stopped, ...) as coordination.
+    """
+    name, target = mode.get('mode'), mode.get('target')
+    if name in ('obstacle', 'yield', 'mutual') and isinstance(target, str):
         return name, target
-    return "coordination", None
+    return 'coordination', None
 
 
 class _Neighbour:
     """Latest state/accel/mode of a robot: heard on its topics, or (PeerTable) written by its
-    controller in the same process as it publishes them."""
+    controller in the same process as it publishes them.
+    """
 
     def __init__(self, rid: int):
         self.rid = rid
         self.state: np.ndarray | None = None
         self.accel = np.zeros(2)
         self.stamp_s = -math.inf
-        self.mode = "coordination"
+        self.mode = 'coordination'
         self.target: str | None = None
-        self.subs: list = []          # full-rate state + accel subscriptions (while heard)
-        self.low_subs: list = []      # mode and (range gate) camera pose subscriptions
-        self.in_range = False         # its camera pose is within hearing range (hysteresis)
+        self.subs: list = []  # full-rate state + accel subscriptions (while heard)
+        self.low_subs: list = []  # mode and (range gate) camera pose subscriptions
+        self.in_range = False  # its camera pose is within hearing range (hysteresis)
 
 
 class PeerTable:
     """Controllers composed in one process (nodes/team.py): each one writes what it publishes
     (state with its stamp, accel, mode) into its own record here, and reads the other robots'
     records instead of subscribing to their topics (the in-process delivery an rclcpp component
-    container gives; no N^2 DDS subscriptions). ``records`` are made up front for ``ids``."""
+    container gives; no N^2 DDS subscriptions). ``records`` are made up front for ``ids``.
+    """
 
     def __init__(self, ids):
         self.ids = frozenset(int(i) for i in ids)
         self.records: dict[int, _Neighbour] = {i: _Neighbour(i) for i in self.ids}
-        self.goals: dict = {}     # S8.3 goals of this period, shared (ControllerNode._goal_of)
+        self.goals: dict = {}  # S8.3 goals of this period, shared (ControllerNode._goal_of)
 
 
 class ControllerNode(Node):
     """See the module docstring."""
 
-    def __init__(self, *, context=None, params: ControllerParams | None = None, tick_timer: bool = True,
-                 peers: PeerTable | None = None, bridge=None, lock=None, **node_kw):
+    def __init__(
+        self,
+        *,
+        context=None,
+        params: ControllerParams | None = None,
+        tick_timer: bool = True,
+        peers: PeerTable | None = None,
+        bridge=None,
+        lock=None,
+        **node_kw,
+    ):
         """``tick_timer=False``: no control timer of its own; the owner calls :meth:`control_tick`
         every period (nodes/team.py). ``peers``: the controllers composed in the same process.
         ``bridge``: this robot's BridgeNode in the same process (a team): wheel samples come from
@@ -219,24 +278,36 @@ class ControllerNode(Node):
         wheel_state / wheel_torque, which are then published only while someone subscribes.
         ``lock``: held by the callbacks that change what a control period reads (camera pose,
         graph, encounters) when the owner runs the control periods in a thread of their own
-        (nodes/team.py ControlLoop, which holds it for each period); default: no lock."""
-        super().__init__("formation_controller", context=context, **node_kw)
+        (nodes/team.py ControlLoop, which holds it for each period); default: no lock.
+        """
+        super().__init__('formation_controller', context=context, **node_kw)
         self.lock = lock if lock is not None else contextlib.nullcontext()
-        self._own_xy: tuple[float, float] | None = None   # own position of the last period [m]
+        self._own_xy: tuple[float, float] | None = None  # own position of the last period [m]
         self.prm = params if params is not None else declare_dataclass(self, ControllerParams)
         self.scenario = load_scenario(self.prm.scenario)
         if self.prm.robot_id not in self.scenario.robot_ids:
-            raise ConfigError(f"{self.prm.robot_id} is not a robot of {self.scenario.name} "
-                              f"(ids {list(self.scenario.robot_ids)})", "robot_id")
+            raise ConfigError(
+                f'{self.prm.robot_id} is not a robot of {self.scenario.name} '
+                f'(ids {list(self.scenario.robot_ids)})',
+                'robot_id',
+            )
         self.rid = self.prm.robot_id
         spec = self.scenario.robot(self.rid)
         self.k = PlantCoeffs.from_params([spec.params])
         self.tau_max = spec.params.torque_limit_nm
-        self.estimator = PoseEstimator(EstimatorParams.from_robot(spec.params, camera_gain=self.prm.camera_gain))
+        self.estimator = PoseEstimator(
+            EstimatorParams.from_robot(spec.params, camera_gain=self.prm.camera_gain)
+        )
         sc = self.scenario
-        self.law = RobotController(self.rid, spec.params, sc.control, sc.avoidance, sc.obstacles,
-                                   leader_path=spec.path if spec.leader else None,
-                                   team=sc.team_leader(self.rid))
+        self.law = RobotController(
+            self.rid,
+            spec.params,
+            sc.control,
+            sc.avoidance,
+            sc.obstacles,
+            leader_path=spec.path if spec.leader else None,
+            team=sc.team_leader(self.rid),
+        )
         fgraph = FormationGraph.from_scenario(sc)
         # every robot's S8.3 goal source: leader path, or (original parent, delta, parent's d)
         # (S8.3 item 1); and what the S7 tests need of it (body radius, team, d)
@@ -244,70 +315,101 @@ class ControllerNode(Node):
         self.robot_info = {}
         for r in sc.robots:
             p0 = fgraph.original_parent.get(r.id)
-            self.goal_source[r.id] = ((fast_reference(r.path), None, None, 0.0) if p0 is None else
-                                      (None, p0, tuple(float(v) for v in fgraph.offset(r.id, p0)),
-                                       sc.robot(p0).params.com_offset_m))
-            self.robot_info[r.id] = (r.params.body_radius_m, sc.team_leader(r.id), r.params.com_offset_m)
-        av = sc.avoidance        # S7: Q of robot k seen by this robot is kappa R_aa about p_k
-        self._hear_range_m = {r.id: av.protected_scale * (spec.params.body_radius_m + r.params.body_radius_m
-                                                          + av.agent_keepout_margin_m) + self.prm.hear_margin_m
-                              for r in sc.robots}
-        self._goals: dict = {}           # robot id -> (g, g_dot) of this period ("t": its time)
+            self.goal_source[r.id] = (
+                (fast_reference(r.path), None, None, 0.0)
+                if p0 is None
+                else (
+                    None,
+                    p0,
+                    tuple(float(v) for v in fgraph.offset(r.id, p0)),
+                    sc.robot(p0).params.com_offset_m,
+                )
+            )
+            self.robot_info[r.id] = (
+                r.params.body_radius_m,
+                sc.team_leader(r.id),
+                r.params.com_offset_m,
+            )
+        av = sc.avoidance  # S7: Q of robot k seen by this robot is kappa R_aa about p_k
+        self._hear_range_m = {
+            r.id: av.protected_scale
+            * (spec.params.body_radius_m + r.params.body_radius_m + av.agent_keepout_margin_m)
+            + self.prm.hear_margin_m
+            for r in sc.robots
+        }
+        self._goals: dict = {}  # robot id -> (g, g_dot) of this period ("t": its time)
         self.start_s: float | None = None
         self.graph: msgs.GraphMessage | None = None
         self.parent: _Neighbour | None = None
         self.orig_parent_id = fgraph.original_parent.get(self.rid)
-        self.orig_offset = (np.zeros(2) if self.orig_parent_id is None
-                            else np.asarray(fgraph.offset(self.rid, self.orig_parent_id), dtype=float))
-        self.law.set_graph(self.orig_parent_id, self.orig_offset, self.orig_parent_id, self.orig_offset)
+        self.orig_offset = (
+            np.zeros(2)
+            if self.orig_parent_id is None
+            else np.asarray(fgraph.offset(self.rid, self.orig_parent_id), dtype=float)
+        )
+        self.law.set_graph(
+            self.orig_parent_id, self.orig_offset, self.orig_parent_id, self.orig_offset
+        )
         self.orig: _Neighbour | None = None
         self.encounter_revision = -1
-        self.assignment = None           # this robot's EncounterAssignment from the coordinator
-        self._applied = None             # key of the assignment in force
-        self._done: set = set()          # assignments this robot has already left (S8.3)
-        self.events: list[dict] = []     # mode events of the law (scenario time)
+        self.assignment = None  # this robot's EncounterAssignment from the coordinator
+        self._applied = None  # key of the assignment in force
+        self._done: set = set()  # assignments this robot has already left (S8.3)
+        self.events: list[dict] = []  # mode events of the law (scenario time)
         self.last_wheel_s = -math.inf
-        self.rejected = {"pose": 0, "wheel": 0, "parent": 0, "graph": 0, "encounters": 0}
-        self.safety = "waiting"       # waiting | running | stopped_pose | stopped_wheels | hold_parent
-        self.mode = {"mode": "hold", "target": None, "direction": None, "avoiding": False}
+        self.rejected = {'pose': 0, 'wheel': 0, 'parent': 0, 'graph': 0, 'encounters': 0}
+        self.safety = 'waiting'  # waiting | running | stopped_pose | stopped_wheels | hold_parent
+        self.mode = {'mode': 'hold', 'target': None, 'direction': None, 'avoiding': False}
         self._mode_sent = None
         self._last_mode_pub = -math.inf
         self.ticks = 0
         self.late_ticks = 0
         self._last_tick_wall = None
-        self._sim_time = bool(self.get_parameter("use_sim_time").value)
+        self._sim_time = bool(self.get_parameter('use_sim_time').value)
         self.last_torque = np.zeros(2)
         self.peers = peers
-        self.record = None if peers is None else peers.records[self.rid]   # what others read of us
-        self._msg_state = self._msg_torque = self._msg_accel = None   # refilled every period
+        self.record = None if peers is None else peers.records[self.rid]  # what others read of us
+        self._msg_state = self._msg_torque = self._msg_accel = None  # refilled every period
 
-        self.pub_torque = self.create_publisher(JointState, "wheel_torque", QOS_CONTROL)
-        self.pub_state = self.create_publisher(msgs.Odometry, "state", QOS_CONTROL)
-        self.pub_accel = self.create_publisher(AccelStamped, "accel", QOS_CONTROL)
-        self.pub_mode = self.create_publisher(String, "mode", QOS_CONTROL)
-        self.create_subscription(PoseStamped, "pose", self._on_pose, QOS_CONTROL)
+        self.pub_torque = self.create_publisher(JointState, 'wheel_torque', QOS_CONTROL)
+        self.pub_state = self.create_publisher(msgs.Odometry, 'state', QOS_CONTROL)
+        self.pub_accel = self.create_publisher(AccelStamped, 'accel', QOS_CONTROL)
+        self.pub_mode = self.create_publisher(String, 'mode', QOS_CONTROL)
+        self.create_subscription(PoseStamped, 'pose', self._on_pose, QOS_CONTROL)
         self.bridge = bridge
         if bridge is None:
-            self.create_subscription(JointState, "wheel_state", self._on_wheels, QOS_CONTROL)
+            self.create_subscription(JointState, 'wheel_state', self._on_wheels, QOS_CONTROL)
         else:
             bridge.telemetry_sinks.append(self.wheel_sample)
-        self.create_subscription(String, "/formation/graph", self._on_graph, QOS_GRAPH)
-        self.create_subscription(String, "/formation/encounters", self._on_encounters, QOS_GRAPH)
-        self.neighbours = {k: (peers.records[k] if peers is not None and k in peers.ids
-                               else self._subscribe_neighbour(k)) for k in sc.robot_ids if k != self.rid}
+        self.create_subscription(String, '/formation/graph', self._on_graph, QOS_GRAPH)
+        self.create_subscription(String, '/formation/encounters', self._on_encounters, QOS_GRAPH)
+        self.neighbours = {
+            k: (
+                peers.records[k]
+                if peers is not None and k in peers.ids
+                else self._subscribe_neighbour(k)
+            )
+            for k in sc.robot_ids
+            if k != self.rid
+        }
         if self.orig_parent_id is not None:
             self.orig = self.neighbours[self.orig_parent_id]
         self._update_hearing()
         self.diag = diag.Diagnostics(self)
-        robot = f"robot_{self.rid}"
-        self.diag.add(f"{robot} control", self._control_status, hardware_id=robot)
-        self.control_watch = self.diag.watch(f"{robot} control loop", 1.0 / self.prm.control_rate_hz,
-                                             hardware_id=robot)
-        self.diag.add(f"{robot} inputs", self._inputs_status, hardware_id=robot)
-        self._rejected_seen = (0, -math.inf)     # (total, when it last grew [s])
-        self.timer = self.create_timer(1.0 / self.prm.control_rate_hz, self._control) if tick_timer else None
-        self.law.warm_up()      # compile (or load) the law's kernels now, not in the first tick
-        if tick_timer and self.prm.realtime_priority:   # the executor thread runs the control timer
+        robot = f'robot_{self.rid}'
+        self.diag.add(f'{robot} control', self._control_status, hardware_id=robot)
+        self.control_watch = self.diag.watch(
+            f'{robot} control loop', 1.0 / self.prm.control_rate_hz, hardware_id=robot
+        )
+        self.diag.add(f'{robot} inputs', self._inputs_status, hardware_id=robot)
+        self._rejected_seen = (0, -math.inf)  # (total, when it last grew [s])
+        self.timer = (
+            self.create_timer(1.0 / self.prm.control_rate_hz, self._control)
+            if tick_timer
+            else None
+        )
+        self.law.warm_up()  # compile (or load) the law's kernels now, not in the first tick
+        if tick_timer and self.prm.realtime_priority:  # the executor thread runs the control timer
             set_realtime(self.prm.realtime_priority, self.get_logger())
 
     # ------------------------------------------------------------------ time
@@ -319,14 +421,14 @@ class ControllerNode(Node):
         pose, stamp_s = msgs.pose_from_msg(msg)
         with self.lock:
             outcome = self.estimator.camera_update(stamp_s, pose)
-        if outcome.startswith("rejected"):
-            self.rejected["pose"] += 1
+        if outcome.startswith('rejected'):
+            self.rejected['pose'] += 1
 
     def _on_wheels(self, msg: JointState) -> None:
         try:
             q, qd, stamp_s = msgs.wheel_state_from_msg(msg)
         except ValueError:
-            self.rejected["wheel"] += 1
+            self.rejected['wheel'] += 1
             return
         self.wheel_sample(q, qd, stamp_s)
 
@@ -335,7 +437,7 @@ class ControllerNode(Node):
         if self.estimator.wheel_update(stamp_s, q, qd):
             self.last_wheel_s = self.now_s()
         else:
-            self.rejected["wheel"] += 1
+            self.rejected['wheel'] += 1
 
     def _on_graph(self, msg: String) -> None:
         with self.lock:
@@ -346,7 +448,7 @@ class ControllerNode(Node):
         try:
             graph = msgs.graph_from_msg(msg)
         except ValueError:
-            self.rejected["graph"] += 1
+            self.rejected['graph'] += 1
             self.diag.changed()
             return
         if self.graph is not None and graph.revision < self.graph.revision:
@@ -356,7 +458,7 @@ class ControllerNode(Node):
             self.start_s = graph.start_s
         parent = graph.parents.get(self.rid)
         if parent is not None and parent not in self.neighbours:
-            self.rejected["graph"] += 1
+            self.rejected['graph'] += 1
             return
         self.parent = None if parent is None else self.neighbours[parent]
         offset = graph.offsets_m.get(self.rid, (0.0, 0.0))
@@ -366,7 +468,7 @@ class ControllerNode(Node):
         try:
             revision, assignments = msgs.encounters_from_msg(msg)
         except ValueError:
-            self.rejected["encounters"] += 1
+            self.rejected['encounters'] += 1
             self.diag.changed()
             return
         if revision < self.encounter_revision:
@@ -382,14 +484,14 @@ class ControllerNode(Node):
         def on_state(msg, nb=nb):
             state, stamp_s = msgs.state_from_odometry(msg)
             if not np.all(np.isfinite(state)):
-                self.rejected["parent"] += 1
+                self.rejected['parent'] += 1
                 return
             nb.state, nb.stamp_s = state, stamp_s
 
         def on_accel(msg, nb=nb):
             accel, _ = msgs.accel_from_msg(msg)
             if not np.all(np.isfinite(accel)):
-                self.rejected["parent"] += 1
+                self.rejected['parent'] += 1
                 return
             nb.accel = accel
 
@@ -397,7 +499,7 @@ class ControllerNode(Node):
             try:
                 mode = msgs.mode_from_msg(msg)
             except ValueError:
-                self.rejected["parent"] += 1
+                self.rejected['parent'] += 1
                 return
             nb.mode, nb.target = threat_mode(mode)
 
@@ -414,16 +516,20 @@ class ControllerNode(Node):
                 self._update_hearing(nb)
 
         nb.callbacks = (on_state, on_accel)
-        nb.low_subs = [self.create_subscription(String, f"/robot_{rid}/mode", on_mode, QOS_CONTROL)]
-        if not self.prm.hear_all:      # range gate from the camera poses (30 fps) of robot rid
-            nb.low_subs.append(self.create_subscription(PoseStamped, f"/robot_{rid}/pose", on_camera,
-                                                        QOS_CONTROL))
+        nb.low_subs = [
+            self.create_subscription(String, f'/robot_{rid}/mode', on_mode, QOS_CONTROL)
+        ]
+        if not self.prm.hear_all:  # range gate from the camera poses (30 fps) of robot rid
+            nb.low_subs.append(
+                self.create_subscription(PoseStamped, f'/robot_{rid}/pose', on_camera, QOS_CONTROL)
+            )
         return nb
 
     def _needed(self, nb: _Neighbour) -> bool:
         """Full-rate state/accel of ``nb`` is needed: every robot with ``hear_all``; else the
         current and original parents (S4 field, S8.3 exit goal), the partner of the coordinator's
-        assignment, and the robots whose camera pose is within hearing range (possible S7 threats)."""
+        assignment, and the robots whose camera pose is within hearing range (possible S7 threats).
+        """
         if self.prm.hear_all or nb is self.parent or nb.rid == self.orig_parent_id or nb.in_range:
             return True
         a = self.assignment
@@ -431,24 +537,32 @@ class ControllerNode(Node):
 
     def _update_hearing(self, only: _Neighbour | None = None) -> None:
         """Subscribe / unsubscribe the full-rate state and accel of the robots in other processes
-        as :meth:`_needed` says (executor thread only: graph, encounters and camera callbacks)."""
-        for nb in (self.neighbours.values() if only is None else (only,)):
-            if not hasattr(nb, "callbacks"):          # a peer in the same process: read directly
+        as :meth:`_needed` says (executor thread only: graph, encounters and camera callbacks).
+        """
+        for nb in self.neighbours.values() if only is None else (only,):
+            if not hasattr(nb, 'callbacks'):  # a peer in the same process: read directly
                 continue
             need = self._needed(nb)
             if need and not nb.subs:
                 on_state, on_accel = nb.callbacks
-                nb.subs = [self.create_subscription(msgs.Odometry, f"/robot_{nb.rid}/state", on_state, QOS_CONTROL),
-                           self.create_subscription(AccelStamped, f"/robot_{nb.rid}/accel", on_accel, QOS_CONTROL)]
+                nb.subs = [
+                    self.create_subscription(
+                        msgs.Odometry, f'/robot_{nb.rid}/state', on_state, QOS_CONTROL
+                    ),
+                    self.create_subscription(
+                        AccelStamped, f'/robot_{nb.rid}/accel', on_accel, QOS_CONTROL
+                    ),
+                ]
             elif not need and nb.subs:
                 for sub in nb.subs:
                     self.destroy_subscription(sub)
                 nb.subs = []
-                nb.state, nb.stamp_s = None, -math.inf    # not heard any more: not used
+                nb.state, nb.stamp_s = None, -math.inf  # not heard any more: not used
 
     def _neighbour_now(self, nb: _Neighbour | None, now_s: float) -> np.ndarray | None:
         """The neighbour's state extrapolated to now with its commanded acceleration (S10, S13 #13);
-        None when unknown or older than parent_hold_s."""
+        None when unknown or older than parent_hold_s.
+        """
         if nb is None or nb.state is None:
             return None
         age = now_s - nb.stamp_s
@@ -460,18 +574,21 @@ class ControllerNode(Node):
         x = nb.state.copy()
         d = self.k.d[0]
         th, v, w = x[2], x[3], x[4]
-        pdot = np.array([v * math.cos(th) - d * w * math.sin(th), v * math.sin(th) + d * w * math.cos(th)])
+        pdot = np.array(
+            [v * math.cos(th) - d * w * math.sin(th), v * math.sin(th) + d * w * math.cos(th)]
+        )
         x[:2] = x[:2] + pdot * dt + 0.5 * nb.accel * dt * dt
         return x
 
     def _goal_of(self, rid: int, t_s: float, known: dict) -> tuple:
         """(g, g_dot) of robot ``rid`` at scenario time ``t_s`` (S8.3 item 1), each (2,) [m], [m/s]:
         a leader's r(t), r_dot(t); a follower's original parent point + delta and that point's
-        velocity; (None, None) when its original parent is not heard."""
-        cache = self._goals if self.peers is None else self.peers.goals   # a team ticks at one time
-        if cache.get("t") != t_s:
+        velocity; (None, None) when its original parent is not heard.
+        """
+        cache = self._goals if self.peers is None else self.peers.goals  # a team ticks at one time
+        if cache.get('t') != t_s:
             cache.clear()
-            cache["t"] = t_s
+            cache['t'] = t_s
         hit = cache.get(rid)
         if hit is not None:
             return hit
@@ -485,74 +602,91 @@ class ControllerNode(Node):
                 return None, None
             x, y, th, v, w = xp.tolist()
             c, s = math.cos(th), math.sin(th)
-            hit = (np.array([x + offset[0], y + offset[1]]), np.array([v * c - d * w * s, v * s + d * w * c]))
+            hit = (
+                np.array([x + offset[0], y + offset[1]]),
+                np.array([v * c - d * w * s, v * s + d * w * c]),
+            )
         cache[rid] = hit
         return hit
 
     # ------------------------------------------------------------------ control loop
     def control_tick(self, now_s: float | None = None) -> None:
         """One control period (the node's own timer, or its owner's when ``tick_timer=False``;
-        a team passes one ``now_s`` [s, ROS time] to every robot it hosts)."""
+        a team passes one ``now_s`` [s, ROS time] to every robot it hosts).
+        """
         self._control(now_s)
 
     def _control(self, now_s: float | None = None) -> None:
         now = self.now_s() if now_s is None else now_s
         self.control_watch.tick(int(now * 1e9))
         wall = time.monotonic()
-        if (self._last_tick_wall is not None and self.start_s is not None and not self._sim_time
-                and wall - self._last_tick_wall > 1.5 / self.prm.control_rate_hz):
-            self.late_ticks += 1       # a missed control deadline (wall clock runs only)
+        if (
+            self._last_tick_wall is not None
+            and self.start_s is not None
+            and not self._sim_time
+            and wall - self._last_tick_wall > 1.5 / self.prm.control_rate_hz
+        ):
+            self.late_ticks += 1  # a missed control deadline (wall clock runs only)
         self._last_tick_wall = wall
         self.ticks += 1
         est = self.estimator
         if not est.initialized:
-            self._safety("waiting")
+            self._safety('waiting')
             self._send(np.zeros(2), None, now)
             return
         state = est.state_at(now)
         self._own_xy = (float(state[0]), float(state[1]))
         stamp = msgs.stamp_from_s(now)
-        self._msg_state = msgs.odometry(state, stamp, f"robot_{self.rid}", out=self._msg_state)
+        self._msg_state = msgs.odometry(state, stamp, f'robot_{self.rid}', out=self._msg_state)
         self.pub_state.publish(self._msg_state)
         if self.record is not None:
             self.record.state, self.record.stamp_s = state, now
         if now - self.last_wheel_s > self.prm.wheel_timeout_s:
-            self._safety("stopped_wheels")
-            self._send(np.zeros(2), None, now)     # no encoder data: nothing to brake with
+            self._safety('stopped_wheels')
+            self._send(np.zeros(2), None, now)  # no encoder data: nothing to brake with
             return
         if est.camera_age_s(now) > self.prm.pose_timeout_s:
-            self._safety("stopped_pose")
-            self._send(stop_torque(state[None], self.k, self.prm.stop_time_s, self.scenario.control)[0], None, now)
+            self._safety('stopped_pose')
+            self._send(
+                stop_torque(state[None], self.k, self.prm.stop_time_s, self.scenario.control)[0],
+                None,
+                now,
+            )
             return
         if self.start_s is None or now < self.start_s:
-            self._safety("waiting")
+            self._safety('waiting')
             self._send(np.zeros(2), None, now)
             return
         t = now - self.start_s
         parent_state = self._neighbour_now(self.parent, now)
         if self.parent is not None and parent_state is None:
-            self._safety("hold_parent")
-            self._send(stop_torque(state[None], self.k, self.prm.stop_time_s, self.scenario.control)[0], None, now)
+            self._safety('hold_parent')
+            self._send(
+                stop_torque(state[None], self.k, self.prm.stop_time_s, self.scenario.control)[0],
+                None,
+                now,
+            )
             return
-        self._safety("running")
+        self._safety('running')
         heard: dict[int, NeighbourState] = {}
         known = {self.rid: state}
         for k, nb in self.neighbours.items():
             xk = parent_state if nb is self.parent else self._neighbour_now(nb, now)
             if xk is not None:
                 known[k] = xk
-        for k, xk in known.items():    # every input was checked on arrival (finite, known mode)
+        for k, xk in known.items():  # every input was checked on arrival (finite, known mode)
             if k == self.rid:
                 continue
             nb = self.neighbours[k]
             radius, team, d = self.robot_info[k]
             goal, goal_dot = self._goal_of(k, t, known)
-            heard[k] = NeighbourState.trusted(xk, nb.accel, radius, team, nb.mode, nb.target, d,
-                                              goal, goal_dot)
+            heard[k] = NeighbourState.trusted(
+                xk, nb.accel, radius, team, nb.mode, nb.target, d, goal, goal_dot
+            )
         orig_state = None
         if self.orig_parent_id is not None:
             orig_state = heard.get(self.orig_parent_id)
-            if orig_state is None:       # pi0 silent: goal = own position (no exit pull)
+            if orig_state is None:  # pi0 silent: goal = own position (no exit pull)
                 orig_state = NeighbourState(state - np.r_[self.orig_offset, 0.0, 0.0, 0.0])
         assignment = self.assignment
         key = None
@@ -563,28 +697,55 @@ class ControllerNode(Node):
         # the coordinator withdrew (or replaced) the assignment in force: its joint exit (S8.3)
         withdrawn = self._applied is not None and key != self._applied
         release = self._applied[1] if withdrawn else None
-        out = self.law.step(t, state, parent=None if self.parent is None else heard[self.parent.rid],
-                            original_parent=orig_state, neighbours=heard, assignment=assignment,
-                            release=release)
-        if withdrawn and (out.mode, out.target) != (self._applied[0], f"robot_{self._applied[1]}"):
-            self._done.add(self._applied)              # left on the coordinator's release
+        out = self.law.step(
+            t,
+            state,
+            parent=None if self.parent is None else heard[self.parent.rid],
+            original_parent=orig_state,
+            neighbours=heard,
+            assignment=assignment,
+            release=release,
+        )
+        if withdrawn and (out.mode, out.target) != (self._applied[0], f'robot_{self._applied[1]}'):
+            self._done.add(self._applied)  # left on the coordinator's release
             self._applied = None
         if assignment is not None:
             self._applied = key
-        if self._applied is not None and (out.mode, out.target) != (self._applied[0], f"robot_{self._applied[1]}"):
-            self._done.add(self._applied)              # left (or replaced) with its own exit test
+        if self._applied is not None and (out.mode, out.target) != (
+            self._applied[0],
+            f'robot_{self._applied[1]}',
+        ):
+            self._done.add(self._applied)  # left (or replaced) with its own exit test
             self._applied = None
         self.events.extend(out.events)
-        self.mode = {"mode": out.mode, "target": out.target, "direction": out.direction,
-                     "avoiding": out.mode != "coordination"}
-        self._send(np.asarray(out.torque_nm, dtype=float), np.asarray(out.accel_cmd_mps2, dtype=float), now)
+        self.mode = {
+            'mode': out.mode,
+            'target': out.target,
+            'direction': out.direction,
+            'avoiding': out.mode != 'coordination',
+        }
+        self._send(
+            np.asarray(out.torque_nm, dtype=float),
+            np.asarray(out.accel_cmd_mps2, dtype=float),
+            now,
+        )
 
     def _control_status(self) -> tuple[int, str, dict]:
-        values = {"ticks": self.ticks, "late_ticks": self.late_ticks, "safety": self.safety,
-                  "mode": self.mode["mode"], **{f"rejected_{k}": v for k, v in self.rejected.items()},
-                  **self.estimator.counters.as_dict()}
-        level = (diag.OK if self.safety in ("running", "waiting") else
-                 diag.WARN if self.safety == "hold_parent" else diag.ERROR)
+        values = {
+            'ticks': self.ticks,
+            'late_ticks': self.late_ticks,
+            'safety': self.safety,
+            'mode': self.mode['mode'],
+            **{f'rejected_{k}': v for k, v in self.rejected.items()},
+            **self.estimator.counters.as_dict(),
+        }
+        level = (
+            diag.OK
+            if self.safety in ('running', 'waiting')
+            else diag.WARN
+            if self.safety == 'hold_parent'
+            else diag.ERROR
+        )
         return level, self.safety, values
 
     def _inputs_status(self) -> tuple[int, str, dict]:
@@ -592,26 +753,34 @@ class ControllerNode(Node):
         now = self.now_s()
         if total != self._rejected_seen[0]:
             self._rejected_seen = (total, since := now)
-        values = {f"rejected_{k}": v for k, v in self.rejected.items()}
-        if total and now - since <= 10.0:     # a stable message: a flood publishes once
-            return diag.WARN, "inputs rejected in the last 10 s", values
-        return diag.OK, "inputs valid" if not total else "no input rejected in the last 10 s", values
+        values = {f'rejected_{k}': v for k, v in self.rejected.items()}
+        if total and now - since <= 10.0:  # a stable message: a flood publishes once
+            return diag.WARN, 'inputs rejected in the last 10 s', values
+        return (
+            diag.OK,
+            'inputs valid' if not total else 'no input rejected in the last 10 s',
+            values,
+        )
 
     def _safety(self, status: str) -> None:
         if status != self.safety:
-            if status.startswith(("stopped", "hold")):
-                self.get_logger().warn(f"safety: {self.safety} -> {status}")
+            if status.startswith(('stopped', 'hold')):
+                self.get_logger().warn(f'safety: {self.safety} -> {status}')
             else:
-                self.get_logger().info(f"safety: {self.safety} -> {status}")
+                self.get_logger().info(f'safety: {self.safety} -> {status}')
             self.safety = status
-            if status != "running":
-                self.mode = {"mode": "hold" if status in ("waiting", "hold_parent") else "stopped",
-                             "target": None, "direction": None, "avoiding": False}
-            self.diag.changed()       # a safety change is published when it happens
+            if status != 'running':
+                self.mode = {
+                    'mode': 'hold' if status in ('waiting', 'hold_parent') else 'stopped',
+                    'target': None,
+                    'direction': None,
+                    'avoiding': False,
+                }
+            self.diag.changed()  # a safety change is published when it happens
 
     def _send(self, torque: np.ndarray, accel: np.ndarray | None, now: float) -> None:
         torque = np.where(np.isfinite(torque), torque, 0.0)
-        torque = np.clip(torque, -self.tau_max, self.tau_max)   # DESIGN §7: clamp here too
+        torque = np.clip(torque, -self.tau_max, self.tau_max)  # DESIGN §7: clamp here too
         self.last_torque = torque
         stamp = msgs.stamp_from_s(now)
         if self.bridge is None or self.pub_torque.get_subscription_count():
@@ -623,7 +792,7 @@ class ControllerNode(Node):
         if self.record is not None:
             self.record.accel = accel
             self.record.mode, self.record.target = threat_mode(self.mode)
-        if self.pub_accel.get_subscription_count():     # (in a team, often nobody outside)
+        if self.pub_accel.get_subscription_count():  # (in a team, often nobody outside)
             self._msg_accel = msgs.accel_stamped(accel, stamp, out=self._msg_accel)
             self.pub_accel.publish(self._msg_accel)
         key = tuple(sorted(self.mode.items()))
@@ -632,7 +801,7 @@ class ControllerNode(Node):
             self._mode_sent, self._last_mode_pub = key, now
 
 
-def _send_zero_torque(node: "ControllerNode") -> None:
+def _send_zero_torque(node: 'ControllerNode') -> None:
     """Last word of the process: zero torque (the bridge and the board time out anyway)."""
     if node.bridge is not None:
         node.bridge.command((0.0, 0.0))
@@ -640,8 +809,8 @@ def _send_zero_torque(node: "ControllerNode") -> None:
 
 
 def main(args: list[str] | None = None) -> int:
-    return run_node("formation_controller", ControllerNode, args, on_exit=_send_zero_torque)
+    return run_node('formation_controller', ControllerNode, args, on_exit=_send_zero_torque)
 
 
-if __name__ == "__main__":
+if __name__ == '__main__':
     sys.exit(main())

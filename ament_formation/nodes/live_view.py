@@ -11,7 +11,8 @@ config/foxglove/formation_layout.json). What it shows comes from core/scene.py (
                                per obstacle P (filled), L and Q (outlines) placed at the obstacle's
                                pose at scenario time, so they move and turn with it; the active
                                graph edges parent -> child                         scene_rate_hz
-  /camera/image/compressed     foxglove.CompressedImage (JPEG of the overhead camera)  image_rate_hz
+  /camera/image/compressed     foxglove.CompressedImage (JPEG of the overhead camera)
+  image_rate_hz
   /formation/series/robot_<id> JSON {t_s, formation_error_m, clearance_m, nearest_obstacle,
                                robot_distance_m, torque_left_nm, torque_right_nm, avoiding, mode}
                                for the Plot panel                                   series_rate_hz
@@ -41,17 +42,19 @@ Parameters
   series_rate_hz  float  time-series samples per robot [Hz]                    default 10
   image_rate_hz   float  camera frames sent [Hz] (0: no image)                 default 5
   jpeg_quality    int    JPEG quality, 1..100                                  default 75
-  image_topic     str    the camera topic                                      default /camera/image_raw
+  image_topic     str    the camera topic                                      default
+  /camera/image_raw
 """
+
 from __future__ import annotations
 
+from dataclasses import dataclass
 import ipaddress
 import json
 import math
 import re
 import sys
 import time
-from dataclasses import dataclass
 
 import numpy as np
 from rclpy.node import Node
@@ -61,49 +64,64 @@ from std_msgs.msg import String
 
 from ament_formation.core.errors import ConfigError
 from ament_formation.core.scenario import load_scenario
-from ament_formation.core.scene import LiveScene, Scene, finite_or_none, robot_rgb, scenario_time_s
+from ament_formation.core.scene import finite_or_none, LiveScene, robot_rgb, scenario_time_s, Scene
 from ament_formation.ros import messages as msgs
 from ament_formation.ros.executors import run_node
 from ament_formation.ros.params import declare_dataclass
 from ament_formation.ros.qos import QOS_CONTROL, QOS_GRAPH, QOS_IMAGE
 
-SCENE_TOPIC = "/formation/scene"
-IMAGE_TOPIC = "/camera/image/compressed"
-STATUS_TOPIC = "/formation/status"
-SERIES_TOPIC = "/formation/series/robot_{id}"
+SCENE_TOPIC = '/formation/scene'
+IMAGE_TOPIC = '/camera/image/compressed'
+STATUS_TOPIC = '/formation/status'
+SERIES_TOPIC = '/formation/series/robot_{id}'
 WORLD_FRAME = msgs.WORLD_FRAME
 
-_HOSTNAME_RE = re.compile(r"^[A-Za-z0-9]([A-Za-z0-9.\-]{0,252})$")
+_HOSTNAME_RE = re.compile(r'^[A-Za-z0-9]([A-Za-z0-9.\-]{0,252})$')
 
 
 @dataclass(frozen=True)
 class LiveViewParams:
-    scenario: str = ""
-    host: str = "127.0.0.1"
+    scenario: str = ''
+    host: str = '127.0.0.1'
     port: int = 8765
     scene_rate_hz: float = 10.0
     series_rate_hz: float = 10.0
     image_rate_hz: float = 5.0
     jpeg_quality: int = 75
-    image_topic: str = "/camera/image_raw"
+    image_topic: str = '/camera/image_raw'
 
     def __post_init__(self) -> None:
         if not self.scenario:
-            raise ConfigError("is required (path of a scenario YAML)", "scenario")
-        if not (isinstance(self.host, str) and (_is_ip(self.host) or _HOSTNAME_RE.match(self.host))):
-            raise ConfigError(f"must be an IP address or host name (got {self.host!r})", "host")
+            raise ConfigError('is required (path of a scenario YAML)', 'scenario')
+        if not (
+            isinstance(self.host, str) and (_is_ip(self.host) or _HOSTNAME_RE.match(self.host))
+        ):
+            raise ConfigError(f'must be an IP address or host name (got {self.host!r})', 'host')
         if not (isinstance(self.port, int) and 0 <= self.port <= 65535):
-            raise ConfigError(f"must be a TCP port in [0, 65535] (0: any free port; got {self.port!r})", "port")
-        for name, lo, hi, zero_ok in (("scene_rate_hz", 0.5, 60.0, False), ("series_rate_hz", 0.5, 200.0, False),
-                                      ("image_rate_hz", 0.1, 30.0, True)):
+            raise ConfigError(
+                f'must be a TCP port in [0, 65535] (0: any free port; got {self.port!r})', 'port'
+            )
+        for name, lo, hi, zero_ok in (
+            ('scene_rate_hz', 0.5, 60.0, False),
+            ('series_rate_hz', 0.5, 200.0, False),
+            ('image_rate_hz', 0.1, 30.0, True),
+        ):
             v = getattr(self, name)
-            ok = isinstance(v, (int, float)) and math.isfinite(v) and (lo <= v <= hi or (zero_ok and v == 0))
+            ok = (
+                isinstance(v, (int, float))
+                and math.isfinite(v)
+                and (lo <= v <= hi or (zero_ok and v == 0))
+            )
             if not ok:
-                raise ConfigError(f"must be in [{lo:g}, {hi:g}] Hz{' or 0' if zero_ok else ''} (got {v!r})", name)
+                raise ConfigError(
+                    f'must be in [{lo:g}, {hi:g}] Hz{" or 0" if zero_ok else ""} (got {v!r})', name
+                )
         if not (isinstance(self.jpeg_quality, int) and 1 <= self.jpeg_quality <= 100):
-            raise ConfigError(f"must be an integer in [1, 100] (got {self.jpeg_quality!r})", "jpeg_quality")
+            raise ConfigError(
+                f'must be an integer in [1, 100] (got {self.jpeg_quality!r})', 'jpeg_quality'
+            )
         if not (isinstance(self.image_topic, str) and self.image_topic.strip()):
-            raise ConfigError("must be a topic name", "image_topic")
+            raise ConfigError('must be a topic name', 'image_topic')
 
 
 def _is_ip(host: str) -> bool:
@@ -116,7 +134,7 @@ def _is_ip(host: str) -> bool:
 
 def is_loopback(host: str) -> bool:
     """True when ``host`` only accepts connections from this machine."""
-    if host == "localhost":
+    if host == 'localhost':
         return True
     try:
         return ipaddress.ip_address(host).is_loopback
@@ -126,33 +144,47 @@ def is_loopback(host: str) -> bool:
 
 # ------------------------------------------------------------------------------ foxglove messages
 SERIES_SCHEMA = {
-    "title": "ament_formation.RobotSeries",
-    "description": "One robot's live time series (formation_live_view)",
-    "type": "object",
-    "properties": {
-        "t_s": {"type": ["number", "null"], "description": "scenario time [s] (null before the start)"},
-        "formation_error_m": {"type": ["number", "null"], "description": "|p_i - g_i| [m]"},
-        "clearance_m": {"type": ["number", "null"],
-                        "description": "signed distance of p_i to the nearest prohibited ellipse P_j [m], < 0 inside"},
-        "nearest_obstacle": {"type": ["string", "null"]},
-        "robot_distance_m": {"type": ["number", "null"], "description": "distance to the nearest other robot [m]"},
-        "torque_left_nm": {"type": ["number", "null"], "description": "commanded left wheel torque [N m]"},
-        "torque_right_nm": {"type": ["number", "null"], "description": "commanded right wheel torque [N m]"},
-        "avoiding": {"type": "integer", "description": "1 in an avoidance mode, else 0"},
-        "mode": {"type": ["string", "null"]},
+    'title': 'ament_formation.RobotSeries',
+    'description': "One robot's live time series (formation_live_view)",
+    'type': 'object',
+    'properties': {
+        't_s': {
+            'type': ['number', 'null'],
+            'description': 'scenario time [s] (null before the start)',
+        },
+        'formation_error_m': {'type': ['number', 'null'], 'description': '|p_i - g_i| [m]'},
+        'clearance_m': {
+            'type': ['number', 'null'],
+            'description': 'signed distance of p_i to the nearest prohibited ellipse P_j [m], < 0 inside',
+        },
+        'nearest_obstacle': {'type': ['string', 'null']},
+        'robot_distance_m': {
+            'type': ['number', 'null'],
+            'description': 'distance to the nearest other robot [m]',
+        },
+        'torque_left_nm': {
+            'type': ['number', 'null'],
+            'description': 'commanded left wheel torque [N m]',
+        },
+        'torque_right_nm': {
+            'type': ['number', 'null'],
+            'description': 'commanded right wheel torque [N m]',
+        },
+        'avoiding': {'type': 'integer', 'description': '1 in an avoidance mode, else 0'},
+        'mode': {'type': ['string', 'null']},
     },
 }
 
 STATUS_SCHEMA = {
-    "title": "ament_formation.FormationStatus",
-    "type": "object",
-    "properties": {
-        "t_s": {"type": ["number", "null"]},
-        "start_s": {"type": ["number", "null"]},
-        "revision": {"type": "integer"},
-        "parents": {"type": "object"},
-        "avoiding": {"type": "array", "items": {"type": "integer"}},
-        "modes": {"type": "object"},
+    'title': 'ament_formation.FormationStatus',
+    'type': 'object',
+    'properties': {
+        't_s': {'type': ['number', 'null']},
+        'start_s': {'type': ['number', 'null']},
+        'revision': {'type': 'integer'},
+        'parents': {'type': 'object'},
+        'avoiding': {'type': 'array', 'items': {'type': 'integer'}},
+        'modes': {'type': 'object'},
     },
 }
 
@@ -170,26 +202,29 @@ def _yaw_quat(fx, yaw_rad: float):
 
 
 def _pose(fx, x: float, y: float, z: float = 0.0, yaw_rad: float = 0.0):
-    return fx.Pose(position=fx.Vector3(x=float(x), y=float(y), z=float(z)), orientation=_yaw_quat(fx, yaw_rad))
+    return fx.Pose(
+        position=fx.Vector3(x=float(x), y=float(y), z=float(z)), orientation=_yaw_quat(fx, yaw_rad)
+    )
 
 
 def _color(fx, rgb, a: float = 1.0):
     return fx.Color(r=float(rgb[0]), g=float(rgb[1]), b=float(rgb[2]), a=float(a))
 
 
-OUTLINE_RGBA = {"P": (0.8, 0.1, 0.1, 1.0), "L": (0.1, 0.5, 0.9, 1.0), "Q": (0.5, 0.5, 0.5, 0.7)}
+OUTLINE_RGBA = {'P': (0.8, 0.1, 0.1, 1.0), 'L': (0.1, 0.5, 0.9, 1.0), 'Q': (0.5, 0.5, 0.5, 0.7)}
 CCW_RGB, CW_RGB = (0.1, 0.7, 0.2), (1.0, 0.55, 0.0)
 
 
 def scene_update(scene: Scene, stamp_ns: int, cache: dict | None = None):
-    """foxglove SceneUpdate of a core Scene (entities keep their ids from update to update, so each
+    """Foxglove SceneUpdate of a core Scene (entities keep their ids from update to update, so each
     update replaces the previous one; ids: robot_<id>, goal_<id>, avoid_<id>, obstacle_<name>,
     graph_edges). Robot entities carry metadata t_s, mode, target, direction. ``cache``: a dict
-    kept by the caller for the obstacle outlines' points (fixed in the obstacle frame)."""
+    kept by the caller for the obstacle outlines' points (fixed in the obstacle frame).
+    """
     fx = _fx()
     cache = {} if cache is None else cache
     ts = fx.Timestamp(sec=int(stamp_ns // 1_000_000_000), nsec=int(stamp_ns % 1_000_000_000))
-    t_text = "" if scene.t_s is None else f"{scene.t_s:.3f}"
+    t_text = '' if scene.t_s is None else f'{scene.t_s:.3f}'
     entities = []
 
     def entity(eid: str, **kw):
@@ -199,39 +234,95 @@ def scene_update(scene: Scene, stamp_ns: int, cache: dict | None = None):
         x, y, th = (float(v) for v in r.pose)
         rad = r.body_radius_m
         rgb = robot_rgb(r.id)
-        meta = [fx.KeyValuePair(key="t_s", value=t_text), fx.KeyValuePair(key="mode", value=r.mode),
-                fx.KeyValuePair(key="target", value="" if r.target is None else str(r.target)),
-                fx.KeyValuePair(key="direction", value="" if r.direction is None else str(r.direction))]
-        entity(f"robot_{r.id}", metadata=meta,
-               cylinders=[fx.CylinderPrimitive(pose=_pose(fx, x, y, 0.025), size=fx.Vector3(x=2 * rad, y=2 * rad, z=0.05),
-                                               bottom_scale=1.0, top_scale=1.0,
-                                               color=_color(fx, (1.0, 0.2, 0.2) if r.avoiding else rgb, 0.85))],
-               arrows=[fx.ArrowPrimitive(pose=_pose(fx, x, y, 0.07, th), shaft_length=1.2 * rad, shaft_diameter=0.02,
-                                         head_length=0.05, head_diameter=0.05, color=_color(fx, rgb))],
-               texts=[fx.TextPrimitive(pose=_pose(fx, x, y + rad + 0.05, 0.15), billboard=True, font_size=14.0,
-                                       scale_invariant=True, color=_color(fx, (0.05, 0.05, 0.05)), text=r.label)])
+        meta = [
+            fx.KeyValuePair(key='t_s', value=t_text),
+            fx.KeyValuePair(key='mode', value=r.mode),
+            fx.KeyValuePair(key='target', value='' if r.target is None else str(r.target)),
+            fx.KeyValuePair(
+                key='direction', value='' if r.direction is None else str(r.direction)
+            ),
+        ]
+        entity(
+            f'robot_{r.id}',
+            metadata=meta,
+            cylinders=[
+                fx.CylinderPrimitive(
+                    pose=_pose(fx, x, y, 0.025),
+                    size=fx.Vector3(x=2 * rad, y=2 * rad, z=0.05),
+                    bottom_scale=1.0,
+                    top_scale=1.0,
+                    color=_color(fx, (1.0, 0.2, 0.2) if r.avoiding else rgb, 0.85),
+                )
+            ],
+            arrows=[
+                fx.ArrowPrimitive(
+                    pose=_pose(fx, x, y, 0.07, th),
+                    shaft_length=1.2 * rad,
+                    shaft_diameter=0.02,
+                    head_length=0.05,
+                    head_diameter=0.05,
+                    color=_color(fx, rgb),
+                )
+            ],
+            texts=[
+                fx.TextPrimitive(
+                    pose=_pose(fx, x, y + rad + 0.05, 0.15),
+                    billboard=True,
+                    font_size=14.0,
+                    scale_invariant=True,
+                    color=_color(fx, (0.05, 0.05, 0.05)),
+                    text=r.label,
+                )
+            ],
+        )
         if r.goal_m is not None:
             gx, gy = float(r.goal_m[0]), float(r.goal_m[1])
-            entity(f"goal_{r.id}",
-                   spheres=[fx.SpherePrimitive(pose=_pose(fx, gx, gy, 0.02), size=fx.Vector3(x=0.05, y=0.05, z=0.05),
-                                               color=_color(fx, rgb, 0.8))],
-                   lines=[fx.LinePrimitive(type=fx.LinePrimitiveLineType.LineStrip, thickness=0.005,
-                                           points=[fx.Point3(x=x, y=y, z=0.02), fx.Point3(x=gx, y=gy, z=0.02)],
-                                           color=_color(fx, rgb, 0.5))])
+            entity(
+                f'goal_{r.id}',
+                spheres=[
+                    fx.SpherePrimitive(
+                        pose=_pose(fx, gx, gy, 0.02),
+                        size=fx.Vector3(x=0.05, y=0.05, z=0.05),
+                        color=_color(fx, rgb, 0.8),
+                    )
+                ],
+                lines=[
+                    fx.LinePrimitive(
+                        type=fx.LinePrimitiveLineType.LineStrip,
+                        thickness=0.005,
+                        points=[fx.Point3(x=x, y=y, z=0.02), fx.Point3(x=gx, y=gy, z=0.02)],
+                        color=_color(fx, rgb, 0.5),
+                    )
+                ],
+            )
         else:
-            entity(f"goal_{r.id}")
+            entity(f'goal_{r.id}')
         if r.avoiding and r.circulation_rad is not None:
-            rgb_dir = CCW_RGB if r.direction == "ccw" else CW_RGB
+            rgb_dir = CCW_RGB if r.direction == 'ccw' else CW_RGB
             tx, ty = float(r.target_m[0]), float(r.target_m[1])
-            entity(f"avoid_{r.id}",
-                   arrows=[fx.ArrowPrimitive(pose=_pose(fx, x, y, 0.12, r.circulation_rad), shaft_length=2.0 * rad,
-                                             shaft_diameter=0.025, head_length=0.07, head_diameter=0.07,
-                                             color=_color(fx, rgb_dir))],
-                   lines=[fx.LinePrimitive(type=fx.LinePrimitiveLineType.LineStrip, thickness=0.006,
-                                           points=[fx.Point3(x=x, y=y, z=0.12), fx.Point3(x=tx, y=ty, z=0.12)],
-                                           color=_color(fx, rgb_dir, 0.6))])
+            entity(
+                f'avoid_{r.id}',
+                arrows=[
+                    fx.ArrowPrimitive(
+                        pose=_pose(fx, x, y, 0.12, r.circulation_rad),
+                        shaft_length=2.0 * rad,
+                        shaft_diameter=0.025,
+                        head_length=0.07,
+                        head_diameter=0.07,
+                        color=_color(fx, rgb_dir),
+                    )
+                ],
+                lines=[
+                    fx.LinePrimitive(
+                        type=fx.LinePrimitiveLineType.LineStrip,
+                        thickness=0.006,
+                        points=[fx.Point3(x=x, y=y, z=0.12), fx.Point3(x=tx, y=ty, z=0.12)],
+                        color=_color(fx, rgb_dir, 0.6),
+                    )
+                ],
+            )
         else:
-            entity(f"avoid_{r.id}")          # empty: replaces the previous arrow
+            entity(f'avoid_{r.id}')  # empty: replaces the previous arrow
     for o in scene.obstacles:
         cx, cy = float(o.center_m[0]), float(o.center_m[1])
         pose = _pose(fx, cx, cy, 0.0, o.phi_rad)
@@ -239,34 +330,81 @@ def scene_update(scene: Scene, stamp_ns: int, cache: dict | None = None):
         for key, (_scale, outline) in o.outlines.items():
             points = cache.get((o.name, key, id(outline)))
             if points is None:
-                points = cache[(o.name, key, id(outline))] = [fx.Point3(x=float(px), y=float(py), z=0.005)
-                                                              for px, py in outline]
-            lines.append(fx.LinePrimitive(type=fx.LinePrimitiveLineType.LineStrip, pose=pose,
-                                          thickness=0.012 if key == "P" else 0.008, points=points,
-                                          color=_color(fx, OUTLINE_RGBA[key][:3], OUTLINE_RGBA[key][3])))
+                points = cache[(o.name, key, id(outline))] = [
+                    fx.Point3(x=float(px), y=float(py), z=0.005) for px, py in outline
+                ]
+            lines.append(
+                fx.LinePrimitive(
+                    type=fx.LinePrimitiveLineType.LineStrip,
+                    pose=pose,
+                    thickness=0.012 if key == 'P' else 0.008,
+                    points=points,
+                    color=_color(fx, OUTLINE_RGBA[key][:3], OUTLINE_RGBA[key][3]),
+                )
+            )
         r1, r2 = (float(v) for v in o.semi_axes_m)
-        entity(f"obstacle_{o.name}", metadata=[fx.KeyValuePair(key="t_s", value=t_text)], lines=lines,
-               cylinders=[fx.CylinderPrimitive(pose=_pose(fx, cx, cy, 0.002, o.phi_rad),
-                                               size=fx.Vector3(x=2 * r1, y=2 * r2, z=0.004), bottom_scale=1.0,
-                                               top_scale=1.0, color=_color(fx, (0.8, 0.1, 0.1), 0.25))],
-               texts=[fx.TextPrimitive(pose=_pose(fx, cx, cy, 0.1), billboard=True, font_size=13.0,
-                                       scale_invariant=True, color=_color(fx, (0.5, 0.05, 0.05)), text=o.name)])
+        entity(
+            f'obstacle_{o.name}',
+            metadata=[fx.KeyValuePair(key='t_s', value=t_text)],
+            lines=lines,
+            cylinders=[
+                fx.CylinderPrimitive(
+                    pose=_pose(fx, cx, cy, 0.002, o.phi_rad),
+                    size=fx.Vector3(x=2 * r1, y=2 * r2, z=0.004),
+                    bottom_scale=1.0,
+                    top_scale=1.0,
+                    color=_color(fx, (0.8, 0.1, 0.1), 0.25),
+                )
+            ],
+            texts=[
+                fx.TextPrimitive(
+                    pose=_pose(fx, cx, cy, 0.1),
+                    billboard=True,
+                    font_size=13.0,
+                    scale_invariant=True,
+                    color=_color(fx, (0.5, 0.05, 0.05)),
+                    text=o.name,
+                )
+            ],
+        )
     edge_points = []
     arrows = []
     for e in scene.edges:
         (ax, ay), (bx, by) = (float(v) for v in e.parent_m), (float(v) for v in e.child_m)
         edge_points += [fx.Point3(x=ax, y=ay, z=0.1), fx.Point3(x=bx, y=by, z=0.1)]
         length = math.hypot(bx - ax, by - ay)
-        if length > 1e-6:       # an arrowhead half-way, pointing at the child
-            arrows.append(fx.ArrowPrimitive(pose=_pose(fx, 0.5 * (ax + bx), 0.5 * (ay + by), 0.1,
-                                                       math.atan2(by - ay, bx - ax)),
-                                            shaft_length=0.001, shaft_diameter=0.001, head_length=0.06,
-                                            head_diameter=0.05, color=_color(fx, (0.1, 0.1, 0.1), 0.8)))
-    entity("graph_edges",
-           lines=[fx.LinePrimitive(type=fx.LinePrimitiveLineType.LineList, thickness=0.012, points=edge_points,
-                                   color=_color(fx, (0.1, 0.1, 0.1), 0.8))] if edge_points else [],
-           arrows=arrows,
-           metadata=[fx.KeyValuePair(key="edges", value=json.dumps([[e.parent, e.child] for e in scene.edges]))])
+        if length > 1e-6:  # an arrowhead half-way, pointing at the child
+            arrows.append(
+                fx.ArrowPrimitive(
+                    pose=_pose(
+                        fx, 0.5 * (ax + bx), 0.5 * (ay + by), 0.1, math.atan2(by - ay, bx - ax)
+                    ),
+                    shaft_length=0.001,
+                    shaft_diameter=0.001,
+                    head_length=0.06,
+                    head_diameter=0.05,
+                    color=_color(fx, (0.1, 0.1, 0.1), 0.8),
+                )
+            )
+    entity(
+        'graph_edges',
+        lines=[
+            fx.LinePrimitive(
+                type=fx.LinePrimitiveLineType.LineList,
+                thickness=0.012,
+                points=edge_points,
+                color=_color(fx, (0.1, 0.1, 0.1), 0.8),
+            )
+        ]
+        if edge_points
+        else [],
+        arrows=arrows,
+        metadata=[
+            fx.KeyValuePair(
+                key='edges', value=json.dumps([[e.parent, e.child] for e in scene.edges])
+            )
+        ],
+    )
     return fx.SceneUpdate(entities=entities)
 
 
@@ -276,81 +414,153 @@ def jpeg_of(msg: Image, quality: int) -> bytes:
 
     from ament_formation.ros.image import image_to_mono8, image_to_numpy
 
-    if msg.encoding in ("mono8", "8UC1", "bgr8", "8UC3"):
+    if msg.encoding in ('mono8', '8UC1', 'bgr8', '8UC3'):
         pixels = image_to_numpy(msg)
-    elif msg.encoding == "rgb8":
+    elif msg.encoding == 'rgb8':
         pixels = cv2.cvtColor(np.ascontiguousarray(image_to_numpy(msg)), cv2.COLOR_RGB2BGR)
     else:
         pixels = image_to_mono8(msg)
-    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(pixels), [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    ok, buf = cv2.imencode(
+        '.jpg', np.ascontiguousarray(pixels), [cv2.IMWRITE_JPEG_QUALITY, int(quality)]
+    )
     if not ok:
-        raise ValueError("cv2.imencode failed")
+        raise ValueError('cv2.imencode failed')
     return buf.tobytes()
 
 
 # ------------------------------------------------------------------------------ layout
-LAYOUT_ROBOT_IDS = tuple(range(6))    # config/foxglove/formation_layout.json plots robots 0..5
+LAYOUT_ROBOT_IDS = tuple(range(6))  # config/foxglove/formation_layout.json plots robots 0..5
 
 
 def foxglove_layout(robot_ids=LAYOUT_ROBOT_IDS) -> dict:
     """A Foxglove layout (the app's "Import from file" JSON: configById + mosaic) with the 3D panel
     (top-down on the arena, /formation/scene), the Image panel (/camera/image/compressed) and three
     Plot panels of the series of ``robot_ids``: formation error, clearance, wheel torques.
-    config/foxglove/formation_layout.json is this for robots 0..5 (test_live_view keeps them equal)."""
+    config/foxglove/formation_layout.json is this for robots 0..5 (test_live_view keeps them
+    equal).
+    """
+
     def series(field: str, label: str, rid: int) -> dict:
-        return {"value": f"{SERIES_TOPIC.format(id=rid)}.{field}", "enabled": True,
-                "timestampMethod": "receiveTime", "label": label,
-                "color": "#{:02x}{:02x}{:02x}".format(*(int(255 * c) for c in robot_rgb(rid)))}
+        return {
+            'value': f'{SERIES_TOPIC.format(id=rid)}.{field}',
+            'enabled': True,
+            'timestampMethod': 'receiveTime',
+            'label': label,
+            'color': '#{:02x}{:02x}{:02x}'.format(*(int(255 * c) for c in robot_rgb(rid))),
+        }
 
     def plot(title: str, paths: list[dict], y_label: str) -> dict:
-        return {"foxglovePanelTitle": title, "paths": paths, "xAxisVal": "timestamp", "showLegend": True,
-                "legendDisplay": "floating", "showXAxisLabels": True, "showYAxisLabels": True,
-                "isSynced": True, "yAxisLabel": y_label, "timeWindowMode": "automatic"}
+        return {
+            'foxglovePanelTitle': title,
+            'paths': paths,
+            'xAxisVal': 'timestamp',
+            'showLegend': True,
+            'legendDisplay': 'floating',
+            'showXAxisLabels': True,
+            'showYAxisLabels': True,
+            'isSynced': True,
+            'yAxisLabel': y_label,
+            'timeWindowMode': 'automatic',
+        }
 
     torque_paths = []
     for rid in robot_ids:
-        torque_paths += [series("torque_left_nm", f"robot {rid} left", rid),
-                         {**series("torque_right_nm", f"robot {rid} right", rid), "lineStyle": "dashed"}]
+        torque_paths += [
+            series('torque_left_nm', f'robot {rid} left', rid),
+            {**series('torque_right_nm', f'robot {rid} right', rid), 'lineStyle': 'dashed'},
+        ]
     return {
-        "configById": {
-            "3D!formation": {
-                "foxglovePanelTitle": "arena (world frame, top-down)",
-                "cameraState": {"perspective": False, "distance": 5.0, "phi": 0.0, "thetaOffset": 90.0,
-                                "target": [1.0, 0.6, 0.0], "targetOffset": [0.0, 0.0, 0.0],
-                                "targetOrientation": [0.0, 0.0, 0.0, 1.0], "fovy": 45.0, "near": 0.01,
-                                "far": 5000.0},
-                "followMode": "follow-none", "followTf": WORLD_FRAME,
-                "scene": {"enableStats": False},
-                "transforms": {},
-                "topics": {SCENE_TOPIC: {"visible": True}},
-                "layers": {"grid": {"visible": True, "layerId": "foxglove.Grid", "frameId": WORLD_FRAME,
-                                    "size": 6.0, "divisions": 30, "lineWidth": 1.0, "color": "#24242440",
-                                    "position": [1.0, 0.5, 0.0], "rotation": [0.0, 0.0, 0.0], "order": 1}},
+        'configById': {
+            '3D!formation': {
+                'foxglovePanelTitle': 'arena (world frame, top-down)',
+                'cameraState': {
+                    'perspective': False,
+                    'distance': 5.0,
+                    'phi': 0.0,
+                    'thetaOffset': 90.0,
+                    'target': [1.0, 0.6, 0.0],
+                    'targetOffset': [0.0, 0.0, 0.0],
+                    'targetOrientation': [0.0, 0.0, 0.0, 1.0],
+                    'fovy': 45.0,
+                    'near': 0.01,
+                    'far': 5000.0,
+                },
+                'followMode': 'follow-none',
+                'followTf': WORLD_FRAME,
+                'scene': {'enableStats': False},
+                'transforms': {},
+                'topics': {SCENE_TOPIC: {'visible': True}},
+                'layers': {
+                    'grid': {
+                        'visible': True,
+                        'layerId': 'foxglove.Grid',
+                        'frameId': WORLD_FRAME,
+                        'size': 6.0,
+                        'divisions': 30,
+                        'lineWidth': 1.0,
+                        'color': '#24242440',
+                        'position': [1.0, 0.5, 0.0],
+                        'rotation': [0.0, 0.0, 0.0],
+                        'order': 1,
+                    }
+                },
             },
-            "Image!camera": {
-                "foxglovePanelTitle": "overhead camera",
-                "imageMode": {"imageTopic": IMAGE_TOPIC},
-                "cameraState": {"distance": 20.0, "perspective": True, "phi": 60.0, "target": [0.0, 0.0, 0.0],
-                                "targetOffset": [0.0, 0.0, 0.0], "targetOrientation": [0.0, 0.0, 0.0, 1.0],
-                                "thetaOffset": 45.0, "fovy": 45.0, "near": 0.5, "far": 5000.0},
-                "followMode": "follow-pose", "scene": {}, "transforms": {}, "topics": {}, "layers": {},
+            'Image!camera': {
+                'foxglovePanelTitle': 'overhead camera',
+                'imageMode': {'imageTopic': IMAGE_TOPIC},
+                'cameraState': {
+                    'distance': 20.0,
+                    'perspective': True,
+                    'phi': 60.0,
+                    'target': [0.0, 0.0, 0.0],
+                    'targetOffset': [0.0, 0.0, 0.0],
+                    'targetOrientation': [0.0, 0.0, 0.0, 1.0],
+                    'thetaOffset': 45.0,
+                    'fovy': 45.0,
+                    'near': 0.5,
+                    'far': 5000.0,
+                },
+                'followMode': 'follow-pose',
+                'scene': {},
+                'transforms': {},
+                'topics': {},
+                'layers': {},
             },
-            "Plot!formation_error": plot("formation error |p - g| [m]",
-                                         [series("formation_error_m", f"robot {rid}", rid) for rid in robot_ids],
-                                         "m"),
-            "Plot!clearance": plot("clearance to the nearest P [m] (< 0 inside)",
-                                   [series("clearance_m", f"robot {rid}", rid) for rid in robot_ids], "m"),
-            "Plot!torques": plot("wheel torques [N m]", torque_paths, "N m"),
+            'Plot!formation_error': plot(
+                'formation error |p - g| [m]',
+                [series('formation_error_m', f'robot {rid}', rid) for rid in robot_ids],
+                'm',
+            ),
+            'Plot!clearance': plot(
+                'clearance to the nearest P [m] (< 0 inside)',
+                [series('clearance_m', f'robot {rid}', rid) for rid in robot_ids],
+                'm',
+            ),
+            'Plot!torques': plot('wheel torques [N m]', torque_paths, 'N m'),
         },
-        "globalVariables": {},
-        "userNodes": {},
-        "playbackConfig": {"speed": 1.0},
-        "layout": {
-            "direction": "row", "splitPercentage": 55, "first": "3D!formation",
-            "second": {"direction": "column", "splitPercentage": 34, "first": "Image!camera",
-                       "second": {"direction": "column", "splitPercentage": 33, "first": "Plot!formation_error",
-                                  "second": {"direction": "column", "splitPercentage": 50,
-                                             "first": "Plot!clearance", "second": "Plot!torques"}}},
+        'globalVariables': {},
+        'userNodes': {},
+        'playbackConfig': {'speed': 1.0},
+        'layout': {
+            'direction': 'row',
+            'splitPercentage': 55,
+            'first': '3D!formation',
+            'second': {
+                'direction': 'column',
+                'splitPercentage': 34,
+                'first': 'Image!camera',
+                'second': {
+                    'direction': 'column',
+                    'splitPercentage': 33,
+                    'first': 'Plot!formation_error',
+                    'second': {
+                        'direction': 'column',
+                        'splitPercentage': 50,
+                        'first': 'Plot!clearance',
+                        'second': 'Plot!torques',
+                    },
+                },
+            },
         },
     }
 
@@ -360,7 +570,7 @@ class LiveViewNode(Node):
     """See the module docstring."""
 
     def __init__(self, *, context=None, params: LiveViewParams | None = None, **node_kw):
-        super().__init__("formation_live_view", context=context, **node_kw)
+        super().__init__('formation_live_view', context=context, **node_kw)
         self.prm = params if params is not None else declare_dataclass(self, LiveViewParams)
         self.scenario = load_scenario(self.prm.scenario)
         self.live = LiveScene(self.scenario)
@@ -373,42 +583,75 @@ class LiveViewNode(Node):
         self.graph: msgs.GraphMessage | None = None
         self.parents: dict = {}
         self.start_s: float | None = None
-        self.sent = {"scene": 0, "image": 0, "series": 0, "status": 0}
+        self.sent = {'scene': 0, 'image': 0, 'series': 0, 'status': 0}
         self.rejected = 0
         self._last_image_s = -math.inf
-        self._groups: dict[str, list] = {"robots": [], "torques": [], "image": []}
-        self._outline_points: dict = {}      # foxglove points of the obstacle outlines, made once
+        self._groups: dict[str, list] = {'robots': [], 'torques': [], 'image': []}
+        self._outline_points: dict = {}  # foxglove points of the obstacle outlines, made once
 
         import foxglove
         from foxglove.channels import CompressedImageChannel, SceneUpdateChannel
         from foxglove.websocket import Capability
 
-        self.fox = foxglove.Context()           # this node's channels only (tests host several)
+        self.fox = foxglove.Context()  # this node's channels only (tests host several)
         try:
-            self.server = foxglove.start_server(name=f"ament_formation {self.scenario.name}", host=self.prm.host,
-                                                port=self.prm.port, capabilities=[Capability.Time],
-                                                context=self.fox)
+            self.server = foxglove.start_server(
+                name=f'ament_formation {self.scenario.name}',
+                host=self.prm.host,
+                port=self.prm.port,
+                capabilities=[Capability.Time],
+                context=self.fox,
+            )
         except RuntimeError as err:
-            raise ConfigError(f"cannot serve on {self.prm.host}:{self.prm.port} ({err})", "port") from None
+            raise ConfigError(
+                f'cannot serve on {self.prm.host}:{self.prm.port} ({err})', 'port'
+            ) from None
         self.port = self.server.port
         self.ch_scene = SceneUpdateChannel(SCENE_TOPIC, context=self.fox)
-        self.ch_image = CompressedImageChannel(IMAGE_TOPIC, context=self.fox) if self.prm.image_rate_hz > 0 else None
-        series_schema = foxglove.Schema(name=SERIES_SCHEMA["title"], encoding="jsonschema",
-                                        data=json.dumps(SERIES_SCHEMA).encode())
-        self.ch_series = {rid: foxglove.Channel(SERIES_TOPIC.format(id=rid), schema=series_schema,
-                                                message_encoding="json", context=self.fox) for rid in self.ids}
-        self.ch_status = foxglove.Channel(STATUS_TOPIC, message_encoding="json", context=self.fox,
-                                          schema=foxglove.Schema(name=STATUS_SCHEMA["title"], encoding="jsonschema",
-                                                                 data=json.dumps(STATUS_SCHEMA).encode()))
+        self.ch_image = (
+            CompressedImageChannel(IMAGE_TOPIC, context=self.fox)
+            if self.prm.image_rate_hz > 0
+            else None
+        )
+        series_schema = foxglove.Schema(
+            name=SERIES_SCHEMA['title'],
+            encoding='jsonschema',
+            data=json.dumps(SERIES_SCHEMA).encode(),
+        )
+        self.ch_series = {
+            rid: foxglove.Channel(
+                SERIES_TOPIC.format(id=rid),
+                schema=series_schema,
+                message_encoding='json',
+                context=self.fox,
+            )
+            for rid in self.ids
+        }
+        self.ch_status = foxglove.Channel(
+            STATUS_TOPIC,
+            message_encoding='json',
+            context=self.fox,
+            schema=foxglove.Schema(
+                name=STATUS_SCHEMA['title'],
+                encoding='jsonschema',
+                data=json.dumps(STATUS_SCHEMA).encode(),
+            ),
+        )
 
-        self.create_subscription(String, "/formation/graph", self._on_graph, QOS_GRAPH)
+        self.create_subscription(String, '/formation/graph', self._on_graph, QOS_GRAPH)
         self.create_timer(1.0 / self.prm.scene_rate_hz, self._publish_scene)
         self.create_timer(1.0 / self.prm.series_rate_hz, self._publish_series)
         self.create_timer(1.0, self._publish_status)
         self.create_timer(0.25, self._update_subscriptions)
-        where = "this machine only" if is_loopback(self.prm.host) else "THE NETWORK (no authentication)"
-        self.get_logger().info(f"live view: ws://{self.prm.host}:{self.port} ({where}); open it in Foxglove "
-                               "as a Foxglove WebSocket connection, layout config/foxglove/formation_layout.json")
+        where = (
+            'this machine only'
+            if is_loopback(self.prm.host)
+            else 'THE NETWORK (no authentication)'
+        )
+        self.get_logger().info(
+            f'live view: ws://{self.prm.host}:{self.port} ({where}); open it in Foxglove '
+            'as a Foxglove WebSocket connection, layout config/foxglove/formation_layout.json'
+        )
 
     # ------------------------------------------------------------------ time
     def now_ns(self) -> int:
@@ -420,9 +663,11 @@ class LiveViewNode(Node):
     # ------------------------------------------------------------------ subscriptions on demand
     def _wanted(self) -> dict[str, bool]:
         series = any(ch.has_sinks() for ch in self.ch_series.values())
-        return {"robots": series or self.ch_scene.has_sinks() or self.ch_status.has_sinks(),
-                "torques": series,
-                "image": self.ch_image is not None and self.ch_image.has_sinks()}
+        return {
+            'robots': series or self.ch_scene.has_sinks() or self.ch_status.has_sinks(),
+            'torques': series,
+            'image': self.ch_image is not None and self.ch_image.has_sinks(),
+        }
 
     def _update_subscriptions(self) -> None:
         """Subscribe to what some Foxglove client shows, and drop what nobody shows any more."""
@@ -430,35 +675,58 @@ class LiveViewNode(Node):
             subs = self._groups[group]
             if want and not subs:
                 subs.extend(self._subscribe(group))
-                self.get_logger().info(f"a Foxglove client shows {group}: subscribed")
+                self.get_logger().info(f'a Foxglove client shows {group}: subscribed')
             elif not want and subs:
                 for sub in subs:
                     self.destroy_subscription(sub)
                 subs.clear()
-                if group == "torques":      # what is no longer heard is not shown as current later
+                if group == 'torques':  # what is no longer heard is not shown as current later
                     self._raw_torques.clear()
                     self._torques.clear()
-                elif group == "robots":
+                elif group == 'robots':
                     self._raw_states.clear()
                     self._states.clear()
                     self.modes.clear()
-                self.get_logger().info(f"no Foxglove client shows {group} any more: unsubscribed")
+                self.get_logger().info(f'no Foxglove client shows {group} any more: unsubscribed')
 
     def _subscribe(self, group: str) -> list:
-        if group == "robots":
+        if group == 'robots':
             subs = []
             for rid in self.ids:
-                subs.append(self.create_subscription(msgs.Odometry, f"/robot_{rid}/state",
-                                                     lambda m, rid=rid: self._raw_states.__setitem__(rid, m),
-                                                     QOS_CONTROL, raw=True))
-                subs.append(self.create_subscription(String, f"/robot_{rid}/mode",
-                                                     lambda m, rid=rid: self._on_mode(rid, m), QOS_CONTROL))
+                subs.append(
+                    self.create_subscription(
+                        msgs.Odometry,
+                        f'/robot_{rid}/state',
+                        lambda m, rid=rid: self._raw_states.__setitem__(rid, m),
+                        QOS_CONTROL,
+                        raw=True,
+                    )
+                )
+                subs.append(
+                    self.create_subscription(
+                        String,
+                        f'/robot_{rid}/mode',
+                        lambda m, rid=rid: self._on_mode(rid, m),
+                        QOS_CONTROL,
+                    )
+                )
             return subs
-        if group == "torques":
-            return [self.create_subscription(JointState, f"/robot_{rid}/wheel_torque",
-                                             lambda m, rid=rid: self._raw_torques.__setitem__(rid, m),
-                                             QOS_CONTROL, raw=True) for rid in self.ids]
-        return [self.create_subscription(Image, self.prm.image_topic, self._on_image, QOS_IMAGE, raw=True)]
+        if group == 'torques':
+            return [
+                self.create_subscription(
+                    JointState,
+                    f'/robot_{rid}/wheel_torque',
+                    lambda m, rid=rid: self._raw_torques.__setitem__(rid, m),
+                    QOS_CONTROL,
+                    raw=True,
+                )
+                for rid in self.ids
+            ]
+        return [
+            self.create_subscription(
+                Image, self.prm.image_topic, self._on_image, QOS_IMAGE, raw=True
+            )
+        ]
 
     # ------------------------------------------------------------------ inputs
     @property
@@ -492,11 +760,15 @@ class LiveViewNode(Node):
             graph = msgs.graph_from_msg(msg)
         except ValueError as err:
             self.rejected += 1
-            self.get_logger().warn(f"/formation/graph: {err}", throttle_duration_sec=5.0)
+            self.get_logger().warn(f'/formation/graph: {err}', throttle_duration_sec=5.0)
             return
         if self.graph is not None and graph.revision < self.graph.revision:
             return
-        changed = self.graph is None or graph.revision != self.graph.revision or graph.start_s != self.start_s
+        changed = (
+            self.graph is None
+            or graph.revision != self.graph.revision
+            or graph.start_s != self.start_s
+        )
         self.graph = graph
         self.parents = dict(graph.parents)
         if graph.start_s is not None:
@@ -509,7 +781,7 @@ class LiveViewNode(Node):
             self.modes[rid] = msgs.mode_from_msg(msg)
         except ValueError as err:
             self.rejected += 1
-            self.get_logger().warn(f"robot_{rid}/mode: {err}", throttle_duration_sec=5.0)
+            self.get_logger().warn(f'robot_{rid}/mode: {err}', throttle_duration_sec=5.0)
 
     def _on_image(self, raw: bytes) -> None:
         """Throttle to image_rate_hz before decoding anything: a skipped frame costs a copy only."""
@@ -522,27 +794,33 @@ class LiveViewNode(Node):
             data = jpeg_of(msg, self.prm.jpeg_quality)
         except ValueError as err:
             self.rejected += 1
-            self.get_logger().warn(f"{self.prm.image_topic}: {err}", throttle_duration_sec=5.0)
+            self.get_logger().warn(f'{self.prm.image_topic}: {err}', throttle_duration_sec=5.0)
             return
         from foxglove.messages import CompressedImage, Timestamp
 
         stamp = msg.header.stamp
-        self.ch_image.log(CompressedImage(timestamp=Timestamp(sec=stamp.sec, nsec=stamp.nanosec),
-                                          frame_id=msg.header.frame_id or "camera", data=data, format="jpeg"),
-                          log_time=msgs.stamp_to_ns(stamp) or self.now_ns())
-        self.sent["image"] += 1
+        self.ch_image.log(
+            CompressedImage(
+                timestamp=Timestamp(sec=stamp.sec, nsec=stamp.nanosec),
+                frame_id=msg.header.frame_id or 'camera',
+                data=data,
+                format='jpeg',
+            ),
+            log_time=msgs.stamp_to_ns(stamp) or self.now_ns(),
+        )
+        self.sent['image'] += 1
 
     # ------------------------------------------------------------------ output
     def _publish_scene(self) -> None:
         now = self.now_ns()
-        if now <= 0:            # simulated time not started yet
+        if now <= 0:  # simulated time not started yet
             return
         self.server.broadcast_time(now)
         if not self.ch_scene.has_sinks():
             return
         scene = self.live.scene(self.scenario_time_s(now), self.states, self.modes, self.parents)
         self.ch_scene.log(scene_update(scene, now, self._outline_points), log_time=now)
-        self.sent["scene"] += 1
+        self.sent['scene'] += 1
 
     def _publish_series(self) -> None:
         now = self.now_ns()
@@ -551,28 +829,39 @@ class LiveViewNode(Node):
         t_s = self.scenario_time_s(now)
         for rid, values in self.live.series(t_s, self.states, self.torques).items():
             mode = self.modes.get(rid) or {}
-            sample = {"t_s": finite_or_none(t_s), **{k: (finite_or_none(v) if not isinstance(v, str) else v)
-                                                     for k, v in values.items()},
-                      "avoiding": int(bool(mode.get("avoiding", False))), "mode": mode.get("mode")}
+            sample = {
+                't_s': finite_or_none(t_s),
+                **{
+                    k: (finite_or_none(v) if not isinstance(v, str) else v)
+                    for k, v in values.items()
+                },
+                'avoiding': int(bool(mode.get('avoiding', False))),
+                'mode': mode.get('mode'),
+            }
             self.ch_series[rid].log(sample, log_time=now)
-            self.sent["series"] += 1
+            self.sent['series'] += 1
 
     def _publish_status(self) -> None:
         now = self.now_ns()
         if now <= 0 or not self.ch_status.has_sinks():
             return
         g = self.graph
-        self.ch_status.log({
-            "t_s": finite_or_none(self.scenario_time_s(now)), "start_s": self.start_s,
-            "revision": 0 if g is None else g.revision,
-            "parents": {str(k): v for k, v in sorted(self.parents.items())},
-            "avoiding": [] if g is None else list(g.avoiding),
-            "modes": {str(k): v for k, v in sorted(self.modes.items())}}, log_time=now)
-        self.sent["status"] += 1
+        self.ch_status.log(
+            {
+                't_s': finite_or_none(self.scenario_time_s(now)),
+                'start_s': self.start_s,
+                'revision': 0 if g is None else g.revision,
+                'parents': {str(k): v for k, v in sorted(self.parents.items())},
+                'avoiding': [] if g is None else list(g.avoiding),
+                'modes': {str(k): v for k, v in sorted(self.modes.items())},
+            },
+            log_time=now,
+        )
+        self.sent['status'] += 1
 
     # ------------------------------------------------------------------ shutdown
     def destroy_node(self):
-        server = getattr(self, "server", None)
+        server = getattr(self, 'server', None)
         if server is not None:
             server.stop()
             self.server = None
@@ -580,8 +869,8 @@ class LiveViewNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    return run_node("formation_live_view", LiveViewNode, args)
+    return run_node('formation_live_view', LiveViewNode, args)
 
 
-if __name__ == "__main__":
+if __name__ == '__main__':
     sys.exit(main())

@@ -38,13 +38,14 @@ hosted node, as in any ROS 2 process, e.g. ``control_rate_hz``, ``pose_timeout_s
   realtime_priority int  SCHED_FIFO priority of the control loop thread (0: normal)  default 0
 Torque limits of the bridges come from the scenario.
 """
+
 from __future__ import annotations
 
+from dataclasses import dataclass
 import select
 import sys
 import threading
 import time
-from dataclasses import dataclass
 from typing import Sequence
 
 from rclpy.node import Node
@@ -54,8 +55,8 @@ from ament_formation.core.errors import ConfigError
 from ament_formation.core.params import param
 from ament_formation.core.scenario import load_scenario
 from ament_formation.nodes.bridge import BridgeNode
-from ament_formation.nodes.controller import ControllerNode, PeerTable, set_realtime
 from ament_formation.nodes.controller import _send_zero_torque as _controller_zero_torque
+from ament_formation.nodes.controller import ControllerNode, PeerTable, set_realtime
 from ament_formation.ros import diagnostics as diag
 from ament_formation.ros.executors import run_node
 from ament_formation.ros.params import declare_dataclass
@@ -63,67 +64,104 @@ from ament_formation.ros.params import declare_dataclass
 
 @dataclass(frozen=True)
 class TeamParams:
-    scenario: str = param("", "scenario YAML path (required)")
-    robot_ids: tuple[int, ...] = param((), "robots hosted here (empty: every robot)")
-    port_template: str = param("", "serial port of robot {id}, e.g. /dev/ttyACM{id} "
-                               "('': no bridges, controllers only)")
-    realtime_priority: int = param(0, "SCHED_FIFO priority of the control loop thread (1..98; "
-                                   "0: normal scheduling)", range=(0, 98))
+    scenario: str = param('', 'scenario YAML path (required)')
+    robot_ids: tuple[int, ...] = param((), 'robots hosted here (empty: every robot)')
+    port_template: str = param(
+        '', "serial port of robot {id}, e.g. /dev/ttyACM{id} ('': no bridges, controllers only)"
+    )
+    realtime_priority: int = param(
+        0,
+        'SCHED_FIFO priority of the control loop thread (1..98; 0: normal scheduling)',
+        range=(0, 98),
+    )
 
     def __post_init__(self) -> None:
         if not self.scenario:
-            raise ConfigError("is required (path of a scenario YAML)", "scenario")
+            raise ConfigError('is required (path of a scenario YAML)', 'scenario')
         ids = self.robot_ids
         if len(set(ids)) != len(ids) or any(not isinstance(i, int) or i < 0 for i in ids):
-            raise ConfigError(f"must be distinct integers >= 0 (got {list(ids)})", "robot_ids")
-        if self.port_template and "{id}" not in self.port_template and len(ids) != 1:
-            raise ConfigError(f"must contain {{id}} unless one robot is hosted (got {self.port_template!r})",
-                              "port_template")
+            raise ConfigError(f'must be distinct integers >= 0 (got {list(ids)})', 'robot_ids')
+        if self.port_template and '{id}' not in self.port_template and len(ids) != 1:
+            raise ConfigError(
+                f'must contain {{id}} unless one robot is hosted (got {self.port_template!r})',
+                'port_template',
+            )
         if not (isinstance(self.realtime_priority, int) and 0 <= self.realtime_priority <= 98):
-            raise ConfigError(f"must be an integer in [0, 98] (got {self.realtime_priority!r})",
-                              "realtime_priority")
+            raise ConfigError(
+                f'must be an integer in [0, 98] (got {self.realtime_priority!r})',
+                'realtime_priority',
+            )
 
 
 class TeamNode(Node):
     """See the module docstring. ``composed_nodes``: the hosted nodes (spun with this one)."""
 
-    def __init__(self, *, context=None, params: TeamParams | None = None,
-                 hosted_parameters: Sequence[Parameter] = (), control_thread: bool = True, **node_kw):
+    def __init__(
+        self,
+        *,
+        context=None,
+        params: TeamParams | None = None,
+        hosted_parameters: Sequence[Parameter] = (),
+        control_thread: bool = True,
+        **node_kw,
+    ):
         """``hosted_parameters``: parameter overrides for every hosted node (what ``-p NAME:=VALUE``
         on the process command line does), e.g. ``poll_rate_hz`` or ``pose_timeout_s``.
         ``control_thread=False``: executor timers run the control periods even on wall-clock time
-        (tests that call :meth:`_control` themselves)."""
-        super().__init__("formation_team", context=context, **node_kw)
+        (tests that call :meth:`_control` themselves).
+        """
+        super().__init__('formation_team', context=context, **node_kw)
         self.prm = params if params is not None else declare_dataclass(self, TeamParams)
         scenario = load_scenario(self.prm.scenario)
         ids = list(self.prm.robot_ids) or list(scenario.robot_ids)
         unknown = [i for i in ids if i not in scenario.robot_ids]
         if unknown:
-            raise ConfigError(f"{unknown} are not robots of {scenario.name} (ids {list(scenario.robot_ids)})",
-                              "robot_ids")
-        use_sim_time = bool(self.get_parameter("use_sim_time").value)
-        common = [*hosted_parameters, Parameter("use_sim_time", value=use_sim_time)]
+            raise ConfigError(
+                f'{unknown} are not robots of {scenario.name} (ids {list(scenario.robot_ids)})',
+                'robot_ids',
+            )
+        use_sim_time = bool(self.get_parameter('use_sim_time').value)
+        common = [*hosted_parameters, Parameter('use_sim_time', value=use_sim_time)]
         threaded = not use_sim_time and control_thread
         self.lock = threading.Lock() if threaded else None
         self.loop: ControlLoop | None = None
-        self.poll_watch = None     # stalls of the bridges' poll timer (diagnostics "serial poll")
+        self.poll_watch = None  # stalls of the bridges' poll timer (diagnostics "serial poll")
         self.peers = PeerTable(ids)
         self.controllers: dict[int, ControllerNode] = {}
         self.bridges: dict[int, BridgeNode] = {}
         try:
             for rid in ids:
-                ns = f"/robot_{rid}"
+                ns = f'/robot_{rid}'
                 if self.prm.port_template:
                     self.bridges[rid] = BridgeNode(
-                        context=context, namespace=ns, poll_timer=False, torque_topic=False,
-                        parameter_overrides=common + [
-                            Parameter("port", value=self.prm.port_template.replace("{id}", str(rid))),
-                            Parameter("torque_limit_nm", value=float(scenario.robot(rid).params.torque_limit_nm))])
+                        context=context,
+                        namespace=ns,
+                        poll_timer=False,
+                        torque_topic=False,
+                        parameter_overrides=common
+                        + [
+                            Parameter(
+                                'port', value=self.prm.port_template.replace('{id}', str(rid))
+                            ),
+                            Parameter(
+                                'torque_limit_nm',
+                                value=float(scenario.robot(rid).params.torque_limit_nm),
+                            ),
+                        ],
+                    )
                 self.controllers[rid] = ControllerNode(
-                    context=context, namespace=ns, tick_timer=False, peers=self.peers,
-                    bridge=self.bridges.get(rid), lock=self.lock,
-                    parameter_overrides=common + [Parameter("scenario", value=str(self.prm.scenario)),
-                                                  Parameter("robot_id", value=int(rid))])
+                    context=context,
+                    namespace=ns,
+                    tick_timer=False,
+                    peers=self.peers,
+                    bridge=self.bridges.get(rid),
+                    lock=self.lock,
+                    parameter_overrides=common
+                    + [
+                        Parameter('scenario', value=str(self.prm.scenario)),
+                        Parameter('robot_id', value=int(rid)),
+                    ],
+                )
         except BaseException:
             self.destroy_node()
             raise
@@ -131,17 +169,17 @@ class TeamNode(Node):
         rate_hz = rates.pop()
         if threaded:
             self.loop = ControlLoop(self, rate_hz, self.prm.realtime_priority)
-            if self.prm.realtime_priority > 1:     # the executor thread: callbacks before other work
+            if self.prm.realtime_priority > 1:  # the executor thread: callbacks before other work
                 set_realtime(self.prm.realtime_priority - 1, None)
             self.loop.start()
         else:
             self.create_timer(1.0 / rate_hz, self._control)
             if self.bridges:
                 poll_hz = next(iter(self.bridges.values())).params.poll_rate_hz
-                self.diag = diag.Diagnostics(self)        # the hosted bridges' poll timer is ours
-                self.poll_watch = self.diag.watch("serial poll", 1.0 / poll_hz)
+                self.diag = diag.Diagnostics(self)  # the hosted bridges' poll timer is ours
+                self.poll_watch = self.diag.watch('serial poll', 1.0 / poll_hz)
                 self.create_timer(1.0 / poll_hz, self._poll)
-        self.get_logger().info(f"hosting robots {ids}" + (" with bridges" if self.bridges else ""))
+        self.get_logger().info(f'hosting robots {ids}' + (' with bridges' if self.bridges else ''))
 
     @property
     def composed_nodes(self) -> list[Node]:
@@ -154,7 +192,7 @@ class TeamNode(Node):
             bridge.poll()
 
     def _control(self) -> None:
-        now_s = self.get_clock().now().nanoseconds * 1e-9     # one time for the whole period
+        now_s = self.get_clock().now().nanoseconds * 1e-9  # one time for the whole period
         for controller in self.controllers.values():
             controller.control_tick(now_s)
 
@@ -173,20 +211,21 @@ class ControlLoop:
     hosted bridge's port, then runs :meth:`TeamNode._control`, holding ``team.lock``; in between
     it waits in select() on the bridges' ports and reads telemetry as it arrives. A period that
     starts late is run at once and the schedule moves on (the controllers count the late tick).
-    ``priority`` > 0: the thread runs under SCHED_FIFO ``priority``."""
+    ``priority`` > 0: the thread runs under SCHED_FIFO ``priority``.
+    """
 
-    MIN_READ_GAP_S = 0.002    # event-driven serial reads: at most 500 per second
+    MIN_READ_GAP_S = 0.002  # event-driven serial reads: at most 500 per second
 
-    def __init__(self, team: "TeamNode", rate_hz: float, priority: int = 0):
+    def __init__(self, team: 'TeamNode', rate_hz: float, priority: int = 0):
         self.team = team
         self.period_s = 1.0 / rate_hz
         self.priority = priority
         self._stop = threading.Event()
         self.errors = 0
-        self.thread = threading.Thread(target=self._run, name="control_loop", daemon=True)
+        self.thread = threading.Thread(target=self._run, name='control_loop', daemon=True)
 
     def start(self) -> None:
-        sys.setswitchinterval(0.0005)   # a waiting control thread gets the GIL within 0.5 ms
+        sys.setswitchinterval(0.0005)  # a waiting control thread gets the GIL within 0.5 ms
         self.thread.start()
 
     def stop(self) -> None:
@@ -197,11 +236,11 @@ class ControlLoop:
     def _fds(self) -> list[int]:
         fds = []
         for bridge in self.team.bridges.values():
-            port = getattr(bridge, "_port", None)
+            port = getattr(bridge, '_port', None)
             try:
                 fds.append(port.fileno())
             except (AttributeError, OSError, ValueError, TypeError):
-                pass                       # closed (reopening with backoff) or no file descriptor
+                pass  # closed (reopening with backoff) or no file descriptor
         return fds
 
     def _poll_all(self) -> None:
@@ -218,27 +257,35 @@ class ControlLoop:
                 wait = next_s - time.monotonic()
                 if wait > 0.0:
                     fds = self._fds()
-                    ready = select.select(fds, [], [], wait)[0] if fds else self._stop.wait(wait) and []
+                    ready = (
+                        select.select(fds, [], [], wait)[0]
+                        if fds
+                        else self._stop.wait(wait) and []
+                    )
                     if ready:
                         with lock:
-                            self._poll_all()      # telemetry as it arrives
+                            self._poll_all()  # telemetry as it arrives
                         # at most one read per MIN_READ_GAP_S: a port that stays readable without
-                        # data (a hung-up pty) must not turn this (real-time) thread into a busy loop
-                        self._stop.wait(min(self.MIN_READ_GAP_S, max(0.0, next_s - time.monotonic())))
+                        # data (a hung-up pty) must not turn this (real-time) thread into a busy
+                        # loop
+                        self._stop.wait(
+                            min(self.MIN_READ_GAP_S, max(0.0, next_s - time.monotonic()))
+                        )
                     continue
                 with lock:
                     self._poll_all()
                     team._control()
                 next_s += period
                 now = time.monotonic()
-                if next_s < now:                  # overran a whole period: restart the schedule
+                if next_s < now:  # overran a whole period: restart the schedule
                     next_s = now + period
             except Exception as err:  # noqa: BLE001 - keep the loop; the board's watchdog stops the robot
                 if self._stop.is_set() or not team.context.ok():
                     return
                 self.errors += 1
-                team.get_logger().error(f"control loop: {type(err).__name__}: {err}",
-                                        throttle_duration_sec=1.0)
+                team.get_logger().error(
+                    f'control loop: {type(err).__name__}: {err}', throttle_duration_sec=1.0
+                )
                 time.sleep(period)
 
 
@@ -251,8 +298,8 @@ def _send_zero_torque(team: TeamNode) -> None:
 
 
 def main(args: list[str] | None = None) -> int:
-    return run_node("formation_team", TeamNode, args, on_exit=_send_zero_torque)
+    return run_node('formation_team', TeamNode, args, on_exit=_send_zero_torque)
 
 
-if __name__ == "__main__":
+if __name__ == '__main__':
     sys.exit(main())

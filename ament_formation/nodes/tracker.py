@@ -16,25 +16,33 @@ Parameters (TrackerNodeParams)
                                device index (0 or "0"), a device path (/dev/video0,
                                /dev/v4l/by-id/...), a video file or a stream URL (http://, rtsp://)
                                (hw/video_source.py)                                    default ""
-  source_loop          bool    replay a video file from the start when it ends         default false
+  source_loop          bool    replay a video file from the start when it ends         default
+  false
   source_wait_s        float   at start, keep trying to open the source this long [s]
                                (0: one attempt; .inf: wait forever)                    default 0
   source_timeout_s     float   a stream silent this long is lost and reopened [s]      default 1.0
   capture_poll_s       float   period of the timer that takes the newest captured frame [s]
                                                                                        default 0.01
   publish_image        bool    with source: publish the captured frames on image_topic default true
-  image_topic          str     topic of frames                                         default /camera/image_raw
-  camera_config        str     camera.yaml (config/ name or path)                      default camera.yaml
-  marker_ids           int[]   marker id per robot                                     default [0, 1]
-  robot_ids            int[]   robot id for each entry of marker_ids                   default [0, 1]
-  dictionary           str     ArUco dictionary                                        default DICT_4X4_50
+  image_topic          str     topic of frames                                         default
+  /camera/image_raw
+  camera_config        str     camera.yaml (config/ name or path)                      default
+  camera.yaml
+  marker_ids           int[]   marker id per robot                                     default [0,
+  1]
+  robot_ids            int[]   robot id for each entry of marker_ids                   default [0,
+  1]
+  dictionary           str     ArUco dictionary                                        default
+  DICT_4X4_50
   marker_size_m        float   marker side [m]                                         default 0.12
-  marker_offset_m      float[] marker centre in the controlled point's body frame [m]  default [-0.05, 0.0]
+  marker_offset_m      float[] marker centre in the controlled point's body frame [m]  default
+  [-0.05, 0.0]
   marker_height_m      float   marker plane above the floor [m]                        default 0.08
   max_speed_mps        float   faster apparent motion is rejected as a jump [m/s]      default 1.5
   use_roi              bool    region-of-interest search around predicted poses        default true
   publish_covariance   bool                                                            default true
-  publish_debug_image  bool                                                            default false
+  publish_debug_image  bool                                                            default
+  false
   diagnostics_period_s float   [s]                                                     default 1.0
 
 With ``source`` set, a thread grabs frames (stamped with the node clock at grab time) and keeps the
@@ -47,18 +55,19 @@ as the node runs, while the controllers, which get no pose, stop after their ``p
 when frames come back, tracking resumes. A video file that ends (without ``source_loop``) is
 reported as an ERROR and the node keeps running.
 """
+
 from __future__ import annotations
 
+from dataclasses import dataclass
 import math
+from pathlib import Path
 import sys
 import time
-from dataclasses import dataclass
-from pathlib import Path
 
 import cv2
-import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
+import numpy as np
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 
@@ -68,10 +77,10 @@ from ament_formation.core.marker_tracking import MarkerTracker, TrackerConfig
 from ament_formation.core.params import param
 from ament_formation.core.paths_config import config_file
 from ament_formation.core.robot_marker import MarkerLayout
-from ament_formation.hw.video_source import FrameGrabber, SourceSpec, open_problem, parse_source
+from ament_formation.hw.video_source import FrameGrabber, open_problem, parse_source, SourceSpec
 from ament_formation.ros import diagnostics as diag
-from ament_formation.ros.image import camera_info, image_to_mono8, numpy_to_image
 from ament_formation.ros.executors import run_node
+from ament_formation.ros.image import camera_info, image_to_mono8, numpy_to_image
 from ament_formation.ros.messages import pose_stamped, stamp_to_ns, stamp_to_s
 from ament_formation.ros.params import declare_dataclass
 from ament_formation.ros.qos import QOS_CONTROL, QOS_DIAGNOSTICS, QOS_IMAGE
@@ -81,52 +90,65 @@ from ament_formation.ros.qos import QOS_CONTROL, QOS_DIAGNOSTICS, QOS_IMAGE
 class TrackerNodeParams:
     """Parameters of formation_tracker (see the module docstring)."""
 
-    source: str | int = param("", "'': subscribe image_topic; else a device index (0), a device path "
-                                  "(/dev/video0), a video file or a stream URL to capture",
-                              dynamic_typing=True)
-    source_loop: bool = param(False, "replay a video file from the start when it ends")
-    source_wait_s: float = param(0.0, "at start, keep trying to open the source this long [s] "
-                                      "(0: one attempt; .inf: forever)")
-    source_timeout_s: float = param(1.0, "a stream silent this long is lost and reopened [s]",
-                                    range=(0.05, 60.0))
-    capture_poll_s: float = param(0.01, "period of taking the newest captured frame [s]",
-                                  range=(0.001, 1.0))
-    publish_image: bool = param(True, "with source: publish captured frames on image_topic "
-                                      "while anyone subscribes")
-    image_topic: str = param("/camera/image_raw", "topic of frames when source is empty")
-    camera_config: str = param("camera.yaml", "camera calibration: a config/ file name or a path")
-    marker_ids: tuple[int, ...] = param((0, 1), "ArUco marker id of each robot")
-    robot_ids: tuple[int, ...] = param((0, 1), "robot id for each entry of marker_ids")
-    dictionary: str = param("DICT_4X4_50", "ArUco dictionary")
-    marker_size_m: float = param(0.12, "marker side [m]")
+    source: str | int = param(
+        '',
+        "'': subscribe image_topic; else a device index (0), a device path "
+        '(/dev/video0), a video file or a stream URL to capture',
+        dynamic_typing=True,
+    )
+    source_loop: bool = param(False, 'replay a video file from the start when it ends')
+    source_wait_s: float = param(
+        0.0,
+        'at start, keep trying to open the source this long [s] (0: one attempt; .inf: forever)',
+    )
+    source_timeout_s: float = param(
+        1.0, 'a stream silent this long is lost and reopened [s]', range=(0.05, 60.0)
+    )
+    capture_poll_s: float = param(
+        0.01, 'period of taking the newest captured frame [s]', range=(0.001, 1.0)
+    )
+    publish_image: bool = param(
+        True, 'with source: publish captured frames on image_topic while anyone subscribes'
+    )
+    image_topic: str = param('/camera/image_raw', 'topic of frames when source is empty')
+    camera_config: str = param('camera.yaml', 'camera calibration: a config/ file name or a path')
+    marker_ids: tuple[int, ...] = param((0, 1), 'ArUco marker id of each robot')
+    robot_ids: tuple[int, ...] = param((0, 1), 'robot id for each entry of marker_ids')
+    dictionary: str = param('DICT_4X4_50', 'ArUco dictionary')
+    marker_size_m: float = param(0.12, 'marker side [m]')
     marker_offset_m: tuple[float, ...] = param(
-        (-0.05, 0.0), "marker centre in the controlled point's body frame [x, y] [m]")
-    marker_height_m: float = param(0.08, "marker plane above the floor [m]")
-    max_speed_mps: float = param(1.5, "faster apparent motion is rejected as a jump [m/s]")
-    use_roi: bool = param(True, "search around the predicted poses first")
-    publish_covariance: bool = param(True, "also publish robot_<id>/pose_cov")
-    publish_debug_image: bool = param(False, "publish ~/debug_image (bgr8, markers drawn)")
-    diagnostics_period_s: float = param(1.0, "/diagnostics period [s], > 0")
+        (-0.05, 0.0), "marker centre in the controlled point's body frame [x, y] [m]"
+    )
+    marker_height_m: float = param(0.08, 'marker plane above the floor [m]')
+    max_speed_mps: float = param(1.5, 'faster apparent motion is rejected as a jump [m/s]')
+    use_roi: bool = param(True, 'search around the predicted poses first')
+    publish_covariance: bool = param(True, 'also publish robot_<id>/pose_cov')
+    publish_debug_image: bool = param(False, 'publish ~/debug_image (bgr8, markers drawn)')
+    diagnostics_period_s: float = param(1.0, '/diagnostics period [s], > 0')
 
     def __post_init__(self) -> None:
         if len(self.marker_ids) != len(self.robot_ids):
-            raise ConfigError(f"{len(self.robot_ids)} robot ids for {len(self.marker_ids)} marker ids",
-                              "robot_ids")
-        for name in ("marker_ids", "robot_ids"):
+            raise ConfigError(
+                f'{len(self.robot_ids)} robot ids for {len(self.marker_ids)} marker ids',
+                'robot_ids',
+            )
+        for name in ('marker_ids', 'robot_ids'):
             v = getattr(self, name)
             if len(set(v)) != len(v) or any(not isinstance(i, int) or i < 0 for i in v):
-                raise ConfigError(f"must be distinct integers >= 0 (got {list(v)})", name)
-        parse_source(self.source)       # ConfigError naming source for a float, a list, -1, …
+                raise ConfigError(f'must be distinct integers >= 0 (got {list(v)})', name)
+        parse_source(self.source)  # ConfigError naming source for a float, a list, -1, …
         if self.source_spec is None and not self.image_topic:
-            raise ConfigError("is empty and no source is set", "image_topic")
+            raise ConfigError('is empty and no source is set', 'image_topic')
         if math.isnan(self.source_wait_s) or self.source_wait_s < 0:
-            raise ConfigError(f"must be >= 0 s (got {self.source_wait_s})", "source_wait_s")
-        for name, lo, hi in (("source_timeout_s", 0.05, 60.0), ("capture_poll_s", 0.001, 1.0)):
+            raise ConfigError(f'must be >= 0 s (got {self.source_wait_s})', 'source_wait_s')
+        for name, lo, hi in (('source_timeout_s', 0.05, 60.0), ('capture_poll_s', 0.001, 1.0)):
             v = getattr(self, name)
             if not (math.isfinite(v) and lo <= v <= hi):
-                raise ConfigError(f"must be in [{lo:g}, {hi:g}] s (got {v})", name)
+                raise ConfigError(f'must be in [{lo:g}, {hi:g}] s (got {v})', name)
         if not (math.isfinite(self.diagnostics_period_s) and self.diagnostics_period_s > 0):
-            raise ConfigError(f"must be > 0 s (got {self.diagnostics_period_s})", "diagnostics_period_s")
+            raise ConfigError(
+                f'must be > 0 s (got {self.diagnostics_period_s})', 'diagnostics_period_s'
+            )
         self.layout()
         TrackerConfig(max_speed_mps=self.max_speed_mps, use_roi=self.use_roi)
 
@@ -136,8 +158,9 @@ class TrackerNodeParams:
         return parse_source(self.source)
 
     def layout(self) -> MarkerLayout:
-        return MarkerLayout(self.dictionary, self.marker_size_m, tuple(self.marker_offset_m),
-                            self.marker_height_m)
+        return MarkerLayout(
+            self.dictionary, self.marker_size_m, tuple(self.marker_offset_m), self.marker_height_m
+        )
 
 
 def _camera_path(name: str) -> Path:
@@ -152,27 +175,43 @@ class SourceUnavailable(RuntimeError):
 class TrackerNode(Node):
     """See the module docstring."""
 
-    def __init__(self, *, context=None, params: TrackerNodeParams | None = None, **node_kw) -> None:
-        super().__init__("formation_tracker", context=context, **node_kw)
+    def __init__(
+        self, *, context=None, params: TrackerNodeParams | None = None, **node_kw
+    ) -> None:
+        super().__init__('formation_tracker', context=context, **node_kw)
         self.prm = params if params is not None else declare_dataclass(self, TrackerNodeParams)
         setup = load_camera_yaml(_camera_path(self.prm.camera_config))
         self.camera = setup.camera
-        self.tracker = MarkerTracker(self.camera, self.prm.layout(),
-                                     TrackerConfig(max_speed_mps=self.prm.max_speed_mps,
-                                                   use_roi=self.prm.use_roi),
-                                     expected_ids=tuple(self.prm.marker_ids))
+        self.tracker = MarkerTracker(
+            self.camera,
+            self.prm.layout(),
+            TrackerConfig(max_speed_mps=self.prm.max_speed_mps, use_roi=self.prm.use_roi),
+            expected_ids=tuple(self.prm.marker_ids),
+        )
         self.robot_of = dict(zip(self.prm.marker_ids, self.prm.robot_ids))
-        self.pub_pose = {m: self.create_publisher(PoseStamped, f"robot_{r}/pose", QOS_CONTROL)
-                         for m, r in self.robot_of.items()}
-        self.pub_cov = ({m: self.create_publisher(PoseWithCovarianceStamped, f"robot_{r}/pose_cov",
-                                                  QOS_CONTROL) for m, r in self.robot_of.items()}
-                        if self.prm.publish_covariance else {})
-        self.pub_debug = (self.create_publisher(Image, "~/debug_image", QOS_IMAGE)
-                          if self.prm.publish_debug_image else None)
-        self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", QOS_DIAGNOSTICS)
+        self.pub_pose = {
+            m: self.create_publisher(PoseStamped, f'robot_{r}/pose', QOS_CONTROL)
+            for m, r in self.robot_of.items()
+        }
+        self.pub_cov = (
+            {
+                m: self.create_publisher(
+                    PoseWithCovarianceStamped, f'robot_{r}/pose_cov', QOS_CONTROL
+                )
+                for m, r in self.robot_of.items()
+            }
+            if self.prm.publish_covariance
+            else {}
+        )
+        self.pub_debug = (
+            self.create_publisher(Image, '~/debug_image', QOS_IMAGE)
+            if self.prm.publish_debug_image
+            else None
+        )
+        self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', QOS_DIAGNOSTICS)
         self._reset_stats()
         self.frames_total = 0
-        self.failure: str | None = None     # set (with done) when the source never opened in time
+        self.failure: str | None = None  # set (with done) when the source never opened in time
         self.done = False
         self.grabber: FrameGrabber | None = None
         spec = self.prm.source_spec
@@ -184,85 +223,112 @@ class TrackerNode(Node):
 
     def _start_capture(self, spec: SourceSpec) -> None:
         """Open ``spec`` (one attempt now; more in the grabber thread within ``source_wait_s``),
-        start grabbing and the timer that takes the newest frame."""
+        start grabbing and the timer that takes the newest frame.
+        """
         clock = self.get_clock()
-        self.grabber = FrameGrabber(spec, lambda: clock.now().to_msg(), loop=self.prm.source_loop,
-                                    size_px=self.camera.size_px, fps_hz=self.camera.fps_hz,
-                                    read_timeout_s=self.prm.source_timeout_s)
+        self.grabber = FrameGrabber(
+            spec,
+            lambda: clock.now().to_msg(),
+            loop=self.prm.source_loop,
+            size_px=self.camera.size_px,
+            fps_hz=self.camera.fps_hz,
+            read_timeout_s=self.prm.source_timeout_s,
+        )
         self._wait_deadline_s = None
         if not self.grabber.try_open():
             if self.prm.source_wait_s <= 0.0:
-                raise SourceUnavailable(f"source {spec.text!r}: {open_problem(spec)}")
+                raise SourceUnavailable(f'source {spec.text!r}: {open_problem(spec)}')
             self._wait_deadline_s = time.monotonic() + self.prm.source_wait_s
-            self.get_logger().warn(f"source {spec.text!r}: {open_problem(spec)}; retrying for "
-                                   f"{self.prm.source_wait_s:g} s")
+            self.get_logger().warn(
+                f'source {spec.text!r}: {open_problem(spec)}; retrying for '
+                f'{self.prm.source_wait_s:g} s'
+            )
         else:
             self._log_opened()
         self._source_state = self.grabber.state
-        info_topic = self.prm.image_topic.rsplit("/", 1)[0] + "/camera_info"
+        info_topic = self.prm.image_topic.rsplit('/', 1)[0] + '/camera_info'
         self.pub_info = self.create_publisher(CameraInfo, info_topic, QOS_IMAGE)
-        self._info = camera_info(self.camera, frame_id="camera")
-        self.pub_image = (self.create_publisher(Image, self.prm.image_topic, QOS_IMAGE)
-                          if self.prm.publish_image else None)
+        self._info = camera_info(self.camera, frame_id='camera')
+        self.pub_image = (
+            self.create_publisher(Image, self.prm.image_topic, QOS_IMAGE)
+            if self.prm.publish_image
+            else None
+        )
         self.grabber.start()
-        self.capture_watch = diag.PeriodWatch(self.prm.capture_poll_s, diag.clock_ns(self))   # stalls
+        self.capture_watch = diag.PeriodWatch(
+            self.prm.capture_poll_s, diag.clock_ns(self)
+        )  # stalls
         self.create_timer(self.prm.capture_poll_s, self._take_captured)
 
     def _log_opened(self) -> None:
         g = self.grabber
-        fps = f" at {g.fps_hz:g} fps" if g.fps_hz else ""
-        self.get_logger().info(f"capturing {g.spec.kind} {g.spec.text!r}{fps}")
+        fps = f' at {g.fps_hz:g} fps' if g.fps_hz else ''
+        self.get_logger().info(f'capturing {g.spec.kind} {g.spec.text!r}{fps}')
 
         # ------------------------------------------------------------------ frames
+
     def _on_image(self, msg: Image) -> None:
         try:
             frame = image_to_mono8(msg)
         except ValueError as err:
             self.bad_frames += 1
-            self.get_logger().warn(f"{self.prm.image_topic}: {err}", throttle_duration_sec=5.0)
+            self.get_logger().warn(f'{self.prm.image_topic}: {err}', throttle_duration_sec=5.0)
             return
         self.process(frame, msg.header.stamp)
 
     def _take_captured(self) -> None:
         """Timer (``capture_poll_s``): the newest captured frame, if any, → camera_info, image,
-        poses; source state changes → log and diagnostics at once."""
+        poses; source state changes → log and diagnostics at once.
+        """
         self.capture_watch.tick()
         g = self.grabber
         if g.state != self._source_state:
             self._on_source_state(self._source_state, g.state)
             self._source_state = g.state
-        if g.state == "closed" and self._wait_deadline_s is not None \
-                and time.monotonic() > self._wait_deadline_s:
-            self.failure = (f"source {g.spec.text!r}: {open_problem(g.spec)} "
-                            f"(waited {self.prm.source_wait_s:g} s)")
+        if (
+            g.state == 'closed'
+            and self._wait_deadline_s is not None
+            and time.monotonic() > self._wait_deadline_s
+        ):
+            self.failure = (
+                f'source {g.spec.text!r}: {open_problem(g.spec)} '
+                f'(waited {self.prm.source_wait_s:g} s)'
+            )
             self.done = True
             return
         item = g.take()
         if item is None:
-            if g.state == "open" and time.monotonic() - g.last_frame_s > self.prm.source_timeout_s:
-                self.get_logger().warn(f"source {g.spec.text!r} open but silent for more than "
-                                       f"{self.prm.source_timeout_s:g} s", throttle_duration_sec=5.0)
+            if g.state == 'open' and time.monotonic() - g.last_frame_s > self.prm.source_timeout_s:
+                self.get_logger().warn(
+                    f'source {g.spec.text!r} open but silent for more than '
+                    f'{self.prm.source_timeout_s:g} s',
+                    throttle_duration_sec=5.0,
+                )
             return
         frame, stamp = item
-        self.capture_delay_s.append(max(self.get_clock().now().nanoseconds - stamp_to_ns(stamp), 0) * 1e-9)
+        self.capture_delay_s.append(
+            max(self.get_clock().now().nanoseconds - stamp_to_ns(stamp), 0) * 1e-9
+        )
         self._info.header.stamp = stamp
         self.pub_info.publish(self._info)
         if self.pub_image is not None and self.pub_image.get_subscription_count():
-            self.pub_image.publish(numpy_to_image(frame, "mono8", stamp))
+            self.pub_image.publish(numpy_to_image(frame, 'mono8', stamp))
         self.process(frame, stamp)
 
     def _on_source_state(self, old: str, new: str) -> None:
         g, log = self.grabber, self.get_logger()
-        if new == "lost":
-            log.error(f"camera lost ({g.spec.text!r}): reopening with backoff; without poses the "
-                      f"robots stop after their pose_timeout_s")
-        elif new == "open" and old == "lost":
+        if new == 'lost':
+            log.error(
+                f'camera lost ({g.spec.text!r}): reopening with backoff; without poses the '
+                f'robots stop after their pose_timeout_s'
+            )
+        elif new == 'open' and old == 'lost':
             lost_s = time.monotonic() - g.lost_since_s if g.lost_since_s else 0.0
-            log.info(f"camera back ({g.spec.text!r}) after {lost_s:.1f} s")
-        elif new == "open":
+            log.info(f'camera back ({g.spec.text!r}) after {lost_s:.1f} s')
+        elif new == 'open':
             self._log_opened()
-        elif new == "ended":
-            log.warn(f"video file {g.spec.text!r} ended (source_loop false): no more poses")
+        elif new == 'ended':
+            log.warn(f'video file {g.spec.text!r} ended (source_loop false): no more poses')
         self._publish_diagnostics()
 
     def process(self, frame: np.ndarray, stamp) -> None:
@@ -299,23 +365,37 @@ class TrackerNode(Node):
         self.detected += sum(int(m) in self.robot_of for m in acc.ids)
         self.rejected += len(result.rejected_ids)
         if self.pub_debug is not None:
-            self.pub_debug.publish(numpy_to_image(self._annotate(frame, acc), "bgr8", stamp))
+            self.pub_debug.publish(numpy_to_image(self._annotate(frame, acc), 'bgr8', stamp))
 
     def _annotate(self, frame: np.ndarray, acc) -> np.ndarray:
         img = cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR)
         if len(acc):
-            cv2.aruco.drawDetectedMarkers(img, [c.reshape(1, 4, 2).astype(np.float32) for c in acc.corners_px],
-                                          acc.ids.reshape(-1, 1).astype(np.int32))
-            tips = acc.poses[:, :2] + 0.15 * np.column_stack([np.cos(acc.poses[:, 2]), np.sin(acc.poses[:, 2])])
+            cv2.aruco.drawDetectedMarkers(
+                img,
+                [c.reshape(1, 4, 2).astype(np.float32) for c in acc.corners_px],
+                acc.ids.reshape(-1, 1).astype(np.int32),
+            )
+            tips = acc.poses[:, :2] + 0.15 * np.column_stack(
+                [np.cos(acc.poses[:, 2]), np.sin(acc.poses[:, 2])]
+            )
             h = self.prm.marker_height_m
             p0 = self.camera.floor_to_pixel(acc.poses[:, :2], h)
             p1 = self.camera.floor_to_pixel(tips, h)
             for a, b, mid in zip(p0, p1, acc.ids):
-                cv2.arrowedLine(img, tuple(int(v) for v in a), tuple(int(v) for v in b), (0, 0, 255), 2)
+                cv2.arrowedLine(
+                    img, tuple(int(v) for v in a), tuple(int(v) for v in b), (0, 0, 255), 2
+                )
                 r = self.robot_of.get(int(mid))
                 if r is not None:
-                    cv2.putText(img, f"robot {r}", (int(a[0]) + 8, int(a[1]) - 8),
-                                cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 255, 0), 1)
+                    cv2.putText(
+                        img,
+                        f'robot {r}',
+                        (int(a[0]) + 8, int(a[1]) - 8),
+                        cv2.FONT_HERSHEY_SIMPLEX,
+                        0.4,
+                        (0, 255, 0),
+                        1,
+                    )
         return img
 
     # ------------------------------------------------------------------ diagnostics
@@ -325,7 +405,7 @@ class TrackerNode(Node):
         self.detected = 0
         self.rejected = 0
         self.bad_frames = 0
-        self.last_bad_frame = ""
+        self.last_bad_frame = ''
         self.latency_s: list[float] = []
         self.capture_delay_s: list[float] = []
         self._stats_t0 = time.monotonic()
@@ -336,16 +416,22 @@ class TrackerNode(Node):
         if g is None:
             return None
         now = time.monotonic()
-        if g.state == "closed":
-            return diag.ERROR, f"waiting for the camera: {open_problem(g.spec)} (attempt {g.open_attempts})"
-        if g.state == "lost":
+        if g.state == 'closed':
+            return (
+                diag.ERROR,
+                f'waiting for the camera: {open_problem(g.spec)} (attempt {g.open_attempts})',
+            )
+        if g.state == 'lost':
             lost_s = now - g.lost_since_s if g.lost_since_s else 0.0
-            return diag.ERROR, f"camera lost {lost_s:.1f} s ago, reopening (attempt {g.open_attempts})"
-        if g.state == "ended":
-            return diag.ERROR, "video file ended"
+            return (
+                diag.ERROR,
+                f'camera lost {lost_s:.1f} s ago, reopening (attempt {g.open_attempts})',
+            )
+        if g.state == 'ended':
+            return diag.ERROR, 'video file ended'
         silent_s = now - g.last_frame_s
         if silent_s > max(self.prm.source_timeout_s, 2.0 / max(self.camera.fps_hz, 1e-3)):
-            return diag.ERROR, f"no frames for {silent_s:.1f} s"
+            return diag.ERROR, f'no frames for {silent_s:.1f} s'
         return None
 
     def _publish_diagnostics(self) -> None:
@@ -353,42 +439,60 @@ class TrackerNode(Node):
         expected = self.frames * len(self.robot_of)
         lat = np.array(self.latency_s) if self.latency_s else np.zeros(1)
         values = {
-            "frame_rate_hz": self.frames / elapsed,
-            "detection_rate": self.detected / expected if expected else 0.0,
-            "latency_mean_ms": float(lat.mean() * 1e3),
-            "latency_max_ms": float(lat.max() * 1e3),
-            "full_frame_fraction": self.full_frames / self.frames if self.frames else 0.0,
-            "rejected_jumps": self.rejected,
-            "bad_frames": self.bad_frames,
-            "tracked_markers": len(self.tracker.tracked_ids),
-            "frames_total": self.frames_total,
+            'frame_rate_hz': self.frames / elapsed,
+            'detection_rate': self.detected / expected if expected else 0.0,
+            'latency_mean_ms': float(lat.mean() * 1e3),
+            'latency_max_ms': float(lat.max() * 1e3),
+            'full_frame_fraction': self.full_frames / self.frames if self.frames else 0.0,
+            'rejected_jumps': self.rejected,
+            'bad_frames': self.bad_frames,
+            'tracked_markers': len(self.tracker.tracked_ids),
+            'frames_total': self.frames_total,
         }
         g = self.grabber
         if g is not None:
             delay = np.array(self.capture_delay_s) if self.capture_delay_s else np.zeros(1)
-            values.update({
-                "source_state": g.state,
-                "capture_delay_mean_ms": float(delay.mean() * 1e3),  # grab -> tracker (poll timer)
-                "capture_errors": g.errors,
-                "reopens": g.reopens,
-            })
+            values.update(
+                {
+                    'source_state': g.state,
+                    'capture_delay_mean_ms': float(
+                        delay.mean() * 1e3
+                    ),  # grab -> tracker (poll timer)
+                    'capture_errors': g.errors,
+                    'reopens': g.reopens,
+                }
+            )
         source = self._source_status()
         if source is not None:
             level, text = source
         elif self.frames == 0 and self.bad_frames:
-            level, text = diag.ERROR, f"unusable frames: {self.last_bad_frame}"
+            level, text = diag.ERROR, f'unusable frames: {self.last_bad_frame}'
         elif self.frames == 0:
-            level, text = diag.WARN, "no frames"
+            level, text = diag.WARN, 'no frames'
         elif expected and self.detected < 0.9 * expected:
-            level, text = diag.WARN, "markers missing"
+            level, text = diag.WARN, 'markers missing'
         else:
-            level, text = diag.OK, "tracking"
-        hardware_id = g.spec.text if g is not None else "camera"     # the device (docs/diagnostics.md)
-        statuses = [diag.status(diag.status_name(self.get_name(), "camera tracking"), hardware_id, level, text,
-                                values)]
-        if getattr(self, "capture_watch", None) is not None:
-            statuses.append(diag.status(diag.status_name(self.get_name(), "capture poll"), hardware_id,
-                                        *self.capture_watch.status()))
+            level, text = diag.OK, 'tracking'
+        hardware_id = (
+            g.spec.text if g is not None else 'camera'
+        )  # the device (docs/diagnostics.md)
+        statuses = [
+            diag.status(
+                diag.status_name(self.get_name(), 'camera tracking'),
+                hardware_id,
+                level,
+                text,
+                values,
+            )
+        ]
+        if getattr(self, 'capture_watch', None) is not None:
+            statuses.append(
+                diag.status(
+                    diag.status_name(self.get_name(), 'capture poll'),
+                    hardware_id,
+                    *self.capture_watch.status(),
+                )
+            )
         self.pub_diag.publish(diag.array(self.get_clock().now().to_msg(), statuses))
         self._reset_stats()
 
@@ -400,7 +504,8 @@ class TrackerNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Console script ``formation_tracker``. Exit status: 0 (SIGINT/SIGTERM), 1 (the source could
-    not be opened: one line on stderr), 2 (bad configuration: one line)."""
+    not be opened: one line on stderr), 2 (bad configuration: one line).
+    """
     made: list[TrackerNode] = []
 
     def make() -> TrackerNode:
@@ -408,15 +513,15 @@ def main(args: list[str] | None = None) -> int:
         return made[-1]
 
     try:
-        status = run_node("formation_tracker", make, args)
+        status = run_node('formation_tracker', make, args)
     except SourceUnavailable as err:
-        print(f"formation_tracker: {err}", file=sys.stderr)
+        print(f'formation_tracker: {err}', file=sys.stderr)
         return 1
     if made and made[-1].failure:
-        print(f"formation_tracker: {made[-1].failure}", file=sys.stderr)
+        print(f'formation_tracker: {made[-1].failure}', file=sys.stderr)
         return 1
     return status
 
 
-if __name__ == "__main__":
+if __name__ == '__main__':
     sys.exit(main())

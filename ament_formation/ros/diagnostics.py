@@ -14,6 +14,7 @@ software-only components.
 
 A status function returns ``(level, message, values)``; values become KeyValue pairs.
 """
+
 from __future__ import annotations
 
 import math
@@ -29,14 +30,14 @@ OK = 0
 WARN = 1
 ERROR = 2
 STALE = 3
-_LEVEL_NAMES = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
+_LEVEL_NAMES = {0: 'OK', 1: 'WARN', 2: 'ERROR', 3: 'STALE'}
 
-StatusFn = Callable[[], "tuple[int, str, dict]"]
+StatusFn = Callable[[], 'tuple[int, str, dict]']
 
 
 def _fmt(value) -> str:
     if isinstance(value, float):
-        return f"{value:.3f}" if abs(value) >= 1e5 else f"{value:.6g}"   # times [s] keep their ms
+        return f'{value:.3f}' if abs(value) >= 1e5 else f'{value:.6g}'  # times [s] keep their ms
     return str(value)
 
 
@@ -49,7 +50,9 @@ def level_int(level) -> int:
     return level[0] if isinstance(level, (bytes, bytearray)) else int(level)
 
 
-def status(name: str, hardware_id: str, level: int, message: str, values: dict) -> DiagnosticStatus:
+def status(
+    name: str, hardware_id: str, level: int, message: str, values: dict
+) -> DiagnosticStatus:
     """One DiagnosticStatus; ``values`` become KeyValue pairs (floats to 6 significant digits)."""
     msg = DiagnosticStatus()
     msg.level = _level_byte(level)
@@ -70,19 +73,20 @@ def array(stamp, statuses: list[DiagnosticStatus]) -> DiagnosticArray:
 
 def status_name(node_name: str, component: str) -> str:
     """``"<node name>: <component>"`` (the one naming scheme of the package)."""
-    return f"{node_name}: {component}"
+    return f'{node_name}: {component}'
 
 
 def robot_of_namespace(namespace: str) -> str | None:
     """``robot_<id>`` of a node namespace such as ``/robot_3`` (None for other namespaces)."""
-    m = re.search(r"(?:^|/)(robot_\d+)(?:/|$)", namespace or "")
+    m = re.search(r'(?:^|/)(robot_\d+)(?:/|$)', namespace or '')
     return m.group(1) if m else None
 
 
 def clock_ns(node) -> Callable[[], int]:
     """A function giving now on ``node``'s clock [ns]: the system clock read directly (0.1 us)
-    unless the node runs on sim time (then Clock.now(), 7 us)."""
-    if bool(node.get_parameter("use_sim_time").value):
+    unless the node runs on sim time (then Clock.now(), 7 us).
+    """
+    if bool(node.get_parameter('use_sim_time').value):
         clock = node.get_clock()
         return lambda: clock.now().nanoseconds
     return time.time_ns
@@ -100,13 +104,19 @@ class PeriodWatch:
     A clock that goes backward or starts (0 = no time yet, sim time) restarts the measurement.
     """
 
-    def __init__(self, period_s: float, now_ns: Callable[[], int] | None = None, late_periods: float = 3.0,
-                 min_late_s: float = 0.02, warn_hold_s: float = 5.0,
-                 on_stall: Callable[["PeriodWatch"], None] | None = None):
+    def __init__(
+        self,
+        period_s: float,
+        now_ns: Callable[[], int] | None = None,
+        late_periods: float = 3.0,
+        min_late_s: float = 0.02,
+        warn_hold_s: float = 5.0,
+        on_stall: Callable[['PeriodWatch'], None] | None = None,
+    ):
         if not (math.isfinite(period_s) and period_s > 0):
-            raise ValueError(f"period_s: must be > 0 s (got {period_s!r})")
+            raise ValueError(f'period_s: must be > 0 s (got {period_s!r})')
         if not (late_periods > 1.0):
-            raise ValueError(f"late_periods: must be > 1 (got {late_periods!r})")
+            raise ValueError(f'late_periods: must be > 1 (got {late_periods!r})')
         self.period_s = float(period_s)
         self.late_periods = float(late_periods)
         self.threshold_ns = int(max(late_periods * period_s, min_late_s) * 1e9)
@@ -115,8 +125,8 @@ class PeriodWatch:
         self.on_stall = on_stall
         self.ticks = 0
         self.stalls = 0
-        self.last_gap_s = 0.0          # gap of the last stall [s]
-        self.max_gap_s = 0.0           # largest gap between two ticks seen [s]
+        self.last_gap_s = 0.0  # gap of the last stall [s]
+        self.max_gap_s = 0.0  # largest gap between two ticks seen [s]
         self._last_ns: int | None = None
         self._last_stall_ns: int | None = None
 
@@ -142,31 +152,50 @@ class PeriodWatch:
     def status(self, now_ns: int | None = None) -> tuple[int, str, dict]:
         """(level, message, values) of the watch at ``now_ns``."""
         now = self._now_ns() if now_ns is None else int(now_ns)
-        values = {"period_s": self.period_s, "late_after_s": self.threshold_ns * 1e-9, "ticks": self.ticks,
-                  "stalls": self.stalls, "last_stall_gap_s": self.last_gap_s, "max_gap_s": self.max_gap_s}
+        values = {
+            'period_s': self.period_s,
+            'late_after_s': self.threshold_ns * 1e-9,
+            'ticks': self.ticks,
+            'stalls': self.stalls,
+            'last_stall_gap_s': self.last_gap_s,
+            'max_gap_s': self.max_gap_s,
+        }
         if self._last_ns is None:
-            return OK, "not started", values
+            return OK, 'not started', values
         running_gap = now - self._last_ns
         if self._last_ns > 0 and running_gap > max(self.threshold_ns, self.warn_hold_ns // 5):
-            return WARN, f"stalled: not run for {running_gap * 1e-9:.3g} s ({self.stalls} stalls)", values
+            return (
+                WARN,
+                f'stalled: not run for {running_gap * 1e-9:.3g} s ({self.stalls} stalls)',
+                values,
+            )
         if self._last_stall_ns is not None and 0 <= now - self._last_stall_ns <= self.warn_hold_ns:
-            return (WARN, f"stalled {self.last_gap_s:.3g} s ({self.last_gap_s / self.period_s:.0f} periods); "
-                    f"{self.stalls} stalls", values)
-        return OK, "on time" if not self.stalls else f"on time ({self.stalls} stalls so far)", values
+            return (
+                WARN,
+                f'stalled {self.last_gap_s:.3g} s ({self.last_gap_s / self.period_s:.0f} periods); '
+                f'{self.stalls} stalls',
+                values,
+            )
+        return (
+            OK,
+            'on time' if not self.stalls else f'on time ({self.stalls} stalls so far)',
+            values,
+        )
 
 
 # --------------------------------------------------------------------------- publisher
 class _Task:
-    __slots__ = ("name", "hardware_id", "fn", "sent")
+    __slots__ = ('name', 'hardware_id', 'fn', 'sent')
 
     def __init__(self, name: str, hardware_id: str, fn: StatusFn):
         self.name, self.hardware_id, self.fn = name, hardware_id, fn
-        self.sent: tuple[int, str] | None = None     # (level, message) last published
+        self.sent: tuple[int, str] | None = None  # (level, message) last published
 
 
 class Diagnostics:
     """A node's /diagnostics: its status tasks, published together every ``period_s`` and at once
-    (:meth:`changed`) when any task's level or message differs from what was last published."""
+    (:meth:`changed`) when any task's level or message differs from what was last published.
+    """
 
     def __init__(self, node, period_s: float = 1.0):
         from ament_formation.ros.qos import QOS_DIAGNOSTICS
@@ -176,17 +205,18 @@ class Diagnostics:
         self.tasks: list[_Task] = []
         self.published = 0
         self._clock = node.get_clock()
-        self.now_ns = clock_ns(node)      # what drives the node's timers (polls read it often)
-        self.pub = node.create_publisher(DiagnosticArray, "/diagnostics", QOS_DIAGNOSTICS)
+        self.now_ns = clock_ns(node)  # what drives the node's timers (polls read it often)
+        self.pub = node.create_publisher(DiagnosticArray, '/diagnostics', QOS_DIAGNOSTICS)
         self.timer = node.create_timer(period_s, self.publish)
 
-    def add(self, component: str, fn: StatusFn, hardware_id: str = "") -> None:
+    def add(self, component: str, fn: StatusFn, hardware_id: str = '') -> None:
         """A status ``"<node>: <component>"`` computed by ``fn() -> (level, message, values)``."""
         self.tasks.append(_Task(status_name(self.node_name, component), hardware_id, fn))
 
-    def watch(self, component: str, period_s: float, hardware_id: str = "", **kw) -> PeriodWatch:
+    def watch(self, component: str, period_s: float, hardware_id: str = '', **kw) -> PeriodWatch:
         """A :class:`PeriodWatch` on this node's clock reported as ``"<node>: <component>"``; a
-        stall is published at once. ``kw``: PeriodWatch options (late_periods, warn_hold_s, ...)."""
+        stall is published at once. ``kw``: PeriodWatch options (late_periods, warn_hold_s, ...).
+        """
         w = PeriodWatch(period_s, self.now_ns, on_stall=lambda _w: self.changed(), **kw)
         self.add(component, w.status, hardware_id)
         return w
@@ -200,7 +230,8 @@ class Diagnostics:
 
     def publish(self, evaluated=None) -> None:
         """Publish every task's status now (nothing once the node's context is shut down: a
-        change seen while a node shuts down, e.g. its port closing, is not an error)."""
+        change seen while a node shuts down, e.g. its port closing, is not an error).
+        """
         if not self.node.context.ok():
             return
         rows = self._evaluate() if evaluated is None else evaluated
@@ -212,7 +243,7 @@ class Diagnostics:
             t.sent = (level, message)
         try:
             self.pub.publish(array(self._clock.now().to_msg(), statuses))
-        except (RCLError, InvalidHandle):       # shut down between the check and the publish
+        except (RCLError, InvalidHandle):  # shut down between the check and the publish
             return
         self.published += 1
 
@@ -228,5 +259,5 @@ class Diagnostics:
 
 
 def level_name(level) -> str:
-    """"OK", "WARN", "ERROR" or "STALE"."""
+    """ "OK", "WARN", "ERROR" or "STALE"."""
     return _LEVEL_NAMES.get(level_int(level), str(level_int(level)))

@@ -1,7 +1,8 @@
 """Conversions between standard ROS messages and the core's arrays (DESIGN §6).
 
 Every function is pure: message in, numpy/dict out (or the reverse). Units are SI, frames are the
-world frame unless the name says otherwise; state rows are [x_m, y_m, theta_rad, v_mps, omega_radps]
+world frame unless the name says otherwise; state rows are [x_m, y_m, theta_rad, v_mps,
+omega_radps]
 with (x, y) the controlled point p (spec S2.1).
 
 | topic                    | type                          | helpers                                   |
@@ -16,23 +17,24 @@ with (x, y) the controlled point p (spec S2.1).
 | /formation/markers       | visualization_msgs/MarkerArray| robot_markers, ellipse_markers, edge_markers, delete_all_marker, marker_array |
 | /camera/image_raw        | sensor_msgs/Image (mono8)     | image_mono8, array_from_image             |
 """
+
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
+import math
 
-import numpy as np
 from builtin_interfaces.msg import Duration, Time
 from geometry_msgs.msg import AccelStamped, Point, PoseStamped
 from nav_msgs.msg import Odometry
+import numpy as np
 from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import ColorRGBA, String
 from visualization_msgs.msg import Marker, MarkerArray
 
 from ament_formation.ros import payloads
 
-WORLD_FRAME = "world"
-WHEEL_NAMES = ("left_wheel", "right_wheel")
+WORLD_FRAME = 'world'
+WHEEL_NAMES = ('left_wheel', 'right_wheel')
 _NS_PER_S = 1_000_000_000
 
 
@@ -40,7 +42,7 @@ _NS_PER_S = 1_000_000_000
 def stamp_from_s(t_s: float) -> Time:
     """builtin_interfaces/Time for ``t_s`` [s] (non-negative; rounded to the nanosecond)."""
     if not math.isfinite(t_s) or t_s < 0.0:
-        raise ValueError(f"t_s: must be a finite time >= 0 s (got {t_s!r})")
+        raise ValueError(f't_s: must be a finite time >= 0 s (got {t_s!r})')
     ns = int(round(t_s * _NS_PER_S))
     return Time(sec=ns // _NS_PER_S, nanosec=ns % _NS_PER_S)
 
@@ -95,13 +97,20 @@ def pose_stamped(pose_xyt, stamp: Time, frame_id: str = WORLD_FRAME) -> PoseStam
 def pose_from_msg(msg: PoseStamped) -> tuple[np.ndarray, float]:
     """((3,) [x_m, y_m, theta_rad], stamp [s]) from a PoseStamped."""
     p, q = msg.pose.position, msg.pose.orientation
-    return (np.array([p.x, p.y, quaternion_to_yaw(q.x, q.y, q.z, q.w)]),
-            stamp_to_s(msg.header.stamp))
+    return (
+        np.array([p.x, p.y, quaternion_to_yaw(q.x, q.y, q.z, q.w)]),
+        stamp_to_s(msg.header.stamp),
+    )
 
 
 # --------------------------------------------------------------------------- odometry
-def odometry(state, stamp: Time, child_frame_id: str, frame_id: str = WORLD_FRAME,
-             out: Odometry | None = None) -> Odometry:
+def odometry(
+    state,
+    stamp: Time,
+    child_frame_id: str,
+    frame_id: str = WORLD_FRAME,
+    out: Odometry | None = None,
+) -> Odometry:
     """Odometry from ``state`` (5,) [x_m, y_m, theta_rad, v_mps, omega_radps].
 
     Pose = controlled point p and heading; twist (body frame, REP 105) = (v, 0, 0), (0, 0, omega)
@@ -130,15 +139,19 @@ def state_from_odometry(msg: Odometry) -> tuple[np.ndarray, float]:
     """((5,) [x_m, y_m, theta_rad, v_mps, omega_radps], stamp [s]) from an Odometry."""
     p, q = msg.pose.pose.position, msg.pose.pose.orientation
     t = msg.twist.twist
-    return (np.array([p.x, p.y, quaternion_to_yaw(q.x, q.y, q.z, q.w), t.linear.x, t.angular.z]),
-            stamp_to_s(msg.header.stamp))
+    return (
+        np.array([p.x, p.y, quaternion_to_yaw(q.x, q.y, q.z, q.w), t.linear.x, t.angular.z]),
+        stamp_to_s(msg.header.stamp),
+    )
 
 
 # --------------------------------------------------------------------------- accel
-def accel_stamped(accel_mps2, stamp: Time, frame_id: str = WORLD_FRAME,
-                  out: AccelStamped | None = None) -> AccelStamped:
+def accel_stamped(
+    accel_mps2, stamp: Time, frame_id: str = WORLD_FRAME, out: AccelStamped | None = None
+) -> AccelStamped:
     """AccelStamped carrying the commanded point acceleration a_j (2,) [m/s^2, world] (S4).
-    ``out``: refill this message (built here before) instead of a new one."""
+    ``out``: refill this message (built here before) instead of a new one.
+    """
     if out is None:
         msg = AccelStamped()
         msg.header.frame_id = frame_id
@@ -158,7 +171,8 @@ def accel_from_msg(msg: AccelStamped) -> tuple[np.ndarray, float]:
 # --------------------------------------------------------------------------- wheels
 def wheel_torque(torque_nm, stamp: Time, out: JointState | None = None) -> JointState:
     """JointState with effort = (2,) [left, right] wheel torques [N m].
-    ``out``: refill this message (built here before) instead of a new one."""
+    ``out``: refill this message (built here before) instead of a new one.
+    """
     if out is None:
         msg = JointState()
         msg.name = list(WHEEL_NAMES)
@@ -172,7 +186,7 @@ def wheel_torque(torque_nm, stamp: Time, out: JointState | None = None) -> Joint
 def torque_from_msg(msg: JointState) -> tuple[np.ndarray, float]:
     """((2,) [left, right] N m, stamp [s]); raises ValueError unless exactly two efforts."""
     if len(msg.effort) != 2:
-        raise ValueError(f"effort: expected 2 values [left, right] (got {len(msg.effort)})")
+        raise ValueError(f'effort: expected 2 values [left, right] (got {len(msg.effort)})')
     return np.array(msg.effort, dtype=float), stamp_to_s(msg.header.stamp)
 
 
@@ -189,28 +203,45 @@ def wheel_state(position_rad, velocity_radps, stamp: Time) -> JointState:
 def wheel_state_from_msg(msg: JointState) -> tuple[np.ndarray, np.ndarray, float]:
     """((2,) angles [rad], (2,) rates [rad/s], stamp [s]); ValueError unless two of each."""
     if len(msg.position) != 2 or len(msg.velocity) != 2:
-        raise ValueError("position/velocity: expected 2 values each [left, right] "
-                         f"(got {len(msg.position)}, {len(msg.velocity)})")
-    return (np.array(msg.position, dtype=float), np.array(msg.velocity, dtype=float),
-            stamp_to_s(msg.header.stamp))
+        raise ValueError(
+            'position/velocity: expected 2 values each [left, right] '
+            f'(got {len(msg.position)}, {len(msg.velocity)})'
+        )
+    return (
+        np.array(msg.position, dtype=float),
+        np.array(msg.velocity, dtype=float),
+        stamp_to_s(msg.header.stamp),
+    )
 
 
 # --------------------------------------------------------------------------- JSON strings
 # Versioned JSON payloads (ros/payloads.py, docs/schemas/): every receiver validates; a bad
 # payload raises ValueError (payloads.PayloadError) for the node to count, never anything else.
-def mode_msg(mode: str, target: str | int | None = None, direction: str | None = None,
-             **extra) -> String:
+def mode_msg(
+    mode: str, target: str | int | None = None, direction: str | None = None, **extra
+) -> String:
     """std_msgs/String JSON ament_formation/mode/v1 {"schema", "mode", "target", "direction", ...}
-    for robot_<id>/mode (``extra``: more members, e.g. ``avoiding``)."""
-    return String(data=payloads.encode({**extra, "schema": payloads.MODE_V1, "mode": mode,
-                                        "target": target, "direction": direction}))
+    for robot_<id>/mode (``extra``: more members, e.g. ``avoiding``).
+    """
+    return String(
+        data=payloads.encode(
+            {
+                **extra,
+                'schema': payloads.MODE_V1,
+                'mode': mode,
+                'target': target,
+                'direction': direction,
+            }
+        )
+    )
 
 
 def mode_from_msg(msg: String) -> dict:
     """The mode dictionary (without its "schema" member); ValueError unless it follows
-    ament_formation/mode/v1."""
+    ament_formation/mode/v1.
+    """
     data = payloads.decode(msg.data, payloads.MODE_V1)
-    data.pop("schema")
+    data.pop('schema')
     return data
 
 
@@ -218,7 +249,8 @@ def mode_from_msg(msg: String) -> dict:
 class GraphMessage:
     """Decoded /formation/graph: revision, parent of each robot (None = root), offsets delta [m],
     the robots avoiding, when it was made [s, ROS time] and the mission start ``start_s`` [s, ROS
-    time] (None until the coordinator has started the mission; scenario time t = now - start_s)."""
+    time] (None until the coordinator has started the mission; scenario time t = now - start_s).
+    """
 
     revision: int
     parents: dict[int, int | None]
@@ -230,67 +262,107 @@ class GraphMessage:
 
 def graph_msg(graph: GraphMessage) -> String:
     """std_msgs/String JSON ament_formation/graph/v1 of a GraphMessage (integer keys as strings)."""
-    return String(data=payloads.encode({
-        "schema": payloads.GRAPH_V1,
-        "revision": int(graph.revision),
-        "parents": {str(k): (None if v is None else int(v)) for k, v in sorted(graph.parents.items())},
-        "offsets_m": {str(k): [float(v[0]), float(v[1])] for k, v in sorted(graph.offsets_m.items())},
-        "avoiding": sorted(int(a) for a in graph.avoiding),
-        "stamp_s": float(graph.stamp_s),
-        "start_s": None if graph.start_s is None else float(graph.start_s),
-    }))
+    return String(
+        data=payloads.encode(
+            {
+                'schema': payloads.GRAPH_V1,
+                'revision': int(graph.revision),
+                'parents': {
+                    str(k): (None if v is None else int(v))
+                    for k, v in sorted(graph.parents.items())
+                },
+                'offsets_m': {
+                    str(k): [float(v[0]), float(v[1])] for k, v in sorted(graph.offsets_m.items())
+                },
+                'avoiding': sorted(int(a) for a in graph.avoiding),
+                'stamp_s': float(graph.stamp_s),
+                'start_s': None if graph.start_s is None else float(graph.start_s),
+            }
+        )
+    )
 
 
 def graph_from_msg(msg: String) -> GraphMessage:
     """GraphMessage from the JSON; ValueError naming the member unless it follows
-    ament_formation/graph/v1."""
+    ament_formation/graph/v1.
+    """
     data = payloads.decode(msg.data, payloads.GRAPH_V1)
-    return GraphMessage(data["revision"], {int(k): v for k, v in data["parents"].items()},
-                        {int(k): (float(v[0]), float(v[1])) for k, v in data["offsets_m"].items()},
-                        tuple(data["avoiding"]), float(data["stamp_s"]),
-                        None if data["start_s"] is None else float(data["start_s"]))
+    return GraphMessage(
+        data['revision'],
+        {int(k): v for k, v in data['parents'].items()},
+        {int(k): (float(v[0]), float(v[1])) for k, v in data['offsets_m'].items()},
+        tuple(data['avoiding']),
+        float(data['stamp_s']),
+        None if data['start_s'] is None else float(data['start_s']),
+    )
 
 
 def encounters_msg(revision: int, assignments: dict, stamp_s: float) -> String:
     """std_msgs/String JSON ament_formation/encounters/v1 of /formation/encounters: {schema,
     revision, stamp_s, assignments: {id: {mode, partner, direction, t_entry_s, drift_mps}}} from
-    {robot id: EncounterAssignment} (S7)."""
-    return String(data=payloads.encode({
-        "schema": payloads.ENCOUNTERS_V1, "revision": int(revision), "stamp_s": float(stamp_s),
-        "assignments": {str(k): {"mode": a.mode, "partner": int(a.partner), "direction": float(a.direction),
-                                 "t_entry_s": None if a.t_entry_s is None else float(a.t_entry_s),
-                                 "drift_mps": None if a.drift_mps is None else [float(v) for v in a.drift_mps]}
-                        for k, a in sorted(assignments.items())}}))
+    {robot id: EncounterAssignment} (S7).
+    """
+    return String(
+        data=payloads.encode(
+            {
+                'schema': payloads.ENCOUNTERS_V1,
+                'revision': int(revision),
+                'stamp_s': float(stamp_s),
+                'assignments': {
+                    str(k): {
+                        'mode': a.mode,
+                        'partner': int(a.partner),
+                        'direction': float(a.direction),
+                        't_entry_s': None if a.t_entry_s is None else float(a.t_entry_s),
+                        'drift_mps': None
+                        if a.drift_mps is None
+                        else [float(v) for v in a.drift_mps],
+                    }
+                    for k, a in sorted(assignments.items())
+                },
+            }
+        )
+    )
 
 
 def encounters_from_msg(msg: String) -> tuple[int, dict]:
     """(revision, {robot id: EncounterAssignment}); ValueError naming the problem unless it
-    follows ament_formation/encounters/v1."""
+    follows ament_formation/encounters/v1.
+    """
     from ament_formation.core.controller import EncounterAssignment
     from ament_formation.core.errors import ConfigError
 
     data = payloads.decode(msg.data, payloads.ENCOUNTERS_V1)
     try:
-        out = {int(k): EncounterAssignment(a["mode"], a["partner"], float(a["direction"]),
-                                           None if a["t_entry_s"] is None else float(a["t_entry_s"]),
-                                           None if a["drift_mps"] is None else
-                                           (float(a["drift_mps"][0]), float(a["drift_mps"][1])))
-               for k, a in data["assignments"].items()}
+        out = {
+            int(k): EncounterAssignment(
+                a['mode'],
+                a['partner'],
+                float(a['direction']),
+                None if a['t_entry_s'] is None else float(a['t_entry_s']),
+                None
+                if a['drift_mps'] is None
+                else (float(a['drift_mps'][0]), float(a['drift_mps'][1])),
+            )
+            for k, a in data['assignments'].items()
+        }
     except ConfigError as err:
-        raise ValueError(f"{payloads.ENCOUNTERS_V1}: {err}") from None
-    return data["revision"], out
+        raise ValueError(f'{payloads.ENCOUNTERS_V1}: {err}') from None
+    return data['revision'], out
 
 
 # --------------------------------------------------------------------------- image
-def image_mono8(pixels: np.ndarray, stamp: Time, frame_id: str = "camera") -> Image:
+def image_mono8(pixels: np.ndarray, stamp: Time, frame_id: str = 'camera') -> Image:
     """sensor_msgs/Image (mono8) from a (H, W) uint8 array."""
     if pixels.ndim != 2 or pixels.dtype != np.uint8:
-        raise ValueError(f"pixels: expected a (H, W) uint8 array (got {pixels.shape} {pixels.dtype})")
+        raise ValueError(
+            f'pixels: expected a (H, W) uint8 array (got {pixels.shape} {pixels.dtype})'
+        )
     msg = Image()
     msg.header.stamp = stamp
     msg.header.frame_id = frame_id
     msg.height, msg.width = pixels.shape
-    msg.encoding = "mono8"
+    msg.encoding = 'mono8'
     msg.is_bigendian = 0
     msg.step = pixels.shape[1]
     msg.data = np.ascontiguousarray(pixels).tobytes()
@@ -299,12 +371,16 @@ def image_mono8(pixels: np.ndarray, stamp: Time, frame_id: str = "camera") -> Im
 
 def array_from_image(msg: Image) -> np.ndarray:
     """(H, W) uint8 view of a mono8 Image (ValueError for other encodings or a bad size)."""
-    if msg.encoding != "mono8":
-        raise ValueError(f"encoding: expected mono8 (got {msg.encoding!r})")
-    buf = np.frombuffer(bytes(msg.data) if not isinstance(msg.data, (bytes, bytearray, memoryview))
-                        else msg.data, dtype=np.uint8)
+    if msg.encoding != 'mono8':
+        raise ValueError(f'encoding: expected mono8 (got {msg.encoding!r})')
+    buf = np.frombuffer(
+        bytes(msg.data) if not isinstance(msg.data, (bytes, bytearray, memoryview)) else msg.data,
+        dtype=np.uint8,
+    )
     if buf.size != msg.step * msg.height or msg.step < msg.width:
-        raise ValueError(f"data: {buf.size} bytes do not match step {msg.step} x height {msg.height}")
+        raise ValueError(
+            f'data: {buf.size} bytes do not match step {msg.step} x height {msg.height}'
+        )
     return buf.reshape(msg.height, msg.step)[:, : msg.width]
 
 
@@ -314,8 +390,16 @@ def _color(rgba) -> ColorRGBA:
     return ColorRGBA(r=r, g=g, b=b, a=a)
 
 
-_PALETTE = ((0.12, 0.47, 0.71), (1.0, 0.5, 0.05), (0.17, 0.63, 0.17), (0.84, 0.15, 0.16),
-            (0.58, 0.4, 0.74), (0.55, 0.34, 0.29), (0.89, 0.47, 0.76), (0.5, 0.5, 0.5))
+_PALETTE = (
+    (0.12, 0.47, 0.71),
+    (1.0, 0.5, 0.05),
+    (0.17, 0.63, 0.17),
+    (0.84, 0.15, 0.16),
+    (0.58, 0.4, 0.74),
+    (0.55, 0.34, 0.29),
+    (0.89, 0.47, 0.76),
+    (0.5, 0.5, 0.5),
+)
 
 
 def robot_color(robot_id: int, alpha: float = 1.0) -> ColorRGBA:
@@ -323,7 +407,9 @@ def robot_color(robot_id: int, alpha: float = 1.0) -> ColorRGBA:
     return _color((*_PALETTE[robot_id % len(_PALETTE)], alpha))
 
 
-def _marker(ns: str, mid: int, mtype: int, stamp: Time, frame_id: str, lifetime_s: float = 0.0) -> Marker:
+def _marker(
+    ns: str, mid: int, mtype: int, stamp: Time, frame_id: str, lifetime_s: float = 0.0
+) -> Marker:
     m = Marker()
     m.header.stamp = stamp
     m.header.frame_id = frame_id
@@ -338,7 +424,8 @@ def _marker(ns: str, mid: int, mtype: int, stamp: Time, frame_id: str, lifetime_
 
 def delete_all_marker(stamp: Time, frame_id: str = WORLD_FRAME) -> Marker:
     """A DELETEALL marker: put first in an array, the viewer drops every marker it holds from
-    this topic before drawing the rest of the array (a new layout: no stale object survives)."""
+    this topic before drawing the rest of the array (a new layout: no stale object survives).
+    """
     m = Marker()
     m.header.stamp = stamp
     m.header.frame_id = frame_id
@@ -346,8 +433,15 @@ def delete_all_marker(stamp: Time, frame_id: str = WORLD_FRAME) -> Marker:
     return m
 
 
-def robot_markers(robot_ids, states, body_radius_m, stamp: Time, avoiding=None,
-                  frame_id: str = WORLD_FRAME, lifetime_s: float = 0.0) -> list[Marker]:
+def robot_markers(
+    robot_ids,
+    states,
+    body_radius_m,
+    stamp: Time,
+    avoiding=None,
+    frame_id: str = WORLD_FRAME,
+    lifetime_s: float = 0.0,
+) -> list[Marker]:
     """Per robot a disc (CYLINDER, radius R_body; ns ``robots``) and a heading ARROW (ns
     ``headings``), marker id = robot id.
 
@@ -360,15 +454,20 @@ def robot_markers(robot_ids, states, body_radius_m, stamp: Time, avoiding=None,
     out = []
     for k, rid in enumerate(robot_ids):
         x, y, th = states[k, :3]
-        disc = _marker("robots", rid, Marker.CYLINDER, stamp, frame_id, lifetime_s)
+        disc = _marker('robots', rid, Marker.CYLINDER, stamp, frame_id, lifetime_s)
         disc.pose.position.x, disc.pose.position.y = float(x), float(y)
         disc.scale.x = disc.scale.y = 2.0 * float(radius[k])
         disc.scale.z = 0.05
         disc.color = robot_color(rid, 0.5 if (avoiding is not None and avoiding[k]) else 0.9)
-        arrow = _marker("headings", rid, Marker.ARROW, stamp, frame_id, lifetime_s)
-        arrow.points = [Point(x=float(x), y=float(y), z=0.06),
-                        Point(x=float(x + 1.5 * radius[k] * math.cos(th)),
-                              y=float(y + 1.5 * radius[k] * math.sin(th)), z=0.06)]
+        arrow = _marker('headings', rid, Marker.ARROW, stamp, frame_id, lifetime_s)
+        arrow.points = [
+            Point(x=float(x), y=float(y), z=0.06),
+            Point(
+                x=float(x + 1.5 * radius[k] * math.cos(th)),
+                y=float(y + 1.5 * radius[k] * math.sin(th)),
+                z=0.06,
+            ),
+        ]
         arrow.scale.x, arrow.scale.y, arrow.scale.z = 0.02, 0.04, 0.04
         arrow.color = robot_color(rid)
         out.append(disc)
@@ -385,19 +484,22 @@ def ellipse_points(center_m, phi_rad: float, semi_axes_m, n: int = 48) -> np.nda
     return local @ rot.T + np.asarray(center_m, dtype=float)
 
 
-def ellipse_markers(names, centers_m, phis_rad, semi_axes_m, scales, stamp: Time,
-                    frame_id: str = WORLD_FRAME) -> list[Marker]:
+def ellipse_markers(
+    names, centers_m, phis_rad, semi_axes_m, scales, stamp: Time, frame_id: str = WORLD_FRAME
+) -> list[Marker]:
     """LINE_STRIP per obstacle and scale: P (scale 1), L (rho_L) and Q (kappa) (S6.1).
 
     ``centers_m`` (M, 2), ``phis_rad`` (M,), ``semi_axes_m`` (M, 2) of P_j; ``scales`` dict
     {"P": 1.0, "L": rho_L, "Q": kappa} (namespace = key). Marker id = obstacle index.
     """
-    colors = {"P": (0.8, 0.1, 0.1, 1.0), "L": (0.1, 0.5, 0.9, 1.0), "Q": (0.5, 0.5, 0.5, 0.6)}
+    colors = {'P': (0.8, 0.1, 0.1, 1.0), 'L': (0.1, 0.5, 0.9, 1.0), 'Q': (0.5, 0.5, 0.5, 0.6)}
     out = []
     for ns, scale in scales.items():
         for j, _name in enumerate(names):
-            m = _marker(f"ellipse_{ns}", j, Marker.LINE_STRIP, stamp, frame_id)
-            pts = ellipse_points(centers_m[j], float(phis_rad[j]), np.asarray(semi_axes_m[j]) * scale)
+            m = _marker(f'ellipse_{ns}', j, Marker.LINE_STRIP, stamp, frame_id)
+            pts = ellipse_points(
+                centers_m[j], float(phis_rad[j]), np.asarray(semi_axes_m[j]) * scale
+            )
             m.points = [Point(x=float(px), y=float(py), z=0.0) for px, py in pts]
             m.scale.x = 0.01
             m.color = _color(colors.get(ns, (0.3, 0.3, 0.3, 1.0)))
@@ -405,18 +507,31 @@ def ellipse_markers(names, centers_m, phis_rad, semi_axes_m, scales, stamp: Time
     return out
 
 
-def edge_markers(parents: dict, positions_m: dict, stamp: Time, frame_id: str = WORLD_FRAME,
-                 lifetime_s: float = 0.0) -> list[Marker]:
+def edge_markers(
+    parents: dict,
+    positions_m: dict,
+    stamp: Time,
+    frame_id: str = WORLD_FRAME,
+    lifetime_s: float = 0.0,
+) -> list[Marker]:
     """One ARROW parent -> child per active graph edge (ns ``graph_edges``, id = child id), for
-    edges whose two robots are in ``positions_m`` (id -> (2,) [m]); ``lifetime_s`` as for robots."""
+    edges whose two robots are in ``positions_m`` (id -> (2,) [m]); ``lifetime_s`` as for robots.
+    """
     out = []
     for child, parent in sorted(parents.items()):
         if parent is None or parent not in positions_m or child not in positions_m:
             continue
-        m = _marker("graph_edges", child, Marker.ARROW, stamp, frame_id, lifetime_s)
+        m = _marker('graph_edges', child, Marker.ARROW, stamp, frame_id, lifetime_s)
         a, b = positions_m[parent], positions_m[child]
-        m.points = [Point(x=float(a[0]), y=float(a[1]), z=0.1), Point(x=float(b[0]), y=float(b[1]), z=0.1)]
-        m.scale.x, m.scale.y, m.scale.z = 0.012, 0.03, 0.04     # shaft, head diameter, head length [m]
+        m.points = [
+            Point(x=float(a[0]), y=float(a[1]), z=0.1),
+            Point(x=float(b[0]), y=float(b[1]), z=0.1),
+        ]
+        m.scale.x, m.scale.y, m.scale.z = (
+            0.012,
+            0.03,
+            0.04,
+        )  # shaft, head diameter, head length [m]
         m.color = _color((0.1, 0.1, 0.1, 0.8))
         out.append(m)
     return out

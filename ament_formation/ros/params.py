@@ -12,6 +12,7 @@ ignored. At start, a value of the wrong type (``-p torque_limit_nm:=abc``) is a 
 the node, the parameter and the expected type (the process prints one line and exits 2). An integer
 given for a float parameter (``-p control_rate_hz:=100``) is taken as that float.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -20,10 +21,17 @@ import types
 import typing
 from typing import Any, Callable, TypeVar
 
-from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
-                                SetParametersResult)
-from rclpy.exceptions import (InvalidParameterTypeException, InvalidParameterValueException,
-                              ParameterUninitializedException)
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    SetParametersResult,
+)
+from rclpy.exceptions import (
+    InvalidParameterTypeException,
+    InvalidParameterValueException,
+    ParameterUninitializedException,
+)
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
@@ -35,14 +43,31 @@ _T = Parameter.Type
 _SCALAR = {bool: _T.BOOL, int: _T.INTEGER, float: _T.DOUBLE, str: _T.STRING}
 _ARRAY = {bool: _T.BOOL_ARRAY, int: _T.INTEGER_ARRAY, float: _T.DOUBLE_ARRAY, str: _T.STRING_ARRAY}
 _TYPE_WORDS = {
-    _T.BOOL: 'a bool (true/false)', _T.INTEGER: 'an integer', _T.DOUBLE: 'a float',
-    _T.STRING: 'a string', _T.BOOL_ARRAY: 'a list of bools', _T.INTEGER_ARRAY: 'a list of integers',
-    _T.DOUBLE_ARRAY: 'a list of floats', _T.STRING_ARRAY: 'a list of strings',
-    _T.BYTE_ARRAY: 'a list of bytes', _T.NOT_SET: 'unset',
+    _T.BOOL: 'a bool (true/false)',
+    _T.INTEGER: 'an integer',
+    _T.DOUBLE: 'a float',
+    _T.STRING: 'a string',
+    _T.BOOL_ARRAY: 'a list of bools',
+    _T.INTEGER_ARRAY: 'a list of integers',
+    _T.DOUBLE_ARRAY: 'a list of floats',
+    _T.STRING_ARRAY: 'a list of strings',
+    _T.BYTE_ARRAY: 'a list of bytes',
+    _T.NOT_SET: 'unset',
 }
 # unit suffix of a parameter name -> unit, for descriptions of fields without metadata
-_UNITS = (('_nm', 'N m'), ('_mps2', 'm/s^2'), ('_mps', 'm/s'), ('_radps', 'rad/s'), ('_rad', 'rad'),
-          ('_hz', 'Hz'), ('_px', 'px'), ('_kgm2', 'kg m^2'), ('_kg', 'kg'), ('_m', 'm'), ('_s', 's'))
+_UNITS = (
+    ('_nm', 'N m'),
+    ('_mps2', 'm/s^2'),
+    ('_mps', 'm/s'),
+    ('_radps', 'rad/s'),
+    ('_rad', 'rad'),
+    ('_hz', 'Hz'),
+    ('_px', 'px'),
+    ('_kgm2', 'kg m^2'),
+    ('_kg', 'kg'),
+    ('_m', 'm'),
+    ('_s', 's'),
+)
 
 
 def _default_of(f: dataclasses.Field) -> Any:
@@ -65,7 +90,8 @@ def _is_union(hint: Any) -> bool:
 
 def parameter_type(hint: Any, default: Any) -> Parameter.Type | None:
     """ROS parameter type of a field annotated ``hint`` with ``default``; None: dynamic typing
-    (a union such as ``str | int``, or a None default)."""
+    (a union such as ``str | int``, or a None default).
+    """
     if default is None:
         return None
     if _is_union(hint):
@@ -94,8 +120,9 @@ def describe(f: dataclasses.Field) -> str:
     return f.name.replace('_', ' ')
 
 
-def _descriptor(name: str, f: dataclasses.Field, kind: Parameter.Type | None,
-                read_only: bool) -> ParameterDescriptor:
+def _descriptor(
+    name: str, f: dataclasses.Field, kind: Parameter.Type | None, read_only: bool
+) -> ParameterDescriptor:
     desc = ParameterDescriptor(name=name, description=describe(f), read_only=read_only)
     if kind is None:
         desc.dynamic_typing = True
@@ -105,8 +132,9 @@ def _descriptor(name: str, f: dataclasses.Field, kind: Parameter.Type | None,
     if bounds is not None and None not in bounds:
         lo, hi = bounds
         if kind == _T.DOUBLE:
-            desc.floating_point_range = [FloatingPointRange(
-                from_value=float(lo), to_value=float(hi), step=0.0)]
+            desc.floating_point_range = [
+                FloatingPointRange(from_value=float(lo), to_value=float(hi), step=0.0)
+            ]
         elif kind == _T.INTEGER:
             desc.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi), step=1)]
         desc.additional_constraints = f'in [{lo:g}, {hi:g}]'
@@ -122,13 +150,17 @@ def _type_word(value: Any) -> str:
 
 def _coerce(value: Any, kind: Parameter.Type | None) -> tuple[bool, Any]:
     """(ok, value) of an override for a parameter of type ``kind``: an integer (list) given for a
-    float (list) is that float; anything else must already have the type."""
+    float (list) is that float; anything else must already have the type.
+    """
     if kind is None:
         return True, value
     if kind == _T.DOUBLE and isinstance(value, int) and not isinstance(value, bool):
         return True, float(value)
-    if kind == _T.DOUBLE_ARRAY and isinstance(value, (list, tuple)) and all(
-            isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
+    if (
+        kind == _T.DOUBLE_ARRAY
+        and isinstance(value, (list, tuple))
+        and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+    ):
         return True, [float(v) for v in value]
     try:
         ok = Parameter.Type.from_parameter_value(value) == kind
@@ -137,8 +169,13 @@ def _coerce(value: Any, kind: Parameter.Type | None) -> tuple[bool, Any]:
     return ok, value
 
 
-def declare_dataclass(node: Node, cls: type[T], prefix: str = '', overrides: dict | None = None,
-                      on_change: Callable[[T], None] | None = None) -> T:
+def declare_dataclass(
+    node: Node,
+    cls: type[T],
+    prefix: str = '',
+    overrides: dict | None = None,
+    on_change: Callable[[T], None] | None = None,
+) -> T:
     """Declare every field of ``cls`` as parameter ``prefix + name`` and return the built object.
 
     ``overrides`` replace defaults (e.g. values from a scenario). Fields whose default is None or
@@ -152,15 +189,18 @@ def declare_dataclass(node: Node, cls: type[T], prefix: str = '', overrides: dic
     overrides = overrides or {}
     node_name = node.get_fully_qualified_name()
     hints = typing.get_type_hints(cls)
-    given = getattr(node, '_parameter_overrides', {})   # rclpy: command line and params files
+    given = getattr(node, '_parameter_overrides', {})  # rclpy: command line and params files
     values: dict[str, Any] = {}
     names: dict[str, str] = {}
     for f in dataclasses.fields(cls):
         name = prefix + f.name
         names[name] = f.name
         default = overrides.get(f.name, _default_of(f))
-        kind = None if f.metadata.get('dynamic_typing') else parameter_type(hints.get(f.name),
-                                                                           default)
+        kind = (
+            None
+            if f.metadata.get('dynamic_typing')
+            else parameter_type(hints.get(f.name), default)
+        )
         live = bool(f.metadata.get('live')) and on_change is not None
         desc = _descriptor(name, f, kind, read_only=not live)
         ignore_override = False
@@ -170,7 +210,10 @@ def declare_dataclass(node: Node, cls: type[T], prefix: str = '', overrides: dic
             if not ok:
                 raise ConfigError(
                     f'expected {_TYPE_WORDS[kind]}, got {given[name].value!r} '
-                    f'({_type_word(given[name].value)}); {describe(f)}', name, node_name)
+                    f'({_type_word(given[name].value)}); {describe(f)}',
+                    name,
+                    node_name,
+                )
             if value_given is not given[name].value:
                 value, ignore_override = value_given, True
         try:
@@ -182,16 +225,19 @@ def declare_dataclass(node: Node, cls: type[T], prefix: str = '', overrides: dic
                 except ParameterUninitializedException:
                     value = []
             else:
-                value = node.declare_parameter(name, value, desc,
-                                               ignore_override=ignore_override).value
+                value = node.declare_parameter(
+                    name, value, desc, ignore_override=ignore_override
+                ).value
         except InvalidParameterTypeException:
-            raise ConfigError(f'expected {_TYPE_WORDS.get(kind, kind)}; {describe(f)}', name,
-                              node_name) from None
+            raise ConfigError(
+                f'expected {_TYPE_WORDS.get(kind, kind)}; {describe(f)}', name, node_name
+            ) from None
         except InvalidParameterValueException as err:
             bounds = f.metadata.get('range')
             got = given[name].value if name in given else value
-            problem = (f'must be in [{bounds[0]:g}, {bounds[1]:g}] (got {got!r})' if bounds
-                       else str(err))
+            problem = (
+                f'must be in [{bounds[0]:g}, {bounds[1]:g}] (got {got!r})' if bounds else str(err)
+            )
             raise ConfigError(problem, name, node_name) from None
         values[f.name] = _from_ros(value, hints.get(f.name))
     try:
@@ -215,12 +261,16 @@ def _from_ros(value: Any, hint: Any) -> Any:
 def _watch(node: Node, obj: Any, names: dict[str, str], hints: dict, on_change: Callable) -> None:
     """Validate run-time changes of ``obj``'s live parameters with the dataclass (on-set
     callback: a rejection answers ``successful=False`` with the reason), then apply them
-    (post-set callback: ``on_change(new_object)``)."""
+    (post-set callback: ``on_change(new_object)``).
+    """
     state = {'obj': obj}
 
     def changed(params: list[Parameter]) -> Any:
-        changes = {names[p.name]: _from_ros(p.value, hints.get(names[p.name]))
-                   for p in params if p.name in names}
+        changes = {
+            names[p.name]: _from_ros(p.value, hints.get(names[p.name]))
+            for p in params
+            if p.name in names
+        }
         for key, value in changes.items():
             if isinstance(value, float) and not math.isfinite(value):
                 raise ConfigError(f'must be finite (got {value!r})', key)

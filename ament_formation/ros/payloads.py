@@ -20,24 +20,25 @@ equal. The validator understands the JSON Schema (2020-12) keywords these schema
 ``maxProperties``, ``items``, ``minItems``, ``maxItems``, ``minimum``, ``maximum``, ``minLength``,
 ``maxLength``, ``pattern``. Numbers must be finite; a boolean is never an integer or number.
 """
+
 from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 import re
 import sys
-from pathlib import Path
 
-GRAPH_V1 = "ament_formation/graph/v1"
-ENCOUNTERS_V1 = "ament_formation/encounters/v1"
-MODE_V1 = "ament_formation/mode/v1"
+GRAPH_V1 = 'ament_formation/graph/v1'
+ENCOUNTERS_V1 = 'ament_formation/encounters/v1'
+MODE_V1 = 'ament_formation/mode/v1'
 
-MAX_PAYLOAD_BYTES = 256 * 1024     # a graph of 1000 robots is ~60 kB
+MAX_PAYLOAD_BYTES = 256 * 1024  # a graph of 1000 robots is ~60 kB
 MAX_ROBOTS = 10_000
-_ROBOT_KEY = {"type": "string", "pattern": r"^(0|[1-9][0-9]{0,8})$"}   # "<robot id>" object keys
-_NUMBER = {"type": "number"}
-_ROBOT_ID = {"type": "integer", "minimum": 0, "maximum": 999_999_999}
-_XY = {"type": "array", "items": _NUMBER, "minItems": 2, "maxItems": 2}
+_ROBOT_KEY = {'type': 'string', 'pattern': r'^(0|[1-9][0-9]{0,8})$'}  # "<robot id>" object keys
+_NUMBER = {'type': 'number'}
+_ROBOT_ID = {'type': 'integer', 'minimum': 0, 'maximum': 999_999_999}
+_XY = {'type': 'array', 'items': _NUMBER, 'minItems': 2, 'maxItems': 2}
 
 
 class PayloadError(ValueError):
@@ -46,77 +47,102 @@ class PayloadError(ValueError):
 
 SCHEMAS: dict[str, dict] = {
     GRAPH_V1: {
-        "title": "formation graph (/formation/graph)",
-        "description": "The communication graph of S9: the current parent of every robot (null = a "
-                       "root: team leader or avoider), the formation offsets delta_i [m, world] to "
-                       "that parent, the robots avoiding, when it was made (stamp_s, ROS time [s]) and "
-                       "the mission start start_s (ROS time [s]; null until the coordinator starts the "
-                       "mission; scenario time t = now - start_s). Same revision re-sent every "
-                       "republish_s; a new revision on every change.",
-        "type": "object",
-        "required": ["schema", "revision", "parents", "offsets_m", "avoiding", "stamp_s", "start_s"],
-        "additionalProperties": False,
-        "properties": {
-            "schema": {"const": GRAPH_V1},
-            "revision": {"type": "integer", "minimum": 0},
-            "parents": {"type": "object", "propertyNames": _ROBOT_KEY, "maxProperties": MAX_ROBOTS,
-                        "additionalProperties": {"type": ["integer", "null"], "minimum": 0,
-                                                 "maximum": 999_999_999}},
-            "offsets_m": {"type": "object", "propertyNames": _ROBOT_KEY, "maxProperties": MAX_ROBOTS,
-                          "additionalProperties": _XY},
-            "avoiding": {"type": "array", "items": _ROBOT_ID, "maxItems": MAX_ROBOTS},
-            "stamp_s": {"type": "number", "minimum": 0},
-            "start_s": {"type": ["number", "null"], "minimum": 0},
+        'title': 'formation graph (/formation/graph)',
+        'description': 'The communication graph of S9: the current parent of every robot (null = a '
+        'root: team leader or avoider), the formation offsets delta_i [m, world] to '
+        'that parent, the robots avoiding, when it was made (stamp_s, ROS time [s]) and '
+        'the mission start start_s (ROS time [s]; null until the coordinator starts the '
+        'mission; scenario time t = now - start_s). Same revision re-sent every '
+        'republish_s; a new revision on every change.',
+        'type': 'object',
+        'required': [
+            'schema',
+            'revision',
+            'parents',
+            'offsets_m',
+            'avoiding',
+            'stamp_s',
+            'start_s',
+        ],
+        'additionalProperties': False,
+        'properties': {
+            'schema': {'const': GRAPH_V1},
+            'revision': {'type': 'integer', 'minimum': 0},
+            'parents': {
+                'type': 'object',
+                'propertyNames': _ROBOT_KEY,
+                'maxProperties': MAX_ROBOTS,
+                'additionalProperties': {
+                    'type': ['integer', 'null'],
+                    'minimum': 0,
+                    'maximum': 999_999_999,
+                },
+            },
+            'offsets_m': {
+                'type': 'object',
+                'propertyNames': _ROBOT_KEY,
+                'maxProperties': MAX_ROBOTS,
+                'additionalProperties': _XY,
+            },
+            'avoiding': {'type': 'array', 'items': _ROBOT_ID, 'maxItems': MAX_ROBOTS},
+            'stamp_s': {'type': 'number', 'minimum': 0},
+            'start_s': {'type': ['number', 'null'], 'minimum': 0},
         },
     },
     ENCOUNTERS_V1: {
-        "title": "robot-robot encounter assignments (/formation/encounters)",
-        "description": "The coordinator's S7 decisions: for each robot told to yield or to avoid "
-                       "mutually, its partner, direction (+1 CCW, -1 CW), common entry time t_entry_s "
-                       "(scenario time [s]) and the shared drift w_c [m/s, world] of a mutual pair "
-                       "(null: computed by the robot). A robot not listed has no assignment.",
-        "type": "object",
-        "required": ["schema", "revision", "stamp_s", "assignments"],
-        "additionalProperties": False,
-        "properties": {
-            "schema": {"const": ENCOUNTERS_V1},
-            "revision": {"type": "integer", "minimum": 0},
-            "stamp_s": {"type": "number", "minimum": 0},
-            "assignments": {
-                "type": "object", "propertyNames": _ROBOT_KEY, "maxProperties": MAX_ROBOTS,
-                "additionalProperties": {
-                    "type": "object",
-                    "required": ["mode", "partner", "direction", "t_entry_s", "drift_mps"],
-                    "additionalProperties": False,
-                    "properties": {
-                        "mode": {"enum": ["yield", "mutual"]},
-                        "partner": _ROBOT_ID,
-                        "direction": {"enum": [1.0, -1.0]},
-                        "t_entry_s": {"type": ["number", "null"]},
-                        "drift_mps": {"type": ["array", "null"], "items": _NUMBER, "minItems": 2,
-                                      "maxItems": 2},
+        'title': 'robot-robot encounter assignments (/formation/encounters)',
+        'description': "The coordinator's S7 decisions: for each robot told to yield or to avoid "
+        'mutually, its partner, direction (+1 CCW, -1 CW), common entry time t_entry_s '
+        '(scenario time [s]) and the shared drift w_c [m/s, world] of a mutual pair '
+        '(null: computed by the robot). A robot not listed has no assignment.',
+        'type': 'object',
+        'required': ['schema', 'revision', 'stamp_s', 'assignments'],
+        'additionalProperties': False,
+        'properties': {
+            'schema': {'const': ENCOUNTERS_V1},
+            'revision': {'type': 'integer', 'minimum': 0},
+            'stamp_s': {'type': 'number', 'minimum': 0},
+            'assignments': {
+                'type': 'object',
+                'propertyNames': _ROBOT_KEY,
+                'maxProperties': MAX_ROBOTS,
+                'additionalProperties': {
+                    'type': 'object',
+                    'required': ['mode', 'partner', 'direction', 't_entry_s', 'drift_mps'],
+                    'additionalProperties': False,
+                    'properties': {
+                        'mode': {'enum': ['yield', 'mutual']},
+                        'partner': _ROBOT_ID,
+                        'direction': {'enum': [1.0, -1.0]},
+                        't_entry_s': {'type': ['number', 'null']},
+                        'drift_mps': {
+                            'type': ['array', 'null'],
+                            'items': _NUMBER,
+                            'minItems': 2,
+                            'maxItems': 2,
+                        },
                     },
                 },
             },
         },
     },
     MODE_V1: {
-        "title": "a robot's avoidance mode (robot_<id>/mode)",
-        "description": "The S8 mode of the robot's controller: mode (coordination, obstacle, yield, "
-                       "mutual; hold or stopped when its safety layer holds or stops the robot), the "
-                       "target (obstacle name or robot_<id>; null in coordination), the direction of "
-                       "travel on the limit cycle (ccw, cw or null) and whether it counts as avoiding "
-                       "for the S9 rewiring. Sent on change and every second. Other keys are allowed "
-                       "(and ignored by the receivers).",
-        "type": "object",
-        "required": ["schema", "mode", "target", "direction"],
-        "additionalProperties": True,
-        "properties": {
-            "schema": {"const": MODE_V1},
-            "mode": {"type": "string", "pattern": r"^[a-z_]{1,32}$"},
-            "target": {"type": ["string", "null"], "minLength": 1, "maxLength": 128},
-            "direction": {"enum": ["ccw", "cw", None]},
-            "avoiding": {"type": "boolean"},
+        'title': "a robot's avoidance mode (robot_<id>/mode)",
+        'description': "The S8 mode of the robot's controller: mode (coordination, obstacle, yield, "
+        'mutual; hold or stopped when its safety layer holds or stops the robot), the '
+        'target (obstacle name or robot_<id>; null in coordination), the direction of '
+        'travel on the limit cycle (ccw, cw or null) and whether it counts as avoiding '
+        'for the S9 rewiring. Sent on change and every second. Other keys are allowed '
+        '(and ignored by the receivers).',
+        'type': 'object',
+        'required': ['schema', 'mode', 'target', 'direction'],
+        'additionalProperties': True,
+        'properties': {
+            'schema': {'const': MODE_V1},
+            'mode': {'type': 'string', 'pattern': r'^[a-z_]{1,32}$'},
+            'target': {'type': ['string', 'null'], 'minLength': 1, 'maxLength': 128},
+            'direction': {'enum': ['ccw', 'cw', None]},
+            'avoiding': {'type': 'boolean'},
         },
     },
 }
@@ -124,13 +150,13 @@ SCHEMAS: dict[str, dict] = {
 
 # --------------------------------------------------------------------------- validation
 _TYPES = {
-    "object": lambda v: isinstance(v, dict),
-    "array": lambda v: isinstance(v, list),
-    "string": lambda v: isinstance(v, str),
-    "integer": lambda v: isinstance(v, int) and not isinstance(v, bool),
-    "number": lambda v: isinstance(v, (int, float)) and not isinstance(v, bool),
-    "boolean": lambda v: isinstance(v, bool),
-    "null": lambda v: v is None,
+    'object': lambda v: isinstance(v, dict),
+    'array': lambda v: isinstance(v, list),
+    'string': lambda v: isinstance(v, str),
+    'integer': lambda v: isinstance(v, int) and not isinstance(v, bool),
+    'number': lambda v: isinstance(v, (int, float)) and not isinstance(v, bool),
+    'boolean': lambda v: isinstance(v, bool),
+    'null': lambda v: v is None,
 }
 
 
@@ -174,46 +200,46 @@ def _descend(value, schema: dict, member) -> None:
 
 def _check(value, schema: dict) -> None:
     if isinstance(value, float) and not math.isfinite(value):
-        raise _Invalid("must be a finite number")
-    if "const" in schema and not _same(value, schema["const"]):
-        raise _Invalid(f"must be {schema['const']!r}")
-    if "enum" in schema and not any(_same(value, e) for e in schema["enum"]):
-        raise _Invalid(f"must be one of {schema['enum']!r}")
-    types = schema.get("type")
+        raise _Invalid('must be a finite number')
+    if 'const' in schema and not _same(value, schema['const']):
+        raise _Invalid(f'must be {schema["const"]!r}')
+    if 'enum' in schema and not any(_same(value, e) for e in schema['enum']):
+        raise _Invalid(f'must be one of {schema["enum"]!r}')
+    types = schema.get('type')
     if types is not None:
         types = [types] if isinstance(types, str) else types
         if not any(_TYPES[t](value) for t in types):
-            raise _Invalid(f"must be of type {' or '.join(types)} (got {type(value).__name__})")
+            raise _Invalid(f'must be of type {" or ".join(types)} (got {type(value).__name__})')
     if isinstance(value, (int, float)) and not isinstance(value, bool):
-        if "minimum" in schema and value < schema["minimum"]:
-            raise _Invalid(f"must be >= {schema['minimum']}")
-        if "maximum" in schema and value > schema["maximum"]:
-            raise _Invalid(f"must be <= {schema['maximum']}")
+        if 'minimum' in schema and value < schema['minimum']:
+            raise _Invalid(f'must be >= {schema["minimum"]}')
+        if 'maximum' in schema and value > schema['maximum']:
+            raise _Invalid(f'must be <= {schema["maximum"]}')
     elif isinstance(value, str):
-        if len(value) < schema.get("minLength", 0):
-            raise _Invalid(f"must have at least {schema['minLength']} characters")
-        if "maxLength" in schema and len(value) > schema["maxLength"]:
-            raise _Invalid(f"must have at most {schema['maxLength']} characters")
-        if "pattern" in schema and _pattern(schema["pattern"]).search(value) is None:
-            raise _Invalid(f"must match {schema['pattern']}")
+        if len(value) < schema.get('minLength', 0):
+            raise _Invalid(f'must have at least {schema["minLength"]} characters')
+        if 'maxLength' in schema and len(value) > schema['maxLength']:
+            raise _Invalid(f'must have at most {schema["maxLength"]} characters')
+        if 'pattern' in schema and _pattern(schema['pattern']).search(value) is None:
+            raise _Invalid(f'must match {schema["pattern"]}')
     elif isinstance(value, list):
-        if len(value) < schema.get("minItems", 0):
-            raise _Invalid(f"must have at least {schema['minItems']} items")
-        if "maxItems" in schema and len(value) > schema["maxItems"]:
-            raise _Invalid(f"must have at most {schema['maxItems']} items")
-        items = schema.get("items")
+        if len(value) < schema.get('minItems', 0):
+            raise _Invalid(f'must have at least {schema["minItems"]} items')
+        if 'maxItems' in schema and len(value) > schema['maxItems']:
+            raise _Invalid(f'must have at most {schema["maxItems"]} items')
+        items = schema.get('items')
         if items is not None:
             for k, item in enumerate(value):
                 _descend(item, items, k)
     elif isinstance(value, dict):
-        if "maxProperties" in schema and len(value) > schema["maxProperties"]:
-            raise _Invalid(f"must have at most {schema['maxProperties']} members")
-        for key in schema.get("required", ()):
+        if 'maxProperties' in schema and len(value) > schema['maxProperties']:
+            raise _Invalid(f'must have at most {schema["maxProperties"]} members')
+        for key in schema.get('required', ()):
             if key not in value:
-                raise _Invalid(f"missing member {key!r}")
-        props = schema.get("properties", {})
-        extra = schema.get("additionalProperties", True)
-        names = schema.get("propertyNames")
+                raise _Invalid(f'missing member {key!r}')
+        props = schema.get('properties', {})
+        extra = schema.get('additionalProperties', True)
+        names = schema.get('propertyNames')
         for key, item in value.items():
             if names is not None:
                 _descend(key, names, key)
@@ -221,22 +247,23 @@ def _check(value, schema: dict) -> None:
             if sub is not None:
                 _descend(item, sub, key)
             elif extra is False:
-                raise _Invalid(f"unexpected member {key!r}")
+                raise _Invalid(f'unexpected member {key!r}')
             elif extra is not True:
                 _descend(item, extra, key)
 
 
 def validate(value, schema: dict) -> None:
     """Raise PayloadError ``<JSON pointer>: <problem>`` unless ``value`` follows ``schema`` (the
-    member path is only built for a failure: a valid payload costs no string work)."""
+    member path is only built for a failure: a valid payload costs no string work).
+    """
     try:
         _check(value, schema)
     except _Invalid as err:
-        raise PayloadError("/" + "/".join(reversed(err.path)) + ": " + err.problem) from None
+        raise PayloadError('/' + '/'.join(reversed(err.path)) + ': ' + err.problem) from None
 
 
 def _no_constant(name: str):
-    raise PayloadError(f"/: {name} is not a JSON number")
+    raise PayloadError(f'/: {name} is not a JSON number')
 
 
 def decode(text, schema_id: str) -> dict:
@@ -244,43 +271,47 @@ def decode(text, schema_id: str) -> dict:
 
     Raises PayloadError (``<schema id>: <pointer>: <problem>``) for anything else, including
     payloads over MAX_PAYLOAD_BYTES, nesting deeper than the interpreter allows, NaN/Infinity,
-    duplicate-free but unknown members and a different ``schema`` field (another version)."""
+    duplicate-free but unknown members and a different ``schema`` field (another version).
+    """
     schema = SCHEMAS[schema_id]
     try:
         if isinstance(text, (bytes, bytearray)):
-            text = bytes(text).decode("utf-8")
+            text = bytes(text).decode('utf-8')
         if not isinstance(text, str):
-            raise PayloadError(f"/: expected a JSON text (got {type(text).__name__})")
+            raise PayloadError(f'/: expected a JSON text (got {type(text).__name__})')
         if len(text) > MAX_PAYLOAD_BYTES:
-            raise PayloadError(f"/: payload of {len(text)} characters exceeds {MAX_PAYLOAD_BYTES}")
+            raise PayloadError(f'/: payload of {len(text)} characters exceeds {MAX_PAYLOAD_BYTES}')
         data = json.loads(text, parse_constant=_no_constant)
-        if isinstance(data, dict) and "schema" in data and data["schema"] != schema_id:
-            raise PayloadError(f"/schema: expected {schema_id!r} (got {data['schema']!r})")
+        if isinstance(data, dict) and 'schema' in data and data['schema'] != schema_id:
+            raise PayloadError(f'/schema: expected {schema_id!r} (got {data["schema"]!r})')
         validate(data, schema)
     except PayloadError as err:
-        raise PayloadError(f"{schema_id}: {err}") from None
+        raise PayloadError(f'{schema_id}: {err}') from None
     except (json.JSONDecodeError, UnicodeDecodeError) as err:
-        raise PayloadError(f"{schema_id}: /: not JSON ({err})") from None
+        raise PayloadError(f'{schema_id}: /: not JSON ({err})') from None
     except RecursionError:
-        raise PayloadError(f"{schema_id}: /: nested too deeply") from None
+        raise PayloadError(f'{schema_id}: /: nested too deeply') from None
     return data
 
 
 def encode(data: dict) -> str:
     """Compact, key-sorted JSON of a payload (``data`` must already carry its ``schema``)."""
-    return json.dumps(data, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return json.dumps(data, sort_keys=True, separators=(',', ':'), allow_nan=False)
 
 
 # --------------------------------------------------------------------------- schema documents
 def schema_document(schema_id: str) -> dict:
     """The JSON Schema document of ``schema_id`` as published in docs/schemas/."""
-    doc = {"$schema": "https://json-schema.org/draft/2020-12/schema", "$id": schema_id}
+    doc = {'$schema': 'https://json-schema.org/draft/2020-12/schema', '$id': schema_id}
     doc.update(SCHEMAS[schema_id])
     return doc
 
 
-_FILES = {GRAPH_V1: "formation_graph.v1.json", ENCOUNTERS_V1: "formation_encounters.v1.json",
-          MODE_V1: "robot_mode.v1.json"}
+_FILES = {
+    GRAPH_V1: 'formation_graph.v1.json',
+    ENCOUNTERS_V1: 'formation_encounters.v1.json',
+    MODE_V1: 'robot_mode.v1.json',
+}
 
 
 def schema_filename(schema_id: str) -> str:
@@ -289,7 +320,7 @@ def schema_filename(schema_id: str) -> str:
 
 
 def schema_text(schema_id: str) -> str:
-    return json.dumps(schema_document(schema_id), indent=2, ensure_ascii=False) + "\n"
+    return json.dumps(schema_document(schema_id), indent=2, ensure_ascii=False) + '\n'
 
 
 def write_schemas(folder: str | Path) -> list[Path]:
@@ -304,6 +335,6 @@ def write_schemas(folder: str | Path) -> list[Path]:
     return out
 
 
-if __name__ == "__main__":
-    for p in write_schemas(sys.argv[1] if len(sys.argv) > 1 else "docs/schemas"):
+if __name__ == '__main__':
+    for p in write_schemas(sys.argv[1] if len(sys.argv) > 1 else 'docs/schemas'):
         print(p)

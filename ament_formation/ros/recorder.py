@@ -18,48 +18,50 @@ the file, so the folder is a rosbag2 bag.
     ...; rec.close()                              # finalises the file, writes metadata.yaml
     for topic, t_ns, msg in read_messages(path):  # deserialised messages in log-time order
 """
+
 from __future__ import annotations
 
 import json
+from pathlib import Path
 import re
 import threading
-from pathlib import Path
 from typing import Iterable, Iterator
 
-import numpy as np
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
+import numpy as np
 
 from ament_formation.ros.introspection import compatible_qos, message_class, message_definition
 
-PROFILE = "ros2"
-SCHEMA_ENCODING = "ros2msg"
-MESSAGE_ENCODING = "cdr"
-BAG_METADATA_VERSION = 9      # rosbag2 in Jazzy
-ROS_DISTRO = "jazzy"
+PROFILE = 'ros2'
+SCHEMA_ENCODING = 'ros2msg'
+MESSAGE_ENCODING = 'cdr'
+BAG_METADATA_VERSION = 9  # rosbag2 in Jazzy
+ROS_DISTRO = 'jazzy'
 _INFINITE_NS = 9_223_372_036_854_775_807
 
 
 # --------------------------------------------------------------------------- rosbag2 metadata
 def _duration(d) -> dict:
-    ns = getattr(d, "nanoseconds", None)
+    ns = getattr(d, 'nanoseconds', None)
     ns = _INFINITE_NS if ns is None or ns >= _INFINITE_NS or ns < 0 else int(ns)
-    return {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}
+    return {'sec': ns // 1_000_000_000, 'nsec': ns % 1_000_000_000}
 
 
 def qos_dict(qos) -> dict:
     """One rclpy QoSProfile as rosbag2 (metadata version 9) writes it: policies by lower-case name
-    (keep_last, reliable, transient_local, automatic, unknown, ...), durations as {sec, nsec}."""
+    (keep_last, reliable, transient_local, automatic, unknown, ...), durations as {sec, nsec}.
+    """
     return {
-        "history": qos.history.name.lower(),
-        "depth": int(qos.depth),
-        "reliability": qos.reliability.name.lower(),
-        "durability": qos.durability.name.lower(),
-        "deadline": _duration(qos.deadline),
-        "lifespan": _duration(qos.lifespan),
-        "liveliness": qos.liveliness.name.lower(),
-        "liveliness_lease_duration": _duration(qos.liveliness_lease_duration),
-        "avoid_ros_namespace_conventions": bool(qos.avoid_ros_namespace_conventions),
+        'history': qos.history.name.lower(),
+        'depth': int(qos.depth),
+        'reliability': qos.reliability.name.lower(),
+        'durability': qos.durability.name.lower(),
+        'deadline': _duration(qos.deadline),
+        'lifespan': _duration(qos.lifespan),
+        'liveliness': qos.liveliness.name.lower(),
+        'liveliness_lease_duration': _duration(qos.liveliness_lease_duration),
+        'avoid_ros_namespace_conventions': bool(qos.avoid_ros_namespace_conventions),
     }
 
 
@@ -67,42 +69,50 @@ def qos_yaml(profiles) -> str:
     """The ``offered_qos_profiles`` string of a channel: a YAML list of :func:`qos_dict`."""
     import yaml
 
-    return yaml.safe_dump([qos_dict(q) for q in profiles], sort_keys=False, default_flow_style=False) \
-        if profiles else ""
+    return (
+        yaml.safe_dump([qos_dict(q) for q in profiles], sort_keys=False, default_flow_style=False)
+        if profiles
+        else ''
+    )
 
 
 def type_hash(type_name: str) -> str:
     """RIHS01 type description hash of ``pkg/msg/Type`` from the type description that rosidl
-    installs (share/pkg/msg/Type.json); "" when not found."""
+    installs (share/pkg/msg/Type.json); "" when not found.
+    """
     from ament_formation.ros.introspection import _share_dir, full_type_name
 
     try:
-        pkg, name = full_type_name(message_class(type_name)).split("/msg/")
-        doc = json.loads((_share_dir(pkg) / "msg" / f"{name}.json").read_text())
-        want = f"{pkg}/msg/{name}"
-        return next(h["hash_string"] for h in doc["type_hashes"] if h["type_name"] == want)
+        pkg, name = full_type_name(message_class(type_name)).split('/msg/')
+        doc = json.loads((_share_dir(pkg) / 'msg' / f'{name}.json').read_text())
+        want = f'{pkg}/msg/{name}'
+        return next(h['hash_string'] for h in doc['type_hashes'] if h['type_name'] == want)
     except (ValueError, OSError, KeyError, StopIteration, TypeError):
-        return ""
+        return ''
 
 
 class McapWriter:
     """A thread-safe MCAP writer for serialized ROS 2 messages (ros2 profile)."""
 
-    def __init__(self, path: str | Path, compression: str = "zstd", bag_metadata: bool = True):
+    def __init__(self, path: str | Path, compression: str = 'zstd', bag_metadata: bool = True):
         """``bag_metadata``: on close, write rosbag2's metadata.yaml into the file's folder (the
-        folder becomes a bag of this one file)."""
-        comp = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
-                "none": CompressionType.NONE}.get(compression)
+        folder becomes a bag of this one file).
+        """
+        comp = {
+            'zstd': CompressionType.ZSTD,
+            'lz4': CompressionType.LZ4,
+            'none': CompressionType.NONE,
+        }.get(compression)
         if comp is None:
-            raise ValueError(f"compression: expected zstd, lz4 or none (got {compression!r})")
+            raise ValueError(f'compression: expected zstd, lz4 or none (got {compression!r})')
         self.path = Path(path)
-        self._file = open(self.path, "wb")
+        self._file = open(self.path, 'wb')
         self._writer = Writer(self._file, compression=comp)
-        self._writer.start(profile=PROFILE, library="ament_formation")
+        self._writer.start(profile=PROFILE, library='ament_formation')
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}
         self._sequence: dict[int, int] = {}
-        self._topics: dict[int, dict] = {}          # channel id -> rosbag2 topic_metadata
+        self._topics: dict[int, dict] = {}  # channel id -> rosbag2 topic_metadata
         self._lock = threading.Lock()
         self.message_count = 0
         self._first_ns: int | None = None
@@ -110,34 +120,46 @@ class McapWriter:
         self._closed = False
         self.bag_metadata = bag_metadata
 
-    def channel(self, topic: str, type_name: str, offered_qos=(), type_hash_str: str | None = None) -> int:
+    def channel(
+        self, topic: str, type_name: str, offered_qos=(), type_hash_str: str | None = None
+    ) -> int:
         """The channel id of ``topic`` (registered with its schema on first use).
 
         ``offered_qos``: the rclpy QoSProfiles of the topic's publishers (channel metadata
         ``offered_qos_profiles``); ``type_hash_str``: its RIHS01 hash (default: the installed
-        type description's, :func:`type_hash`)."""
+        type description's, :func:`type_hash`).
+        """
         with self._lock:
             if topic in self._channels:
                 return self._channels[topic]
             if type_name not in self._schemas:
                 self._schemas[type_name] = self._writer.register_schema(
-                    name=type_name, encoding=SCHEMA_ENCODING,
-                    data=message_definition(type_name).encode())
+                    name=type_name,
+                    encoding=SCHEMA_ENCODING,
+                    data=message_definition(type_name).encode(),
+                )
             qos_text = qos_yaml(list(offered_qos))
             digest = type_hash(type_name) if type_hash_str is None else type_hash_str
-            cid = self._writer.register_channel(topic=topic, message_encoding=MESSAGE_ENCODING,
-                                                schema_id=self._schemas[type_name],
-                                                metadata={"offered_qos_profiles": qos_text,
-                                                          "topic_type_hash": digest})
+            cid = self._writer.register_channel(
+                topic=topic,
+                message_encoding=MESSAGE_ENCODING,
+                schema_id=self._schemas[type_name],
+                metadata={'offered_qos_profiles': qos_text, 'topic_type_hash': digest},
+            )
             self._channels[topic] = cid
             self._sequence[cid] = 0
-            self._topics[cid] = {"name": topic, "type": type_name, "serialization_format": MESSAGE_ENCODING,
-                                 "offered_qos_profiles": [qos_dict(q) for q in offered_qos],
-                                 "type_description_hash": digest}
+            self._topics[cid] = {
+                'name': topic,
+                'type': type_name,
+                'serialization_format': MESSAGE_ENCODING,
+                'offered_qos_profiles': [qos_dict(q) for q in offered_qos],
+                'type_description_hash': digest,
+            }
             return cid
 
-    def write(self, channel_id: int, log_time_ns: int, data: bytes,
-              publish_time_ns: int | None = None) -> None:
+    def write(
+        self, channel_id: int, log_time_ns: int, data: bytes, publish_time_ns: int | None = None
+    ) -> None:
         """Append one serialized message."""
         with self._lock:
             if self._closed:
@@ -145,9 +167,13 @@ class McapWriter:
             seq = self._sequence[channel_id]
             self._sequence[channel_id] = seq + 1
             t = int(log_time_ns)
-            self._writer.add_message(channel_id=channel_id, log_time=t, data=bytes(data),
-                                     publish_time=int(t if publish_time_ns is None else publish_time_ns),
-                                     sequence=seq)
+            self._writer.add_message(
+                channel_id=channel_id,
+                log_time=t,
+                data=bytes(data),
+                publish_time=int(t if publish_time_ns is None else publish_time_ns),
+                sequence=seq,
+            )
             self.message_count += 1
             if self._first_ns is None or t < self._first_ns:
                 self._first_ns = t
@@ -165,7 +191,8 @@ class McapWriter:
 
     def close(self) -> None:
         """Write the summary section, close the file and (``bag_metadata``) write metadata.yaml
-        beside it (idempotent)."""
+        beside it (idempotent).
+        """
         with self._lock:
             if self._closed:
                 return
@@ -173,7 +200,7 @@ class McapWriter:
             self._writer.finish()
             self._file.close()
             if self.bag_metadata:
-                (self.path.parent / "metadata.yaml").write_text(self.metadata_yaml())
+                (self.path.parent / 'metadata.yaml').write_text(self.metadata_yaml())
 
     def metadata_yaml(self) -> str:
         """rosbag2's metadata.yaml (version 9, storage mcap) of what was written so far."""
@@ -182,36 +209,51 @@ class McapWriter:
         start = self._first_ns or 0
         duration = 0 if self._first_ns is None else self._last_ns - self._first_ns
         info = {
-            "version": BAG_METADATA_VERSION,
-            "storage_identifier": "mcap",
-            "duration": {"nanoseconds": duration},
-            "starting_time": {"nanoseconds_since_epoch": start},
-            "message_count": self.message_count,
-            "topics_with_message_count": [
-                {"topic_metadata": meta, "message_count": self._sequence[cid]}
-                for cid, meta in sorted(self._topics.items())],
-            "compression_format": "",
-            "compression_mode": "",
-            "relative_file_paths": [self.path.name],
-            "files": [{"path": self.path.name, "starting_time": {"nanoseconds_since_epoch": start},
-                       "duration": {"nanoseconds": duration}, "message_count": self.message_count}],
-            "custom_data": {"recorded_by": "ament_formation"},
-            "ros_distro": ROS_DISTRO,
+            'version': BAG_METADATA_VERSION,
+            'storage_identifier': 'mcap',
+            'duration': {'nanoseconds': duration},
+            'starting_time': {'nanoseconds_since_epoch': start},
+            'message_count': self.message_count,
+            'topics_with_message_count': [
+                {'topic_metadata': meta, 'message_count': self._sequence[cid]}
+                for cid, meta in sorted(self._topics.items())
+            ],
+            'compression_format': '',
+            'compression_mode': '',
+            'relative_file_paths': [self.path.name],
+            'files': [
+                {
+                    'path': self.path.name,
+                    'starting_time': {'nanoseconds_since_epoch': start},
+                    'duration': {'nanoseconds': duration},
+                    'message_count': self.message_count,
+                }
+            ],
+            'custom_data': {'recorded_by': 'ament_formation'},
+            'ros_distro': ROS_DISTRO,
         }
-        return yaml.safe_dump({"rosbag2_bagfile_information": info}, sort_keys=False,
-                              default_flow_style=False)
+        return yaml.safe_dump(
+            {'rosbag2_bagfile_information': info}, sort_keys=False, default_flow_style=False
+        )
 
 
 class TopicRecorder:
     """Subscribes ``node`` to every visible topic (rescanning every ``scan_period_s``) and writes
     each received message unchanged to ``writer``.
 
-    ``include``/``exclude``: regular expressions on the topic name (exclude wins). Subscriptions use
+    ``include``/``exclude``: regular expressions on the topic name (exclude wins). Subscriptions
+    use
     a QoS compatible with the publishers seen when the topic is first discovered.
     """
 
-    def __init__(self, node, writer: McapWriter, include: Iterable[str] = (".*",),
-                 exclude: Iterable[str] = (), scan_period_s: float = 0.5):
+    def __init__(
+        self,
+        node,
+        writer: McapWriter,
+        include: Iterable[str] = ('.*',),
+        exclude: Iterable[str] = (),
+        scan_period_s: float = 0.5,
+    ):
         self.node = node
         self.writer = writer
         self._include = [re.compile(p) for p in include]
@@ -222,8 +264,9 @@ class TopicRecorder:
         self._timer = node.create_timer(scan_period_s, self.scan)
 
     def _wanted(self, topic: str) -> bool:
-        return (any(p.fullmatch(topic) for p in self._include)
-                and not any(p.fullmatch(topic) for p in self._exclude))
+        return any(p.fullmatch(topic) for p in self._include) and not any(
+            p.fullmatch(topic) for p in self._exclude
+        )
 
     def scan(self) -> None:
         """Subscribe to topics that appeared since the last scan."""
@@ -237,13 +280,26 @@ class TopicRecorder:
                 cls = message_class(type_name)
             except ValueError:
                 continue  # a type this machine cannot decode: skip it
-            infos = [i for i in self.node.get_publishers_info_by_topic(topic) if i.topic_type == type_name]
-            hashes = {str(i.topic_type_hash) for i in infos} - {""}
-            cid = self.writer.channel(topic, type_name, offered_qos=[i.qos_profile for i in infos],
-                                      type_hash_str=hashes.pop() if len(hashes) == 1 else None)
+            infos = [
+                i
+                for i in self.node.get_publishers_info_by_topic(topic)
+                if i.topic_type == type_name
+            ]
+            hashes = {str(i.topic_type_hash) for i in infos} - {''}
+            cid = self.writer.channel(
+                topic,
+                type_name,
+                offered_qos=[i.qos_profile for i in infos],
+                type_hash_str=hashes.pop() if len(hashes) == 1 else None,
+            )
             self.counts[topic] = 0
             self._subs[topic] = self.node.create_subscription(
-                cls, topic, self._callback(topic, cid), compatible_qos(self.node, topic, depth=100), raw=True)
+                cls,
+                topic,
+                self._callback(topic, cid),
+                compatible_qos(self.node, topic, depth=100),
+                raw=True,
+            )
 
     def _callback(self, topic: str, cid: int):
         clock = self.node.get_clock()
@@ -270,22 +326,25 @@ class TopicRecorder:
 # --------------------------------------------------------------------------- reading
 def topic_types(path: str | Path) -> dict[str, str]:
     """{topic: pkg/msg/Type} of a recording."""
-    with open(path, "rb") as f:
+    with open(path, 'rb') as f:
         summary = make_reader(f).get_summary()
     if summary is None:
-        raise ValueError(f"{path}: no MCAP summary (the recording was not closed)")
+        raise ValueError(f'{path}: no MCAP summary (the recording was not closed)')
     return {ch.topic: summary.schemas[ch.schema_id].name for ch in summary.channels.values()}
 
 
-def read_messages(path: str | Path, topics: Iterable[str] | None = None) -> Iterator[tuple[str, int, object]]:
+def read_messages(
+    path: str | Path, topics: Iterable[str] | None = None
+) -> Iterator[tuple[str, int, object]]:
     """Yield (topic, log_time_ns, message) in log-time order, deserialised with the installed types."""
     from rclpy.serialization import deserialize_message
 
     classes: dict[int, type] = {}
-    with open(path, "rb") as f:
+    with open(path, 'rb') as f:
         reader = make_reader(f)
         for schema, channel, message in reader.iter_messages(
-                topics=list(topics) if topics is not None else None):
+            topics=list(topics) if topics is not None else None
+        ):
             cls = classes.get(channel.id)
             if cls is None:
                 if schema is None or channel.message_encoding != MESSAGE_ENCODING:

@@ -8,6 +8,7 @@ Sources in the recording:
   robot_<id>/mode           avoidance flags and mode events (log time of reception)
 Samples are taken on a regular grid of ``record_every_s`` from t = 0 to the last truth sample.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -20,16 +21,17 @@ from ament_formation.core.trajectory import SimResult
 from ament_formation.ros import messages as msgs
 from ament_formation.ros.recorder import read_messages
 
-
-_PAUSED = ("stopped", "hold")   # controller modes of a safety stop / a hold (nodes/controller.py)
+_PAUSED = ('stopped', 'hold')  # controller modes of a safety stop / a hold (nodes/controller.py)
 
 
 def _zoh_index(sample_t: np.ndarray, grid: np.ndarray) -> np.ndarray:
     """Index of the last sample at or before each grid time (-1 when none)."""
-    return np.searchsorted(sample_t, grid, side="right") - 1
+    return np.searchsorted(sample_t, grid, side='right') - 1
 
 
-def load_run(path: str | Path, scenario, record_every_s: float = 0.01, stats: dict | None = None) -> SimResult:
+def load_run(
+    path: str | Path, scenario, record_every_s: float = 0.01, stats: dict | None = None
+) -> SimResult:
     """Read ``path`` (run.mcap) into a SimResult on scenario time; ValueError when the recording
     lacks the mission start or the ground truth.
 
@@ -43,17 +45,18 @@ def load_run(path: str | Path, scenario, record_every_s: float = 0.01, stats: di
 
     Avoidance (``avoiding``, mode events) follows the controllers' mode messages; a safety stop or
     hold in the middle of an avoidance does not end it (the robot resumes the same avoidance), so
-    ``avoidance_entries`` counts avoidance decisions, and stop-and-go shows in ``safety_stops``."""
+    ``avoidance_entries`` counts avoidance decisions, and stop-and-go shows in ``safety_stops``.
+    """
     ids = tuple(r.id for r in scenario.robots)
     index = {rid: k for k, rid in enumerate(ids)}
     truth: dict[int, list] = {rid: [] for rid in ids}
     torque: dict[int, list] = {rid: [] for rid in ids}
     modes: dict[int, list] = {rid: [] for rid in ids}
     graphs: list[tuple[float, msgs.GraphMessage]] = []
-    truth_topics = {f"/world/truth/robot_{rid}": rid for rid in ids}
-    torque_topics = {f"/robot_{rid}/wheel_torque": rid for rid in ids}
-    mode_topics = {f"/robot_{rid}/mode": rid for rid in ids}
-    wanted = ["/formation/graph", *truth_topics, *torque_topics, *mode_topics]
+    truth_topics = {f'/world/truth/robot_{rid}': rid for rid in ids}
+    torque_topics = {f'/robot_{rid}/wheel_torque': rid for rid in ids}
+    mode_topics = {f'/robot_{rid}/mode': rid for rid in ids}
+    wanted = ['/formation/graph', *truth_topics, *torque_topics, *mode_topics]
     for topic, log_ns, msg in read_messages(path, wanted):
         if topic in truth_topics:
             state, stamp = msgs.state_from_odometry(msg)
@@ -76,17 +79,18 @@ def load_run(path: str | Path, scenario, record_every_s: float = 0.01, stats: di
                 continue
     starts = [g.start_s for _, g in graphs if g.start_s is not None]
     if not starts:
-        raise ValueError(f"{path}: no /formation/graph with a mission start (start_s)")
+        raise ValueError(f'{path}: no /formation/graph with a mission start (start_s)')
     start_s = starts[0]
     if any(not truth[rid] for rid in ids):
         missing = [rid for rid in ids if not truth[rid]]
-        raise ValueError(f"{path}: no ground truth for robots {missing}")
+        raise ValueError(f'{path}: no ground truth for robots {missing}')
 
     t_end = min(max(s for s, _ in truth[rid]) for rid in ids) - start_s
     if stats is not None:
         stats.update(_truth_gaps(truth, ids, start_s, t_end))
-        stats["torque_max_gap_s"] = {rid: _max_gap([s - start_s for s, _ in torque[rid]], t_end)
-                                     for rid in ids}
+        stats['torque_max_gap_s'] = {
+            rid: _max_gap([s - start_s for s, _ in torque[rid]], t_end) for rid in ids
+        }
     t_end = min(t_end, scenario.duration_s)
     grid = np.arange(0.0, max(t_end, 0.0) + 1e-9, record_every_s)
     n, big_t = len(ids), len(grid)
@@ -98,7 +102,7 @@ def load_run(path: str | Path, scenario, record_every_s: float = 0.01, stats: di
     for rid in ids:
         k = index[rid]
         ts = np.array([s for s, _ in truth[rid]]) - start_s
-        order = np.argsort(ts, kind="stable")
+        order = np.argsort(ts, kind='stable')
         ts, xs = ts[order], np.stack([x for _, x in truth[rid]])[order]
         idx = np.clip(_zoh_index(ts, grid + 1e-9), 0, len(ts) - 1)
         state[:, k] = xs[idx]
@@ -112,7 +116,7 @@ def load_run(path: str | Path, scenario, record_every_s: float = 0.01, stats: di
         stop_from, stops[rid] = None, []
         for s, mode in modes[rid]:
             t = s - start_s
-            if mode.get("mode") in _PAUSED and prev is not None and t >= 0.0:
+            if mode.get('mode') in _PAUSED and prev is not None and t >= 0.0:
                 # a safety stop or a hold pauses the robot, not its avoidance decision: the
                 # avoidance it resumes is the same entry (stop-and-go is counted in safety_stops)
                 if stop_from is None:
@@ -123,28 +127,48 @@ def load_run(path: str | Path, scenario, record_every_s: float = 0.01, stats: di
             if stop_from is not None:
                 stops[rid].append((stop_from, t))
                 stop_from = None
-            av = bool(mode.get("avoiding", mode.get("mode") not in ("coordination", "hold", "stopped")))
-            key = (av, mode.get("target"), mode.get("direction")) if av else (False, None, None)
+            av = bool(
+                mode.get('avoiding', mode.get('mode') not in ('coordination', 'hold', 'stopped'))
+            )
+            key = (av, mode.get('target'), mode.get('direction')) if av else (False, None, None)
             if key != prev and t >= 0.0:
                 if prev is not None and prev[0]:
-                    mode_events.append({"t_s": t, "robot": rid, "event": "exit", "target": prev[1],
-                                        "direction": prev[2]})
+                    mode_events.append(
+                        {
+                            't_s': t,
+                            'robot': rid,
+                            'event': 'exit',
+                            'target': prev[1],
+                            'direction': prev[2],
+                        }
+                    )
                 if av:
-                    mode_events.append({"t_s": t, "robot": rid, "event": "enter", "target": mode.get("target"),
-                                        "direction": mode.get("direction")})
+                    mode_events.append(
+                        {
+                            't_s': t,
+                            'robot': rid,
+                            'event': 'enter',
+                            'target': mode.get('target'),
+                            'direction': mode.get('direction'),
+                        }
+                    )
             if t >= 0.0 or prev is None:
                 prev = key
             flags_t.append(t)
             flags_v.append(av)
         if stop_from is not None:
-            stops[rid].append((stop_from, None))        # still stopped at the end of the recording
+            stops[rid].append((stop_from, None))  # still stopped at the end of the recording
         if flags_t:
             j = _zoh_index(np.array(flags_t), grid)
             avoiding[:, k] = np.where(j >= 0, np.array(flags_v)[np.clip(j, 0, None)], False)
     if stats is not None:
-        stats["safety_stops"] = {rid: [(a, min(b, t_end) if b is not None else t_end) for a, b in stops[rid]
-                                       if a <= t_end] for rid in ids}
-    mode_events.sort(key=lambda e: (e["t_s"], e["robot"]))
+        stats['safety_stops'] = {
+            rid: [
+                (a, min(b, t_end) if b is not None else t_end) for a, b in stops[rid] if a <= t_end
+            ]
+            for rid in ids
+        }
+    mode_events.sort(key=lambda e: (e['t_s'], e['robot']))
 
     tau_max = np.array([r.params.torque_limit_nm for r in scenario.robots])
     saturated = np.max(np.abs(tau), axis=2) >= tau_max[None, :] * (1.0 - 1e-6)
@@ -174,16 +198,32 @@ def load_run(path: str | Path, scenario, record_every_s: float = 0.01, stats: di
     for s, g in graphs:
         if g.revision == last_rev or s - start_s < -1e-9 and graph_events:
             continue
-        if last_rev is not None and graph_events and graph_events[-1]["parents"] == _parents_json(g.parents):
+        if (
+            last_rev is not None
+            and graph_events
+            and graph_events[-1]['parents'] == _parents_json(g.parents)
+        ):
             last_rev = g.revision
             continue
         last_rev = g.revision
-        graph_events.append({"t_s": max(0.0, s - start_s), "parents": _parents_json(g.parents)})
+        graph_events.append({'t_s': max(0.0, s - start_s), 'parents': _parents_json(g.parents)})
 
-    return SimResult(scenario_name=scenario.name, robot_ids=ids, obstacle_names=field.names, t_s=grid,
-                     state=state, torque_nm=tau, goal_m=goal, avoiding=avoiding, saturated=saturated,
-                     obstacle_center_m=oc, obstacle_phi_rad=ophi, mode_events=mode_events,
-                     graph_events=graph_events, dt_s=record_every_s)
+    return SimResult(
+        scenario_name=scenario.name,
+        robot_ids=ids,
+        obstacle_names=field.names,
+        t_s=grid,
+        state=state,
+        torque_nm=tau,
+        goal_m=goal,
+        avoiding=avoiding,
+        saturated=saturated,
+        obstacle_center_m=oc,
+        obstacle_phi_rad=ophi,
+        mode_events=mode_events,
+        graph_events=graph_events,
+        dt_s=record_every_s,
+    )
 
 
 def _truth_gaps(truth: dict, ids, start_s: float, t_end: float) -> dict:
@@ -197,7 +237,7 @@ def _truth_gaps(truth: dict, ids, start_s: float, t_end: float) -> dict:
             k = int(np.argmax(gaps))
             if gaps[k] > worst:
                 worst, at = float(gaps[k]), float(ts[k])
-    return {"truth_max_gap_s": worst, "truth_max_gap_at_s": at, "truth_end_s": float(t_end)}
+    return {'truth_max_gap_s': worst, 'truth_max_gap_at_s': at, 'truth_end_s': float(t_end)}
 
 
 def _max_gap(times_s, t_end: float) -> float:

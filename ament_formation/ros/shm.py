@@ -7,14 +7,15 @@ segments when a process does not close them. The rules are those of scripts/ros_
 run``): remember what existed, and at the end remove only what appeared since and no other live
 process still maps (another run's processes on the same machine may share a Fast DDS segment).
 """
+
 from __future__ import annotations
 
 import os
-import re
 from pathlib import Path
+import re
 
-SHM_DIR = Path("/dev/shm")
-PATTERN = re.compile(r"^(lttng-ust-wait|fastrtps_|sem\.fastrtps_)")
+SHM_DIR = Path('/dev/shm')
+PATTERN = re.compile(r'^(lttng-ust-wait|fastrtps_|sem\.fastrtps_)')
 
 
 def snapshot(shm_dir: Path = SHM_DIR) -> frozenset[str]:
@@ -27,14 +28,14 @@ def snapshot(shm_dir: Path = SHM_DIR) -> frozenset[str]:
 
 def mapped(shm_dir: Path = SHM_DIR, ignore_pid: int | None = None) -> set[str]:
     """Names in ``shm_dir`` that a live process (other than ``ignore_pid``) has mapped."""
-    prefix = f"{shm_dir}/"
+    prefix = f'{shm_dir}/'
     names: set[str] = set()
-    for entry in Path("/proc").iterdir():
+    for entry in Path('/proc').iterdir():
         if not entry.name.isdigit() or int(entry.name) == ignore_pid:
             continue
         try:
-            text = (entry / "maps").read_text()
-        except OSError:          # gone, or not ours to read
+            text = (entry / 'maps').read_text()
+        except OSError:  # gone, or not ours to read
             continue
         for line in text.splitlines():
             at = line.find(prefix)
@@ -43,9 +44,12 @@ def mapped(shm_dir: Path = SHM_DIR, ignore_pid: int | None = None) -> set[str]:
     return names
 
 
-def cleanup(before: frozenset[str], shm_dir: Path = SHM_DIR, ignore_pid: int | None = None) -> list[str]:
+def cleanup(
+    before: frozenset[str], shm_dir: Path = SHM_DIR, ignore_pid: int | None = None
+) -> list[str]:
     """Remove the entries that appeared since ``before`` (a :func:`snapshot`) and that no live
-    process other than ``ignore_pid`` maps; return their names."""
+    process other than ``ignore_pid`` maps; return their names.
+    """
     new = snapshot(shm_dir) - before
     if not new:
         return []

@@ -4,6 +4,7 @@ A wheel_torque message names its joints optionally: with the names ``left_wheel`
 in either order the efforts are matched by name, otherwise they are read positionally
 [left, right]. Anything but exactly two efforts is rejected.
 """
+
 from __future__ import annotations
 
 from sensor_msgs.msg import JointState

@@ -4,15 +4,16 @@ bridge can be tried without the rest of the system::
     formation board --pty --link /tmp/robot_0.tty [--corrupt 0.01] [--drop 0] [--delay 0]
     formation_bridge --ros-args -r __ns:=/robot_0 -p port:=/tmp/robot_0.tty
 """
+
 from __future__ import annotations
 
 import argparse
 import os
+from pathlib import Path
 import signal
 import tempfile
 import threading
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -22,18 +23,38 @@ from ament_formation.core.motor_board import BoardConfig, MotorBoard
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("board", help="emulated motor board on a pty (standalone wheel model)")
-    p.add_argument("--pty", action="store_true", required=True, help="serve on a pseudo-terminal")
-    p.add_argument("--link", type=Path, default=None,
-                   help="stable symlink to the pty (default: <tmp>/formation_board_<pid>.tty)")
-    p.add_argument("--torque-limit", type=float, default=0.15, help="hard torque limit [N·m]")
-    p.add_argument("--ticks-per-rev", type=int, default=1440)
-    p.add_argument("--drop", type=float, default=0.0, help="probability of dropping each byte (both ways)")
-    p.add_argument("--corrupt", type=float, default=0.0, help="probability of corrupting each byte (both ways)")
-    p.add_argument("--delay", type=float, default=0.0, help="probability of delaying each byte by --delay-s")
-    p.add_argument("--delay-s", type=float, default=0.02)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--duration", type=float, default=0.0, help="stop after this many seconds (0: until Ctrl-C)")
+    p = subparsers.add_parser(
+        'board', help='emulated motor board on a pty (standalone wheel model)'
+    )
+    p.add_argument('--pty', action='store_true', required=True, help='serve on a pseudo-terminal')
+    p.add_argument(
+        '--link',
+        type=Path,
+        default=None,
+        help='stable symlink to the pty (default: <tmp>/formation_board_<pid>.tty)',
+    )
+    p.add_argument('--torque-limit', type=float, default=0.15, help='hard torque limit [N·m]')
+    p.add_argument('--ticks-per-rev', type=int, default=1440)
+    p.add_argument(
+        '--drop', type=float, default=0.0, help='probability of dropping each byte (both ways)'
+    )
+    p.add_argument(
+        '--corrupt',
+        type=float,
+        default=0.0,
+        help='probability of corrupting each byte (both ways)',
+    )
+    p.add_argument(
+        '--delay', type=float, default=0.0, help='probability of delaying each byte by --delay-s'
+    )
+    p.add_argument('--delay-s', type=float, default=0.02)
+    p.add_argument('--seed', type=int, default=0)
+    p.add_argument(
+        '--duration',
+        type=float,
+        default=0.0,
+        help='stop after this many seconds (0: until Ctrl-C)',
+    )
     p.set_defaults(func=run)
 
 
@@ -42,27 +63,41 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         cfg = BoardConfig(ticks_per_rev=args.ticks_per_rev, hard_torque_limit_nm=args.torque_limit)
-        faults = FaultSpec(drop_prob=args.drop, corrupt_prob=args.corrupt, delay_prob=args.delay,
-                           delay_s=args.delay_s)
+        faults = FaultSpec(
+            drop_prob=args.drop,
+            corrupt_prob=args.corrupt,
+            delay_prob=args.delay,
+            delay_s=args.delay_s,
+        )
     except ValueError as err:
         raise ConfigError(str(err)) from None
     if args.duration < 0:
-        raise ConfigError(f"{args.duration} s is negative", "--duration")
-    link = args.link or Path(tempfile.gettempdir()) / f"formation_board_{os.getpid()}.tty"
+        raise ConfigError(f'{args.duration} s is negative', '--duration')
+    link = args.link or Path(tempfile.gettempdir()) / f'formation_board_{os.getpid()}.tty'
     board = MotorBoard(cfg, now_s=time.monotonic(), standalone=True)
-    runner = PtyBoard(board, link_path=link, rx_faults=faults, tx_faults=faults,
-                      rng=np.random.default_rng(args.seed))
+    runner = PtyBoard(
+        board,
+        link_path=link,
+        rx_faults=faults,
+        tx_faults=faults,
+        rng=np.random.default_rng(args.seed),
+    )
     done = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: done.set())
     with runner:
         runner.start()
-        print(f"emulated motor board on {runner.port} -> {runner.slave_name} (Ctrl-C to stop)", flush=True)
+        print(
+            f'emulated motor board on {runner.port} -> {runner.slave_name} (Ctrl-C to stop)',
+            flush=True,
+        )
         try:
             done.wait(args.duration if args.duration > 0 else None)
         except KeyboardInterrupt:
             pass
         with runner.lock:
             s = board.status(time.monotonic())
-        print(f"accepted commands {board.accepted_commands}, crc errors {s.crc_errors}, "
-              f"frame errors {s.frame_errors}, watchdog trips {s.watchdog_trips}")
+        print(
+            f'accepted commands {board.accepted_commands}, crc errors {s.crc_errors}, '
+            f'frame errors {s.frame_errors}, watchdog trips {s.watchdog_trips}'
+        )
     return 0

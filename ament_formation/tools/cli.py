@@ -4,6 +4,7 @@ Each module named in ``_COMMAND_MODULES`` exposes ``register(subparsers)``, whic
 subcommands and sets ``func(args) -> int`` on each. Bad user input raises
 :class:`ament_formation.core.errors.ConfigError`: one line on stderr, exit code 2, no traceback.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -13,20 +14,20 @@ import sys
 from ament_formation.core.errors import ConfigError
 
 _COMMAND_MODULES = (
-    "ament_formation.tools.sim_cmd",        # sim, plot
-    "ament_formation.tools.run_cmd",        # run
-    "ament_formation.tools.calibrate_cmd",  # calibrate intrinsics|floor
-    "ament_formation.tools.topic_cmd",      # topics, nodes, echo, hz
-    "ament_formation.tools.board_cmd",      # board --pty (emulated motor board)
+    'ament_formation.tools.sim_cmd',  # sim, plot
+    'ament_formation.tools.run_cmd',  # run
+    'ament_formation.tools.calibrate_cmd',  # calibrate intrinsics|floor
+    'ament_formation.tools.topic_cmd',  # topics, nodes, echo, hz
+    'ament_formation.tools.board_cmd',  # board --pty (emulated motor board)
 )
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="formation",
-        description="Formation control with sliding modes and elliptical limit cycles.",
+        prog='formation',
+        description='Formation control with sliding modes and elliptical limit cycles.',
     )
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub = parser.add_subparsers(dest='command', metavar='COMMAND')
     sub.required = True
     for name in _COMMAND_MODULES:
         try:
@@ -45,11 +46,11 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except ConfigError as err:
-        print(f"formation {args.command}: {err}", file=sys.stderr)
+        print(f'formation {args.command}: {err}', file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return 130
 
 
-if __name__ == "__main__":
+if __name__ == '__main__':
     sys.exit(main())

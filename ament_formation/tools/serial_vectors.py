@@ -4,11 +4,12 @@
 docs/serial-protocol-vectors.json); test/test_serial_vectors.py checks it is up to date and that
 every vector decodes and re-encodes byte for byte. The firmware's tests read the same file.
 """
+
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
+import sys
 
 from ament_formation.core import cobs
 from ament_formation.core import serial_protocol as sp
@@ -16,28 +17,35 @@ from ament_formation.core.crc16 import crc16
 from ament_formation.core.crc32c import crc32c
 
 
-def _valid(name: str, direction: str, msg: sp.Message, seq: int, leading: bool, si: dict | None = None,
-           version: int = sp.PROTOCOL_VERSION) -> dict:
+def _valid(
+    name: str,
+    direction: str,
+    msg: sp.Message,
+    seq: int,
+    leading: bool,
+    si: dict | None = None,
+    version: int = sp.PROTOCOL_VERSION,
+) -> dict:
     raw = sp.raw_frame(msg, seq, version)
     wire = sp.encode_frame(msg, seq, leading_delimiter=leading, version=version)
     entry = {
-        "name": name,
-        "direction": direction,
-        "hex": wire.hex(),
-        "raw_hex": raw.hex(),
-        "check": (f"0x{crc16(raw[:-2]):04x}" if version == 1 else f"0x{crc32c(raw[:-4]):08x}"),
-        "leading_delimiter": leading,
-        "version": version,
-        "seq": seq,
-        "message": msg.to_dict(),
+        'name': name,
+        'direction': direction,
+        'hex': wire.hex(),
+        'raw_hex': raw.hex(),
+        'check': (f'0x{crc16(raw[:-2]):04x}' if version == 1 else f'0x{crc32c(raw[:-4]):08x}'),
+        'leading_delimiter': leading,
+        'version': version,
+        'seq': seq,
+        'message': msg.to_dict(),
     }
     if si:
-        entry["meaning"] = si
+        entry['meaning'] = si
     return entry
 
 
 def _cobs_wire(raw: bytes) -> str:
-    return (cobs.encode(raw) + b"\x00").hex()
+    return (cobs.encode(raw) + b'\x00').hex()
 
 
 def _with_crc(head_and_body: bytes) -> bytes:
@@ -48,145 +56,394 @@ def _with_crc(head_and_body: bytes) -> bytes:
 def build_vectors() -> dict:
     """The whole vector file as a JSON-ready dict."""
     v = []
-    v.append(_valid("hello", "host->board", sp.Hello(2), 0, True,
-                    {"protocol_version": 2, "note": "HELLO always travels in version-1 framing (CRC-16)"},
-                    version=1))
-    v.append(_valid("hello_ack", "board->host", sp.HelloAck(2, 2, 0, 1440, 1500, 1500, 200, 10), 0, False,
-                    {"ticks_per_rev": 1440, "torque_limit_nm": 0.15, "watchdog_s": 0.2, "telemetry_rate_hz": 100}))
-    v.append(_valid("torque_cmd_zero", "host->board", sp.TorqueCommand(0, 0), 1, True,
-                    {"left_nm": 0.0, "right_nm": 0.0}))
-    v.append(_valid("torque_cmd", "host->board", sp.TorqueCommand(1234, -567), 2, True,
-                    {"left_nm": 0.1234, "right_nm": -0.0567}))
-    v.append(_valid("torque_cmd_extremes", "host->board", sp.TorqueCommand(32767, -32768), 255, True,
-                    {"left_nm": 3.2767, "right_nm": -3.2768, "note": "board clamps to its torque limit"}))
-    v.append(_valid("torque_cmd_no_leading_delimiter", "host->board", sp.TorqueCommand(-1500, 1500), 3, False,
-                    {"left_nm": -0.15, "right_nm": 0.15}))
-    v.append(_valid("telemetry", "board->host", sp.Telemetry(720, -360, 3142, -1571, 2, sp.FLAG_CLAMPED), 17, False,
-                    {"left_rad": 3.14159265, "right_rad": -1.57079633, "left_radps": 3.142, "right_radps": -1.571,
-                     "cmd_seq": 2, "flags": ["CLAMPED"]}))
-    v.append(_valid("telemetry_wrapped_watchdog", "board->host",
-                    sp.Telemetry(-32768, 32767, 0, 0, 255, sp.FLAG_WATCHDOG | sp.FLAG_RESET), 0, False,
-                    {"note": "ticks wrap modulo 65536; host unwraps", "flags": ["WATCHDOG", "RESET"]}))
-    v.append(_valid("telemetry_estop_rx_error", "board->host",
-                    sp.Telemetry(0, 0, 0, 0, 9, sp.FLAG_ESTOP | sp.FLAG_RX_ERROR | sp.FLAG_WATCHDOG), 200, False,
-                    {"flags": ["WATCHDOG", "ESTOP", "RX_ERROR"]}))
-    v.append(_valid("status", "board->host", sp.Status(123456, 1500, -1500, 3, 2, 1, 4, 1, sp.FLAG_CLAMPED, 42), 18,
-                    False, {"uptime_s": 123.456, "left_applied_nm": 0.15, "right_applied_nm": -0.15}))
-    v.append(_valid("heartbeat", "host->board", sp.Heartbeat(0xDEADBEEF), 4, True, {"stamp_ms": 3735928559}))
-    v.append(_valid("heartbeat_echo", "board->host", sp.Heartbeat(0xDEADBEEF), 19, False,
-                    {"note": "board returns the host's body unchanged with its own sequence number"}))
-    v.append(_valid("estop_engage", "host->board", sp.EmergencyStop(1), 5, True, {"engage": True}))
-    v.append(_valid("estop_release", "host->board", sp.EmergencyStop(0), 6, True, {"engage": False}))
-    v.append(_valid("config", "host->board", sp.Config(1200, 200, 10), 7, True,
-                    {"torque_limit_nm": 0.12, "watchdog_s": 0.2, "telemetry_rate_hz": 100}))
-    v.append(_valid("config_ack", "board->host", sp.ConfigAck(1200, 200, 10), 20, False,
-                    {"torque_limit_nm": 0.12, "watchdog_s": 0.2, "telemetry_rate_hz": 100}))
-    v.append(_valid("hello_from_version_1_host", "host->board", sp.Hello(1), 8, True,
-                    {"note": "what a version-1 bridge sends"}, version=1))
-    v.append(_valid("hello_ack_to_version_1_host", "board->host", sp.HelloAck(2, 2, 0, 1440, 1500, 1500, 200, 10),
-                    21, False, {"note": "answer to a HELLO asking for version 1: version-1 framing, so that host "
-                                        "reads protocol_version 2 and reports the mismatch"}, version=1))
-    v.append(_valid("hello_ack_from_version_1_board", "board->host", sp.HelloAck(1, 1, 0, 1440, 1500, 1500, 200, 10),
-                    0, False, {"note": "a version-1 board: the host reports the mismatch and sends no torque"},
-                    version=1))
-    v.append(_valid("stop_input_stale", "host->board", sp.Stop(sp.STOP_INPUT_STALE), 9, True,
-                    {"reason": "input stale", "note": "brake to rest, then release; acknowledged by TELEMETRY"}))
-    v.append(_valid("stop_host_shutdown", "host->board", sp.Stop(sp.STOP_HOST_SHUTDOWN), 10, True,
-                    {"reason": "host shutdown"}))
-    v.append(_valid("telemetry_braking", "board->host",
-                    sp.Telemetry(100, 100, 2618, 2618, 9, sp.FLAG_WATCHDOG | sp.FLAG_BRAKING), 22, False,
-                    {"flags": ["WATCHDOG", "BRAKING"], "note": "commands stopped: the board brakes the wheels"}))
+    v.append(
+        _valid(
+            'hello',
+            'host->board',
+            sp.Hello(2),
+            0,
+            True,
+            {'protocol_version': 2, 'note': 'HELLO always travels in version-1 framing (CRC-16)'},
+            version=1,
+        )
+    )
+    v.append(
+        _valid(
+            'hello_ack',
+            'board->host',
+            sp.HelloAck(2, 2, 0, 1440, 1500, 1500, 200, 10),
+            0,
+            False,
+            {
+                'ticks_per_rev': 1440,
+                'torque_limit_nm': 0.15,
+                'watchdog_s': 0.2,
+                'telemetry_rate_hz': 100,
+            },
+        )
+    )
+    v.append(
+        _valid(
+            'torque_cmd_zero',
+            'host->board',
+            sp.TorqueCommand(0, 0),
+            1,
+            True,
+            {'left_nm': 0.0, 'right_nm': 0.0},
+        )
+    )
+    v.append(
+        _valid(
+            'torque_cmd',
+            'host->board',
+            sp.TorqueCommand(1234, -567),
+            2,
+            True,
+            {'left_nm': 0.1234, 'right_nm': -0.0567},
+        )
+    )
+    v.append(
+        _valid(
+            'torque_cmd_extremes',
+            'host->board',
+            sp.TorqueCommand(32767, -32768),
+            255,
+            True,
+            {'left_nm': 3.2767, 'right_nm': -3.2768, 'note': 'board clamps to its torque limit'},
+        )
+    )
+    v.append(
+        _valid(
+            'torque_cmd_no_leading_delimiter',
+            'host->board',
+            sp.TorqueCommand(-1500, 1500),
+            3,
+            False,
+            {'left_nm': -0.15, 'right_nm': 0.15},
+        )
+    )
+    v.append(
+        _valid(
+            'telemetry',
+            'board->host',
+            sp.Telemetry(720, -360, 3142, -1571, 2, sp.FLAG_CLAMPED),
+            17,
+            False,
+            {
+                'left_rad': 3.14159265,
+                'right_rad': -1.57079633,
+                'left_radps': 3.142,
+                'right_radps': -1.571,
+                'cmd_seq': 2,
+                'flags': ['CLAMPED'],
+            },
+        )
+    )
+    v.append(
+        _valid(
+            'telemetry_wrapped_watchdog',
+            'board->host',
+            sp.Telemetry(-32768, 32767, 0, 0, 255, sp.FLAG_WATCHDOG | sp.FLAG_RESET),
+            0,
+            False,
+            {'note': 'ticks wrap modulo 65536; host unwraps', 'flags': ['WATCHDOG', 'RESET']},
+        )
+    )
+    v.append(
+        _valid(
+            'telemetry_estop_rx_error',
+            'board->host',
+            sp.Telemetry(0, 0, 0, 0, 9, sp.FLAG_ESTOP | sp.FLAG_RX_ERROR | sp.FLAG_WATCHDOG),
+            200,
+            False,
+            {'flags': ['WATCHDOG', 'ESTOP', 'RX_ERROR']},
+        )
+    )
+    v.append(
+        _valid(
+            'status',
+            'board->host',
+            sp.Status(123456, 1500, -1500, 3, 2, 1, 4, 1, sp.FLAG_CLAMPED, 42),
+            18,
+            False,
+            {'uptime_s': 123.456, 'left_applied_nm': 0.15, 'right_applied_nm': -0.15},
+        )
+    )
+    v.append(
+        _valid(
+            'heartbeat', 'host->board', sp.Heartbeat(0xDEADBEEF), 4, True, {'stamp_ms': 3735928559}
+        )
+    )
+    v.append(
+        _valid(
+            'heartbeat_echo',
+            'board->host',
+            sp.Heartbeat(0xDEADBEEF),
+            19,
+            False,
+            {'note': "board returns the host's body unchanged with its own sequence number"},
+        )
+    )
+    v.append(_valid('estop_engage', 'host->board', sp.EmergencyStop(1), 5, True, {'engage': True}))
+    v.append(
+        _valid('estop_release', 'host->board', sp.EmergencyStop(0), 6, True, {'engage': False})
+    )
+    v.append(
+        _valid(
+            'config',
+            'host->board',
+            sp.Config(1200, 200, 10),
+            7,
+            True,
+            {'torque_limit_nm': 0.12, 'watchdog_s': 0.2, 'telemetry_rate_hz': 100},
+        )
+    )
+    v.append(
+        _valid(
+            'config_ack',
+            'board->host',
+            sp.ConfigAck(1200, 200, 10),
+            20,
+            False,
+            {'torque_limit_nm': 0.12, 'watchdog_s': 0.2, 'telemetry_rate_hz': 100},
+        )
+    )
+    v.append(
+        _valid(
+            'hello_from_version_1_host',
+            'host->board',
+            sp.Hello(1),
+            8,
+            True,
+            {'note': 'what a version-1 bridge sends'},
+            version=1,
+        )
+    )
+    v.append(
+        _valid(
+            'hello_ack_to_version_1_host',
+            'board->host',
+            sp.HelloAck(2, 2, 0, 1440, 1500, 1500, 200, 10),
+            21,
+            False,
+            {
+                'note': 'answer to a HELLO asking for version 1: version-1 framing, so that host '
+                'reads protocol_version 2 and reports the mismatch'
+            },
+            version=1,
+        )
+    )
+    v.append(
+        _valid(
+            'hello_ack_from_version_1_board',
+            'board->host',
+            sp.HelloAck(1, 1, 0, 1440, 1500, 1500, 200, 10),
+            0,
+            False,
+            {'note': 'a version-1 board: the host reports the mismatch and sends no torque'},
+            version=1,
+        )
+    )
+    v.append(
+        _valid(
+            'stop_input_stale',
+            'host->board',
+            sp.Stop(sp.STOP_INPUT_STALE),
+            9,
+            True,
+            {
+                'reason': 'input stale',
+                'note': 'brake to rest, then release; acknowledged by TELEMETRY',
+            },
+        )
+    )
+    v.append(
+        _valid(
+            'stop_host_shutdown',
+            'host->board',
+            sp.Stop(sp.STOP_HOST_SHUTDOWN),
+            10,
+            True,
+            {'reason': 'host shutdown'},
+        )
+    )
+    v.append(
+        _valid(
+            'telemetry_braking',
+            'board->host',
+            sp.Telemetry(100, 100, 2618, 2618, 9, sp.FLAG_WATCHDOG | sp.FLAG_BRAKING),
+            22,
+            False,
+            {
+                'flags': ['WATCHDOG', 'BRAKING'],
+                'note': 'commands stopped: the board brakes the wheels',
+            },
+        )
+    )
 
     good = sp.raw_frame(sp.TorqueCommand(1234, -567), 2)
     bad_crc = bytearray(good)
     bad_crc[3] ^= 0x01
-    crc16_framed = good[:-4] + crc16(good[:-4]).to_bytes(2, "little")
+    crc16_framed = good[:-4] + crc16(good[:-4]).to_bytes(2, 'little')
     bad_cobs = bytearray(cobs.encode(good))
     bad_cobs[0] = 0x30
     invalid = [
-        {"name": "bad_crc_one_bit", "hex": _cobs_wire(bytes(bad_crc)), "reject": "crc",
-         "note": "torque_cmd with bit 0 of byte 3 flipped"},
-        {"name": "bad_crc_big_endian", "hex": _cobs_wire(good[:-4] + good[-4:][::-1]), "reject": "crc",
-         "note": "CRC-32C sent big-endian"},
-        {"name": "crc16_in_version_2", "hex": _cobs_wire(crc16_framed), "reject": "crc",
-         "note": "version-2 TORQUE_CMD closed by a CRC-16 (version-1 check) instead of a CRC-32C"},
-        {"name": "cobs_code_past_end", "hex": (bytes(bad_cobs) + b"\x00").hex(), "reject": "cobs",
-         "note": "first code byte 0x30 points beyond the frame"},
-        {"name": "too_short", "hex": _cobs_wire(b"\x23\x01\xff\x01\x02\x03"), "reject": "length",
-         "note": "fewer than header + 1 + CRC-32C bytes"},
-        {"name": "body_length_wrong_for_type", "hex": _cobs_wire(_with_crc(b"\x23\x02\x01\x02\x03")),
-         "reject": "length", "note": "TORQUE_CMD with a 3-byte body, CRC correct"},
-        {"name": "unknown_type", "hex": _cobs_wire(_with_crc(b"\x2b\x02\x01\x02\x03\x04")), "reject": "type",
-         "note": "type 0xB, CRC correct"},
-        {"name": "stop_bad_reason", "hex": _cobs_wire(_with_crc(b"\x2a\x05\x03")), "reject": "value",
-         "note": "STOP reason=3"},
-        {"name": "type_zero", "hex": _cobs_wire(_with_crc(b"\x20\x02\x01\x02\x03\x04")), "reject": "type",
-         "note": "type 0x0 is never used"},
-        {"name": "wrong_version", "hex": _cobs_wire(sp.raw_frame(sp.TorqueCommand(100, 100), 3, version=1)),
-         "reject": "version", "note": "TORQUE_CMD of protocol version 1 (CRC-16 correct): never applied"},
-        {"name": "future_version", "hex": _cobs_wire(sp.raw_frame(sp.TorqueCommand(100, 100), 3, version=3)),
-         "reject": "version", "note": "TORQUE_CMD in protocol version 3, CRC correct"},
-        {"name": "estop_bad_value", "hex": _cobs_wire(_with_crc(b"\x27\x05\x02")), "reject": "value",
-         "note": "ESTOP engage=2"},
-        {"name": "telemetry_undefined_flag", "hex": _cobs_wire(_with_crc(b"\x24\x00" + bytes(9) + b"\x80")),
-         "reject": "value", "note": "flags bit 7 set"},
-        {"name": "oversize", "hex": (bytes(range(1, 71)) + b"\x00").hex(), "reject": "oversize",
-         "note": "70 bytes without a delimiter (limit 62)"},
+        {
+            'name': 'bad_crc_one_bit',
+            'hex': _cobs_wire(bytes(bad_crc)),
+            'reject': 'crc',
+            'note': 'torque_cmd with bit 0 of byte 3 flipped',
+        },
+        {
+            'name': 'bad_crc_big_endian',
+            'hex': _cobs_wire(good[:-4] + good[-4:][::-1]),
+            'reject': 'crc',
+            'note': 'CRC-32C sent big-endian',
+        },
+        {
+            'name': 'crc16_in_version_2',
+            'hex': _cobs_wire(crc16_framed),
+            'reject': 'crc',
+            'note': 'version-2 TORQUE_CMD closed by a CRC-16 (version-1 check) instead of a CRC-32C',
+        },
+        {
+            'name': 'cobs_code_past_end',
+            'hex': (bytes(bad_cobs) + b'\x00').hex(),
+            'reject': 'cobs',
+            'note': 'first code byte 0x30 points beyond the frame',
+        },
+        {
+            'name': 'too_short',
+            'hex': _cobs_wire(b'\x23\x01\xff\x01\x02\x03'),
+            'reject': 'length',
+            'note': 'fewer than header + 1 + CRC-32C bytes',
+        },
+        {
+            'name': 'body_length_wrong_for_type',
+            'hex': _cobs_wire(_with_crc(b'\x23\x02\x01\x02\x03')),
+            'reject': 'length',
+            'note': 'TORQUE_CMD with a 3-byte body, CRC correct',
+        },
+        {
+            'name': 'unknown_type',
+            'hex': _cobs_wire(_with_crc(b'\x2b\x02\x01\x02\x03\x04')),
+            'reject': 'type',
+            'note': 'type 0xB, CRC correct',
+        },
+        {
+            'name': 'stop_bad_reason',
+            'hex': _cobs_wire(_with_crc(b'\x2a\x05\x03')),
+            'reject': 'value',
+            'note': 'STOP reason=3',
+        },
+        {
+            'name': 'type_zero',
+            'hex': _cobs_wire(_with_crc(b'\x20\x02\x01\x02\x03\x04')),
+            'reject': 'type',
+            'note': 'type 0x0 is never used',
+        },
+        {
+            'name': 'wrong_version',
+            'hex': _cobs_wire(sp.raw_frame(sp.TorqueCommand(100, 100), 3, version=1)),
+            'reject': 'version',
+            'note': 'TORQUE_CMD of protocol version 1 (CRC-16 correct): never applied',
+        },
+        {
+            'name': 'future_version',
+            'hex': _cobs_wire(sp.raw_frame(sp.TorqueCommand(100, 100), 3, version=3)),
+            'reject': 'version',
+            'note': 'TORQUE_CMD in protocol version 3, CRC correct',
+        },
+        {
+            'name': 'estop_bad_value',
+            'hex': _cobs_wire(_with_crc(b'\x27\x05\x02')),
+            'reject': 'value',
+            'note': 'ESTOP engage=2',
+        },
+        {
+            'name': 'telemetry_undefined_flag',
+            'hex': _cobs_wire(_with_crc(b'\x24\x00' + bytes(9) + b'\x80')),
+            'reject': 'value',
+            'note': 'flags bit 7 set',
+        },
+        {
+            'name': 'oversize',
+            'hex': (bytes(range(1, 71)) + b'\x00').hex(),
+            'reject': 'oversize',
+            'note': '70 bytes without a delimiter (limit 62)',
+        },
     ]
     cmd = sp.encode_frame(sp.TorqueCommand(1234, -567), 2, leading_delimiter=True)
     tel = sp.encode_frame(sp.Telemetry(720, -360, 3142, -1571, 2, sp.FLAG_CLAMPED), 17)
     streams = [
-        {"name": "noise_then_frame_with_leading_delimiter", "hex": (b"\x37\xff\x12" + cmd).hex(),
-         "frames": [sp.TorqueCommand(1234, -567).to_dict()], "rejected": {"cobs": 1},
-         "note": "garbage ends at the leading 0x00; the frame survives"},
-        {"name": "noise_glued_to_frame", "hex": (b"\x37" + tel + tel).hex(),
-         "frames": [sp.Telemetry(720, -360, 3142, -1571, 2, sp.FLAG_CLAMPED).to_dict()], "rejected": {"cobs": 1},
-         "note": "a frame glued to garbage is lost, never misread; the next one is decoded"},
-        {"name": "empty_frames_ignored", "hex": ("0000" + cmd.hex() + "00"),
-         "frames": [sp.TorqueCommand(1234, -567).to_dict()], "rejected": {}},
+        {
+            'name': 'noise_then_frame_with_leading_delimiter',
+            'hex': (b'\x37\xff\x12' + cmd).hex(),
+            'frames': [sp.TorqueCommand(1234, -567).to_dict()],
+            'rejected': {'cobs': 1},
+            'note': 'garbage ends at the leading 0x00; the frame survives',
+        },
+        {
+            'name': 'noise_glued_to_frame',
+            'hex': (b'\x37' + tel + tel).hex(),
+            'frames': [sp.Telemetry(720, -360, 3142, -1571, 2, sp.FLAG_CLAMPED).to_dict()],
+            'rejected': {'cobs': 1},
+            'note': 'a frame glued to garbage is lost, never misread; the next one is decoded',
+        },
+        {
+            'name': 'empty_frames_ignored',
+            'hex': ('0000' + cmd.hex() + '00'),
+            'frames': [sp.TorqueCommand(1234, -567).to_dict()],
+            'rejected': {},
+        },
     ]
-    # Cross-check every stream with the decoder so the file never states what the codec does not do.
+    # Cross-check every stream with the decoder so the file never states what the codec does not
+    # do.
     for s in streams:
         dec = sp.FrameDecoder()
-        got = [f.msg.to_dict() for f in dec.feed(bytes.fromhex(s["hex"]))]
+        got = [f.msg.to_dict() for f in dec.feed(bytes.fromhex(s['hex']))]
         counts = {k: c for k, c in dec.rejected.items() if c}
-        if got != s["frames"] or counts != s["rejected"]:
-            raise RuntimeError(f"stream vector {s['name']}: decoder gives {got} {counts}")
+        if got != s['frames'] or counts != s['rejected']:
+            raise RuntimeError(f'stream vector {s["name"]}: decoder gives {got} {counts}')
     return {
-        "protocol": "ament_formation motor-board serial protocol",
-        "protocol_version": sp.PROTOCOL_VERSION,
-        "document": "docs/serial-protocol.md",
-        "framing": "[0x00] COBS(header(2) | body | crc32c_le(4)) 0x00; version-1 framing (HELLO, and HELLO_ACK "
-                   "to a version-1 host): [0x00] COBS(header(2) | body | crc16_le(2)) 0x00",
-        "crc": "CRC-32C (Castagnoli) poly 0x1EDC6F41 (reflected 0x82F63B78) init 0xFFFFFFFF refin true refout true "
-               "xorout 0xFFFFFFFF, over header+body, sent little-endian; check value of '123456789' is 0xe3069283",
-        "crc_version_1": "CRC-16/CCITT-FALSE poly 0x1021 init 0xFFFF refin false refout false xorout 0x0000, "
-                         "check value of '123456789' is 0x29b1",
-        "check_field": "'check' of a valid vector is the CRC its header's version selects (4 hex digits: CRC-16)",
-        "units": {"torque": "int16, 1e-4 N*m", "velocity": "int16, 1e-3 rad/s",
-                  "position": "int16 encoder ticks modulo 65536", "time": "ms"},
-        "fields": "'message' holds the wire integers; 'meaning' the same values in SI units",
-        "valid": v,
-        "invalid": invalid,
-        "streams": streams,
+        'protocol': 'ament_formation motor-board serial protocol',
+        'protocol_version': sp.PROTOCOL_VERSION,
+        'document': 'docs/serial-protocol.md',
+        'framing': '[0x00] COBS(header(2) | body | crc32c_le(4)) 0x00; version-1 framing (HELLO, and HELLO_ACK '
+        'to a version-1 host): [0x00] COBS(header(2) | body | crc16_le(2)) 0x00',
+        'crc': 'CRC-32C (Castagnoli) poly 0x1EDC6F41 (reflected 0x82F63B78) init 0xFFFFFFFF refin true refout true '
+        "xorout 0xFFFFFFFF, over header+body, sent little-endian; check value of '123456789' is 0xe3069283",
+        'crc_version_1': 'CRC-16/CCITT-FALSE poly 0x1021 init 0xFFFF refin false refout false xorout 0x0000, '
+        "check value of '123456789' is 0x29b1",
+        'check_field': "'check' of a valid vector is the CRC its header's version selects (4 hex digits: CRC-16)",
+        'units': {
+            'torque': 'int16, 1e-4 N*m',
+            'velocity': 'int16, 1e-3 rad/s',
+            'position': 'int16 encoder ticks modulo 65536',
+            'time': 'ms',
+        },
+        'fields': "'message' holds the wire integers; 'meaning' the same values in SI units",
+        'valid': v,
+        'invalid': invalid,
+        'streams': streams,
     }
 
 
 def default_path() -> Path:
-    return Path(__file__).resolve().parents[2] / "docs" / "serial-protocol-vectors.json"
+    return Path(__file__).resolve().parents[2] / 'docs' / 'serial-protocol-vectors.json'
 
 
 def render() -> str:
-    return json.dumps(build_vectors(), indent=1) + "\n"
+    return json.dumps(build_vectors(), indent=1) + '\n'
 
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     path = Path(argv[0]) if argv else default_path()
     path.write_text(render())
-    print(f"wrote {path}")
+    print(f'wrote {path}')
     return 0
 
 
-if __name__ == "__main__":
+if __name__ == '__main__':
     sys.exit(main())

@@ -3,51 +3,73 @@
 sim   runs the ROS-free vectorised closed loop (core/simulator.py) on a scenario and writes the run
       directory (core/records.py): metrics.json, figure.png, trajectories.csv, obstacles.csv,
       events.json, run.json, scenario.yaml. A summary goes to stdout; progress of runs longer than
-      about a second goes to stderr. The run is checked like `formation run` (core/metrics.check_run:
-      no prohibited entry, no contact, the scenario's ``expect:`` block); exit status 1 and one line
-      on stderr naming the failed checks when it fails (metrics.json ``ok``/``checks`` say the same).
+      about a second goes to stderr. The run is checked like `formation run`
+      (core/metrics.check_run:
+      no prohibited entry, no contact, the scenario's ``expect:`` block); exit status 1 and one
+      line
+      on stderr naming the failed checks when it fails (metrics.json ``ok``/``checks`` say the
+      same).
 plot  redraws DIR/figure.png (or --output) from a run directory.
 
 Bad input (scenario, options, run directory) raises ConfigError: the dispatcher prints one line
 naming file, field and problem and exits with code 2.
 """
+
 from __future__ import annotations
 
 import argparse
 import math
+from pathlib import Path
 import sys
 import time
-from pathlib import Path
 
 from ament_formation.core.errors import ConfigError
 
 
 def register(subparsers) -> None:
     sim = subparsers.add_parser(
-        "sim", help="run a scenario in the ROS-free closed-loop simulator",
-        description="Run SCENARIO.yaml in the vectorised closed-loop simulator and write DIR/metrics.json, "
-                    "DIR/figure.png and the trajectories (CSV).")
-    sim.add_argument("scenario", metavar="SCENARIO.yaml", help="scenario file (see README: scenario format)")
-    sim.add_argument("--out", required=True, metavar="DIR", help="run directory to write (created)")
-    sim.add_argument("--dt-s", type=float, default=0.001, metavar="S",
-                     help="integration and control period [s] (default 0.001)")
-    sim.add_argument("--record-every-s", type=float, default=0.01, metavar="S",
-                     help="recording interval of the trajectories [s] (default 0.01)")
-    sim.add_argument("--no-figure", action="store_true", help="skip figure.png")
-    sim.add_argument("--quiet", action="store_true", help="no progress and no summary")
+        'sim',
+        help='run a scenario in the ROS-free closed-loop simulator',
+        description='Run SCENARIO.yaml in the vectorised closed-loop simulator and write DIR/metrics.json, '
+        'DIR/figure.png and the trajectories (CSV).',
+    )
+    sim.add_argument(
+        'scenario', metavar='SCENARIO.yaml', help='scenario file (see README: scenario format)'
+    )
+    sim.add_argument(
+        '--out', required=True, metavar='DIR', help='run directory to write (created)'
+    )
+    sim.add_argument(
+        '--dt-s',
+        type=float,
+        default=0.001,
+        metavar='S',
+        help='integration and control period [s] (default 0.001)',
+    )
+    sim.add_argument(
+        '--record-every-s',
+        type=float,
+        default=0.01,
+        metavar='S',
+        help='recording interval of the trajectories [s] (default 0.01)',
+    )
+    sim.add_argument('--no-figure', action='store_true', help='skip figure.png')
+    sim.add_argument('--quiet', action='store_true', help='no progress and no summary')
     sim.set_defaults(func=run_sim)
 
     plot = subparsers.add_parser(
-        "plot", help="redraw the figure of a finished run",
-        description="Draw the Fig. 4-like figure of a run directory written by `formation sim` or `formation run`.")
-    plot.add_argument("run_dir", metavar="DIR", help="run directory")
-    plot.add_argument("--output", metavar="PNG", help="figure file (default DIR/figure.png)")
+        'plot',
+        help='redraw the figure of a finished run',
+        description='Draw the Fig. 4-like figure of a run directory written by `formation sim` or `formation run`.',
+    )
+    plot.add_argument('run_dir', metavar='DIR', help='run directory')
+    plot.add_argument('--output', metavar='PNG', help='figure file (default DIR/figure.png)')
     plot.set_defaults(func=run_plot)
 
 
 def _positive(value: float, option: str) -> float:
     if not (math.isfinite(value) and value > 0):
-        raise ConfigError(f"must be a finite number > 0 (got {value})", option)
+        raise ConfigError(f'must be a finite number > 0 (got {value})', option)
     return value
 
 
@@ -75,45 +97,64 @@ class _Progress:
         self._next = now + self._period_s
         frac = min(max(t_s / duration_s, 0.0), 1.0) if duration_s > 0 else 1.0
         elapsed = now - self._start
-        eta = elapsed * (1.0 - frac) / frac if frac > 0 else float("nan")
-        line = f"sim: t = {t_s:7.2f} / {duration_s:.1f} s ({100 * frac:5.1f} %), eta {eta:5.1f} s"
+        eta = elapsed * (1.0 - frac) / frac if frac > 0 else float('nan')
+        line = f'sim: t = {t_s:7.2f} / {duration_s:.1f} s ({100 * frac:5.1f} %), eta {eta:5.1f} s'
         if self._tty:
-            self._stream.write("\r" + line)
+            self._stream.write('\r' + line)
         else:
-            self._stream.write(line + "\n")
+            self._stream.write(line + '\n')
         self._stream.flush()
         self.shown = True
 
     def finish(self) -> None:
         if self.shown and self._tty:
-            self._stream.write("\n")
+            self._stream.write('\n')
             self._stream.flush()
 
 
 def _summary(metrics: dict, out: Path, figure: bool = True, first: tuple[str, ...] = ()) -> str:
     """The run's summary lines; the last names what was written (``first`` + metrics.json,
-    figure.png unless ``figure`` is false, trajectories.csv)."""
-    def fmt(value, unit="m", scale=1.0, digits=3):
-        return "n/a" if value is None else f"{value * scale:.{digits}f} {unit}"
+    figure.png unless ``figure`` is false, trajectories.csv).
+    """
+
+    def fmt(value, unit='m', scale=1.0, digits=3):
+        return 'n/a' if value is None else f'{value * scale:.{digits}f} {unit}'
 
     lines = [
-        f"scenario {metrics['scenario']}: {metrics['sim_time_s']:.1f} s simulated in "
-        f"{metrics['wall_time_s']:.2f} s wall",
-        *([] if "ok" not in metrics else [
-            f"  checks: {'OK' if metrics['ok'] else 'FAILED'} ({sum(c['ok'] for c in metrics['checks'])}/"
-            f"{len(metrics['checks'])} passed)" + ("" if metrics["ok"] else f": {metrics['failure']}")]),
-        f"  prohibited entries {metrics['prohibited_entries']}, min clearance "
-        f"{fmt(metrics['min_clearance_m'])}, min robot distance {fmt(metrics['min_inter_robot_distance_m'])}",
+        f'scenario {metrics["scenario"]}: {metrics["sim_time_s"]:.1f} s simulated in '
+        f'{metrics["wall_time_s"]:.2f} s wall',
+        *(
+            []
+            if 'ok' not in metrics
+            else [
+                f'  checks: {"OK" if metrics["ok"] else "FAILED"} ({sum(c["ok"] for c in metrics["checks"])}/'
+                f'{len(metrics["checks"])} passed)'
+                + ('' if metrics['ok'] else f': {metrics["failure"]}')
+            ]
+        ),
+        f'  prohibited entries {metrics["prohibited_entries"]}, min clearance '
+        f'{fmt(metrics["min_clearance_m"])}, min robot distance {fmt(metrics["min_inter_robot_distance_m"])}',
     ]
-    for rid, r in metrics["robots"].items():
+    for rid, r in metrics['robots'].items():
         lines.append(
-            f"  R{rid}: avoid {r['avoidance_entries']}x {r['avoidance_time_s']:.1f} s, settled RMS "
-            f"{fmt(r['formation_rms_settled_m'], 'mm', 1e3, 1)}, final {fmt(r['final_error_m'], 'mm', 1e3, 1)}, "
-            f"peak torque {max(r['peak_torque_nm']):.3f} N m, saturated {100 * r['saturated_fraction']:.1f} %"
-            + (f", safety stops {r['safety_stops']} ({r['safety_stop_time_s']:.1f} s)" if "safety_stops" in r else ""))
-    wrote = [*first, "metrics.json", *(["figure.png"] if figure else []), "trajectories.csv", "..."]
-    lines.append(f"  wrote {out}/ ({', '.join(wrote)})")
-    return "\n".join(lines)
+            f'  R{rid}: avoid {r["avoidance_entries"]}x {r["avoidance_time_s"]:.1f} s, settled RMS '
+            f'{fmt(r["formation_rms_settled_m"], "mm", 1e3, 1)}, final {fmt(r["final_error_m"], "mm", 1e3, 1)}, '
+            f'peak torque {max(r["peak_torque_nm"]):.3f} N m, saturated {100 * r["saturated_fraction"]:.1f} %'
+            + (
+                f', safety stops {r["safety_stops"]} ({r["safety_stop_time_s"]:.1f} s)'
+                if 'safety_stops' in r
+                else ''
+            )
+        )
+    wrote = [
+        *first,
+        'metrics.json',
+        *(['figure.png'] if figure else []),
+        'trajectories.csv',
+        '...',
+    ]
+    lines.append(f'  wrote {out}/ ({", ".join(wrote)})')
+    return '\n'.join(lines)
 
 
 def run_sim(args: argparse.Namespace) -> int:
@@ -121,13 +162,13 @@ def run_sim(args: argparse.Namespace) -> int:
     from ament_formation.core.records import write_run
     from ament_formation.core.scenario import load_scenario
 
-    dt_s = _positive(args.dt_s, "--dt-s")
-    record_s = _positive(args.record_every_s, "--record-every-s")
+    dt_s = _positive(args.dt_s, '--dt-s')
+    record_s = _positive(args.record_every_s, '--record-every-s')
     if record_s < dt_s:
-        raise ConfigError(f"must be >= --dt-s ({dt_s}) (got {record_s})", "--record-every-s")
+        raise ConfigError(f'must be >= --dt-s ({dt_s}) (got {record_s})', '--record-every-s')
     out = Path(args.out)
     if out.exists() and not out.is_dir():
-        raise ConfigError("exists and is not a directory", "--out", str(out))
+        raise ConfigError('exists and is not a directory', '--out', str(out))
     scenario = load_scenario(args.scenario)
 
     from ament_formation.core.simulator import simulate
@@ -143,11 +184,11 @@ def run_sim(args: argparse.Namespace) -> int:
     if not args.no_figure:
         from ament_formation.core.plot import render_figure
 
-        render_figure(result, scenario, out / "figure.png")
+        render_figure(result, scenario, out / 'figure.png')
     if not args.quiet:
         print(_summary(metrics, out, figure=not args.no_figure))
-    if not metrics["ok"]:
-        print(f"formation sim: FAILED: {metrics['failure']}", file=sys.stderr)
+    if not metrics['ok']:
+        print(f'formation sim: FAILED: {metrics["failure"]}', file=sys.stderr)
         return 1
     return 0
 
@@ -157,7 +198,7 @@ def run_plot(args: argparse.Namespace) -> int:
     from ament_formation.core.records import read_run
 
     result, scenario, _metrics = read_run(args.run_dir)
-    target = Path(args.output) if args.output else Path(args.run_dir) / "figure.png"
+    target = Path(args.output) if args.output else Path(args.run_dir) / 'figure.png'
     render_figure(result, scenario, target)
-    print(f"wrote {target}")
+    print(f'wrote {target}')
     return 0

@@ -7,14 +7,15 @@ the topic's publishers (ros/introspection.py).
     formation echo TOPIC [--once] [--count N] [--timeout S] [--full-arrays]
     formation hz TOPIC [--window N] [--count REPORTS] [--timeout S]
 """
+
 from __future__ import annotations
 
+from collections import deque
+from dataclasses import dataclass
 import math
 import os
 import sys
 import time
-from collections import deque
-from dataclasses import dataclass
 from typing import Callable, TextIO
 
 import yaml
@@ -39,7 +40,7 @@ class RateMeter:
 
     def __init__(self, window: int = 100):
         if window < 2:
-            raise ConfigError(f"must be >= 2 (got {window})", "--window")
+            raise ConfigError(f'must be >= 2 (got {window})', '--window')
         self._times_ns: deque[int] = deque(maxlen=window)
         self.count = 0
 
@@ -56,13 +57,20 @@ class RateMeter:
         periods = [(b - a) * 1e-9 for a, b in zip(t, t[1:])]
         mean = sum(periods) / len(periods)
         var = sum((p - mean) ** 2 for p in periods) / len(periods)
-        return RateStats(1.0 / mean if mean > 0 else math.inf, min(periods), max(periods),
-                         math.sqrt(var), len(periods))
+        return RateStats(
+            1.0 / mean if mean > 0 else math.inf,
+            min(periods),
+            max(periods),
+            math.sqrt(var),
+            len(periods),
+        )
 
 
 def format_stats(s: RateStats) -> str:
-    return (f"average rate: {s.rate_hz:.3f}\n\tmin: {s.min_s:.3f}s max: {s.max_s:.3f}s "
-            f"std dev: {s.std_s:.5f}s window: {s.window + 1}")
+    return (
+        f'average rate: {s.rate_hz:.3f}\n\tmin: {s.min_s:.3f}s max: {s.max_s:.3f}s '
+        f'std dev: {s.std_s:.5f}s window: {s.window + 1}'
+    )
 
 
 # --------------------------------------------------------------------------- graph helpers
@@ -81,28 +89,37 @@ def wait_for_type(node, executor, topic: str, timeout_s: float) -> str | None:
     def ready() -> bool:
         t = topic_types(node).get(topic)
         if t and node.count_publishers(topic) > 0:
-            found["t"] = t
+            found['t'] = t
             return True
         return False
 
     _spin_for(executor, ready, timeout_s)
-    return found.get("t")
+    return found.get('t')
 
 
 def list_nodes(node) -> list[str]:
     """Fully qualified names of the visible, non-hidden nodes (sorted)."""
     out = set()
     for name, ns in node.get_node_names_and_namespaces():
-        if name.startswith("_"):
+        if name.startswith('_'):
             continue
-        out.add(ns.rstrip("/") + "/" + name)
+        out.add(ns.rstrip('/') + '/' + name)
     return sorted(out)
 
 
-def echo(node, executor, topic: str, type_name: str, count: int | None, out: TextIO,
-         timeout_s: float | None = None, max_array: int | None = 16) -> int:
+def echo(
+    node,
+    executor,
+    topic: str,
+    type_name: str,
+    count: int | None,
+    out: TextIO,
+    timeout_s: float | None = None,
+    max_array: int | None = 16,
+) -> int:
     """Print messages of ``topic`` as YAML documents until ``count`` were printed (None: forever)
-    or ``timeout_s`` [s, wall] passed without completing. Returns the number printed."""
+    or ``timeout_s`` [s, wall] passed without completing. Returns the number printed.
+    """
     from ament_formation.ros.introspection import compatible_qos, message_class, message_to_dict
 
     cls = message_class(type_name)
@@ -111,9 +128,15 @@ def echo(node, executor, topic: str, type_name: str, count: int | None, out: Tex
     def on_msg(msg) -> None:
         if count is not None and printed[0] >= count:
             return
-        out.write(yaml.safe_dump(message_to_dict(msg, max_array), sort_keys=False,
-                                 default_flow_style=None, width=120))
-        out.write("---\n")
+        out.write(
+            yaml.safe_dump(
+                message_to_dict(msg, max_array),
+                sort_keys=False,
+                default_flow_style=None,
+                width=120,
+            )
+        )
+        out.write('---\n')
         out.flush()
         printed[0] += 1
 
@@ -126,16 +149,30 @@ def echo(node, executor, topic: str, type_name: str, count: int | None, out: Tex
     return printed[0]
 
 
-def hz(node, executor, topic: str, type_name: str, window: int, reports: int | None, out: TextIO,
-       report_every_s: float = 1.0, timeout_s: float | None = None) -> RateStats | None:
+def hz(
+    node,
+    executor,
+    topic: str,
+    type_name: str,
+    window: int,
+    reports: int | None,
+    out: TextIO,
+    report_every_s: float = 1.0,
+    timeout_s: float | None = None,
+) -> RateStats | None:
     """Measure the receive rate of ``topic`` (raw subscription, no deserialisation); print a
-    report every ``report_every_s`` [s]; stop after ``reports`` reports or ``timeout_s``."""
+    report every ``report_every_s`` [s]; stop after ``reports`` reports or ``timeout_s``.
+    """
     from ament_formation.ros.introspection import compatible_qos, message_class
 
     meter = RateMeter(window)
-    sub = node.create_subscription(message_class(type_name), topic,
-                                   lambda _raw: meter.add(time.monotonic_ns()),
-                                   compatible_qos(node, topic), raw=True)
+    sub = node.create_subscription(
+        message_class(type_name),
+        topic,
+        lambda _raw: meter.add(time.monotonic_ns()),
+        compatible_qos(node, topic),
+        raw=True,
+    )
     made = [0]
     last: list[RateStats | None] = [None]
     deadline = math.inf if timeout_s is None else time.monotonic() + timeout_s
@@ -148,7 +185,7 @@ def hz(node, executor, topic: str, type_name: str, window: int, reports: int | N
                 s = meter.stats()
                 if s is None:
                     continue
-                out.write(format_stats(s) + "\n")
+                out.write(format_stats(s) + '\n')
                 out.flush()
                 last[0] = s
                 made[0] += 1
@@ -168,7 +205,7 @@ class _Session:
 
         self.ctx = Context()
         rclpy.init(context=self.ctx)
-        self.node = rclpy.create_node(f"_formation_cli_{os.getpid()}", context=self.ctx)
+        self.node = rclpy.create_node(f'_formation_cli_{os.getpid()}', context=self.ctx)
         self.executor = SingleThreadedExecutor(context=self.ctx)
         self.executor.add_node(self.node)
         return self
@@ -194,7 +231,7 @@ def _cmd_topics(args) -> int:
         from ament_formation.ros.introspection import topic_types
 
         for name, type_name in sorted(topic_types(s.node).items()):
-            print(f"{name} [{type_name}]" if args.show_types else name)
+            print(f'{name} [{type_name}]' if args.show_types else name)
     return 0
 
 
@@ -209,7 +246,7 @@ def _cmd_nodes(args) -> int:
 def _resolve(s, topic: str, timeout_s: float) -> str:
     type_name = wait_for_type(s.node, s.executor, topic, timeout_s)
     if type_name is None:
-        raise ConfigError(f"no publisher seen within {timeout_s:g} s", f"topic {topic}")
+        raise ConfigError(f'no publisher seen within {timeout_s:g} s', f'topic {topic}')
     return type_name
 
 
@@ -217,12 +254,21 @@ def _cmd_echo(args) -> int:
     count = 1 if args.once else args.count
     with _Session() as s:
         type_name = _resolve(s, args.topic, args.timeout)
-        n = echo(s.node, s.executor, args.topic, type_name, count, sys.stdout,
-                 timeout_s=None if count is None else args.timeout,
-                 max_array=None if args.full_arrays else 16)
+        n = echo(
+            s.node,
+            s.executor,
+            args.topic,
+            type_name,
+            count,
+            sys.stdout,
+            timeout_s=None if count is None else args.timeout,
+            max_array=None if args.full_arrays else 16,
+        )
     if count is not None and n < count:
-        print(f"formation echo: {args.topic}: got {n} of {count} messages in {args.timeout:g} s",
-              file=sys.stderr)
+        print(
+            f'formation echo: {args.topic}: got {n} of {count} messages in {args.timeout:g} s',
+            file=sys.stderr,
+        )
         return 1
     return 0
 
@@ -235,31 +281,37 @@ def _cmd_hz(args) -> int:
 
 
 def _topic_name(text: str) -> str:
-    return text if text.startswith("/") else "/" + text
+    return text if text.startswith('/') else '/' + text
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("topics", help="list topics (like ros2 topic list)")
-    p.add_argument("-t", "--show-types", action="store_true", help="also print each topic's type")
-    p.add_argument("--wait", type=float, default=1.5, help="discovery time [s] (default 1.5)")
+    p = subparsers.add_parser('topics', help='list topics (like ros2 topic list)')
+    p.add_argument('-t', '--show-types', action='store_true', help="also print each topic's type")
+    p.add_argument('--wait', type=float, default=1.5, help='discovery time [s] (default 1.5)')
     p.set_defaults(func=_cmd_topics)
 
-    p = subparsers.add_parser("nodes", help="list nodes (like ros2 node list)")
-    p.add_argument("--wait", type=float, default=1.5, help="discovery time [s] (default 1.5)")
+    p = subparsers.add_parser('nodes', help='list nodes (like ros2 node list)')
+    p.add_argument('--wait', type=float, default=1.5, help='discovery time [s] (default 1.5)')
     p.set_defaults(func=_cmd_nodes)
 
-    p = subparsers.add_parser("echo", help="print messages of a topic (any type)")
-    p.add_argument("topic", type=_topic_name)
-    p.add_argument("--once", action="store_true", help="print one message and exit")
-    p.add_argument("--count", type=int, default=None, help="print N messages and exit")
-    p.add_argument("--timeout", type=float, default=10.0,
-                   help="wait at most this long [s] for the publisher / the messages (default 10)")
-    p.add_argument("--full-arrays", action="store_true", help="print arrays longer than 16 values")
+    p = subparsers.add_parser('echo', help='print messages of a topic (any type)')
+    p.add_argument('topic', type=_topic_name)
+    p.add_argument('--once', action='store_true', help='print one message and exit')
+    p.add_argument('--count', type=int, default=None, help='print N messages and exit')
+    p.add_argument(
+        '--timeout',
+        type=float,
+        default=10.0,
+        help='wait at most this long [s] for the publisher / the messages (default 10)',
+    )
+    p.add_argument('--full-arrays', action='store_true', help='print arrays longer than 16 values')
     p.set_defaults(func=_cmd_echo)
 
-    p = subparsers.add_parser("hz", help="receive rate of a topic (any type)")
-    p.add_argument("topic", type=_topic_name)
-    p.add_argument("--window", type=int, default=100, help="messages in the statistics window")
-    p.add_argument("--count", type=int, default=None, help="stop after N reports (default: Ctrl-C)")
-    p.add_argument("--timeout", type=float, default=10.0, help="wait for a publisher [s]")
+    p = subparsers.add_parser('hz', help='receive rate of a topic (any type)')
+    p.add_argument('topic', type=_topic_name)
+    p.add_argument('--window', type=int, default=100, help='messages in the statistics window')
+    p.add_argument(
+        '--count', type=int, default=None, help='stop after N reports (default: Ctrl-C)'
+    )
+    p.add_argument('--timeout', type=float, default=10.0, help='wait for a publisher [s]')
     p.set_defaults(func=_cmd_hz)
