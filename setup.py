@@ -1,51 +1,52 @@
 """ament_python packaging for ament_formation (colcon build, or pip install -e . in the venv)."""
-import os
+
 from glob import glob
+import os
 
 from setuptools import find_packages, setup
 
-PACKAGE = "ament_formation"
+PACKAGE = 'ament_formation'
 
 
 def config_files(subdir):
     """data_files entries for every file under config/<subdir> (keeps the tree layout)."""
     entries = []
-    root = os.path.join("config", subdir) if subdir else "config"
+    root = os.path.join('config', subdir) if subdir else 'config'
     for dirpath, _dirs, files in os.walk(root):
         paths = [os.path.join(dirpath, f) for f in files]
         if paths:
-            entries.append((os.path.join("share", PACKAGE, dirpath), paths))
+            entries.append((os.path.join('share', PACKAGE, dirpath), paths))
     return entries
 
 
 setup(
     name=PACKAGE,
-    version="0.1.0",
-    packages=find_packages(exclude=["test", "test.*", "bench", "bench.*"]),
+    version='0.1.0',
+    packages=find_packages(exclude=['test', 'test.*', 'bench', 'bench.*']),
     data_files=[
-        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
-        (f"share/{PACKAGE}", ["package.xml", "LICENSE"]),
-        (f"share/{PACKAGE}/docs", glob("docs/*.md") + glob("docs/*.json")),
+        ('share/ament_index/resource_index/packages', [f'resource/{PACKAGE}']),
+        (f'share/{PACKAGE}', ['package.xml', 'LICENSE']),
+        (f'share/{PACKAGE}/docs', glob('docs/*.md') + glob('docs/*.json')),
     ]
-    + config_files(""),
-    install_requires=["setuptools"],
+    + config_files(''),
+    install_requires=['setuptools'],
     # colcon test runs pytest only for a package that declares it as a test dependency
-    extras_require={"test": ["pytest", "pytest-timeout", "hypothesis"]},
+    extras_require={'test': ['pytest', 'pytest-timeout', 'hypothesis']},
     zip_safe=True,
-    maintainer="ament_formation maintainers",
-    maintainer_email="maintainers@ament-formation.invalid",
-    description="Sliding-mode formation control with elliptical limit-cycle avoidance (ROS 2 Jazzy).",
-    license="Apache-2.0",
+    maintainer='ament_formation maintainers',
+    maintainer_email='maintainers@ament-formation.invalid',
+    description='Sliding-mode formation control with elliptical limit-cycle avoidance (ROS 2 Jazzy).',
+    license='Apache-2.0',
     entry_points={
-        "console_scripts": [
-            "formation = ament_formation.tools.cli:main",
-            "formation_world = ament_formation.nodes.world:main",
-            "formation_tracker = ament_formation.nodes.tracker:main",
-            "formation_controller = ament_formation.nodes.controller:main",
-            "formation_bridge = ament_formation.nodes.bridge:main",
-            "formation_coordinator = ament_formation.nodes.coordinator:main",
-            "formation_team = ament_formation.nodes.team:main",
-            "formation_live_view = ament_formation.nodes.live_view:main",
+        'console_scripts': [
+            'formation = ament_formation.tools.cli:main',
+            'formation_world = ament_formation.nodes.world:main',
+            'formation_tracker = ament_formation.nodes.tracker:main',
+            'formation_controller = ament_formation.nodes.controller:main',
+            'formation_bridge = ament_formation.nodes.bridge:main',
+            'formation_coordinator = ament_formation.nodes.coordinator:main',
+            'formation_team = ament_formation.nodes.team:main',
+            'formation_live_view = ament_formation.nodes.live_view:main',
         ],
     },
 )
