@@ -88,8 +88,15 @@ def test_formation_run_takes_a_free_domain_too(tmp_path):
         "run_cmd.loopback_env(Path('log')); print(os.environ['ROS_DOMAIN_ID'])"
     )
     try:
-        out = subprocess.run([str(ROOT / '.venv' / 'bin' / 'python'), '-c', code], env=env,
-                             cwd=tmp_path, capture_output=True, text=True, timeout=120, check=True)
+        out = subprocess.run(
+            [str(ROOT / '.venv' / 'bin' / 'python'), '-c', code],
+            env=env,
+            cwd=tmp_path,
+            capture_output=True,
+            text=True,
+            timeout=120,
+            check=True,
+        )
         assert out.stdout.split() == ['77']
     finally:
         for f in held:

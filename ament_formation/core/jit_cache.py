@@ -6,7 +6,8 @@ stale machine code is loaded. So the package points numba at a folder named afte
 core modules compiled code can depend on (:func:`numba_sources`: those importing numba and every
 core module they import, transitively; :func:`configure`, called from ``ament_formation/__init__``
 before anything imports numba): an edit of any of them gives a new, empty folder, and the kernels
-are compiled afresh. Folders of older sources are pruned (the :data:`KEEP` most recently used stay).
+are compiled afresh. Folders of older sources are pruned (the :data:`KEEP` most recently used
+stay).
 
     $XDG_CACHE_HOME/ament_formation/numba-<hash>   (default ~/.cache/ament_formation/numba-<hash>)
 
@@ -18,48 +19,56 @@ A ``NUMBA_CACHE_DIR`` set by the user is left alone. ``AMENT_FORMATION_CACHE_DIR
 that the processes of a run load machine code instead of all compiling it at the same time.
 This module reads files and the environment only when called; only :func:`main` prints.
 """
+
 from __future__ import annotations
 
 import hashlib
 import os
+from pathlib import Path
 import re
 import shutil
 import sys
-from pathlib import Path
 
-KEEP = 3                                  # numba-<hash> folders kept (most recently used first)
-_MARK = "AMENT_FORMATION_NUMBA_CACHE_DIR"  # what configure() set, to tell it from a user's choice
+KEEP = 3  # numba-<hash> folders kept (most recently used first)
+_MARK = 'AMENT_FORMATION_NUMBA_CACHE_DIR'  # what configure() set, to tell it from a user's choice
 _CORE = Path(__file__).resolve().parent
 
 
-_FROM = re.compile(r"^[ \t]*from[ \t]+([\w.]+)[ \t]+import[ \t]+(?:\(([^)]*)\)|([\w \t,]+))", re.M)
-_IMPORT = re.compile(r"^[ \t]*import[ \t]+([\w.]+)", re.M)
-_NUMBA = re.compile(r"^\s*(?:from\s+numba\b|import\s+numba\b)", re.M)
+_FROM = re.compile(r'^[ \t]*from[ \t]+([\w.]+)[ \t]+import[ \t]+(?:\(([^)]*)\)|([\w \t,]+))', re.M)
+_IMPORT = re.compile(r'^[ \t]*import[ \t]+([\w.]+)', re.M)
+_NUMBA = re.compile(r'^\s*(?:from\s+numba\b|import\s+numba\b)', re.M)
 
 
 def numba_sources(core_dir: Path = _CORE) -> list[Path]:
     """The core modules compiled code can depend on: those that import numba and every core module
     they import, transitively (a jitted function reaches other modules' functions and constants
-    only through its module's imports). This module itself is left out."""
-    package = "ament_formation." + core_dir.name
+    only through its module's imports). This module itself is left out.
+    """
+    package = 'ament_formation.' + core_dir.name
     by_name: dict[str, Path] = {}
-    for path in core_dir.rglob("*.py"):
-        rel = path.relative_to(core_dir).with_suffix("")
-        parts = rel.parts[:-1] if rel.name == "__init__" else rel.parts
-        by_name[".".join((package, *parts)).rstrip(".")] = path
+    for path in core_dir.rglob('*.py'):
+        rel = path.relative_to(core_dir).with_suffix('')
+        parts = rel.parts[:-1] if rel.name == '__init__' else rel.parts
+        by_name['.'.join((package, *parts)).rstrip('.')] = path
     me = Path(__file__).resolve()
-    todo = [p for p in by_name.values() if p.resolve() != me and _NUMBA.search(p.read_text(errors="replace"))]
+    todo = [
+        p
+        for p in by_name.values()
+        if p.resolve() != me and _NUMBA.search(p.read_text(errors='replace'))
+    ]
     seen: set[Path] = set()
     while todo:
         path = todo.pop()
         if path in seen:
             continue
         seen.add(path)
-        text = path.read_text(errors="replace")
+        text = path.read_text(errors='replace')
         candidates = _IMPORT.findall(text)
         for base, grouped, names in _FROM.findall(text):
             candidates.append(base)
-            candidates += [f"{base}.{n.split()[0]}" for n in (grouped or names).split(",") if n.split()]
+            candidates += [
+                f'{base}.{n.split()[0]}' for n in (grouped or names).split(',') if n.split()
+            ]
         todo += [by_name[c] for c in candidates if c in by_name and by_name[c].resolve() != me]
     return sorted(seen)
 
@@ -69,25 +78,26 @@ def source_hash(core_dir: Path = _CORE) -> str:
     h = hashlib.sha256()
     for path in numba_sources(core_dir):
         h.update(str(path.relative_to(core_dir)).encode())
-        h.update(b"\0")
+        h.update(b'\0')
         h.update(path.read_bytes())
-        h.update(b"\0")
+        h.update(b'\0')
     return h.hexdigest()[:16]
 
 
 def cache_root(environ=os.environ) -> Path:
     """``$AMENT_FORMATION_CACHE_DIR``, else ``$XDG_CACHE_HOME/ament_formation`` (~/.cache/...)."""
-    if environ.get("AMENT_FORMATION_CACHE_DIR"):
-        return Path(environ["AMENT_FORMATION_CACHE_DIR"])
-    xdg = environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(xdg) / "ament_formation"
+    if environ.get('AMENT_FORMATION_CACHE_DIR'):
+        return Path(environ['AMENT_FORMATION_CACHE_DIR'])
+    xdg = environ.get('XDG_CACHE_HOME') or str(Path.home() / '.cache')
+    return Path(xdg) / 'ament_formation'
 
 
 def prune(root: Path, keep_dir: Path, keep: int = KEEP) -> list[Path]:
     """Remove ``root/numba-*`` folders but ``keep_dir`` and the ``keep - 1`` most recently used
     others; return the removed ones. A process still using a removed folder recreates it when it
-    saves (numba makes the directory again) or recompiles: nothing breaks."""
-    others = [p for p in root.glob("numba-*") if p.is_dir() and p != keep_dir]
+    saves (numba makes the directory again) or recompiles: nothing breaks.
+    """
+    others = [p for p in root.glob('numba-*') if p.is_dir() and p != keep_dir]
     others.sort(key=lambda p: p.stat().st_mtime, reverse=True)
     removed = []
     for p in others[max(keep - 1, 0):]:
@@ -99,34 +109,35 @@ def prune(root: Path, keep_dir: Path, keep: int = KEEP) -> list[Path]:
 def configure(environ=os.environ) -> Path | None:
     """Point numba's cache at ``cache_root()/numba-<source_hash()>`` (made if missing, older
     folders pruned, marked used). Returns the folder, or None when the user set NUMBA_CACHE_DIR or
-    no folder can be made (numba then keeps its default, next to the sources)."""
-    user = environ.get("NUMBA_CACHE_DIR")
+    no folder can be made (numba then keeps its default, next to the sources).
+    """
+    user = environ.get('NUMBA_CACHE_DIR')
     if user and environ.get(_MARK) != user:
         return None
     try:
         root = cache_root(environ)
-        path = root / f"numba-{source_hash()}"
+        path = root / f'numba-{source_hash()}'
         if not path.is_dir():
             path.mkdir(parents=True, exist_ok=True)
             prune(root, path)
         else:
-            os.utime(path)            # "recently used", for prune()
+            os.utime(path)  # "recently used", for prune()
     except OSError:
         return None
-    environ["NUMBA_CACHE_DIR"] = environ[_MARK] = str(path)
-    config = sys.modules.get("numba.core.config")
-    if config is not None:            # numba already imported: its config read the env already
+    environ['NUMBA_CACHE_DIR'] = environ[_MARK] = str(path)
+    config = sys.modules.get('numba.core.config')
+    if config is not None:  # numba already imported: its config read the env already
         config.CACHE_DIR = str(path)
     return path
 
 
 def _warm_stamp() -> Path | None:
     """File marking the current cache folder warm for this source tree (None: not configured)."""
-    cache = os.environ.get("NUMBA_CACHE_DIR")
+    cache = os.environ.get('NUMBA_CACHE_DIR')
     if not cache:
         return None
     tree = hashlib.sha1(str(_CORE).encode()).hexdigest()[:12]
-    return Path(cache) / f"warm-{tree}"
+    return Path(cache) / f'warm-{tree}'
 
 
 def is_warm() -> bool:
@@ -139,7 +150,8 @@ def warm() -> None:
     what they build: the simulator on a short run of each shipped scenario, each robot's
     RobotController of the paper scenario (a leader and a follower), the coordinator's arbiter, the
     world's plant twin and the tracker's corner refinement. numba compiles a kernel's whole call
-    tree on its first call, so one call of each entry point covers the branches not taken."""
+    tree on its first call, so one call of each entry point covers the branches not taken.
+    """
     import dataclasses
 
     import numpy as np
@@ -154,18 +166,25 @@ def warm() -> None:
     from ament_formation.core.twin import PlantTwin
 
     corner_refinement.warm_up()
-    scenarios = sorted((config_dir() / "scenarios").glob("*.yaml"))
+    scenarios = sorted((config_dir() / 'scenarios').glob('*.yaml'))
     for path in scenarios:
         sc = load_scenario(path)
         simulate(dataclasses.replace(sc, duration_s=0.05))
         PlantTwin(sc)
         arbiter = EncounterArbiter(sc)
         states = {r.id: np.array([*r.initial_pose, 0.0, 0.0]) for r in sc.robots}
-        arbiter.decide(0.0, states, {r.id: {"mode": "coordination"} for r in sc.robots})
+        arbiter.decide(0.0, states, {r.id: {'mode': 'coordination'} for r in sc.robots})
         graph = FormationGraph.from_scenario(sc)
         for r in sc.robots:
-            law = RobotController(r.id, r.params, sc.control, sc.avoidance, sc.obstacles,
-                                  leader_path=r.path if r.leader else None, team=sc.team_leader(r.id))
+            law = RobotController(
+                r.id,
+                r.params,
+                sc.control,
+                sc.avoidance,
+                sc.obstacles,
+                leader_path=r.path if r.leader else None,
+                team=sc.team_leader(r.id),
+            )
             p0 = graph.original_parent.get(r.id)
             offset = np.zeros(2) if p0 is None else np.asarray(graph.offset(r.id, p0), dtype=float)
             law.set_graph(p0, offset, p0, offset)
@@ -175,16 +194,16 @@ def warm() -> None:
 def main(argv: list[str] | None = None) -> int:
     """Warm the cache unless it is warm already (``--force``: warm anyway); say so on stderr."""
     argv = sys.argv[1:] if argv is None else argv
-    if is_warm() and "--force" not in argv:
+    if is_warm() and '--force' not in argv:
         return 0
     import time
 
-    path = os.environ.get("NUMBA_CACHE_DIR", "numba's default")
-    print(f"setup: compiling the numba kernels once (about 30 s; cache {path})", file=sys.stderr)
+    path = os.environ.get('NUMBA_CACHE_DIR', "numba's default")
+    print(f'setup: compiling the numba kernels once (about 30 s; cache {path})', file=sys.stderr)
     t0 = time.monotonic()
     warm()
     stamp = _warm_stamp()
     if stamp is not None:
         stamp.touch()
-    print(f"setup: numba kernels compiled in {time.monotonic() - t0:.0f} s", file=sys.stderr)
+    print(f'setup: numba kernels compiled in {time.monotonic() - t0:.0f} s', file=sys.stderr)
     return 0

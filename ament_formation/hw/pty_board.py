@@ -8,14 +8,15 @@ unplugging and replugging a USB adapter looks like to the bridge. Fault injectio
 delay bytes) applies per direction. Drive it with ``step()`` from your own loop or timer, or with
 ``start()``, which runs a thread that waits on the pty with ``select``.
 """
+
 from __future__ import annotations
 
 import os
+from pathlib import Path
 import select
 import threading
 import time
 import tty
-from pathlib import Path
 from typing import Callable
 
 import numpy as np
@@ -38,9 +39,15 @@ class PtyBoard:
     rng : numpy Generator for the faults; clock : monotonic time source [s].
     """
 
-    def __init__(self, board: MotorBoard, link_path: str | Path | None = None,
-                 rx_faults: FaultSpec = FaultSpec(), tx_faults: FaultSpec = FaultSpec(),
-                 rng: np.random.Generator | None = None, clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(
+        self,
+        board: MotorBoard,
+        link_path: str | Path | None = None,
+        rx_faults: FaultSpec = FaultSpec(),
+        tx_faults: FaultSpec = FaultSpec(),
+        rng: np.random.Generator | None = None,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
         self.board = board
         self.link_path = Path(link_path) if link_path is not None else None
         rng = rng if rng is not None else np.random.default_rng(0)
@@ -65,7 +72,7 @@ class PtyBoard:
         if self.link_path is not None:
             return str(self.link_path)
         if self.slave_name is None:
-            raise RuntimeError("PtyBoard: port is closed")
+            raise RuntimeError('PtyBoard: port is closed')
         return self.slave_name
 
     @property
@@ -83,7 +90,7 @@ class PtyBoard:
             self._master, self._slave = master, slave
             self.slave_name = os.ttyname(slave)
             if self.link_path is not None:
-                tmp = self.link_path.with_name(self.link_path.name + ".tmp")
+                tmp = self.link_path.with_name(self.link_path.name + '.tmp')
                 if tmp.is_symlink() or tmp.exists():
                     tmp.unlink()
                 tmp.symlink_to(self.slave_name)
@@ -112,7 +119,7 @@ class PtyBoard:
         with self.lock:
             now_s = self.clock() if now_s is None else now_s
             if self._master is not None:
-                data = b""
+                data = b''
                 try:
                     data = os.read(self._master, 4096)
                 except (BlockingIOError, InterruptedError):
@@ -138,7 +145,9 @@ class PtyBoard:
         if self._thread is not None:
             return
         self._stop.clear()
-        self._thread = threading.Thread(target=self._run, args=(step_period_s,), name="pty_board", daemon=True)
+        self._thread = threading.Thread(
+            target=self._run, args=(step_period_s,), name='pty_board', daemon=True
+        )
         self._thread.start()
 
     def _run(self, step_period_s: float) -> None:
@@ -154,7 +163,7 @@ class PtyBoard:
 
     def _wake(self) -> None:
         try:
-            os.write(self._wake_w, b"x")
+            os.write(self._wake_w, b'x')
         except OSError:
             pass
 
@@ -176,7 +185,7 @@ class PtyBoard:
             except OSError:
                 pass
 
-    def __enter__(self) -> "PtyBoard":
+    def __enter__(self) -> 'PtyBoard':
         self.open()
         return self
 
@@ -195,7 +204,7 @@ class PtyBoardGroup:
 
     def __init__(self, boards: list[PtyBoard], step_period_s: float = 0.005) -> None:
         if not step_period_s > 0:
-            raise ValueError(f"step_period_s: must be > 0 s (got {step_period_s!r})")
+            raise ValueError(f'step_period_s: must be > 0 s (got {step_period_s!r})')
         self.boards = list(boards)
         self.step_period_s = float(step_period_s)
         self._stop = threading.Event()
@@ -205,7 +214,7 @@ class PtyBoardGroup:
         if self._thread is not None:
             return
         self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name="pty_boards", daemon=True)
+        self._thread = threading.Thread(target=self._run, name='pty_boards', daemon=True)
         self._thread.start()
 
     def _run(self) -> None:

@@ -3,16 +3,20 @@
 The plant of every robot (1 kHz RK4, core/twin.py) with the scenario's disturbance and moving
 obstacles; one emulated motor board per robot on its own pty (hw/pty_board.py: the bridge opens
 ``<pty_dir>/robot_<id>``); the synthetic overhead camera (core/synthetic_camera.py) rendering the
-robots' markers; ground truth for evaluation. The mission starts when ``/formation/graph`` carries a
+robots' markers; ground truth for evaluation. The mission starts when ``/formation/graph`` carries
+a
 ``start_s`` (the coordinator starts it once every controller is up); until then the robots stand.
 
 Topics (QoS from ros/qos.py)
   pub  /camera/image_raw          sensor_msgs/Image mono8, stamp = capture time     QOS_IMAGE
-  pub  /camera/camera_info        sensor_msgs/CameraInfo (camera_config), with each image, same stamp  QOS_IMAGE
+  pub  /camera/camera_info        sensor_msgs/CameraInfo (camera_config), with each image, same
+  stamp  QOS_IMAGE
   pub  /world/truth/robot_<id>    nav_msgs/Odometry, every tick (while subscribed) QOS_CONTROL
   pub  /clock                     rosgraph_msgs/Clock (only when speed_factor != 1)  QOS_CLOCK
-  sub  /formation/graph           std_msgs/String JSON graph/v1 (start_s); invalid ones counted  QOS_GRAPH
-  pub  /diagnostics               "formation_world: simulation" (ticks, overruns: WARN for 5 s after
+  sub  /formation/graph           std_msgs/String JSON graph/v1 (start_s); invalid ones counted
+  QOS_GRAPH
+  pub  /diagnostics               "formation_world: simulation" (ticks, overruns: WARN for 5 s
+  after
                                   one, rejected graphs), "formation_world: plant loop" (stalls)
 
 Parameters
@@ -26,15 +30,16 @@ Parameters
   camera_noise     float  sensor noise [grey levels]                           default 2.0
   exit_at_end      bool   shut down when scenario time passes duration_s      default true
 """
+
 from __future__ import annotations
 
+from dataclasses import dataclass
 import math
+from pathlib import Path
 import shutil
 import sys
 import tempfile
 import time
-from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 from rclpy.node import Node
@@ -58,31 +63,34 @@ from ament_formation.ros.image import camera_info
 from ament_formation.ros.params import declare_dataclass
 from ament_formation.ros.qos import QOS_CLOCK, QOS_CONTROL, QOS_GRAPH, QOS_IMAGE
 
-SIM_CLOCK_START_S = 1.0   # /clock starts here (ROS time 0 means "no time yet")
+SIM_CLOCK_START_S = 1.0  # /clock starts here (ROS time 0 means "no time yet")
 
 
 @dataclass(frozen=True)
 class WorldParams:
-    scenario: str = param("", "scenario YAML path (required)")
-    camera_config: str = param("camera.yaml", "camera calibration: a config/ file name or a path")
-    pty_dir: str = param("", "folder for the robot_<id> pty links ('': a new temp folder)")
-    speed_factor: float = param(1.0, "sim seconds per wall second; != 1 publishes /clock",
-                                range=(0.05, 50.0))
-    tick_s: float = param(0.01, "plant/board/truth period [s sim]", range=(0.001, 0.05))
-    physics_dt_s: float = param(0.001, "RK4 step [s], <= tick_s", range=(0.0, 0.05))
-    camera_enabled: bool = param(True, "render and publish camera frames")
-    camera_noise: float = param(2.0, "sensor noise std [grey levels]")
-    exit_at_end: bool = param(True, "shut down when scenario time passes duration_s")
+    scenario: str = param('', 'scenario YAML path (required)')
+    camera_config: str = param('camera.yaml', 'camera calibration: a config/ file name or a path')
+    pty_dir: str = param('', "folder for the robot_<id> pty links ('': a new temp folder)")
+    speed_factor: float = param(
+        1.0, 'sim seconds per wall second; != 1 publishes /clock', range=(0.05, 50.0)
+    )
+    tick_s: float = param(0.01, 'plant/board/truth period [s sim]', range=(0.001, 0.05))
+    physics_dt_s: float = param(0.001, 'RK4 step [s], <= tick_s', range=(0.0, 0.05))
+    camera_enabled: bool = param(True, 'render and publish camera frames')
+    camera_noise: float = param(2.0, 'sensor noise std [grey levels]')
+    exit_at_end: bool = param(True, 'shut down when scenario time passes duration_s')
 
     def __post_init__(self) -> None:
         if not self.scenario:
-            raise ConfigError("is required (path of a scenario YAML)", "scenario")
+            raise ConfigError('is required (path of a scenario YAML)', 'scenario')
         if not (math.isfinite(self.speed_factor) and 0.05 <= self.speed_factor <= 50.0):
-            raise ConfigError(f"must be in [0.05, 50] (got {self.speed_factor!r})", "speed_factor")
+            raise ConfigError(f'must be in [0.05, 50] (got {self.speed_factor!r})', 'speed_factor')
         if not (0.001 <= self.tick_s <= 0.05):
-            raise ConfigError(f"must be in [0.001, 0.05] s (got {self.tick_s!r})", "tick_s")
+            raise ConfigError(f'must be in [0.001, 0.05] s (got {self.tick_s!r})', 'tick_s')
         if not (0 < self.physics_dt_s <= self.tick_s):
-            raise ConfigError(f"must be in (0, tick_s] s (got {self.physics_dt_s!r})", "physics_dt_s")
+            raise ConfigError(
+                f'must be in (0, tick_s] s (got {self.physics_dt_s!r})', 'physics_dt_s'
+            )
 
 
 def _camera_path(name: str) -> Path:
@@ -94,37 +102,41 @@ class WorldNode(Node):
     """See the module docstring."""
 
     def __init__(self, *, context=None, params: WorldParams | None = None, **node_kw):
-        super().__init__("formation_world", context=context, **node_kw)
+        super().__init__('formation_world', context=context, **node_kw)
         self.prm = params if params is not None else declare_dataclass(self, WorldParams)
         self.scenario = load_scenario(self.prm.scenario)
         self.twin = PlantTwin(self.scenario, dt_s=self.prm.physics_dt_s)
         self.ids = self.twin.ids
         self.sim_clock = self.prm.speed_factor != 1.0
         self._mono0 = time.monotonic()
-        self.plant_time_s = self.now_s()       # ROS time [s] of the twin's state
+        self.plant_time_s = self.now_s()  # ROS time [s] of the twin's state
         self.start_s: float | None = None
         self.done = False
         self.overruns = 0
         self.ticks = 0
         self.rejected_graphs = 0
-        self._overruns_seen = (0, -math.inf)     # (count, when it last grew [s])
+        self._overruns_seen = (0, -math.inf)  # (count, when it last grew [s])
         self.diag = diag.Diagnostics(self)
-        self.diag.add("simulation", self._simulation_status, hardware_id="simulation")
-        self.tick_watch = self.diag.watch("plant loop", self.prm.tick_s / self.prm.speed_factor,
-                                          hardware_id="simulation")
+        self.diag.add('simulation', self._simulation_status, hardware_id='simulation')
+        self.tick_watch = self.diag.watch(
+            'plant loop', self.prm.tick_s / self.prm.speed_factor, hardware_id='simulation'
+        )
 
         # boards on ptys
         self._own_pty_dir = not self.prm.pty_dir
-        self.pty_dir = Path(self.prm.pty_dir or tempfile.mkdtemp(prefix="ament_formation_pty_"))
+        self.pty_dir = Path(self.prm.pty_dir or tempfile.mkdtemp(prefix='ament_formation_pty_'))
         self.pty_dir.mkdir(parents=True, exist_ok=True)
         self.boards: list[PtyBoard] = []
         for spec in self.scenario.robots:
             cfg = BoardConfig(hard_torque_limit_nm=spec.params.torque_limit_nm)
-            board = PtyBoard(MotorBoard(cfg, now_s=self.plant_time_s),
-                             link_path=self.pty_dir / f"robot_{spec.id}", clock=self.now_s)
+            board = PtyBoard(
+                MotorBoard(cfg, now_s=self.plant_time_s),
+                link_path=self.pty_dir / f'robot_{spec.id}',
+                clock=self.now_s,
+            )
             board.open()
             self.boards.append(board)
-        self.board_runner = PtyBoardGroup(self.boards, step_period_s=0.005)   # one thread for all
+        self.board_runner = PtyBoardGroup(self.boards, step_period_s=0.005)  # one thread for all
         self.board_runner.start()
 
         # camera
@@ -132,24 +144,32 @@ class WorldNode(Node):
         if self.prm.camera_enabled:
             setup = load_camera_yaml(_camera_path(self.prm.camera_config))
             self._camera_info = camera_info(setup.camera)
-            self.camera = SyntheticCamera(setup.camera, options=RenderOptions(noise_std=self.prm.camera_noise),
-                                          floor=setup.floor)
+            self.camera = SyntheticCamera(
+                setup.camera,
+                options=RenderOptions(noise_std=self.prm.camera_noise),
+                floor=setup.floor,
+            )
             self.frame_period_s = 1.0 / self.scenario.camera.fps
             self.next_frame_s = self.plant_time_s
             self.frames = 0
         self.marker_ids = np.array([r.marker_id for r in self.scenario.robots])
 
-        self.pub_image = self.create_publisher(Image, "/camera/image_raw", QOS_IMAGE)
-        self.pub_camera_info = self.create_publisher(CameraInfo, "/camera/camera_info", QOS_IMAGE)
-        self._truth_msgs: list = [None] * len(self.ids)     # refilled every tick
-        self.pub_truth = [self.create_publisher(msgs.Odometry, f"/world/truth/robot_{i}", QOS_CONTROL)
-                          for i in self.ids]
-        self.pub_clock = self.create_publisher(Clock, "/clock", QOS_CLOCK) if self.sim_clock else None
-        self.create_subscription(String, "/formation/graph", self._on_graph, QOS_GRAPH)
+        self.pub_image = self.create_publisher(Image, '/camera/image_raw', QOS_IMAGE)
+        self.pub_camera_info = self.create_publisher(CameraInfo, '/camera/camera_info', QOS_IMAGE)
+        self._truth_msgs: list = [None] * len(self.ids)  # refilled every tick
+        self.pub_truth = [
+            self.create_publisher(msgs.Odometry, f'/world/truth/robot_{i}', QOS_CONTROL)
+            for i in self.ids
+        ]
+        self.pub_clock = (
+            self.create_publisher(Clock, '/clock', QOS_CLOCK) if self.sim_clock else None
+        )
+        self.create_subscription(String, '/formation/graph', self._on_graph, QOS_GRAPH)
         self._publish_clock()
         self.timer = self.create_timer(self.prm.tick_s / self.prm.speed_factor, self._tick)
         self.get_logger().info(
-            f"world: {len(self.ids)} robots, ptys in {self.pty_dir}, speed x{self.prm.speed_factor:g}")
+            f'world: {len(self.ids)} robots, ptys in {self.pty_dir}, speed x{self.prm.speed_factor:g}'
+        )
 
     # ------------------------------------------------------------------ time
     def now_s(self) -> float:
@@ -171,11 +191,11 @@ class WorldNode(Node):
             graph = msgs.graph_from_msg(msg)
         except ValueError as err:
             self.rejected_graphs += 1
-            self.get_logger().warn(f"/formation/graph: {err}", throttle_duration_sec=5.0)
+            self.get_logger().warn(f'/formation/graph: {err}', throttle_duration_sec=5.0)
             return
         if graph.start_s is not None and self.start_s is None:
             self.start_s = graph.start_s
-            self.get_logger().info(f"mission start at {graph.start_s:.3f} s")
+            self.get_logger().info(f'mission start at {graph.start_s:.3f} s')
 
     def _tick(self) -> None:
         """Advance the plant to the world clock in tick_s steps (at most 5 per call)."""
@@ -196,17 +216,25 @@ class WorldNode(Node):
         if self.overruns != self._overruns_seen[0]:
             self._overruns_seen = (self.overruns, now)
         t = self.scenario_time_s()
-        values = {"ticks": self.ticks, "overruns": self.overruns, "plant_time_s": self.plant_time_s,
-                  "scenario_time_s": "not started" if t is None else t, "rejected_graphs": self.rejected_graphs,
-                  "speed_factor": self.prm.speed_factor}
+        values = {
+            'ticks': self.ticks,
+            'overruns': self.overruns,
+            'plant_time_s': self.plant_time_s,
+            'scenario_time_s': 'not started' if t is None else t,
+            'rejected_graphs': self.rejected_graphs,
+            'speed_factor': self.prm.speed_factor,
+        }
         if self.overruns and now - self._overruns_seen[1] <= 5.0:
-            return diag.WARN, "behind real time: plant steps dropped", values
-        return diag.OK, "waiting for the mission start" if t is None else "running", values
+            return diag.WARN, 'behind real time: plant steps dropped', values
+        return diag.OK, 'waiting for the mission start' if t is None else 'running', values
 
     def _step_once(self) -> None:
         tick = self.prm.tick_s
-        if (self.start_s is not None and not self.twin.started
-                and self.plant_time_s + 0.5 * self.prm.physics_dt_s >= self.start_s):
+        if (
+            self.start_s is not None
+            and not self.twin.started
+            and self.plant_time_s + 0.5 * self.prm.physics_dt_s >= self.start_s
+        ):
             self.twin.start()
         torque = np.array([b.board.applied_torque_nm for b in self.boards])
         self.twin.advance(tick, torque)
@@ -217,10 +245,11 @@ class WorldNode(Node):
             with b.lock:
                 b.board.set_wheel_state(angles[k], rates[k])
         stamp = msgs.stamp_from_s(self.plant_time_s)
-        for k, rid in enumerate(self.ids):      # ground truth, while anyone listens (evaluation only)
+        for k, rid in enumerate(self.ids):  # ground truth, while anyone listens (evaluation only)
             if self.pub_truth[k].get_subscription_count():
-                self._truth_msgs[k] = msgs.odometry(self.twin.state[k], stamp, f"robot_{rid}",
-                                                    out=self._truth_msgs[k])
+                self._truth_msgs[k] = msgs.odometry(
+                    self.twin.state[k], stamp, f'robot_{rid}', out=self._truth_msgs[k]
+                )
                 self.pub_truth[k].publish(self._truth_msgs[k])
         if self.camera is not None and self.plant_time_s >= self.next_frame_s:
             self._render(stamp)
@@ -230,13 +259,17 @@ class WorldNode(Node):
         t = self.scenario_time_s()
         if self.prm.exit_at_end and t is not None and t >= self.scenario.duration_s:
             self.done = True
-            self.get_logger().info(f"scenario {self.scenario.name} finished at t = {t:.2f} s")
+            self.get_logger().info(f'scenario {self.scenario.name} finished at t = {t:.2f} s')
 
     def _render(self, stamp) -> None:
         obs = self.twin.obstacle_states()
-        frame = self.camera.render(self.twin.state[:, :3], self.marker_ids,
-                                   Obstacles(obs.center_m, obs.semi_axes_m, obs.phi_rad),
-                                   pose_rates=self.twin.pose_rates(), frame_index=self.frames)
+        frame = self.camera.render(
+            self.twin.state[:, :3],
+            self.marker_ids,
+            Obstacles(obs.center_m, obs.semi_axes_m, obs.phi_rad),
+            pose_rates=self.twin.pose_rates(),
+            frame_index=self.frames,
+        )
         self.frames += 1
         self.pub_image.publish(msgs.image_mono8(frame, stamp))
         self._camera_info.header.stamp = stamp
@@ -258,8 +291,8 @@ class WorldNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    return run_node("formation_world", WorldNode, args)
+    return run_node('formation_world', WorldNode, args)
 
 
-if __name__ == "__main__":
+if __name__ == '__main__':
     sys.exit(main())

@@ -1,5 +1,7 @@
 """Spinning helpers shared by tests, benchmarks and the `formation` tool: wait for a condition
-with a timeout instead of sleeping a fixed time."""
+with a timeout instead of sleeping a fixed time.
+"""
+
 from __future__ import annotations
 
 import gc
@@ -30,7 +32,8 @@ def spin_until(
         executor.spin_once(timeout_sec=min(step_s, remaining))
 
 
-# The executor each process spins, chosen by measurement (docs/executors.md, bench/bench_executors.py):
+# The executor each process spins, chosen by measurement (docs/executors.md,
+# bench/bench_executors.py):
 # rclpy's C++ EventsExecutor costs about half the CPU time per callback of the Python
 # SingleThreadedExecutor, which matters on the control path (a robot's board runs the bridge and
 # the controller at 100-200 Hz); where the executor's cost is small next to the work of the
@@ -39,39 +42,44 @@ def spin_until(
 # is how a run is judged), the SingleThreadedExecutor: plain rcl wait sets, with a timeout on
 # every wait. Keys are the process names given to run_node (and the node name of the recorder).
 EXECUTOR_BY_PROCESS: dict[str, str] = {
-    "formation_controller": "events",     # ~430 callbacks/s per robot (control tick, wheels, pose, parent)
-    "formation_bridge": "events",         # 200 Hz serial poll + 100 Hz torque
-    "formation_team": "events",           # several robots' controllers and bridges in one process
-    "formation_world": "single",          # plant + camera: the sim's clock; work >> executor cost
-    "formation_tracker": "single",        # 30 Hz frames: image processing >> executor cost
-    "formation_coordinator": "single",    # graph and arbiter; slow paths, safety-relevant decisions
-    "formation_live_view": "single",
-    "_formation_run_recorder": "single",  # formation run's judge: its stall would hide a failure
+    'formation_controller': 'events',  # ~430 callbacks/s per robot (control tick, wheels, pose, parent)
+    'formation_bridge': 'events',  # 200 Hz serial poll + 100 Hz torque
+    'formation_team': 'events',  # several robots' controllers and bridges in one process
+    'formation_world': 'single',  # plant + camera: the sim's clock; work >> executor cost
+    'formation_tracker': 'single',  # 30 Hz frames: image processing >> executor cost
+    'formation_coordinator': 'single',  # graph and arbiter; slow paths, safety-relevant decisions
+    'formation_live_view': 'single',
+    '_formation_run_recorder': 'single',  # formation run's judge: its stall would hide a failure
 }
-EXECUTOR_ENV = "AMENT_FORMATION_EXECUTOR"  # "single" or "events" overrides the table (experiments)
+EXECUTOR_ENV = 'AMENT_FORMATION_EXECUTOR'  # "single" or "events" overrides the table (experiments)
 
 
 def executor_kind(process: str | None = None, node=None) -> str:
-    """"single" or "events" for ``process`` (a key of EXECUTOR_BY_PROCESS; default: the node's
+    """ "single" or "events" for ``process`` (a key of EXECUTOR_BY_PROCESS; default: the node's
     name): SingleThreadedExecutor on simulated time (the EventsExecutor's timers do not follow
-    /clock in Jazzy), else the environment override, else the table, else "events"."""
+    /clock in Jazzy), else the environment override, else the table, else "events".
+    """
     import os
 
-    if node is not None and node.has_parameter("use_sim_time") and bool(node.get_parameter("use_sim_time").value):
-        return "single"
-    forced = os.environ.get(EXECUTOR_ENV, "").strip().lower()
-    if forced in ("single", "events"):
+    if (
+        node is not None
+        and node.has_parameter('use_sim_time')
+        and bool(node.get_parameter('use_sim_time').value)
+    ):
+        return 'single'
+    forced = os.environ.get(EXECUTOR_ENV, '').strip().lower()
+    if forced in ('single', 'events'):
         return forced
     if process is None and node is not None:
         process = node.get_name()
-    return EXECUTOR_BY_PROCESS.get(process or "", "events")
+    return EXECUTOR_BY_PROCESS.get(process or '', 'events')
 
 
 def make_executor(node=None, context=None, process: str | None = None) -> Executor:
     """The executor for ``process`` (or ``node``'s name), see :func:`executor_kind`."""
     from rclpy.executors import SingleThreadedExecutor
 
-    if executor_kind(process, node) == "single":
+    if executor_kind(process, node) == 'single':
         return SingleThreadedExecutor(context=context)
     try:
         from rclpy.experimental import EventsExecutor
@@ -83,14 +91,15 @@ def make_executor(node=None, context=None, process: str | None = None) -> Execut
 def spin_node(node, process: str | None = None) -> None:
     """Spin ``node`` (and the nodes it hosts, ``node.composed_nodes``, nodes/team.py) until its
     context shuts down (SIGINT/SIGTERM) or it sets ``node.done``, on :func:`make_executor`'s
-    choice for ``process``."""
+    choice for ``process``.
+    """
     executor = make_executor(node, context=node.context, process=process)
-    nodes = [node, *getattr(node, "composed_nodes", ())]
+    nodes = [node, *getattr(node, 'composed_nodes', ())]
     for n in nodes:
         executor.add_node(n)
     try:
         # EventsExecutor.spin() does not return on SIGTERM in Jazzy: loop on spin_once instead
-        while node.context.ok() and not getattr(node, "done", False):
+        while node.context.ok() and not getattr(node, 'done', False):
             executor.spin_once(timeout_sec=0.1)
     except ExternalShutdownException:  # SIGINT/SIGTERM shut the context down: a clean exit
         pass
@@ -102,13 +111,14 @@ def spin_node(node, process: str | None = None) -> None:
 
 def _stack_dump_on_sigusr1() -> None:
     """`kill -USR1 <pid>` writes every thread's Python stack to stderr (the process's log): how a
-    stalled process is diagnosed without stopping it."""
+    stalled process is diagnosed without stopping it.
+    """
     import faulthandler
     import signal
 
     try:
         faulthandler.register(signal.SIGUSR1, all_threads=True)
-    except (AttributeError, ValueError, OSError):   # no SIGUSR1 on this platform
+    except (AttributeError, ValueError, OSError):  # no SIGUSR1 on this platform
         pass
 
 
@@ -116,12 +126,13 @@ def _stop_on_signals(get_node: Callable) -> None:
     """SIGINT/SIGTERM end the spin loop (``node.done``) instead of shutting the context down under
     running callbacks (which then fail to publish: "[FATAL] ... publisher's context is invalid"),
     so that ``on_exit`` and ``destroy_node`` still publish and the context is shut down last. A
-    second signal interrupts at once."""
+    second signal interrupts at once.
+    """
     import signal
 
     def handler(signum, frame):
         node = get_node()
-        if node is None or getattr(node, "done", False):
+        if node is None or getattr(node, 'done', False):
             raise KeyboardInterrupt
         node.done = True
 
@@ -129,19 +140,21 @@ def _stop_on_signals(get_node: Callable) -> None:
     signal.signal(signal.SIGTERM, handler)
 
 
-def run_node(name: str, make_node: Callable, args: list[str] | None = None,
-             on_exit: Callable | None = None) -> int:
+def run_node(
+    name: str, make_node: Callable, args: list[str] | None = None, on_exit: Callable | None = None
+) -> int:
     """The ``main()`` of every node process: init rclpy, build the node, spin it (:func:`spin_node`)
     and shut down cleanly. Bad configuration (ConfigError) prints one line naming it and returns 2;
     SIGINT/SIGTERM return 0. ``on_exit(node)`` runs last, best effort (e.g. a zero-torque command).
     """
     import rclpy
+    from rclpy.signals import SignalHandlerOptions
 
     from ament_formation.core.errors import ConfigError
 
-    from rclpy.signals import SignalHandlerOptions
-
-    rclpy.init(args=args if args is not None else sys.argv, signal_handler_options=SignalHandlerOptions.NO)
+    rclpy.init(
+        args=args if args is not None else sys.argv, signal_handler_options=SignalHandlerOptions.NO
+    )
     node = None
     _stop_on_signals(lambda: node)
     _stack_dump_on_sigusr1()
@@ -155,7 +168,7 @@ def run_node(name: str, make_node: Callable, args: list[str] | None = None,
         spin_node(node, process=name)
         return 0
     except ConfigError as err:
-        print(f"{name}: {err}", file=sys.stderr)
+        print(f'{name}: {err}', file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return 0

@@ -9,6 +9,7 @@
 | QOS_DIAGNOSTICS | /diagnostics                                                     |
 | QOS_CLOCK       | /clock (compatible with rclpy's best-effort time source)         |
 """
+
 from rclpy.qos import (
     DurabilityPolicy,
     HistoryPolicy,

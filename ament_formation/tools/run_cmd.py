@@ -8,22 +8,25 @@ scenario, then computes DIR/metrics.json from the recorded ground truth (core/me
 code as `formation sim`), writes the trajectories (CSV) and DIR/figure.png, and prints a summary.
 DDS stays on loopback (the environment of scripts/ros_env.sh is applied when not already set).
 """
+
 from __future__ import annotations
 
 import argparse
 import math
 import os
+from pathlib import Path
 import re
 import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 from ament_formation.core.errors import ConfigError
 
 _ROOT = Path(__file__).resolve().parents[2]
-TRUTH_GAP_MAX_S = 1.0   # the longest pause [s, scenario time] of the recorded ground truth of a good run
+TRUTH_GAP_MAX_S = (
+    1.0  # the longest pause [s, scenario time] of the recorded ground truth of a good run
+)
 
 
 def check(*args, **kw) -> dict:
@@ -35,38 +38,75 @@ def check(*args, **kw) -> dict:
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
-        "run", help="run a scenario through the whole ROS 2 system (simulated hardware twin)",
-        description="Run SCENARIO.yaml through every node of the system on the simulated twin and write "
-                    "DIR/run.mcap, DIR/metrics.json, DIR/figure.png and the trajectories.")
-    p.add_argument("scenario", metavar="SCENARIO.yaml")
-    p.add_argument("--out", required=True, metavar="DIR", help="run directory (created)")
-    p.add_argument("--speed", type=float, default=1.0,
-                   help="sim seconds per wall second (!= 1 uses /clock and use_sim_time; default 1)")
-    p.add_argument("--team", type=int, default=None, metavar="K",
-                   help="compose K robots' bridge and controller nodes per process (formation_team; "
-                        "ceil(N/K) processes instead of 2 per robot: for many robots on one machine). "
-                        "Default: one bridge and one controller process per robot")
-    p.add_argument("--control-nice", type=int, default=None, metavar="N",
-                   help="run the bridge/controller (or team) processes under `nice -n N` (-20..19; "
-                        "negative puts the control loops before the world, tracker and coordinator; "
-                        "needs root or CAP_SYS_NICE)")
-    p.add_argument("--record-images", action="store_true", help="also record /camera/image_raw")
-    p.add_argument("--live", nargs="?", type=int, const=8765, default=None, metavar="PORT",
-                   help="watch the run live in Foxglove: formation_live_view on ws://127.0.0.1:PORT "
-                        "(default 8765; 0 = any free port, see DIR/processes/live_view.log; docs/live_view.md)")
-    p.add_argument("--live-host", default=None, metavar="HOST",
-                   help="bind the live view to HOST instead of 127.0.0.1 (e.g. the lab address; implies --live)")
-    p.add_argument("--no-figure", action="store_true", help="skip figure.png")
-    p.add_argument("--quiet", action="store_true", help="no progress and no summary")
-    p.add_argument("--startup-timeout", type=float, default=90.0, metavar="S",
-                   help="give up when the mission has not started after S wall seconds (default 90)")
-    p.add_argument("--stall-timeout", type=float, default=20.0, metavar="S",
-                   help="give up when the world's ground truth has not advanced for S wall seconds "
-                        "after the start (a frozen process; default 20)")
+        'run',
+        help='run a scenario through the whole ROS 2 system (simulated hardware twin)',
+        description='Run SCENARIO.yaml through every node of the system on the simulated twin and write '
+        'DIR/run.mcap, DIR/metrics.json, DIR/figure.png and the trajectories.',
+    )
+    p.add_argument('scenario', metavar='SCENARIO.yaml')
+    p.add_argument('--out', required=True, metavar='DIR', help='run directory (created)')
+    p.add_argument(
+        '--speed',
+        type=float,
+        default=1.0,
+        help='sim seconds per wall second (!= 1 uses /clock and use_sim_time; default 1)',
+    )
+    p.add_argument(
+        '--team',
+        type=int,
+        default=None,
+        metavar='K',
+        help="compose K robots' bridge and controller nodes per process (formation_team; "
+        'ceil(N/K) processes instead of 2 per robot: for many robots on one machine). '
+        'Default: one bridge and one controller process per robot',
+    )
+    p.add_argument(
+        '--control-nice',
+        type=int,
+        default=None,
+        metavar='N',
+        help='run the bridge/controller (or team) processes under `nice -n N` (-20..19; '
+        'negative puts the control loops before the world, tracker and coordinator; '
+        'needs root or CAP_SYS_NICE)',
+    )
+    p.add_argument('--record-images', action='store_true', help='also record /camera/image_raw')
+    p.add_argument(
+        '--live',
+        nargs='?',
+        type=int,
+        const=8765,
+        default=None,
+        metavar='PORT',
+        help='watch the run live in Foxglove: formation_live_view on ws://127.0.0.1:PORT '
+        '(default 8765; 0 = any free port, see DIR/processes/live_view.log; docs/live_view.md)',
+    )
+    p.add_argument(
+        '--live-host',
+        default=None,
+        metavar='HOST',
+        help='bind the live view to HOST instead of 127.0.0.1 (e.g. the lab address; implies --live)',
+    )
+    p.add_argument('--no-figure', action='store_true', help='skip figure.png')
+    p.add_argument('--quiet', action='store_true', help='no progress and no summary')
+    p.add_argument(
+        '--startup-timeout',
+        type=float,
+        default=90.0,
+        metavar='S',
+        help='give up when the mission has not started after S wall seconds (default 90)',
+    )
+    p.add_argument(
+        '--stall-timeout',
+        type=float,
+        default=20.0,
+        metavar='S',
+        help="give up when the world's ground truth has not advanced for S wall seconds "
+        'after the start (a frozen process; default 20)',
+    )
     p.set_defaults(func=run_system)
 
 
-_DOMAIN_LOCK = None   # the open lock file of the domain this process took (held until exit)
+_DOMAIN_LOCK = None  # the open lock file of the domain this process took (held until exit)
 
 
 def _free_domain_id() -> str:
@@ -75,13 +115,15 @@ def _free_domain_id() -> str:
     import fcntl
 
     first = (os.getpid() + time.time_ns() // 1000) % 200
-    lock_dir = Path(os.environ.get("AF_DOMAIN_LOCK_DIR")
-                    or Path(os.environ.get("TMPDIR") or "/tmp") / "ament_formation_domains")
+    lock_dir = Path(
+        os.environ.get('AF_DOMAIN_LOCK_DIR')
+        or Path(os.environ.get('TMPDIR') or '/tmp') / 'ament_formation_domains'
+    )
     try:
         lock_dir.mkdir(parents=True, exist_ok=True)
         for i in range(200):
             d = (first + i) % 200 + 1
-            f = open(lock_dir / f"{d}.lock", "a")
+            f = open(lock_dir / f'{d}.lock', 'a')
             try:
                 fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except OSError:
@@ -96,17 +138,20 @@ def _free_domain_id() -> str:
 
 def loopback_env(log_dir: Path) -> None:
     """The environment of scripts/ros_env.sh, for callers that did not source it."""
-    profile = str(_ROOT / "config" / "fastdds_localhost.xml")
+    profile = str(_ROOT / 'config' / 'fastdds_localhost.xml')
     env = os.environ
-    if (env.get("AMENT_FORMATION_DDS") == "udp" and not env.get("ROS_AUTOMATIC_DISCOVERY_RANGE")
-            and env.get("FASTRTPS_DEFAULT_PROFILES_FILE", profile) == profile):
-        env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "SUBNET"   # loopback UDP only (see ros_env.sh)
-    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    os.environ.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", profile)
-    os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
-    if not os.environ.get("ROS_DOMAIN_ID"):
-        os.environ["ROS_DOMAIN_ID"] = _free_domain_id()
-    os.environ.setdefault("ROS_LOG_DIR", str(log_dir))
+    if (
+        env.get('AMENT_FORMATION_DDS') == 'udp'
+        and not env.get('ROS_AUTOMATIC_DISCOVERY_RANGE')
+        and env.get('FASTRTPS_DEFAULT_PROFILES_FILE', profile) == profile
+    ):
+        env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'SUBNET'  # loopback UDP only (see ros_env.sh)
+    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    os.environ.setdefault('FASTRTPS_DEFAULT_PROFILES_FILE', profile)
+    os.environ.setdefault('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp')
+    if not os.environ.get('ROS_DOMAIN_ID'):
+        os.environ['ROS_DOMAIN_ID'] = _free_domain_id()
+    os.environ.setdefault('ROS_LOG_DIR', str(log_dir))
 
 
 class _Progress:
@@ -120,34 +165,36 @@ class _Progress:
         if now < self.next:
             return
         self.next = now + (0.5 if self.tty else 5.0)
-        self.stream.write(("\r" if self.tty else "") + text + ("" if self.tty else "\n"))
+        self.stream.write(('\r' if self.tty else '') + text + ('' if self.tty else '\n'))
         self.stream.flush()
 
     def finish(self) -> None:
         if self.tty:
-            self.stream.write("\n")
+            self.stream.write('\n')
 
 
 def run_system(args: argparse.Namespace) -> int:
     from ament_formation.core.scenario import load_scenario
 
     if not (math.isfinite(args.speed) and 0.05 <= args.speed <= 50.0):
-        raise ConfigError(f"must be in [0.05, 50] (got {args.speed})", "--speed")
+        raise ConfigError(f'must be in [0.05, 50] (got {args.speed})', '--speed')
     if args.team is not None and args.team < 1:
-        raise ConfigError(f"must be a positive integer (robots per process; got {args.team})", "--team")
+        raise ConfigError(
+            f'must be a positive integer (robots per process; got {args.team})', '--team'
+        )
     if args.control_nice is not None and not -20 <= args.control_nice <= 19:
-        raise ConfigError(f"must be in [-20, 19] (got {args.control_nice})", "--control-nice")
+        raise ConfigError(f'must be in [-20, 19] (got {args.control_nice})', '--control-nice')
     if args.live is not None and not 0 <= args.live <= 65535:
-        raise ConfigError(f"must be a TCP port in [0, 65535] (got {args.live})", "--live")
+        raise ConfigError(f'must be a TCP port in [0, 65535] (got {args.live})', '--live')
     out = Path(args.out).resolve()
     if out.exists() and not out.is_dir():
-        raise ConfigError("exists and is not a directory", "--out", str(out))
+        raise ConfigError('exists and is not a directory', '--out', str(out))
     scenario = load_scenario(args.scenario)
     out.mkdir(parents=True, exist_ok=True)
-    loopback_env(out / "ros_log")
+    loopback_env(out / 'ros_log')
     from ament_formation.ros import shm
 
-    shm_before = shm.snapshot()     # what this run leaves in /dev/shm is removed at its end
+    shm_before = shm.snapshot()  # what this run leaves in /dev/shm is removed at its end
 
     import rclpy
     from rclpy.context import Context
@@ -159,20 +206,27 @@ def run_system(args: argparse.Namespace) -> int:
     from ament_formation.ros.qos import QOS_CONTROL, QOS_GRAPH
     from ament_formation.ros.recorder import McapWriter, TopicRecorder
 
-    mcap_path = out / "run.mcap"
+    mcap_path = out / 'run.mcap'
     if mcap_path.exists():
         mcap_path.unlink()
     ctx = Context()
     rclpy.init(context=ctx)
     use_sim_time = args.speed != 1.0
-    node = rclpy.create_node("_formation_run_recorder", context=ctx,
-                             parameter_overrides=[Parameter("use_sim_time", value=use_sim_time)])
-    executor = make_executor(node, context=ctx)   # SingleThreadedExecutor (ros/executors.py: the judge must not stall)
+    node = rclpy.create_node(
+        '_formation_run_recorder',
+        context=ctx,
+        parameter_overrides=[Parameter('use_sim_time', value=use_sim_time)],
+    )
+    executor = make_executor(
+        node, context=ctx
+    )  # SingleThreadedExecutor (ros/executors.py: the judge must not stall)
     executor.add_node(node)
-    exclude = ["/rosout", "/parameter_events"] + ([] if args.record_images else ["/camera/image_raw"])
+    exclude = ['/rosout', '/parameter_events'] + (
+        [] if args.record_images else ['/camera/image_raw']
+    )
     recorder = TopicRecorder(node, McapWriter(mcap_path), exclude=exclude, scan_period_s=0.25)
-    start = {"s": None}
-    latest = {"s": None}
+    start = {'s': None}
+    latest = {'s': None}
 
     def on_graph(msg):
         try:
@@ -180,69 +234,105 @@ def run_system(args: argparse.Namespace) -> int:
         except ValueError:
             return
         if g.start_s is not None:
-            start["s"] = g.start_s
+            start['s'] = g.start_s
 
-    node.create_subscription(String, "/formation/graph", on_graph, QOS_GRAPH)
+    node.create_subscription(String, '/formation/graph', on_graph, QOS_GRAPH)
     leader = scenario.robots[0].id
-    node.create_subscription(msgs.Odometry, f"/world/truth/robot_{leader}",
-                             lambda m: latest.__setitem__("s", msgs.stamp_to_s(m.header.stamp)), QOS_CONTROL)
+    node.create_subscription(
+        msgs.Odometry,
+        f'/world/truth/robot_{leader}',
+        lambda m: latest.__setitem__('s', msgs.stamp_to_s(m.header.stamp)),
+        QOS_CONTROL,
+    )
 
     wall0 = time.monotonic()
-    proc_dir = out / "processes"
+    proc_dir = out / 'processes'
     launch = subprocess.Popen(
-        [str(_ROOT / "scripts" / "launch_sim.sh"), str(Path(args.scenario).resolve()),
-         "--run-dir", str(proc_dir), "--speed", repr(float(args.speed))]
-        + ([] if args.team is None else ["--team", str(args.team)])
-        + ([] if args.control_nice is None else ["--control-nice", str(args.control_nice)])
-        + ([] if args.live is None and args.live_host is None
-           else ["--live", str(8765 if args.live is None else args.live)])
-        + ([] if args.live_host is None else ["--live-host", args.live_host]),
-        stdout=open(out / "launch.log", "w"), stderr=subprocess.STDOUT, start_new_session=True)
+        [
+            str(_ROOT / 'scripts' / 'launch_sim.sh'),
+            str(Path(args.scenario).resolve()),
+            '--run-dir',
+            str(proc_dir),
+            '--speed',
+            repr(float(args.speed)),
+        ]
+        + ([] if args.team is None else ['--team', str(args.team)])
+        + ([] if args.control_nice is None else ['--control-nice', str(args.control_nice)])
+        + (
+            []
+            if args.live is None and args.live_host is None
+            else ['--live', str(8765 if args.live is None else args.live)]
+        )
+        + ([] if args.live_host is None else ['--live-host', args.live_host]),
+        stdout=open(out / 'launch.log', 'w'),
+        stderr=subprocess.STDOUT,
+        start_new_session=True,
+    )
     progress = None if args.quiet else _Progress(sys.stderr, scenario.duration_s)
     status = 0
-    stop_reason = None                  # why this process stopped the system early (a failed check)
-    last_truth = {"s": None, "wall": None}
-    live_log = proc_dir / "live_view.log" if (args.live, args.live_host) != (None, None) else None
+    stop_reason = None  # why this process stopped the system early (a failed check)
+    last_truth = {'s': None, 'wall': None}
+    live_log = proc_dir / 'live_view.log' if (args.live, args.live_host) != (None, None) else None
     try:
         while launch.poll() is None:
             executor.spin_once(timeout_sec=0.05)
-            if live_log is not None and not args.quiet and live_log.exists():   # say where to look, once
-                url = next((w for w in live_log.read_text().split() if w.startswith("ws://")), None)
+            if (
+                live_log is not None and not args.quiet and live_log.exists()
+            ):  # say where to look, once
+                url = next(
+                    (w for w in live_log.read_text().split() if w.startswith('ws://')), None
+                )
                 if url is not None:
-                    print(f"run: live view on {url} (Foxglove: open a Foxglove WebSocket connection)",
-                          file=sys.stderr)
+                    print(
+                        f'run: live view on {url} (Foxglove: open a Foxglove WebSocket connection)',
+                        file=sys.stderr,
+                    )
                     live_log = None
             if progress is not None:
-                if start["s"] is None or latest["s"] is None:
-                    progress(f"run: starting the system ({time.monotonic() - wall0:4.1f} s)")
+                if start['s'] is None or latest['s'] is None:
+                    progress(f'run: starting the system ({time.monotonic() - wall0:4.1f} s)')
                 else:
-                    t = max(0.0, latest["s"] - start["s"])
-                    progress(f"run: t = {t:6.1f} / {scenario.duration_s:.1f} s, "
-                             f"{recorder.writer.message_count} messages recorded")
+                    t = max(0.0, latest['s'] - start['s'])
+                    progress(
+                        f'run: t = {t:6.1f} / {scenario.duration_s:.1f} s, '
+                        f'{recorder.writer.message_count} messages recorded'
+                    )
             now = time.monotonic()
-            if start["s"] is None and now - wall0 > args.startup_timeout:
-                stop_reason = check("started", False, round(now - wall0, 2), args.startup_timeout, "<=",
-                                    f"the mission did not start within {args.startup_timeout:g} s; "
-                                    f"see {proc_dir}/*.log")
+            if start['s'] is None and now - wall0 > args.startup_timeout:
+                stop_reason = check(
+                    'started',
+                    False,
+                    round(now - wall0, 2),
+                    args.startup_timeout,
+                    '<=',
+                    f'the mission did not start within {args.startup_timeout:g} s; '
+                    f'see {proc_dir}/*.log',
+                )
                 break
-            if latest["s"] != last_truth["s"]:
-                last_truth.update(s=latest["s"], wall=now)
-            elif start["s"] is not None and now - (last_truth["wall"] or now) > args.stall_timeout:
-                t = None if latest["s"] is None else latest["s"] - start["s"]
-                where = "before the first sample" if t is None else f"at t = {t:.2f} s"
-                stop_reason = check("stalled", False, round(now - last_truth["wall"], 2), args.stall_timeout, "<=",
-                                    f"no ground truth for {now - last_truth['wall']:.0f} s {where} (a frozen "
-                                    f"process or recorder); see {proc_dir}/*.log")
+            if latest['s'] != last_truth['s']:
+                last_truth.update(s=latest['s'], wall=now)
+            elif start['s'] is not None and now - (last_truth['wall'] or now) > args.stall_timeout:
+                t = None if latest['s'] is None else latest['s'] - start['s']
+                where = 'before the first sample' if t is None else f'at t = {t:.2f} s'
+                stop_reason = check(
+                    'stalled',
+                    False,
+                    round(now - last_truth['wall'], 2),
+                    args.stall_timeout,
+                    '<=',
+                    f'no ground truth for {now - last_truth["wall"]:.0f} s {where} (a frozen '
+                    f'process or recorder); see {proc_dir}/*.log',
+                )
                 break
-            if start["s"] is not None and last_truth["wall"] is None:
-                last_truth["wall"] = now       # the stall clock runs from the start
+            if start['s'] is not None and last_truth['wall'] is None:
+                last_truth['wall'] = now  # the stall clock runs from the start
         launch_rc = launch.poll()
     except KeyboardInterrupt:
         status = 130
         launch_rc = None
     finally:
         if launch.poll() is None:
-            launch.send_signal(signal.SIGTERM)   # launch_sim.sh stops every process it started
+            launch.send_signal(signal.SIGTERM)  # launch_sim.sh stops every process it started
             try:
                 launch.wait(timeout=15)
             except subprocess.TimeoutExpired:
@@ -254,40 +344,58 @@ def run_system(args: argparse.Namespace) -> int:
         executor.shutdown(timeout_sec=1.0)
         node.destroy_node()
         rclpy.try_shutdown(context=ctx)
-        shm.cleanup(shm_before, ignore_pid=os.getpid())   # this process is done with DDS
+        shm.cleanup(shm_before, ignore_pid=os.getpid())  # this process is done with DDS
     wall_s = time.monotonic() - wall0
     if status:
         return status
-    extra = [stop_reason] if stop_reason is not None else [_process_check(out / "launch.log", launch_rc, proc_dir)]
+    extra = (
+        [stop_reason]
+        if stop_reason is not None
+        else [_process_check(out / 'launch.log', launch_rc, proc_dir)]
+    )
     return _evaluate(mcap_path, scenario, out, wall_s, args, extra)
 
 
-_EXIT_RE = re.compile(r"^(\S+) exited with status (-?\d+)$", re.M)
+_EXIT_RE = re.compile(r'^(\S+) exited with status (-?\d+)$', re.M)
 
 
 def _process_check(launch_log: Path, launch_rc, proc_dir: Path) -> dict:
     """The ``processes`` check: a run ends well when the world is the first process to exit, with
     status 0 (it finished the scenario); any other first exit (a crash, a kill, a process stopped
-    by a signal) names the process, its status and its log."""
+    by a signal) names the process, its status and its log.
+    """
     try:
         found = _EXIT_RE.search(launch_log.read_text())
     except OSError:
         found = None
     if found is None:
-        return check("processes", False, f"launch status {launch_rc}", "world:0", "==",
-                     f"the launcher ended (status {launch_rc}) before any process exited; see {launch_log}")
+        return check(
+            'processes',
+            False,
+            f'launch status {launch_rc}',
+            'world:0',
+            '==',
+            f'the launcher ended (status {launch_rc}) before any process exited; see {launch_log}',
+        )
     name, rc = found.group(1), int(found.group(2))
-    if name == "world" and rc == 0:
-        return check("processes", True, "world:0", "world:0", "==")
-    how = f"was killed by signal {rc - 128}" if rc > 128 else f"exited with status {rc}"
-    return check("processes", False, f"{name}:{rc}", "world:0", "==",
-                 f"{name} {how} before the world finished; see {proc_dir / (name + '.log')}")
+    if name == 'world' and rc == 0:
+        return check('processes', True, 'world:0', 'world:0', '==')
+    how = f'was killed by signal {rc - 128}' if rc > 128 else f'exited with status {rc}'
+    return check(
+        'processes',
+        False,
+        f'{name}:{rc}',
+        'world:0',
+        '==',
+        f'{name} {how} before the world finished; see {proc_dir / (name + ".log")}',
+    )
 
 
 def _evaluate(mcap_path: Path, scenario, out: Path, wall_s: float, args, extra: list[dict]) -> int:
     """Metrics from the recording, the checks (core/metrics.check_run: every run's, the scenario's
     ``expect:`` and ``extra``), metrics.json, figure, summary. Exit status 0 exactly when
-    metrics.json says ``"ok": true``; otherwise one line on stderr names what failed."""
+    metrics.json says ``"ok": true``; otherwise one line on stderr names what failed.
+    """
     from ament_formation.core.metrics import check_run, compute_metrics
     from ament_formation.core.records import write_metrics, write_run
     from ament_formation.ros.run_record import load_run
@@ -295,45 +403,66 @@ def _evaluate(mcap_path: Path, scenario, out: Path, wall_s: float, args, extra: 
     stats: dict = {}
     try:
         result = load_run(mcap_path, scenario, stats=stats)
-    except ValueError as err:     # nothing to evaluate: metrics.json still says why
-        extra = [*extra, check("recorded", False, None, None, "==", str(err))]
-        metrics = {"scenario": scenario.name, "sim_time_s": 0.0, "wall_time_s": wall_s,
-                   "source": "formation run (ROS 2 system, ground truth of the simulated twin)"}
+    except ValueError as err:  # nothing to evaluate: metrics.json still says why
+        extra = [*extra, check('recorded', False, None, None, '==', str(err))]
+        metrics = {
+            'scenario': scenario.name,
+            'sim_time_s': 0.0,
+            'wall_time_s': wall_s,
+            'source': 'formation run (ROS 2 system, ground truth of the simulated twin)',
+        }
         check_run(metrics, scenario, extra=extra, measured=False)
         write_metrics(out, metrics)
-        print(f"formation run: FAILED: {metrics['failure']}", file=sys.stderr)
+        print(f'formation run: FAILED: {metrics["failure"]}', file=sys.stderr)
         return 1
     result.wall_time_s = wall_s
     metrics = compute_metrics(result, scenario)
-    metrics["wall_time_s"] = wall_s
-    metrics["source"] = "formation run (ROS 2 system, ground truth of the simulated twin)"
-    metrics["truth_max_gap_s"] = stats.get("truth_max_gap_s")
-    gap = stats.get("truth_max_gap_s")
-    extra = [*extra, check("truth_gap_s", gap is not None and gap <= TRUTH_GAP_MAX_S, gap, TRUTH_GAP_MAX_S, "<=",
-                           f"the recorded ground truth stops for {gap or 0:.2f} s at t = "
-                           f"{stats.get('truth_max_gap_at_s') or 0:.2f} s (a stalled world or recorder)")]
-    for rid, spans in (stats.get("safety_stops") or {}).items():   # stop-and-go (ros/run_record.py)
-        robot = metrics["robots"][str(rid)]
-        robot["safety_stops"] = len(spans)
-        robot["safety_stop_time_s"] = float(sum(b - a for a, b in spans))
-    torque_gaps = stats.get("torque_max_gap_s") or {}
-    metrics["torque_max_gap_s"] = {str(k): v for k, v in torque_gaps.items()}
+    metrics['wall_time_s'] = wall_s
+    metrics['source'] = 'formation run (ROS 2 system, ground truth of the simulated twin)'
+    metrics['truth_max_gap_s'] = stats.get('truth_max_gap_s')
+    gap = stats.get('truth_max_gap_s')
+    extra = [
+        *extra,
+        check(
+            'truth_gap_s',
+            gap is not None and gap <= TRUTH_GAP_MAX_S,
+            gap,
+            TRUTH_GAP_MAX_S,
+            '<=',
+            f'the recorded ground truth stops for {gap or 0:.2f} s at t = '
+            f'{stats.get("truth_max_gap_at_s") or 0:.2f} s (a stalled world or recorder)',
+        ),
+    ]
+    for rid, spans in (stats.get('safety_stops') or {}).items():  # stop-and-go (ros/run_record.py)
+        robot = metrics['robots'][str(rid)]
+        robot['safety_stops'] = len(spans)
+        robot['safety_stop_time_s'] = float(sum(b - a for a, b in spans))
+    torque_gaps = stats.get('torque_max_gap_s') or {}
+    metrics['torque_max_gap_s'] = {str(k): v for k, v in torque_gaps.items()}
     if torque_gaps:
         rid, worst = max(torque_gaps.items(), key=lambda kv: kv[1])
-        extra.append(check("control_gap_s", worst <= TRUTH_GAP_MAX_S, worst, TRUTH_GAP_MAX_S, "<=",
-                           f"robot {rid}'s wheel torque commands stop for {worst:.2f} s (a stalled or dead "
-                           f"controller or recorder)"))
+        extra.append(
+            check(
+                'control_gap_s',
+                worst <= TRUTH_GAP_MAX_S,
+                worst,
+                TRUTH_GAP_MAX_S,
+                '<=',
+                f"robot {rid}'s wheel torque commands stop for {worst:.2f} s (a stalled or dead "
+                f'controller or recorder)',
+            )
+        )
     check_run(metrics, scenario, extra=extra)
     write_run(out, result, scenario, metrics)
     if not args.no_figure:
         from ament_formation.core.plot import render_figure
 
-        render_figure(result, scenario, out / "figure.png")
+        render_figure(result, scenario, out / 'figure.png')
     if not args.quiet:
         from ament_formation.tools.sim_cmd import _summary
 
-        print(_summary(metrics, out, figure=not args.no_figure, first=("run.mcap",)))
-    if not metrics["ok"]:
-        print(f"formation run: FAILED: {metrics['failure']}", file=sys.stderr)
+        print(_summary(metrics, out, figure=not args.no_figure, first=('run.mcap',)))
+    if not metrics['ok']:
+        print(f'formation run: FAILED: {metrics["failure"]}', file=sys.stderr)
         return 1
     return 0
