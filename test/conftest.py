@@ -49,6 +49,82 @@ def _numba_kernels_compiled_once():
     )
 
 
+_DOMAIN_LOCKS = Path(os.environ.get('TMPDIR', '/tmp')) / 'ament_formation_domains'
+_SHM = Path('/dev/shm')
+_SHM_PREFIXES = ('fastrtps_', 'sem.fastrtps_')
+
+
+def _take_free_domain(avoid: int) -> tuple[int, int] | None:
+    """A DDS domain id in 1..200 that no other run on this machine holds: (id, fd of its lock).
+
+    The lock files of scripts/ros_env.sh (flock on ``<id>.lock``, released when the fd closes).
+    """
+    import fcntl
+    import random
+
+    try:
+        _DOMAIN_LOCKS.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        return None
+    first = random.randrange(200)
+    for i in range(200):
+        domain = (first + i) % 200 + 1
+        if domain == avoid:
+            continue
+        fd = os.open(_DOMAIN_LOCKS / f'{domain}.lock', os.O_CREAT | os.O_WRONLY | os.O_APPEND)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return domain, fd
+        except OSError:
+            os.close(fd)
+    return None
+
+
+def _fast_dds_segments() -> set[str]:
+    try:
+        return {p.name for p in _SHM.iterdir() if p.name.startswith(_SHM_PREFIXES)}
+    except OSError:
+        return set()
+
+
+def _mapped_segments() -> set[str]:
+    mapped = set()
+    for maps in Path('/proc').glob('[0-9]*/maps'):
+        try:
+            text = maps.read_text()
+        except OSError:
+            continue
+        mapped.update(line.rsplit('/dev/shm/', 1)[1] for line in text.splitlines()
+                      if '/dev/shm/' in line)
+    return mapped
+
+
+@pytest.fixture(scope='module', autouse=True)
+def _module_dds_domain():
+    """Each test module on a DDS domain of its own, and the Fast DDS shared memory its processes
+    left (a killed process leaves its port segments and, possibly locked, port mutexes) removed
+    once nobody maps it: a later module never meets a dead participant's segments.
+    """
+    session_domain = os.environ['ROS_DOMAIN_ID']
+    taken = _take_free_domain(int(session_domain))
+    if taken is not None:
+        os.environ['ROS_DOMAIN_ID'] = str(taken[0])
+    before = _fast_dds_segments()
+    try:
+        yield
+    finally:
+        os.environ['ROS_DOMAIN_ID'] = session_domain
+        left = _fast_dds_segments() - before
+        if left:
+            for name in left - _mapped_segments():
+                try:
+                    (_SHM / name).unlink()
+                except OSError:
+                    pass
+        if taken is not None:
+            os.close(taken[1])
+
+
 @pytest.fixture
 def ros_context():
     """A private rclpy Context on this run's domain; shut down after the test."""
