@@ -29,6 +29,7 @@ import csv
 import json
 import os
 from pathlib import Path
+import signal
 import subprocess
 import sys
 import time
@@ -134,7 +135,8 @@ def one_run(k: int, scenario: Path, out: Path, label: str, args) -> dict:
         agree = bool(row['failure']) and row['failure'] in row['stderr_last']
     row['agrees'] = bool(agree)
     print(
-        f'{label} run {k:2d}: rc {rc}, ok {row["ok"]}, sim {row.get("sim_time_s") or 0:5.1f} s in {wall:5.1f} s '
+        f'{label} run {k:2d}: rc {rc}, ok {row["ok"]}, '
+        f'sim {row.get("sim_time_s") or 0:5.1f} s in {wall:5.1f} s '
         f'wall, load {load0:4.1f}, frozen {row["frozen"]}, agrees {row["agrees"]}, rms>=10s '
         + ', '.join(
             f'R{r} {1e3 * v:.1f} mm'
@@ -239,6 +241,8 @@ def main() -> int:
     rows = report['rows']
     for k in range(args.quiet_runs):
         rows.append(one_run(k, scenario, out, 'quiet ', args))
+    # SIGTERM ends the soak through the finally below (the hogs are killed), as Ctrl-C does
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     hogs = [subprocess.Popen([sys.executable, '-c', 'while 1: pass']) for _ in range(args.hogs)]
     report['hog_pids'] = [h.pid for h in hogs]
     try:
@@ -273,12 +277,16 @@ def summarize(report: dict, out: Path, args) -> int:
     (out / 'soak.json').write_text(json.dumps(report, indent=1))
     loads = [r['load_before'] for r in rows]
     print(
-        f'\nsoak of {Path(report["scenario"]).name}: {len(loaded)} runs with {report["hogs"]} hogs, '
-        f'{len(quiet)} quiet runs (load average before a run: {min(loads):.1f} to {max(loads):.1f})'
+        f'\nsoak of {Path(report["scenario"]).name}: '
+        f'{len(loaded)} runs with {report["hogs"]} hogs, '
+        f'{len(quiet)} quiet runs '
+        f'(load average before a run: {min(loads):.1f} to {max(loads):.1f})'
     )
     print(
-        f'  frozen runs (a pause > {args.frozen_gap_s:g} s, a stall, a hang): {summary["frozen"]} / {len(loaded)}; '
-        f'hiccups (a pause of 1 to {args.frozen_gap_s:g} s): {summary["hiccups"]}; passed their checks: '
+        f'  frozen runs (a pause > {args.frozen_gap_s:g} s, a stall, a hang): '
+        f'{summary["frozen"]} / {len(loaded)}; '
+        f'hiccups (a pause of 1 to {args.frozen_gap_s:g} s): {summary["hiccups"]}; '
+        'passed their checks: '
         f'{summary["ok"]} / {len(loaded)}; exit status agrees with metrics.json: '
         f'{summary["exit_status_agrees_with_metrics"]} / {len(rows)}; did not start within '
         f'--startup-timeout: {summary["not_started"]}'
@@ -296,7 +304,8 @@ def summarize(report: dict, out: Path, args) -> int:
         for rid in sorted(set(ref) | set(q) | set(ld)):
             r = ref.get(rid)
             print(
-                f'    R{rid}: sim {"n/a" if r is None else f"{1e3 * r:.1f} mm"}; quiet {spread(q.get(rid, []))}; '
+                f'    R{rid}: sim {"n/a" if r is None else f"{1e3 * r:.1f} mm"}; '
+                f'quiet {spread(q.get(rid, []))}; '
                 f'loaded {spread(ld.get(rid, []))}'
             )
     for f in summary['failures']:
