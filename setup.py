@@ -35,7 +35,9 @@ setup(
     zip_safe=True,
     maintainer='ament_formation maintainers',
     maintainer_email='maintainers@ament-formation.invalid',
-    description='Sliding-mode formation control with elliptical limit-cycle avoidance (ROS 2 Jazzy).',
+    description=(
+        'Sliding-mode formation control with elliptical limit-cycle avoidance (ROS 2 Jazzy).'
+    ),
     license='Apache-2.0',
     entry_points={
         'console_scripts': [

@@ -190,7 +190,9 @@ class DiagProbe:
     COUNTERS = ('ticks', 'late_ticks', 'camera_accepted', 'rejected_outlier', 'rejected_stale')
 
     def ticks(self) -> dict[str, tuple[int, ...]]:
-        """Per robot: the :data:`COUNTERS` (ticks, late ticks, camera poses accepted / rejected)."""
+        """Per robot: the :data:`COUNTERS` (ticks, late ticks, camera poses accepted /
+        rejected).
+        """
         return {k: tuple(int(v.get(c, 0)) for c in self.COUNTERS) for k, v in self.values.items()}
 
     def close(self) -> None:
@@ -517,7 +519,10 @@ def main() -> int:
         const=25.0,
         default=None,
         metavar='PCT',
-        help="also run with every robot's processes under a CPU quota of PCT %% of a core (default 25)",
+        help=(
+            "also run with every robot's processes under a CPU quota of PCT %% of a core "
+            '(default 25)'
+        ),
     )
     ap.add_argument(
         '--paper',
@@ -551,14 +556,16 @@ def main() -> int:
             args.rt_priority
         )  # formation run -> launch_sim.sh
     print(
-        f'load average before: {os.getloadavg()}; {os.cpu_count()} cores; options: {" ".join(extra) or "none"}'
+        f'load average before: {os.getloadavg()}; {os.cpu_count()} cores; '
+        f'options: {" ".join(extra) or "none"}'
     )
     try:
         conditions = ([] if args.no_idle else [None]) + ([args.quota] if args.quota else [])
         if conditions:
             if True:
                 print(
-                    f'{"layout":7} {"quota":>6} {"robot":>5} {"CPU %":>7} {"RSS MB":>7} {"ticks":>6} {"late":>5} '
+                    f'{"layout":7} {"quota":>6} {"robot":>5} {"CPU %":>7} {"RSS MB":>7} '
+                    f'{"ticks":>6} {"late":>5} '
                     f'{"late %":>7}  camera poses accepted/outlier/stale'
                 )
                 for q in conditions:
@@ -578,13 +585,16 @@ def main() -> int:
                                 else float('nan')
                             )
                             print(
-                                f'{layout:7} {q or "-":>6} {i:5d} {row["cpu_pct"]:7.1f} {row["rss_mb"]:7.0f} '
-                                f'{row["ticks"]:6d} {row["late"]:5d} {pct:7.2f}  {"/".join(map(str, row["camera"]))}'
+                                f'{layout:7} {q or "-":>6} {i:5d} {row["cpu_pct"]:7.1f} '
+                                f'{row["rss_mb"]:7.0f} '
+                                f'{row["ticks"]:6d} {row["late"]:5d} {pct:7.2f}  '
+                                f'{"/".join(map(str, row["camera"]))}'
                             )
                         if r['throttled']:
                             print(f'        cgroup throttling in the window: {r["throttled"]}')
                         print(
-                            f'        (window {r["window_s"]:.1f} s, load average {os.getloadavg()[0]:.1f})'
+                            f'        (window {r["window_s"]:.1f} s, '
+                            f'load average {os.getloadavg()[0]:.1f})'
                         )
         for cond in args.paper or ():
             r = paper_run(
@@ -605,7 +615,8 @@ def main() -> int:
                 )
                 + ', avoidance entries '
                 + ', '.join(f'R{k} {v["entries"]}' for k, v in robots.items())
-                + f'; stopped_pose {r["stopped_pose"]}, hold_parent {r["hold_parent"]} (rc {r["rc"]}, '
+                + f'; stopped_pose {r["stopped_pose"]}, '
+                f'hold_parent {r["hold_parent"]} (rc {r["rc"]}, '
                 f'{r["wall_s"]:.0f} s wall, load {os.getloadavg()[0]:.1f})'
                 + (f'\n        run checks failed: {r["failure"]}' if r.get('failure') else '')
             )

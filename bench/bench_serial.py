@@ -125,11 +125,13 @@ def main() -> int:
     wire_ms = (13 + 18) * 10 / 115200 * 1e3
     p50, p99, worst, n = round_trip(args.commands)
     print(
-        f'\ncommand -> telemetry round trip, bridge + emulated board over a pty ({n} samples, 100 Hz)'
+        f'\ncommand -> telemetry round trip, bridge + emulated board over a pty '
+        f'({n} samples, 100 Hz)'
     )
     print(f'{"":24s} {"ms":>8s} {"x wire time":>12s}')
     print(
-        f'{"wire time @115200":24s} {wire_ms:8.2f} {1.0:12.2f}   (TORQUE_CMD 13 B + TELEMETRY 18 B, 8N1, protocol v2)'
+        f'{"wire time @115200":24s} {wire_ms:8.2f} {1.0:12.2f}   '
+        '(TORQUE_CMD 13 B + TELEMETRY 18 B, 8N1, protocol v2)'
     )
     print(f'{"p50":24s} {p50:8.2f} {p50 / wire_ms:12.2f}')
     print(f'{"p99":24s} {p99:8.2f} {p99 / wire_ms:12.2f}')

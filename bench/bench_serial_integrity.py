@@ -58,7 +58,9 @@ def _random_message(rng: random.Random, torque: bool) -> sp.Message:
 
 
 def run_chunk(args: tuple[int, int, int, str | None]) -> dict:
-    """``n`` trials of protocol ``version`` with seed ``seed`` (mutations of kind ``only``, or all): counts."""
+    """``n`` trials of protocol ``version`` with seed ``seed`` (mutations of kind ``only``, or
+    all): counts.
+    """
     n, version, seed, only = args
     rng = random.Random(seed)
     pool = []

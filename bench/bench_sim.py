@@ -94,7 +94,9 @@ def random_formations(n_robots: int, seed: int = 0, duration_s: float = 3.0) -> 
 
 
 def scalar_baseline(scenario, n_steps: int) -> float:
-    """Robot-steps/s of a per-robot scalar Python loop over the same law (robot_law + RK4 kernels)."""
+    """Robot-steps/s of a per-robot scalar Python loop over the same law (robot_law + RK4
+    kernels).
+    """
     from ament_formation.core import simulator as S
     from ament_formation.core.automaton import SwitchingParams
     from ament_formation.core.kernels import disturbance_k, rk4_step_k
@@ -106,7 +108,6 @@ def scalar_baseline(scenario, n_steps: int) -> float:
     pd = np.zeros((n, 2))
     goal = np.zeros((n, 2))
     goal_dot = np.zeros((n, 2))
-    vc = np.zeros((n, 2))
     mode = np.zeros(n, np.int64)
     tgt = np.full(n, -1, np.int64)
     sdir = np.ones(n)
@@ -202,8 +203,8 @@ def scalar_baseline(scenario, n_steps: int) -> float:
 
 
 def compile_times() -> tuple[float, float]:
-    """(first call [s], second call [s], child CPU [s]) of simulate(paper) in a fresh process with an
-    empty numba cache.
+    """(first call [s], second call [s], child CPU [s]) of simulate(paper) in a fresh process with
+    an empty numba cache.
     """
     code = (
         'import time;from ament_formation.core.scenario import load_scenario;'

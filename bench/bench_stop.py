@@ -398,8 +398,10 @@ def main() -> int:
     report['analytic_bound'] = bound
     report['analytic_holding_speed'] = hold
     print(
-        f'analytic at {a.speed_mps} m/s (m~ = {float(k.m_tilde[0]):.3f} kg, brake {bound["brake_decel_mps2"]:.2f} '
-        f'm/s^2, motor top speed {MOTOR_TOP_SPEED_MPS:.2f} m/s): last command holding the speed: rest after '
+        f'analytic at {a.speed_mps} m/s (m~ = {float(k.m_tilde[0]):.3f} kg, '
+        f'brake {bound["brake_decel_mps2"]:.2f} '
+        f'm/s^2, motor top speed {MOTOR_TOP_SPEED_MPS:.2f} m/s): '
+        'last command holding the speed: rest after '
         f'{hold["time_to_rest_s"]:.3f} s, {hold["distance_m"]:.3f} m; last command full torque: '
         f'{bound["time_to_rest_s"]:.3f} s, {bound["distance_m"]:.3f} m'
     )
@@ -407,7 +409,8 @@ def main() -> int:
         rows = twin_trials(a.trials, a.speed_mps, a.speed_factor)
         report['twin'] = rows
         print(
-            f"\ntwin: bridge SIGKILLed at {a.speed_mps} m/s, {len(rows)} trials (times from the board's last command)"
+            f'\ntwin: bridge SIGKILLed at {a.speed_mps} m/s, {len(rows)} trials '
+            "(times from the board's last command)"
         )
         print(
             _table(
@@ -440,7 +443,8 @@ def main() -> int:
             subprocess.run(['rm', '-rf', str(build)], check=False)
         report['firmware'] = rows
         print(
-            f"\nfirmware in simavr: line cut at the motor's top speed, {len(rows)} trials (emulated time)"
+            "\nfirmware in simavr: line cut at the motor's top speed, "
+            f'{len(rows)} trials (emulated time)'
         )
         print(
             _table(

@@ -1,4 +1,5 @@
-"""Whole-system benchmarks (issue 5): run with `bench/run.sh bench_system.py [--quick] [--team K] ...`.
+"""Whole-system benchmarks (issue 5): run with `bench/run.sh bench_system.py
+[--quick] [--team K] ...`.
 
 1. End-to-end latency from a camera frame's capture stamp to the torque frame that the emulated
    motor board receives on its serial line, p50 / p99, with every node in one process and with
@@ -49,7 +50,9 @@ SETTLE_S = (
 
 
 class LatencyProbe:
-    """Subscribes to robot_<rid>/pose and robot_<rid>/wheel_torque; pairs them with the board log."""
+    """Subscribes to robot_<rid>/pose and robot_<rid>/wheel_torque; pairs them with the board
+    log.
+    """
 
     def __init__(self, node, rid: int = 0):
         from sensor_msgs.msg import JointState
@@ -300,8 +303,8 @@ def latency_multi_process(
 def line_scenario(n: int, path: Path) -> Path:
     if n > 21:
         raise SystemExit(f"line_scenario: at most 21 robots fit in the camera's view (asked {n})")
-    """A leader on a straight line and N - 1 followers in rows of five behind it (0.45 m apart), all
-    inside the camera's floor area (config/camera.yaml: 3 x 2.4 m around (1.2, 0.6); up to 21
+    """A leader on a straight line and N - 1 followers in rows of five behind it (0.45 m apart),
+    all inside the camera's floor area (config/camera.yaml: 3 x 2.4 m around (1.2, 0.6); up to 21
     robots); star graph; no obstacles."""
     robots = [
         {
@@ -450,7 +453,8 @@ def main() -> int:
             print(f'latency capture -> board, processes:      {_percentiles(lat2)}')
         if len(lat1) and len(lat2):
             print(
-                f'  ratio p50 processes / one process: {np.percentile(lat2, 50) / np.percentile(lat1, 50):.2f}; '
+                '  ratio p50 processes / one process: '
+                f'{np.percentile(lat2, 50) / np.percentile(lat1, 50):.2f}; '
                 f'p50 / wire time: {1e3 * np.percentile(lat2, 50) / wire_ms:.1f}'
             )
         counts = args.counts or ([2, 4, 6] if args.quick else [2, 4, 6, 8, 10, 12])
@@ -459,7 +463,8 @@ def main() -> int:
         for n in counts:
             r = robot_count(n, window, tmp, args.team, args.control_nice)
             print(
-                f'{n:6d} {r["ticks"]:7d} {r["late"]:6d} {100 * r["missed_fraction"]:9.2f} {r["world_overruns"]:15d}'
+                f'{n:6d} {r["ticks"]:7d} {r["late"]:6d} {100 * r["missed_fraction"]:9.2f} '
+                f'{r["world_overruns"]:15d}'
                 + (
                     ''
                     if r['started'] and r['controllers_reporting'] == n
@@ -479,7 +484,8 @@ def main() -> int:
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     print(
-        f'largest robot count held in real time (< 1 % missed deadlines, every count up to it): {best}'
+        'largest robot count held in real time (< 1 % missed deadlines, every count up to it): '
+        f'{best}'
     )
     return 0
 

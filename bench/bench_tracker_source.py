@@ -126,6 +126,7 @@ def tracker_cmd(tmp: Path, name: str, params: dict) -> list[str]:
 
 # ---------------------------------------------------------------------- 1 + 2: accuracy, rate
 class PoseProbe:
+
     def __init__(self, node, robot_ids: list[int]):
         from geometry_msgs.msg import PoseStamped
 
@@ -281,7 +282,7 @@ def camera_loss(ctx, tmp: Path, run_s: float) -> dict:
         publish_image(msg)
 
     world.pub_image.publish = camera_out
-    last_pose_ns = {r: 0 for r in ids}
+    last_pose_ns = dict.fromkeys(ids, 0)
     stopped_at: dict[int, float] = {}
     modes: dict[int, str] = {}
 
@@ -491,17 +492,21 @@ def main() -> int:
         print(f'load average before: {os.getloadavg()[0]:.1f} (2 cores shared)')
         frames = render(args.frames, args.robots)
         print(
-            f'{args.frames} frames, {args.robots} robots + the clock robot, {args.seconds:g} s per source'
+            f'{args.frames} frames, {args.robots} robots + the clock robot, '
+            f'{args.seconds:g} s per source'
         )
         print(
-            '| source | frames/s | detection | position p95 (max) | heading p95 | capture→pose p50 / p95 | tracker CPU |'
+            '| source | frames/s | detection | position p95 (max) | heading p95 '
+            '| capture→pose p50 / p95 | tracker CPU |'
         )
         print('|---|---|---|---|---|---|---|')
         for kind in [k for k in args.sources.split(',') if k]:
             r = run_source(ctx, kind, frames, args.robots, args.seconds, tmp)
             print(
-                f'| {kind} | {r["fps"]:.1f} | {100 * r["detection"]:.2f} % | {r["pos_p95_mm"]:.2f} '
-                f'({r["pos_max_mm"]:.2f}) mm | {r["head_p95_deg"]:.2f}° | {r["delay_p50_ms"]:.1f} / '
+                f'| {kind} | {r["fps"]:.1f} | {100 * r["detection"]:.2f} % | '
+                f'{r["pos_p95_mm"]:.2f} '
+                f'({r["pos_max_mm"]:.2f}) mm | {r["head_p95_deg"]:.2f}° | '
+                f'{r["delay_p50_ms"]:.1f} / '
                 f'{r["delay_p95_ms"]:.1f} ms | {r["cpu_pct"]:.0f} % |',
                 flush=True,
             )

@@ -81,7 +81,8 @@ def test_arbiter_assigns_and_releases_a_head_on_mutual_pair(three_robots):
         (1, 'exit', 'mutual'),
     }
     print(
-        f'arbiter: pair {t_first:.2f} s .. {t_last:.2f} s, released at {history[release_k][0]:.2f} s'
+        f'arbiter: pair {t_first:.2f} s .. {t_last:.2f} s, '
+        f'released at {history[release_k][0]:.2f} s'
     )
 
 

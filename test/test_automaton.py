@@ -69,8 +69,11 @@ def test_exit_waits_for_min_time_in_avoidance():
 def test_exit_needs_dwell_of_continuously_holding_conditions():
     st = AutomatonState(1)
     st.set_mode(0, MODE_OBSTACLE, 0, 1.0, 0.0)
+
     # V_c points at the obstacle until t = 0.9 (item 3 fails), then away
-    toward = lambda t: (-0.05, 0.0) if t < 0.9 - 1e-9 else (0.05, 0.0)
+    def toward(t):
+        return (-0.05, 0.0) if t < 0.9 - 1e-9 else (0.05, 0.0)
+
     t_exit = run_until_exit(st, np.round(np.arange(0.0, 3.0, 0.1), 10), toward)
     assert t_exit == pytest.approx(0.9 + AV.dwell_s)
 
@@ -78,8 +81,11 @@ def test_exit_needs_dwell_of_continuously_holding_conditions():
 def test_dwell_window_restarts_when_conditions_break():
     st = AutomatonState(1)
     st.set_mode(0, MODE_OBSTACLE, 0, 1.0, 0.0)
+
     # holds from 1.0, breaks at 1.2 (before the 0.3 s dwell), holds again from 1.3
-    vc = lambda t: (-0.05, 0.0) if (t < 1.0 - 1e-9 or abs(t - 1.2) < 1e-9) else (0.05, 0.0)
+    def vc(t):
+        return (-0.05, 0.0) if (t < 1.0 - 1e-9 or abs(t - 1.2) < 1e-9) else (0.05, 0.0)
+
     t_exit = run_until_exit(st, np.round(np.arange(0.0, 3.0, 0.1), 10), vc)
     assert t_exit == pytest.approx(1.3 + AV.dwell_s)
 

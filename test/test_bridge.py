@@ -1,4 +1,5 @@
-"""formation_bridge + emulated motor board over a real pty, in-process executor (issue 3 must-shows).
+"""formation_bridge + emulated motor board over a real pty, in-process executor (issue 3
+must-shows).
 
 Each test waits on conditions with timeouts (spin_until); the board runs in its own thread on the
 master side of the pty, the bridge opens the slave through a stable symlink.
@@ -28,7 +29,9 @@ LIMIT_NM = 0.1  # bridge limit, below the board's hard limit (0.15) so the bridg
 
 
 class Rig:
-    """Board on a pty + bridge node + a helper node that publishes wheel_torque / reads wheel_state."""
+    """Board on a pty + bridge node + a helper node that publishes wheel_torque / reads
+    wheel_state.
+    """
 
     def __init__(self, tmp_path, executor, context, rx=FaultSpec(), tx=FaultSpec(), **params):
         self.executor = executor
@@ -184,7 +187,8 @@ def test_board_watchdog_zeroes_torque_within_250_ms(make_rig):
     tripped_s = rig.board.watchdog_tripped_at_s
     step_before_s = max(t for t in steps_s if t < tripped_s)
     print(
-        f'board watchdog zeroed torque {(tripped_s - last_cmd_s) * 1e3:.1f} ms after the last command '
+        f'board watchdog zeroed torque {(tripped_s - last_cmd_s) * 1e3:.1f} ms '
+        'after the last command '
         f'(its previous step at {(step_before_s - last_cmd_s) * 1e3:.1f} ms)'
     )
     assert tripped_s >= last_cmd_s + 0.2 > step_before_s, (last_cmd_s, step_before_s, tripped_s)
@@ -222,7 +226,8 @@ def test_bridge_zeroes_torque_when_input_goes_stale(make_rig):
     )
     stop_s, before_s = commands[k][0], commands[k - 1][0]
     print(
-        f'bridge stopped the board {1e3 * (stop_s - input_s):.0f} ms after the last input (timeout 150 ms), '
+        f'bridge stopped the board {1e3 * (stop_s - input_s):.0f} ms after the last input '
+        '(timeout 150 ms), '
         f'its previous command at {1e3 * (before_s - input_s):.0f} ms'
     )
     assert before_s - input_s <= 0.15 < stop_s - input_s
@@ -262,7 +267,8 @@ def test_one_percent_byte_corruption_keeps_commands_and_applies_no_corrupt_one(m
     corrupt_applied = [(s, l, r) for _, s, l, r in rig.log if (s, l, r) not in sent]
     rejected = rig.board.decoder.rejected_total
     print(
-        f'kept {kept:.3f} of {len(entered)} commands sent ({kept_all:.3f} of {n} published); board rejected {rejected} frames; '
+        f'kept {kept:.3f} of {len(entered)} commands sent ({kept_all:.3f} of {n} published); '
+        f'board rejected {rejected} frames; '
         f'{rig.runner.rx.corrupted} bytes corrupted to the board; '
         f'retransmissions {rig.bridge.link.stats["retransmissions"]}'
     )

@@ -103,7 +103,8 @@ def views():
 def test_intrinsics_are_recovered_from_charuco_views(views):
     r = calibrate_intrinsics(views, SPEC)
     print(
-        f'\n[calibration] {r.views_used} views, RMS {r.rms_px:.3f} px, fx {r.k[0, 0]:.2f} fy {r.k[1, 1]:.2f} '
+        f'\n[calibration] {r.views_used} views, RMS {r.rms_px:.3f} px, '
+        f'fx {r.k[0, 0]:.2f} fy {r.k[1, 1]:.2f} '
         f'cx {r.k[0, 2]:.2f} cy {r.k[1, 2]:.2f}, ray error RMS/max %.3f/%.3f px'
         % _ray_error_px(TRUE, r.k, r.dist)
     )

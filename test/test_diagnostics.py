@@ -1,6 +1,6 @@
-"""/diagnostics (ros/diagnostics.py): stall detection with an injected clock, publication on change,
-the naming scheme, and node-level checks on the controller (a stalled executor is reported with its
-gap; a safety stop is published when it happens, at the level of the state).
+"""/diagnostics (ros/diagnostics.py): stall detection with an injected clock, publication on
+change, the naming scheme, and node-level checks on the controller (a stalled executor is
+reported with its gap; a safety stop is published when it happens, at the level of the state).
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ MS = 1_000_000  # [ns]
 
 
 class FakeClock:
+
     def __init__(self, t_ns: int = 1_000 * MS):
         self.t = t_ns
 

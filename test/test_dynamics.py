@@ -113,7 +113,9 @@ def test_s1dot_x2_is_the_time_derivative_of_s1(seed):
 @SETTINGS
 @given(seed=st.integers(0, 2**31 - 1))
 def test_power_balance_kinetic_energy_rate_equals_wheel_power(seed):
-    """T = 1/2 m~ v^2 + 1/2 I~ w^2 (S2.2 derivation): dT/dt = tau1 (v - L w)/r + tau2 (v + L w)/r."""
+    """T = 1/2 m~ v^2 + 1/2 I~ w^2 (S2.2 derivation): dT/dt = tau1 (v - L w)/r + tau2
+    (v + L w)/r.
+    """
     rng = np.random.default_rng(seed)
     n = 8
     k = _random_coeffs(rng, n)

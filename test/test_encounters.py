@@ -258,7 +258,9 @@ def meetings():
 
 @pytest.mark.parametrize('n', [2, 3, 4])
 def test_symmetric_meetings_are_safe_and_settle(meetings, n):
-    """Exact ties (S6.6 rule 4, S14.4) and 3-4 robots meeting at once (S14.1): safety + settling."""
+    """Exact ties (S6.6 rule 4, S14.4) and 3-4 robots meeting at once (S14.1): safety +
+    settling.
+    """
     res, m = meetings[n]
     assert m['prohibited_entries'] == 0
     assert m['min_inter_robot_distance_m'] > R_AA

@@ -65,7 +65,9 @@ def test_wheel_to_body_matches_s2_kinematics():
 
 
 def _truth(t_end_s, dt_s=0.001, seed=0):
-    """Fine (1 kHz) truth: wheel angles q (T, 2) and p-poses (T, 3) for smooth varying wheel rates."""
+    """Fine (1 kHz) truth: wheel angles q (T, 2) and p-poses (T, 3) for smooth varying wheel
+    rates.
+    """
     rng = np.random.default_rng(seed)
     t = np.arange(0.0, t_end_s + 1e-12, dt_s)
     f = rng.uniform(0.1, 0.6, size=2)

@@ -40,7 +40,8 @@ def build_dir(tmp_path_factory):
                 f'firmware toolchain unavailable ({", ".join(missing)}) and apt unusable here'
             )
         pytest.fail(
-            f'firmware toolchain missing ({", ".join(missing)}): run scripts/install_firmware_deps.sh'
+            f'firmware toolchain missing ({", ".join(missing)}): '
+            'run scripts/install_firmware_deps.sh'
         )
     out = tmp_path_factory.mktemp('firmware_build')
     build_firmware(out)
@@ -286,7 +287,8 @@ def test_stop_message_brakes_at_once_and_only_once(harness):
         last_cmd_t = next(s['t_s'] for s in lines if s['rx_torque_cmds'] == n_cmds)
         first_brake_t = min(s['t_s'] for s in lines if s['telemetry']['flags'] & sp.FLAG_BRAKING)
         print(
-            f'STOP: braking seen {1e3 * (first_brake_t - last_cmd_t):.0f} ms after the last torque command, '
+            f'STOP: braking seen {1e3 * (first_brake_t - last_cmd_t):.0f} ms '
+            'after the last torque command, '
             f'released {released["pwm_change_t_s"] - last_cmd_t:.3f} s after (emulated)'
         )
         # at once (STOP's acknowledgement carries BRAKING; status lines every 10 ms), not after the
@@ -422,7 +424,9 @@ def test_bridge_handshake_and_version(rig):
 
 
 def test_bridge_torque_commands_reflected_in_pwm_duty(frozen_rig):
-    """Wheels held still: PWM compare = round(top * tau R / (G eta k_t V)); the bridge clamps at 0.15 N m."""
+    """Wheels held still: PWM compare = round(top * tau R / (G eta k_t V)); the bridge clamps at
+    0.15 N m.
+    """
     c = config_constants()
     rig = frozen_rig
     assert rig.link_up(5.0)
@@ -475,8 +479,10 @@ def test_bridge_watchdog_brakes_the_wheels_to_rest_then_releases(rig):
     travel_m = [(released['wheel_rad'][i] - at_loss['wheel_rad'][i]) * wheel_r_m for i in range(2)]
     braking = [s for s in after if s['board']['flags'] & sp.FLAG_BRAKING]
     print(
-        f'brake: wheels at {at_loss["wheel_radps"][0]:.1f} rad/s when commands stopped; H-bridge released '
-        f'{to_release_s * 1e3:.0f} ms later at {max(abs(w) for w in released["wheel_radps"]):.3f} rad/s; '
+        f'brake: wheels at {at_loss["wheel_radps"][0]:.1f} rad/s when commands stopped; '
+        'H-bridge released '
+        f'{to_release_s * 1e3:.0f} ms later at '
+        f'{max(abs(w) for w in released["wheel_radps"]):.3f} rad/s; '
         f'wheel travel {travel_m[0] * 1e3:.0f} / {travel_m[1] * 1e3:.0f} mm (emulated time)'
     )
     # the watchdog delay: the drive torque stays on for 200 ms, the brake follows at once
@@ -605,7 +611,8 @@ def test_bridge_telemetry_at_100hz(rig):
     assert rig.spin_until(lambda: len(rig.state_times) - n_states0 >= frames - 1, 2.0)
     states = len(rig.state_times) - n_states0
     print(
-        f'telemetry: {rate_hz:.2f} Hz in emulated time ({frames} frames / {span_s:.3f} s, board idle); '
+        f'telemetry: {rate_hz:.2f} Hz in emulated time '
+        f'({frames} frames / {span_s:.3f} s, board idle); '
         f'{acks} acknowledgements for {cmds} commands; bridge wheel_state {wall_rate_cmd:.1f} Hz '
         f'wall time while commanding'
     )

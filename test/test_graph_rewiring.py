@@ -155,8 +155,8 @@ def test_no_avoiders_gives_the_original_tree(case):
 @settings(max_examples=60, deadline=None)
 @given(graphs(), st.randoms(use_true_random=False))
 def test_restoration_after_exits_in_any_order(case, rnd):
-    """Avoiders enter one by one, exit in a random order: each step equals the fresh rewiring of the
-    current set (no history), and after the last exit the original tree is back (S9 step 6).
+    """Avoiders enter one by one, exit in a random order: each step equals the fresh rewiring of
+    the current set (no history), and after the last exit the original tree is back (S9 step 6).
     """
     graph, avoiding = case
     current: set[int] = set()
@@ -193,7 +193,9 @@ def test_unaffected_robots_keep_their_original_parent(case):
 @settings(max_examples=40, deadline=None)
 @given(graphs())
 def test_offsets_keep_the_formation_geometry(case):
-    """delta_vk = c_v - c_k for any new parent: following the tree from a root reproduces the slots."""
+    """delta_vk = c_v - c_k for any new parent: following the tree from a root reproduces the
+    slots.
+    """
     graph, avoiding = case
     parents = graph.rewire(avoiding)
     offsets = graph.offsets(parents)

@@ -180,7 +180,8 @@ def test_deployment_split(ros_context, executor, tmp_path):
             ),
             20.0,
         ), (
-            f'torque frames per board: {[b.board.accepted_commands for b in world.boards]} (from {accepted0})'
+            f'torque frames per board: {[b.board.accepted_commands for b in world.boards]} '
+            f'(from {accepted0})'
         )
         # each bridge got its robot's torque limit from the scenario
         limits = {

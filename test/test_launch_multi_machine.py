@@ -32,11 +32,14 @@ def _env(profile: str | None) -> dict:
 
 
 def _launch_env(tmp_path: Path, profile: str | None, multi: bool) -> tuple[str, str]:
-    """(FASTRTPS_DEFAULT_PROFILES_FILE or '<unset>', ROS_AUTOMATIC_DISCOVERY_RANGE) after af_launch_init."""
+    """(FASTRTPS_DEFAULT_PROFILES_FILE or '<unset>', ROS_AUTOMATIC_DISCOVERY_RANGE) after
+    af_launch_init.
+    """
     script = (
         f'source "{SCRIPTS}/launch_common.sh" && af_launch_init "{tmp_path}/run" '
         f'{"--multi-machine" if multi else ""} && '
-        'printf "%s\\n%s\\n" "${FASTRTPS_DEFAULT_PROFILES_FILE-<unset>}" "$ROS_AUTOMATIC_DISCOVERY_RANGE"'
+        'printf "%s\\n%s\\n" "${FASTRTPS_DEFAULT_PROFILES_FILE-<unset>}" '
+        '"$ROS_AUTOMATIC_DISCOVERY_RANGE"'
     )
     proc = subprocess.run(
         ['bash', '-c', script], env=_env(profile), capture_output=True, text=True, timeout=30

@@ -76,7 +76,9 @@ def _field_at(m, t, r1, r2):
 @FEW
 @given(seed=SEEDS)
 def test_h_dot_on_surface_is_minus_2ch_h_plus_1(seed):
-    """S6.3(c): along z_dot = F, h_dot = -2 c h (h + 1) for any psi_dot, phi_dot, x~_dot (c1 = c2)."""
+    """S6.3(c): along z_dot = F, h_dot = -2 c h (h + 1) for any psi_dot, phi_dot, x~_dot
+    (c1 = c2).
+    """
     rng = np.random.default_rng(seed)
     n = 64
     phi, r1, r2 = _ellipses(rng, n)
@@ -106,7 +108,9 @@ def test_h_dot_on_surface_is_minus_2ch_h_plus_1(seed):
 @FEW
 @given(seed=SEEDS)
 def test_field_derivative_matches_finite_difference(seed):
-    """S6.4: F_dot equals dF/dt along random motions (moving centre, phi_dot, phi_ddot, psi_ddot, c_dot)."""
+    """S6.4: F_dot equals dF/dt along random motions (moving centre, phi_dot, phi_ddot, psi_ddot,
+    c_dot).
+    """
     rng = np.random.default_rng(seed)
     n = 64
     _, r1, r2 = _ellipses(rng, n)
@@ -120,7 +124,9 @@ def test_field_derivative_matches_finite_difference(seed):
 
 
 def test_tangential_term_alone_keeps_h_and_traverses_ccw():
-    """S6.3(a): with c = 0, phi_dot = 0 the field is tangent to the level sets; psi_dot > 0 is CCW."""
+    """S6.3(a): with c = 0, phi_dot = 0 the field is tangent to the level sets; psi_dot > 0 is
+    CCW.
+    """
     rng = np.random.default_rng(1)
     n = 50
     phi, r1, r2 = _ellipses(rng, n)
@@ -141,7 +147,9 @@ def test_tangential_term_alone_keeps_h_and_traverses_ccw():
 
 
 def test_closed_loop_on_field_converges_to_limit_cycle_without_entering():
-    """Integrating z_dot = F around a moving, rotating ellipse: h stays > 0 from outside and -> 0."""
+    """Integrating z_dot = F around a moving, rotating ellipse: h stays > 0 from outside and
+    -> 0.
+    """
     rng = np.random.default_rng(4)
     n = 20
     phi0, r1, r2 = _ellipses(rng, n)

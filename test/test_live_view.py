@@ -47,7 +47,9 @@ BIN = ROOT / '.venv' / 'bin'
 
 
 def _moving_scenario_mapping() -> dict:
-    """paper_short with O2 drifting +y at 1 cm/s and turning at 0.15 rad/s (away from the robots)."""
+    """paper_short with O2 drifting +y at 1 cm/s and turning at 0.15 rad/s (away from the
+    robots).
+    """
     data = yaml.safe_load(PAPER_SHORT.read_text())
     data['name'] = 'paper_short_moving'
     data['obstacles'][1]['velocity_mps'] = [0.0, 0.01]
@@ -413,7 +415,8 @@ def node_client() -> list[str]:
             text = res.stdout + res.stderr
             if any(e in text for e in _NETWORK_ERRORS):
                 pytest.skip(
-                    f'npm registry unreachable, no Foxglove client: {text.strip().splitlines()[-1]}'
+                    'npm registry unreachable, no Foxglove client: '
+                    f'{text.strip().splitlines()[-1]}'
                 )
             pytest.fail(f'npm ci failed in {JS}:\n{text[-2000:]}')
         stamp.write_text(want + '\n')
@@ -665,7 +668,9 @@ EXPECTED_TOPICS = {
 
 @pytest.fixture(scope='module')
 def live_run(tmp_path_factory, node_client):
-    """`formation run --live 0` on the moving paper_short, watched by the Node client to the end."""
+    """`formation run --live 0` on the moving paper_short, watched by the Node client to the
+    end.
+    """
     tmp = tmp_path_factory.mktemp('live')
     scenario_path = tmp / 'paper_short_moving.yaml'
     scenario_path.write_text(yaml.safe_dump(_moving_scenario_mapping(), sort_keys=False))

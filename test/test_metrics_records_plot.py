@@ -81,7 +81,9 @@ def scenario(obstacles=None, robots=None, edges=None, duration_s=40.0):
 
 
 def make_result(scen, t, xy, *, goal=None, avoiding=None, torque=None, saturated=None, **extra):
-    """SimResult from positions xy (T, N, 2); heading along the motion; obstacles from the scenario."""
+    """Build a SimResult from positions xy (T, N, 2); heading along the motion; obstacles from the
+    scenario.
+    """
     n_t, n = xy.shape[:2]
     state = np.zeros((n_t, n, 5))
     state[:, :, :2] = xy

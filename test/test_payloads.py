@@ -13,7 +13,6 @@ from pathlib import Path
 import signal
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
@@ -89,7 +88,8 @@ def test_round_trips_carry_the_schema_version():
     [
         ('{"schema": "ament_formation/graph/v2", "revision": 1}', '/schema: expected'),
         (
-            '{"revision": 1, "parents": {}, "offsets_m": {}, "avoiding": [], "stamp_s": 0, "start_s": null}',
+            '{"revision": 1, "parents": {}, "offsets_m": {}, "avoiding": [], '
+            '"stamp_s": 0, "start_s": null}',
             "missing member 'schema'",
         ),
         (

@@ -113,7 +113,7 @@ class Observer:
         self.executor.add_node(self.node)
 
     def keep(self, msg_type, topic: str, qos, store: list | None = None) -> list:
-        """Subscribe ``topic`` and keep (receive time [s, monotonic], message) pairs."""
+        """Subscribe ``topic``; keep pairs of (receive time [s, monotonic], message)."""
         store = [] if store is None else store
         self.node.create_subscription(
             msg_type, topic, lambda m: store.append((time.monotonic(), m)), qos
@@ -152,7 +152,9 @@ class Board:
         return getattr(self.board, 'stops_received', 0)
 
     def stopped_since(self, t_s: float, stops_before: int) -> bool:
-        """A stop reached the board after its time ``t_s``: a zero torque command or a STOP frame."""
+        """A stop reached the board after its time ``t_s``: a zero torque command or a STOP
+        frame.
+        """
         with self.runner.lock:
             zero = any(t >= t_s and (left, right) == (0, 0) for t, _, left, right in self.log)
             return zero or self.stops() > stops_before
@@ -371,7 +373,8 @@ def test_mission_through_the_programs(sets):
         mission,
     )
     assert ok, (
-        f'graph {len(seen["m_graph"])}, states {[len(seen[f"m_state_{i}"]) for i in (0, 1)]}; {_dead(mission)}'
+        f'graph {len(seen["m_graph"])}, '
+        f'states {[len(seen[f"m_state_{i}"]) for i in (0, 1)]}; {_dead(mission)}'
     )
     # images: mono8 frames of the camera in config/camera.yaml, not blank
     _, img = seen['m_image'][-1]

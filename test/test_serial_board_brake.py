@@ -33,7 +33,9 @@ def _drive(board: MotorBoard, torque_e4nm: int, until_s: float, t: float) -> flo
 def _run_silent(
     board: MotorBoard, t: float, duration_s: float
 ) -> list[tuple[float, float, float, int, int]]:
-    """No commands for ``duration_s``: rows (t_s, left_radps, left_rad, left_applied_e4nm, flags)."""
+    """No commands for ``duration_s``: rows (t_s, left_radps, left_rad, left_applied_e4nm,
+    flags).
+    """
     rows = []
     end = t + duration_s
     while t < end:
@@ -90,7 +92,8 @@ def test_command_loss_brakes_to_rest_with_bounded_torque_then_releases():
     decel = mb.BRAKE_TORQUE_LIMIT_NM / cfg.wheel_inertia_kgm2
     assert released - t_brake < speed0 / decel + 0.25
     print(
-        f'emulated brake: {speed0:.1f} rad/s -> released {released - t_loss:.3f} s after command loss, '
+        f'emulated brake: {speed0:.1f} rad/s -> released {released - t_loss:.3f} s '
+        'after command loss, '
         f'wheel turned {ang[after][0] - ang[0]:.2f} rad'
     )
 

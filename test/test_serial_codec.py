@@ -1,4 +1,5 @@
-"""Serial codec (core/cobs.py, core/crc16.py, core/crc32c.py, core/serial_protocol.py): properties and corruption.
+"""Serial codec (core/cobs.py, core/crc16.py, core/crc32c.py, core/serial_protocol.py): properties
+and corruption.
 
 - any sequence of valid frames, split and merged at random and interleaved with noise, decodes to
   exactly those frames;

@@ -1,5 +1,5 @@
-"""Closed loop on config/scenarios/paper.yaml (spec S12 scenario 1): safety, one avoidance entry per
-robot on its own obstacle, settled formation accuracy, torque limits, S3.4 reaching bound.
+"""Closed loop on config/scenarios/paper.yaml (spec S12 scenario 1): safety, one avoidance entry
+per robot on its own obstacle, settled formation accuracy, torque limits, S3.4 reaching bound.
 """
 
 import numpy as np

@@ -43,7 +43,9 @@ def _coeffs(n, tau_max=0.15):
 @settings(max_examples=30, deadline=None)
 @given(seed=st.integers(0, 2**31 - 1), eps=st.sampled_from([0.0, 0.002, 0.01, 0.05]))
 def test_inverse_dynamics_reproduce_commanded_acceleration(seed, eps):
-    """S3.2 torques through S2.2 dynamics give p_ddot = V_d_dot - K sat(sigma/eps) (unsaturated)."""
+    """S3.2 torques through S2.2 dynamics give p_ddot = V_d_dot - K sat(sigma/eps)
+    (unsaturated).
+    """
     rng = np.random.default_rng(seed)
     n = 16
     k = _coeffs(n, tau_max=1e6)
@@ -107,7 +109,9 @@ def test_gain_condition_s3_3_defaults():
 @settings(max_examples=6, deadline=None)
 @given(seed=st.integers(0, 2**31 - 1))
 def test_reaching_time_never_exceeds_s3_4_bound(seed):
-    """Closed loop (dynamics + S3.2 + RK4 + bounded g): |sigma_k| <= eps within (|sigma_k0| - eps)/lambda."""
+    """Closed loop (dynamics + S3.2 + RK4 + bounded g): |sigma_k| <= eps within
+    (|sigma_k0| - eps)/lambda.
+    """
     rng = np.random.default_rng(seed)
     n, dt = 48, 1e-3
     lam, eps = GAINS.reaching_rate_mps2, GAINS.boundary_layer_mps

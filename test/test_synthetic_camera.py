@@ -1,4 +1,6 @@
-"""Synthetic camera and camera model: geometry, determinism, noise, obstacles, motion blur, YAML."""
+"""Synthetic camera and camera model: geometry, determinism, noise, obstacles, motion blur,
+YAML.
+"""
 
 from __future__ import annotations
 

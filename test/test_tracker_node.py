@@ -1,8 +1,9 @@
-"""formation_tracker in-process: rendered frames of moving robots in, PoseStamped out with the right
-ids, stamps (= image capture stamps) and poses; diagnostics, debug image, covariance; a video file
-opened by the node itself, under both executors a process may spin; the ``source`` forms; the
-capture thread's loss/reopen/backoff; image conversions without cv_bridge; the world's
-camera_info. (The console script with real sources: test_tracker_source.py.).
+"""formation_tracker in-process: rendered frames of moving robots in, PoseStamped out with the
+right ids, stamps (= image capture stamps) and poses; diagnostics, debug image, covariance;
+a video file opened by the node itself, under both executors a process may spin; the
+``source`` forms; the capture thread's loss/reopen/backoff; image conversions without
+cv_bridge; the world's camera_info.
+(The console script with real sources: test_tracker_source.py.).
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ def _truth(t_s: float) -> np.ndarray:
 
 
 class _Probe(Node):
+
     def __init__(self, context):
         super().__init__('tracker_probe', context=context)
         self.poses: dict[int, list[PoseStamped]] = {r: [] for r in ROBOTS}
@@ -186,7 +188,9 @@ def test_the_node_opens_a_video_source_itself(ros_context, executor_kind, tmp_pa
 
 
 def test_source_parameter_forms():
-    """``source``: device index (int or digits), device path, stream URL, file; bad types refused."""
+    """``source``: device index (int or digits), device path, stream URL, file; bad types
+    refused.
+    """
     from ament_formation.hw.video_source import DEVICE, FILE, parse_source, STREAM
 
     assert parse_source('') is None and parse_source(None) is None
@@ -221,6 +225,7 @@ def test_capture_loss_and_reopen_with_backoff():
     from ament_formation.hw.video_source import FrameGrabber, SourceSpec
 
     class FakeCapture:
+
         def __init__(self, frames):
             self.frames = frames
 
@@ -320,8 +325,8 @@ def test_image_conversions_round_trip_without_cv_bridge():
 
 
 def test_world_publishes_camera_info_with_each_image(ros_context, executor, tmp_path):
-    """The simulated camera (formation_world) sends /camera/camera_info from config/camera.yaml with
-    every /camera/image_raw, stamped like the image.
+    """The simulated camera (formation_world) sends /camera/camera_info from config/camera.yaml
+    with every /camera/image_raw, stamped like the image.
     """
     from sensor_msgs.msg import CameraInfo
 
