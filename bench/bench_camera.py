@@ -1,4 +1,5 @@
-"""Camera benchmark: tracking cost per frame (ROI vs plain full-frame detection) and rendering cost.
+"""Camera benchmark: tracking cost per frame (ROI vs plain full-frame detection) and
+rendering cost.
 
 Run: ``.venv/bin/python bench/bench_camera.py [--frames N]``. Single thread (cv2.setNumThreads(1)).
 For 640×480 and 1280×720 cameras 2.86 m above a 3 × 2.4 m floor, with 2, 10 and 50 robots moving
@@ -112,21 +113,21 @@ def run(width: int, height: int, n: int, frames: int) -> dict:
             full_frames += res.full_frame
         full_s = min(full_s, t_full / frames)
         roi_s = min(roi_s, t_roi / frames)
-    return dict(
-        res=f'{width}x{height}',
-        n=n,
-        full_ms=full_s * 1e3,
-        roi_ms=roi_s * 1e3,
-        speedup=full_s / roi_s,
-        full_det=full_found / (n * frames),
-        roi_det=roi_found / (n * frames),
-        full_frames=full_frames / frames,
-        render_ms=render_s * 1e3,
-    )
+    return {
+        'res': f'{width}x{height}',
+        'n': n,
+        'full_ms': full_s * 1e3,
+        'roi_ms': roi_s * 1e3,
+        'speedup': full_s / roi_s,
+        'full_det': full_found / (n * frames),
+        'roi_det': roi_found / (n * frames),
+        'full_frames': full_frames / frames,
+        'render_ms': render_s * 1e3,
+    }
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--frames', type=int, default=90)
     args = parser.parse_args()
     cv2.setNumThreads(1)

@@ -225,10 +225,13 @@ def main() -> int:
                 rows[res['kind']].append(res)
                 s = res['silence_s']
                 print(
-                    f'round {r + 1} {res["executor"]:24s} cpu {res["cpu_ms_per_callback"]:.3f} ms/callback '
+                    f'round {r + 1} {res["executor"]:24s} '
+                    f'cpu {res["cpu_ms_per_callback"]:.3f} ms/callback '
                     f'({100 * res["cpu_fraction"]:.1f} % of a core), timer late p50/p99 '
-                    f'{res["timer_late_ms_p50"]:.2f}/{res["timer_late_ms_p99"]:.2f} ms, odom latency p50/p99 '
-                    f'{res["odom_latency_ms_p50"]:.2f}/{res["odom_latency_ms_p99"]:.2f} ms, longest silence '
+                    f'{res["timer_late_ms_p50"]:.2f}/{res["timer_late_ms_p99"]:.2f} ms, '
+                    f'odom latency p50/p99 '
+                    f'{res["odom_latency_ms_p50"]:.2f}/{res["odom_latency_ms_p99"]:.2f} ms, '
+                    f'longest silence '
                     f'timer {s["timer"]:.2f} s odom {s["odom"]:.2f} s image {s["image"]:.2f} s',
                     flush=True,
                 )
@@ -244,7 +247,8 @@ def main() -> int:
         p99 = np.median([r['timer_late_ms_p99'] for r in rs])
         lat = np.median([r['odom_latency_ms_p99'] for r in rs])
         print(
-            f'  {rs[0]["executor"]:24s} frozen {frozen}/{len(rs)}, median cpu {cpu:.3f} ms/callback, '
+            f'  {rs[0]["executor"]:24s} frozen {frozen}/{len(rs)}, '
+            f'median cpu {cpu:.3f} ms/callback, '
             f'median timer late p99 {p99:.2f} ms, median odom latency p99 {lat:.2f} ms, '
             f'worst silence {max(max(r["silence_s"].values()) for r in rs):.2f} s'
         )

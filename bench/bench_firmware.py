@@ -26,7 +26,13 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / 'test'))
 sys.path.insert(0, str(ROOT))
 
-from firmware_sim import build_firmware, CodecLink, FIRMWARE_DIR, Harness, toolchain_missing  # noqa: E402
+from firmware_sim import (  # noqa: E402
+    build_firmware,
+    CodecLink,
+    FIRMWARE_DIR,
+    Harness,
+    toolchain_missing,
+)
 
 CONTROL_PERIOD_CYCLES = 160_000
 
@@ -95,14 +101,20 @@ def main() -> int:
         f'Flash {flash} B / 32768 B ({100 * flash / 32768:.1f} %), '
         f'static RAM {ram} B / 2048 B ({100 * ram / 2048:.1f} %)'
     )
+    rejected = (
+        load['board']['crc_errors'] + load['board']['frame_errors'] + load['board']['type_errors']
+    )
     print(
-        f'loaded run: wheels at {load["wheel_radps"][0]:.1f} / {load["wheel_radps"][1]:.1f} rad/s, '
-        f'{load["isr_count"].get("PCINT2", 0)} encoder interrupts, {load["telemetry_count"]} TELEMETRY, '
-        f'frames rejected by the board {load["board"]["crc_errors"] + load["board"]["frame_errors"] + load["board"]["type_errors"]}'
+        f'loaded run: wheels at {load["wheel_radps"][0]:.1f} / '
+        f'{load["wheel_radps"][1]:.1f} rad/s, '
+        f'{load["isr_count"].get("PCINT2", 0)} encoder interrupts, '
+        f'{load["telemetry_count"]} TELEMETRY, '
+        f'frames rejected by the board {rejected}'
     )
     print()
     print(
-        f'{"measure (CPU cycles, worst case)":40s} {"baseline":>10s} {"loaded":>10s} {"ratio":>7s} {"% of 10 ms":>10s}'
+        f'{"measure (CPU cycles, worst case)":40s} {"baseline":>10s} {"loaded":>10s} '
+        f'{"ratio":>7s} {"% of 10 ms":>10s}'
     )
     rows = [
         ('main loop busy, incl. interrupts', 'loop_max_cycles'),
@@ -111,12 +123,14 @@ def main() -> int:
     for label, key in rows:
         b, l_ = base[key], load[key]
         print(
-            f'{label:40s} {b:10d} {l_:10d} {l_ / max(b, 1):7.2f} {100 * l_ / CONTROL_PERIOD_CYCLES:9.2f}%'
+            f'{label:40s} {b:10d} {l_:10d} {l_ / max(b, 1):7.2f} '
+            f'{100 * l_ / CONTROL_PERIOD_CYCLES:9.2f}%'
         )
     for vec in sorted(set(base['isr_max_cycles']) | set(load['isr_max_cycles'])):
         b, l_ = base['isr_max_cycles'].get(vec, 0), load['isr_max_cycles'].get(vec, 0)
         print(
-            f'{"ISR " + vec:40s} {b:10d} {l_:10d} {l_ / max(b, 1):7.2f} {100 * l_ / CONTROL_PERIOD_CYCLES:9.2f}%'
+            f'{"ISR " + vec:40s} {b:10d} {l_:10d} {l_ / max(b, 1):7.2f} '
+            f'{100 * l_ / CONTROL_PERIOD_CYCLES:9.2f}%'
         )
     for label, key in (
         ('CPU busy in main loop (mean)', 'loop_busy_cycles'),

@@ -1,4 +1,5 @@
-"""Live-view benchmark: `bench/run.sh bench_live_view.py [--scenario S.yaml] [--repeat N] [--json FILE]`.
+"""Live-view benchmark:
+`bench/run.sh bench_live_view.py [--scenario S.yaml] [--repeat N] [--json FILE]`.
 
 Runs the simulated system (scripts/launch_sim.sh, every node a process) three ways:
 
@@ -209,7 +210,8 @@ def main(argv: list[str] | None = None) -> int:
         if not args.no_warmup:
             row = run_once('base', args.scenario.resolve(), Path(tmp), args.max_wall_s)
             print(
-                f'warm-up (not counted): {"done" if row["completed"] else "UNFINISHED"}, wall {row["wall_s"]:.1f} s',
+                f'warm-up (not counted): {"done" if row["completed"] else "UNFINISHED"}, '
+                f'wall {row["wall_s"]:.1f} s',
                 flush=True,
             )
         for k in range(args.repeat):
@@ -218,10 +220,12 @@ def main(argv: list[str] | None = None) -> int:
                 row['repeat'] = k
                 rows.append(row)
                 print(
-                    f'{mode:7s} {"done" if row["completed"] else "UNFINISHED"}  wall {row["wall_s"]:6.1f} s  '
+                    f'{mode:7s} {"done" if row["completed"] else "UNFINISHED"}  '
+                    f'wall {row["wall_s"]:6.1f} s  '
                     f'system CPU {row["system_cpu_s"]:7.1f} s'
                     + (
-                        f'  live view CPU {row["live_view_cpu_s"]:5.2f} s over {row["live_view_life_s"]:5.1f} s'
+                        f'  live view CPU {row["live_view_cpu_s"]:5.2f} s '
+                        f'over {row["live_view_life_s"]:5.1f} s'
                         f' = {row["live_view_core_pct"]:5.1f} % of a core'
                         if 'live_view_cpu_s' in row
                         else ''
@@ -232,7 +236,8 @@ def main(argv: list[str] | None = None) -> int:
                 )
                 for topic, c in row.get('channels', {}).items():
                     print(
-                        f'          {topic:30s} {c["messages"]:5d} msgs  {c["rate_hz"]:6.2f} msg/s  '
+                        f'          {topic:30s} {c["messages"]:5d} msgs  '
+                        f'{c["rate_hz"]:6.2f} msg/s  '
                         f'{c["kB_per_s"]:7.1f} kB/s',
                         flush=True,
                     )

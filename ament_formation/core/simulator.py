@@ -1,5 +1,5 @@
-"""ROS-free closed-loop simulator: every robot's switched sliding-mode law, the S8 automaton with the
-S7 encounter arbitration, S9 rewiring, and the plant (S2) integrated with RK4 at ``dt_s`` (ZOH
+"""ROS-free closed-loop simulator: every robot's switched sliding-mode law, the S8 automaton with
+the S7 encounter arbitration, S9 rewiring, and the plant (S2) integrated with RK4 at ``dt_s`` (ZOH
 torques) under the bounded smooth disturbance g(t).
 
 Structure (fast path, numba ``cache=True``):
@@ -69,7 +69,8 @@ G_K, G_EPS, G_ALPHA, G_VCAP, G_LAMBDA = range(5)
 
 @njit(cache=True)
 def obstacle_states(t, c0, vel, amp, omega, phi0, phid, oc, ov, oa, ophi, ophid, ophidd):
-    """Centre, velocity, acceleration, orientation and rates of every obstacle at t (into the outputs).
+    """Centre, velocity, acceleration, orientation and rates of every obstacle at t
+    (into the outputs).
 
     Motion model of :class:`ament_formation.core.obstacles.ObstacleField`: c = c0 + v t + A sin(w
     t),
@@ -727,7 +728,9 @@ class _Setup:
             self.state[i, :3] = r.initial_pose
 
     def parents_from(self, parents: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(parent rows, offsets, topological order) of a parents dict {child_id: parent_id | None}."""
+        """(parent rows, offsets, topological order) of a parents dict
+        {child_id: parent_id | None}.
+        """
         n = self.n
         parent = np.full(n, -1, dtype=np.int64)
         for child, par in parents.items():

@@ -32,7 +32,7 @@ class SmcOutput:
 
 
 def sat(x: np.ndarray) -> np.ndarray:
-    """sat(x) = min(1, max(-1, x)) componentwise (S1 notation)."""
+    """Componentwise saturation min(1, max(-1, x)) (S1 notation: sat of x)."""
     return np.clip(x, -1.0, 1.0)
 
 
@@ -44,7 +44,10 @@ def switching_term(sigma: np.ndarray, gain_mps2, eps_mps: float) -> np.ndarray:
 
 
 def saturate_torque(torque: np.ndarray, tau_max: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """S3.6: tau <- tau * min(1, tau_max / max_k |tau_k|). Returns (torque (N, 2), saturated (N,))."""
+    """S3.6: tau <- tau * min(1, tau_max / max_k |tau_k|).
+
+    Returns (torque (N, 2), saturated (N,)).
+    """
     peak = np.max(np.abs(torque), axis=1)
     saturated = peak > tau_max
     scale = np.where(saturated, tau_max / np.where(saturated, peak, 1.0), 1.0)
@@ -100,7 +103,8 @@ def sliding_mode_torque_raw(
 def sliding_mode_torque(
     state: np.ndarray, v_d: np.ndarray, v_d_dot: np.ndarray, k: PlantCoeffs, gains: ControlGains
 ) -> SmcOutput:
-    """Sliding-mode wheel torques for the field (V_d, V_d_dot), each (N, 2) (S3.1, S3.2, S3.5, S3.6).
+    """Sliding-mode wheel torques for the field (V_d, V_d_dot), each (N, 2)
+    (S3.1, S3.2, S3.5, S3.6).
 
     ``state`` (N, 5); the gain is ``gains.switching_gain_mps2`` (K) and the layer
     ``gains.boundary_layer_mps`` (eps).
@@ -126,6 +130,9 @@ def switching_gain_for(
 def reaching_time_bound(
     sigma0: np.ndarray, reaching_rate_mps2, eps_mps: float = 0.0
 ) -> np.ndarray:
-    """S3.4: T_reach <= max_k (|sigma_k(t_s)| - eps)^+ / lambda_k [s]. ``sigma0`` (N, 2) -> (N,)."""
+    """S3.4: T_reach <= max_k (|sigma_k(t_s)| - eps)^+ / lambda_k [s].
+
+    ``sigma0`` (N, 2) -> (N,).
+    """
     excess = np.maximum(np.abs(sigma0) - eps_mps, 0.0)
     return np.max(excess / reaching_rate_mps2, axis=-1)

@@ -223,7 +223,9 @@ class SyntheticCamera:
         phis: np.ndarray,
         level: int,
     ) -> None:
-        """Anti-aliased filled ellipses (M,) on the plane of homography ``h`` (one fillPoly call)."""
+        """Anti-aliased filled ellipses (M,) on the plane of homography ``h``
+        (one fillPoly call).
+        """
         if len(centers) == 0:
             return
         t = np.linspace(0.0, 2 * np.pi, _ELLIPSE_POINTS, endpoint=False)

@@ -92,6 +92,7 @@ class MjpegServer:
         owner = self
 
         class Handler(BaseHTTPRequestHandler):
+
             def do_GET(self) -> None:  # noqa: N802 - http.server API
                 self.send_response(200)
                 self.send_header('Content-Type', f'multipart/x-mixed-replace; boundary={BOUNDARY}')

@@ -79,7 +79,7 @@ class PtyBoard:
     def is_open(self) -> bool:
         return self._master is not None
 
-    def open(self) -> str:
+    def open(self) -> str:  # noqa: A003
         """Create the pty (and the symlink); return the port path."""
         with self.lock:
             if self._master is not None:
@@ -141,7 +141,9 @@ class PtyBoard:
                 self.tx_overflow_bytes += len(out) - n  # nobody reading: bytes fall on the floor
 
     def start(self, step_period_s: float = 0.001) -> None:
-        """Run ``step`` in a daemon thread until ``stop()``: wakes on input or every ``step_period_s``."""
+        """Run ``step`` in a daemon thread until ``stop()``: wakes on input or every
+        ``step_period_s``.
+        """
         if self._thread is not None:
             return
         self._stop.clear()

@@ -2,11 +2,15 @@
 
 Contract (namespace ``robot_<id>``; protocol: docs/serial-protocol.md)
 
-| topic | type | QoS | direction |
-|---|---|---|---|
-| wheel_torque | sensor_msgs/JointState (effort [left, right] N·m) | QOS_CONTROL | subscribed |
-| wheel_state | sensor_msgs/JointState (position rad, velocity rad/s, [left, right]) | QOS_CONTROL | published per TELEMETRY |
-| /diagnostics | diagnostic_msgs/DiagnosticArray: "formation_bridge: robot_<id> serial link" (up OK, connecting WARN, down/mismatch ERROR), "... robot_<id> serial poll" (stalls, WARN); hardware_id robot_<id> (the port when not in a robot namespace) | QOS_DIAGNOSTICS | every diagnostics_period_s and at once on a link state change |
+Topics (type; QoS; direction):
+
+- wheel_torque: sensor_msgs/JointState (effort [left, right] N·m); QOS_CONTROL; subscribed
+- wheel_state: sensor_msgs/JointState (position rad, velocity rad/s, [left, right]); QOS_CONTROL;
+  published per TELEMETRY
+- /diagnostics: diagnostic_msgs/DiagnosticArray: "formation_bridge: robot_<id> serial link"
+  (up OK, connecting WARN, down/mismatch ERROR), "... robot_<id> serial poll" (stalls, WARN);
+  hardware_id robot_<id> (the port when not in a robot namespace); QOS_DIAGNOSTICS; every
+  diagnostics_period_s and at once on a link state change
 
 Parameters (core.serial_link.LinkParams): port (path or pyserial URL, "/dev/ttyACM0"),
 baud_rate (115200), torque_limit_nm (0.15 N·m), watchdog_s (0.2 s, sent to the board),
@@ -72,7 +76,9 @@ def open_port(url: str, baud_rate: int) -> serial.SerialBase:
 
 
 class BridgeNode(Node):
-    """Thin shell around :class:`~ament_formation.core.serial_link.LinkHost` (the protocol logic)."""
+    """Thin shell around :class:`~ament_formation.core.serial_link.LinkHost`
+    (the protocol logic).
+    """
 
     def __init__(
         self,
@@ -155,7 +161,9 @@ class BridgeNode(Node):
         return True
 
     def poll(self) -> None:
-        """Read the port, publish telemetry, write what the link has to send (see :meth:`_poll`)."""
+        """Read the port, publish telemetry, write what the link has to send
+        (see :meth:`_poll`).
+        """
         self._poll()
 
     def _timed_poll(self) -> None:

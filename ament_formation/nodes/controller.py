@@ -178,8 +178,8 @@ class ControllerParams:
 def stop_torque(
     state: np.ndarray, k: PlantCoeffs, stop_time_s: float, gains: ControlGains
 ) -> np.ndarray:
-    """Controlled stop (DESIGN §7): torques (N, 2) that bring (v, omega) to rest and hold them there
-    against the bounded disturbance g.
+    """Controlled stop (DESIGN §7): torques (N, 2) that bring (v, omega) to rest and hold them
+    there against the bounded disturbance g.
 
     A sliding-mode velocity regulator on sigma = x2 (S2.2: x2dot = f2 + B2 u + g):
     u = B2^-1 (-x2 / T - K sat(x2 / eps) - f2), with T = ``stop_time_s``, the point gain
@@ -560,8 +560,8 @@ class ControllerNode(Node):
                 nb.state, nb.stamp_s = None, -math.inf  # not heard any more: not used
 
     def _neighbour_now(self, nb: _Neighbour | None, now_s: float) -> np.ndarray | None:
-        """The neighbour's state extrapolated to now with its commanded acceleration (S10, S13 #13);
-        None when unknown or older than parent_hold_s.
+        """The neighbour's state extrapolated to now with its commanded acceleration
+        (S10, S13 #13); None when unknown or older than parent_hold_s.
         """
         if nb is None or nb.state is None:
             return None
@@ -581,9 +581,9 @@ class ControllerNode(Node):
         return x
 
     def _goal_of(self, rid: int, t_s: float, known: dict) -> tuple:
-        """(g, g_dot) of robot ``rid`` at scenario time ``t_s`` (S8.3 item 1), each (2,) [m], [m/s]:
-        a leader's r(t), r_dot(t); a follower's original parent point + delta and that point's
-        velocity; (None, None) when its original parent is not heard.
+        """(g, g_dot) of robot ``rid`` at scenario time ``t_s`` (S8.3 item 1), each (2,) [m],
+        [m/s]: a leader's r(t), r_dot(t); a follower's original parent point + delta and that
+        point's velocity; (None, None) when its original parent is not heard.
         """
         cache = self._goals if self.peers is None else self.peers.goals  # a team ticks at one time
         if cache.get('t') != t_s:

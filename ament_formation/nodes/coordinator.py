@@ -252,7 +252,10 @@ class CoordinatorNode(Node):
         if self.start_s is None or now < self.start_s:
             return
         assignments = self.arbiter.decide(now - self.start_s, self.states, self.modes)
-        key = lambda d: {k: (a.mode, a.partner, a.direction, a.t_entry_s) for k, a in d.items()}
+
+        def key(d):
+            return {k: (a.mode, a.partner, a.direction, a.t_entry_s) for k, a in d.items()}
+
         if key(assignments) != key(self.assignments):  # a new decision (not a w_c update)
             self.assignments = assignments
             self._publish_encounters(new_revision=True)
@@ -328,7 +331,7 @@ class CoordinatorNode(Node):
         values = {
             'revision': self.revision,
             'avoiding': sorted(self.avoiding),
-            'parents': {k: v for k, v in sorted(self.parents.items())},
+            'parents': dict(sorted(self.parents.items())),
             'encounter_revision': self.encounter_revision,
             'assignments': len(self.assignments),
             'start_s': 'none' if self.start_s is None else self.start_s,

@@ -155,7 +155,9 @@ SERIES_SCHEMA = {
         'formation_error_m': {'type': ['number', 'null'], 'description': '|p_i - g_i| [m]'},
         'clearance_m': {
             'type': ['number', 'null'],
-            'description': 'signed distance of p_i to the nearest prohibited ellipse P_j [m], < 0 inside',
+            'description': (
+                'signed distance of p_i to the nearest prohibited ellipse P_j [m], < 0 inside'
+            ),
         },
         'nearest_obstacle': {'type': ['string', 'null']},
         'robot_distance_m': {
@@ -731,7 +733,9 @@ class LiveViewNode(Node):
     # ------------------------------------------------------------------ inputs
     @property
     def states(self) -> dict[int, np.ndarray]:
-        """Every heard robot's newest finite state (5,) (decoded here, when a publisher reads it)."""
+        """Every heard robot's newest finite state (5,)
+        (decoded here, when a publisher reads it).
+        """
         for rid, raw in self._raw_states.items():
             state, _ = msgs.state_from_odometry(deserialize_message(raw, msgs.Odometry))
             if np.all(np.isfinite(state)):
@@ -743,7 +747,7 @@ class LiveViewNode(Node):
 
     @property
     def torques(self) -> dict[int, np.ndarray]:
-        """Every robot's newest finite commanded torques (2,) [left, right] N m."""
+        """Every robot's newest finite commanded torques, each (2,) [left, right] N m."""
         for rid, raw in self._raw_torques.items():
             try:
                 tau, _ = msgs.torque_from_msg(deserialize_message(raw, JointState))
@@ -784,7 +788,9 @@ class LiveViewNode(Node):
             self.get_logger().warn(f'robot_{rid}/mode: {err}', throttle_duration_sec=5.0)
 
     def _on_image(self, raw: bytes) -> None:
-        """Throttle to image_rate_hz before decoding anything: a skipped frame costs a copy only."""
+        """Throttle to image_rate_hz before decoding anything: a skipped frame costs a
+        copy only.
+        """
         now_s = time.monotonic()
         if now_s - self._last_image_s < 1.0 / self.prm.image_rate_hz * 0.95:
             return

@@ -105,8 +105,9 @@ class TeamNode(Node):
         control_thread: bool = True,
         **node_kw,
     ):
-        """``hosted_parameters``: parameter overrides for every hosted node (what ``-p NAME:=VALUE``
-        on the process command line does), e.g. ``poll_rate_hz`` or ``pose_timeout_s``.
+        """``hosted_parameters``: parameter overrides for every hosted node
+        (what ``-p NAME:=VALUE`` on the process command line does), e.g. ``poll_rate_hz`` or
+        ``pose_timeout_s``.
         ``control_thread=False``: executor timers run the control periods even on wall-clock time
         (tests that call :meth:`_control` themselves).
         """
@@ -279,7 +280,8 @@ class ControlLoop:
                 now = time.monotonic()
                 if next_s < now:  # overran a whole period: restart the schedule
                     next_s = now + period
-            except Exception as err:  # noqa: BLE001 - keep the loop; the board's watchdog stops the robot
+            # keep the loop; the board's watchdog stops the robot
+            except Exception as err:  # noqa: BLE001
                 if self._stop.is_set() or not team.context.ok():
                     return
                 self.errors += 1

@@ -2,14 +2,22 @@
 
 Contract
 
-| topic | type | QoS | direction |
-|---|---|---|---|
-| /camera/image_raw (``image_topic``) | sensor_msgs/Image (mono8, bgr8, rgb8, mono16, …) | QOS_IMAGE | subscribed when ``source`` is empty; with ``source``, published (mono8, capture stamp) while anyone subscribes and ``publish_image`` |
-| /camera/camera_info (next to ``image_topic``) | sensor_msgs/CameraInfo (camera_config), same stamp as the frame | QOS_IMAGE | published per captured frame when ``source`` is set |
-| robot_<id>/pose | geometry_msgs/PoseStamped, frame ``world``, stamp = capture time | QOS_CONTROL | published per frame the robot's marker is seen |
-| robot_<id>/pose_cov | geometry_msgs/PoseWithCovarianceStamped (same pose, σ² of x, y, yaw) | QOS_CONTROL | when ``publish_covariance`` |
-| ~/debug_image | sensor_msgs/Image bgr8 (markers, poses drawn) | QOS_IMAGE | when ``publish_debug_image`` |
-| /diagnostics | diagnostic_msgs/DiagnosticArray (source state, frame rate, detection rate, latency) | QOS_DIAGNOSTICS | every ``diagnostics_period_s`` and at once when the camera is lost or back |
+Topics (type; QoS; direction):
+
+- /camera/image_raw (``image_topic``): sensor_msgs/Image (mono8, bgr8, rgb8, mono16, …);
+  QOS_IMAGE; subscribed when ``source`` is empty; with ``source``, published (mono8, capture
+  stamp) while anyone subscribes and ``publish_image``
+- /camera/camera_info (next to ``image_topic``): sensor_msgs/CameraInfo (camera_config), same
+  stamp as the frame; QOS_IMAGE; published per captured frame when ``source`` is set
+- robot_<id>/pose: geometry_msgs/PoseStamped, frame ``world``, stamp = capture time; QOS_CONTROL;
+  published per frame the robot's marker is seen
+- robot_<id>/pose_cov: geometry_msgs/PoseWithCovarianceStamped (same pose, σ² of x, y, yaw);
+  QOS_CONTROL; when ``publish_covariance``
+- ~/debug_image: sensor_msgs/Image bgr8 (markers, poses drawn); QOS_IMAGE; when
+  ``publish_debug_image``
+- /diagnostics: diagnostic_msgs/DiagnosticArray (source state, frame rate, detection rate,
+  latency); QOS_DIAGNOSTICS; every ``diagnostics_period_s`` and at once when the camera is lost or
+  back
 
 Parameters (TrackerNodeParams)
   source               str|int "" = subscribe image_topic; else capture frames in the node from a

@@ -168,7 +168,8 @@ class WorldNode(Node):
         self._publish_clock()
         self.timer = self.create_timer(self.prm.tick_s / self.prm.speed_factor, self._tick)
         self.get_logger().info(
-            f'world: {len(self.ids)} robots, ptys in {self.pty_dir}, speed x{self.prm.speed_factor:g}'
+            f'world: {len(self.ids)} robots, ptys in {self.pty_dir}, '
+            f'speed x{self.prm.speed_factor:g}'
         )
 
     # ------------------------------------------------------------------ time

@@ -1,5 +1,5 @@
-"""/diagnostics for every node: one naming scheme, levels from the state, changes published at once,
-and stall detection of periodic work (docs/diagnostics.md).
+"""/diagnostics for every node: one naming scheme, levels from the state, changes published at
+once, and stall detection of periodic work (docs/diagnostics.md).
 
 Naming: ``DiagnosticStatus.name`` = ``"<node name>: <component>"`` (the node's own name, first;
 per-robot components start with ``robot_<id>``: ``formation_controller: robot_0 control``);
@@ -172,7 +172,8 @@ class PeriodWatch:
         if self._last_stall_ns is not None and 0 <= now - self._last_stall_ns <= self.warn_hold_ns:
             return (
                 WARN,
-                f'stalled {self.last_gap_s:.3g} s ({self.last_gap_s / self.period_s:.0f} periods); '
+                f'stalled {self.last_gap_s:.3g} s '
+                f'({self.last_gap_s / self.period_s:.0f} periods); '
                 f'{self.stalls} stalls',
                 values,
             )
@@ -259,5 +260,5 @@ class Diagnostics:
 
 
 def level_name(level) -> str:
-    """ "OK", "WARN", "ERROR" or "STALE"."""
+    """Name of a level: "OK", "WARN", "ERROR" or "STALE"."""
     return _LEVEL_NAMES.get(level_int(level), str(level_int(level)))

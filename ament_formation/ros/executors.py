@@ -42,7 +42,8 @@ def spin_until(
 # is how a run is judged), the SingleThreadedExecutor: plain rcl wait sets, with a timeout on
 # every wait. Keys are the process names given to run_node (and the node name of the recorder).
 EXECUTOR_BY_PROCESS: dict[str, str] = {
-    'formation_controller': 'events',  # ~430 callbacks/s per robot (control tick, wheels, pose, parent)
+    # ~430 callbacks/s per robot (control tick, wheels, pose, parent)
+    'formation_controller': 'events',
     'formation_bridge': 'events',  # 200 Hz serial poll + 100 Hz torque
     'formation_team': 'events',  # several robots' controllers and bridges in one process
     'formation_world': 'single',  # plant + camera: the sim's clock; work >> executor cost
@@ -55,7 +56,7 @@ EXECUTOR_ENV = 'AMENT_FORMATION_EXECUTOR'  # "single" or "events" overrides the 
 
 
 def executor_kind(process: str | None = None, node=None) -> str:
-    """ "single" or "events" for ``process`` (a key of EXECUTOR_BY_PROCESS; default: the node's
+    """Kind "single" or "events" for ``process`` (a key of EXECUTOR_BY_PROCESS; default: the node's
     name): SingleThreadedExecutor on simulated time (the EventsExecutor's timers do not follow
     /clock in Jazzy), else the environment override, else the table, else "events".
     """
@@ -143,9 +144,10 @@ def _stop_on_signals(get_node: Callable) -> None:
 def run_node(
     name: str, make_node: Callable, args: list[str] | None = None, on_exit: Callable | None = None
 ) -> int:
-    """The ``main()`` of every node process: init rclpy, build the node, spin it (:func:`spin_node`)
-    and shut down cleanly. Bad configuration (ConfigError) prints one line naming it and returns 2;
-    SIGINT/SIGTERM return 0. ``on_exit(node)`` runs last, best effort (e.g. a zero-torque command).
+    """The ``main()`` of every node process: init rclpy, build the node, spin it
+    (:func:`spin_node`) and shut down cleanly. Bad configuration (ConfigError) prints one line
+    naming it and returns 2; SIGINT/SIGTERM return 0. ``on_exit(node)`` runs last, best effort
+    (e.g. a zero-torque command).
     """
     import rclpy
     from rclpy.signals import SignalHandlerOptions

@@ -2,20 +2,22 @@
 
 Every function is pure: message in, numpy/dict out (or the reverse). Units are SI, frames are the
 world frame unless the name says otherwise; state rows are [x_m, y_m, theta_rad, v_mps,
-omega_radps]
-with (x, y) the controlled point p (spec S2.1).
+omega_radps] with (x, y) the controlled point p (spec S2.1).
 
-| topic                    | type                          | helpers                                   |
-|--------------------------|-------------------------------|-------------------------------------------|
-| robot_<id>/pose          | geometry_msgs/PoseStamped     | pose_stamped, pose_from_msg               |
-| robot_<id>/state, truth  | nav_msgs/Odometry             | odometry, state_from_odometry             |
-| robot_<id>/accel         | geometry_msgs/AccelStamped    | accel_stamped, accel_from_msg             |
-| robot_<id>/wheel_*       | sensor_msgs/JointState        | wheel_torque, torque_from_msg, wheel_state, wheel_state_from_msg |
-| robot_<id>/mode          | std_msgs/String (JSON mode/v1)| mode_msg, mode_from_msg                   |
-| /formation/graph         | std_msgs/String (JSON graph/v1)| graph_msg, graph_from_msg (GraphMessage) |
-| /formation/encounters    | std_msgs/String (JSON encounters/v1)| encounters_msg, encounters_from_msg |
-| /formation/markers       | visualization_msgs/MarkerArray| robot_markers, ellipse_markers, edge_markers, delete_all_marker, marker_array |
-| /camera/image_raw        | sensor_msgs/Image (mono8)     | image_mono8, array_from_image             |
+Topics (type): helpers
+
+- robot_<id>/pose (geometry_msgs/PoseStamped): pose_stamped, pose_from_msg
+- robot_<id>/state, truth (nav_msgs/Odometry): odometry, state_from_odometry
+- robot_<id>/accel (geometry_msgs/AccelStamped): accel_stamped, accel_from_msg
+- robot_<id>/wheel_* (sensor_msgs/JointState): wheel_torque, torque_from_msg, wheel_state,
+  wheel_state_from_msg
+- robot_<id>/mode (std_msgs/String (JSON mode/v1)): mode_msg, mode_from_msg
+- /formation/graph (std_msgs/String (JSON graph/v1)): graph_msg, graph_from_msg (GraphMessage)
+- /formation/encounters (std_msgs/String (JSON encounters/v1)): encounters_msg,
+  encounters_from_msg
+- /formation/markers (visualization_msgs/MarkerArray): robot_markers, ellipse_markers,
+  edge_markers, delete_all_marker, marker_array
+- /camera/image_raw (sensor_msgs/Image (mono8)): image_mono8, array_from_image
 """
 
 from __future__ import annotations
@@ -82,7 +84,7 @@ def quaternion_to_yaw(x: float, y: float, z: float, w: float) -> float:
 
 # --------------------------------------------------------------------------- pose
 def pose_stamped(pose_xyt, stamp: Time, frame_id: str = WORLD_FRAME) -> PoseStamped:
-    """PoseStamped from ``pose_xyt`` (3,) [x_m, y_m, theta_rad] of the controlled point."""
+    """A PoseStamped from ``pose_xyt`` (3,) [x_m, y_m, theta_rad] of the controlled point."""
     x, y, th = (float(v) for v in pose_xyt)
     msg = PoseStamped()
     msg.header.stamp = stamp
@@ -149,7 +151,7 @@ def state_from_odometry(msg: Odometry) -> tuple[np.ndarray, float]:
 def accel_stamped(
     accel_mps2, stamp: Time, frame_id: str = WORLD_FRAME, out: AccelStamped | None = None
 ) -> AccelStamped:
-    """AccelStamped carrying the commanded point acceleration a_j (2,) [m/s^2, world] (S4).
+    """An AccelStamped carrying the commanded point acceleration a_j (2,) [m/s^2, world] (S4).
     ``out``: refill this message (built here before) instead of a new one.
     """
     if out is None:
@@ -170,7 +172,7 @@ def accel_from_msg(msg: AccelStamped) -> tuple[np.ndarray, float]:
 
 # --------------------------------------------------------------------------- wheels
 def wheel_torque(torque_nm, stamp: Time, out: JointState | None = None) -> JointState:
-    """JointState with effort = (2,) [left, right] wheel torques [N m].
+    """A JointState with effort = (2,) [left, right] wheel torques [N m].
     ``out``: refill this message (built here before) instead of a new one.
     """
     if out is None:
@@ -191,7 +193,7 @@ def torque_from_msg(msg: JointState) -> tuple[np.ndarray, float]:
 
 
 def wheel_state(position_rad, velocity_radps, stamp: Time) -> JointState:
-    """JointState with (2,) [left, right] wheel angles [rad] and rates [rad/s]."""
+    """A JointState with (2,) [left, right] wheel angles [rad] and rates [rad/s]."""
     msg = JointState()
     msg.header.stamp = stamp
     msg.name = list(WHEEL_NAMES)
@@ -261,7 +263,9 @@ class GraphMessage:
 
 
 def graph_msg(graph: GraphMessage) -> String:
-    """std_msgs/String JSON ament_formation/graph/v1 of a GraphMessage (integer keys as strings)."""
+    """std_msgs/String JSON ament_formation/graph/v1 of a GraphMessage
+    (integer keys as strings).
+    """
     return String(
         data=payloads.encode(
             {
@@ -283,7 +287,7 @@ def graph_msg(graph: GraphMessage) -> String:
 
 
 def graph_from_msg(msg: String) -> GraphMessage:
-    """GraphMessage from the JSON; ValueError naming the member unless it follows
+    """A GraphMessage from the JSON; ValueError naming the member unless it follows
     ament_formation/graph/v1.
     """
     data = payloads.decode(msg.data, payloads.GRAPH_V1)

@@ -2,11 +2,11 @@
 
 Three topics carry JSON because no standard message holds what they say (docs/schemas/README.md):
 
-| topic                  | schema id                        | made by        | read by                        |
-|------------------------|----------------------------------|----------------|--------------------------------|
-| /formation/graph       | ament_formation/graph/v1         | coordinator    | controllers, world, recorder   |
-| /formation/encounters  | ament_formation/encounters/v1    | coordinator    | controllers                    |
-| robot_<id>/mode        | ament_formation/mode/v1          | controller     | coordinator, other controllers |
+| topic | schema id | made by | read by |
+|---|---|---|---|
+| /formation/graph | ament_formation/graph/v1 | coordinator | controllers, world, recorder |
+| /formation/encounters | ament_formation/encounters/v1 | coordinator | controllers |
+| robot_<id>/mode | ament_formation/mode/v1 | controller | coordinator, other controllers |
 
 Every payload names its schema in a ``"schema"`` field. A receiver decodes with :func:`decode`,
 which rejects (``PayloadError``, a ValueError) anything that is not the expected schema: not UTF-8
@@ -48,7 +48,8 @@ class PayloadError(ValueError):
 SCHEMAS: dict[str, dict] = {
     GRAPH_V1: {
         'title': 'formation graph (/formation/graph)',
-        'description': 'The communication graph of S9: the current parent of every robot (null = a '
+        'description': 'The communication graph of S9: the current parent of every robot '
+        '(null = a '
         'root: team leader or avoider), the formation offsets delta_i [m, world] to '
         'that parent, the robots avoiding, when it was made (stamp_s, ROS time [s]) and '
         'the mission start start_s (ROS time [s]; null until the coordinator starts the '
@@ -128,7 +129,8 @@ SCHEMAS: dict[str, dict] = {
     },
     MODE_V1: {
         'title': "a robot's avoidance mode (robot_<id>/mode)",
-        'description': "The S8 mode of the robot's controller: mode (coordination, obstacle, yield, "
+        'description': "The S8 mode of the robot's controller: mode (coordination, obstacle, "
+        'yield, '
         'mutual; hold or stopped when its safety layer holds or stops the robot), the '
         'target (obstacle name or robot_<id>; null in coordination), the direction of '
         'travel on the limit cycle (ccw, cw or null) and whether it counts as avoiding '

@@ -336,7 +336,9 @@ def topic_types(path: str | Path) -> dict[str, str]:
 def read_messages(
     path: str | Path, topics: Iterable[str] | None = None
 ) -> Iterator[tuple[str, int, object]]:
-    """Yield (topic, log_time_ns, message) in log-time order, deserialised with the installed types."""
+    """Yield (topic, log_time_ns, message) in log-time order, deserialised with the
+    installed types.
+    """
     from rclpy.serialization import deserialize_message
 
     classes: dict[int, type] = {}

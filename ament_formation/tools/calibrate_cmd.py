@@ -70,7 +70,8 @@ def _intrinsics(args: argparse.Namespace) -> int:
     k1, k2, p1, p2, k3 = camera.distortion
     print(
         f'intrinsics from {result.views_used} view(s) ({len(result.views_skipped)} skipped): '
-        f'fx {camera.fx_px:.2f} fy {camera.fy_px:.2f} cx {camera.cx_px:.2f} cy {camera.cy_px:.2f} px, '
+        f'fx {camera.fx_px:.2f} fy {camera.fy_px:.2f} '
+        f'cx {camera.cx_px:.2f} cy {camera.cy_px:.2f} px, '
         f'k1 {k1:.4f} k2 {k2:.4f} p1 {p1:.5f} p2 {p2:.5f} k3 {k3:.4f}'
     )
     print(f'reprojection error RMS {result.rms_px:.3f} px -> {out}')
@@ -100,8 +101,9 @@ def _floor(args: argparse.Namespace) -> int:
     save_camera_yaml(replace(setup, camera=result.camera, calibration=calib), out)
     c = result.camera
     print(
-        f'floor from {len(result.used_ids)} reference marker(s) {list(result.used_ids)}: camera above '
-        f'({c.position_m[0]:.3f}, {c.position_m[1]:.3f}) m at {c.height_m:.3f} m, yaw {c.yaw_rad:.4f} '
+        f'floor from {len(result.used_ids)} reference marker(s) {list(result.used_ids)}: '
+        f'camera above ({c.position_m[0]:.3f}, {c.position_m[1]:.3f}) m '
+        f'at {c.height_m:.3f} m, yaw {c.yaw_rad:.4f} '
         f'tilt {c.tilt_rad:.4f} roll {c.roll_rad:.4f} rad'
     )
     print(

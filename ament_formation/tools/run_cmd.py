@@ -40,7 +40,8 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         'run',
         help='run a scenario through the whole ROS 2 system (simulated hardware twin)',
-        description='Run SCENARIO.yaml through every node of the system on the simulated twin and write '
+        description='Run SCENARIO.yaml through every node of the system on the simulated twin '
+        'and write '
         'DIR/run.mcap, DIR/metrics.json, DIR/figure.png and the trajectories.',
     )
     p.add_argument('scenario', metavar='SCENARIO.yaml')
@@ -84,7 +85,10 @@ def register(subparsers) -> None:
         '--live-host',
         default=None,
         metavar='HOST',
-        help='bind the live view to HOST instead of 127.0.0.1 (e.g. the lab address; implies --live)',
+        help=(
+            'bind the live view to HOST instead of 127.0.0.1 '
+            '(e.g. the lab address; implies --live)'
+        ),
     )
     p.add_argument('--no-figure', action='store_true', help='skip figure.png')
     p.add_argument('--quiet', action='store_true', help='no progress and no summary')
@@ -155,6 +159,7 @@ def loopback_env(log_dir: Path) -> None:
 
 
 class _Progress:
+
     def __init__(self, stream, duration_s: float):
         self.stream, self.duration_s = stream, duration_s
         self.tty = stream.isatty()
@@ -284,7 +289,8 @@ def run_system(args: argparse.Namespace) -> int:
                 )
                 if url is not None:
                     print(
-                        f'run: live view on {url} (Foxglove: open a Foxglove WebSocket connection)',
+                        f'run: live view on {url} '
+                        '(Foxglove: open a Foxglove WebSocket connection)',
                         file=sys.stderr,
                     )
                     live_log = None

@@ -304,7 +304,9 @@ def build_vectors() -> dict:
             'name': 'crc16_in_version_2',
             'hex': _cobs_wire(crc16_framed),
             'reject': 'crc',
-            'note': 'version-2 TORQUE_CMD closed by a CRC-16 (version-1 check) instead of a CRC-32C',
+            'note': (
+                'version-2 TORQUE_CMD closed by a CRC-16 (version-1 check) instead of a CRC-32C'
+            ),
         },
         {
             'name': 'cobs_code_past_end',
@@ -409,13 +411,18 @@ def build_vectors() -> dict:
         'protocol': 'ament_formation motor-board serial protocol',
         'protocol_version': sp.PROTOCOL_VERSION,
         'document': 'docs/serial-protocol.md',
-        'framing': '[0x00] COBS(header(2) | body | crc32c_le(4)) 0x00; version-1 framing (HELLO, and HELLO_ACK '
+        'framing': '[0x00] COBS(header(2) | body | crc32c_le(4)) 0x00; '
+        'version-1 framing (HELLO, and HELLO_ACK '
         'to a version-1 host): [0x00] COBS(header(2) | body | crc16_le(2)) 0x00',
-        'crc': 'CRC-32C (Castagnoli) poly 0x1EDC6F41 (reflected 0x82F63B78) init 0xFFFFFFFF refin true refout true '
-        "xorout 0xFFFFFFFF, over header+body, sent little-endian; check value of '123456789' is 0xe3069283",
-        'crc_version_1': 'CRC-16/CCITT-FALSE poly 0x1021 init 0xFFFF refin false refout false xorout 0x0000, '
+        'crc': 'CRC-32C (Castagnoli) poly 0x1EDC6F41 (reflected 0x82F63B78) '
+        'init 0xFFFFFFFF refin true refout true '
+        'xorout 0xFFFFFFFF, over header+body, sent little-endian; '
+        "check value of '123456789' is 0xe3069283",
+        'crc_version_1': 'CRC-16/CCITT-FALSE poly 0x1021 init 0xFFFF '
+        'refin false refout false xorout 0x0000, '
         "check value of '123456789' is 0x29b1",
-        'check_field': "'check' of a valid vector is the CRC its header's version selects (4 hex digits: CRC-16)",
+        'check_field': "'check' of a valid vector is the CRC its header's version selects "
+        '(4 hex digits: CRC-16)',
         'units': {
             'torque': 'int16, 1e-4 N*m',
             'velocity': 'int16, 1e-3 rad/s',

@@ -30,7 +30,8 @@ def register(subparsers) -> None:
     sim = subparsers.add_parser(
         'sim',
         help='run a scenario in the ROS-free closed-loop simulator',
-        description='Run SCENARIO.yaml in the vectorised closed-loop simulator and write DIR/metrics.json, '
+        description='Run SCENARIO.yaml in the vectorised closed-loop simulator and write '
+        'DIR/metrics.json, '
         'DIR/figure.png and the trajectories (CSV).',
     )
     sim.add_argument(
@@ -60,7 +61,8 @@ def register(subparsers) -> None:
     plot = subparsers.add_parser(
         'plot',
         help='redraw the figure of a finished run',
-        description='Draw the Fig. 4-like figure of a run directory written by `formation sim` or `formation run`.',
+        description='Draw the Fig. 4-like figure of a run directory written by '
+        '`formation sim` or `formation run`.',
     )
     plot.add_argument('run_dir', metavar='DIR', help='run directory')
     plot.add_argument('--output', metavar='PNG', help='figure file (default DIR/figure.png)')
@@ -74,7 +76,8 @@ def _positive(value: float, option: str) -> float:
 
 
 class _Progress:
-    """Progress callback(t_s, duration_s) writing to ``stream`` at most every ``period_s`` of wall time.
+    """Progress callback(t_s, duration_s) writing to ``stream`` at most every ``period_s``
+    of wall time.
 
     Nothing is shown before ``delay_s`` of wall time, so short runs stay silent. A tty gets one
     line rewritten in place; a log file gets a line per update.
@@ -127,19 +130,23 @@ def _summary(metrics: dict, out: Path, figure: bool = True, first: tuple[str, ..
             []
             if 'ok' not in metrics
             else [
-                f'  checks: {"OK" if metrics["ok"] else "FAILED"} ({sum(c["ok"] for c in metrics["checks"])}/'
+                f'  checks: {"OK" if metrics["ok"] else "FAILED"} '
+                f'({sum(c["ok"] for c in metrics["checks"])}/'
                 f'{len(metrics["checks"])} passed)'
                 + ('' if metrics['ok'] else f': {metrics["failure"]}')
             ]
         ),
         f'  prohibited entries {metrics["prohibited_entries"]}, min clearance '
-        f'{fmt(metrics["min_clearance_m"])}, min robot distance {fmt(metrics["min_inter_robot_distance_m"])}',
+        f'{fmt(metrics["min_clearance_m"])}, min robot distance '
+        f'{fmt(metrics["min_inter_robot_distance_m"])}',
     ]
     for rid, r in metrics['robots'].items():
         lines.append(
-            f'  R{rid}: avoid {r["avoidance_entries"]}x {r["avoidance_time_s"]:.1f} s, settled RMS '
-            f'{fmt(r["formation_rms_settled_m"], "mm", 1e3, 1)}, final {fmt(r["final_error_m"], "mm", 1e3, 1)}, '
-            f'peak torque {max(r["peak_torque_nm"]):.3f} N m, saturated {100 * r["saturated_fraction"]:.1f} %'
+            f'  R{rid}: avoid {r["avoidance_entries"]}x {r["avoidance_time_s"]:.1f} s, '
+            f'settled RMS {fmt(r["formation_rms_settled_m"], "mm", 1e3, 1)}, '
+            f'final {fmt(r["final_error_m"], "mm", 1e3, 1)}, '
+            f'peak torque {max(r["peak_torque_nm"]):.3f} N m, '
+            f'saturated {100 * r["saturated_fraction"]:.1f} %'
             + (
                 f', safety stops {r["safety_stops"]} ({r["safety_stop_time_s"]:.1f} s)'
                 if 'safety_stops' in r
