@@ -1,4 +1,6 @@
-"""ament_formation: sliding-mode formation control with elliptical limit-cycle avoidance (ROS 2 Jazzy)."""
+"""ament_formation: sliding-mode formation control with elliptical limit-cycle avoidance (ROS 2
+Jazzy).
+"""
 
 __version__ = '0.1.0'
 

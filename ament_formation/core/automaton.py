@@ -186,7 +186,9 @@ def segment_hits(p0x, p0y, p1x, p1y, cx, cy, phi, r1, r2):
 
 @njit(cache=True)
 def relative_velocity(zx, zy, vx, vy, cvx, cvy, phi_dot):
-    """S14.2: robot velocity relative to the obstacle's material point at z, p_dot - (c_dot + phi_dot J z)."""
+    """S14.2: robot velocity relative to the obstacle's material point at z,
+    p_dot - (c_dot + phi_dot J z).
+    """
     return vx - cvx + phi_dot * zy, vy - cvy - phi_dot * zx
 
 

@@ -13,7 +13,9 @@ import numpy as np
 
 @dataclass(frozen=True)
 class FaultSpec:
-    """Per-byte fault probabilities of one direction; ``delay_s`` [s] is how long a delayed byte waits."""
+    """Per-byte fault probabilities of one direction; ``delay_s`` [s] is how long a delayed byte
+    waits.
+    """
 
     drop_prob: float = 0.0
     corrupt_prob: float = 0.0

@@ -97,7 +97,9 @@ def rotation_vector(r: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class CameraModel:
-    """One calibrated camera: image size, intrinsics, distortion, mounting. SI units, world frame."""
+    """One calibrated camera: image size, intrinsics, distortion, mounting. SI units, world
+    frame.
+    """
 
     width_px: int = 640
     height_px: int = 480
@@ -183,7 +185,9 @@ class CameraModel:
 
     # ---------------------------------------------------------------- mappings
     def project(self, points_w: np.ndarray, distort: bool = True) -> np.ndarray:
-        """World points (N, 3) [m] → pixels (N, 2) [px] (with lens distortion unless told not to)."""
+        """World points (N, 3) [m] → pixels (N, 2) [px] (with lens distortion unless told not
+        to).
+        """
         pts = np.ascontiguousarray(points_w, dtype=np.float64).reshape(-1, 3)
         if len(pts) == 0:
             return np.zeros((0, 2))
@@ -213,7 +217,9 @@ class CameraModel:
         return self.center_w[:2] + t[:, None] * d[:, :2]
 
     def ground_sample_m(self, xy_m: np.ndarray, z_m: float = 0.0) -> np.ndarray:
-        """Approximate size of one pixel on the plane z = ``z_m`` at points (N, 2) → (N,) [m/px]."""
+        """Approximate size of one pixel on the plane z = ``z_m``
+        at points (N, 2) → (N,) [m/px].
+        """
         xy = np.asarray(xy_m, dtype=np.float64).reshape(-1, 2)
         px = self.floor_to_pixel(xy, z_m)
         step = 1e-3

@@ -92,8 +92,9 @@ def _distort(x, y, fx, fy, cx, cy, d):
 
 @njit(cache=True)
 def refine_kernel(img, corners, fx, fy, cx, cy, dist, bits, out_norm, out_sigma):
-    """Img (H, W) uint8 or float; corners (K, 4, 2) px → out_norm (K, 4, 2) ideal normalized corners,
-    out_sigma (K,) corner σ [px] (NaN: refinement failed, the detector's corners are used).
+    """Img (H, W) uint8 or float; corners (K, 4, 2) px → out_norm (K, 4, 2) ideal normalized
+    corners, out_sigma (K,) corner σ [px] (NaN: refinement failed, the detector's corners are
+    used).
     """
     n_markers = corners.shape[0]
     m_samples = EDGE_SAMPLES
@@ -212,7 +213,8 @@ def refine_kernel(img, corners, fx, fy, cx, cy, dist, bits, out_norm, out_sigma)
 def refine(
     image: np.ndarray, corners_px: np.ndarray, k: np.ndarray, dist: np.ndarray, bits: int = 4
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Corners (K, 4, 2) [px] in mono8 ``image`` → (ideal normalized corners (K, 4, 2), σ (K,) [px]).
+    """Corners (K, 4, 2) [px] in mono8 ``image`` → (ideal normalized corners (K, 4, 2),
+    σ (K,) [px]).
 
     ``k`` (3, 3) camera matrix and ``dist`` (5,) distortion of the image's camera.
     """

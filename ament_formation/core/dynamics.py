@@ -86,7 +86,7 @@ class PlantCoeffs:
 
 
 def f2(state: np.ndarray, k: PlantCoeffs) -> np.ndarray:
-    """Drift f2(x2) = [(m_c d/m~) w^2, -(m_c d/I~) w v] (S2.2). Returns (N, 2)."""
+    """Drift f2 at x2: [(m_c d/m~) w^2, -(m_c d/I~) w v] (S2.2). Returns (N, 2)."""
     v = state[:, 3]
     w = state[:, 4]
     mcd = k.m_c * k.d
@@ -94,7 +94,9 @@ def f2(state: np.ndarray, k: PlantCoeffs) -> np.ndarray:
 
 
 def b2(k: PlantCoeffs) -> np.ndarray:
-    """Input matrix B2 = [[1/(m~ r), 1/(m~ r)], [-a/(2 I~ r), a/(2 I~ r)]] (S2.2). Returns (N, 2, 2)."""
+    """Input matrix B2 = [[1/(m~ r), 1/(m~ r)], [-a/(2 I~ r), a/(2 I~ r)]] (S2.2).
+    Returns (N, 2, 2).
+    """
     lin = 1.0 / (k.m_tilde * k.r)
     ang = k.a / (2.0 * k.I_tilde * k.r)
     out = np.empty((k.n, 2, 2))
@@ -171,7 +173,9 @@ def _s1_apply(theta: np.ndarray, d: np.ndarray, vec: np.ndarray) -> np.ndarray:
 
 
 def commanded_point_accel(state: np.ndarray, torque: np.ndarray, k: PlantCoeffs) -> np.ndarray:
-    """Disturbance-free point acceleration a = S1 (f2 + B2 u) + S1dot x2 (S2.2; a_j of S4). (N, 2)."""
+    """Disturbance-free point acceleration a = S1 (f2 + B2 u) + S1dot x2
+    (S2.2; a_j of S4). (N, 2).
+    """
     return _s1_apply(state[:, 2], k.d, _x2dot(state, torque, k)) + s1dot_x2(state, k.d)
 
 

@@ -1,4 +1,5 @@
-"""Robot-robot encounters (spec S7) and the decision step that runs the S8 automaton of every robot.
+"""Robot-robot encounters (spec S7) and the decision step that runs the S8 automaton of every
+robot.
 
 :func:`decide` is the one decision function used by the simulator (all robots at once, at the
 decision rate) and by :class:`ament_formation.core.controller.RobotController` (the same call on
@@ -81,7 +82,9 @@ def keepout_radius(rbody, i, k, prm):
 
 @njit(cache=True)
 def candidate_pairs(p, cell_m):
-    """Robot pairs (i < k) closer than ``cell_m``, found with a uniform grid. p (N, 2) -> (P, 2) int."""
+    """Robot pairs (i < k) closer than ``cell_m``, found with a uniform grid.
+    p (N, 2) -> (P, 2) int.
+    """
     n = p.shape[0]
     out = np.empty((max(16, 8 * n), 2), dtype=np.int64)
     cnt = 0
@@ -152,7 +155,9 @@ def candidate_pairs(p, cell_m):
 
 @njit(cache=True)
 def reacts_to(k, i, mode, tgt):
-    """True when robot k reacts to robot i directly or through a chain of yields (S7 acyclicity)."""
+    """True when robot k reacts to robot i directly or through a chain of yields (S7
+    acyclicity).
+    """
     cur = k
     for _ in range(mode.shape[0] + 1):
         if mode[cur] != MODE_YIELD and mode[cur] != MODE_MUTUAL:
@@ -272,7 +277,9 @@ def _agent_urgency(i, k, p, pd, rbody, prm):
 
 @njit(cache=True)
 def _better(em, key_em, lam, best_set, best_em, best_key_em, best_lam):
-    """S8.1 ranking: emergencies first (smallest h_em), then the earliest contact (smallest lambda)."""
+    """S8.1 ranking: emergencies first (smallest h_em), then the earliest contact (smallest
+    lambda).
+    """
     if not best_set:
         return True
     if em and not best_em:
@@ -288,7 +295,9 @@ def _better(em, key_em, lam, best_set, best_em, best_key_em, best_lam):
 def _form_mutual(
     i, k, t, pd, mode, tgt, sdir, t_entry, since, last_kind, last_tgt, last_exit, wc, ev, nev
 ):
-    """Convert/enter the mutual pair (i, k): s = +1, same t_s, w_c = 1/2 (p_dot_i + p_dot_k)(t_s) (S7)."""
+    """Convert/enter the mutual pair (i, k): s = +1, same t_s, w_c = 1/2 (p_dot_i + p_dot_k)(t_s)
+    (S7).
+    """
     for a in (i, k):
         if mode[a] == MODE_MUTUAL:
             m = tgt[a]
@@ -713,7 +722,10 @@ def decide_once(
     n = state.n
     ev = np.zeros((ev_capacity or 8 * n + 16, 6))
     oc, ov, ophi, ophid, oaxes, ostatic = obstacles
-    f = lambda a: np.ascontiguousarray(a, dtype=float)
+
+    def f(a):
+        return np.ascontiguousarray(a, dtype=float)
+
     nev = decide(
         float(t_s),
         f(p),

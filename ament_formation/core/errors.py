@@ -25,7 +25,9 @@ class ConfigError(ValueError):
         return ConfigError(self.problem, self.field, file)
 
     def under(self, prefix: str) -> 'ConfigError':
-        """The same error with ``prefix`` prepended to the field path (``robots[1]`` + ``.slot_m``)."""
+        """The same error with ``prefix`` prepended to the field path
+        (``robots[1]`` + ``.slot_m``).
+        """
         field = f'{prefix}.{self.field}' if self.field else prefix
         if self.field and self.field.startswith('['):
             field = f'{prefix}{self.field}'

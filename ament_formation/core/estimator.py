@@ -1,4 +1,5 @@
-"""Pose estimate of one robot's controlled point from wheel odometry and delayed camera poses (S10).
+"""Pose estimate of one robot's controlled point from wheel odometry and delayed camera poses
+(S10).
 
 Between camera frames the pose is propagated with the wheel encoders (exact arc per step, S2.2
 kinematics (16)-(18) for constant v, omega over the step). Each camera pose carries its capture

@@ -28,7 +28,9 @@ def _phi_terms(e: np.ndarray, alpha, v_cap):
 
 
 def phi(e: np.ndarray, alpha, v_cap) -> np.ndarray:
-    """S4: Phi(e) = alpha e / sqrt(1 + alpha^2 |e|^2 / v_cap^2), |Phi| < v_cap. (N, 2) -> (N, 2)."""
+    """S4: Phi(e) = alpha e / sqrt(1 + alpha^2 |e|^2 / v_cap^2), |Phi| < v_cap.
+    (N, 2) -> (N, 2).
+    """
     ex, ey, _q, s = _phi_terms(e, alpha, v_cap)
     g = alpha / s
     return np.stack((g * ex, g * ey), axis=-1)

@@ -81,7 +81,7 @@ class FormationGraph:
 
     def _bfs_tree(self):
         """pi0: BFS from each leader in ascending id; neighbours in ascending id (S9 inputs)."""
-        parent: dict[int, int | None] = {lead: None for lead in self.leaders}  # leaders stay roots
+        parent: dict[int, int | None] = dict.fromkeys(self.leaders)  # leaders stay roots
         team: dict[int, int] = {lead: lead for lead in self.leaders}
         for lead in self.leaders:
             queue = deque([lead])
@@ -111,7 +111,7 @@ class FormationGraph:
             raise ValueError(f'avoiding robots {sorted(unknown)} are not in the graph')
         roots = list(self.leaders) + sorted(avoid - set(self.leaders))
         root_set = set(roots)
-        parent: dict[int, int | None] = {r: None for r in roots}
+        parent: dict[int, int | None] = dict.fromkeys(roots)
         attached: set[int] = set(roots)
         for root in roots:
             depth = {root: 0}

@@ -74,7 +74,9 @@ def numba_sources(core_dir: Path = _CORE) -> list[Path]:
 
 
 def source_hash(core_dir: Path = _CORE) -> str:
-    """sha256 (first 16 hex digits) over the relative paths and contents of :func:`numba_sources`."""
+    """sha256 (first 16 hex digits) over the relative paths and contents of
+    :func:`numba_sources`.
+    """
     h = hashlib.sha256()
     for path in numba_sources(core_dir):
         h.update(str(path.relative_to(core_dir)).encode())

@@ -1,20 +1,23 @@
 """Numba scalar kernels of the closed-loop hot path (twins of the numpy API, same spec labels).
 
 Each ``*_k`` function takes scalars (and small arrays where stated) of ONE robot and returns a
-tuple,
-so a compiled per-step loop over robots (the simulator) can call them without allocating. They
-mirror, operation for operation, the vectorised numpy functions:
+tuple, so a compiled per-step loop over robots (the simulator) can call them without allocating.
+They mirror, operation for operation, the vectorised numpy functions:
 
 | kernel | numpy twin | spec |
 |---|---|---|
-| state_derivative_k, rk4_step_k, rk4_step_all | dynamics.state_derivative, dynamics.rk4_step | S2.2 |
-| point_velocity_k, commanded_point_accel_k | dynamics.point_velocity, dynamics.commanded_point_accel | S2.2 |
+| state_derivative_k | dynamics.state_derivative | S2.2 |
+| rk4_step_k, rk4_step_all | dynamics.rk4_step | S2.2 |
+| point_velocity_k | dynamics.point_velocity | S2.2 |
+| commanded_point_accel_k | dynamics.commanded_point_accel | S2.2 |
 | disturbance_k, disturbance_phasor_*_k | disturbance.Disturbance.__call__ | S2.3 |
 | smc_torque_k | smc.sliding_mode_torque_raw | S3.1, S3.2, S3.5, S3.6 |
 | tracking_field_k | formation.tracking_field (leader/follower) | S4 |
 | ellipse_h_k, ellipse_field_k | limit_cycle.ellipse_h, limit_cycle.field | S6.2-S6.4 |
-| gain_schedule_k, parking_factor_k | limit_cycle.gain_schedule, limit_cycle.parking_factor | S6.5 |
-| ray_hits_ellipse_k, segment_hits_ellipse_k | limit_cycle.ray_hits_ellipse, segment_hits_ellipse | S8.1, S8.3 |
+| gain_schedule_k | limit_cycle.gain_schedule | S6.5 |
+| parking_factor_k | limit_cycle.parking_factor | S6.5 |
+| ray_hits_ellipse_k | limit_cycle.ray_hits_ellipse | S8.1 |
+| segment_hits_ellipse_k | limit_cycle.segment_hits_ellipse | S8.3 |
 
 Plant coefficients are passed as scalars in the order (mt, It, r, a, d, mc[, tau_max]) =
 (m~ [kg], I~ [kg m^2], wheel radius [m], axle length [m], CoM offset d [m], platform mass [kg],
@@ -28,7 +31,7 @@ import math
 
 from numba import njit
 
-_JIT = dict(cache=True, fastmath=False)
+_JIT = {'cache': True, 'fastmath': False}
 TWO_PI = 2.0 * math.pi
 
 
@@ -50,7 +53,9 @@ def state_derivative_k(x, y, th, v, w, t1, t2, g1, g2, mt, It, r, a, d, mc):
 
 @njit(**_JIT)
 def rk4_step_k(x, y, th, v, w, t1, t2, g0a, g0b, gha, ghb, g1a, g1b, dt, mt, It, r, a, d, mc):
-    """One RK4 step with ZOH torque; g0 at t, gh at t + dt/2, g1 at t + dt. -> new 5-tuple state."""
+    """One RK4 step with ZOH torque; g0 at t, gh at t + dt/2, g1 at t + dt. -> new 5-tuple
+    state.
+    """
     h = 0.5 * dt
     k1 = state_derivative_k(x, y, th, v, w, t1, t2, g0a, g0b, mt, It, r, a, d, mc)
     k2 = state_derivative_k(
@@ -184,7 +189,9 @@ def disturbance_k(t, amp, freq, phase):
 
 @njit(**_JIT)
 def disturbance_phasor_init_k(t, freq, phase, sin_out, cos_out):
-    """Start the phasors of one robot at time t: sin_out/cos_out (2, M) = sin/cos(2 pi f t + phi)."""
+    """Start the phasors of one robot at time t:
+    sin_out/cos_out (2, M) = sin/cos(2 pi f t + phi).
+    """
     for k in range(2):
         for m in range(freq.shape[1]):
             arg = 2.0 * math.pi * freq[k, m] * t + phase[k, m]

@@ -33,7 +33,9 @@ TWO_PI = 2.0 * math.pi
 
 @dataclass(frozen=True)
 class FieldOutput:
-    """S6.3/S6.4 for N agents: ``f`` (N, 2) [m/s], ``f_dot`` (N, 2) [m/s^2], ``h`` (N,), ``h_dot`` (N,) [1/s]."""
+    """S6.3/S6.4 for N agents: ``f`` (N, 2) [m/s], ``f_dot`` (N, 2) [m/s^2], ``h`` (N,),
+    ``h_dot`` (N,) [1/s].
+    """
 
     f: np.ndarray
     f_dot: np.ndarray
@@ -295,7 +297,9 @@ def ellipse_arc_length(psi_from, delta, r1, r2):
 
 
 def ellipse_perimeter(r1, r2):
-    """Perimeter of the ellipse with semi-axes (r1, r2) [m] (quadrature, relative error < 1e-12)."""
+    """Perimeter of the ellipse with semi-axes (r1, r2) [m]
+    (quadrature, relative error < 1e-12).
+    """
     return ellipse_arc_length(0.0 * np.asarray(r1, dtype=float), TWO_PI, r1, r2)
 
 
@@ -364,7 +368,8 @@ def _quadratic(z, dz, phi, r1, r2):
 
 
 def ray_hits_ellipse(z, z_dot, phi, r1, r2):
-    """Does the ray {z + lam z_dot, lam >= 0} meet the closed ellipse (h <= 0)? (S8.1 heading test).
+    """Does the ray {z + lam z_dot, lam >= 0} meet the closed ellipse (h <= 0)? (S8.1 heading
+    test).
 
     ``z`` (N, 2) relative to the centre, ``z_dot`` (N, 2) direction (relative velocity).
     Returns (hit (N,) bool, lam (N,) first contact parameter [s if z_dot is a velocity];

@@ -379,7 +379,9 @@ class MarkerTracker:
     def _predicted_boxes(
         self, t_s: float, mids: list[int]
     ) -> list[tuple[int, tuple[int, int, int, int]]]:
-        """Pixel boxes (x0, y0, x1, y1) around tracks ``mids``' markers, last seen and predicted."""
+        """Pixel boxes (x0, y0, x1, y1) around tracks ``mids``' markers, last seen and
+        predicted.
+        """
         w, h = self.camera.size_px
         last, pred = self._predictions(t_s, mids)
         corners = self.layout.corners_w(np.concatenate([last, pred]))  # (2K, 4, 2)
@@ -536,7 +538,9 @@ class MarkerTracker:
         )
 
     def _code_cells(self, mid: int) -> np.ndarray:
-        """(n + 2, n + 2) expected cells of marker ``mid`` (1 white): quiet ring, black border, code."""
+        """(n + 2, n + 2) expected cells of marker ``mid`` (1 white): quiet ring, black border,
+        code.
+        """
         cells = self._codes.get(mid)
         if cells is None:
             n = self.layout.bits + 2
@@ -557,7 +561,9 @@ class MarkerTracker:
         )
 
     def _resolve_duplicates(self, corners, ids, t_s):
-        """Two markers with one id: keep the one nearest the prediction (drop both if untracked)."""
+        """Two markers with one id: keep the one nearest the prediction (drop both if
+        untracked).
+        """
         if len(ids) == len(set(ids.tolist())):
             return corners, ids
         keep = np.ones(len(ids), bool)

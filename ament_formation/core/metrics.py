@@ -272,8 +272,8 @@ COMPLETE_TOLERANCE_S = 0.05  # a run is complete when sim_time_s >= duration_s -
 
 
 def check(name: str, ok: bool, value, limit, op: str, detail: str | None = None) -> dict:
-    """One check result as written to metrics.json ``checks``: name, ok, value, limit, op (how value
-    compares with limit: "<=", ">=", "in", "=="), and an optional one-line detail.
+    """One check result as written to metrics.json ``checks``: name, ok, value, limit, op (how
+    value compares with limit: "<=", ">=", "in", "=="), and an optional one-line detail.
     """
     out = {
         'name': name,
@@ -389,7 +389,9 @@ def _fmt(value) -> str:
 
 
 def describe_check(c: dict) -> str:
-    """A check as one short phrase: "settled_rms_m[R1] 0.0424 > 0.02" or its detail when no value."""
+    """A check as one short phrase: "settled_rms_m[R1] 0.0424 > 0.02" or its detail when no
+    value.
+    """
     if c.get('value') is None and c.get('detail'):
         return f'{c["name"]}: {c["detail"]}'
     if c['ok']:

@@ -44,7 +44,9 @@ def brake_torque_e4nm(speed_radps: float, limit_e4nm: int) -> int:
 
 @dataclass(frozen=True)
 class BoardConfig:
-    """Compiled-in settings of a board; the host may lower the limit and change periods (CONFIG)."""
+    """Compiled-in settings of a board; the host may lower the limit and change periods
+    (CONFIG).
+    """
 
     ticks_per_rev: int = 1440
     hard_torque_limit_nm: float = 0.15
@@ -62,7 +64,8 @@ class BoardConfig:
             raise ValueError(f'BoardConfig.ticks_per_rev: {self.ticks_per_rev} not in [1, 65535]')
         if not 0.0 < self.hard_torque_limit_nm <= 0xFFFF * sp.TORQUE_LSB_NM:
             raise ValueError(
-                f'BoardConfig.hard_torque_limit_nm: {self.hard_torque_limit_nm} N·m not in (0, 6.5535]'
+                f'BoardConfig.hard_torque_limit_nm: {self.hard_torque_limit_nm} N·m '
+                'not in (0, 6.5535]'
             )
         if not 0.02 <= self.watchdog_s <= 0.5:
             raise ValueError(f'BoardConfig.watchdog_s: {self.watchdog_s} s not in [0.02, 0.5]')

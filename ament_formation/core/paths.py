@@ -232,8 +232,10 @@ class WaypointPath:
                 need += brake
             if need > length[i] + 1e-12:
                 raise ConfigError(
-                    f'segment {i} -> {i + 1} is {length[i]:.3f} m long but needs {need:.3f} m to turn '
-                    f'(radius v^2/a = {radius:.3f} m) and brake at accel_mps2 = {self.accel_mps2}; '
+                    f'segment {i} -> {i + 1} is {length[i]:.3f} m long '
+                    f'but needs {need:.3f} m to turn '
+                    f'(radius v^2/a = {radius:.3f} m) '
+                    f'and brake at accel_mps2 = {self.accel_mps2}; '
                     'space the points out, lower speed_mps or raise accel_mps2',
                     'points_m',
                 )

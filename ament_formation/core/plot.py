@@ -36,7 +36,9 @@ _COLORS = (
 
 
 def _obstacle_instants(result: SimResult, j: int, count: int) -> list[int]:
-    """Sample indices at which obstacle j is drawn: one if it never moves, else ``count`` spread."""
+    """Sample indices at which obstacle j is drawn: one if it never moves, else ``count``
+    spread.
+    """
     c = result.obstacle_center_m[:, j]
     phi = result.obstacle_phi_rad[:, j]
     moving = np.ptp(c[:, 0]) + np.ptp(c[:, 1]) > 1e-6 or np.ptp(phi) > 1e-6

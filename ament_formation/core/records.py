@@ -55,7 +55,9 @@ def _write_csv(path: Path, header: list[str], table: np.ndarray, int_cols: set[i
 
 
 def write_run(out_dir, result: SimResult, scenario: Scenario, metrics: dict | None = None) -> Path:
-    """Write ``result`` (and ``metrics`` when given) into ``out_dir`` (created). Returns the path."""
+    """Write ``result`` (and ``metrics`` when given) into ``out_dir`` (created). Returns the
+    path.
+    """
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise ConfigError('exists and is not a directory', file=str(out))

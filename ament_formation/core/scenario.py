@@ -57,7 +57,7 @@ class RobotSpec:
     slot_m : (2,) formation slot c_i relative to its team leader, world frame (S1; leader: 0)
     """
 
-    id: int
+    id: int  # noqa: A003
     params: RobotParams
     initial_pose: tuple[float, float, float]
     slot_m: tuple[float, float]
@@ -68,7 +68,9 @@ class RobotSpec:
 
 @dataclass(frozen=True)
 class DisturbanceSpec:
-    """Bound of the smooth disturbance g (S2.3): accel_bound = (g1_bar [m/s^2], g2_bar [rad/s^2])."""
+    """Bound of the smooth disturbance g (S2.3):
+    accel_bound = (g1_bar [m/s^2], g2_bar [rad/s^2]).
+    """
 
     accel_bound: tuple[float, float] = (0.0, 0.0)
     seed: int = 0
@@ -115,7 +117,9 @@ class ExpectSpec:
 
 @dataclass(frozen=True)
 class Scenario:
-    """A validated scenario. ``edges`` are (parent, child) pairs: child may receive parent's state."""
+    """A validated scenario. ``edges`` are (parent, child) pairs: child may receive parent's
+    state.
+    """
 
     name: str
     duration_s: float
@@ -206,7 +210,8 @@ def _construct_mapping(loader, node, deep=False):
         key = loader.construct_object(key_node, deep=deep)
         if key in seen:
             raise ConfigError(
-                f'duplicate key {key!r} (line {key_node.start_mark.line + 1}; first at line {seen[key]})'
+                f'duplicate key {key!r} (line {key_node.start_mark.line + 1}; '
+                f'first at line {seen[key]})'
             )
         seen[key] = key_node.start_mark.line + 1
     return loader.construct_mapping(node, deep=deep)
@@ -645,7 +650,8 @@ def _check_teams(robots: list[RobotSpec], edges: list[tuple[int, int]]) -> None:
         lead = [v for v in comp if v in leaders]
         if len(lead) == 0:
             raise ConfigError(
-                f"the team of robots {comp} has no leader (mark one robot 'leader: true' or connect "
+                f'the team of robots {comp} has no leader '
+                "(mark one robot 'leader: true' or connect "
                 'them to a leader through graph.edges)',
                 f'robots[{index[comp[0]]}]',
             )
@@ -688,7 +694,8 @@ def _check_start_geometry(robots, obstacles, avoidance: AvoidanceParams) -> None
                 r1, r2 = field_.semi_axes_m[j]
                 if (u / r1) ** 2 + (w / r2) ** 2 < 1.0:
                     raise ConfigError(
-                        f'robot {r.id} starts inside the prohibited region P of obstacle {obs.name!r} '
+                        f'robot {r.id} starts inside the prohibited region P '
+                        f'of obstacle {obs.name!r} '
                         '(S13 #2: never start a mission in collision)',
                         f'robots[{i}].initial_pose',
                     )
@@ -703,7 +710,8 @@ def _check_start_geometry(robots, obstacles, avoidance: AvoidanceParams) -> None
             dist = math.dist(ra.initial_pose[:2], rb.initial_pose[:2])
             if dist < keepout:
                 raise ConfigError(
-                    f'robots {ra.id} and {rb.id} start {dist:.3f} m apart, inside the robot prohibited '
+                    f'robots {ra.id} and {rb.id} start {dist:.3f} m apart, '
+                    'inside the robot prohibited '
                     f'circle {keepout:.3f} m (S7)',
                     f'robots[{b}].initial_pose',
                 )
@@ -770,7 +778,8 @@ def _check_limit_cycles(obstacles, avoidance: AvoidanceParams, duration_s: float
                 kind = '' if n_t == 1 else f' at t = {t_hit:.2f} s'
                 raise ConfigError(
                     f'the limit cycles (L = {avoidance.limit_cycle_scale} P) of obstacles '
-                    f'{obstacles[a].name!r} and {obstacles[b].name!r} overlap{kind}; move them apart or '
+                    f'{obstacles[a].name!r} and {obstacles[b].name!r} overlap{kind}; '
+                    'move them apart or '
                     'merge them into one enclosing ellipse (S13 #3)',
                     f'obstacles[{b}]',
                 )

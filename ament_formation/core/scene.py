@@ -104,7 +104,7 @@ class RobotView:
     ``circulation_rad`` heading of its sense of circulation round the target (None otherwise).
     """
 
-    id: int
+    id: int  # noqa: A003
     pose: np.ndarray
     body_radius_m: float
     mode: str
@@ -217,7 +217,9 @@ class LiveScene:
     def target_center(
         self, target, t_s: float | None, states: dict, obstacles
     ) -> np.ndarray | None:
-        """Centre (2,) [m] of a mode target: an obstacle name or ``robot_<k>`` (None if unknown)."""
+        """Centre (2,) [m] of a mode target: an obstacle name or ``robot_<k>`` (None if
+        unknown).
+        """
         if not isinstance(target, str):
             return None
         if target.startswith('robot_'):

@@ -117,7 +117,9 @@ class Backoff:
 
 @dataclass(frozen=True)
 class WheelSample:
-    """Wheel state from one TELEMETRY: positions [rad] and velocities [rad/s], shape (2,) [left, right]."""
+    """Wheel state from one TELEMETRY: positions [rad] and velocities [rad/s],
+    shape (2,) [left, right].
+    """
 
     position_rad: np.ndarray
     velocity_radps: np.ndarray
@@ -212,7 +214,9 @@ class LinkHost:
 
     # -- input ---------------------------------------------------------------------------------
     def set_input(self, torques_nm, now_s: float) -> bool:
-        """New wheel torques [N·m] (left, right) from the controller; False if rejected (NaN/inf/size)."""
+        """New wheel torques [N·m] (left, right) from the controller; False if rejected
+        (NaN/inf/size).
+        """
         self.stats['inputs'] += 1
         try:
             left, right = (float(t) for t in torques_nm)
@@ -279,7 +283,9 @@ class LinkHost:
 
     # -- periodic ------------------------------------------------------------------------------
     def poll(self, now_s: float) -> bytes:
-        """Bytes due at ``now_s``: handshake retries, keep-alive/zero/retransmitted commands, heartbeat."""
+        """Bytes due at ``now_s``: handshake retries, keep-alive/zero/retransmitted commands,
+        heartbeat.
+        """
         p = self.p
         if self.state == HANDSHAKE and now_s - self._last_hello_s >= p.hello_retry_s:
             self._last_hello_s = now_s
@@ -422,7 +428,8 @@ class LinkHost:
     def version_mismatch_text(self) -> str:
         """One line for the log and diagnostics when the board speaks another protocol version."""
         return (
-            f'protocol version mismatch: the board speaks version {self.board_version}, this bridge '
+            'protocol version mismatch: '
+            f'the board speaks version {self.board_version}, this bridge '
             f'speaks {sp.PROTOCOL_VERSION}; no torque is sent (flash firmware of protocol version '
             f'{sp.PROTOCOL_VERSION}: make -C firmware flash)'
         )

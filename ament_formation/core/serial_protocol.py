@@ -357,7 +357,7 @@ class FrameDecoder:
 
     def __init__(self, accepted_version: int = PROTOCOL_VERSION) -> None:
         self.accepted_version = accepted_version
-        self.rejected = {reason: 0 for reason in REJECT_REASONS}
+        self.rejected = dict.fromkeys(REJECT_REASONS, 0)
         self.accepted = 0
         self._buf = bytearray()
         self._discarding = False
