@@ -5,9 +5,7 @@ install), else plain flake8 with the same configuration (setup.cfg ``[flake8]``:
 extend-ignore list, max-line-length 99, google import order, single quotes) and the plugins
 pinned in requirements.txt.
 
-Until scripts/lint_fix.sh has been run over the tree (it converts quotes and wraps long lines; the
-lead runs it once every helper's edits are in), this test is expected to fail: it is marked
-``xfail(strict=False)`` and reports the number of findings. Remove the mark once it passes.
+scripts/lint_fix.sh does the mechanical part of a fix (quotes, formatting, import order).
 """
 
 from pathlib import Path
@@ -22,12 +20,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 @pytest.mark.flake8
 @pytest.mark.linter
-@pytest.mark.timeout(900)  # about 4 min on two busy cores
-@pytest.mark.xfail(
-    strict=False,
-    reason='sources not yet converted by scripts/lint_fix.sh '
-    '(double quotes, lines over 99 columns)',
-)
+@pytest.mark.timeout(900)
 def test_flake8(monkeypatch):
     try:
         from ament_flake8.main import main_with_errors
@@ -47,7 +40,7 @@ def test_flake8(monkeypatch):
     if flake8 is None:
         pytest.skip('neither ament_flake8 nor flake8 is installed (requirements.txt pins flake8)')
     proc = subprocess.run(
-        [flake8, '--no-show-source', '--count', '.'],
+        [flake8, '--no-show-source', '--count', '--jobs', '2', '.'],
         cwd=ROOT,
         capture_output=True,
         text=True,
