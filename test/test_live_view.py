@@ -525,9 +525,8 @@ def test_console_script_serves_what_is_published_only_while_watched(
         assert proc.poll() is None, log.read_text()
         url = next(w for w in log.read_text().split() if w.startswith('ws://'))
         assert url.startswith('ws://127.0.0.1:')
-        # nobody watches: the live view hears the graph only (it is up: its log says where it
-        # listens)
-        assert pub_graph.get_subscription_count() == 1
+        # nobody watches: the live view hears the graph only (once discovery has matched it)
+        _wait(lambda: pub_graph.get_subscription_count() == 1, 60, 'the graph subscription')
         assert all(
             p.get_subscription_count() == 0
             for p in (*pub_state.values(), *pub_tau.values(), pub_image)

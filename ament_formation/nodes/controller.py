@@ -802,10 +802,14 @@ class ControllerNode(Node):
 
 
 def _send_zero_torque(node: 'ControllerNode') -> None:
-    """Last word of the process: zero torque (the bridge and the board time out anyway)."""
-    if node.bridge is not None:
-        node.bridge.command((0.0, 0.0))
-    node.pub_torque.publish(msgs.wheel_torque(np.zeros(2), msgs.stamp_from_s(node.now_s())))
+    """Last word of the process: zero torque on ``wheel_torque`` and to a hosted bridge, each
+    tried on its own (a bridge whose port is already closed must not swallow the message).
+    """
+    try:
+        node.pub_torque.publish(msgs.wheel_torque(np.zeros(2), msgs.stamp_from_s(node.now_s())))
+    finally:
+        if node.bridge is not None:
+            node.bridge.command((0.0, 0.0))
 
 
 def main(args: list[str] | None = None) -> int:

@@ -295,8 +295,14 @@ def _send_zero_torque(team: TeamNode) -> None:
     """Last word of the process: zero torque from every hosted controller."""
     if team.loop is not None:
         team.loop.stop()
+    errors = []
     for node in team.controllers.values():
-        _controller_zero_torque(node)
+        try:
+            _controller_zero_torque(node)
+        except Exception as err:  # noqa: BLE001 - every hosted robot gets its zero
+            errors.append(err)
+    if errors:
+        raise errors[0]
 
 
 def main(args: list[str] | None = None) -> int:
