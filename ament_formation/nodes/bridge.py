@@ -15,18 +15,16 @@ Topics (type; QoS; direction):
 Parameters (core.serial_link.LinkParams): port (path or pyserial URL, "/dev/ttyACM0"),
 baud_rate (115200), torque_limit_nm (0.15 N·m), watchdog_s (0.2 s, sent to the board),
 input_timeout_s (0.2 s: older wheel_torque -> STOP: the board brakes), command_rate_hz (100 Hz),
-telemetry_period_s (0.01 s), ack_timeout_s (0.006 s), link_timeout_s (0.5 s), hello_retry_s (0.2
-s),
-heartbeat_period_s (1 s), reconnect_initial_s (0.05 s) doubling to reconnect_max_s (0.5 s),
-poll_rate_hz (500 Hz), diagnostics_period_s (1 s), wait_for_port (false).
+telemetry_period_s (0.01 s), ack_timeout_s (0.006 s), link_timeout_s (0.5 s),
+hello_retry_s (0.2 s), heartbeat_period_s (1 s), reconnect_initial_s (0.05 s) doubling to
+reconnect_max_s (0.5 s), poll_rate_hz (500 Hz), diagnostics_period_s (1 s), wait_for_port (false).
 
 A port that cannot be opened at start ends the process with one line on stderr naming it (exit
 code 2), unless ``wait_for_port`` is true: then the bridge waits for it, reopening with backoff.
 
 The port is read and written only non-blocking, from a timer: the executor never blocks. Safety
 (DESIGN §7): NaN/inf inputs are rejected and counted, torques clamped, stale input -> STOP (the
-board brakes to rest),
-a vanished port is reopened with backoff, STOP is sent on shutdown.
+board brakes to rest), a vanished port is reopened with backoff, STOP is sent on shutdown.
 """
 
 from __future__ import annotations

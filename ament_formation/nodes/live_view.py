@@ -42,8 +42,7 @@ Parameters
   series_rate_hz  float  time-series samples per robot [Hz]                    default 10
   image_rate_hz   float  camera frames sent [Hz] (0: no image)                 default 5
   jpeg_quality    int    JPEG quality, 1..100                                  default 75
-  image_topic     str    the camera topic                                      default
-  /camera/image_raw
+  image_topic     str    the camera topic                         default /camera/image_raw
 """
 
 from __future__ import annotations

@@ -19,39 +19,31 @@ Topics (type; QoS; direction):
   latency); QOS_DIAGNOSTICS; every ``diagnostics_period_s`` and at once when the camera is lost or
   back
 
-Parameters (TrackerNodeParams)
-  source               str|int "" = subscribe image_topic; else capture frames in the node from a
-                               device index (0 or "0"), a device path (/dev/video0,
-                               /dev/v4l/by-id/...), a video file or a stream URL (http://, rtsp://)
-                               (hw/video_source.py)                                    default ""
-  source_loop          bool    replay a video file from the start when it ends         default
-  false
-  source_wait_s        float   at start, keep trying to open the source this long [s]
-                               (0: one attempt; .inf: wait forever)                    default 0
-  source_timeout_s     float   a stream silent this long is lost and reopened [s]      default 1.0
-  capture_poll_s       float   period of the timer that takes the newest captured frame [s]
-                                                                                       default 0.01
-  publish_image        bool    with source: publish the captured frames on image_topic default true
-  image_topic          str     topic of frames                                         default
-  /camera/image_raw
-  camera_config        str     camera.yaml (config/ name or path)                      default
-  camera.yaml
-  marker_ids           int[]   marker id per robot                                     default [0,
-  1]
-  robot_ids            int[]   robot id for each entry of marker_ids                   default [0,
-  1]
-  dictionary           str     ArUco dictionary                                        default
-  DICT_4X4_50
-  marker_size_m        float   marker side [m]                                         default 0.12
-  marker_offset_m      float[] marker centre in the controlled point's body frame [m]  default
-  [-0.05, 0.0]
-  marker_height_m      float   marker plane above the floor [m]                        default 0.08
-  max_speed_mps        float   faster apparent motion is rejected as a jump [m/s]      default 1.5
-  use_roi              bool    region-of-interest search around predicted poses        default true
-  publish_covariance   bool                                                            default true
-  publish_debug_image  bool                                                            default
-  false
-  diagnostics_period_s float   [s]                                                     default 1.0
+Parameters (TrackerNodeParams; name, type, default: meaning)
+  source               str|int ""        "" = subscribe image_topic; else capture frames in the
+                                         node from a device index (0 or "0"), a device path
+                                         (/dev/video0, /dev/v4l/by-id/...), a video file or a
+                                         stream URL (http://, rtsp://) (hw/video_source.py)
+  source_loop          bool    false     replay a video file from the start when it ends
+  source_wait_s        float   0         at start, keep trying to open the source this long [s]
+                                         (0: one attempt; .inf: wait forever)
+  source_timeout_s     float   1.0       a stream silent this long is lost and reopened [s]
+  capture_poll_s       float   0.01      period of the timer that takes the newest frame [s]
+  publish_image        bool    true      with source: publish the captured frames on image_topic
+  image_topic          str     /camera/image_raw   topic of frames
+  camera_config        str     camera.yaml         camera calibration (config/ name or path)
+  marker_ids           int[]   [0, 1]    marker id per robot
+  robot_ids            int[]   [0, 1]    robot id for each entry of marker_ids
+  dictionary           str     DICT_4X4_50         ArUco dictionary
+  marker_size_m        float   0.12      marker side [m]
+  marker_offset_m      float[] [-0.05, 0.0]        marker centre in the controlled point's body
+                                                   frame [m]
+  marker_height_m      float   0.08      marker plane above the floor [m]
+  max_speed_mps        float   1.5       faster apparent motion is rejected as a jump [m/s]
+  use_roi              bool    true      region-of-interest search around predicted poses
+  publish_covariance   bool    true      publish robot_<id>/pose_cov
+  publish_debug_image  bool    false     publish ~/debug_image
+  diagnostics_period_s float   1.0       [s]
 
 With ``source`` set, a thread grabs frames (stamped with the node clock at grab time) and keeps the
 newest; a timer of the node (``capture_poll_s``) takes it and runs the tracker, so the executor
