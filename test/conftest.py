@@ -6,8 +6,10 @@ The environment is set here, before any test module imports rclpy, so that runni
 
 from __future__ import annotations
 
+import atexit
 import os
 from pathlib import Path
+import shutil
 import tempfile
 
 import pytest
@@ -19,8 +21,9 @@ os.environ.setdefault(
 )
 os.environ.setdefault('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp')
 os.environ.setdefault('ROS_DOMAIN_ID', str(os.getpid() % 200 + 1))
-if 'ROS_LOG_DIR' not in os.environ:
+if 'ROS_LOG_DIR' not in os.environ:  # pytest run directly: a log folder removed at exit
     os.environ['ROS_LOG_DIR'] = tempfile.mkdtemp(prefix='ament_formation_ros_log_')
+    atexit.register(shutil.rmtree, os.environ['ROS_LOG_DIR'], ignore_errors=True)
 
 # CI runs (CI=true) draw the same hypothesis examples every time, so a red CI run is reproducible;
 # local runs keep exploring new examples.
