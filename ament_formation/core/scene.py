@@ -34,7 +34,7 @@ from ament_formation.core.obstacles import ObstacleField
 
 AVOIDANCE_MODES = ('obstacle', 'yield', 'mutual')  # S8 modes in which a robot goes round a target
 
-# a stable colour per robot id (same palette as the RViz markers of ros/messages.py)
+# a stable colour per robot id (the live view's and the RViz markers' of ros/messages.py)
 PALETTE = (
     (0.12, 0.47, 0.71),
     (1.0, 0.5, 0.05),

@@ -33,6 +33,7 @@ from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import ColorRGBA, String
 from visualization_msgs.msg import Marker, MarkerArray
 
+from ament_formation.core.scene import robot_rgb
 from ament_formation.ros import payloads
 
 WORLD_FRAME = 'world'
@@ -394,21 +395,9 @@ def _color(rgba) -> ColorRGBA:
     return ColorRGBA(r=r, g=g, b=b, a=a)
 
 
-_PALETTE = (
-    (0.12, 0.47, 0.71),
-    (1.0, 0.5, 0.05),
-    (0.17, 0.63, 0.17),
-    (0.84, 0.15, 0.16),
-    (0.58, 0.4, 0.74),
-    (0.55, 0.34, 0.29),
-    (0.89, 0.47, 0.76),
-    (0.5, 0.5, 0.5),
-)
-
-
 def robot_color(robot_id: int, alpha: float = 1.0) -> ColorRGBA:
     """A stable colour per robot id."""
-    return _color((*_PALETTE[robot_id % len(_PALETTE)], alpha))
+    return _color((*robot_rgb(robot_id), alpha))
 
 
 def _marker(
