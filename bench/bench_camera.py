@@ -27,15 +27,15 @@ import time
 import cv2
 import numpy as np
 
-from ament_formation.core.camera_model import CameraModel, FloorArea
-from ament_formation.core.marker_tracking import (
+from ament_formation.core.vision.camera_model import CameraModel, FloorArea
+from ament_formation.core.vision.marker_tracking import (
     make_detector,
     MarkerTracker,
     measure,
     TrackerConfig,
 )
-from ament_formation.core.robot_marker import MarkerLayout
-from ament_formation.core.synthetic_camera import RenderOptions, SyntheticCamera
+from ament_formation.core.vision.robot_marker import MarkerLayout
+from ament_formation.core.vision.synthetic_camera import RenderOptions, SyntheticCamera
 
 FLOOR = FloorArea()
 RESOLUTIONS = ((640, 480), (1280, 720))

@@ -215,8 +215,8 @@ class RobotInputs:
         import rclpy
         from std_msgs.msg import String
 
-        from ament_formation.core.graph import FormationGraph
-        from ament_formation.core.scenario import load_scenario
+        from ament_formation.core.control.rewiring import FormationGraph
+        from ament_formation.core.scenario.loader import load_scenario
         from ament_formation.ros import messages as m
         from ament_formation.ros.qos import QOS_CONTROL, QOS_GRAPH
 

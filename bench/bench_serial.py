@@ -21,7 +21,7 @@ import timeit
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from ament_formation.core import serial_protocol as sp  # noqa: E402
+from ament_formation.core.serial import serial_protocol as sp  # noqa: E402
 
 
 def codec_table(number: int = 20000) -> list[tuple[str, float]]:
@@ -57,8 +57,8 @@ def round_trip(n_commands: int) -> tuple[float, float, float, int]:
     from rclpy.parameter import Parameter
     from sensor_msgs.msg import JointState
 
-    from ament_formation.core import serial_link as sl
-    from ament_formation.core.motor_board import MotorBoard
+    from ament_formation.core.serial import serial_link as sl
+    from ament_formation.core.serial.motor_board import MotorBoard
     from ament_formation.hw.pty_board import PtyBoard
     from ament_formation.nodes.bridge import BridgeNode
     from ament_formation.ros.executors import spin_until

@@ -27,9 +27,9 @@ import time
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from ament_formation.core import cobs  # noqa: E402
-from ament_formation.core import serial_protocol as sp  # noqa: E402
-from ament_formation.core.byte_faults import mutate, MUTATION_KINDS  # noqa: E402
+from ament_formation.core.serial import cobs  # noqa: E402
+from ament_formation.core.serial import serial_protocol as sp  # noqa: E402
+from ament_formation.core.serial.byte_faults import mutate, MUTATION_KINDS  # noqa: E402
 
 POOL_SIZE = 4096
 

@@ -1,4 +1,4 @@
-"""Benchmark of the closed-loop simulator (ament_formation.core.simulator).
+"""Benchmark of the closed-loop simulator (ament_formation.core.sim.simulator).
 
 Prints a table:
 1. JIT compile time (first call in a fresh process with an empty numba cache) versus the steady
@@ -97,9 +97,11 @@ def scalar_baseline(scenario, n_steps: int) -> float:
     """Robot-steps/s of a per-robot scalar Python loop over the same law (robot_law + RK4
     kernels).
     """
-    from ament_formation.core import simulator as S
-    from ament_formation.core.automaton import SwitchingParams
-    from ament_formation.core.kernels import disturbance_k, rk4_step_k
+    from ament_formation.core.control.automaton import SwitchingParams
+    from ament_formation.core.control.kernels import disturbance_k, rk4_step_k
+    from ament_formation.core.control.law import robot_law
+    from ament_formation.core.model.obstacles import obstacle_states
+    from ament_formation.core.sim import simulator as S
 
     setup = S._Setup(scenario, 0.001, SwitchingParams(avoidance=scenario.avoidance))
     n = setup.n
@@ -120,11 +122,11 @@ def scalar_baseline(scenario, n_steps: int) -> float:
     m = len(setup.obstacle_names)
     oc, ov, oa = np.zeros((m, 2)), np.zeros((m, 2)), np.zeros((m, 2))
     ophi, ophid, ophidd = np.zeros(m), np.zeros(m), np.zeros(m)
-    law = S.robot_law
+    law = robot_law
     t0 = time.perf_counter()
     for k in range(n_steps):
         t = k * 0.001
-        S.obstacle_states(
+        obstacle_states(
             t,
             setup.ob_c0,
             setup.ob_v,
@@ -207,9 +209,9 @@ def compile_times() -> tuple[float, float]:
     an empty numba cache.
     """
     code = (
-        'import time;from ament_formation.core.scenario import load_scenario;'
-        'from ament_formation.core.paths_config import config_file;'
-        'from ament_formation.core.simulator import simulate;'
+        'import time;from ament_formation.core.scenario.loader import load_scenario;'
+        'from ament_formation.core.config_files import config_file;'
+        'from ament_formation.core.sim.simulator import simulate;'
         "sc=load_scenario(config_file('scenarios/paper.yaml'));"
         't=time.perf_counter();simulate(sc);a=time.perf_counter()-t;'
         't=time.perf_counter();simulate(sc);b=time.perf_counter()-t;print(a,b)'
@@ -234,10 +236,10 @@ def main() -> None:
     ap.add_argument('--no-compile', action='store_true', help='skip the cold-cache compile run')
     args = ap.parse_args()
 
-    from ament_formation.core.metrics import compute_metrics
-    from ament_formation.core.paths_config import config_file
-    from ament_formation.core.scenario import load_scenario, parse_scenario
-    from ament_formation.core.simulator import simulate
+    from ament_formation.core.config_files import config_file
+    from ament_formation.core.scenario.loader import load_scenario, parse_scenario
+    from ament_formation.core.sim.metrics import compute_metrics
+    from ament_formation.core.sim.simulator import simulate
 
     rows = []
     if not args.no_compile:

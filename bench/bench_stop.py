@@ -81,7 +81,7 @@ def analytic_bound(
     range, then the linear tail (time constant J/gain per wheel) to the one-count rest band, then
     the rest window.
     """
-    from ament_formation.core import motor_board as mb
+    from ament_formation.core.serial import motor_board as mb
 
     wd = 0.2
     a_drive = 2 * tau_limit_nm / (r_m * m_tilde_kg)
@@ -125,7 +125,7 @@ def twin_trials(n_trials: int, speed_mps: float, speed_factor: float) -> list[di
     from rclpy.node import Node
     from rclpy.parameter import Parameter
 
-    from ament_formation.core import serial_link as sl
+    from ament_formation.core.serial import serial_link as sl
     from ament_formation.nodes.bridge import BridgeNode
     from ament_formation.nodes.world import WorldNode, WorldParams
     from ament_formation.ros.executors import spin_until
@@ -275,7 +275,7 @@ def twin_trials(n_trials: int, speed_mps: float, speed_factor: float) -> list[di
 def firmware_trials(n_trials: int, build_dir: Path) -> list[dict]:
     from firmware_sim import build_firmware, CodecLink, Harness
 
-    from ament_formation.core import serial_protocol as sp
+    from ament_formation.core.serial import serial_protocol as sp
 
     build_firmware(build_dir)
     wheel_r_m = 0.035
@@ -384,8 +384,8 @@ def main() -> int:
     ap.add_argument('--no-twin', action='store_true')
     ap.add_argument('--no-firmware', action='store_true')
     a = ap.parse_args()
-    from ament_formation.core.dynamics import PlantCoeffs
-    from ament_formation.core.scenario import load_scenario
+    from ament_formation.core.model.dynamics import PlantCoeffs
+    from ament_formation.core.scenario.loader import load_scenario
 
     tmp = Path(tempfile.mkdtemp(prefix='bench_stop_sc_'))
     (tmp / 's.yaml').write_text(SCENARIO)

@@ -128,7 +128,7 @@ def latency_in_process(seconds: float) -> np.ndarray:
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
 
-    from ament_formation.ros.system import build_system
+    from ament_formation.nodes.system import build_system
 
     ctx = Context()
     rclpy.init(context=ctx)
@@ -178,7 +178,7 @@ def node_processes(
     ``team`` > 0: the robots' bridges and controllers composed ``team`` robots per formation_team
     process (nodes/team.py) instead of two processes per robot.
     """
-    from ament_formation.core.scenario import load_scenario
+    from ament_formation.core.scenario.loader import load_scenario
 
     sc = load_scenario(scenario_path)
     b = ROOT / '.venv' / 'bin'

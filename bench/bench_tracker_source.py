@@ -1,8 +1,9 @@
 """formation_tracker capturing its own frames (``source``), through the console script:
 run with `bench/run.sh bench_tracker_source.py [--frames 300] [--robots 4] [--seconds 10]`.
 
-1. Video file: rendered frames (core/synthetic_camera.py, sensor noise σ = 2 grey levels) of K
-   robots moving on Lissajous curves plus one "clock" robot on a circle whose position gives the
+1. Video file: rendered frames (core/vision/synthetic_camera.py, sensor noise σ = 2 grey levels)
+   of K robots moving on Lissajous curves plus one "clock" robot on a circle whose position gives
+   the
    frame index, written as MJPG .avi and played by the tracker at its 30 fps.
 2. Loopback stream: the same frames served as MJPEG over HTTP on 127.0.0.1 (hw/mjpeg_stream.py,
    JPEG quality 90) at 30 fps, opened by the tracker through OpenCV's FFmpeg backend.
@@ -81,8 +82,8 @@ def frame_index(clock_xy: np.ndarray, n_frames: int) -> int:
 
 
 def render(n_frames: int, n_robots: int) -> list[np.ndarray]:
-    from ament_formation.core.camera_model import CameraSetup
-    from ament_formation.core.synthetic_camera import RenderOptions, SyntheticCamera
+    from ament_formation.core.vision.camera_model import CameraSetup
+    from ament_formation.core.vision.synthetic_camera import RenderOptions, SyntheticCamera
 
     setup = CameraSetup()
     sc = SyntheticCamera(setup.camera, options=RenderOptions(noise_std=2.0), floor=setup.floor)
@@ -252,7 +253,7 @@ def camera_loss(ctx, tmp: Path, run_s: float) -> dict:
     import rclpy
     from std_msgs.msg import String
 
-    from ament_formation.core.scenario import load_scenario
+    from ament_formation.core.scenario.loader import load_scenario
     from ament_formation.hw.mjpeg_stream import MjpegServer
     from ament_formation.nodes.controller import ControllerParams
     from ament_formation.nodes.world import WorldNode, WorldParams

@@ -9,7 +9,7 @@ import shlex
 import sys
 
 from ament_formation.core.errors import ConfigError
-from ament_formation.core.scenario import load_scenario
+from ament_formation.core.scenario.loader import load_scenario
 
 try:
     sc = load_scenario(sys.argv[1])

@@ -11,7 +11,7 @@ stamp="$venv/.requirements.sha256"
 want="$(sha256sum "$here/requirements.txt" "$here/setup.py" | sha256sum | cut -d' ' -f1)"
 
 warm_numba() {
-  "$venv/bin/python" -c 'import sys; from ament_formation.core.jit_cache import main; sys.exit(main())' \
+  "$venv/bin/python" -c 'import sys; from ament_formation.core.sim.jit_warm import main; sys.exit(main())' \
     || echo "setup: warning: compiling the numba kernels failed; they compile on first use" >&2
 }
 

@@ -46,7 +46,7 @@ def _numba_kernels_compiled_once():
     import sys
 
     subprocess.run(
-        [sys.executable, '-c', 'from ament_formation.core.jit_cache import main; main()'],
+        [sys.executable, '-c', 'from ament_formation.core.sim.jit_warm import main; main()'],
         check=False,
         timeout=900,
     )
@@ -97,8 +97,9 @@ def _mapped_segments() -> set[str]:
             text = maps.read_text()
         except OSError:
             continue
-        mapped.update(line.rsplit('/dev/shm/', 1)[1] for line in text.splitlines()
-                      if '/dev/shm/' in line)
+        mapped.update(
+            line.rsplit('/dev/shm/', 1)[1] for line in text.splitlines() if '/dev/shm/' in line
+        )
     return mapped
 
 

@@ -7,7 +7,8 @@ Used by test/test_firmware.py and bench/bench_firmware.py. Not a test module its
 - ``Harness``: firmware/build/host/formation_fw_sim as a subprocess (ended by its PID), its pty
   path, its status lines (one JSON object per 10 ms of emulated time) and its fault-injection
   control file.
-- ``CodecLink``: the Python codec (ament_formation.core.serial_protocol) on the pty, for tests
+- ``CodecLink``: the Python codec (ament_formation.core.serial.serial_protocol) on the pty, for
+tests
   that need to speak to the board frame by frame.
 """
 
@@ -193,7 +194,7 @@ class CodecLink:
     def __init__(self, pty: str) -> None:
         import serial
 
-        from ament_formation.core import serial_protocol as sp
+        from ament_formation.core.serial import serial_protocol as sp
 
         self.sp = sp
         self.port = serial.Serial(pty, 115200, timeout=0, dsrdtr=False, rtscts=False)

@@ -1,5 +1,5 @@
-"""EncounterArbiter (core/arbiter.py): the coordinator's S7 arbitration over all robots, fed the
-robots' states step by step.
+"""EncounterArbiter (core/control/arbiter.py): the coordinator's S7 arbitration over all robots,
+fed the robots' states step by step.
 """
 
 from pathlib import Path
@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 import yaml
 
-from ament_formation.core.arbiter import EncounterArbiter
-from ament_formation.core.scenario import parse_scenario
-from ament_formation.core.simulator import simulate
+from ament_formation.core.control.arbiter import EncounterArbiter
+from ament_formation.core.scenario.loader import parse_scenario
+from ament_formation.core.sim.simulator import simulate
 
 DATA = Path(__file__).resolve().parent / 'data'
 

@@ -5,7 +5,7 @@ S14.2 rotating-obstacle entry test (decisions evaluated with the compiled ``deci
 import numpy as np
 import pytest
 
-from ament_formation.core.automaton import (
+from ament_formation.core.control.automaton import (
     AutomatonState,
     choose_direction,
     exit_conditions,
@@ -15,7 +15,7 @@ from ament_formation.core.automaton import (
     segment_hits,
     SwitchingParams,
 )
-from ament_formation.core.encounters import decide_once, KIND_OBSTACLE
+from ament_formation.core.control.encounters import decide_once, KIND_OBSTACLE
 
 PRM = SwitchingParams().as_array()
 AV = SwitchingParams().avoidance

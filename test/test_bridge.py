@@ -16,10 +16,10 @@ import pytest
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 
-from ament_formation.core import serial_link as sl
-from ament_formation.core import serial_protocol as sp
-from ament_formation.core.byte_faults import FaultSpec
-from ament_formation.core.motor_board import BoardConfig, MotorBoard
+from ament_formation.core.serial import serial_link as sl
+from ament_formation.core.serial import serial_protocol as sp
+from ament_formation.core.serial.byte_faults import FaultSpec
+from ament_formation.core.serial.motor_board import BoardConfig, MotorBoard
 from ament_formation.hw.pty_board import PtyBoard
 from ament_formation.nodes.bridge import BridgeNode
 from ament_formation.ros.executors import spin_until

@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 import yaml
 
-from ament_formation.core.calibration import (
+from ament_formation.core.errors import ConfigError
+from ament_formation.core.vision.calibration import (
     calibrate_floor,
     calibrate_intrinsics,
     CharucoSpec,
@@ -23,14 +24,13 @@ from ament_formation.core.calibration import (
     load_reference_markers,
     ReferenceMarkers,
 )
-from ament_formation.core.camera_model import (
+from ament_formation.core.vision.camera_model import (
     CameraModel,
     CameraSetup,
     load_camera_yaml,
     save_camera_yaml,
 )
-from ament_formation.core.errors import ConfigError
-from ament_formation.core.synthetic_camera import RenderOptions, SyntheticCamera
+from ament_formation.core.vision.synthetic_camera import RenderOptions, SyntheticCamera
 from ament_formation.tools import cli
 
 # the "unknown" camera to recover: not the default one

@@ -7,13 +7,17 @@ import math
 import numpy as np
 import pytest
 
-from ament_formation.core.controller import EncounterAssignment, NeighbourState, RobotController
-from ament_formation.core.disturbance import Disturbance
-from ament_formation.core.graph import FormationGraph
-from ament_formation.core.kernels import rk4_step_k
-from ament_formation.core.paths_config import config_file
-from ament_formation.core.scenario import load_scenario
-from ament_formation.core.simulator import simulate
+from ament_formation.core.config_files import config_file
+from ament_formation.core.control.controller import (
+    EncounterAssignment,
+    NeighbourState,
+    RobotController,
+)
+from ament_formation.core.control.kernels import rk4_step_k
+from ament_formation.core.control.rewiring import FormationGraph
+from ament_formation.core.model.disturbance import Disturbance
+from ament_formation.core.scenario.loader import load_scenario
+from ament_formation.core.sim.simulator import simulate
 
 
 def closed_loop_with_controllers(sc, duration_s, dt=0.001):
@@ -169,7 +173,7 @@ def test_per_robot_controllers_on_the_plant_twin_reproduce_the_simulators_mode_e
     """
     from pathlib import Path
 
-    from ament_formation.core.twin import PlantTwin
+    from ament_formation.core.sim.twin import PlantTwin
 
     sc = load_scenario(Path(__file__).resolve().parent / 'data' / 'paper_short.yaml')
     ref = simulate(sc, dt_s=0.001)

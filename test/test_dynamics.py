@@ -7,9 +7,10 @@ from hypothesis import strategies as st
 import numpy as np
 import pytest
 
-from ament_formation.core import kernels as kn
-from ament_formation.core.disturbance import Disturbance
-from ament_formation.core.dynamics import (
+from ament_formation.core.control import kernels as kn
+from ament_formation.core.errors import ConfigError
+from ament_formation.core.model.disturbance import Disturbance
+from ament_formation.core.model.dynamics import (
     b2,
     b2_inv,
     commanded_point_accel,
@@ -23,7 +24,6 @@ from ament_formation.core.dynamics import (
     s1dot_x2,
     state_derivative,
 )
-from ament_formation.core.errors import ConfigError
 from ament_formation.core.params import RobotParams
 
 DEFAULT = RobotParams()

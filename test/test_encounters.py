@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 import numpy as np
 import pytest
 
-from ament_formation.core.automaton import (
+from ament_formation.core.control.automaton import (
     AutomatonState,
     design_gains,
     MODE_C,
@@ -24,11 +24,12 @@ from ament_formation.core.automaton import (
     P_VTAN_AGENT,
     SwitchingParams,
 )
-from ament_formation.core.encounters import decide_once, reacts_to
-from ament_formation.core.kernels import ellipse_field_k, gain_schedule_k
-from ament_formation.core.metrics import compute_metrics
-from ament_formation.core.scenario import parse_scenario
-from ament_formation.core.simulator import robot_law, simulate
+from ament_formation.core.control.encounters import decide_once, reacts_to
+from ament_formation.core.control.kernels import ellipse_field_k, gain_schedule_k
+from ament_formation.core.control.law import robot_law
+from ament_formation.core.scenario.loader import parse_scenario
+from ament_formation.core.sim.metrics import compute_metrics
+from ament_formation.core.sim.simulator import simulate
 
 PRM = SwitchingParams().as_array()
 NO_OBS = (
@@ -275,7 +276,7 @@ def test_symmetric_meetings_are_safe_and_settle(meetings, n):
 @settings(max_examples=25, deadline=None)
 @given(seed=st.integers(0, 2**31 - 1), n=st.integers(2, 400), size=st.floats(0.3, 40.0))
 def test_grid_culling_finds_exactly_the_close_pairs(seed, n, size):
-    from ament_formation.core.encounters import candidate_pairs
+    from ament_formation.core.control.encounters import candidate_pairs
 
     q = np.random.default_rng(seed).uniform(0.0, size, (n, 2))
     got = {tuple(r) for r in candidate_pairs(q, 0.45)}

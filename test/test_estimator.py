@@ -9,8 +9,7 @@ from hypothesis import strategies as st
 import numpy as np
 import pytest
 
-from ament_formation.core.errors import ConfigError
-from ament_formation.core.estimator import (
+from ament_formation.core.control.estimator import (
     _Step,
     EstimatorParams,
     fold_steps,
@@ -19,6 +18,7 @@ from ament_formation.core.estimator import (
     wheel_to_body,
     wrap_angle,
 )
+from ament_formation.core.errors import ConfigError
 
 R, A, D = 0.035, 0.20, 0.05
 

@@ -371,7 +371,7 @@ class BridgeRig:
         return next(x for x in self.harness.lines[start:] if predicate(x))
 
     def link_up(self, timeout_s: float = 5.0) -> bool:
-        from ament_formation.core import serial_link as sl
+        from ament_formation.core.serial import serial_link as sl
 
         return self.spin_until(lambda: self.bridge.link.state == sl.UP, timeout_s)
 
@@ -402,7 +402,7 @@ def _counts(torques_nm, c) -> list[int]:
 
 
 def test_bridge_handshake_and_version(rig):
-    from ament_formation.core import serial_protocol as sp
+    from ament_formation.core.serial import serial_protocol as sp
 
     assert rig.link_up(5.0)
     assert rig.bridge.link.board_version == sp.PROTOCOL_VERSION == 2
@@ -455,7 +455,7 @@ def test_bridge_watchdog_brakes_the_wheels_to_rest_then_releases(rig):
     most BRAKE_TORQUE_LIMIT_NM (never coasting on), and releases the H-bridge once they are at
     rest.
     """
-    from ament_formation.core import serial_protocol as sp
+    from ament_formation.core.serial import serial_protocol as sp
 
     c = config_constants()
     wheel_r_m = 0.035  # the harness's plant: wheel + half of a 2.5 kg robot

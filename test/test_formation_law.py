@@ -6,12 +6,18 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 import numpy as np
 
-from ament_formation.core import kernels as kn
-from ament_formation.core.disturbance import Disturbance
-from ament_formation.core.dynamics import PlantCoeffs, point_velocity
-from ament_formation.core.formation import dphi, follower_field, leader_field, phi, tracking_field
+from ament_formation.core.control import kernels as kn
+from ament_formation.core.control.formation import (
+    dphi,
+    follower_field,
+    leader_field,
+    phi,
+    tracking_field,
+)
+from ament_formation.core.control.smc import sliding_mode_torque
+from ament_formation.core.model.disturbance import Disturbance
+from ament_formation.core.model.dynamics import PlantCoeffs, point_velocity
 from ament_formation.core.params import ControlGains, RobotParams
-from ament_formation.core.smc import sliding_mode_torque
 
 GAINS = ControlGains()
 SEEDS = st.integers(0, 2**31 - 1)

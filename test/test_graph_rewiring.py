@@ -9,9 +9,9 @@ from hypothesis import strategies as st
 import numpy as np
 import pytest
 
+from ament_formation.core.control.rewiring import FormationGraph
 from ament_formation.core.errors import ConfigError
-from ament_formation.core.graph import FormationGraph
-from ament_formation.core.scenario import load_scenario
+from ament_formation.core.scenario.loader import load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 S9_EDGES = ((0, 1), (0, 2), (1, 3), (2, 4), (1, 2), (2, 1), (4, 3), (3, 4))

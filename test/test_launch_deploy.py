@@ -301,8 +301,8 @@ def test_launch_robot_wait_for_port_starts_and_connects_when_the_board_appears(
     """
     import rclpy
 
-    from ament_formation.core import serial_protocol as sp
-    from ament_formation.core.motor_board import BoardConfig, MotorBoard
+    from ament_formation.core.serial import serial_protocol as sp
+    from ament_formation.core.serial.motor_board import BoardConfig, MotorBoard
     from ament_formation.hw.pty_board import PtyBoard
     from ament_formation.tools.topic_cmd import list_nodes
 

@@ -7,8 +7,8 @@ from hypothesis import strategies as st
 import numpy as np
 import pytest
 
-from ament_formation.core import kernels as kn
-from ament_formation.core.limit_cycle import (
+from ament_formation.core.control import kernels as kn
+from ament_formation.core.control.limit_cycle import (
     choose_direction,
     design_gains,
     ellipse_coeffs,

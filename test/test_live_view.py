@@ -1,6 +1,6 @@
-"""The live view (formation_live_view, core/scene.py, docs/live_view.md).
+"""The live view (formation_live_view, core/sim/scene.py, docs/live_view.md).
 
-* core/scene.py: obstacles at scenario time with their P/L/Q outlines, goals, the avoidance
+* core/sim/scene.py: obstacles at scenario time with their P/L/Q outlines, goals, the avoidance
   circulation arrow, edges and the per-robot series, against hand-computed numbers;
 * the node's pieces: parameters, JPEG encoding, a bad port in one line with exit code 2;
 * the whole thing: ``formation run --live 0`` on a short scenario with a moving, turning obstacle,
@@ -27,11 +27,11 @@ import numpy as np
 import pytest
 import yaml
 
+from ament_formation.core.control.limit_cycle import signed_distance_to_ellipse
 from ament_formation.core.errors import ConfigError
-from ament_formation.core.limit_cycle import signed_distance_to_ellipse
-from ament_formation.core.obstacles import ObstacleField
-from ament_formation.core.scenario import load_scenario, parse_scenario
-from ament_formation.core.scene import (
+from ament_formation.core.model.obstacles import ObstacleField
+from ament_formation.core.scenario.loader import load_scenario, parse_scenario
+from ament_formation.core.sim.scene import (
     AVOIDANCE_MODES,
     circulation_heading_rad,
     ellipse_outline,
@@ -66,7 +66,7 @@ def moving_scenario():
     return parse_scenario(_moving_scenario_mapping(), source='paper_short_moving')
 
 
-# ------------------------------------------------------------------------------ core/scene.py
+# ------------------------------------------------------------------------------ core/sim/scene.py
 def _in_frame(points, center, phi):
     """World points of obstacle-frame points (rotation phi, then translation)."""
     c, s = math.cos(phi), math.sin(phi)
@@ -800,7 +800,7 @@ def test_live_view_serves_every_channel_and_decodes(live_run):
 
 
 def _truth(run_dir):
-    from ament_formation.core.records import read_run
+    from ament_formation.core.sim.records import read_run
 
     result, _scenario, metrics = read_run(run_dir)
     return result, metrics

@@ -9,16 +9,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ament_formation.core.camera_model import CameraSetup
-from ament_formation.core.marker_tracking import (
+from ament_formation.core.vision.camera_model import CameraSetup
+from ament_formation.core.vision.marker_tracking import (
     make_detector,
     MarkerTracker,
     measure,
     TrackerConfig,
     UndistortLookup,
 )
-from ament_formation.core.robot_marker import MarkerLayout
-from ament_formation.core.synthetic_camera import Obstacles, RenderOptions, SyntheticCamera
+from ament_formation.core.vision.robot_marker import MarkerLayout
+from ament_formation.core.vision.synthetic_camera import Obstacles, RenderOptions, SyntheticCamera
 
 SETUP = CameraSetup()
 CAM, FLOOR = SETUP.camera, SETUP.floor
@@ -202,7 +202,7 @@ def test_uncertainty_grows_with_noise():
 
 
 def test_undistort_lookup_matches_exact_undistortion():
-    from ament_formation.core.camera_model import undistort_normalized
+    from ament_formation.core.vision.camera_model import undistort_normalized
 
     rng = np.random.default_rng(1)
     px = rng.uniform([0, 0], [639, 479], (2000, 2))

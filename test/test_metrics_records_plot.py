@@ -11,17 +11,17 @@ import math
 import numpy as np
 import pytest
 
-from ament_formation.core.limit_cycle import signed_distance_to_ellipse
-from ament_formation.core.metrics import (
+from ament_formation.core.control.limit_cycle import signed_distance_to_ellipse
+from ament_formation.core.model.obstacles import ObstacleField
+from ament_formation.core.scenario.loader import parse_scenario
+from ament_formation.core.sim.metrics import (
     compute_metrics,
     count_entries,
     intervals,
     min_signed_distance,
 )
-from ament_formation.core.obstacles import ObstacleField
-from ament_formation.core.records import read_run, write_run
-from ament_formation.core.scenario import parse_scenario
-from ament_formation.core.trajectory import SimResult
+from ament_formation.core.sim.records import read_run, write_run
+from ament_formation.core.sim.trajectory import SimResult
 from ament_formation.tools.cli import main as formation
 
 DESIGN_KEYS = {

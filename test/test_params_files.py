@@ -18,9 +18,9 @@ import subprocess
 import pytest
 import yaml
 
+from ament_formation.core.config_files import config_file
 from ament_formation.core.errors import ConfigError
 from ament_formation.core.params import param
-from ament_formation.core.paths_config import config_file
 
 ROOT = Path(__file__).resolve().parents[1]
 BIN = ROOT / '.venv' / 'bin'
@@ -30,7 +30,7 @@ SCENARIO = ROOT / 'test' / 'data' / 'paper_short.yaml'
 NODES = {
     'formation_world': ('ament_formation.nodes.world', 'WorldParams'),
     'formation_tracker': ('ament_formation.nodes.tracker', 'TrackerNodeParams'),
-    'formation_bridge': ('ament_formation.core.serial_link', 'LinkParams'),
+    'formation_bridge': ('ament_formation.core.serial.serial_link', 'LinkParams'),
     'formation_controller': ('ament_formation.nodes.controller', 'ControllerParams'),
     'formation_coordinator': ('ament_formation.nodes.coordinator', 'CoordinatorParams'),
     'formation_team': ('ament_formation.nodes.team', 'TeamParams'),

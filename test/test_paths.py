@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from ament_formation.core.errors import ConfigError
-from ament_formation.core.paths import LinePath, path_from_config, SinusoidPath, WaypointPath
+from ament_formation.core.model.paths import LinePath, path_from_config, SinusoidPath, WaypointPath
 
 
 def _fd(path, t, h=1e-4):

@@ -31,7 +31,7 @@ def _good_graph() -> dict:
 
 
 def _good_encounters() -> dict:
-    from ament_formation.core.controller import EncounterAssignment
+    from ament_formation.core.control.controller import EncounterAssignment
 
     return json.loads(
         m.encounters_msg(

@@ -30,7 +30,7 @@ import time
 import numpy as np
 import pytest
 
-from ament_formation.core.paths_config import config_file
+from ament_formation.core.config_files import config_file
 
 ROOT = Path(__file__).resolve().parents[1]
 BIN = ROOT / '.venv' / 'bin'
@@ -134,7 +134,7 @@ class Board:
     """
 
     def __init__(self, link: Path):
-        from ament_formation.core.motor_board import BoardConfig, MotorBoard
+        from ament_formation.core.serial.motor_board import BoardConfig, MotorBoard
         from ament_formation.hw.pty_board import PtyBoard
 
         self.log: list = []
@@ -201,7 +201,7 @@ def sets(tmp_path_factory):
     # numba's kernels compiled once, before the programs start, if the core changed since
     # scripts/setup.sh did it (a fresh process: the sources as they are now)
     subprocess.run(
-        [str(BIN / 'python'), '-c', 'from ament_formation.core.jit_cache import main; main()'],
+        [str(BIN / 'python'), '-c', 'from ament_formation.core.sim.jit_warm import main; main()'],
         check=True,
         timeout=600,
     )
@@ -320,7 +320,7 @@ def sets(tmp_path_factory):
         seen['c_torque_0'] = c.keep(JointState, '/robot_0/wheel_torque', QOS_CONTROL)
 
         # the camera of the "boards" set: this test, 30 Hz poses at the robots' initial poses
-        from ament_formation.core.scenario import load_scenario
+        from ament_formation.core.scenario.loader import load_scenario
 
         sc = load_scenario(SCENARIO)
         pose_pubs = {

@@ -167,7 +167,7 @@ def test_a_failing_expectation_fails_the_run_in_one_line(passing_run, tmp_path):
     is allowed never in a head-on encounter): exit status 1, one line naming the check, and
     metrics.json saying the same.
     """
-    from ament_formation.core.scenario import parse_scenario
+    from ament_formation.core.scenario.loader import parse_scenario
     from ament_formation.tools.run_cmd import _evaluate, check
 
     _res, out, _shm = passing_run
@@ -310,7 +310,7 @@ def test_formation_run_refuses_a_bad_scenario_in_one_line(tmp_path):
     ],
 )
 def test_the_processes_check_names_the_first_process_to_exit(tmp_path, log, ok, phrase):
-    from ament_formation.core.metrics import describe_check
+    from ament_formation.core.sim.metrics import describe_check
     from ament_formation.tools.run_cmd import _process_check
 
     (tmp_path / 'launch.log').write_text(log)

@@ -13,8 +13,8 @@ import pytest
 import yaml
 
 from ament_formation.core.errors import ConfigError
-from ament_formation.core.paths import LinePath, SinusoidPath
-from ament_formation.core.scenario import (
+from ament_formation.core.model.paths import LinePath, SinusoidPath
+from ament_formation.core.scenario.loader import (
     dump_scenario,
     ellipses_overlap,
     load_scenario,
@@ -579,7 +579,7 @@ def _metrics(rms=(0.001, 0.004), entries=(1, 1), sim_time_s=55.0, pair_m=1.0, en
 
 
 def test_check_run_passes_a_good_run_and_names_every_failed_check():
-    from ament_formation.core.metrics import check_run
+    from ament_formation.core.sim.metrics import check_run
 
     paper = load_scenario(PAPER)  # expect: RMS R0 <= 5 mm, R1 <= 15 mm, ...
     good = check_run(_metrics(), paper)

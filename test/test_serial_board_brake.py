@@ -1,5 +1,6 @@
-"""The emulated board's stop brake (core/motor_board.py, docs/safety.md): when commands stop it
-regulates the wheels to rest with a bounded torque, then releases; the numbers are the firmware's.
+"""The emulated board's stop brake (core/serial/motor_board.py, docs/safety.md): when commands
+stop it regulates the wheels to rest with a bounded torque, then releases; the numbers are the
+firmware's.
 """
 
 from __future__ import annotations
@@ -8,9 +9,9 @@ from firmware_sim import config_constants
 import numpy as np
 import pytest
 
-from ament_formation.core import motor_board as mb
-from ament_formation.core import serial_protocol as sp
-from ament_formation.core.motor_board import BoardConfig, MotorBoard
+from ament_formation.core.serial import motor_board as mb
+from ament_formation.core.serial import serial_protocol as sp
+from ament_formation.core.serial.motor_board import BoardConfig, MotorBoard
 
 DT_S = 0.001
 

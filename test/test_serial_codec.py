@@ -1,5 +1,5 @@
-"""Serial codec (core/cobs.py, core/crc16.py, core/crc32c.py, core/serial_protocol.py): properties
-and corruption.
+"""Serial codec (core/serial/cobs.py, core/serial/crc16.py, core/serial/crc32c.py,
+core/serial/serial_protocol.py): properties and corruption.
 
 - any sequence of valid frames, split and merged at random and interleaved with noise, decodes to
   exactly those frames;
@@ -14,10 +14,10 @@ from hypothesis import strategies as st
 import numpy as np
 import pytest
 
-from ament_formation.core import cobs
-from ament_formation.core import serial_protocol as sp
-from ament_formation.core.crc16 import crc16
-from ament_formation.core.crc32c import crc32c
+from ament_formation.core.serial import cobs
+from ament_formation.core.serial import serial_protocol as sp
+from ament_formation.core.serial.crc16 import crc16
+from ament_formation.core.serial.crc32c import crc32c
 
 _RANGES = {'B': (0, 0xFF), 'H': (0, 0xFFFF), 'I': (0, 0xFFFFFFFF), 'h': (-0x8000, 0x7FFF)}
 

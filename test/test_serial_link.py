@@ -1,5 +1,6 @@
-"""Host link logic (core/serial_link.py) against the emulated board (core/motor_board.py) in
-simulated time, no ports and no ROS: deterministic numbers for the protocol rules.
+"""Host link logic (core/serial/serial_link.py) against the emulated board
+(core/serial/motor_board.py) in simulated time, no ports and no ROS: deterministic numbers for
+the protocol rules.
 """
 
 from __future__ import annotations
@@ -9,10 +10,10 @@ import collections
 import numpy as np
 import pytest
 
-from ament_formation.core import serial_link as sl
-from ament_formation.core import serial_protocol as sp
-from ament_formation.core.byte_faults import ByteFaults, FaultSpec
-from ament_formation.core.motor_board import BoardConfig, MotorBoard
+from ament_formation.core.serial import serial_link as sl
+from ament_formation.core.serial import serial_protocol as sp
+from ament_formation.core.serial.byte_faults import ByteFaults, FaultSpec
+from ament_formation.core.serial.motor_board import BoardConfig, MotorBoard
 
 
 def run_link(

@@ -5,10 +5,10 @@ per robot on its own obstacle, settled formation accuracy, torque limits, S3.4 r
 import numpy as np
 import pytest
 
-from ament_formation.core.metrics import compute_metrics
-from ament_formation.core.paths_config import config_file
-from ament_formation.core.scenario import load_scenario
-from ament_formation.core.simulator import simulate
+from ament_formation.core.config_files import config_file
+from ament_formation.core.scenario.loader import load_scenario
+from ament_formation.core.sim.metrics import compute_metrics
+from ament_formation.core.sim.simulator import simulate
 
 
 @pytest.fixture(scope='module')

@@ -4,10 +4,10 @@ static, rotating, moving and wall obstacles plus a head-on sixth robot, with S9 
 
 import pytest
 
-from ament_formation.core.metrics import compute_metrics
-from ament_formation.core.paths_config import config_file
-from ament_formation.core.scenario import load_scenario
-from ament_formation.core.simulator import simulate
+from ament_formation.core.config_files import config_file
+from ament_formation.core.scenario.loader import load_scenario
+from ament_formation.core.sim.metrics import compute_metrics
+from ament_formation.core.sim.simulator import simulate
 
 
 @pytest.fixture(scope='module')

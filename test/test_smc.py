@@ -6,9 +6,16 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 import numpy as np
 
-from ament_formation.core import kernels as kn
-from ament_formation.core.disturbance import Disturbance
-from ament_formation.core.dynamics import (
+from ament_formation.core.control import kernels as kn
+from ament_formation.core.control.smc import (
+    reaching_time_bound,
+    saturate_torque,
+    sliding_mode_torque,
+    sliding_mode_torque_raw,
+    switching_gain_for,
+)
+from ament_formation.core.model.disturbance import Disturbance
+from ament_formation.core.model.dynamics import (
     PlantCoeffs,
     point_accel,
     point_velocity,
@@ -16,13 +23,6 @@ from ament_formation.core.dynamics import (
     s1_inv,
 )
 from ament_formation.core.params import ControlGains, RobotParams
-from ament_formation.core.smc import (
-    reaching_time_bound,
-    saturate_torque,
-    sliding_mode_torque,
-    sliding_mode_torque_raw,
-    switching_gain_for,
-)
 
 GAINS = ControlGains()
 

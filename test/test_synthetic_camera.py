@@ -12,7 +12,9 @@ from hypothesis import strategies as st
 import numpy as np
 import pytest
 
-from ament_formation.core.camera_model import (
+from ament_formation.core.config_files import config_file
+from ament_formation.core.errors import ConfigError
+from ament_formation.core.vision.camera_model import (
     CameraModel,
     CameraSetup,
     FloorArea,
@@ -20,11 +22,9 @@ from ament_formation.core.camera_model import (
     rotation_vector,
     save_camera_yaml,
 )
-from ament_formation.core.errors import ConfigError
-from ament_formation.core.marker_tracking import detect, make_detector, refine_corners
-from ament_formation.core.paths_config import config_file
-from ament_formation.core.robot_marker import MarkerLayout
-from ament_formation.core.synthetic_camera import Obstacles, RenderOptions, SyntheticCamera
+from ament_formation.core.vision.marker_tracking import detect, make_detector, refine_corners
+from ament_formation.core.vision.robot_marker import MarkerLayout
+from ament_formation.core.vision.synthetic_camera import Obstacles, RenderOptions, SyntheticCamera
 
 CAM = CameraSetup().camera
 POSES = np.array([[0.2, 0.0, 0.3], [1.2, 0.6, -2.0], [2.4, 1.5, 1.0], [2.5, -0.4, 3.0]])

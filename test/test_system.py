@@ -26,8 +26,8 @@ def test_shortened_paper_run_all_nodes_in_one_process(ros_context, executor, tmp
     import rclpy
     from std_msgs.msg import String
 
-    from ament_formation.core.scenario import load_scenario
-    from ament_formation.ros.system import build_system
+    from ament_formation.core.scenario.loader import load_scenario
+    from ament_formation.nodes.system import build_system
 
     scenario_path = DATA / 'paper_short.yaml'
     sc = load_scenario(scenario_path)
@@ -75,7 +75,7 @@ def test_shortened_paper_run_all_nodes_in_one_process(ros_context, executor, tmp
 
     # leader round O1: positive clearance, back on its path at the end
     o1 = next(o for o in sc.obstacles if o.name == 'O1')
-    from ament_formation.core.limit_cycle import signed_distance_to_ellipse
+    from ament_formation.core.control.limit_cycle import signed_distance_to_ellipse
 
     dist = signed_distance_to_ellipse(
         x[:, 0, :2], np.asarray(o1.center_m), o1.orientation_rad, *o1.semi_axes_m
@@ -103,7 +103,7 @@ def test_controller_stops_when_poses_stop(ros_context, executor, tmp_path):
     """Cut the camera: within pose_timeout_s the controller switches to a controlled stop and the
     robot comes to rest; the safety state and the mode say so.
     """
-    from ament_formation.ros.system import build_system
+    from ament_formation.nodes.system import build_system
 
     system = build_system(
         ros_context,
@@ -266,7 +266,7 @@ def test_head_on_encounter_through_the_nodes(ros_context, executor, tmp_path, te
     import rclpy
     from std_msgs.msg import String
 
-    from ament_formation.ros.system import build_system
+    from ament_formation.nodes.system import build_system
 
     system = build_system(
         ros_context,

@@ -41,7 +41,7 @@ def test_one_tick_runs_every_hosted_controller_and_peers_read_in_process(ros_con
     """One team tick = one control period of every hosted controller, in id order; a controller
     sees its peer's state, accel and mode exactly as the peer published them (no DDS subscription).
     """
-    from ament_formation.core.scenario import load_scenario
+    from ament_formation.core.scenario.loader import load_scenario
     from ament_formation.ros import messages as msgs
 
     sc = load_scenario(SCENARIO)

@@ -18,9 +18,9 @@ import pytest
 from rclpy.node import Node
 from sensor_msgs.msg import Image
 
-from ament_formation.core.camera_model import CameraSetup
 from ament_formation.core.errors import ConfigError
-from ament_formation.core.synthetic_camera import RenderOptions, SyntheticCamera
+from ament_formation.core.vision.camera_model import CameraSetup
+from ament_formation.core.vision.synthetic_camera import RenderOptions, SyntheticCamera
 from ament_formation.nodes.tracker import TrackerNode, TrackerNodeParams
 from ament_formation.ros.executors import spin_until
 from ament_formation.ros.image import image_to_mono8, image_to_numpy, numpy_to_image

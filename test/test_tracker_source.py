@@ -23,8 +23,8 @@ from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 import yaml
 
-from ament_formation.core.camera_model import CameraSetup
-from ament_formation.core.synthetic_camera import RenderOptions, SyntheticCamera
+from ament_formation.core.vision.camera_model import CameraSetup
+from ament_formation.core.vision.synthetic_camera import RenderOptions, SyntheticCamera
 from ament_formation.hw.mjpeg_stream import free_port, MjpegServer
 from ament_formation.ros.executors import spin_until
 from ament_formation.ros.messages import pose_from_msg, stamp_to_ns

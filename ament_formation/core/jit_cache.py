@@ -1,4 +1,4 @@
-"""Where numba keeps the compiled kernels, and warming that cache once at set-up.
+"""Where numba keeps the compiled kernels (warming them once: core/sim/jit_warm.py).
 
 numba's on-disk cache (``@njit(cache=True)``) keys a compiled function on its own source file
 only: a change in another module it calls or whose constants it reads goes unnoticed, and the
@@ -14,10 +14,7 @@ stay).
 A ``NUMBA_CACHE_DIR`` set by the user is left alone. ``AMENT_FORMATION_CACHE_DIR`` replaces the
 ``$XDG_CACHE_HOME/ament_formation`` root.
 
-:func:`warm` compiles (or loads) every kernel the programs use, once, in one process
-(:func:`main`; ``scripts/setup.sh`` runs it after installing, and whenever the core changed), so
-that the processes of a run load machine code instead of all compiling it at the same time.
-This module reads files and the environment only when called; only :func:`main` prints.
+This module reads files and the environment only when called, and never prints.
 """
 
 from __future__ import annotations
@@ -145,67 +142,3 @@ def _warm_stamp() -> Path | None:
 def is_warm() -> bool:
     stamp = _warm_stamp()
     return stamp is not None and stamp.exists()
-
-
-def warm() -> None:
-    """Compile (or load) every numba kernel the programs and ``formation sim`` use, by building
-    what they build: the simulator on a short run of each shipped scenario, each robot's
-    RobotController of the paper scenario (a leader and a follower), the coordinator's arbiter, the
-    world's plant twin and the tracker's corner refinement. numba compiles a kernel's whole call
-    tree on its first call, so one call of each entry point covers the branches not taken.
-    """
-    import dataclasses
-
-    import numpy as np
-
-    from ament_formation.core import corner_refinement
-    from ament_formation.core.arbiter import EncounterArbiter
-    from ament_formation.core.controller import RobotController
-    from ament_formation.core.graph import FormationGraph
-    from ament_formation.core.paths_config import config_dir
-    from ament_formation.core.scenario import load_scenario
-    from ament_formation.core.simulator import simulate
-    from ament_formation.core.twin import PlantTwin
-
-    corner_refinement.warm_up()
-    scenarios = sorted((config_dir() / 'scenarios').glob('*.yaml'))
-    for path in scenarios:
-        sc = load_scenario(path)
-        simulate(dataclasses.replace(sc, duration_s=0.05))
-        PlantTwin(sc)
-        arbiter = EncounterArbiter(sc)
-        states = {r.id: np.array([*r.initial_pose, 0.0, 0.0]) for r in sc.robots}
-        arbiter.decide(0.0, states, {r.id: {'mode': 'coordination'} for r in sc.robots})
-        graph = FormationGraph.from_scenario(sc)
-        for r in sc.robots:
-            law = RobotController(
-                r.id,
-                r.params,
-                sc.control,
-                sc.avoidance,
-                sc.obstacles,
-                leader_path=r.path if r.leader else None,
-                team=sc.team_leader(r.id),
-            )
-            p0 = graph.original_parent.get(r.id)
-            offset = np.zeros(2) if p0 is None else np.asarray(graph.offset(r.id, p0), dtype=float)
-            law.set_graph(p0, offset, p0, offset)
-            law.warm_up()
-
-
-def main(argv: list[str] | None = None) -> int:
-    """Warm the cache unless it is warm already (``--force``: warm anyway); say so on stderr."""
-    argv = sys.argv[1:] if argv is None else argv
-    if is_warm() and '--force' not in argv:
-        return 0
-    import time
-
-    path = os.environ.get('NUMBA_CACHE_DIR', "numba's default")
-    print(f'setup: compiling the numba kernels once (about 30 s; cache {path})', file=sys.stderr)
-    t0 = time.monotonic()
-    warm()
-    stamp = _warm_stamp()
-    if stamp is not None:
-        stamp.touch()
-    print(f'setup: numba kernels compiled in {time.monotonic() - t0:.0f} s', file=sys.stderr)
-    return 0

@@ -1,5 +1,6 @@
-"""Run an emulated :class:`~ament_formation.core.motor_board.MotorBoard` on the master side of a
-pseudo-terminal, so that the bridge (or any serial program) opens the slave side like a USB
+"""Run an emulated :class:`~ament_formation.core.serial.motor_board.MotorBoard` on the master
+side of a pseudo-terminal, so that the bridge (or any serial program) opens the slave side like a
+USB
 serial port.
 
 The runner keeps a stable path (a symlink, ``link_path``) to the current slave device: closing
@@ -21,8 +22,8 @@ from typing import Callable
 
 import numpy as np
 
-from ament_formation.core.byte_faults import ByteFaults, FaultSpec
-from ament_formation.core.motor_board import MotorBoard
+from ament_formation.core.serial.byte_faults import ByteFaults, FaultSpec
+from ament_formation.core.serial.motor_board import MotorBoard
 
 
 class PtyBoard:

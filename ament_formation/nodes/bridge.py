@@ -37,8 +37,8 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 import serial
 
-from ament_formation.core import serial_link as sl
 from ament_formation.core.errors import ConfigError
+from ament_formation.core.serial import serial_link as sl
 from ament_formation.ros import diagnostics as diag
 from ament_formation.ros.executors import run_node
 from ament_formation.ros.messages import wheel_state
@@ -74,7 +74,7 @@ def open_port(url: str, baud_rate: int) -> serial.SerialBase:
 
 
 class BridgeNode(Node):
-    """Thin shell around :class:`~ament_formation.core.serial_link.LinkHost`
+    """Thin shell around :class:`~ament_formation.core.serial.serial_link.LinkHost`
     (the protocol logic).
     """
 

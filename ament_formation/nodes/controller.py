@@ -1,8 +1,10 @@
 """formation_controller: one robot's sliding-mode formation controller (namespace robot_<id>).
 
-Every control period (100 Hz): the pose estimate (core/estimator.py, spec S10: wheel odometry
+Every control period (100 Hz): the pose estimate (core/control/estimator.py, spec S10: wheel
+odometry
 between camera frames, each latency-compensated camera pose corrects it) feeds the robot's
-switching automaton and sliding-mode law (core/controller.py RobotController: the same compiled
+switching automaton and sliding-mode law (core/control/controller.py RobotController: the same
+compiled
 functions as the simulator); the torque goes to the bridge. The node hears every robot of the
 scenario (``state``, ``accel``, ``mode``): the current parent is the one of ``/formation/graph``
 (S4 field with feed-forward), the original parent gives the S8.3 exit goal, and every robot is a
@@ -87,13 +89,13 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
-from ament_formation.core.controller import fast_reference, NeighbourState, RobotController
-from ament_formation.core.dynamics import b2_inv, f2, PlantCoeffs
+from ament_formation.core.control.controller import fast_reference, NeighbourState, RobotController
+from ament_formation.core.control.estimator import EstimatorParams, PoseEstimator
+from ament_formation.core.control.rewiring import FormationGraph
 from ament_formation.core.errors import ConfigError
-from ament_formation.core.estimator import EstimatorParams, PoseEstimator
-from ament_formation.core.graph import FormationGraph
+from ament_formation.core.model.dynamics import b2_inv, f2, PlantCoeffs
 from ament_formation.core.params import ControlGains, param
-from ament_formation.core.scenario import load_scenario
+from ament_formation.core.scenario.loader import load_scenario
 from ament_formation.ros import diagnostics as diag
 from ament_formation.ros import messages as msgs
 from ament_formation.ros.executors import run_node

@@ -2,12 +2,14 @@
 (spec S7) and starts the mission.
 
 It watches every robot's ``state`` and ``mode``. When the set of robots in any avoidance mode
-changes, it recomputes the parents with core/graph.py (S9 rewiring; restoration = rewiring with
+changes, it recomputes the parents with core/control/rewiring.py (S9 rewiring; restoration =
+rewiring with
 fewer avoiders) and publishes ``/formation/graph`` with a new revision (transient local, so late
 controllers get the current graph). Once every robot's controller publishes its state (or at once
 with ``wait_for_robots`` false) it fixes the mission start ``start_s = now + start_delay_s`` in
 the same message: scenario time is ``now - start_s`` for every node. At ``encounter_rate_hz`` it
-arbitrates robot-robot encounters over all robots together (core/arbiter.py: the simulator's
+arbitrates robot-robot encounters over all robots together (core/control/arbiter.py: the
+simulator's
 ``decide`` on every robot's broadcast state, the robots' reported obstacle modes taken as given)
 and publishes the yield/mutual assignments on ``/formation/encounters`` (on change with a new
 revision, and every ``republish_s``); each controller applies its own as an override of its local
@@ -59,12 +61,12 @@ from rclpy.serialization import deserialize_message
 from std_msgs.msg import String
 from visualization_msgs.msg import MarkerArray
 
-from ament_formation.core.arbiter import EncounterArbiter
+from ament_formation.core.control.arbiter import EncounterArbiter
+from ament_formation.core.control.rewiring import FormationGraph
 from ament_formation.core.errors import ConfigError
-from ament_formation.core.graph import FormationGraph
-from ament_formation.core.obstacles import ObstacleField
+from ament_formation.core.model.obstacles import ObstacleField
 from ament_formation.core.params import param
-from ament_formation.core.scenario import load_scenario
+from ament_formation.core.scenario.loader import load_scenario
 from ament_formation.ros import diagnostics as diag
 from ament_formation.ros import messages as msgs
 from ament_formation.ros.executors import run_node
@@ -246,7 +248,7 @@ class CoordinatorNode(Node):
         self._publish_encounters(new_revision=False)
 
     def _arbitrate(self) -> None:
-        """S7 over all robots (core/arbiter.py); publish the assignments when they change."""
+        """S7 over all robots (core/control/arbiter.py); publish the assignments on change."""
         now = self.now_s()
         self.arbitration_watch.tick(int(now * 1e9))
         if self.start_s is None or now < self.start_s:

@@ -2,7 +2,7 @@
 
 Serves the formation to the Foxglove app over the Foxglove WebSocket protocol (``foxglove-sdk``;
 open ``ws://HOST:PORT`` as a "Foxglove WebSocket" connection, layout
-config/foxglove/formation_layout.json). What it shows comes from core/scene.py (ROS-free):
+config/foxglove/formation_layout.json). What it shows comes from core/sim/scene.py (ROS-free):
 
   /formation/scene             foxglove.SceneUpdate: per robot its body disc, heading arrow and a
                                label (id, mode, target, direction); its formation goal g_i (sphere
@@ -62,8 +62,14 @@ from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import String
 
 from ament_formation.core.errors import ConfigError
-from ament_formation.core.scenario import load_scenario
-from ament_formation.core.scene import finite_or_none, LiveScene, robot_rgb, scenario_time_s, Scene
+from ament_formation.core.scenario.loader import load_scenario
+from ament_formation.core.sim.scene import (
+    finite_or_none,
+    LiveScene,
+    robot_rgb,
+    scenario_time_s,
+    Scene,
+)
 from ament_formation.ros import messages as msgs
 from ament_formation.ros.executors import run_node
 from ament_formation.ros.params import declare_dataclass

@@ -53,7 +53,7 @@ from rclpy.parameter import Parameter
 
 from ament_formation.core.errors import ConfigError
 from ament_formation.core.params import param
-from ament_formation.core.scenario import load_scenario
+from ament_formation.core.scenario.loader import load_scenario
 from ament_formation.nodes.bridge import BridgeNode
 from ament_formation.nodes.controller import _send_zero_torque as _controller_zero_torque
 from ament_formation.nodes.controller import ControllerNode, PeerTable, set_realtime

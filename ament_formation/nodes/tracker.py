@@ -1,4 +1,4 @@
-"""formation_tracker: overhead camera frames → each robot's pose (core/marker_tracking.py).
+"""formation_tracker: overhead camera frames → each robot's pose (core/vision/marker_tracking.py).
 
 Contract
 
@@ -71,12 +71,12 @@ import numpy as np
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 
-from ament_formation.core.camera_model import load_camera_yaml
+from ament_formation.core.config_files import config_file
 from ament_formation.core.errors import ConfigError
-from ament_formation.core.marker_tracking import MarkerTracker, TrackerConfig
 from ament_formation.core.params import param
-from ament_formation.core.paths_config import config_file
-from ament_formation.core.robot_marker import MarkerLayout
+from ament_formation.core.vision.camera_model import load_camera_yaml
+from ament_formation.core.vision.marker_tracking import MarkerTracker, TrackerConfig
+from ament_formation.core.vision.robot_marker import MarkerLayout
 from ament_formation.hw.video_source import FrameGrabber, open_problem, parse_source, SourceSpec
 from ament_formation.ros import diagnostics as diag
 from ament_formation.ros.executors import run_node

@@ -1,8 +1,9 @@
 """formation_world: the simulated hardware twin (DESIGN §1, §6).
 
-The plant of every robot (1 kHz RK4, core/twin.py) with the scenario's disturbance and moving
+The plant of every robot (1 kHz RK4, core/sim/twin.py) with the scenario's disturbance and moving
 obstacles; one emulated motor board per robot on its own pty (hw/pty_board.py: the bridge opens
-``<pty_dir>/robot_<id>``); the synthetic overhead camera (core/synthetic_camera.py) rendering the
+``<pty_dir>/robot_<id>``); the synthetic overhead camera (core/vision/synthetic_camera.py)
+rendering the
 robots' markers; ground truth for evaluation. The mission starts when ``/formation/graph`` carries
 a
 ``start_s`` (the coordinator starts it once every controller is up); until then the robots stand.
@@ -47,14 +48,14 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import String
 
-from ament_formation.core.camera_model import load_camera_yaml
+from ament_formation.core.config_files import config_file
 from ament_formation.core.errors import ConfigError
-from ament_formation.core.motor_board import BoardConfig, MotorBoard
 from ament_formation.core.params import param
-from ament_formation.core.paths_config import config_file
-from ament_formation.core.scenario import load_scenario
-from ament_formation.core.synthetic_camera import Obstacles, RenderOptions, SyntheticCamera
-from ament_formation.core.twin import PlantTwin
+from ament_formation.core.scenario.loader import load_scenario
+from ament_formation.core.serial.motor_board import BoardConfig, MotorBoard
+from ament_formation.core.sim.twin import PlantTwin
+from ament_formation.core.vision.camera_model import load_camera_yaml
+from ament_formation.core.vision.synthetic_camera import Obstacles, RenderOptions, SyntheticCamera
 from ament_formation.hw.pty_board import PtyBoard, PtyBoardGroup
 from ament_formation.ros import diagnostics as diag
 from ament_formation.ros import messages as msgs

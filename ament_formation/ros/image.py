@@ -3,7 +3,8 @@
 Supported encodings: mono8, 8UC1, mono16, 16UC1, bgr8, rgb8, bgra8, rgba8 (row padding through
 ``step`` and big-endian 16-bit data are handled). :func:`image_to_mono8` gives what the tracker
 needs from any of them. :func:`camera_info` describes the frames of a calibrated camera
-(core/camera_model.py, ``config/camera.yaml``) the way image_proc, RViz and Foxglove read it.
+(core/vision/camera_model.py, ``config/camera.yaml``) the way image_proc, RViz and Foxglove read
+it.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ import cv2
 import numpy as np
 from sensor_msgs.msg import CameraInfo, Image
 
-from ament_formation.core.camera_model import CameraModel
+from ament_formation.core.vision.camera_model import CameraModel
 
 _LAYOUT = {  # encoding -> (dtype, channels)
     'mono8': (np.uint8, 1),

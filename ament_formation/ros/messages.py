@@ -33,7 +33,7 @@ from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import ColorRGBA, String
 from visualization_msgs.msg import Marker, MarkerArray
 
-from ament_formation.core.scene import robot_rgb
+from ament_formation.core.sim.scene import robot_rgb
 from ament_formation.ros import payloads
 
 WORLD_FRAME = 'world'
@@ -334,7 +334,7 @@ def encounters_from_msg(msg: String) -> tuple[int, dict]:
     """(revision, {robot id: EncounterAssignment}); ValueError naming the problem unless it
     follows ament_formation/encounters/v1.
     """
-    from ament_formation.core.controller import EncounterAssignment
+    from ament_formation.core.control.controller import EncounterAssignment
     from ament_formation.core.errors import ConfigError
 
     data = payloads.decode(msg.data, payloads.ENCOUNTERS_V1)

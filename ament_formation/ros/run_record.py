@@ -15,9 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ament_formation.core.graph import FormationGraph
-from ament_formation.core.obstacles import ObstacleField
-from ament_formation.core.trajectory import SimResult
+from ament_formation.core.control.rewiring import FormationGraph
+from ament_formation.core.model.obstacles import ObstacleField
+from ament_formation.core.sim.trajectory import SimResult
 from ament_formation.ros import messages as msgs
 from ament_formation.ros.recorder import read_messages
 

@@ -17,9 +17,9 @@ import time
 
 import numpy as np
 
-from ament_formation.core.byte_faults import FaultSpec
 from ament_formation.core.errors import ConfigError
-from ament_formation.core.motor_board import BoardConfig, MotorBoard
+from ament_formation.core.serial.byte_faults import FaultSpec
+from ament_formation.core.serial.motor_board import BoardConfig, MotorBoard
 
 
 def register(subparsers) -> None:

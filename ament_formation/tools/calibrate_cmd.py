@@ -18,15 +18,19 @@ from pathlib import Path
 
 import cv2
 
-from ament_formation.core.calibration import (
+from ament_formation.core.config_files import config_dir
+from ament_formation.core.errors import ConfigError
+from ament_formation.core.vision.calibration import (
     calibrate_floor,
     calibrate_intrinsics,
     CharucoSpec,
     load_reference_markers,
 )
-from ament_formation.core.camera_model import CameraSetup, load_camera_yaml, save_camera_yaml
-from ament_formation.core.errors import ConfigError
-from ament_formation.core.paths_config import config_dir
+from ament_formation.core.vision.camera_model import (
+    CameraSetup,
+    load_camera_yaml,
+    save_camera_yaml,
+)
 
 
 def _default_out() -> Path:

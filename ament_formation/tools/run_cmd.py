@@ -4,8 +4,9 @@ Starts every process with scripts/launch_sim.sh (world, one bridge and one contr
 or with ``--team K`` one formation_team process per K robots, tracker, coordinator; logs in
 DIR/processes/), records every topic to DIR/run.mcap from this
 process (camera images only with --record-images), waits until the world has finished the
-scenario, then computes DIR/metrics.json from the recorded ground truth (core/metrics.py, the same
-code as `formation sim`), writes the trajectories (CSV) and DIR/figure.png, and prints a summary.
+scenario, then computes DIR/metrics.json from the recorded ground truth (core/sim/metrics.py, the
+same code as `formation sim`), writes the trajectories (CSV) and DIR/figure.png, and prints a
+summary.
 DDS stays on loopback (the environment of scripts/ros_env.sh is applied when not already set).
 """
 
@@ -31,7 +32,7 @@ TRUTH_GAP_MAX_S = (
 
 def check(*args, **kw) -> dict:
     """core/metrics.check, imported when needed (the `formation` tool starts without numpy)."""
-    from ament_formation.core.metrics import check as make
+    from ament_formation.core.sim.metrics import check as make
 
     return make(*args, **kw)
 
@@ -179,7 +180,7 @@ class _Progress:
 
 
 def run_system(args: argparse.Namespace) -> int:
-    from ament_formation.core.scenario import load_scenario
+    from ament_formation.core.scenario.loader import load_scenario
 
     if not (math.isfinite(args.speed) and 0.05 <= args.speed <= 50.0):
         raise ConfigError(f'must be in [0.05, 50] (got {args.speed})', '--speed')
@@ -402,8 +403,8 @@ def _evaluate(mcap_path: Path, scenario, out: Path, wall_s: float, args, extra: 
     ``expect:`` and ``extra``), metrics.json, figure, summary. Exit status 0 exactly when
     metrics.json says ``"ok": true``; otherwise one line on stderr names what failed.
     """
-    from ament_formation.core.metrics import check_run, compute_metrics
-    from ament_formation.core.records import write_metrics, write_run
+    from ament_formation.core.sim.metrics import check_run, compute_metrics
+    from ament_formation.core.sim.records import write_metrics, write_run
     from ament_formation.ros.run_record import load_run
 
     stats: dict = {}
@@ -461,7 +462,7 @@ def _evaluate(mcap_path: Path, scenario, out: Path, wall_s: float, args, extra: 
     check_run(metrics, scenario, extra=extra)
     write_run(out, result, scenario, metrics)
     if not args.no_figure:
-        from ament_formation.core.plot import render_figure
+        from ament_formation.core.sim.plot import render_figure
 
         render_figure(result, scenario, out / 'figure.png')
     if not args.quiet:

@@ -11,10 +11,10 @@ import json
 from pathlib import Path
 import sys
 
-from ament_formation.core import cobs
-from ament_formation.core import serial_protocol as sp
-from ament_formation.core.crc16 import crc16
-from ament_formation.core.crc32c import crc32c
+from ament_formation.core.serial import cobs
+from ament_formation.core.serial import serial_protocol as sp
+from ament_formation.core.serial.crc16 import crc16
+from ament_formation.core.serial.crc32c import crc32c
 
 
 def _valid(

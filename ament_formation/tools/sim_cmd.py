@@ -1,7 +1,8 @@
 """`formation sim SCENARIO.yaml --out DIR` and `formation plot DIR`.
 
-sim   runs the ROS-free vectorised closed loop (core/simulator.py) on a scenario and writes the run
-      directory (core/records.py): metrics.json, figure.png, trajectories.csv, obstacles.csv,
+sim   runs the ROS-free vectorised closed loop (core/sim/simulator.py) on a scenario and writes the
+run
+      directory (core/sim/records.py): metrics.json, figure.png, trajectories.csv, obstacles.csv,
       events.json, run.json, scenario.yaml. A summary goes to stdout; progress of runs longer than
       about a second goes to stderr. The run is checked like `formation run`
       (core/metrics.check_run:
@@ -165,9 +166,9 @@ def _summary(metrics: dict, out: Path, figure: bool = True, first: tuple[str, ..
 
 
 def run_sim(args: argparse.Namespace) -> int:
-    from ament_formation.core.metrics import check_run, compute_metrics
-    from ament_formation.core.records import write_run
-    from ament_formation.core.scenario import load_scenario
+    from ament_formation.core.scenario.loader import load_scenario
+    from ament_formation.core.sim.metrics import check_run, compute_metrics
+    from ament_formation.core.sim.records import write_run
 
     dt_s = _positive(args.dt_s, '--dt-s')
     record_s = _positive(args.record_every_s, '--record-every-s')
@@ -178,7 +179,7 @@ def run_sim(args: argparse.Namespace) -> int:
         raise ConfigError('exists and is not a directory', '--out', str(out))
     scenario = load_scenario(args.scenario)
 
-    from ament_formation.core.simulator import simulate
+    from ament_formation.core.sim.simulator import simulate
 
     progress = None if args.quiet else _Progress(sys.stderr)
     try:
@@ -189,7 +190,7 @@ def run_sim(args: argparse.Namespace) -> int:
     metrics = check_run(compute_metrics(result, scenario), scenario)
     write_run(out, result, scenario, metrics)
     if not args.no_figure:
-        from ament_formation.core.plot import render_figure
+        from ament_formation.core.sim.plot import render_figure
 
         render_figure(result, scenario, out / 'figure.png')
     if not args.quiet:
@@ -201,8 +202,8 @@ def run_sim(args: argparse.Namespace) -> int:
 
 
 def run_plot(args: argparse.Namespace) -> int:
-    from ament_formation.core.plot import render_figure
-    from ament_formation.core.records import read_run
+    from ament_formation.core.sim.plot import render_figure
+    from ament_formation.core.sim.records import read_run
 
     result, scenario, _metrics = read_run(args.run_dir)
     target = Path(args.output) if args.output else Path(args.run_dir) / 'figure.png'

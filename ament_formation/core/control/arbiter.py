@@ -1,0 +1,282 @@
+"""The coordinator's robot-robot encounter arbitration over all robots together (spec S7, S14.1).
+
+:class:`EncounterArbiter` runs exactly the simulator's decision step
+:func:`ament_formation.core.control.encounters.decide` on every robot whose broadcast state it
+knows, and
+turns the robot-robot modes it decides (yield / mutual) into one
+:class:`~ament_formation.core.control.controller.EncounterAssignment` per robot, which
+:class:`~ament_formation.core.control.controller.RobotController` accepts as an override.
+
+Obstacle modes stay the robots' own decisions (safety must not wait for the network, DESIGN §6):
+before every decision the arbiter copies each robot's reported obstacle mode into its automaton
+state, so static obstacles beat robots (S7) and a robot avoiding an obstacle is stand-on. The
+arbiter keeps its own yield/mutual state between calls (dwell, joint exits, cool-downs, S8.3-S8.4).
+"""
+
+from __future__ import annotations
+
+from typing import Mapping
+
+import numpy as np
+
+from ament_formation.core.control.automaton import (
+    AutomatonState,
+    MODE_C,
+    MODE_MUTUAL,
+    MODE_OBSTACLE,
+    MODE_YIELD,
+    SwitchingParams,
+)
+from ament_formation.core.control.controller import EncounterAssignment
+from ament_formation.core.control.encounters import decide, KIND_OBSTACLE
+from ament_formation.core.control.law import gains_vector, goal_fields
+from ament_formation.core.control.rewiring import FormationGraph
+from ament_formation.core.model.dynamics import PlantCoeffs
+from ament_formation.core.model.obstacles import obstacle_arrays, obstacle_states
+
+
+class EncounterArbiter:
+    """S7 arbitration of a scenario's robots (see the module docstring).
+
+    ``EncounterArbiter(scenario, switching=None)``; ``decide(t_s, states, modes)`` with ``t_s``
+    scenario time [s], ``states`` {robot id: (5,) [x_m, y_m, theta_rad, v_mps, omega_radps]}
+    (robots without a state are left out of the decision), ``modes`` {robot id: the JSON dict of
+    its
+    ``mode`` topic: mode, target, direction}. Returns {robot id: EncounterAssignment} for every
+    robot the arbiter has in yield or mutual mode (``t_entry_s`` in scenario time, ``drift_mps``
+    the pair's current w_c).
+    """
+
+    def __init__(self, scenario, switching: SwitchingParams | None = None):
+        robots = sorted(scenario.robots, key=lambda r: r.id)
+        self.ids = tuple(int(r.id) for r in robots)
+        self.index = {rid: q for q, rid in enumerate(self.ids)}
+        n = len(robots)
+        base = switching or SwitchingParams()
+        self.switching = base.for_avoidance(scenario.avoidance)
+        self._prm = self.switching.as_array()
+        self._gains = gains_vector(scenario.control)
+        self._d = PlantCoeffs.from_params([r.params for r in robots]).d
+        self._rbody = np.array([r.params.body_radius_m for r in robots], dtype=float)
+        graph = FormationGraph.from_scenario(scenario)
+        self._orig = {rid: graph.original_parent.get(rid) for rid in self.ids}
+        self._orig_off = {
+            rid: (graph.offset(rid, p) if p is not None else np.zeros(2))
+            for rid, p in self._orig.items()
+        }
+        self._team = {rid: scenario.team_leader(rid) for rid in self.ids}
+        self._paths = {r.id: (r.path if r.leader else None) for r in robots}
+        self.obstacle_names = tuple(o.name for o in scenario.obstacles)
+        (
+            self._c0,
+            self._v,
+            self._amp,
+            self._w,
+            self._phi0,
+            self._phid,
+            self._axes,
+            self._static,
+        ) = obstacle_arrays(scenario.obstacles)
+        self.state = AutomatonState(n)  # all robots, rows in robot-id order
+        self.events: list[dict] = []  # robot-robot events decided here (ids, scenario time)
+        self._drift_t: float | None = None
+
+    # ------------------------------------------------------------------ reported obstacle modes
+    def _sync_reported(self, t_s: float, modes: Mapping[int, dict]) -> None:
+        st = self.state
+        for rid, md in modes.items():
+            q = self.index.get(int(rid))
+            if q is None or not isinstance(md, dict):
+                continue
+            name = md.get('mode')
+            if name == 'obstacle' and md.get('target') in self.obstacle_names:
+                j = self.obstacle_names.index(md['target'])
+                if st.mode[q] != MODE_OBSTACLE or st.tgt[q] != j:
+                    self._drop_partner(q)
+                    st.set_mode(
+                        q, MODE_OBSTACLE, j, -1.0 if md.get('direction') == 'cw' else 1.0, t_s
+                    )
+            elif st.mode[q] == MODE_OBSTACLE:  # the robot left its obstacle
+                st.last_kind[q] = KIND_OBSTACLE
+                st.last_tgt[q] = st.tgt[q]
+                st.last_exit[q] = t_s
+                st.mode[q] = MODE_C
+                st.tgt[q] = -1
+                st.since[q] = -1.0
+
+    def _drop_partner(self, q: int) -> None:
+        """Q leaves a mutual pair: its partner becomes a plain yielder (S8.3)."""
+        st = self.state
+        if st.mode[q] == MODE_MUTUAL:
+            k = st.tgt[q]
+            if st.mode[k] == MODE_MUTUAL and st.tgt[k] == q:
+                st.mode[k] = MODE_YIELD
+                st.since[k] = -1.0
+
+    # ------------------------------------------------------------------ decision
+    def decide(
+        self, t_s: float, states: Mapping[int, np.ndarray], modes: Mapping[int, dict]
+    ) -> dict[int, EncounterAssignment]:
+        """One S7/S8 decision over every robot with a known state; see the class docstring."""
+        t_s = float(t_s)
+        self._sync_reported(t_s, modes)
+        known = [rid for rid in self.ids if rid in states and np.all(np.isfinite(states[rid]))]
+        rows = np.array([self.index[r] for r in known], dtype=np.int64)
+        n = len(known)
+        if n == 0:
+            return {}
+        row = {rid: q for q, rid in enumerate(known)}
+        x = np.ascontiguousarray(
+            np.stack([np.asarray(states[r], dtype=float).reshape(5) for r in known])
+        )
+        d = self._d[rows]
+        pd = np.ascontiguousarray(
+            np.stack(
+                [
+                    x[:, 3] * np.cos(x[:, 2]) - d * x[:, 4] * np.sin(x[:, 2]),
+                    x[:, 3] * np.sin(x[:, 2]) + d * x[:, 4] * np.cos(x[:, 2]),
+                ],
+                axis=1,
+            )
+        )
+        ref = np.zeros((n, 6))
+        orig_parent = np.full(n, -1, dtype=np.int64)
+        orig_offset = np.zeros((n, 2))
+        for q, rid in enumerate(known):
+            path = self._paths[rid]
+            p0 = self._orig[rid]
+            if path is not None:
+                r, rd, rdd = path.reference(t_s)
+                ref[q] = np.concatenate([np.asarray(r), np.asarray(rd), np.asarray(rdd)])
+            elif p0 is not None and p0 in row:
+                orig_parent[q] = row[p0]
+                orig_offset[q] = self._orig_off[rid]
+            else:  # goal unknown: its own position
+                ref[q, 0:2] = x[q, 0:2]
+                ref[q, 2:4] = pd[q]
+        goal, goal_dot, vc = goal_fields(x, pd, ref, orig_parent, orig_offset, self._gains)
+        team = np.array(
+            [row.get(self._team[r], -1 - self.index[r]) for r in known], dtype=np.int64
+        )
+        m = len(self.obstacle_names)
+        oc, ov, oa = np.empty((m, 2)), np.empty((m, 2)), np.empty((m, 2))
+        ophi, ophid, ophidd = np.empty(m), np.empty(m), np.empty(m)
+        obstacle_states(
+            t_s,
+            self._c0,
+            self._v,
+            self._amp,
+            self._w,
+            self._phi0,
+            self._phid,
+            oc,
+            ov,
+            oa,
+            ophi,
+            ophid,
+            ophidd,
+        )
+
+        # sub-state of the known robots (robot targets as rows of the sub-problem)
+        full = self.state
+        sub = AutomatonState(n)
+        for name in (
+            'mode',
+            'tgt',
+            'sdir',
+            't_entry',
+            'since',
+            'last_kind',
+            'last_tgt',
+            'last_exit',
+            'wc',
+            'wtgt',
+        ):
+            getattr(sub, name)[:] = getattr(full, name)[rows]
+        idx_row = {self.index[r]: q for q, r in enumerate(known)}
+        for q in range(n):
+            if sub.mode[q] in (MODE_YIELD, MODE_MUTUAL):
+                sub.tgt[q] = idx_row.get(int(sub.tgt[q]), -1)
+                if sub.tgt[q] < 0:  # partner silent: back to coordination
+                    sub.mode[q] = MODE_C
+            if sub.last_kind[q] == 2:
+                sub.last_tgt[q] = idx_row.get(int(sub.last_tgt[q]), -1)
+        if self._drift_t is not None:  # w_c relaxes toward w_tgt (S14.1), as the law does
+            tau = self.switching.mutual_drift_tau_s
+            a = min(1.0, max(0.0, t_s - self._drift_t) / tau) if tau > 0 else 1.0
+            sub.wc += a * (sub.wtgt - sub.wc) * (sub.mode == MODE_MUTUAL)[:, None]
+        self._drift_t = t_s
+        ev = np.zeros((8 * n + 16, 6))
+        nev = decide(
+            t_s,
+            np.ascontiguousarray(x[:, :2]),
+            pd,
+            goal,
+            goal_dot,
+            vc,
+            team,
+            self._rbody[rows],
+            oc,
+            ov,
+            ophi,
+            ophid,
+            self._axes,
+            self._static,
+            *sub.arrays(),
+            self._prm,
+            ev,
+            0,
+        )
+        for r_ in ev[: min(nev, ev.shape[0])]:
+            md = int(r_[3])
+            if md in (MODE_YIELD, MODE_MUTUAL):
+                self.events.append(
+                    {
+                        't_s': float(r_[0]),
+                        'robot': known[int(r_[1])],
+                        'event': 'enter' if r_[2] > 0.5 else 'exit',
+                        'mode': 'yield' if md == MODE_YIELD else 'mutual',
+                        'target': f'robot_{known[int(r_[4])]}',
+                    }
+                )
+        # write back (robot targets as full-state rows); obstacle modes stay the robots' own
+        for q, rid in enumerate(known):
+            i = self.index[rid]
+            reported_obstacle = (modes.get(rid) or {}).get('mode') == 'obstacle'
+            if (
+                sub.mode[q] == MODE_OBSTACLE
+                and not reported_obstacle
+                and full.mode[i] != MODE_OBSTACLE
+            ):
+                continue  # the arbiter does not decide obstacle entries
+            for name in ('mode', 'sdir', 't_entry', 'since', 'last_kind', 'last_exit'):
+                getattr(full, name)[i] = getattr(sub, name)[q]
+            full.wc[i] = sub.wc[q]
+            full.wtgt[i] = sub.wtgt[q]
+            full.tgt[i] = (
+                self.index[known[int(sub.tgt[q])]]
+                if sub.mode[q] in (MODE_YIELD, MODE_MUTUAL)
+                else sub.tgt[q]
+            )
+            lt = int(sub.last_tgt[q])
+            full.last_tgt[i] = (
+                self.index[known[lt]] if sub.last_kind[q] == 2 and 0 <= lt < n else lt
+            )
+        return self.assignments()
+
+    def assignments(self) -> dict[int, EncounterAssignment]:
+        """{robot id: EncounterAssignment} of the robots currently in yield or mutual mode."""
+        st = self.state
+        out = {}
+        for i, rid in enumerate(self.ids):
+            if st.mode[i] in (MODE_YIELD, MODE_MUTUAL):
+                out[rid] = EncounterAssignment(
+                    'yield' if st.mode[i] == MODE_YIELD else 'mutual',
+                    self.ids[int(st.tgt[i])],
+                    direction=1.0 if st.mode[i] == MODE_MUTUAL else float(st.sdir[i]),
+                    t_entry_s=float(st.t_entry[i]),
+                    drift_mps=(float(st.wc[i, 0]), float(st.wc[i, 1]))
+                    if st.mode[i] == MODE_MUTUAL
+                    else None,
+                )
+        return out

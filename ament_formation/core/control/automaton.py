@@ -1,0 +1,399 @@
+"""Per-robot switching automaton (spec S8): entry, re-targeting and exit tests, dwell, T_min,
+cool-down and the emergency ellipse, plus the rotation-direction choice (S6.6) and the parking
+factor (S6.5) that the automaton needs when it switches.
+
+Modes (one int per robot): ``MODE_C`` coordination, ``MODE_OBSTACLE`` A(j) for obstacle j,
+``MODE_YIELD`` A(k, yield) for robot k, ``MODE_MUTUAL`` A(k, mutual). Robot-robot arbitration
+(S7) is in :mod:`ament_formation.core.control.encounters`; both are evaluated at the decision rate
+by
+:func:`ament_formation.core.control.encounters.decide`, which the simulator and the per-robot
+:class:`ament_formation.core.control.controller.RobotController` call alike.
+
+Everything here is scalar numba code (``@njit(cache=True)``) so the closed loop can run it for
+N = 1000 robots; the functions are also plain callables from Python.
+
+Departures from the letter of S8, each motivated by S14:
+
+* S14.2 -- the heading test uses the velocity of the robot relative to the *material point* of the
+  obstacle under the robot, ``z_dot_rel = p_dot - (c_dot + phi_dot J z)``, so a rotating bar that
+  sweeps toward a robot is seen (for static, non-rotating obstacles this is the S8 test exactly);
+  ``dh/dt = grad h . z_dot_rel`` is then the exact total derivative (S6.3(b)).
+* S14.2 -- besides the emergency ellipse E, an *imminent* contact (inside Q, approaching, the ray
+  along z_dot_rel reaches P within ``imminent_s``) is an emergency too: the margin scales with the
+  boundary speed instead of the fixed rho_em.
+* S14.2 -- an emergency may not replace a current target that is itself in emergency (no
+  flip-flopping between two emergency zones every step).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+import math
+
+from numba import njit
+import numpy as np
+
+from ament_formation.core.errors import ConfigError
+from ament_formation.core.params import AvoidanceParams
+
+MODE_C = 0
+MODE_OBSTACLE = 1
+MODE_YIELD = 2
+MODE_MUTUAL = 3
+MODE_NAMES = ('coordination', 'obstacle', 'yield', 'mutual')
+
+INF = math.inf
+
+
+@dataclass(frozen=True)
+class SwitchingParams:
+    """Timing and thresholds of the automaton and the encounter rules (S6.1, S7, S8, S14).
+
+    Built from :class:`AvoidanceParams` plus the additions of this project (all documented
+    at their use).
+    """
+
+    avoidance: AvoidanceParams = AvoidanceParams()
+    decision_period_s: float = 0.01  # automaton/encounter evaluation period (100 Hz)
+    imminent_s: float = 1.5  # S14.2: ray reaches P within this time -> emergency
+    agent_horizon_s: float = 12.0  # S14.3: agent threat only if contact with I within this
+    teammate_rel_speed_mps: float = 0.02  # S14.3: teammates holding slots below this are no threat
+    mutual_drift_tau_s: float = 2.0  # S14.1: w_c relaxes toward the pair's mean V_c
+    mutual_drift_cap_mps: float = 0.05  # |w_c target| cap
+
+    def __post_init__(self) -> None:
+        for name in (
+            'decision_period_s',
+            'imminent_s',
+            'agent_horizon_s',
+            'teammate_rel_speed_mps',
+            'mutual_drift_tau_s',
+            'mutual_drift_cap_mps',
+        ):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ConfigError(f'must be a finite number > 0 (got {value!r})', name)
+
+    def for_avoidance(self, avoidance: AvoidanceParams) -> 'SwitchingParams':
+        """These timings and thresholds with ``avoidance`` (a scenario's) in place of our own."""
+        return dataclasses.replace(self, avoidance=avoidance)
+
+    def as_array(self) -> np.ndarray:
+        """Packed (24,) float vector for the compiled code (see ``P_*`` indices)."""
+        a = self.avoidance
+        out = np.zeros(P_LEN)
+        out[P_EM] = a.emergency_scale
+        out[P_L] = a.limit_cycle_scale
+        out[P_IN] = a.heading_scale
+        out[P_CLR] = a.clearance_scale
+        out[P_KAPPA] = a.protected_scale
+        out[P_VTAN] = a.tangential_speed_mps
+        out[P_VTAN_AGENT] = a.agent_tangential_speed_mps
+        out[P_VRAD] = a.radial_speed_mps
+        out[P_BETA0] = a.gain_start_fraction
+        out[P_TAU_G] = a.gain_time_constant_s
+        out[P_PSI_SLOW] = a.parking_anomaly_rad
+        out[P_DWELL] = a.dwell_s
+        out[P_TMIN] = a.min_avoid_s
+        out[P_COOL] = a.cooldown_s
+        out[P_KEEPOUT_MARGIN] = a.agent_keepout_margin_m
+        out[P_IMMINENT] = self.imminent_s
+        out[P_HORIZON] = self.agent_horizon_s
+        out[P_TEAM_VREL] = self.teammate_rel_speed_mps
+        out[P_DRIFT_TAU] = self.mutual_drift_tau_s
+        out[P_DRIFT_CAP] = self.mutual_drift_cap_mps
+        return out
+
+
+(
+    P_EM,
+    P_L,
+    P_IN,
+    P_CLR,
+    P_KAPPA,
+    P_VTAN,
+    P_VTAN_AGENT,
+    P_VRAD,
+    P_BETA0,
+    P_TAU_G,
+    P_PSI_SLOW,
+    P_DWELL,
+    P_TMIN,
+    P_COOL,
+    P_KEEPOUT_MARGIN,
+    P_IMMINENT,
+    P_HORIZON,
+    P_TEAM_VREL,
+    P_DRIFT_TAU,
+    P_DRIFT_CAP,
+) = range(20)
+P_LEN = 24
+
+
+# --------------------------------------------------------------------------- ellipse geometry
+
+
+@njit(cache=True)
+def ellipse_coords(zx, zy, phi, r1, r2):
+    """Normalised body coordinates (U, W) = (u/r1, w/r2) of z (S6.2); h = U^2 + W^2 - 1."""
+    c = math.cos(phi)
+    s = math.sin(phi)
+    return (c * zx + s * zy) / r1, (-s * zx + c * zy) / r2
+
+
+@njit(cache=True)
+def h_value(zx, zy, phi, r1, r2):
+    """Ellipse function h = z^T A z - 1 of the ellipse (r1, r2, phi) (S6.2)."""
+    u, w = ellipse_coords(zx, zy, phi, r1, r2)
+    return u * u + w * w - 1.0
+
+
+@njit(cache=True)
+def ray_time(zx, zy, vx, vy, phi, r1, r2):
+    """Smallest lambda >= 0 with z + lambda v inside the ellipse (S8 heading test).
+
+    0 when z is already inside, +inf when the ray misses. With v a velocity, lambda is a time [s].
+    """
+    u, w = ellipse_coords(zx, zy, phi, r1, r2)
+    du, dw = ellipse_coords(vx, vy, phi, r1, r2)
+    q0 = u * u + w * w - 1.0
+    if q0 <= 0.0:
+        return 0.0
+    a = du * du + dw * dw
+    if a <= 1e-24:
+        return INF
+    b = 2.0 * (u * du + w * dw)
+    disc = b * b - 4.0 * a * q0
+    if disc < 0.0:
+        return INF
+    lam = (-b - math.sqrt(disc)) / (2.0 * a)
+    if lam < 0.0:
+        return INF
+    return lam
+
+
+@njit(cache=True)
+def segment_hits(p0x, p0y, p1x, p1y, cx, cy, phi, r1, r2):
+    """True when the segment [p0, p1] meets the ellipse (centre c) (S8.3 item 1)."""
+    u0, w0 = ellipse_coords(p0x - cx, p0y - cy, phi, r1, r2)
+    u1, w1 = ellipse_coords(p1x - cx, p1y - cy, phi, r1, r2)
+    du = u1 - u0
+    dw = w1 - w0
+    a = du * du + dw * dw
+    lam = 0.0
+    if a > 1e-24:
+        lam = -(u0 * du + w0 * dw) / a
+        lam = min(1.0, max(0.0, lam))
+    u = u0 + lam * du
+    w = w0 + lam * dw
+    return u * u + w * w <= 1.0
+
+
+@njit(cache=True)
+def relative_velocity(zx, zy, vx, vy, cvx, cvy, phi_dot):
+    """S14.2: robot velocity relative to the obstacle's material point at z,
+    p_dot - (c_dot + phi_dot J z).
+    """
+    return vx - cvx + phi_dot * zy, vy - cvy - phi_dot * zx
+
+
+@njit(cache=True)
+def h_dot_sign_value(zx, zy, rvx, rvy, phi, r1, r2):
+    """dh/dt (up to the positive factor of the scale) = grad h . z_dot_rel (S6.4, S6.3(b))."""
+    u, w = ellipse_coords(zx, zy, phi, r1, r2)
+    du, dw = ellipse_coords(rvx, rvy, phi, r1, r2)
+    return 2.0 * (u * du + w * dw)
+
+
+@njit(cache=True)
+def threat_test(zx, zy, rvx, rvy, phi, r1, r2, prm):
+    """S8.1 entry test for one target (ellipse r1, r2 = P) seen from z with relative velocity rv.
+
+    Returns (triggered, emergency, lam_in, h_em, h_l): ``triggered`` = inside Q, the ray meets I
+    and
+    dh/dt < 0 (cool-down is the caller's business); ``emergency`` = inside E, or (S14.2) inside Q
+    and approaching with the ray reaching P within ``imminent_s``.
+    """
+    hdot = h_dot_sign_value(zx, zy, rvx, rvy, phi, r1, r2)
+    h_em = h_value(zx, zy, phi, prm[P_EM] * r1, prm[P_EM] * r2)
+    h_q = h_value(zx, zy, phi, prm[P_KAPPA] * r1, prm[P_KAPPA] * r2)
+    h_l = h_value(zx, zy, phi, prm[P_L] * r1, prm[P_L] * r2)
+    lam_in = INF
+    triggered = False
+    emergency = h_em < 0.0
+    if h_q < 0.0 and hdot < 0.0:
+        lam_in = ray_time(zx, zy, rvx, rvy, phi, prm[P_IN] * r1, prm[P_IN] * r2)
+        triggered = lam_in < INF
+        if not emergency:
+            lam_p = ray_time(zx, zy, rvx, rvy, phi, r1, r2)
+            emergency = lam_p < prm[P_IMMINENT]
+    return triggered, emergency, lam_in, h_em, h_l
+
+
+@njit(cache=True)
+def exit_conditions(px, py, gx, gy, vcx, vcy, cx, cy, cvx, cvy, phi, phi_dot, r1, r2, prm):
+    """S8.3 items 1-3 for one target P (centre c, velocity c_dot, orientation phi).
+
+    1. the segment [p, g] misses C = rho_clr P; 2. h_em >= 0; 3. the coordination field V_c the
+    robot would switch to does not pass the heading test against I (relative to the material
+    point, S14.2).
+    """
+    zx = px - cx
+    zy = py - cy
+    if segment_hits(px, py, gx, gy, cx, cy, phi, prm[P_CLR] * r1, prm[P_CLR] * r2):
+        return False
+    if h_value(zx, zy, phi, prm[P_EM] * r1, prm[P_EM] * r2) < 0.0:
+        return False
+    rvx, rvy = relative_velocity(zx, zy, vcx, vcy, cvx, cvy, phi_dot)
+    if h_dot_sign_value(zx, zy, rvx, rvy, phi, r1, r2) >= 0.0:
+        return True
+    return ray_time(zx, zy, rvx, rvy, phi, prm[P_IN] * r1, prm[P_IN] * r2) == INF
+
+
+@njit(cache=True)
+def anomaly(zx, zy, phi, r1, r2):
+    """Eccentric anomaly psi = atan2(w/R2, u/R1) of z on the ellipse (S6.5)."""
+    u, w = ellipse_coords(zx, zy, phi, r1, r2)
+    return math.atan2(w, u)
+
+
+@njit(cache=True)
+def arc_length(psi0, dpsi, r1, r2):
+    """Length of the ellipse arc from anomaly psi0 over dpsi >= 0 (midpoint rule, 64 nodes)."""
+    n = 64
+    h = dpsi / n
+    total = 0.0
+    for k in range(n):
+        p = psi0 + (k + 0.5) * h
+        sp = math.sin(p)
+        cp = math.cos(p)
+        total += math.sqrt(r1 * r1 * sp * sp + r2 * r2 * cp * cp)
+    return total * h
+
+
+@njit(cache=True)
+def choose_direction(
+    zx, zy, zdx, zdy, gx, gy, gdx, gdy, phi, big_r1, big_r2, look_ahead_m, velocity_tiebreak
+):
+    """Rotation sense s (+1 CCW, -1 CW) at entry, S6.6 rules 1-4 and 7.
+
+    z, z_dot: robot relative to the target centre; g, g_dot: goal relative to the centre and its
+    velocity relative to the centre's velocity; (big_r1, big_r2) = L. ``look_ahead_m`` = 2 kappa r1
+    (rule 1). Ties (rule 3 margin 10 % of the perimeter) go to sign((M z).z_dot) when
+    ``velocity_tiebreak`` (rule 4, obstacles) and to +1 otherwise (rule 7, yielding to a robot).
+    """
+    n = math.hypot(gdx, gdy)
+    if n > 1e-9:
+        gx += look_ahead_m * gdx / n
+        gy += look_ahead_m * gdy / n
+    psi_a = anomaly(zx, zy, phi, big_r1, big_r2)
+    psi_g = anomaly(gx, gy, phi, big_r1, big_r2)
+    dpsi = (psi_g - psi_a) % (2.0 * math.pi)
+    l_plus = arc_length(psi_a, dpsi, big_r1, big_r2)
+    perim = arc_length(0.0, 2.0 * math.pi, big_r1, big_r2)
+    l_minus = perim - l_plus
+    if l_plus < l_minus - 0.1 * perim:
+        return 1.0
+    if l_minus < l_plus - 0.1 * perim:
+        return -1.0
+    if not velocity_tiebreak:
+        return 1.0
+    c = math.cos(phi)
+    s = math.sin(phi)
+    a2 = big_r1 * big_r1
+    b2 = big_r2 * big_r2
+    h1 = (a2 - b2) * s * c
+    h2 = a2 * c * c + b2 * s * s
+    h3 = a2 * s * s + b2 * c * c
+    mx = h1 * zx - h2 * zy
+    my = h3 * zx - h1 * zy
+    return 1.0 if mx * zdx + my * zdy >= 0.0 else -1.0
+
+
+@njit(cache=True)
+def design_gains(r1, r2, v_tan, prm):
+    """S6.5 design: psi_dot_max = v_tan / sqrt(R1 R2), c_max = v_rad / (kappa sqrt(r1 r2) h_Q)."""
+    rho_l = prm[P_L]
+    kappa = prm[P_KAPPA]
+    big = rho_l * math.sqrt(r1 * r2)
+    h_q = (kappa / rho_l) ** 2 - 1.0
+    return v_tan / big, prm[P_VRAD] / (kappa * math.sqrt(r1 * r2) * h_q)
+
+
+@njit(cache=True)
+def gain_beta(t_since_s, prm):
+    """beta(t) and beta_dot(t) of the S6.5 schedule (beta0 start, time constant tau_g)."""
+    beta0 = prm[P_BETA0]
+    tau = prm[P_TAU_G]
+    e = math.exp(-max(t_since_s, 0.0) / tau)
+    return 1.0 - (1.0 - beta0) * e, (1.0 - beta0) * e / tau
+
+
+@njit(cache=True)
+def exit_timer(conditions_hold, t_s, since_s, t_entry_s, prm):
+    """S8.3 item 4: returns (exit_now, new_since_s). ``since_s`` < 0 means "not holding"."""
+    if not conditions_hold:
+        return False, -1.0
+    if since_s < 0.0:
+        since_s = t_s
+    ok = (t_s - since_s >= prm[P_DWELL] - 1e-9) and (t_s - t_entry_s >= prm[P_TMIN] - 1e-9)
+    return ok, since_s
+
+
+@njit(cache=True)
+def in_cooldown(kind, target, t_s, last_kind, last_target, last_exit_s, prm):
+    """S8.4: heading-triggered re-entry to the target just left is blocked for T_cool."""
+    return kind == last_kind and target == last_target and t_s - last_exit_s < prm[P_COOL]
+
+
+class AutomatonState:
+    """The automaton state of N robots as the arrays the compiled code updates in place.
+
+    Attributes (all (N,) unless stated): ``mode`` int (MODE_*), ``tgt`` int (obstacle index or
+    robot row, -1 in coordination), ``sdir`` float (+1 CCW, -1 CW), ``t_entry`` [s], ``since`` [s]
+    (start of the S8.3 dwell window, < 0 when the exit conditions do not hold), ``last_kind`` /
+    ``last_tgt`` / ``last_exit`` (the cool-down record: 1 obstacle, 2 robot), ``wc`` and ``wtgt``
+    (N, 2) [m/s] mutual-pair drift and its target.
+    """
+
+    def __init__(self, n: int):
+        self.mode = np.zeros(n, dtype=np.int64)
+        self.tgt = np.full(n, -1, dtype=np.int64)
+        self.sdir = np.ones(n)
+        self.t_entry = np.zeros(n)
+        self.since = np.full(n, -1.0)
+        self.last_kind = np.zeros(n, dtype=np.int64)
+        self.last_tgt = np.full(n, -1, dtype=np.int64)
+        self.last_exit = np.full(n, -1e9)
+        self.wc = np.zeros((n, 2))
+        self.wtgt = np.zeros((n, 2))
+
+    @property
+    def n(self) -> int:
+        return int(self.mode.shape[0])
+
+    def arrays(self) -> tuple:
+        """(mode, tgt, sdir, t_entry, since, last_kind, last_tgt, last_exit, wc, wtgt)."""
+        return (
+            self.mode,
+            self.tgt,
+            self.sdir,
+            self.t_entry,
+            self.since,
+            self.last_kind,
+            self.last_tgt,
+            self.last_exit,
+            self.wc,
+            self.wtgt,
+        )
+
+    def set_mode(self, i: int, mode: int, target: int, direction: float, t_entry_s: float) -> None:
+        """Put robot row ``i`` into ``mode`` toward ``target`` (for tests and for a coordinator's
+        encounter assignment).
+        """
+        self.mode[i] = mode
+        self.tgt[i] = target
+        self.sdir[i] = direction
+        self.t_entry[i] = t_entry_s
+        self.since[i] = -1.0

@@ -1,0 +1,733 @@
+"""One robot's switched sliding-mode controller for the ROS controller node (issue 5).
+
+:class:`RobotController` wraps exactly the compiled functions of the simulator -- the decision step
+:func:`ament_formation.core.control.encounters.decide` (S8 automaton + S7 encounter rules) and the
+law
+:func:`ament_formation.core.control.law.robot_law` (S3/S4/S6/S7 fields and the sliding-mode
+torque)
+--
+so a node and ``formation sim`` behave alike. It keeps only this robot's automaton state between
+calls; every other robot appears through its broadcast state.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, field
+import math
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from ament_formation.core.control.automaton import (
+    AutomatonState,
+    MODE_C,
+    MODE_MUTUAL,
+    MODE_NAMES,
+    MODE_OBSTACLE,
+    MODE_YIELD,
+    P_EM,
+    P_KEEPOUT_MARGIN,
+    SwitchingParams,
+)
+from ament_formation.core.control.encounters import decide
+from ament_formation.core.control.law import gains_vector, goal_fields, robot_law
+from ament_formation.core.errors import ConfigError
+from ament_formation.core.model.dynamics import PlantCoeffs
+from ament_formation.core.model.obstacles import (
+    obstacle_arrays,
+    obstacle_states,
+    ObstacleSpec,
+    ObstacleStates,
+)
+from ament_formation.core.params import AvoidanceParams, ControlGains, RobotParams
+
+_MODE_BY_NAME = {name: k for k, name in enumerate(MODE_NAMES)}
+
+
+@dataclass(frozen=True)
+class NeighbourState:
+    """What this robot knows about another robot (its broadcast, S4/S10).
+
+    ``state_m`` (5,) [x_m, y_m, theta_rad, v_mps, omega_radps] (p = controlled point, world frame);
+    ``accel_mps2`` (2,) its commanded point acceleration a_j (S4); ``body_radius_m``; ``team`` its
+    team leader id (S14.3 teammate rule; None = own team unknown, treated as another team);
+    ``mode`` its reported mode name (``coordination|obstacle|yield|mutual``) and ``target`` its
+    reported target (obstacle name or ``robot_<id>``), used for the S7 acyclicity rule.
+    ``goal_m`` (2,) / ``goal_dot_mps`` (2,): its S8.3 goal g_k and g_k_dot when known (leader:
+    r(t), r_dot(t); follower: p of its original parent + delta), used for its side of the joint
+    exit test of a mutual pair and for its V_c; None: unknown, taken as its position and velocity.
+    """
+
+    state_m: np.ndarray
+    accel_mps2: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    body_radius_m: float = 0.10
+    team: int | None = None
+    mode: str = 'coordination'
+    target: str | None = None
+    com_offset_m: float = 0.05
+    goal_m: np.ndarray | None = None
+    goal_dot_mps: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        for name in ('goal_m', 'goal_dot_mps'):
+            val = getattr(self, name)
+            if val is None:
+                continue
+            arr = np.asarray(val, dtype=float).reshape(-1)
+            if arr.shape != (2,) or not np.all(np.isfinite(arr)):
+                raise ConfigError(f'must be 2 finite numbers (got {val!r})', name)
+            object.__setattr__(self, name, arr)
+        if self.goal_dot_mps is not None and self.goal_m is None:
+            raise ConfigError('needs goal_m', 'goal_dot_mps')
+        st = np.asarray(self.state_m, dtype=float).reshape(-1)
+        if st.shape != (5,) or not np.all(np.isfinite(st)):
+            raise ConfigError(f'must be 5 finite numbers (got {self.state_m!r})', 'state_m')
+        acc = np.asarray(self.accel_mps2, dtype=float).reshape(-1)
+        if acc.shape != (2,) or not np.all(np.isfinite(acc)):
+            raise ConfigError(f'must be 2 finite numbers (got {self.accel_mps2!r})', 'accel_mps2')
+        if self.mode not in _MODE_BY_NAME:
+            raise ConfigError(f'must be one of {list(_MODE_BY_NAME)} (got {self.mode!r})', 'mode')
+        object.__setattr__(self, 'state_m', st)
+        object.__setattr__(self, 'accel_mps2', acc)
+
+    @classmethod
+    def trusted(
+        cls,
+        state_m: np.ndarray,
+        accel_mps2: np.ndarray,
+        body_radius_m: float,
+        team: int | None,
+        mode: str,
+        target: str | None,
+        com_offset_m: float,
+        goal_m: np.ndarray | None,
+        goal_dot_mps: np.ndarray | None,
+    ) -> 'NeighbourState':
+        """Build from values the caller has already checked (float arrays of the right shapes,
+        finite; a known mode): the controller node checks every message on arrival, and builds
+        one of these per robot per control period, so the checks are not repeated here.
+        """
+        obj = object.__new__(cls)
+        for name, value in (
+            ('state_m', state_m),
+            ('accel_mps2', accel_mps2),
+            ('body_radius_m', body_radius_m),
+            ('team', team),
+            ('mode', mode),
+            ('target', target),
+            ('com_offset_m', com_offset_m),
+            ('goal_m', goal_m),
+            ('goal_dot_mps', goal_dot_mps),
+        ):
+            object.__setattr__(obj, name, value)
+        return obj
+
+
+class TabulatedReference:
+    """A leader path's (r, r_dot, r_ddot) at scalar times from a table (the control period's cost).
+
+    The sinusoid's r(t) inverts an arc-length integral by Newton iterations (core/model/paths.py):
+    about
+    0.15 ms per call, more than a robot's whole control period should cost on a small board. Here
+    the path is evaluated once per ``chunk_s`` of time on a grid of ``step_s`` (one vectorised
+    call), and a time in between is a cubic Hermite interpolation of r from (r, r_dot) at the two
+    nodes (error about step_s^4 max|r^(4)| / 384, ~1e-13 m for the shipped paths), r_dot from
+    (r_dot, r_ddot) likewise, r_ddot linear. Times before 0 or past ``max_nodes`` grid nodes go to
+    the path itself.
+    """
+
+    def __init__(
+        self, path, step_s: float = 0.01, chunk_s: float = 10.0, max_nodes: int = 400_000
+    ):
+        self.path = path
+        self.step_s = float(step_s)
+        self._chunk = max(2, int(round(chunk_s / step_s)))
+        self._max = int(max_nodes)
+        self._tab = np.zeros((0, 6))  # rows [x, y, x_dot, y_dot, x_ddot, y_ddot] at t = j step_s
+
+    def _extend(self, upto: int) -> None:
+        n0 = len(self._tab)
+        n1 = min(self._max, max(upto + 1, n0 + self._chunk))
+        r, rd, rdd = self.path.reference(np.arange(n0, n1) * self.step_s)
+        rows = np.concatenate(
+            [np.asarray(v, dtype=float).reshape(-1, 2) for v in (r, rd, rdd)], axis=1
+        )
+        self._tab = np.concatenate([self._tab, rows])
+
+    def reference(self, t_s: float):
+        """(r (2,), r_dot (2,), r_ddot (2,)) at scalar ``t_s`` [s]."""
+        t = float(t_s)
+        h = self.step_s
+        u = t / h
+        j = int(u) if u >= 0.0 else -1
+        if j < 0 or j + 1 >= self._max:
+            return self.path.reference(t)
+        if j + 1 >= len(self._tab):
+            self._extend(j + 1)
+        (x0, y0, vx0, vy0, ax0, ay0), (x1, y1, vx1, vy1, ax1, ay1) = self._tab[j: j + 2].tolist()
+        s = u - j
+        s2 = s * s
+        s3 = s2 * s
+        h00, h10, h01, h11 = (
+            2 * s3 - 3 * s2 + 1,
+            (s3 - 2 * s2 + s) * h,
+            3 * s2 - 2 * s3,
+            (s3 - s2) * h,
+        )
+        return (
+            np.array(
+                [
+                    h00 * x0 + h10 * vx0 + h01 * x1 + h11 * vx1,
+                    h00 * y0 + h10 * vy0 + h01 * y1 + h11 * vy1,
+                ]
+            ),
+            np.array(
+                [
+                    h00 * vx0 + h10 * ax0 + h01 * vx1 + h11 * ax1,
+                    h00 * vy0 + h10 * ay0 + h01 * vy1 + h11 * ay1,
+                ]
+            ),
+            np.array([(1.0 - s) * ax0 + s * ax1, (1.0 - s) * ay0 + s * ay1]),
+        )
+
+
+def fast_reference(path):
+    """``path`` itself when its reference is cheap (line, waypoints: closed form), else a
+    :class:`TabulatedReference` of it (the sinusoid). None stays None.
+    """
+    if path is None or type(path).__name__ != 'SinusoidPath':
+        return path
+    return TabulatedReference(path)
+
+
+@dataclass(frozen=True)
+class EncounterAssignment:
+    """A coordinator's S7 decision for this robot: ``mode`` ``yield`` or ``mutual`` toward robot
+    ``partner``; ``direction`` +1 CCW / -1 CW (mutual: +1); ``t_entry_s`` the common entry time;
+    ``drift_mps`` (2,) the shared w_c of a mutual pair (None: 1/2 (p_dot_i + p_dot_k) now).
+    """
+
+    mode: str
+    partner: int
+    direction: float = 1.0
+    t_entry_s: float | None = None
+    drift_mps: tuple[float, float] | None = None
+
+    def __post_init__(self) -> None:
+        if self.mode not in ('yield', 'mutual'):
+            raise ConfigError(f"must be 'yield' or 'mutual' (got {self.mode!r})", 'mode')
+        if self.direction not in (1.0, -1.0, 1, -1):
+            raise ConfigError(f'must be +1 or -1 (got {self.direction!r})', 'direction')
+
+
+@dataclass(frozen=True)
+class ControlOutput:
+    """Result of one :meth:`RobotController.step`.
+
+    ``torque_nm`` (2,) [left, right] after S3.6 saturation; ``accel_cmd_mps2`` (2,) commanded point
+    acceleration to broadcast (S4 a_j); ``sigma_mps`` (2,); ``saturated``; ``mode`` name,
+    ``target``
+    (obstacle name, ``robot_<id>`` or None) and ``direction`` (``ccw``/``cw``/None) for the mode
+    topic; ``events`` the mode events of this step ({t_s, robot, event, mode, target, direction}).
+    """
+
+    torque_nm: np.ndarray
+    accel_cmd_mps2: np.ndarray
+    sigma_mps: np.ndarray
+    saturated: bool
+    mode: str
+    target: str | None
+    direction: str | None
+    events: tuple[dict, ...] = ()
+
+    def mode_dict(self) -> dict:
+        """{mode, target, direction}: the JSON of the robot's mode topic (DESIGN §6)."""
+        return {'mode': self.mode, 'target': self.target, 'direction': self.direction}
+
+
+class RobotController:
+    """ONE robot's S8 automaton and sliding-mode law (same compiled functions as the simulator).
+
+    Construction
+    ------------
+    ``RobotController(robot_id, params, control, avoidance, obstacles, *, leader_path=None,
+    team=None, switching=None)``
+      * ``params`` :class:`RobotParams`; ``control`` :class:`ControlGains` (K, epsilon, alpha,
+      v_cap,
+        lambda); ``avoidance`` :class:`AvoidanceParams`; ``obstacles`` the known
+        :class:`ObstacleSpec` (their motion is evaluated at the step time unless ``step`` receives
+        measured :class:`ObstacleStates`);
+      * ``leader_path``: a path with ``reference(t_s) -> (r, r_dot, r_ddot)`` when this robot leads
+        a team (then it tracks r(t), S4), else None;
+      * ``team``: id of its team leader (S14.3); ``switching``: :class:`SwitchingParams`
+        (decision period, default 0.01 s = 100 Hz).
+
+    Graph (from the coordinator's ``/formation/graph``, S9)
+    -------------------------------------------------------
+    ``set_graph(parent, offset_m, original_parent, original_offset_m)``: current parent id (None:
+    root) with delta = c_self - c_parent, and the original parent pi0 with its delta (for the goal
+    g_i of S8.3 item 1; None for a leader).
+
+    Per control period
+    ------------------
+    ``step(t_s, own_state, *, parent=None, original_parent=None, neighbours=None, obstacles=None,
+    assignment=None, release=None) -> ControlOutput``
+      * ``own_state`` (5,) own estimate [x_m, y_m, theta_rad, v_mps, omega_radps];
+      * ``parent``: :class:`NeighbourState` of the current parent (state + commanded accel, used
+      for
+        the S4 follower field with feed-forward); ``original_parent``: of pi0 (exit test; may be
+        the
+        same object);
+      * ``neighbours``: {robot id: NeighbourState} of every other robot it hears (robot-robot
+        threats, S7); the parents are added automatically;
+      * ``obstacles``: optional measured :class:`ObstacleStates` (else the specs' motion model);
+      * ``assignment``: optional :class:`EncounterAssignment` from the coordinator; it replaces the
+        robot's own robot-robot decision (an obstacle avoidance in progress is kept: static
+        obstacles beat robots, S7). Without it the controller arbitrates robot encounters itself
+        with the same rules as the simulator, over the robots it hears.
+      * ``release``: id of a robot whose coordinator assignment (yield to it / mutual with it) was
+        withdrawn: the coordinator decided the exit (mutual pairs exit jointly, S8.3), so the
+        robot leaves that encounter now (event ``exit``, cool-down S8.4) -- unless it is inside
+        the partner's emergency circle (h_em < 0, S8.3 item 2): then it stays and the caller
+        repeats the release at the next step. Ignored when the robot is not in that encounter.
+      The automaton decides every ``switching.decision_period_s``; the law runs at every call.
+    ``mode`` / ``target`` / ``direction`` properties: the current mode (names as in ControlOutput).
+    """
+
+    def __init__(
+        self,
+        robot_id: int,
+        params: RobotParams,
+        control: ControlGains,
+        avoidance: AvoidanceParams,
+        obstacles: Sequence[ObstacleSpec] = (),
+        *,
+        leader_path=None,
+        team: int | None = None,
+        switching: SwitchingParams | None = None,
+    ):
+        self.robot_id = int(robot_id)
+        self.params = params
+        self.leader_path = fast_reference(leader_path)
+        self.team = self.robot_id if team is None else int(team)
+        base = switching or SwitchingParams()
+        self.switching = base.for_avoidance(avoidance)
+        self._prm = self.switching.as_array()
+        self._gains = gains_vector(control)
+        k = PlantCoeffs.from_params([params])
+        self._own_coeffs = np.array(
+            [k.m_tilde[0], k.I_tilde[0], k.r[0], k.a[0], k.d[0], k.m_c[0], k.tau_max[0]]
+        )
+        self.obstacle_names = tuple(o.name for o in obstacles)
+        (
+            self._c0,
+            self._v,
+            self._amp,
+            self._w,
+            self._phi0,
+            self._phid,
+            self._axes,
+            self._static,
+        ) = obstacle_arrays(obstacles)
+        self._state = AutomatonState(1)  # own automaton; target kept as obstacle index / robot id
+        self._target_id = -1
+        self._parent: int | None = None
+        self._offset = np.zeros(2)
+        self._orig_parent: int | None = None
+        self._orig_offset = np.zeros(2)
+        self._last_decision_s = -math.inf
+        self._last_step_s: float | None = None
+
+    # ------------------------------------------------------------------ graph
+    def set_graph(
+        self,
+        parent: int | None,
+        offset_m=(0.0, 0.0),
+        original_parent: int | None = None,
+        original_offset_m=(0.0, 0.0),
+    ) -> None:
+        """Current parent and pi0 with their offsets delta = c_self - c_parent [m] (S9)."""
+        self._parent = None if parent is None else int(parent)
+        self._offset = np.asarray(offset_m, dtype=float).reshape(2)
+        self._orig_parent = None if original_parent is None else int(original_parent)
+        self._orig_offset = np.asarray(original_offset_m, dtype=float).reshape(2)
+
+    # ------------------------------------------------------------------ mode
+    @property
+    def mode(self) -> str:
+        return MODE_NAMES[int(self._state.mode[0])]
+
+    @property
+    def target(self) -> str | None:
+        return self._target_name(int(self._state.mode[0]), self._target_id)
+
+    @property
+    def direction(self) -> str | None:
+        if self._state.mode[0] == MODE_C:
+            return None
+        return 'ccw' if self._state.sdir[0] > 0 else 'cw'
+
+    def _target_name(self, mode: int, target: int) -> str | None:
+        if mode == MODE_C:
+            return None
+        if mode == MODE_OBSTACLE:
+            return self.obstacle_names[target]
+        return f'robot_{target}'
+
+    def warm_up(self) -> None:
+        """Compile (or load from numba's disk cache) every kernel :meth:`step` uses, on a copy, so
+        that the first real control period is not late. The controller's own state is untouched.
+        """
+        clone = copy.deepcopy(self)
+        clone._last_decision_s = -math.inf
+        other = NeighbourState(np.zeros(5))
+        clone.step(
+            0.0,
+            np.zeros(5),
+            parent=None if clone._parent is None else other,
+            original_parent=other,
+        )
+
+    # ------------------------------------------------------------------ step
+    def step(
+        self,
+        t_s: float,
+        own_state,
+        *,
+        parent: NeighbourState | None = None,
+        original_parent: NeighbourState | None = None,
+        neighbours: Mapping[int, NeighbourState] | None = None,
+        obstacles: ObstacleStates | None = None,
+        assignment: EncounterAssignment | None = None,
+        release: int | None = None,
+    ) -> ControlOutput:
+        """One control period: (maybe) decide, then the law. See the class docstring."""
+        own = np.asarray(own_state, dtype=float).reshape(-1)
+        if own.shape != (5,) or not np.all(np.isfinite(own)):
+            raise ValueError(f'own_state: must be 5 finite numbers (got {own_state!r})')
+        others: dict[int, NeighbourState] = dict(neighbours or {})
+        if self._parent is not None:
+            if parent is None:
+                raise ValueError(
+                    f'parent: state of robot {self._parent} is required (current parent)'
+                )
+            others[self._parent] = parent
+        if self._orig_parent is not None:
+            if original_parent is None:
+                raise ValueError(
+                    f'original_parent: state of robot {self._orig_parent} is required'
+                )
+            others.setdefault(self._orig_parent, original_parent)
+        others.pop(self.robot_id, None)
+        ids = sorted(set(others) | {self.robot_id})
+        row = {rid: q for q, rid in enumerate(ids)}
+        me = row[self.robot_id]
+        n = len(ids)
+
+        # pack the robots as rows (one list per array, then one conversion each)
+        xs, accs, radii, teams, ds, modes, tgts = [], [], [], [], [], [], []
+        goal_rows, goal_vals, blind_rows = (
+            [],
+            [],
+            [],
+        )  # rows with a known goal (g, g_dot), rows without
+        for rid in ids:
+            if rid == self.robot_id:
+                xs.append(own)
+                accs.append((0.0, 0.0))
+                radii.append(self.params.body_radius_m)
+                teams.append(self.team)
+                ds.append(self._own_coeffs[4])
+                modes.append(MODE_C)
+                tgts.append(-1)
+                continue
+            nb = others[rid]
+            xs.append(nb.state_m)
+            accs.append(nb.accel_mps2)
+            radii.append(nb.body_radius_m)
+            teams.append(nb.team if nb.team is not None else -1 - rid)
+            ds.append(nb.com_offset_m)
+            mode, tgt, tgt_name = _MODE_BY_NAME[nb.mode], -1, nb.target
+            if nb.mode in ('yield', 'mutual') and tgt_name and tgt_name.startswith('robot_'):
+                tgt = row.get(int(tgt_name[len('robot_'):]), -1)
+                if tgt < 0:
+                    mode = MODE_OBSTACLE  # busy with a robot we do not hear
+            elif nb.mode == 'obstacle':
+                tgt = (
+                    self.obstacle_names.index(tgt_name) if tgt_name in self.obstacle_names else -1
+                )
+            modes.append(mode)
+            tgts.append(tgt)
+            if nb.goal_m is None:
+                blind_rows.append(len(xs) - 1)
+            else:
+                goal_rows.append(len(xs) - 1)
+                gd = (0.0, 0.0) if nb.goal_dot_mps is None else nb.goal_dot_mps
+                goal_vals.append((nb.goal_m[0], nb.goal_m[1], gd[0], gd[1]))
+        x = np.array(xs, dtype=float)
+        acmd = np.array(accs, dtype=float)
+        rbody = np.array(radii, dtype=float)
+        team = np.array(teams, dtype=np.int64)
+        coeffs = np.repeat(self._own_coeffs[:, None], n, axis=1)
+        coeffs[4] = ds
+        st = AutomatonState(n)
+        st.mode[:] = modes
+        st.tgt[:] = tgts
+        st.t_entry[:] = -1e9  # others' entry times are not known here
+        # own automaton state (targets stored as ids -> rows)
+        src = self._state
+        for name in ('mode', 'sdir', 't_entry', 'since', 'last_kind', 'last_exit'):
+            getattr(st, name)[me] = getattr(src, name)[0]
+        st.wc[me] = src.wc[0]
+        st.wtgt[me] = src.wtgt[0]
+        own_mode = int(src.mode[0])
+        if own_mode in (MODE_YIELD, MODE_MUTUAL):
+            st.tgt[me] = row.get(self._target_id, -1)
+            if st.tgt[me] < 0:  # partner no longer heard: back to coordination
+                st.mode[me] = MODE_C
+        else:
+            st.tgt[me] = self._target_id
+        if src.last_kind[0] == 2:
+            st.last_tgt[me] = row.get(int(src.last_tgt[0]), -1)
+        else:
+            st.last_tgt[me] = src.last_tgt[0]
+        if st.mode[me] == MODE_MUTUAL:  # the partner's view must be reciprocal
+            k = st.tgt[me]
+            st.mode[k] = MODE_MUTUAL
+            st.tgt[k] = me
+            st.sdir[k] = 1.0
+            st.t_entry[k] = st.t_entry[me]
+
+        # references, obstacles, point velocities, goals
+        ref = np.zeros((n, 6))
+        if self.leader_path is not None:
+            r, rd, rdd = self.leader_path.reference(float(t_s))
+            ref[me] = np.concatenate([np.asarray(r), np.asarray(rd), np.asarray(rdd)])
+        d = coeffs[4]
+        pd = np.stack(
+            [
+                x[:, 3] * np.cos(x[:, 2]) - d * x[:, 4] * np.sin(x[:, 2]),
+                x[:, 3] * np.sin(x[:, 2]) + d * x[:, 4] * np.cos(x[:, 2]),
+            ],
+            axis=1,
+        )
+        m = len(self.obstacle_names)
+        if obstacles is None:
+            oc, ov, oa = np.empty((m, 2)), np.empty((m, 2)), np.empty((m, 2))
+            ophi, ophid, ophidd = np.empty(m), np.empty(m), np.empty(m)
+            obstacle_states(
+                float(t_s),
+                self._c0,
+                self._v,
+                self._amp,
+                self._w,
+                self._phi0,
+                self._phid,
+                oc,
+                ov,
+                oa,
+                ophi,
+                ophid,
+                ophidd,
+            )
+            oaxes = self._axes
+        else:
+            oc = np.ascontiguousarray(obstacles.center_m, dtype=float)
+            ov = np.ascontiguousarray(obstacles.velocity_mps, dtype=float)
+            oa = np.ascontiguousarray(obstacles.accel_mps2, dtype=float)
+            ophi = np.ascontiguousarray(obstacles.phi_rad, dtype=float)
+            ophid = np.ascontiguousarray(obstacles.phi_dot_radps, dtype=float)
+            ophidd = np.ascontiguousarray(obstacles.phi_ddot_radps2, dtype=float)
+            oaxes = np.ascontiguousarray(obstacles.semi_axes_m, dtype=float)
+        orig_parent = np.full(n, -1, dtype=np.int64)
+        orig_offset = np.zeros((n, 2))
+        if self._orig_parent is not None:
+            orig_parent[me] = row[self._orig_parent]
+            orig_offset[me] = self._orig_offset
+        # others: their goal when known, else their position and point velocity
+        if goal_rows:
+            ref[goal_rows, 0:4] = goal_vals
+        if blind_rows:
+            ref[blind_rows, 0:2] = x[blind_rows, 0:2]
+            ref[blind_rows, 2:4] = pd[blind_rows]
+        goal, goal_dot, vc = goal_fields(x, pd, ref, orig_parent, orig_offset, self._gains)
+
+        events: list[dict] = []
+        t_s = float(t_s)
+        if t_s - self._last_decision_s >= self.switching.decision_period_s - 1e-9:
+            self._last_decision_s = t_s
+            ev = np.zeros((8 * n + 16, 6))
+            nev = decide(
+                t_s,
+                np.ascontiguousarray(x[:, :2]),
+                pd,
+                goal,
+                goal_dot,
+                vc,
+                team,
+                rbody,
+                oc,
+                ov,
+                ophi,
+                ophid,
+                oaxes,
+                self._static,
+                *st.arrays(),
+                self._prm,
+                ev,
+                0,
+            )
+            for r_ in ev[:nev]:
+                if int(r_[1]) == me:
+                    md = int(r_[3])
+                    tg = int(r_[4])
+                    events.append(
+                        {
+                            't_s': float(r_[0]),
+                            'robot': self.robot_id,
+                            'event': 'enter' if r_[2] > 0.5 else 'exit',
+                            'mode': MODE_NAMES[md],
+                            'target': self._target_name(
+                                md, ids[tg] if md != MODE_OBSTACLE else tg
+                            ),
+                            'direction': 'ccw' if r_[5] > 0 else 'cw',
+                        }
+                    )
+        if (
+            release is not None
+            and st.mode[me] in (MODE_YIELD, MODE_MUTUAL)
+            and ids[int(st.tgt[me])] == int(release)
+        ):
+            k = int(st.tgt[me])
+            # S8.3 item 2: never leave inside the partner's emergency circle E (rho_em R_aa, S7)
+            r_em = self._prm[P_EM] * (rbody[me] + rbody[k] + self._prm[P_KEEPOUT_MARGIN])
+            h_em = ((x[me, 0] - x[k, 0]) ** 2 + (x[me, 1] - x[k, 1]) ** 2) / r_em**2 - 1.0
+            if h_em >= 0.0:
+                events.append(
+                    {
+                        't_s': t_s,
+                        'robot': self.robot_id,
+                        'event': 'exit',
+                        'mode': MODE_NAMES[int(st.mode[me])],
+                        'target': f'robot_{ids[k]}',
+                        'direction': 'ccw' if st.sdir[me] > 0 else 'cw',
+                    }
+                )
+                st.last_kind[me] = 2  # S8.4 cool-down record (robot target)
+                st.last_tgt[me] = k
+                st.last_exit[me] = t_s
+                st.mode[me] = MODE_C
+                st.tgt[me] = -1
+                st.since[me] = -1.0
+        left_now = {(e['mode'], e['target']) for e in events if e['event'] == 'exit'}
+        if (
+            assignment is not None
+            and st.mode[me] != MODE_OBSTACLE
+            and (assignment.mode, f'robot_{assignment.partner}') not in left_now
+        ):
+            # (an encounter the robot left at this very decision, S8.3, is not re-entered)
+            k = row.get(int(assignment.partner))
+            if k is None:
+                raise ValueError(f'assignment: partner {assignment.partner} is not a known robot')
+            new_mode = MODE_YIELD if assignment.mode == 'yield' else MODE_MUTUAL
+            if st.mode[me] != new_mode or st.tgt[me] != k:
+                st.set_mode(
+                    me,
+                    new_mode,
+                    k,
+                    1.0 if new_mode == MODE_MUTUAL else float(assignment.direction),
+                    t_s if assignment.t_entry_s is None else float(assignment.t_entry_s),
+                )
+                w = (
+                    0.5 * (pd[me] + pd[k])
+                    if assignment.drift_mps is None
+                    else np.asarray(assignment.drift_mps, dtype=float)
+                )
+                st.wc[me] = w
+                st.wtgt[me] = w
+                events.append(
+                    {
+                        't_s': t_s,
+                        'robot': self.robot_id,
+                        'event': 'enter',
+                        'mode': MODE_NAMES[new_mode],
+                        'target': f'robot_{assignment.partner}',
+                        'direction': 'ccw' if st.sdir[me] > 0 else 'cw',
+                    }
+                )
+            elif new_mode == MODE_MUTUAL and assignment.drift_mps is not None:
+                # the pair's w_c is the coordinator's (it knows both goals): common to both robots,
+                # so z_dot = F(z) holds exactly (S7); the own relaxation would use a guessed goal
+                st.wc[me] = np.asarray(assignment.drift_mps, dtype=float)
+                st.wtgt[me] = st.wc[me]
+
+        # the law (S3.2 with the mode's field)
+        parent_row = np.full(n, -1, dtype=np.int64)
+        offset = np.zeros((n, 2))
+        if self._parent is not None:
+            parent_row[me] = row[self._parent]
+            offset[me] = self._offset
+        if self.leader_path is not None and self._parent is None:
+            pass
+        elif self._parent is None and st.mode[me] == MODE_C:
+            # a follower without a parent (graph not received yet): hold via its original goal
+            if self._orig_parent is not None:
+                parent_row[me] = row[self._orig_parent]
+                offset[me] = self._orig_offset
+        t1, t2, sx, sy, sat, acx, acy, wdx, wdy = robot_law(
+            me,
+            t_s,
+            x,
+            pd,
+            acmd,
+            parent_row,
+            offset,
+            ref,
+            goal,
+            goal_dot,
+            st.mode,
+            st.tgt,
+            st.sdir,
+            st.t_entry,
+            st.wc,
+            st.wtgt,
+            oc,
+            ov,
+            oa,
+            ophi,
+            ophid,
+            ophidd,
+            oaxes,
+            rbody,
+            coeffs,
+            self._gains,
+            self._prm,
+        )
+        if st.mode[me] == MODE_MUTUAL and self._last_step_s is not None:
+            st.wc[me] += (t_s - self._last_step_s) * np.array([wdx, wdy])
+        self._last_step_s = t_s
+
+        # keep own state (robot targets as ids)
+        for name in ('mode', 'sdir', 't_entry', 'since', 'last_kind', 'last_exit'):
+            getattr(src, name)[0] = getattr(st, name)[me]
+        src.wc[0] = st.wc[me]
+        src.wtgt[0] = st.wtgt[me]
+        new_mode = int(st.mode[me])
+        self._target_id = (
+            ids[int(st.tgt[me])] if new_mode in (MODE_YIELD, MODE_MUTUAL) else int(st.tgt[me])
+        )
+        src.tgt[0] = self._target_id
+        lk = int(st.last_kind[me])
+        lt = int(st.last_tgt[me])
+        src.last_tgt[0] = ids[lt] if (lk == 2 and 0 <= lt < n) else lt
+        return ControlOutput(
+            torque_nm=np.array([t1, t2]),
+            accel_cmd_mps2=np.array([acx, acy]),
+            sigma_mps=np.array([sx, sy]),
+            saturated=bool(sat),
+            mode=self.mode,
+            target=self.target,
+            direction=self.direction,
+            events=tuple(events),
+        )

@@ -1,0 +1,761 @@
+"""Robot-robot encounters (spec S7) and the decision step that runs the S8 automaton of every
+robot.
+
+:func:`decide` is the one decision function used by the simulator (all robots at once, at the
+decision rate) and by :class:`ament_formation.core.control.controller.RobotController` (the same
+call on
+the robots it knows about). It
+
+1. evaluates the S8.1 entry test of every robot against every obstacle (emergencies first, then
+   the earliest contact);
+2. finds robot pairs inside the robot protected circle with a uniform grid (spatial culling, cell =
+   the largest protected radius), and evaluates the same entry test on each pair (S7: P is the
+   circle of radius R_aa = R_body,i + R_body,k + margin, the neighbour's velocity is x~dot);
+3. runs the obstacle transitions of the automaton (entry, S8.2 re-targeting, S8.3 exit);
+4. arbitrates robot-robot encounters over *all* robots together (S7 rules, S14.1):
+   * static obstacles beat robots; a robot avoiding an obstacle is stand-on, a free robot yields to
+   it;
+   * two free robots that threaten each other form a **mutual pair** (common s = +1, mu = 1, shared
+     w_c);
+   * the directed reacts-to graph (i -> k when i uses k's velocity) stays acyclic except for mutual
+     pairs: if k already reacts to i, directly or through a chain, i does not react, unless it is
+     in
+     an emergency, in which case the pair is converted to a mutual pair (k drops its target, a
+     third
+     robot that was mutual with i or k becomes a plain yielder);
+   * two stand-on robots: the higher ID yields, and only in an emergency;
+   * every robot picks its most urgent admissible threat among all robots (so a robot yielding to a
+     busy robot re-targets to that robot's partner when the partner becomes more urgent, S14.1);
+5. runs the S8.3 exits of yielding robots and the joint exit of mutual pairs;
+6. refreshes the drift target of each mutual pair: w_c relaxes (time constant
+``mutual_drift_tau_s``)
+   from the frozen 1/2 (p_dot_i + p_dot_k)(t_s) toward the mean of the two coordination fields, so
+   the drift does not outlive its reason (S14.1); the relative motion z_dot = F(z) is unaffected.
+
+S14.3: a pair of teammates that are both in coordination mode and whose relative speed is below
+``teammate_rel_speed_mps`` is not a threat (only an emergency counts), and a robot threat needs a
+contact with I within ``agent_horizon_s``.
+
+Mode events are written to ``ev`` rows [t_s, robot_index, event (1 enter, 0 exit), mode, target,
+direction]; the call returns the new event count.
+"""
+
+from __future__ import annotations
+
+import math
+
+from numba import njit
+import numpy as np
+
+from ament_formation.core.control.automaton import (
+    choose_direction,
+    exit_conditions,
+    exit_timer,
+    h_value,
+    in_cooldown,
+    INF,
+    MODE_C,
+    MODE_MUTUAL,
+    MODE_OBSTACLE,
+    MODE_YIELD,
+    P_DRIFT_CAP,
+    P_DWELL,
+    P_HORIZON,
+    P_KAPPA,
+    P_KEEPOUT_MARGIN,
+    P_L,
+    P_TEAM_VREL,
+    relative_velocity,
+    threat_test,
+)
+
+KIND_OBSTACLE = 1  # cool-down bookkeeping: last target was an obstacle
+KIND_AGENT = 2  # ... or a robot
+MAX_THREATS = 8  # robot threats kept per robot and decision
+RETARGET_MARGIN = 0.1  # S8.2 between robots: the new h_L must be lower by this (hysteresis)
+
+
+@njit(cache=True)
+def keepout_radius(rbody, i, k, prm):
+    """R_aa of the pair (S7): R_body,i + R_body,k + margin (= 2 R_body + 0.05 m by default)."""
+    return rbody[i] + rbody[k] + prm[P_KEEPOUT_MARGIN]
+
+
+@njit(cache=True)
+def candidate_pairs(p, cell_m):
+    """Robot pairs (i < k) closer than ``cell_m``, found with a uniform grid.
+    p (N, 2) -> (P, 2) int.
+    """
+    n = p.shape[0]
+    out = np.empty((max(16, 8 * n), 2), dtype=np.int64)
+    cnt = 0
+    if n < 2:
+        return out[:0]
+    if n <= 32:
+        for i in range(n):
+            for k in range(i + 1, n):
+                dx = p[i, 0] - p[k, 0]
+                dy = p[i, 1] - p[k, 1]
+                if dx * dx + dy * dy < cell_m * cell_m:
+                    if cnt >= out.shape[0]:
+                        out = np.concatenate((out, np.empty_like(out)))
+                    out[cnt, 0] = i
+                    out[cnt, 1] = k
+                    cnt += 1
+        return out[:cnt]
+    x0 = p[:, 0].min()
+    y0 = p[:, 1].min()
+    ix = np.empty(n, dtype=np.int64)
+    iy = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        ix[i] = int(math.floor((p[i, 0] - x0) / cell_m))
+        iy[i] = int(math.floor((p[i, 1] - y0) / cell_m))
+    nx = ix.max() + 1
+    ny = iy.max() + 1
+    if nx * ny > 16 * n + 4096:  # sparse, huge arena: fall back to one cell column per x
+        ny = 1
+        for i in range(n):
+            iy[i] = 0
+    # counting sort of the robots by cell (dense grid of nx * ny cells)
+    cell = ix * ny + iy
+    start = np.zeros(nx * ny + 1, dtype=np.int64)
+    for i in range(n):
+        start[cell[i] + 1] += 1
+    for c in range(nx * ny):
+        start[c + 1] += start[c]
+    fill = start[:-1].copy()
+    members = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        members[fill[cell[i]]] = i
+        fill[cell[i]] += 1
+    c2 = cell_m * cell_m
+    for i in range(n):
+        for dx in range(-1, 2):
+            cx = ix[i] + dx
+            if cx < 0 or cx >= nx:
+                continue
+            for dy in range(-1, 2):
+                cy = iy[i] + dy
+                if cy < 0 or cy >= ny:
+                    continue
+                c = cx * ny + cy
+                for q in range(start[c], start[c + 1]):
+                    k = members[q]
+                    if k <= i:
+                        continue
+                    ddx = p[i, 0] - p[k, 0]
+                    ddy = p[i, 1] - p[k, 1]
+                    if ddx * ddx + ddy * ddy < c2:
+                        if cnt >= out.shape[0]:
+                            out = np.concatenate((out, np.empty_like(out)))
+                        out[cnt, 0] = i
+                        out[cnt, 1] = k
+                        cnt += 1
+    return out[:cnt]
+
+
+@njit(cache=True)
+def reacts_to(k, i, mode, tgt):
+    """True when robot k reacts to robot i directly or through a chain of yields (S7
+    acyclicity).
+    """
+    cur = k
+    for _ in range(mode.shape[0] + 1):
+        if mode[cur] != MODE_YIELD and mode[cur] != MODE_MUTUAL:
+            return False
+        nxt = tgt[cur]
+        if nxt == i:
+            return True
+        if mode[cur] == MODE_MUTUAL:
+            return False  # the partner only reacts back to cur
+        cur = nxt
+    return False
+
+
+@njit(cache=True)
+def _event(ev, nev, t, i, enter, mode, target, s):
+    if nev < ev.shape[0]:
+        ev[nev, 0] = t
+        ev[nev, 1] = i
+        ev[nev, 2] = 1.0 if enter else 0.0
+        ev[nev, 3] = mode
+        ev[nev, 4] = target
+        ev[nev, 5] = s
+    return nev + 1
+
+
+@njit(cache=True)
+def _leave(i, t, mode, tgt, sdir, since, last_kind, last_tgt, last_exit, ev, nev):
+    """Leave the current avoidance target (event 'exit'); the cool-down starts now."""
+    nev = _event(ev, nev, t, i, False, mode[i], tgt[i], sdir[i])
+    last_kind[i] = KIND_OBSTACLE if mode[i] == MODE_OBSTACLE else KIND_AGENT
+    last_tgt[i] = tgt[i]
+    last_exit[i] = t
+    mode[i] = MODE_C
+    tgt[i] = -1
+    since[i] = -1.0
+    return nev
+
+
+@njit(cache=True)
+def _enter(i, t, kind, target, s, mode, tgt, sdir, t_entry, since, ev, nev):
+    mode[i] = kind
+    tgt[i] = target
+    sdir[i] = s
+    t_entry[i] = t
+    since[i] = -1.0
+    return _event(ev, nev, t, i, True, kind, target, s)
+
+
+@njit(cache=True)
+def _release(i, t, mode, tgt, sdir, t_entry, since, last_kind, last_tgt, last_exit, ev, nev):
+    """Drop i's current target; a mutual partner becomes a plain yielder to i (S8.3)."""
+    if mode[i] == MODE_C:
+        return nev
+    if mode[i] == MODE_MUTUAL:
+        k = tgt[i]
+        if mode[k] == MODE_MUTUAL and tgt[k] == i:
+            nev = _event(ev, nev, t, k, False, MODE_MUTUAL, i, sdir[k])
+            mode[k] = MODE_YIELD
+            since[k] = -1.0
+            nev = _event(ev, nev, t, k, True, MODE_YIELD, i, sdir[k])
+    return _leave(i, t, mode, tgt, sdir, since, last_kind, last_tgt, last_exit, ev, nev)
+
+
+@njit(cache=True)
+def _obstacle_dir(i, j, p, pd, goal, goal_dot, oc, ov, ophi, ophid, oaxes, prm):
+    zx = p[i, 0] - oc[j, 0]
+    zy = p[i, 1] - oc[j, 1]
+    rvx, rvy = relative_velocity(zx, zy, pd[i, 0], pd[i, 1], ov[j, 0], ov[j, 1], ophid[j])
+    return choose_direction(
+        zx,
+        zy,
+        rvx,
+        rvy,
+        goal[i, 0] - oc[j, 0],
+        goal[i, 1] - oc[j, 1],
+        goal_dot[i, 0] - ov[j, 0],
+        goal_dot[i, 1] - ov[j, 1],
+        ophi[j],
+        prm[P_L] * oaxes[j, 0],
+        prm[P_L] * oaxes[j, 1],
+        2.0 * prm[P_KAPPA] * oaxes[j, 0],
+        True,
+    )
+
+
+@njit(cache=True)
+def _agent_dir(i, k, p, pd, goal, goal_dot, rbody, prm):
+    r = keepout_radius(rbody, i, k, prm)
+    return choose_direction(
+        p[i, 0] - p[k, 0],
+        p[i, 1] - p[k, 1],
+        pd[i, 0] - pd[k, 0],
+        pd[i, 1] - pd[k, 1],
+        goal[i, 0] - p[k, 0],
+        goal[i, 1] - p[k, 1],
+        goal_dot[i, 0] - pd[k, 0],
+        goal_dot[i, 1] - pd[k, 1],
+        0.0,
+        prm[P_L] * r,
+        prm[P_L] * r,
+        2.0 * prm[P_KAPPA] * r,
+        False,
+    )
+
+
+@njit(cache=True)
+def _agent_urgency(i, k, p, pd, rbody, prm):
+    """(emergency, h_L) of robot k as seen from robot i."""
+    r = keepout_radius(rbody, i, k, prm)
+    zx = p[i, 0] - p[k, 0]
+    zy = p[i, 1] - p[k, 1]
+    trig, em, lam, h_em, h_l = threat_test(
+        zx, zy, pd[i, 0] - pd[k, 0], pd[i, 1] - pd[k, 1], 0.0, r, r, prm
+    )
+    return em, h_l
+
+
+@njit(cache=True)
+def _better(em, key_em, lam, best_set, best_em, best_key_em, best_lam):
+    """S8.1 ranking: emergencies first (smallest h_em), then the earliest contact (smallest
+    lambda).
+    """
+    if not best_set:
+        return True
+    if em and not best_em:
+        return True
+    if em and best_em:
+        return key_em < best_key_em
+    if not em and not best_em:
+        return lam < best_lam
+    return False
+
+
+@njit(cache=True)
+def _form_mutual(
+    i, k, t, pd, mode, tgt, sdir, t_entry, since, last_kind, last_tgt, last_exit, wc, ev, nev
+):
+    """Convert/enter the mutual pair (i, k): s = +1, same t_s, w_c = 1/2 (p_dot_i + p_dot_k)(t_s)
+    (S7).
+    """
+    for a in (i, k):
+        if mode[a] == MODE_MUTUAL:
+            m = tgt[a]
+            if m != i and m != k and mode[m] == MODE_MUTUAL and tgt[m] == a:
+                nev = _event(ev, nev, t, m, False, MODE_MUTUAL, a, sdir[m])
+                mode[m] = MODE_YIELD
+                since[m] = -1.0
+                nev = _event(ev, nev, t, m, True, MODE_YIELD, a, sdir[m])
+        if mode[a] != MODE_C:
+            nev = _leave(a, t, mode, tgt, sdir, since, last_kind, last_tgt, last_exit, ev, nev)
+    wx = 0.5 * (pd[i, 0] + pd[k, 0])
+    wy = 0.5 * (pd[i, 1] + pd[k, 1])
+    nev = _enter(i, t, MODE_MUTUAL, k, 1.0, mode, tgt, sdir, t_entry, since, ev, nev)
+    nev = _enter(k, t, MODE_MUTUAL, i, 1.0, mode, tgt, sdir, t_entry, since, ev, nev)
+    wc[i, 0] = wx
+    wc[i, 1] = wy
+    wc[k, 0] = wx
+    wc[k, 1] = wy
+    return nev
+
+
+@njit(cache=True)
+def decide(
+    t,
+    p,
+    pd,
+    goal,
+    goal_dot,
+    vc,
+    team,
+    rbody,
+    oc,
+    ov,
+    ophi,
+    ophid,
+    oaxes,
+    ostatic,
+    mode,
+    tgt,
+    sdir,
+    t_entry,
+    since,
+    last_kind,
+    last_tgt,
+    last_exit,
+    wc,
+    wtgt,
+    prm,
+    ev,
+    nev,
+):
+    """One decision of every robot's automaton (S8) with robot encounters arbitrated jointly (S7).
+
+    Parameters
+    ----------
+    t : float, time [s].
+    p, pd : (N, 2) controlled-point positions [m] and velocities [m/s]; rows in robot-ID order.
+    goal, goal_dot : (N, 2) formation goal g_i (leader r(t); follower p of its *original* parent +
+        delta) and its velocity (S8.3 item 1, S6.5 parking, S6.6 look-ahead).
+    vc : (N, 2) coordination field the robot would switch to, g_dot - Phi(p - g) (S8.3 item 3).
+    team : (N,) int team index (robots of a team share a leader); rbody : (N,) body radius [m].
+    oc, ov : (M, 2) obstacle centres and velocities; ophi, ophid : (M,) orientation and rate;
+    oaxes : (M, 2) semi-axes of P; ostatic : (M,) bool, neither moving nor rotating (S8.2 keep s).
+    mode, tgt, sdir, t_entry, since, last_kind, last_tgt, last_exit : (N,) automaton state, updated
+        in place (``since`` < 0: exit conditions not holding; ``last_*``: cool-down bookkeeping).
+    wc, wtgt : (N, 2) mutual-pair drift w_c and its relaxation target (updated in place).
+    prm : packed :class:`~ament_formation.core.control.automaton.SwitchingParams`.
+    ev : (E, 6) event buffer, nev : events already in it. Returns the new event count (may exceed
+    E:
+        the caller must then enlarge the buffer; rows beyond E are dropped).
+    """
+    n = p.shape[0]
+    m = oc.shape[0]
+    # ---- 1. obstacle entry candidates (S8.1, S14.2)
+    ob_j = np.full(n, -1, dtype=np.int64)
+    ob_em = np.zeros(n, dtype=np.bool_)
+    ob_lam = np.full(n, INF)
+    ob_hem = np.full(n, INF)
+    ob_hl = np.full(n, INF)
+    cur_em = np.zeros(n, dtype=np.bool_)
+    cur_hl = np.full(n, INF)
+    reach2 = np.empty(m)  # culling: outside the circle of radius kappa r1 nothing triggers
+    for j in range(m):
+        reach2[j] = (prm[P_KAPPA] * max(oaxes[j, 0], oaxes[j, 1])) ** 2
+    for i in range(n):
+        for j in range(m):
+            zx = p[i, 0] - oc[j, 0]
+            zy = p[i, 1] - oc[j, 1]
+            if zx * zx + zy * zy >= reach2[j] and not (mode[i] == MODE_OBSTACLE and tgt[i] == j):
+                continue
+            rvx, rvy = relative_velocity(zx, zy, pd[i, 0], pd[i, 1], ov[j, 0], ov[j, 1], ophid[j])
+            trig, em, lam, h_em, h_l = threat_test(
+                zx, zy, rvx, rvy, ophi[j], oaxes[j, 0], oaxes[j, 1], prm
+            )
+            if mode[i] == MODE_OBSTACLE and tgt[i] == j:
+                cur_em[i] = em
+                cur_hl[i] = h_l
+                continue
+            if not em:
+                if not trig or in_cooldown(
+                    KIND_OBSTACLE, j, t, last_kind[i], last_tgt[i], last_exit[i], prm
+                ):
+                    continue
+            if _better(em, h_em, lam, ob_j[i] >= 0, ob_em[i], ob_hem[i], ob_lam[i]):
+                ob_j[i] = j
+                ob_em[i] = em
+                ob_lam[i] = lam
+                ob_hem[i] = h_em
+                ob_hl[i] = h_l
+    # ---- 2. robot threats on culled pairs (S7, S14.3)
+    th_k = np.full((n, MAX_THREATS), -1, dtype=np.int64)
+    th_em = np.zeros((n, MAX_THREATS), dtype=np.bool_)
+    th_lam = np.full((n, MAX_THREATS), INF)
+    th_hem = np.full((n, MAX_THREATS), INF)
+    th_cnt = np.zeros(n, dtype=np.int64)
+    if n > 1:
+        cell = prm[P_KAPPA] * (2.0 * rbody.max() + prm[P_KEEPOUT_MARGIN])
+        pairs = candidate_pairs(p, cell)
+        for q in range(pairs.shape[0]):
+            i = pairs[q, 0]
+            k = pairs[q, 1]
+            r = keepout_radius(rbody, i, k, prm)
+            zx = p[i, 0] - p[k, 0]
+            zy = p[i, 1] - p[k, 1]
+            rvx = pd[i, 0] - pd[k, 0]
+            rvy = pd[i, 1] - pd[k, 1]
+            trig, em, lam, h_em, h_l = threat_test(zx, zy, rvx, rvy, 0.0, r, r, prm)
+            if trig and lam > prm[P_HORIZON]:
+                trig = False
+            if (
+                trig
+                and not em
+                and team[i] == team[k]
+                and mode[i] == MODE_C
+                and mode[k] == MODE_C
+                and math.hypot(rvx, rvy) < prm[P_TEAM_VREL]
+            ):
+                trig = False
+            if not (trig or em):
+                continue
+            for a, b in ((i, k), (k, i)):
+                c = th_cnt[a]
+                if c < MAX_THREATS:
+                    slot = c
+                    th_cnt[a] = c + 1
+                else:  # replace the least urgent
+                    slot = 0
+                    for s in range(1, MAX_THREATS):
+                        if _better(
+                            th_em[a, slot],
+                            th_hem[a, slot],
+                            th_lam[a, slot],
+                            True,
+                            th_em[a, s],
+                            th_hem[a, s],
+                            th_lam[a, s],
+                        ):
+                            slot = s
+                    if not _better(
+                        em, h_em, lam, True, th_em[a, slot], th_hem[a, slot], th_lam[a, slot]
+                    ):
+                        continue
+                th_k[a, slot] = b
+                th_em[a, slot] = em
+                th_lam[a, slot] = lam
+                th_hem[a, slot] = h_em
+    # ---- 3. obstacle transitions (S8.1 entry, S8.2 re-targeting, S8.3 exit)
+    for i in range(n):
+        if mode[i] == MODE_OBSTACLE:
+            j = tgt[i]
+            jn = ob_j[i]
+            if jn >= 0 and not cur_em[i] and (ob_em[i] or ob_hl[i] < cur_hl[i]):
+                if ostatic[j] and ostatic[jn]:
+                    s = sdir[i]  # S6.6 rule 5: keep the sweep direction
+                else:
+                    s = _obstacle_dir(
+                        i, jn, p, pd, goal, goal_dot, oc, ov, ophi, ophid, oaxes, prm
+                    )
+                nev = _leave(i, t, mode, tgt, sdir, since, last_kind, last_tgt, last_exit, ev, nev)
+                nev = _enter(i, t, MODE_OBSTACLE, jn, s, mode, tgt, sdir, t_entry, since, ev, nev)
+                continue
+            cond = exit_conditions(
+                p[i, 0],
+                p[i, 1],
+                goal[i, 0],
+                goal[i, 1],
+                vc[i, 0],
+                vc[i, 1],
+                oc[j, 0],
+                oc[j, 1],
+                ov[j, 0],
+                ov[j, 1],
+                ophi[j],
+                ophid[j],
+                oaxes[j, 0],
+                oaxes[j, 1],
+                prm,
+            )
+            ok, since[i] = exit_timer(cond, t, since[i], t_entry[i], prm)
+            if ok:
+                nev = _leave(i, t, mode, tgt, sdir, since, last_kind, last_tgt, last_exit, ev, nev)
+        elif ob_j[i] >= 0:
+            if mode[i] != MODE_C:
+                # static obstacles beat robots (S7), unless the robot is in emergency and the
+                # obstacle is not (S14.2: never swap one emergency for a lesser threat)
+                em_k, hl_k = _agent_urgency(i, tgt[i], p, pd, rbody, prm)
+                if em_k and not ob_em[i]:
+                    continue
+                nev = _release(
+                    i, t, mode, tgt, sdir, t_entry, since, last_kind, last_tgt, last_exit, ev, nev
+                )
+            jn = ob_j[i]
+            s = _obstacle_dir(i, jn, p, pd, goal, goal_dot, oc, ov, ophi, ophid, oaxes, prm)
+            nev = _enter(i, t, MODE_OBSTACLE, jn, s, mode, tgt, sdir, t_entry, since, ev, nev)
+    # ---- 4. robot-robot arbitration over all robots (S7, S14.1)
+    for i in range(n):
+        if th_cnt[i] == 0:
+            continue
+        if mode[i] == MODE_OBSTACLE:
+            # stand-on; two stand-on robots: the higher ID yields, in an emergency only
+            if cur_em[i]:
+                continue
+            kb = -1
+            hb = INF
+            for q in range(th_cnt[i]):
+                k = th_k[i, q]
+                if th_em[i, q] and mode[k] == MODE_OBSTACLE and k < i and th_hem[i, q] < hb:
+                    kb = k
+                    hb = th_hem[i, q]
+            if kb >= 0 and not reacts_to(kb, i, mode, tgt):
+                s = _agent_dir(i, kb, p, pd, goal, goal_dot, rbody, prm)
+                nev = _leave(i, t, mode, tgt, sdir, since, last_kind, last_tgt, last_exit, ev, nev)
+                nev = _enter(i, t, MODE_YIELD, kb, s, mode, tgt, sdir, t_entry, since, ev, nev)
+            continue
+        best = -1
+        b_em = False
+        b_hem = INF
+        b_lam = INF
+        for q in range(th_cnt[i]):
+            k = th_k[i, q]
+            em = th_em[i, q]
+            if (mode[i] == MODE_YIELD or mode[i] == MODE_MUTUAL) and tgt[i] == k:
+                continue
+            if not em and in_cooldown(
+                KIND_AGENT, k, t, last_kind[i], last_tgt[i], last_exit[i], prm
+            ):
+                continue
+            if not em and reacts_to(k, i, mode, tgt):
+                continue  # k is responsible (S7 acyclicity)
+            if _better(em, th_hem[i, q], th_lam[i, q], best >= 0, b_em, b_hem, b_lam):
+                best = k
+                b_em = em
+                b_hem = th_hem[i, q]
+                b_lam = th_lam[i, q]
+        if best < 0:
+            continue
+        k = best
+        if mode[i] != MODE_C:
+            if t - t_entry[i] < prm[P_DWELL]:
+                continue  # S14.2: no re-target within T_dwell of a switch
+            em_cur, hl_cur = _agent_urgency(i, tgt[i], p, pd, rbody, prm)
+            if em_cur:
+                continue
+            r = keepout_radius(rbody, i, k, prm)
+            hl_new = h_value(p[i, 0] - p[k, 0], p[i, 1] - p[k, 1], 0.0, prm[P_L] * r, prm[P_L] * r)
+            if not (b_em or hl_new < hl_cur - RETARGET_MARGIN):
+                continue
+        if reacts_to(k, i, mode, tgt):
+            # emergency against a robot that already reacts to i: convert to a mutual pair
+            if t - t_entry[k] < prm[P_DWELL]:
+                continue
+            nev = _form_mutual(
+                i,
+                k,
+                t,
+                pd,
+                mode,
+                tgt,
+                sdir,
+                t_entry,
+                since,
+                last_kind,
+                last_tgt,
+                last_exit,
+                wc,
+                ev,
+                nev,
+            )
+        elif mode[k] == MODE_C and (mode[i] == MODE_C or mode[i] == MODE_YIELD):
+            # two free robots: reciprocal avoidance (S7 mutual)
+            nev = _release(
+                i, t, mode, tgt, sdir, t_entry, since, last_kind, last_tgt, last_exit, ev, nev
+            )
+            nev = _form_mutual(
+                i,
+                k,
+                t,
+                pd,
+                mode,
+                tgt,
+                sdir,
+                t_entry,
+                since,
+                last_kind,
+                last_tgt,
+                last_exit,
+                wc,
+                ev,
+                nev,
+            )
+        else:
+            # k is busy (stand-on, yielding or in a pair): i yields to k
+            s = _agent_dir(i, k, p, pd, goal, goal_dot, rbody, prm)
+            nev = _release(
+                i, t, mode, tgt, sdir, t_entry, since, last_kind, last_tgt, last_exit, ev, nev
+            )
+            nev = _enter(i, t, MODE_YIELD, k, s, mode, tgt, sdir, t_entry, since, ev, nev)
+    # ---- 5. exits of yielding robots and mutual pairs (S8.3)
+    for i in range(n):
+        if mode[i] == MODE_YIELD:
+            k = tgt[i]
+            r = keepout_radius(rbody, i, k, prm)
+            cond = exit_conditions(
+                p[i, 0],
+                p[i, 1],
+                goal[i, 0],
+                goal[i, 1],
+                vc[i, 0],
+                vc[i, 1],
+                p[k, 0],
+                p[k, 1],
+                pd[k, 0],
+                pd[k, 1],
+                0.0,
+                0.0,
+                r,
+                r,
+                prm,
+            )
+            ok, since[i] = exit_timer(cond, t, since[i], t_entry[i], prm)
+            if ok:
+                nev = _leave(i, t, mode, tgt, sdir, since, last_kind, last_tgt, last_exit, ev, nev)
+        elif mode[i] == MODE_MUTUAL and tgt[i] > i:
+            k = tgt[i]
+            r = keepout_radius(rbody, i, k, prm)
+            cond = exit_conditions(
+                p[i, 0],
+                p[i, 1],
+                goal[i, 0],
+                goal[i, 1],
+                vc[i, 0],
+                vc[i, 1],
+                p[k, 0],
+                p[k, 1],
+                vc[k, 0],
+                vc[k, 1],
+                0.0,
+                0.0,
+                r,
+                r,
+                prm,
+            ) and exit_conditions(
+                p[k, 0],
+                p[k, 1],
+                goal[k, 0],
+                goal[k, 1],
+                vc[k, 0],
+                vc[k, 1],
+                p[i, 0],
+                p[i, 1],
+                vc[i, 0],
+                vc[i, 1],
+                0.0,
+                0.0,
+                r,
+                r,
+                prm,
+            )
+            ok, since[i] = exit_timer(cond, t, since[i], t_entry[i], prm)
+            since[k] = since[i]
+            if ok:  # pairs exit jointly
+                nev = _leave(i, t, mode, tgt, sdir, since, last_kind, last_tgt, last_exit, ev, nev)
+                nev = _leave(k, t, mode, tgt, sdir, since, last_kind, last_tgt, last_exit, ev, nev)
+    # ---- 6. drift target of mutual pairs (S14.1)
+    cap = prm[P_DRIFT_CAP]
+    for i in range(n):
+        if mode[i] == MODE_MUTUAL:
+            k = tgt[i]
+            wx = 0.5 * (vc[i, 0] + vc[k, 0])
+            wy = 0.5 * (vc[i, 1] + vc[k, 1])
+            nrm = math.hypot(wx, wy)
+            if nrm > cap:
+                wx *= cap / nrm
+                wy *= cap / nrm
+            wtgt[i, 0] = wx
+            wtgt[i, 1] = wy
+    return nev
+
+
+def decide_once(
+    t_s: float,
+    state,
+    p,
+    pd,
+    goal,
+    goal_dot,
+    vc,
+    team,
+    rbody,
+    obstacles,
+    prm,
+    ev_capacity: int | None = None,
+) -> list[tuple]:
+    """Python convenience around :func:`decide` (tests, controller): returns the events as tuples
+    (t_s, robot_row, 'enter'|'exit', mode, target, direction).
+
+    ``state`` : :class:`~ament_formation.core.control.automaton.AutomatonState`; ``obstacles`` :
+    tuple
+    (centres (M, 2), velocities (M, 2), phi (M,), phi_dot (M,), semi-axes (M, 2), static (M,)
+    bool);
+    other arrays as in :func:`decide`.
+    """
+    n = state.n
+    ev = np.zeros((ev_capacity or 8 * n + 16, 6))
+    oc, ov, ophi, ophid, oaxes, ostatic = obstacles
+
+    def f(a):
+        return np.ascontiguousarray(a, dtype=float)
+
+    nev = decide(
+        float(t_s),
+        f(p),
+        f(pd),
+        f(goal),
+        f(goal_dot),
+        f(vc),
+        np.ascontiguousarray(team, dtype=np.int64),
+        f(rbody),
+        f(oc).reshape(-1, 2),
+        f(ov).reshape(-1, 2),
+        f(ophi).reshape(-1),
+        f(ophid).reshape(-1),
+        f(oaxes).reshape(-1, 2),
+        np.ascontiguousarray(ostatic, dtype=np.bool_).reshape(-1),
+        *state.arrays(),
+        prm,
+        ev,
+        0,
+    )
+    return [
+        (
+            float(r[0]),
+            int(r[1]),
+            'enter' if r[2] > 0.5 else 'exit',
+            int(r[3]),
+            int(r[4]),
+            float(r[5]),
+        )
+        for r in ev[: min(nev, ev.shape[0])]
+    ]

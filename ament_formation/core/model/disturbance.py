@@ -1,0 +1,119 @@
+"""Bounded smooth disturbance g(t) of the dynamics (19)-(20) (spec S2.2, S2.3, S3.3).
+
+g_k(t) = sum_m A_km sin(2 pi f_km t + phi_km) per robot, with A_km >= 0 and sum_m A_km = g_bar_k,
+so |g1| <= g1_bar [m/s^2] and |g2| <= g2_bar [rad/s^2] hold exactly, g is C-infinity and the
+derivatives are bounded. Frequencies and phases are drawn from ``numpy.random.default_rng(seed)``:
+the same seed gives the same disturbance. Numba twin:
+:func:`ament_formation.core.control.kernels.disturbance_k`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import math
+
+import numpy as np
+
+from ament_formation.core.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class Disturbance:
+    """Sum-of-sinusoids disturbance for N robots, M terms per component.
+
+    ``amplitude`` (N, 2, M) [m/s^2 | rad/s^2], ``freq_hz`` (N, 2, M), ``phase_rad`` (N, 2, M).
+    Calling it with a time ``t_s`` returns g (N, 2) rows [g1_mps2, g2_radps2].
+    """
+
+    amplitude: np.ndarray
+    freq_hz: np.ndarray
+    phase_rad: np.ndarray
+
+    def __post_init__(self) -> None:
+        shape = None
+        for name in ('amplitude', 'freq_hz', 'phase_rad'):
+            value = np.ascontiguousarray(np.asarray(getattr(self, name), dtype=float))
+            if value.ndim != 3 or value.shape[1] != 2:
+                raise ConfigError(f'must have shape (N, 2, M) (got {value.shape})', name)
+            if shape is not None and value.shape != shape:
+                raise ConfigError(
+                    f'must have the shape of amplitude {shape} (got {value.shape})', name
+                )
+            if not np.all(np.isfinite(value)):
+                raise ConfigError('must be finite', name)
+            shape = value.shape
+            object.__setattr__(self, name, value)
+        if np.any(self.amplitude < 0):
+            raise ConfigError('must be >= 0', 'amplitude')
+
+    @property
+    def n(self) -> int:
+        return int(self.amplitude.shape[0])
+
+    @property
+    def bound(self) -> np.ndarray:
+        """(N, 2) sup |g_k| = sum_m A_km."""
+        return self.amplitude.sum(axis=2)
+
+    @classmethod
+    def from_bounds(
+        cls,
+        n_robots: int,
+        bound,
+        seed: int,
+        n_terms: int = 4,
+        f_min_hz: float = 0.05,
+        f_max_hz: float = 1.0,
+    ) -> 'Disturbance':
+        """Deterministic disturbance with |g_k| <= bound[k] for ``n_robots`` robots.
+
+        ``bound`` (2,) [g1_bar_mps2, g2_bar_radps2] (or (N, 2)); ``seed`` int; ``n_terms`` M >= 1;
+        frequencies uniform in [f_min_hz, f_max_hz], phases uniform, weights Dirichlet(1).
+        """
+        if int(n_robots) != n_robots or n_robots < 0:
+            raise ConfigError(f'must be an integer >= 0 (got {n_robots!r})', 'n_robots')
+        if int(n_terms) != n_terms or n_terms < 1:
+            raise ConfigError(f'must be an integer >= 1 (got {n_terms!r})', 'n_terms')
+        bound = np.broadcast_to(np.asarray(bound, dtype=float), (int(n_robots), 2))
+        if not (np.all(np.isfinite(bound)) and np.all(bound >= 0)):
+            raise ConfigError(
+                f'must be finite and >= 0 (got {np.asarray(bound).tolist()!r})', 'bound'
+            )
+        if not (0 < f_min_hz <= f_max_hz and math.isfinite(f_max_hz)):
+            raise ConfigError(
+                f'need 0 < f_min_hz <= f_max_hz (got {f_min_hz}, {f_max_hz})', 'f_min_hz'
+            )
+        rng = np.random.default_rng(seed)
+        shape = (int(n_robots), 2, int(n_terms))
+        weights = rng.dirichlet(np.ones(int(n_terms)), size=(int(n_robots), 2))
+        freq = rng.uniform(f_min_hz, f_max_hz, size=shape)
+        phase = rng.uniform(0.0, 2.0 * math.pi, size=shape)
+        return cls(weights * bound[:, :, None], freq, phase)
+
+    @classmethod
+    def zero(cls, n_robots: int) -> 'Disturbance':
+        """G == 0 for ``n_robots`` robots."""
+        z = np.zeros((int(n_robots), 2, 1))
+        return cls(z, z + 1.0, z)
+
+    def __call__(self, t_s: float) -> np.ndarray:
+        """g(t_s) (N, 2)."""
+        return np.sum(
+            self.amplitude * np.sin(2.0 * math.pi * self.freq_hz * t_s + self.phase_rad), axis=2
+        )
+
+    def step_rotation(self, h_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """(cos, sin) of the phase advance 2 pi f h_s of every term, each (N, 2, M), for
+        :func:`ament_formation.core.control.kernels.disturbance_phasor_advance_k`.
+        """
+        ang = 2.0 * math.pi * self.freq_hz * h_s
+        return np.cos(ang), np.sin(ang)
+
+    def take(self, index) -> 'Disturbance':
+        """The disturbance of the robots selected by ``index``."""
+        m = self.amplitude.shape[2]
+        return Disturbance(
+            self.amplitude[index].reshape(-1, 2, m),
+            self.freq_hz[index].reshape(-1, 2, m),
+            self.phase_rad[index].reshape(-1, 2, m),
+        )

@@ -1,0 +1,161 @@
+"""Obstacle motion: prohibited ellipses P_j whose centre and orientation move in time (S6.1).
+
+A centre moves with constant velocity plus an optional sinusoidal oscillation; the orientation
+turns at a constant rate. States for all M obstacles at time t come back as arrays, so the
+vectorised field code never loops over obstacles in Python.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import math
+
+from numba import njit
+import numpy as np
+
+from ament_formation.core.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class ObstacleSpec:
+    """One obstacle: the prohibited region P_j of the controlled point (footprint included)."""
+
+    name: str
+    center_m: tuple[float, float]
+    semi_axes_m: tuple[float, float]  # (r1, r2) of P_j, r1 >= r2 > 0 after normalisation
+    orientation_rad: float = 0.0  # phi_j(0)
+    velocity_mps: tuple[float, float] = (0.0, 0.0)
+    angular_velocity_radps: float = 0.0
+    oscillation_amplitude_m: tuple[float, float] = (0.0, 0.0)  # centre += A sin(2 pi t / T)
+    oscillation_period_s: float = 0.0  # 0: no oscillation
+
+    def __post_init__(self) -> None:
+        if not self.name or not isinstance(self.name, str):
+            raise ConfigError('must be a non-empty string', 'name')
+        r1, r2 = self.semi_axes_m
+        if not (math.isfinite(r1) and math.isfinite(r2) and r1 > 0 and r2 > 0):
+            raise ConfigError(
+                f'semi-axes must be finite and > 0 m (got {list(self.semi_axes_m)})', 'semi_axes_m'
+            )
+        if (
+            any(a != 0.0 for a in self.oscillation_amplitude_m)
+            and not self.oscillation_period_s > 0
+        ):
+            raise ConfigError(
+                'must be > 0 s when an oscillation amplitude is set', 'oscillation_period_s'
+            )
+
+    @property
+    def moves(self) -> bool:
+        return any(v != 0.0 for v in self.velocity_mps) or any(
+            a != 0.0 for a in self.oscillation_amplitude_m
+        )
+
+    @property
+    def rotates(self) -> bool:
+        return self.angular_velocity_radps != 0.0
+
+
+@dataclass(frozen=True)
+class ObstacleStates:
+    """All M obstacles at one instant. Shapes: (M, 2) or (M,); world frame, SI units."""
+
+    center_m: np.ndarray  # (M, 2) x~_j
+    velocity_mps: np.ndarray  # (M, 2) x~dot_j
+    accel_mps2: np.ndarray  # (M, 2) x~ddot_j
+    phi_rad: np.ndarray  # (M,)   phi_j
+    phi_dot_radps: np.ndarray  # (M,)
+    phi_ddot_radps2: np.ndarray  # (M,)
+    semi_axes_m: np.ndarray  # (M, 2) (r1, r2) of P_j
+
+
+class ObstacleField:
+    """Vectorised motion of a fixed set of obstacles."""
+
+    def __init__(self, specs: tuple[ObstacleSpec, ...] | list[ObstacleSpec]):
+        self.specs = tuple(specs)
+        self.names = tuple(s.name for s in self.specs)
+        (
+            self._c0,
+            self._v,
+            self._amp,
+            self._w,
+            self._phi0,
+            self._phidot,
+            self._axes,
+            self._static,
+        ) = obstacle_arrays(self.specs)
+
+    def __len__(self) -> int:
+        return len(self.specs)
+
+    def at(self, t_s: float) -> ObstacleStates:
+        """States of every obstacle at time ``t_s`` [s] (:func:`obstacle_states`)."""
+        m = len(self.specs)
+        oc, ov, oa = np.empty((m, 2)), np.empty((m, 2)), np.empty((m, 2))
+        ophi, ophid, ophidd = np.empty(m), np.empty(m), np.empty(m)
+        obstacle_states(
+            float(t_s),
+            self._c0,
+            self._v,
+            self._amp,
+            self._w,
+            self._phi0,
+            self._phidot,
+            oc,
+            ov,
+            oa,
+            ophi,
+            ophid,
+            ophidd,
+        )
+        return ObstacleStates(
+            center_m=oc,
+            velocity_mps=ov,
+            accel_mps2=oa,
+            phi_rad=ophi,
+            phi_dot_radps=ophid,
+            phi_ddot_radps2=ophidd,
+            semi_axes_m=self._axes.copy(),
+        )
+
+
+def obstacle_arrays(obs) -> tuple:
+    """Motion parameters of obstacle specs for :func:`obstacle_states`: (c0 (M, 2), v (M, 2),
+    oscillation amplitude (M, 2), oscillation rate w (M,) [rad/s], phi0 (M,), phi_dot (M,),
+    semi-axes of P (M, 2), static (M,) bool).
+    """
+    obs = tuple(obs)
+    m = len(obs)
+    c0 = np.array([o.center_m for o in obs], dtype=float).reshape(m, 2)
+    vel = np.array([o.velocity_mps for o in obs], dtype=float).reshape(m, 2)
+    amp = np.array([o.oscillation_amplitude_m for o in obs], dtype=float).reshape(m, 2)
+    period = np.array([o.oscillation_period_s for o in obs], dtype=float)
+    omega = np.where(period > 0, 2 * np.pi / np.where(period > 0, period, 1.0), 0.0)
+    phi0 = np.array([o.orientation_rad for o in obs], dtype=float)
+    phid = np.array([o.angular_velocity_radps for o in obs], dtype=float)
+    axes = np.array([o.semi_axes_m for o in obs], dtype=float).reshape(m, 2)
+    static = np.array([not (o.moves or o.rotates) for o in obs], dtype=np.bool_)
+    return c0, vel, amp, omega, phi0, phid, axes, static
+
+
+@njit(cache=True)
+def obstacle_states(t, c0, vel, amp, omega, phi0, phid, oc, ov, oa, ophi, ophid, ophidd):
+    """Centre, velocity, acceleration, orientation and rates of every obstacle at t
+    (into the outputs).
+
+    Motion model of :class:`ament_formation.core.model.obstacles.ObstacleField`: c = c0 + v t + A
+    sin(w
+    t),
+    phi = phi0 + phi_dot t.
+    """
+    for j in range(c0.shape[0]):
+        s = math.sin(omega[j] * t)
+        c = math.cos(omega[j] * t)
+        for q in range(2):
+            oc[j, q] = c0[j, q] + vel[j, q] * t + amp[j, q] * s
+            ov[j, q] = vel[j, q] + amp[j, q] * omega[j] * c
+            oa[j, q] = -amp[j, q] * omega[j] * omega[j] * s
+        ophi[j] = phi0[j] + phid[j] * t
+        ophid[j] = phid[j]
+        ophidd[j] = 0.0

@@ -1,0 +1,1 @@
+"""Scenario files: loading and strict validation. Imports base and model/ only."""

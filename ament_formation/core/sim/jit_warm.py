@@ -1,0 +1,77 @@
+"""Warming numba's cache once at set-up (the cache folder itself: core/jit_cache.py).
+
+:func:`main` (``scripts/setup.sh`` runs it after installing, and whenever the core changed)
+compiles every kernel the programs use, in one process, so that the processes of a run load
+machine code instead of all compiling it at the same time. Only :func:`main` prints.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+from ament_formation.core.jit_cache import _warm_stamp, is_warm
+
+
+def warm() -> None:
+    """Compile (or load) every numba kernel the programs and ``formation sim`` use, by building
+    what they build: the simulator on a short run of each shipped scenario, each robot's
+    RobotController of the paper scenario (a leader and a follower), the coordinator's arbiter, the
+    world's plant twin and the tracker's corner refinement. numba compiles a kernel's whole call
+    tree on its first call, so one call of each entry point covers the branches not taken.
+    """
+    import dataclasses
+
+    import numpy as np
+
+    from ament_formation.core.config_files import config_dir
+    from ament_formation.core.control.arbiter import EncounterArbiter
+    from ament_formation.core.control.controller import RobotController
+    from ament_formation.core.control.rewiring import FormationGraph
+    from ament_formation.core.scenario.loader import load_scenario
+    from ament_formation.core.sim.simulator import simulate
+    from ament_formation.core.sim.twin import PlantTwin
+    from ament_formation.core.vision import corner_refinement
+
+    corner_refinement.warm_up()
+    scenarios = sorted((config_dir() / 'scenarios').glob('*.yaml'))
+    for path in scenarios:
+        sc = load_scenario(path)
+        simulate(dataclasses.replace(sc, duration_s=0.05))
+        PlantTwin(sc)
+        arbiter = EncounterArbiter(sc)
+        states = {r.id: np.array([*r.initial_pose, 0.0, 0.0]) for r in sc.robots}
+        arbiter.decide(0.0, states, {r.id: {'mode': 'coordination'} for r in sc.robots})
+        graph = FormationGraph.from_scenario(sc)
+        for r in sc.robots:
+            law = RobotController(
+                r.id,
+                r.params,
+                sc.control,
+                sc.avoidance,
+                sc.obstacles,
+                leader_path=r.path if r.leader else None,
+                team=sc.team_leader(r.id),
+            )
+            p0 = graph.original_parent.get(r.id)
+            offset = np.zeros(2) if p0 is None else np.asarray(graph.offset(r.id, p0), dtype=float)
+            law.set_graph(p0, offset, p0, offset)
+            law.warm_up()
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Warm the cache unless it is warm already (``--force``: warm anyway); say so on stderr."""
+    argv = sys.argv[1:] if argv is None else argv
+    if is_warm() and '--force' not in argv:
+        return 0
+    import time
+
+    path = os.environ.get('NUMBA_CACHE_DIR', "numba's default")
+    print(f'setup: compiling the numba kernels once (about 30 s; cache {path})', file=sys.stderr)
+    t0 = time.monotonic()
+    warm()
+    stamp = _warm_stamp()
+    if stamp is not None:
+        stamp.touch()
+    print(f'setup: numba kernels compiled in {time.monotonic() - t0:.0f} s', file=sys.stderr)
+    return 0

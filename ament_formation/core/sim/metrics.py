@@ -1,0 +1,406 @@
+"""Run metrics (DESIGN §4 ``metrics.json``) from a recorded run and its scenario.
+
+Distances use the exact Euclidean signed distance of the controlled point p to the prohibited
+ellipse P_j (< 0 inside;
+:func:`ament_formation.core.control.limit_cycle.signed_distance_to_ellipse`), not
+the algebraic h. Robot pairs use the robot prohibited circle R_i + R_k + margin (S7).
+
+Conventions (samples k = 0..T-1 at times t_k):
+
+* an *interval* of a boolean signal is a maximal run of true samples; it lasts from its first true
+  sample to the first false sample after it (or the last sample);
+* ``prohibited_entries`` counts intervals with p inside P_j per (robot, obstacle) and per unordered
+  robot pair; ``avoidance_entries`` counts intervals of ``avoiding`` (a re-target inside avoidance
+  is not a new entry);
+* ``formation_rms_settled_m``: RMS of |p_i - g_i| from 10 s after the last avoidance exit of any
+  robot of i's team (or from t0 + 10 s when nobody in the team avoided) to the end; ``None`` when
+  that window is empty. A follower's goal g_i hangs on its original parent, so its error includes
+  every upstream detour: the formation is settled only when the whole team is (as spec S12
+  measures it). ``formation_rms_after_own_exit_m`` is the same RMS from 10 s after the robot's
+  own last exit (DESIGN §4 read per robot).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ament_formation.core.control.limit_cycle import signed_distance_to_ellipse
+from ament_formation.core.sim.trajectory import SimResult
+
+SETTLE_DELAY_S = 10.0
+
+
+def intervals(flag: np.ndarray, t_s: np.ndarray) -> list[tuple[float, float]]:
+    """Maximal true runs of ``flag`` (T,) as (t_start, t_end) [s] (see module conventions)."""
+    flag = np.asarray(flag, dtype=bool)
+    if flag.size == 0:
+        return []
+    padded = np.concatenate([[False], flag, [False]])
+    change = np.flatnonzero(np.diff(padded.astype(np.int8)))
+    starts, stops = change[0::2], change[1::2]  # stop: index of first false sample after
+    last = len(t_s) - 1
+    return [(float(t_s[a]), float(t_s[min(b, last)])) for a, b in zip(starts, stops)]
+
+
+def count_entries(flag: np.ndarray) -> int:
+    """Number of maximal true runs of ``flag``."""
+    flag = np.asarray(flag, dtype=bool)
+    if flag.size == 0:
+        return 0
+    return int(flag[0]) + int(np.count_nonzero(flag[1:] & ~flag[:-1]))
+
+
+def obstacle_distances(result: SimResult, scenario) -> np.ndarray:
+    """(T, N, M) signed distance [m] of every robot's p to every obstacle's P_j (< 0 inside)."""
+    n_t, n = result.state.shape[:2]
+    m = len(result.obstacle_names)
+    if m == 0:
+        return np.zeros((n_t, n, 0))
+    axes = _obstacle_axes(result, scenario)
+    pts = np.broadcast_to(result.state[:, :, None, :2], (n_t, n, m, 2)).reshape(-1, 2)
+    centers = np.broadcast_to(result.obstacle_center_m[:, None, :, :], (n_t, n, m, 2)).reshape(
+        -1, 2
+    )
+    phis = np.broadcast_to(result.obstacle_phi_rad[:, None, :], (n_t, n, m)).reshape(-1)
+    r1 = np.broadcast_to(axes[None, None, :, 0], (n_t, n, m)).reshape(-1)
+    r2 = np.broadcast_to(axes[None, None, :, 1], (n_t, n, m)).reshape(-1)
+    return signed_distance_to_ellipse(pts, centers, phis, r1, r2).reshape(n_t, n, m)
+
+
+def min_signed_distance(points, centers, phi, r1: float, r2: float) -> tuple[float, np.ndarray]:
+    """Minimum over samples of the exact signed distance of ``points`` (T, 2) to one moving ellipse
+    (centres (T, 2), orientation (T,), semi-axes r1, r2 [m]), and the inside flags (T,) bool.
+
+    The exact distance (iterative) is evaluated only at samples that can hold the minimum, using
+    bounds from the level q = sqrt(h + 1) of the point: the gap between the similar ellipses qE and
+    E is at least |q - 1| min(r1, r2), and at most the distance |z| |1 - 1/q| to the radial
+    boundary
+    point. Same result as evaluating every sample.
+    """
+    z = np.asarray(points, dtype=float) - np.asarray(centers, dtype=float)
+    c, s = np.cos(phi), np.sin(phi)
+    u = c * z[:, 0] + s * z[:, 1]
+    w = -s * z[:, 0] + c * z[:, 1]
+    q = np.sqrt((u / r1) ** 2 + (w / r2) ** 2)
+    inside = q < 1.0
+    if len(q) == 0:
+        return math.inf, inside
+    with np.errstate(divide='ignore', invalid='ignore'):
+        radial = np.where(
+            q > 0.0, np.hypot(u, w) * np.abs(1.0 - 1.0 / q), min(r1, r2)
+        )  # centre: r2
+    gap = np.abs(q - 1.0) * min(r1, r2)
+    lower = np.where(inside, -radial, gap)
+    upper = np.where(inside, -gap, radial)
+    cand = np.flatnonzero(lower <= np.nanmin(upper) + 1e-12)
+    if len(cand) == 0:  # only with non-finite input: evaluate everything
+        cand = np.arange(len(q))
+    exact = signed_distance_to_ellipse(
+        np.asarray(points, dtype=float)[cand],
+        np.asarray(centers, dtype=float)[cand],
+        np.asarray(phi, dtype=float)[cand],
+        r1,
+        r2,
+    )
+    return float(exact.min()), inside
+
+
+def _obstacle_axes(result: SimResult, scenario) -> np.ndarray:
+    by_name = {o.name: o for o in scenario.obstacles}
+    return np.array(
+        [by_name[name].semi_axes_m for name in result.obstacle_names], dtype=float
+    ).reshape(-1, 2)
+
+
+def robot_distances(result: SimResult) -> np.ndarray:
+    """(T, N, N) distances |p_i - p_k| [m] (inf on the diagonal)."""
+    p = result.state[:, :, :2]
+    d = np.linalg.norm(p[:, :, None, :] - p[:, None, :, :], axis=-1)
+    n = p.shape[1]
+    d[:, np.arange(n), np.arange(n)] = np.inf
+    return d
+
+
+def json_ready(value):
+    """Numpy scalars/arrays and containers to plain JSON types (non-finite floats to None)."""
+    if isinstance(value, dict):
+        return {str(k): json_ready(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_ready(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return json_ready(value.tolist())
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        f = float(value)
+        return f if math.isfinite(f) else None
+    return value
+
+
+def settle_start(t_s: np.ndarray, exits_s: list[float]) -> float:
+    """Start of the settled window: the last exit + SETTLE_DELAY_S, or t0 + SETTLE_DELAY_S."""
+    t0 = float(t_s[0]) if len(t_s) else 0.0
+    return (max(exits_s) if exits_s else t0) + SETTLE_DELAY_S
+
+
+def _rms_from(err: np.ndarray, t_s: np.ndarray, start_s: float):
+    window = t_s >= start_s - 1e-9
+    return float(np.sqrt(np.mean(err[window] ** 2))) if np.any(window) else None
+
+
+def _team(scenario, rid: int) -> int:
+    try:
+        return scenario.team_leader(rid)
+    except (KeyError, AttributeError):
+        return rid
+
+
+def compute_metrics(result: SimResult, scenario) -> dict:
+    """DESIGN §4 metrics of a run.
+
+    Parameters
+    ----------
+    result : the recorded run (T samples, N robots, M obstacles)
+    scenario : the :class:`~ament_formation.core.scenario.loader.Scenario` it ran (semi-axes of
+    P_j,
+        body radii and keep-out margin)
+
+    Returns
+    -------
+    dict with keys scenario, sim_time_s, wall_time_s, prohibited_entries, min_clearance_m,
+    min_inter_robot_distance_m, robots, mode_events, graph_events (plus extras:
+    prohibited_entry_events, reaching_ratio_max, robot_pair_min_distance_m).
+    """
+    t = np.asarray(result.t_s, dtype=float)
+    ids = list(result.robot_ids)
+    names = list(result.obstacle_names)
+    n = len(ids)
+    by_id = {r.id: r for r in scenario.robots}
+
+    # obstacles: signed distances and entries into P
+    axes = _obstacle_axes(result, scenario)
+    min_dist = np.full((n, len(names)), np.inf)  # (N, M)
+    entries = 0
+    entry_events: list[dict] = []
+    for i, rid in enumerate(ids):
+        for j, name in enumerate(names):
+            min_dist[i, j], inside = min_signed_distance(
+                result.state[:, i, :2],
+                result.obstacle_center_m[:, j],
+                result.obstacle_phi_rad[:, j],
+                float(axes[j, 0]),
+                float(axes[j, 1]),
+            )
+            for t0, _t1 in intervals(inside, t):
+                entry_events.append({'t_s': t0, 'robot': rid, 'target': name})
+            entries += count_entries(inside)
+
+    # robot pairs: distances and entries into the robot prohibited circle (S7)
+    rdist = robot_distances(result) if n > 1 else np.zeros((len(t), n, n))
+    pair_min: dict[str, float] = {}
+    margin = scenario.avoidance.agent_keepout_margin_m
+    for a in range(n):
+        for b in range(a + 1, n):
+            keepout = (
+                by_id[ids[a]].params.body_radius_m + by_id[ids[b]].params.body_radius_m + margin
+            )
+            inside = rdist[:, a, b] < keepout
+            for t0, _t1 in intervals(inside, t):
+                entry_events.append({'t_s': t0, 'robot': ids[a], 'target': f'robot_{ids[b]}'})
+            entries += count_entries(inside)
+            pair_min[f'{ids[a]}-{ids[b]}'] = float(rdist[:, a, b].min()) if len(t) else None
+    entry_events.sort(key=lambda e: (e['t_s'], e['robot']))
+
+    err = result.formation_error_m  # (T, N)
+    spans_of = {
+        rid: intervals(np.asarray(result.avoiding[:, i], dtype=bool), t)
+        for i, rid in enumerate(ids)
+    }
+    team_of = {rid: _team(scenario, rid) for rid in ids}
+    robots: dict[str, dict] = {}
+    for i, rid in enumerate(ids):
+        spans = spans_of[rid]
+        own_start = settle_start(t, [b for _a, b in spans])
+        team_exits = [b for k in ids if team_of[k] == team_of[rid] for _a, b in spans_of[k]]
+        start = settle_start(t, team_exits)
+        rms = _rms_from(err[:, i], t, start)
+        torque = np.abs(result.torque_nm[:, i, :])
+        robots[str(rid)] = {
+            'min_clearance_m': {name: float(min_dist[i, j]) for j, name in enumerate(names)},
+            'avoidance_time_s': float(sum(b - a for a, b in spans)),
+            'avoidance_entries': len(spans),
+            'formation_rms_settled_m': rms,
+            'settled_from_s': float(start),
+            'formation_rms_after_own_exit_m': _rms_from(err[:, i], t, own_start),
+            'final_error_m': float(err[-1, i]) if len(t) else None,
+            'peak_torque_nm': [float(torque[:, 0].max()), float(torque[:, 1].max())]
+            if len(t)
+            else [0.0, 0.0],
+            'saturated_fraction': float(np.mean(result.saturated[:, i])) if len(t) else 0.0,
+        }
+
+    ratios = [
+        r['t_reach_s'] / r['bound_s']
+        for r in result.reaching
+        if r.get('bound_s') and r.get('t_reach_s') is not None and r['bound_s'] > 0
+    ]
+    finite_pairs = [v for v in pair_min.values() if v is not None]
+    metrics = {
+        'scenario': result.scenario_name,
+        'sim_time_s': float(t[-1] - t[0]) if len(t) else 0.0,
+        'wall_time_s': float(result.wall_time_s),
+        'prohibited_entries': int(entries),
+        'min_clearance_m': float(min_dist.min()) if min_dist.size else None,
+        'min_inter_robot_distance_m': min(finite_pairs) if finite_pairs else None,
+        'robots': robots,
+        'mode_events': list(result.mode_events),
+        'graph_events': list(result.graph_events),
+        'prohibited_entry_events': entry_events,
+        'robot_pair_min_distance_m': pair_min,
+        'reaching_ratio_max': max(ratios) if ratios else None,
+    }
+    return json_ready(metrics)
+
+
+# ------------------------------------------------------------------------------------------------
+# Checks: what every run must achieve, plus the scenario's ``expect:`` block
+# (core/scenario/loader.py)
+# ------------------------------------------------------------------------------------------------
+
+COMPLETE_TOLERANCE_S = 0.05  # a run is complete when sim_time_s >= duration_s - this
+
+
+def check(name: str, ok: bool, value, limit, op: str, detail: str | None = None) -> dict:
+    """One check result as written to metrics.json ``checks``: name, ok, value, limit, op (how
+    value compares with limit: "<=", ">=", "in", "=="), and an optional one-line detail.
+    """
+    out = {
+        'name': name,
+        'ok': bool(ok),
+        'value': json_ready(value),
+        'limit': json_ready(limit),
+        'op': op,
+    }
+    if detail:
+        out['detail'] = detail
+    return out
+
+
+def _le(name, value, limit, missing='not measured'):
+    if value is None:
+        return check(name, False, None, limit, '<=', missing)
+    return check(name, value <= limit, value, limit, '<=')
+
+
+def _ge(name, value, limit, missing='not measured'):
+    if value is None:
+        return check(name, False, None, limit, '>=', missing)
+    return check(name, value >= limit, value, limit, '>=')
+
+
+def check_run(
+    metrics: dict, scenario, extra: list[dict] | None = None, measured: bool = True
+) -> dict:
+    """Check a run's ``metrics`` (from :func:`compute_metrics`) and add ``checks``, ``ok`` and
+    ``failure`` to it (returned too). ``formation sim`` and ``formation run`` call the same
+    function;
+    ``extra`` are checks only the caller can make (a process that died, a gap in the recording),
+    listed first.
+
+    Every run: ``completed`` (sim_time_s reaches duration_s), ``prohibited_entries`` (0),
+    ``contact``
+    (no two robot footprints overlap: |p_a - p_b| >= R_a + R_b for every pair). Then the scenario's
+    ``expect:`` block (:class:`~ament_formation.core.scenario.loader.ExpectSpec`). ``failure`` is
+    one line
+    naming the failed checks (None when ``ok``). ``measured=False`` (nothing was recorded): only
+    ``extra`` and ``completed``.
+    """
+    checks = list(extra or [])
+    checks.append(
+        _ge('completed', metrics.get('sim_time_s'), scenario.duration_s - COMPLETE_TOLERANCE_S)
+    )
+    checks[-1]['limit'] = float(scenario.duration_s)
+    if not measured:
+        return _verdict(metrics, checks)
+    checks.append(_le('prohibited_entries', metrics.get('prohibited_entries'), 0))
+
+    radius = {str(r.id): r.params.body_radius_m for r in scenario.robots}
+    worst = None  # (gap, pair, distance, contact distance)
+    for pair, dist in (metrics.get('robot_pair_min_distance_m') or {}).items():
+        a, b = pair.split('-')
+        touch = radius[a] + radius[b]
+        gap = math.inf if dist is None else dist - touch
+        if worst is None or gap < worst[0]:
+            worst = (gap, pair, dist, touch)
+    if worst is not None:
+        checks.append(
+            check('contact', worst[0] >= 0.0, worst[2], worst[3], '>=', f'robots {worst[1]}')
+        )
+
+    e = scenario.expect
+    robots = metrics.get('robots') or {}
+    for rid, limit in e.settled_rms_max_m:
+        checks.append(
+            _le(
+                f'settled_rms_m[R{rid}]',
+                robots.get(str(rid), {}).get('formation_rms_settled_m'),
+                limit,
+                missing='no settled window (run shorter than the last avoidance exit + 10 s)',
+            )
+        )
+    for rid, limit in e.final_error_max_m:
+        checks.append(
+            _le(f'final_error_m[R{rid}]', robots.get(str(rid), {}).get('final_error_m'), limit)
+        )
+    for rid, (lo, hi) in e.avoidance_entries:
+        n = robots.get(str(rid), {}).get('avoidance_entries')
+        checks.append(
+            check(f'avoidance_entries[R{rid}]', n is not None and lo <= n <= hi, n, [lo, hi], 'in')
+        )
+    if e.min_clearance_m is not None:
+        checks.append(_ge('min_clearance_m', metrics.get('min_clearance_m'), e.min_clearance_m))
+    if e.min_inter_robot_distance_m is not None:
+        checks.append(
+            _ge(
+                'min_inter_robot_distance_m',
+                metrics.get('min_inter_robot_distance_m'),
+                e.min_inter_robot_distance_m,
+            )
+        )
+
+    return _verdict(metrics, checks)
+
+
+def _verdict(metrics: dict, checks: list[dict]) -> dict:
+    metrics['checks'] = checks
+    metrics['ok'] = all(c['ok'] for c in checks)
+    metrics['failure'] = (
+        None if metrics['ok'] else '; '.join(describe_check(c) for c in checks if not c['ok'])
+    )
+    return metrics
+
+
+def _fmt(value) -> str:
+    if isinstance(value, float):
+        return f'{value:.4g}'
+    if isinstance(value, list):
+        return '[' + ', '.join(_fmt(v) for v in value) + ']'
+    return str(value)
+
+
+def describe_check(c: dict) -> str:
+    """A check as one short phrase: "settled_rms_m[R1] 0.0424 > 0.02" or its detail when no
+    value.
+    """
+    if c.get('value') is None and c.get('detail'):
+        return f'{c["name"]}: {c["detail"]}'
+    if c['ok']:
+        rel = {'<=': '<=', '>=': '>=', 'in': 'in', '==': '=='}[c['op']]
+    else:
+        rel = {'<=': '>', '>=': '<', 'in': 'not in', '==': '!='}[c['op']]
+    text = f'{c["name"]} {_fmt(c["value"])} {rel} {_fmt(c["limit"])}'
+    return f'{text} ({c["detail"]})' if c.get('detail') and not c['ok'] else text

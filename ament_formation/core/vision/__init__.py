@@ -1,0 +1,3 @@
+"""The overhead camera: camera model, marker detection and refinement, calibration, synthetic
+camera. Imports core/ base only.
+"""
