@@ -59,6 +59,7 @@ from ament_formation.nodes.controller import _send_zero_torque as _controller_ze
 from ament_formation.nodes.controller import ControllerNode, PeerTable, set_realtime
 from ament_formation.ros import diagnostics as diag
 from ament_formation.ros.executors import run_node
+from ament_formation.ros.nonblocking import PublishThread
 from ament_formation.ros.params import declare_dataclass
 
 
@@ -126,6 +127,7 @@ class TeamNode(Node):
         threaded = not use_sim_time and control_thread
         self.lock = threading.Lock() if threaded else None
         self.loop: ControlLoop | None = None
+        self.sender: PublishThread | None = None  # publishes off the control path (threaded)
         self.poll_watch = None  # stalls of the bridges' poll timer (diagnostics "serial poll")
         self.peers = PeerTable(ids)
         self.controllers: dict[int, ControllerNode] = {}
@@ -169,6 +171,12 @@ class TeamNode(Node):
         rates = {c.prm.control_rate_hz for c in self.controllers.values()}
         rate_hz = rates.pop()
         if threaded:
+            # every publish of the process (the control thread's state, mode, torque; the
+            # executor's diagnostics) handed to a thread of its own that calls rcl without the
+            # GIL: a send blocked by the network (link down) never stalls the control loop
+            # (ros/nonblocking.py, docs/multi-machine.md)
+            self.sender = PublishThread(self.get_logger())
+            self.sender.adopt(p for n in [self, *self.composed_nodes] for p in n.publishers)
             self.loop = ControlLoop(self, rate_hz, self.prm.realtime_priority)
             if self.prm.realtime_priority > 1:  # the executor thread: callbacks before other work
                 set_realtime(self.prm.realtime_priority - 1, None)
@@ -200,6 +208,13 @@ class TeamNode(Node):
     def destroy_node(self):
         if self.loop is not None:
             self.loop.stop()
+        if self.sender is not None:  # the last zero torques go out first (bounded wait)
+            self.sender.stop(flush_timeout_s=1.0)
+            s = self.sender
+            self.get_logger().info(
+                f'publish thread: {s.sent} sent, {s.dropped} dropped (queue full), {s.errors} '
+                f'failed, longest rcl publish {s.longest_call_s:.3f} s'
+            )
         for node in [*self.controllers.values(), *self.bridges.values()]:
             node.destroy_node()
         self.controllers, self.bridges = {}, {}
