@@ -1,7 +1,7 @@
 """Robots as separate hosts (issue 11): traffic per robot link, the paper scenario, link losses.
 
     bench/run.sh bench_multihost.py [--traffic 2 4 8] [--paper] [--link-loss 3]
-        [--link-profile default|lab|both] [--duration 20] [--out DIR] [--json OUT.json]
+        [--link-variants default lab lab_nofix] [--duration 20] [--out DIR] [--json OUT.json]
 
 Every run is `formation multihost` (tools/multihost_cmd.py; root, network namespaces): the camera
 PC (world, tracker, coordinator, recorder) and each robot (launch_robot.sh --multi-machine) on a
@@ -15,9 +15,10 @@ host of its own, DDS over UDP only between them.
   final errors, the checks of the scenario's ``expect:``.
 * ``--link-loss K``: K runs of test/data/paper_short.yaml with robot 1's link down at t = 4 s for
   3 s: its controller's stop, time and distance to rest (point speed < 5 mm/s, docs/safety.md),
-  speed at the loss, rejoin, its control loop's longest gap; ``--link-profile`` lab uses
-  test/data/fastdds_lab_udp.xml (blocking sends: only the robot process's own non-blocking
-  publishing protects its control loop), default config/fastdds_udp.xml (non-blocking sends).
+  speed at the loss, rejoin, its control loop's longest gap. ``--link-variants``: default
+  (config/fastdds_udp.xml: non-blocking sends), lab (test/data/fastdds_lab_udp.xml: Fast DDS's
+  blocking sends, only the robot process's publish thread protects its control loop), lab_nofix
+  (the same with AMENT_FORMATION_PUBLISH_THREAD=0: publishing as before the fix).
 
 Prints one table per part and the load average; ``--json`` keeps everything.
 """
@@ -34,13 +35,15 @@ import tempfile
 import time
 
 ROOT = Path(__file__).resolve().parents[1]
-PROFILES = {
-    'default': ROOT / 'config' / 'fastdds_udp.xml',
-    'lab': ROOT / 'test' / 'data' / 'fastdds_lab_udp.xml',
+# link-loss variants: (Fast DDS profile, the robot process's publish thread on)
+VARIANTS = {
+    'default': (ROOT / 'config' / 'fastdds_udp.xml', True),
+    'lab': (ROOT / 'test' / 'data' / 'fastdds_lab_udp.xml', True),
+    'lab_nofix': (ROOT / 'test' / 'data' / 'fastdds_lab_udp.xml', False),  # as before the fix
 }
 
 
-def multihost(out: Path, *args: str, timeout_s: float = 900.0) -> dict:
+def multihost(out: Path, *args: str, timeout_s: float = 900.0, env: dict | None = None) -> dict:
     """One `formation multihost` run; its multihost.json and metrics.json (+ exit status)."""
     t0 = time.monotonic()
     load0 = os.getloadavg()
@@ -51,6 +54,7 @@ def multihost(out: Path, *args: str, timeout_s: float = 900.0) -> dict:
         text=True,
         timeout=timeout_s,
         cwd=str(ROOT),
+        env={**os.environ, **(env or {})},
     )  # fmt: skip
     try:
         report = json.loads((out / 'multihost.json').read_text())
@@ -154,15 +158,16 @@ def paper_part(out: Path) -> dict:
     return row
 
 
-def link_loss_part(trials: int, profiles: list[str], out: Path) -> list[dict]:
+def link_loss_part(trials: int, variants: list[str], out: Path) -> list[dict]:
     rows = []
     scenario = ROOT / 'test' / 'data' / 'paper_short.yaml'
-    for profile in profiles:
-        for k in range(trials):
+    for k in range(trials):
+        for profile in variants:
+            xml, publish_thread = VARIANTS[profile]
             run = multihost(
                 out / f'link_{profile}_{k}',
-                '--scenario', str(scenario), '--link-down', '1:4:3',
-                '--profile', str(PROFILES[profile]),
+                '--scenario', str(scenario), '--link-down', '1:4:3', '--profile', str(xml),
+                env={'AMENT_FORMATION_PUBLISH_THREAD': '1' if publish_thread else '0'},
             )  # fmt: skip
             traces = run['report'].get('link_loss') or [{}]
             tr = traces[0]
@@ -237,7 +242,14 @@ def main() -> int:
     ap.add_argument('--traffic', type=int, nargs='*', default=None, metavar='N')
     ap.add_argument('--paper', action='store_true')
     ap.add_argument('--link-loss', type=int, default=0, metavar='K')
-    ap.add_argument('--link-profile', choices=['default', 'lab', 'both'], default='both')
+    ap.add_argument(
+        '--link-variants',
+        nargs='+',
+        choices=sorted(VARIANTS),
+        default=['default', 'lab'],
+        help='default: config/fastdds_udp.xml; lab: a lab profile with blocking sends; '
+        'lab_nofix: the same without the robot process publish thread (as before the fix)',
+    )
     ap.add_argument('--duration', type=float, default=20.0)
     ap.add_argument('--out', type=Path, default=None)
     ap.add_argument('--json', type=Path, default=None)
@@ -251,8 +263,7 @@ def main() -> int:
     if a.paper:
         report['paper'] = paper_part(out)
     if a.link_loss:
-        profiles = ['default', 'lab'] if a.link_profile == 'both' else [a.link_profile]
-        report['link_loss'] = link_loss_part(a.link_loss, profiles, out)
+        report['link_loss'] = link_loss_part(a.link_loss, a.link_variants, out)
     report['load_avg_end'] = os.getloadavg()
     print(f'load average at the end {os.getloadavg()}', flush=True)
     if a.json:

@@ -59,7 +59,6 @@ from ament_formation.nodes.controller import _send_zero_torque as _controller_ze
 from ament_formation.nodes.controller import ControllerNode, PeerTable, set_realtime
 from ament_formation.ros import diagnostics as diag
 from ament_formation.ros.executors import run_node
-from ament_formation.ros.nonblocking import PublishThread
 from ament_formation.ros.params import declare_dataclass
 
 
@@ -123,11 +122,11 @@ class TeamNode(Node):
                 'robot_ids',
             )
         use_sim_time = bool(self.get_parameter('use_sim_time').value)
+        self._now_ns = diag.clock_ns(self)  # the node's clock [ns] (read directly unless sim time)
         common = [*hosted_parameters, Parameter('use_sim_time', value=use_sim_time)]
         threaded = not use_sim_time and control_thread
         self.lock = threading.Lock() if threaded else None
         self.loop: ControlLoop | None = None
-        self.sender: PublishThread | None = None  # publishes off the control path (threaded)
         self.poll_watch = None  # stalls of the bridges' poll timer (diagnostics "serial poll")
         self.peers = PeerTable(ids)
         self.controllers: dict[int, ControllerNode] = {}
@@ -171,12 +170,6 @@ class TeamNode(Node):
         rates = {c.prm.control_rate_hz for c in self.controllers.values()}
         rate_hz = rates.pop()
         if threaded:
-            # every publish of the process (the control thread's state, mode, torque; the
-            # executor's diagnostics) handed to a thread of its own that calls rcl without the
-            # GIL: a send blocked by the network (link down) never stalls the control loop
-            # (ros/nonblocking.py, docs/multi-machine.md)
-            self.sender = PublishThread(self.get_logger())
-            self.sender.adopt(p for n in [self, *self.composed_nodes] for p in n.publishers)
             self.loop = ControlLoop(self, rate_hz, self.prm.realtime_priority)
             if self.prm.realtime_priority > 1:  # the executor thread: callbacks before other work
                 set_realtime(self.prm.realtime_priority - 1, None)
@@ -201,20 +194,13 @@ class TeamNode(Node):
             bridge.poll()
 
     def _control(self) -> None:
-        now_s = self.get_clock().now().nanoseconds * 1e-9  # one time for the whole period
+        now_s = self._now_ns() * 1e-9  # one time for the whole period
         for controller in self.controllers.values():
             controller.control_tick(now_s)
 
     def destroy_node(self):
         if self.loop is not None:
             self.loop.stop()
-        if self.sender is not None:  # the last zero torques go out first (bounded wait)
-            self.sender.stop(flush_timeout_s=1.0)
-            s = self.sender
-            self.get_logger().info(
-                f'publish thread: {s.sent} sent, {s.dropped} dropped (queue full), {s.errors} '
-                f'failed, longest rcl publish {s.longest_call_s:.3f} s'
-            )
         for node in [*self.controllers.values(), *self.bridges.values()]:
             node.destroy_node()
         self.controllers, self.bridges = {}, {}
@@ -283,10 +269,8 @@ class ControlLoop:
                             self._poll_all()  # telemetry as it arrives
                         # at most one read per MIN_READ_GAP_S: a port that stays readable without
                         # data (a hung-up pty) must not turn this (real-time) thread into a busy
-                        # loop
-                        self._stop.wait(
-                            min(self.MIN_READ_GAP_S, max(0.0, next_s - time.monotonic()))
-                        )
+                        # loop (a plain sleep: cheaper than an Event's wait; stop() waits for it)
+                        time.sleep(min(self.MIN_READ_GAP_S, max(0.0, next_s - time.monotonic())))
                     continue
                 with lock:
                     self._poll_all()

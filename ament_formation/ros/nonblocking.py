@@ -20,9 +20,14 @@ order of one publisher's messages is kept. Where the rcl library cannot be found
 replaced (``available`` is False) and publishing stays as it was.
 
     sender = PublishThread(logger)
-    sender.adopt(node.publishers)        # every publisher of the node, e.g. the hosted nodes'
+    sender.adopt(node.publishers)        # every publisher of the node (and of hosted nodes)
     ...
     sender.stop(flush_timeout_s=1.0)     # sends what is queued (bounded wait), then ends
+
+ros/executors.py ``run_node`` does this for the robot processes (formation_team, and
+formation_controller / formation_bridge of --split) and for the camera PC's tracker and
+coordinator (PUBLISH_THREAD_PROCESSES; AMENT_FORMATION_PUBLISH_THREAD=0 turns it off for
+experiments). Publishers created after the node was built are not adopted.
 
 A lab's Fast DDS profile can also make the sockets themselves non-blocking (UDPv4 transport
 ``<non_blocking_send>true</non_blocking_send>``, as config/fastdds_udp.xml does); that covers Fast
