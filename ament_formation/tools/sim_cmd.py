@@ -167,7 +167,7 @@ def _summary(metrics: dict, out: Path, figure: bool = True, first: tuple[str, ..
 def run_sim(args: argparse.Namespace) -> int:
     from ament_formation.core.metrics import check_run, compute_metrics
     from ament_formation.core.records import write_run
-    from ament_formation.core.scenario import load_scenario
+    from ament_formation.core.scenario import check_sim_budget, load_scenario
 
     dt_s = _positive(args.dt_s, '--dt-s')
     record_s = _positive(args.record_every_s, '--record-every-s')
@@ -177,6 +177,7 @@ def run_sim(args: argparse.Namespace) -> int:
     if out.exists() and not out.is_dir():
         raise ConfigError('exists and is not a directory', '--out', str(out))
     scenario = load_scenario(args.scenario)
+    check_sim_budget(scenario, dt_s, record_s)
 
     from ament_formation.core.simulator import simulate
 
