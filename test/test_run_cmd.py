@@ -269,6 +269,58 @@ def test_a_process_killed_mid_run_fails_the_run_naming_it(tmp_path):
     assert not any(alive(p) for p in pids)
 
 
+def test_sigterm_to_formation_run_stops_the_launch_and_every_process(tmp_path):
+    """A supervisor's SIGTERM to `formation run` mid-run ends it like Ctrl-C: the launcher and every
+    process it started are stopped (none is left running), and the exit status says so (143).
+    """
+    out = tmp_path / 'run'
+    run = subprocess.Popen(
+        [
+            FORMATION,
+            'run',
+            str(SCENARIO),
+            '--out',
+            str(out),
+            '--quiet',
+            '--no-figure',
+            '--startup-timeout',
+            '400',
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        world_log = out / 'processes' / 'world.log'
+        deadline = time.monotonic() + 420
+        while time.monotonic() < deadline and run.poll() is None:
+            if world_log.exists() and 'mission start' in world_log.read_text():
+                break
+            time.sleep(0.1)  # polling the world's log for the start (not a fixed wait)
+        assert run.poll() is None and 'mission start' in world_log.read_text()
+        launchers = [
+            int(p.name)
+            for p in Path('/proc').iterdir()
+            if p.name.isdigit() and _ppid(p) == run.pid
+        ]
+        pids = [
+            int(p)
+            for p in dict(
+                reversed(line.split())
+                for line in (out / 'processes' / 'pids').read_text().splitlines()
+            ).values()
+        ]
+        assert launchers and pids
+        run.send_signal(signal.SIGTERM)
+        _stdout, stderr = run.communicate(timeout=120)
+    finally:
+        if run.poll() is None:
+            run.kill()
+            run.wait(timeout=30)
+    assert run.returncode == 128 + signal.SIGTERM, stderr
+    assert not any(alive(p) for p in launchers + pids)
+
+
 def test_formation_run_refuses_a_bad_scenario_in_one_line(tmp_path):
     bad = tmp_path / 'bad.yaml'
     bad.write_text(SCENARIO.read_text().replace('duration_s: 12.5', 'duration_s: -1'))

@@ -3,6 +3,31 @@
 from __future__ import annotations
 
 
+MAX_MAGNITUDE = 1e6  # any number of a user's file (metres, seconds, gains): |x| <= 1e6
+MAX_LINE_CHARS = 300  # an error line never runs longer (a 10 MB value is shown as an excerpt)
+_EXCERPT_CHARS = 60
+
+
+def excerpt(value, limit: int = _EXCERPT_CHARS) -> str:
+    """``repr(value)`` on one line, cut to about ``limit`` characters with its full length named
+    (``'xxxxxxxx...' (10000002 chars)``): what an error message shows of a user's value.
+    """
+    if isinstance(value, (str, bytes)) and len(value) > limit:
+        text, size = repr(value[:limit]), len(value)  # never repr a huge string whole
+    else:
+        text = ' '.join(repr(value).split())
+        size = len(text) if len(text) > limit else None
+    text = ' '.join(text.split())
+    if size is not None:
+        text = f'{text[: limit - 3]}...'
+    return text if size is None else f'{text} ({size} chars)'
+
+
+def _one_line(text: str, limit: int) -> str:
+    text = ' '.join(str(text).split())
+    return text if len(text) <= limit else f'{text[: limit - 3]}...'
+
+
 class ConfigError(ValueError):
     """Bad user input (scenario, parameters, calibration data).
 
@@ -17,8 +42,9 @@ class ConfigError(ValueError):
         super().__init__(self._line())
 
     def _line(self) -> str:
-        parts = [p for p in (self.file, self.field) if p]
-        return ': '.join(parts + [self.problem])
+        """``FILE: FIELD: problem`` on one line of at most :data:`MAX_LINE_CHARS` characters."""
+        parts = [_one_line(p, 100) for p in (self.file, self.field) if p]
+        return _one_line(': '.join(parts + [str(self.problem)]), MAX_LINE_CHARS)
 
     def with_file(self, file: str) -> 'ConfigError':
         """The same error, naming ``file``."""

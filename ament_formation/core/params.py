@@ -11,7 +11,7 @@ from dataclasses import dataclass, field, fields
 import math
 from typing import Any
 
-from ament_formation.core.errors import ConfigError
+from ament_formation.core.errors import ConfigError, excerpt
 
 
 def param(
@@ -44,7 +44,7 @@ def param(
 
 def _require(cond: bool, field: str, value, problem: str) -> None:
     if not cond:
-        raise ConfigError(f'{problem} (got {value!r})', field)
+        raise ConfigError(f'{problem} (got {excerpt(value)})', field)
 
 
 def _finite_positive(obj, names: tuple[str, ...]) -> None:

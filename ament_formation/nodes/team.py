@@ -122,6 +122,7 @@ class TeamNode(Node):
                 'robot_ids',
             )
         use_sim_time = bool(self.get_parameter('use_sim_time').value)
+        self._now_ns = diag.clock_ns(self)  # the node's clock [ns] (read directly unless sim time)
         common = [*hosted_parameters, Parameter('use_sim_time', value=use_sim_time)]
         threaded = not use_sim_time and control_thread
         self.lock = threading.Lock() if threaded else None
@@ -193,7 +194,7 @@ class TeamNode(Node):
             bridge.poll()
 
     def _control(self) -> None:
-        now_s = self.get_clock().now().nanoseconds * 1e-9  # one time for the whole period
+        now_s = self._now_ns() * 1e-9  # one time for the whole period
         for controller in self.controllers.values():
             controller.control_tick(now_s)
 
@@ -268,10 +269,8 @@ class ControlLoop:
                             self._poll_all()  # telemetry as it arrives
                         # at most one read per MIN_READ_GAP_S: a port that stays readable without
                         # data (a hung-up pty) must not turn this (real-time) thread into a busy
-                        # loop
-                        self._stop.wait(
-                            min(self.MIN_READ_GAP_S, max(0.0, next_s - time.monotonic()))
-                        )
+                        # loop (a plain sleep: cheaper than an Event's wait; stop() waits for it)
+                        time.sleep(min(self.MIN_READ_GAP_S, max(0.0, next_s - time.monotonic())))
                     continue
                 with lock:
                     self._poll_all()

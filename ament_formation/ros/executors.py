@@ -54,6 +54,22 @@ EXECUTOR_BY_PROCESS: dict[str, str] = {
 }
 EXECUTOR_ENV = 'AMENT_FORMATION_EXECUTOR'  # "single" or "events" overrides the table (experiments)
 
+# Processes whose every publish goes through a thread of its own that calls rcl without the GIL
+# (ros/nonblocking.py): a send the network blocks (a robot's link down: 2-3 s in sendto) stalls
+# neither the control loop nor the executor, of this process or of a peer still sending to the
+# lost robot (docs/multi-machine.md). The robot processes and the camera PC's nodes that send
+# to robots; not the world (a simulated plant, its images stay on the camera PC).
+PUBLISH_THREAD_PROCESSES = frozenset(
+    {
+        'formation_team',
+        'formation_controller',
+        'formation_bridge',
+        'formation_tracker',
+        'formation_coordinator',
+    }
+)
+PUBLISH_THREAD_ENV = 'AMENT_FORMATION_PUBLISH_THREAD'  # "0": rclpy's own publish (experiments)
+
 
 def executor_kind(process: str | None = None, node=None) -> str:
     """Kind "single" or "events" for ``process`` (a key of EXECUTOR_BY_PROCESS; default: the node's
@@ -158,10 +174,12 @@ def run_node(
         args=args if args is not None else sys.argv, signal_handler_options=SignalHandlerOptions.NO
     )
     node = None
+    sender = None
     _stop_on_signals(lambda: node)
     _stack_dump_on_sigusr1()
     try:
         node = make_node()
+        sender = _publish_thread(name, node)
         # everything built so far (modules, compiled kernels, the nodes) lives as long as the
         # process: keep it out of the cyclic collector, whose full passes over it would otherwise
         # pause the control loop for milliseconds
@@ -185,5 +203,29 @@ def run_node(
                     on_exit(node)
                 except Exception:  # noqa: BLE001 - context already shut down
                     pass
+            if sender is not None:  # what on_exit published (a last zero torque) goes out first
+                sender.stop(flush_timeout_s=1.0)
+                node.get_logger().info(
+                    f'publish thread: {sender.sent} sent, {sender.dropped} dropped (queue full), '
+                    f'{sender.errors} failed, longest rcl publish {sender.longest_call_s:.3f} s'
+                )
             node.destroy_node()
         rclpy.try_shutdown()
+
+
+def _publish_thread(name: str, node):
+    """For the processes of PUBLISH_THREAD_PROCESSES: every publisher of ``node`` and of the
+    nodes it hosts published through a :class:`~ament_formation.ros.nonblocking.PublishThread`
+    (None otherwise, or with AMENT_FORMATION_PUBLISH_THREAD=0).
+    """
+    import os
+
+    if name not in PUBLISH_THREAD_PROCESSES or os.environ.get(PUBLISH_THREAD_ENV, '1') == '0':
+        return None
+    from ament_formation.ros.nonblocking import PublishThread
+
+    sender = PublishThread(node.get_logger())
+    nodes = [node, *getattr(node, 'composed_nodes', ())]
+    if not sender.adopt(p for n in nodes for p in n.publishers):
+        return None
+    return sender

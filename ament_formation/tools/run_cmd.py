@@ -22,9 +22,9 @@ import subprocess
 import sys
 import time
 
+from ament_formation.core.config_files import config_file, script_file
 from ament_formation.core.errors import ConfigError
 
-_ROOT = Path(__file__).resolve().parents[2]
 TRUTH_GAP_MAX_S = (
     1.0  # the longest pause [s, scenario time] of the recorded ground truth of a good run
 )
@@ -143,7 +143,7 @@ def _free_domain_id() -> str:
 
 def loopback_env(log_dir: Path) -> None:
     """The environment of scripts/ros_env.sh, for callers that did not source it."""
-    profile = str(_ROOT / 'config' / 'fastdds_localhost.xml')
+    profile = str(config_file('fastdds_localhost.xml'))
     env = os.environ
     if (
         env.get('AMENT_FORMATION_DDS') == 'udp'
@@ -205,6 +205,7 @@ def run_system(args: argparse.Namespace) -> int:
     import rclpy
     from rclpy.context import Context
     from rclpy.parameter import Parameter
+    from rclpy.signals import SignalHandlerOptions
     from std_msgs.msg import String
 
     from ament_formation.ros import messages as msgs
@@ -216,7 +217,17 @@ def run_system(args: argparse.Namespace) -> int:
     if mcap_path.exists():
         mcap_path.unlink()
     ctx = Context()
-    rclpy.init(context=ctx)
+    # SIGINT and SIGTERM end the run through the same clean-up (the launch and every process it
+    # started are stopped, the recording closed): rclpy's own handlers would end this process with
+    # the launch still running
+    rclpy.init(context=ctx, signal_handler_options=SignalHandlerOptions.NO)
+    terminated = {'signal': None}
+
+    def on_signal(signum, _frame):
+        terminated['signal'] = signum
+        raise KeyboardInterrupt
+
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     use_sim_time = args.speed != 1.0
     node = rclpy.create_node(
         '_formation_run_recorder',
@@ -255,7 +266,7 @@ def run_system(args: argparse.Namespace) -> int:
     proc_dir = out / 'processes'
     launch = subprocess.Popen(
         [
-            str(_ROOT / 'scripts' / 'launch_sim.sh'),
+            str(script_file('launch_sim.sh')),  # the checkout's, or share/ament_formation's
             str(Path(args.scenario).resolve()),
             '--run-dir',
             str(proc_dir),
@@ -335,7 +346,7 @@ def run_system(args: argparse.Namespace) -> int:
                 last_truth['wall'] = now  # the stall clock runs from the start
         launch_rc = launch.poll()
     except KeyboardInterrupt:
-        status = 130
+        status = 128 + (terminated['signal'] or signal.SIGINT)
         launch_rc = None
     finally:
         if launch.poll() is None:
@@ -352,6 +363,8 @@ def run_system(args: argparse.Namespace) -> int:
         node.destroy_node()
         rclpy.try_shutdown(context=ctx)
         shm.cleanup(shm_before, ignore_pid=os.getpid())  # this process is done with DDS
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
     wall_s = time.monotonic() - wall0
     if status:
         return status

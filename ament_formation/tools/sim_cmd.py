@@ -166,7 +166,7 @@ def _summary(metrics: dict, out: Path, figure: bool = True, first: tuple[str, ..
 
 
 def run_sim(args: argparse.Namespace) -> int:
-    from ament_formation.core.scenario.loader import load_scenario
+    from ament_formation.core.scenario.loader import check_sim_budget, load_scenario
     from ament_formation.core.sim.metrics import check_run, compute_metrics
     from ament_formation.core.sim.records import write_run
 
@@ -178,6 +178,7 @@ def run_sim(args: argparse.Namespace) -> int:
     if out.exists() and not out.is_dir():
         raise ConfigError('exists and is not a directory', '--out', str(out))
     scenario = load_scenario(args.scenario)
+    check_sim_budget(scenario, dt_s, record_s)
 
     from ament_formation.core.sim.simulator import simulate
 

@@ -25,7 +25,7 @@ from typing import Union
 
 import numpy as np
 
-from ament_formation.core.errors import ConfigError
+from ament_formation.core.errors import MAX_MAGNITUDE, ConfigError, excerpt
 
 _GL_NODES, _GL_WEIGHTS = np.polynomial.legendre.leggauss(48)
 
@@ -348,7 +348,7 @@ def path_from_config(cfg) -> Path:
     kind = cfg['type']
     if kind not in _PATH_KEYS:
         raise ConfigError(
-            f'unknown path type {kind!r} (expected one of {sorted(_PATH_KEYS)})', 'type'
+            f'unknown path type {excerpt(kind)} (expected one of {sorted(_PATH_KEYS)})', 'type'
         )
     required, optional = _PATH_KEYS[kind]
     keys = set(cfg) - {'type'}
@@ -398,21 +398,25 @@ def _check_number(
     value, name: str, *, positive: bool = False, minimum: float | None = None
 ) -> None:
     if not _is_number(value):
-        raise ConfigError(f'must be a number (got {value!r})', name)
+        raise ConfigError(f'must be a number (got {excerpt(value)})', name)
     if not math.isfinite(value):
-        raise ConfigError(f'must be finite (got {value!r})', name)
+        raise ConfigError(f'must be finite (got {excerpt(value)})', name)
+    if abs(value) > MAX_MAGNITUDE:
+        raise ConfigError(f'must be within +-{MAX_MAGNITUDE:g} (got {excerpt(value)})', name)
     if positive and not value > 0:
-        raise ConfigError(f'must be > 0 (got {value!r})', name)
+        raise ConfigError(f'must be > 0 (got {excerpt(value)})', name)
     if minimum is not None and value < minimum:
-        raise ConfigError(f'must be >= {minimum} (got {value!r})', name)
+        raise ConfigError(f'must be >= {minimum} (got {excerpt(value)})', name)
 
 
 def _check_vec2(value, name: str) -> None:
     if not isinstance(value, (list, tuple)) or len(value) != 2:
-        raise ConfigError(f'must be a pair [x, y] (got {value!r})', name)
+        raise ConfigError(f'must be a pair [x, y] (got {excerpt(value)})', name)
     for v in value:
         if not _is_number(v) or not math.isfinite(v):
-            raise ConfigError(f'must hold two finite numbers (got {value!r})', name)
+            raise ConfigError(f'must hold two finite numbers (got {excerpt(value)})', name)
+        if abs(v) > MAX_MAGNITUDE:
+            raise ConfigError(f'must be within +-{MAX_MAGNITUDE:g} (got {excerpt(value)})', name)
 
 
 def _vec2(value, name: str) -> tuple[float, float]:

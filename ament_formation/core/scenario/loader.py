@@ -34,7 +34,7 @@ import re
 import numpy as np
 import yaml
 
-from ament_formation.core.errors import ConfigError
+from ament_formation.core.errors import ConfigError, excerpt, MAX_MAGNITUDE
 from ament_formation.core.model.obstacles import ObstacleField, ObstacleSpec
 from ament_formation.core.model.paths import Path, path_from_config
 from ament_formation.core.params import AvoidanceParams, ControlGains, RobotParams
@@ -42,6 +42,23 @@ from ament_formation.core.params import AvoidanceParams, ControlGains, RobotPara
 _OVERLAP_STEP_S = 0.25
 _NAME_RE = re.compile(r'[A-Za-z0-9_.\-]+')
 _BOUNDARY_SAMPLES = 256
+
+# Bounded input (docs/scenarios.md "Limits"): what a scenario may ask of the machine. A file over
+# these limits is refused in one line before any large allocation.
+MAX_FILE_BYTES = 1_000_000  # a scenario file (the shipped ones are under 5 kB)
+MAX_NESTING = 32  # YAML collections inside collections
+MAX_YAML_NODES = 100_000  # scalars and collections once aliases are expanded (alias bombs)
+MAX_ROBOTS = 1024
+MAX_OBSTACLES = 256  # the limit-cycle overlap check is pairwise
+MAX_DURATION_S = 86_400.0
+MAX_INTEGER = 2**31 - 1
+MAX_IMAGE_PX = 8192
+# what `formation sim` (and a sweep) may run: about 10 s and well under 1 GB on a 2-core machine
+SIM_BUDGET = {
+    'robot_steps': 1e7,  # duration / dt x robots (the compiled loop: about 1e6 robot-steps/s)
+    'robot_samples': 1e6,  # duration / record period x robots (about 0.6 kB each in memory)
+    'pair_samples': 2e8,  # robot pairs x record samples (the metrics' pairwise distances)
+}
 
 
 # ------------------------------------------------------------------------------------------------
@@ -201,7 +218,56 @@ def _weak_components(ids, edges) -> list[list[int]]:
 
 
 class _StrictLoader(yaml.SafeLoader):
-    """SafeLoader that rejects a key repeated inside one mapping."""
+    """SafeLoader that rejects a key repeated inside one mapping, and nesting deeper than
+    :data:`MAX_NESTING` (checked before descending: no RecursionError on deep input).
+    """
+
+    def __init__(self, stream):
+        super().__init__(stream)
+        self._depth = 0
+
+    def compose_node(self, parent, index):
+        self._depth += 1
+        try:
+            if self._depth > MAX_NESTING:
+                mark = self.peek_event().start_mark
+                raise ConfigError(
+                    f'nested deeper than {MAX_NESTING} levels (line {mark.line + 1})'
+                )
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
+
+
+def _expanded_size(root, limit: int) -> int:
+    """Number of YAML nodes once every alias is expanded (what a constructed value would hold),
+    counted without expanding; ConfigError above ``limit`` or for a recursive alias.
+    """
+    sizes: dict[int, int] = {}
+    active: set[int] = set()
+
+    def size(node) -> int:
+        key = id(node)
+        if key in sizes:
+            return sizes[key]
+        if key in active:
+            raise ConfigError('recursive alias (a collection that contains itself)')
+        active.add(key)
+        if isinstance(node, yaml.SequenceNode):
+            n = 1 + sum(size(child) for child in node.value)
+        elif isinstance(node, yaml.MappingNode):
+            n = 1 + sum(size(k) + size(v) for k, v in node.value)
+        else:
+            n = 1
+        active.discard(key)
+        if n > limit:
+            raise ConfigError(
+                f'more than {limit} values once aliases are expanded (an alias bomb?)'
+            )
+        sizes[key] = n
+        return n
+
+    return 0 if root is None else size(root)
 
 
 def _construct_mapping(loader, node, deep=False):
@@ -210,7 +276,7 @@ def _construct_mapping(loader, node, deep=False):
         key = loader.construct_object(key_node, deep=deep)
         if key in seen:
             raise ConfigError(
-                f'duplicate key {key!r} (line {key_node.start_mark.line + 1}; '
+                f'duplicate key {excerpt(key)} (line {key_node.start_mark.line + 1}; '
                 f'first at line {seen[key]})'
             )
         seen[key] = key_node.start_mark.line + 1
@@ -225,13 +291,30 @@ def load_scenario(path) -> Scenario:
     path = FsPath(path)
     source = str(path)
     try:
+        if path.is_file() and path.stat().st_size > MAX_FILE_BYTES:
+            raise ConfigError(
+                f'file of {path.stat().st_size} bytes; a scenario is at most {MAX_FILE_BYTES}',
+                file=source,
+            )
         text = path.read_text()
     except FileNotFoundError:
         raise ConfigError('no such file', file=source) from None
     except (IsADirectoryError, PermissionError, UnicodeDecodeError) as err:
         raise ConfigError(f'cannot read: {err.__class__.__name__}', file=source) from None
+    return parse_scenario_text(text, source)
+
+
+def parse_scenario_text(text: str, source: str | None = None) -> Scenario:
+    """Validate a scenario given as YAML text (what :func:`load_scenario` reads from a file)."""
+    if len(text) > MAX_FILE_BYTES:
+        raise ConfigError(
+            f'{len(text)} characters; a scenario is at most {MAX_FILE_BYTES}', file=source
+        )
+    loader = _StrictLoader(text)
     try:
-        data = yaml.load(text, Loader=_StrictLoader)  # noqa: S506 - SafeLoader subclass
+        node = loader.get_single_node()
+        _expanded_size(node, MAX_YAML_NODES)
+        data = None if node is None else loader.construct_document(node)
     except ConfigError as err:
         raise err.with_file(source) from None
     except yaml.YAMLError as err:
@@ -239,6 +322,10 @@ def load_scenario(path) -> Scenario:
         where = f' at line {mark.line + 1}, column {mark.column + 1}' if mark else ''
         problem = getattr(err, 'problem', None) or str(err).splitlines()[0]
         raise ConfigError(f'malformed YAML{where}: {problem}', file=source) from None
+    except RecursionError:  # a structure deeper than Python's stack in a PyYAML internal
+        raise ConfigError(f'nested deeper than {MAX_NESTING} levels', file=source) from None
+    finally:
+        loader.dispose()
     return parse_scenario(data, source=source)
 
 
@@ -284,7 +371,7 @@ def _keys(mapping, where: str, required: set, optional: set) -> None:
         raise ConfigError(f'must be a mapping (got {_kind(mapping)})', where or None)
     for key in mapping:
         if not isinstance(key, str):
-            raise ConfigError(f'keys must be strings (got {key!r})', where or None)
+            raise ConfigError(f'keys must be strings (got {excerpt(key)})', where or None)
     allowed = required | optional
     for key in sorted(set(mapping) - allowed):
         raise ConfigError(
@@ -304,27 +391,31 @@ def _kind(value) -> str:
 
 def _number(value, where: str, *, positive=False, nonneg=False) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ConfigError(f'must be a number (got {_kind(value)} {value!r})', where)
+        raise ConfigError(f'must be a number (got {_kind(value)} {excerpt(value)})', where)
     if not math.isfinite(value):
-        raise ConfigError(f'must be finite (got {value!r})', where)
+        raise ConfigError(f'must be finite (got {excerpt(value)})', where)
+    if abs(value) > MAX_MAGNITUDE:
+        raise ConfigError(f'must be within +-{MAX_MAGNITUDE:g} (got {excerpt(value)})', where)
     if positive and not value > 0:
-        raise ConfigError(f'must be > 0 (got {value!r})', where)
+        raise ConfigError(f'must be > 0 (got {excerpt(value)})', where)
     if nonneg and value < 0:
-        raise ConfigError(f'must be >= 0 (got {value!r})', where)
+        raise ConfigError(f'must be >= 0 (got {excerpt(value)})', where)
     return float(value)
 
 
 def _integer(value, where: str, *, nonneg=True) -> int:
     if isinstance(value, bool) or not isinstance(value, int):
-        raise ConfigError(f'must be an integer (got {_kind(value)} {value!r})', where)
+        raise ConfigError(f'must be an integer (got {_kind(value)} {excerpt(value)})', where)
     if nonneg and value < 0:
-        raise ConfigError(f'must be >= 0 (got {value!r})', where)
+        raise ConfigError(f'must be >= 0 (got {excerpt(value)})', where)
+    if abs(value) > MAX_INTEGER:
+        raise ConfigError(f'must be within +-{MAX_INTEGER} (got {excerpt(value)})', where)
     return int(value)
 
 
 def _vector(value, where: str, n: int, **kw) -> tuple[float, ...]:
     if not isinstance(value, (list, tuple)) or len(value) != n:
-        raise ConfigError(f'must be a list of {n} numbers (got {value!r})', where)
+        raise ConfigError(f'must be a list of {n} numbers (got {excerpt(value)})', where)
     return tuple(_number(v, f'{where}[{i}]', **kw) for i, v in enumerate(value))
 
 
@@ -353,8 +444,12 @@ def _parse(data, source) -> Scenario:
     _keys(data, '', _TOP_REQUIRED, _TOP_OPTIONAL)
     name = data['name']
     if not isinstance(name, str) or not name.strip():
-        raise ConfigError(f'must be a non-empty string (got {name!r})', 'name')
+        raise ConfigError(f'must be a non-empty string (got {excerpt(name)})', 'name')
     duration = _number(data['duration_s'], 'duration_s', positive=True)
+    if duration > MAX_DURATION_S:
+        raise ConfigError(
+            f'must be <= {MAX_DURATION_S:g} s (got {excerpt(duration)})', 'duration_s'
+        )
 
     # robot defaults
     robot_defaults = data.get('robot', {}) or {}
@@ -417,8 +512,8 @@ def _parse_camera(block) -> CameraSpec:
     width = _integer(block.get('width_px', 640), 'camera.width_px')
     height = _integer(block.get('height_px', 480), 'camera.height_px')
     for key, value in (('width_px', width), ('height_px', height)):
-        if value <= 0:
-            raise ConfigError(f'must be > 0 (got {value})', f'camera.{key}')
+        if not 0 < value <= MAX_IMAGE_PX:
+            raise ConfigError(f'must be > 0 and <= {MAX_IMAGE_PX} (got {value})', f'camera.{key}')
     return CameraSpec(fps=fps, width_px=width, height_px=height)
 
 
@@ -439,7 +534,7 @@ def _per_robot(value, where: str, ids: list[int], parse_one) -> tuple:
             rid = int(key.strip())
         if isinstance(rid, bool) or not isinstance(rid, int) or rid not in ids:
             raise ConfigError(
-                f'{key!r} is not a robot id of the scenario (ids: {sorted(ids)})', where
+                f'{excerpt(key)} is not a robot id of the scenario (ids: {sorted(ids)})', where
             )
         if rid in out:
             raise ConfigError(f'robot {rid} is listed twice', where)
@@ -451,7 +546,7 @@ def _entries_range(value, where: str) -> tuple[int, int]:
     if isinstance(value, (list, tuple)):
         if len(value) != 2:
             raise ConfigError(
-                f'must be a count or a [min, max] pair of counts (got {value!r})', where
+                f'must be a count or a [min, max] pair of counts (got {excerpt(value)})', where
             )
         lo, hi = _integer(value[0], f'{where}[0]'), _integer(value[1], f'{where}[1]')
         if lo > hi:
@@ -485,6 +580,8 @@ def _parse_expect(block, ids: list[int]) -> ExpectSpec:
 def _parse_robots(items, base: dict) -> list[RobotSpec]:
     if not isinstance(items, list) or not items:
         raise ConfigError(f'must be a non-empty list of robots (got {_kind(items)})', 'robots')
+    if len(items) > MAX_ROBOTS:
+        raise ConfigError(f'{len(items)} robots; at most {MAX_ROBOTS}', 'robots')
     robots: list[RobotSpec] = []
     seen_ids: dict[int, int] = {}
     seen_markers: dict[int, int] = {}
@@ -499,7 +596,7 @@ def _parse_robots(items, base: dict) -> list[RobotSpec]:
         seen_ids[rid] = i
         leader = item.get('leader', False)
         if not isinstance(leader, bool):
-            raise ConfigError(f'must be true or false (got {leader!r})', f'{where}.leader')
+            raise ConfigError(f'must be true or false (got {excerpt(leader)})', f'{where}.leader')
         pose = _vector(item['initial_pose'], f'{where}.initial_pose', 3)
         if 'slot_m' in item:
             slot = _vector(item['slot_m'], f'{where}.slot_m', 2)
@@ -566,7 +663,7 @@ def _parse_graph(block, ids: set[int]) -> list[tuple[int, int]]:
     for k, edge in enumerate(items):
         where = f'graph.edges[{k}]'
         if not isinstance(edge, (list, tuple)) or len(edge) != 2:
-            raise ConfigError(f'must be a [parent, child] pair (got {edge!r})', where)
+            raise ConfigError(f'must be a [parent, child] pair (got {excerpt(edge)})', where)
         parent = _integer(edge[0], f'{where}[0]')
         child = _integer(edge[1], f'{where}[1]')
         for end, rid in (('parent', parent), ('child', child)):
@@ -583,6 +680,8 @@ def _parse_graph(block, ids: set[int]) -> list[tuple[int, int]]:
 def _parse_obstacles(items) -> list[ObstacleSpec]:
     if not isinstance(items, list):
         raise ConfigError(f'must be a list of obstacles (got {_kind(items)})', 'obstacles')
+    if len(items) > MAX_OBSTACLES:
+        raise ConfigError(f'{len(items)} obstacles; at most {MAX_OBSTACLES}', 'obstacles')
     out: list[ObstacleSpec] = []
     seen: dict[str, int] = {}
     for j, item in enumerate(items):
@@ -590,14 +689,16 @@ def _parse_obstacles(items) -> list[ObstacleSpec]:
         _keys(item, where, _OBSTACLE_REQUIRED, _OBSTACLE_OPTIONAL)
         name = item['name']
         if not isinstance(name, str) or not name.strip():
-            raise ConfigError(f'must be a non-empty string (got {name!r})', f'{where}.name')
+            raise ConfigError(f'must be a non-empty string (got {excerpt(name)})', f'{where}.name')
         if not _NAME_RE.fullmatch(name):
             raise ConfigError(
-                f"must use only letters, digits, '_', '-' and '.' (got {name!r})", f'{where}.name'
+                f"must use only letters, digits, '_', '-' and '.' (got {excerpt(name)})",
+                f'{where}.name',
             )
         if name in seen:
             raise ConfigError(
-                f'duplicate obstacle name {name!r} (also obstacles[{seen[name]}])', f'{where}.name'
+                f'duplicate obstacle name {excerpt(name)} (also obstacles[{seen[name]}])',
+                f'{where}.name',
             )
         seen[name] = j
         center = _vector(item['center_m'], f'{where}.center_m', 2)
@@ -695,7 +796,7 @@ def _check_start_geometry(robots, obstacles, avoidance: AvoidanceParams) -> None
                 if (u / r1) ** 2 + (w / r2) ** 2 < 1.0:
                     raise ConfigError(
                         f'robot {r.id} starts inside the prohibited region P '
-                        f'of obstacle {obs.name!r} '
+                        f'of obstacle {excerpt(obs.name)} '
                         '(S13 #2: never start a mission in collision)',
                         f'robots[{i}].initial_pose',
                     )
@@ -768,21 +869,45 @@ def _check_limit_cycles(obstacles, avoidance: AvoidanceParams, duration_s: float
             hit = ellipses_overlap(
                 centers[:n_t, a],
                 phis[:n_t, a],
-                np.repeat(axes[a: a + 1], n_t, 0),
+                np.repeat(axes[a : a + 1], n_t, 0),
                 centers[:n_t, b],
                 phis[:n_t, b],
-                np.repeat(axes[b: b + 1], n_t, 0),
+                np.repeat(axes[b : b + 1], n_t, 0),
             )
             if np.any(hit):
                 t_hit = float(times[int(np.argmax(hit))]) if n_t > 1 else 0.0
                 kind = '' if n_t == 1 else f' at t = {t_hit:.2f} s'
                 raise ConfigError(
                     f'the limit cycles (L = {avoidance.limit_cycle_scale} P) of obstacles '
-                    f'{obstacles[a].name!r} and {obstacles[b].name!r} overlap{kind}; '
+                    f'{excerpt(obstacles[a].name)} and {excerpt(obstacles[b].name)} overlap{kind}; '
                     'move them apart or '
                     'merge them into one enclosing ellipse (S13 #3)',
                     f'obstacles[{b}]',
                 )
+
+
+def check_sim_budget(scenario: Scenario, dt_s: float, record_every_s: float, budget=None) -> None:
+    """ConfigError (one line) when simulating ``scenario`` at ``dt_s`` with a record every
+    ``record_every_s`` would exceed :data:`SIM_BUDGET` (or ``budget``): the work and memory a run
+    of `formation sim` may take on this class of machine.
+    """
+    budget = {**SIM_BUDGET, **(budget or {})}
+    n = len(scenario.robots)
+    steps = scenario.duration_s / dt_s
+    samples = scenario.duration_s / max(record_every_s, dt_s)
+    need = {
+        'robot_steps': steps * n,
+        'robot_samples': samples * n,
+        'pair_samples': samples * n * (n - 1) / 2,
+    }
+    for key, value in need.items():
+        if value > budget[key]:
+            raise ConfigError(
+                f'{n} robots for {scenario.duration_s:g} s need {value:.3g} {key.replace("_", "-")}'
+                f', over the budget of {budget[key]:.3g} (docs/scenarios.md "Limits"): shorten '
+                'duration_s, use fewer robots or a longer record period',
+                'duration_s',
+            )
 
 
 # ------------------------------------------------------------------------------------------------
@@ -816,7 +941,7 @@ def _path_to_mapping(path) -> dict:
             'speed_mps': path.speed_mps,
             'accel_mps2': path.accel_mps2,
         }
-    raise TypeError(f'unknown path {path!r}')
+    raise TypeError(f'unknown path {excerpt(path)}')
 
 
 def scenario_to_mapping(scenario: Scenario) -> dict:

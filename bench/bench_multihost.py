@@ -1,0 +1,275 @@
+"""Robots as separate hosts (issue 11): traffic per robot link, the paper scenario, link losses.
+
+    bench/run.sh bench_multihost.py [--traffic 2 4 8] [--paper] [--link-loss 3]
+        [--link-variants default lab lab_nofix] [--duration 20] [--out DIR] [--json OUT.json]
+
+Every run is `formation multihost` (tools/multihost_cmd.py; root, network namespaces): the camera
+PC (world, tracker, coordinator, recorder) and each robot (launch_robot.sh --multi-machine) on a
+host of its own, DDS over UDP only between them.
+
+* ``--traffic N ...``: a generated formation of N robots (`--robots N`, 0.6 m grid, leader along
+  +x, ``--duration`` s): bytes/s on each robot link over the mission (switch port counters, both
+  directions), with the run's health (checks, world/control-loop gaps, safety stops) because a
+  2-core machine may not hold N robots in real time.
+* ``--paper``: config/scenarios/paper.yaml (55 s): settled RMS per robot, prohibited entries,
+  final errors, the checks of the scenario's ``expect:``.
+* ``--link-loss K``: K runs of test/data/paper_short.yaml with robot 1's link down at t = 4 s for
+  3 s: its controller's stop, time and distance to rest (point speed < 5 mm/s, docs/safety.md),
+  speed at the loss, rejoin, its control loop's longest gap. ``--link-variants``: default
+  (config/fastdds_udp.xml: non-blocking sends), lab (test/data/fastdds_lab_udp.xml: Fast DDS's
+  blocking sends, only the robot process's publish thread protects its control loop), lab_nofix
+  (the same with AMENT_FORMATION_PUBLISH_THREAD=0: publishing as before the fix).
+
+Prints one table per part and the load average; ``--json`` keeps everything.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from pathlib import Path
+import subprocess
+import sys
+import tempfile
+import time
+
+ROOT = Path(__file__).resolve().parents[1]
+# link-loss variants: (Fast DDS profile, the robot process's publish thread on)
+VARIANTS = {
+    'default': (ROOT / 'config' / 'fastdds_udp.xml', True),
+    'lab': (ROOT / 'test' / 'data' / 'fastdds_lab_udp.xml', True),
+    'lab_nofix': (ROOT / 'test' / 'data' / 'fastdds_lab_udp.xml', False),  # as before the fix
+}
+
+
+def multihost(out: Path, *args: str, timeout_s: float = 900.0, env: dict | None = None) -> dict:
+    """One `formation multihost` run; its multihost.json and metrics.json (+ exit status)."""
+    t0 = time.monotonic()
+    load0 = os.getloadavg()
+    proc = subprocess.run(
+        [sys.executable, '-m', 'ament_formation.tools.cli', 'multihost', '--out', str(out),
+         '--no-figure', '--quiet', *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout_s,
+        cwd=str(ROOT),
+        env={**os.environ, **(env or {})},
+    )  # fmt: skip
+    try:
+        report = json.loads((out / 'multihost.json').read_text())
+    except (OSError, ValueError):
+        report = {}
+    try:
+        metrics = json.loads((out / 'metrics.json').read_text())
+    except (OSError, ValueError):
+        metrics = {}
+    return {
+        'status': proc.returncode,
+        'stderr': proc.stderr.strip()[-2000:],
+        'wall_s': round(time.monotonic() - t0, 1),
+        'load_avg_before': load0,
+        'load_avg_after': os.getloadavg(),
+        'report': report,
+        'metrics': metrics,
+    }
+
+
+def _health(run: dict) -> dict:
+    rep, met = run['report'], run['metrics']
+    robots = met.get('robots') or {}
+    loops = rep.get('control_loops') or {}
+    gaps = [v.get('max_gap_s') for v in loops.values() if v.get('max_gap_s') is not None]
+    return {
+        'ok': rep.get('ok'),
+        'failure': met.get('failure'),
+        'prohibited_entries': met.get('prohibited_entries'),
+        'truth_max_gap_s': met.get('truth_max_gap_s'),
+        'control_gap_max_s': max(gaps) if gaps else None,
+        'safety_stop_time_s': {r: v.get('safety_stop_time_s') for r, v in robots.items()},
+        'discovery': rep.get('discovery'),
+    }
+
+
+def traffic_part(ns: list[int], duration_s: float, out: Path) -> list[dict]:
+    rows = []
+    for n in ns:
+        run = multihost(out / f'traffic_{n}', '--robots', str(n), '--duration', str(duration_s))
+        tr = run['report'].get('traffic') or {}
+        links = {h: v for h, v in (tr.get('links') or {}).items() if h != 'camera'}
+        row = {
+            'robots': n,
+            'status': run['status'],
+            'window_s': tr.get('window_s'),
+            'per_link_total_Bps': {h: v['total_Bps'] for h, v in links.items()},
+            'per_link_from_robot_Bps': {h: v['from_host_Bps'] for h, v in links.items()},
+            'per_link_to_robot_Bps': {h: v['to_host_Bps'] for h, v in links.items()},
+            'mean_Bps': tr.get('robot_link_mean_Bps'),
+            'max_Bps': tr.get('robot_link_max_Bps'),
+            'camera_link_Bps': (tr.get('links') or {}).get('camera', {}).get('total_Bps'),
+            'load_avg': [run['load_avg_before'][0], run['load_avg_after'][0]],
+            'wall_s': run['wall_s'],
+            **_health(run),
+        }
+        rows.append(row)
+        print(
+            f'N={n}: robot link mean {_k(row["mean_Bps"])} max {_k(row["max_Bps"])} '
+            f'(out/in per robot: '
+            + ', '.join(
+                f'R{h} {_k(row["per_link_from_robot_Bps"][h])}/'
+                f'{_k(row["per_link_to_robot_Bps"][h])}'
+                for h in row['per_link_total_Bps']
+            )
+            + f'), camera link {_k(row["camera_link_Bps"])}; ok={row["ok"]} '
+            f'control gap max {row["control_gap_max_s"]} s, truth gap {row["truth_max_gap_s"]} s, '
+            f'load {row["load_avg"][0]:.1f}->{row["load_avg"][1]:.1f}',
+            flush=True,
+        )
+        if not row['ok']:
+            print(f'   failure: {row["failure"]}', flush=True)
+    return rows
+
+
+def paper_part(out: Path) -> dict:
+    run = multihost(out / 'paper', '--scenario', str(ROOT / 'config' / 'scenarios' / 'paper.yaml'))
+    met = run['metrics']
+    robots = met.get('robots') or {}
+    row = {
+        'status': run['status'],
+        'settled_rms_m': {r: v.get('formation_rms_settled_m') for r, v in robots.items()},
+        'final_error_m': {r: v.get('final_error_m') for r, v in robots.items()},
+        'avoidance_entries': {r: v.get('avoidance_entries') for r, v in robots.items()},
+        'min_clearance_m': met.get('min_clearance_m'),
+        'load_avg': [run['load_avg_before'][0], run['load_avg_after'][0]],
+        'wall_s': run['wall_s'],
+        **_health(run),
+    }
+    print(
+        f'paper: prohibited entries {row["prohibited_entries"]}, settled RMS '
+        + ', '.join(f'R{r} {_mm(v)}' for r, v in row['settled_rms_m'].items())
+        + ', final '
+        + ', '.join(f'R{r} {_mm(v)}' for r, v in row['final_error_m'].items())
+        + f', avoidance entries {row["avoidance_entries"]}, min clearance '
+        f'{row["min_clearance_m"]}; ok={row["ok"]}; load {row["load_avg"][0]:.1f}',
+        flush=True,
+    )
+    if not row['ok']:
+        print(f'   failure: {row["failure"]}', flush=True)
+    return row
+
+
+def link_loss_part(trials: int, variants: list[str], out: Path) -> list[dict]:
+    rows = []
+    scenario = ROOT / 'test' / 'data' / 'paper_short.yaml'
+    for k in range(trials):
+        for profile in variants:
+            xml, publish_thread = VARIANTS[profile]
+            run = multihost(
+                out / f'link_{profile}_{k}',
+                '--scenario', str(scenario), '--link-down', '1:4:3', '--profile', str(xml),
+                env={'AMENT_FORMATION_PUBLISH_THREAD': '1' if publish_thread else '0'},
+            )  # fmt: skip
+            traces = run['report'].get('link_loss') or [{}]
+            tr = traces[0]
+            loops = run['report'].get('control_loops') or {}
+            row = {
+                'profile': profile,
+                'trial': k,
+                'status': run['status'],
+                'speed_at_loss_mps': tr.get('speed_at_loss_mps'),
+                'state_at_loss': tr.get('controller_state_at_loss'),
+                'controller_stop': tr.get('controller_stop'),
+                'controller_stop_after_s': tr.get('controller_stop_after_s'),
+                'time_to_rest_s': tr.get('time_to_rest_s'),
+                'distance_to_rest_m': tr.get('distance_to_rest_m'),
+                'max_speed_at_rest_mps': tr.get('max_speed_at_rest_mps'),
+                'running_after_up_s': tr.get('controller_running_after_up_s'),
+                'heard_running_after_up_s': tr.get('heard_running_after_up_s'),
+                'r1_control_gap_s': (loops.get('1') or {}).get('max_gap_s'),
+                'r0_control_gap_s': (loops.get('0') or {}).get('max_gap_s'),
+                'r0_distance_m': (tr.get('others') or {}).get('0', {}).get('distance_m'),
+                'r0_modes': (tr.get('others') or {}).get('0', {}).get('modes'),
+                'publish_longest_s': _longest_publish(out / f'link_{profile}_{k}'),
+                'load_avg': [run['load_avg_before'][0], run['load_avg_after'][0]],
+                **_health(run),
+            }
+            rows.append(row)
+            print(
+                f'link loss [{profile} profile] trial {k}: R1 at {_f(row["speed_at_loss_mps"])} '
+                f'm/s ({row["state_at_loss"]}), controller {row["controller_stop"]} after '
+                f'{_f(row["controller_stop_after_s"])} s, at rest after '
+                f'{_f(row["time_to_rest_s"])} s / {_f(row["distance_to_rest_m"])} m, running '
+                f'{_f(row["running_after_up_s"])} s after the link came back; R1 control gap '
+                f'{_f(row["r1_control_gap_s"])} s (longest rcl publish '
+                f'{_f(row["publish_longest_s"])} s); R0 went {_f(row["r0_distance_m"])} m '
+                f'{row["r0_modes"]}; ok={row["ok"]}, load {row["load_avg"][0]:.1f}',
+                flush=True,
+            )
+            if not row['ok']:
+                print(f'   failure: {row["failure"]}', flush=True)
+    return rows
+
+
+def _longest_publish(run_dir: Path):
+    """The robot process's own report of its longest rcl publish call (nodes/team.py)."""
+    try:
+        text = (run_dir / 'robot_1' / 'robot_1.log').read_text(errors='replace')
+    except OSError:
+        return None
+    for line in text.splitlines():
+        if 'publish thread:' in line and 'longest rcl publish' in line:
+            try:
+                return float(line.rsplit('longest rcl publish', 1)[1].split()[0])
+            except (IndexError, ValueError):
+                return None
+    return None
+
+
+def _k(v) -> str:
+    return 'n/a' if v is None else f'{v / 1e3:.1f} kB/s'
+
+
+def _mm(v) -> str:
+    return 'n/a' if v is None else f'{v * 1e3:.1f} mm'
+
+
+def _f(v) -> str:
+    return 'n/a' if v is None else f'{v:.3f}'
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument('--traffic', type=int, nargs='*', default=None, metavar='N')
+    ap.add_argument('--paper', action='store_true')
+    ap.add_argument('--link-loss', type=int, default=0, metavar='K')
+    ap.add_argument(
+        '--link-variants',
+        nargs='+',
+        choices=sorted(VARIANTS),
+        default=['default', 'lab'],
+        help='default: config/fastdds_udp.xml; lab: a lab profile with blocking sends; '
+        'lab_nofix: the same without the robot process publish thread (as before the fix)',
+    )
+    ap.add_argument('--duration', type=float, default=20.0)
+    ap.add_argument('--out', type=Path, default=None)
+    ap.add_argument('--json', type=Path, default=None)
+    a = ap.parse_args()
+    out = a.out or Path(tempfile.mkdtemp(prefix='bench_multihost_'))
+    out.mkdir(parents=True, exist_ok=True)
+    report: dict = {'cpus': os.cpu_count(), 'load_avg_start': os.getloadavg(), 'out': str(out)}
+    print(f'bench_multihost: runs in {out}; load average {os.getloadavg()}', flush=True)
+    if a.traffic is not None:
+        report['traffic'] = traffic_part(a.traffic or [2, 4, 8], a.duration, out)
+    if a.paper:
+        report['paper'] = paper_part(out)
+    if a.link_loss:
+        report['link_loss'] = link_loss_part(a.link_loss, a.link_variants, out)
+    report['load_avg_end'] = os.getloadavg()
+    print(f'load average at the end {os.getloadavg()}', flush=True)
+    if a.json:
+        a.json.write_text(json.dumps(report, indent=1))
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

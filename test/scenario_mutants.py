@@ -1,0 +1,156 @@
+"""Seeded mutants of the shipped scenario files: what a user's typo, a broken generator or a
+hostile file can put in front of the validator (test_scenario_limits.py, and
+bench/bench_scenario_fuzz.py, which also simulates the mutants that are accepted).
+
+``mutants(seed, count)`` yields ``(label, text)``: YAML text of one mutated scenario. Mutations
+of the parsed mapping (a value replaced by a huge, tiny, non-finite, wrongly typed, very long or
+deeply nested value; a key deleted or misspelt; a list multiplied) and of the text itself (alias
+bombs, deep nesting, truncation, flipped characters).
+"""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+import random
+
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+SHIPPED = sorted((ROOT / 'config' / 'scenarios').glob('*.yaml'))
+
+_VALUES = (
+    1e300,
+    -1e300,
+    1e15,
+    1e6 + 1,
+    -1.0,
+    0.0,
+    1e-300,
+    10**30,
+    float('nan'),
+    float('inf'),
+    True,
+    None,
+    '',
+    'x',
+    [],
+    {},
+    [1.0] * 1000,
+    {'unexpected': 1},
+)
+
+
+def _leaves(node, path=()):
+    """Every (path, value) of a nested mapping/list, collections included."""
+    yield path, node
+    if isinstance(node, dict):
+        for k, v in node.items():
+            yield from _leaves(v, path + (k,))
+    elif isinstance(node, list):
+        for i, v in enumerate(node):
+            yield from _leaves(v, path + (i,))
+
+
+def _set(root, path, value):
+    node = root
+    for key in path[:-1]:
+        node = node[key]
+    node[path[-1]] = value
+
+
+def _deep_list(depth: int) -> str:
+    return '[' * depth + '1' + ']' * depth
+
+
+def _alias_bomb(levels: int = 9, width: int = 9) -> str:
+    lines = ['a0: &a0 [x, x, x, x, x, x, x, x, x]']
+    for i in range(1, levels):
+        refs = ', '.join([f'*a{i - 1}'] * width)
+        lines.append(f'a{i}: &a{i} [{refs}]')
+    return '\n'.join(lines)
+
+
+def _mutate_mapping(rng: random.Random, data: dict) -> tuple[str, dict]:
+    data = copy.deepcopy(data)
+    paths = [p for p, _ in _leaves(data) if p]
+    path = rng.choice(paths)
+    kind = rng.randrange(9)
+    where = '.'.join(map(str, path))
+    if kind <= 3:
+        value = rng.choice(_VALUES)
+        _set(data, path, value)
+        return f'{where} = {str(value)[:20]}', data
+    if kind == 4:  # a very long value (a string of 10 MB, kept below the file limit here)
+        _set(data, path, 'v' * rng.choice((1_000, 100_000, 900_000)))
+        return f'{where} = long string', data
+    if kind == 5 and isinstance(path[-1], str):  # a key deleted or misspelt
+        parent = data
+        for key in path[:-1]:
+            parent = parent[key]
+        value = parent.pop(path[-1])
+        if rng.random() < 0.5:
+            parent[path[-1] + '_typo'] = value
+            return f'{where} misspelt', data
+        return f'{where} deleted', data
+    if kind == 6:  # a list multiplied (1000 robots, 600 obstacles)
+        lists = [p for p, v in _leaves(data) if isinstance(v, list) and v and p]
+        if lists:
+            lpath = rng.choice(lists)
+            node = data
+            for key in lpath:
+                node = node[key]
+            factor = rng.choice((10, 300, 1000))
+            _set(data, lpath, [copy.deepcopy(node[0]) for _ in range(len(node) * factor)])
+            return f'{".".join(map(str, lpath))} x{factor}', data
+    if kind == 7:  # a scalar replaced by a nested structure
+        _set(data, path, yaml.safe_load(_deep_list(rng.choice((5, 20, 30)))))
+        return f'{where} = nested list', data
+    scale = rng.choice((1e-9, 1e3, 1e9, -1.0))
+    value = None
+    for p, v in _leaves(data):
+        if p == path:
+            value = v
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        _set(data, path, value * scale)
+        return f'{where} x {scale:g}', data
+    _set(data, path, rng.choice(_VALUES))
+    return f'{where} replaced', data
+
+
+def _mutate_text(rng: random.Random, text: str) -> tuple[str, str]:
+    kind = rng.randrange(6)
+    if kind == 0:
+        return 'alias bomb', _alias_bomb() + '\n' + text
+    if kind == 1:
+        depth = rng.choice((100, 1_000, 100_000))
+        return f'nesting {depth}', text.replace('name:', f'extra: {_deep_list(depth)}\nname:', 1)
+    if kind == 2:
+        cut = rng.randrange(len(text))
+        return f'truncated at {cut}', text[:cut]
+    if kind == 3:
+        chars = list(text)
+        for _ in range(rng.randint(1, 5)):
+            chars[rng.randrange(len(chars))] = rng.choice(':-[]{}&*!|>\'"%@`#,\t\n ')
+        return 'flipped characters', ''.join(chars)
+    if kind == 4:
+        return 'recursive alias', 'loop: &l [*l]\n' + text
+    return 'duplicated document', text + '\n---\n' + text
+
+
+def mutants(seed: int, count: int):
+    """``count`` seeded mutants ``(label, yaml_text)`` of the shipped scenarios."""
+    rng = random.Random(seed)
+    sources = [(p.name, p.read_text()) for p in SHIPPED]
+    parsed = {name: yaml.safe_load(text) for name, text in sources}
+    for _ in range(count):
+        name, text = rng.choice(sources)
+        if rng.random() < 0.25:
+            label, out = _mutate_text(rng, text)
+        else:
+            label, data = _mutate_mapping(rng, parsed[name])
+            try:
+                out = yaml.safe_dump(data, sort_keys=False, width=1 << 30)
+            except (RecursionError, yaml.YAMLError):
+                continue
+        yield f'{name}: {label}', out

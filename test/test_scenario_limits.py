@@ -1,0 +1,144 @@
+"""Bounded input: a scenario file can never make the validator (or `formation sim`) crash, hang or
+exhaust memory, and every refusal is one short line (docs/scenarios.md "Limits").
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+import subprocess
+import time
+
+import pytest
+from scenario_mutants import _alias_bomb, _deep_list, mutants
+import yaml
+
+from ament_formation.core.errors import ConfigError, MAX_LINE_CHARS
+from ament_formation.core.scenario.loader import (
+    check_sim_budget,
+    load_scenario,
+    MAX_FILE_BYTES,
+    MAX_OBSTACLES,
+    MAX_ROBOTS,
+    parse_scenario_text,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+PAPER = ROOT / 'config' / 'scenarios' / 'paper.yaml'
+FORMATION = str(ROOT / '.venv' / 'bin' / 'formation')
+
+
+def _paper() -> dict:
+    return yaml.safe_load(PAPER.read_text())
+
+
+def _refused(text: str) -> str:
+    """The one-line refusal of ``text`` (fails the test on acceptance or any other error)."""
+    with pytest.raises(ConfigError) as info:
+        parse_scenario_text(text, 'mutant.yaml')
+    line = str(info.value)
+    assert '\n' not in line and len(line) <= MAX_LINE_CHARS, line
+    return line
+
+
+def test_an_alias_bomb_is_refused_without_expanding_it():
+    t0 = time.process_time()
+    line = _refused(_alias_bomb(levels=12, width=10) + '\n' + PAPER.read_text())
+    assert 'aliases are expanded' in line
+    assert time.process_time() - t0 < 5.0  # counted, not expanded (10^12 values)
+
+
+@pytest.mark.parametrize('depth', [33, 1_000, 100_000])
+def test_deep_nesting_is_refused_in_one_line(depth):
+    text = PAPER.read_text().replace('name:', f'extra: {_deep_list(depth)}\nname:', 1)
+    assert 'nested deeper than 32' in _refused(text)
+
+
+def test_a_recursive_alias_is_refused():
+    assert 'recursive alias' in _refused('loop: &l [*l]\n' + PAPER.read_text())
+
+
+def test_a_huge_value_is_shown_as_a_short_excerpt():
+    data = _paper()
+    data['duration_s'] = 'd' * 900_000
+    line = _refused(yaml.safe_dump(data, sort_keys=False))
+    assert 'duration_s' in line and '(900000 chars)' in line
+
+
+@pytest.mark.parametrize(
+    ('mutate', 'phrase'),
+    [
+        (lambda d: d.update(duration_s=1e5), 'duration_s: must be <= 86400'),
+        (lambda d: d.update(duration_s=1e15), 'duration_s: must be within'),
+        (lambda d: d.update(duration_s=1e300), 'duration_s: must be within'),
+        (lambda d: d['robots'][0].update(initial_pose=[1e300, 0.0, 0.0]), 'must be within'),
+        (lambda d: d['disturbance'].update(seed=10**30), 'disturbance.seed: must be within'),
+        (lambda d: d['camera'].update(width_px=10**6), 'camera.width_px: must be > 0 and <='),
+        (
+            lambda d: d.update(robots=d['robots'] * (MAX_ROBOTS // 2 + 1)),
+            f'robots: {2 * (MAX_ROBOTS // 2 + 1)} robots; at most {MAX_ROBOTS}',
+        ),
+        (
+            lambda d: d.update(obstacles=d['obstacles'] * 300),
+            f'obstacles: 600 obstacles; at most {MAX_OBSTACLES}',
+        ),
+    ],
+)
+def test_sizes_beyond_the_machine_are_refused(mutate, phrase):
+    data = _paper()
+    mutate(data)
+    t0 = time.process_time()
+    assert phrase in _refused(yaml.safe_dump(data, sort_keys=False))
+    assert time.process_time() - t0 < 5.0
+
+
+def test_a_file_over_the_size_limit_is_refused_before_it_is_read(tmp_path):
+    big = tmp_path / 'big.yaml'
+    big.write_text(PAPER.read_text() + '#' * MAX_FILE_BYTES)
+    with pytest.raises(ConfigError, match='a scenario is at most'):
+        load_scenario(big)
+
+
+def test_the_simulation_budget_names_what_is_over():
+    data = _paper()
+    data['duration_s'] = 86_000.0
+    scenario = parse_scenario_text(yaml.safe_dump(data, sort_keys=False))
+    with pytest.raises(ConfigError, match='robot-steps, over the budget') as info:
+        check_sim_budget(scenario, 0.001, 0.01)
+    assert len(str(info.value)) <= MAX_LINE_CHARS
+    check_sim_budget(load_scenario(PAPER), 0.001, 0.01)  # the shipped scenario fits
+
+
+def test_formation_sim_refuses_an_over_budget_scenario_in_one_line(tmp_path):
+    data = _paper()
+    data['duration_s'] = 80_000.0
+    path = tmp_path / 'long.yaml'
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    res = subprocess.run(
+        [FORMATION, 'sim', str(path), '--out', str(tmp_path / 'out'), '--quiet'],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert res.returncode == 2, res.stderr
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and 'over the budget' in lines[0] and len(lines[0]) < 320
+
+
+def test_seeded_mutants_of_the_shipped_files_never_crash_the_validator():
+    """150 seeded mutants (tools: test/scenario_mutants.py): each is accepted or refused with a
+    ConfigError of one line under 300 characters; never another exception, never slow.
+    """
+    refused = accepted = 0
+    for label, text in mutants(seed=20261201, count=150):
+        t0 = time.process_time()
+        try:
+            parse_scenario_text(text, 'mutant.yaml')
+            accepted += 1
+        except ConfigError as err:
+            line = str(err)
+            assert '\n' not in line and len(line) <= MAX_LINE_CHARS, (label, line)
+            refused += 1
+        except Exception as err:  # noqa: BLE001 - the property under test
+            pytest.fail(f'{label}: {type(err).__name__}: {str(err)[:200]}')
+        assert time.process_time() - t0 < 10.0, label
+    assert refused > 50 and accepted > 5  # the mutants exercise both outcomes
