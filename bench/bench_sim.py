@@ -98,8 +98,9 @@ def scalar_baseline(scenario, n_steps: int) -> float:
     kernels).
     """
     from ament_formation.core.control.automaton import SwitchingParams
-    from ament_formation.core.control.kernels import disturbance_k, rk4_step_k
     from ament_formation.core.control.law import robot_law
+    from ament_formation.core.model.disturbance import disturbance_k
+    from ament_formation.core.model.dynamics import rk4_step_k
     from ament_formation.core.model.obstacles import obstacle_states
     from ament_formation.core.sim import simulator as S
 

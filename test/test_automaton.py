@@ -7,15 +7,14 @@ import pytest
 
 from ament_formation.core.control.automaton import (
     AutomatonState,
-    choose_direction,
     exit_conditions,
     MODE_C,
     MODE_OBSTACLE,
-    ray_time,
-    segment_hits,
     SwitchingParams,
 )
 from ament_formation.core.control.encounters import decide_once, KIND_OBSTACLE
+from ament_formation.core.control.limit_cycle import choose_direction
+from ament_formation.core.model.ellipse import ray_time, segment_hits
 
 PRM = SwitchingParams().as_array()
 AV = SwitchingParams().avoidance

@@ -13,9 +13,9 @@ from ament_formation.core.control.controller import (
     NeighbourState,
     RobotController,
 )
-from ament_formation.core.control.kernels import rk4_step_k
 from ament_formation.core.control.rewiring import FormationGraph
 from ament_formation.core.model.disturbance import Disturbance
+from ament_formation.core.model.dynamics import rk4_step_k
 from ament_formation.core.scenario.loader import load_scenario
 from ament_formation.core.sim.simulator import simulate
 

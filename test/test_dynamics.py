@@ -4,18 +4,10 @@ from __future__ import annotations
 
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from kernel_set import kn
 import numpy as np
-import pytest
-
-from ament_formation.core.control import kernels as kn
-from ament_formation.core.errors import ConfigError
-from ament_formation.core.model.disturbance import Disturbance
-from ament_formation.core.model.dynamics import (
-    b2,
-    b2_inv,
+from oracle_dynamics import (
     commanded_point_accel,
-    f2,
-    PlantCoeffs,
     point_accel,
     point_velocity,
     rk4_step,
@@ -23,6 +15,16 @@ from ament_formation.core.model.dynamics import (
     s1_inv,
     s1dot_x2,
     state_derivative,
+)
+import pytest
+
+from ament_formation.core.errors import ConfigError
+from ament_formation.core.model.disturbance import Disturbance
+from ament_formation.core.model.dynamics import (
+    b2,
+    b2_inv,
+    f2,
+    PlantCoeffs,
 )
 from ament_formation.core.params import RobotParams
 

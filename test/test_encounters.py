@@ -12,7 +12,6 @@ import pytest
 
 from ament_formation.core.control.automaton import (
     AutomatonState,
-    design_gains,
     MODE_C,
     MODE_MUTUAL,
     MODE_OBSTACLE,
@@ -25,8 +24,8 @@ from ament_formation.core.control.automaton import (
     SwitchingParams,
 )
 from ament_formation.core.control.encounters import decide_once, reacts_to
-from ament_formation.core.control.kernels import ellipse_field_k, gain_schedule_k
 from ament_formation.core.control.law import robot_law
+from ament_formation.core.control.limit_cycle import design_gains, ellipse_field_k, gain_schedule_k
 from ament_formation.core.scenario.loader import parse_scenario
 from ament_formation.core.sim.metrics import compute_metrics
 from ament_formation.core.sim.simulator import simulate

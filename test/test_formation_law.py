@@ -4,19 +4,20 @@ from __future__ import annotations
 
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from kernel_set import kn
 import numpy as np
-
-from ament_formation.core.control import kernels as kn
-from ament_formation.core.control.formation import (
+from oracle_dynamics import point_velocity
+from oracle_formation import (
     dphi,
     follower_field,
     leader_field,
     phi,
     tracking_field,
 )
-from ament_formation.core.control.smc import sliding_mode_torque
+from oracle_smc import sliding_mode_torque
+
 from ament_formation.core.model.disturbance import Disturbance
-from ament_formation.core.model.dynamics import PlantCoeffs, point_velocity
+from ament_formation.core.model.dynamics import PlantCoeffs
 from ament_formation.core.params import ControlGains, RobotParams
 
 GAINS = ControlGains()

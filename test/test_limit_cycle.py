@@ -4,13 +4,13 @@ from __future__ import annotations
 
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from kernel_set import kn
 import numpy as np
-import pytest
-
-from ament_formation.core.control import kernels as kn
-from ament_formation.core.control.limit_cycle import (
+from oracle_limit_cycle import (
     choose_direction,
     design_gains,
+    eccentric_anomaly,
+    ellipse_arc_length,
     ellipse_coeffs,
     ellipse_h,
     ellipse_h_dot,
@@ -21,8 +21,10 @@ from ament_formation.core.control.limit_cycle import (
     parking_factor,
     ray_hits_ellipse,
     segment_hits_ellipse,
-    signed_distance_to_ellipse,
 )
+import pytest
+
+from ament_formation.core.model.ellipse import signed_distance_to_ellipse
 from ament_formation.core.params import AvoidanceParams
 
 SEEDS = st.integers(0, 2**31 - 1)
@@ -348,11 +350,10 @@ def test_ray_and_segment_tests_agree_with_brute_force(seed):
     np.testing.assert_array_equal(seg[clear], (hh.min(axis=1) <= 0)[clear])
     assert 0.1 < seg.mean() < 0.9
     for i in range(0, n, 3):
-        rh, rl = kn.ray_hits_ellipse_k(*z[i], *zd[i], phi[i], r1[i], r2[i])
-        assert rh == hit[i] and (rl == lam[i] or abs(rl - lam[i]) <= 1e-12 * max(1.0, lam[i]))
-        assert (
-            kn.segment_hits_ellipse_k(*p0[i], *p1[i], *center[i], phi[i], r1[i], r2[i]) == seg[i]
-        )
+        rl = kn.ray_time(*z[i], *zd[i], phi[i], r1[i], r2[i])
+        assert (rl < np.inf) == hit[i]
+        assert rl == lam[i] or abs(rl - lam[i]) <= 1e-9 * max(1.0, lam[i])
+        assert kn.segment_hits(*p0[i], *p1[i], *center[i], phi[i], r1[i], r2[i]) == seg[i]
 
 
 @settings(max_examples=8, deadline=None)
@@ -411,6 +412,58 @@ def test_kernel_field_matches_numpy():
         np.testing.assert_allclose(res[0:2], out.f[i], rtol=1e-12, atol=1e-14)
         np.testing.assert_allclose(res[2:4], out.f_dot[i], rtol=1e-12, atol=1e-14)
         np.testing.assert_allclose(res[4:6], (out.h[i], out.h_dot[i]), rtol=1e-12, atol=1e-14)
-        assert kn.ellipse_h_k(*z[i], phi[i], r1[i], r2[i]) == pytest.approx(
+        assert kn.h_value(*z[i], phi[i], r1[i], r2[i]) == pytest.approx(
             out.h[i], rel=1e-12, abs=1e-14
         )
+
+
+@FEW
+@given(seed=SEEDS)
+def test_compiled_gain_design_and_direction_match_the_oracle(seed):
+    """S6.5/S6.6 as the automaton runs them (core/control/limit_cycle.py) against the numpy
+    oracle: the same gains; the same rotation sense wherever the arc lengths are not within
+    rounding of the rule-3 margin (the kernel's 64-node midpoint rule and the oracle's
+    Gauss-Legendre agree to 1e-6 of the perimeter).
+    """
+    from ament_formation.core.control import limit_cycle as lc
+    from ament_formation.core.control.automaton import SwitchingParams
+
+    rng = np.random.default_rng(seed)
+    sw = SwitchingParams()
+    av, prm = sw.avoidance, sw.as_array()
+    n = 40
+    phi, r1, r2 = _ellipses(rng, n)
+    for i in range(n):
+        assert lc.design_gains(r1[i], r2[i], av.tangential_speed_mps, prm) == pytest.approx(
+            design_gains(r1[i], r2[i], av), rel=1e-14
+        )
+    big1, big2 = av.limit_cycle_scale * r1, av.limit_cycle_scale * r2
+    for i in range(n):
+        psi0, dpsi = rng.uniform(-np.pi, np.pi), rng.uniform(0, 2 * np.pi)
+        assert lc.arc_length(psi0, dpsi, big1[i], big2[i]) == pytest.approx(
+            float(ellipse_arc_length(psi0, dpsi, big1[i], big2[i])),
+            rel=1e-6,
+            abs=1e-6 * float(ellipse_perimeter(big1[i], big2[i])),
+        )
+    z = rng.uniform(-1.6, 1.6, (n, 2)) * r1[:, None]
+    zd = rng.normal(size=(n, 2)) * 0.05
+    goal = rng.uniform(-3, 3, (n, 2))
+    gd = rng.normal(size=(n, 2)) * 0.05
+    cv = rng.normal(size=(n, 2)) * 0.02
+    look = 2 * av.protected_scale * r1
+    for tie in (True, False):
+        want = choose_direction(z, zd, goal, gd, cv, phi, big1, big2, look, tie)
+        for i in range(n):
+            rel = gd[i] - cv[i]
+            sp = float(np.hypot(*rel))
+            g_la = goal[i] + (look[i] / sp * rel if sp > 1e-9 else 0.0)
+            psi_a = float(eccentric_anomaly(z[i][None], phi[i], big1[i], big2[i])[0])
+            psi_g = float(eccentric_anomaly(g_la[None], phi[i], big1[i], big2[i])[0])
+            per = float(ellipse_perimeter(big1[i], big2[i]))
+            lp = float(ellipse_arc_length(psi_a, (psi_g - psi_a) % (2 * np.pi), big1[i], big2[i]))
+            if abs(abs(2 * lp - per) - 0.1 * per) < 1e-4 * per:
+                continue  # a tie within quadrature error of the rule-3 margin
+            got = lc.choose_direction(
+                *z[i], *zd[i], *goal[i], *rel, phi[i], big1[i], big2[i], look[i], tie
+            )
+            assert got == want[i], i

@@ -27,8 +27,8 @@ import numpy as np
 import pytest
 import yaml
 
-from ament_formation.core.control.limit_cycle import signed_distance_to_ellipse
 from ament_formation.core.errors import ConfigError
+from ament_formation.core.model.ellipse import signed_distance_to_ellipse
 from ament_formation.core.model.obstacles import ObstacleField
 from ament_formation.core.scenario.loader import load_scenario, parse_scenario
 from ament_formation.core.sim.scene import (

@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 
-from ament_formation.core.control.limit_cycle import signed_distance_to_ellipse
+from ament_formation.core.model.ellipse import signed_distance_to_ellipse
 from ament_formation.core.model.obstacles import ObstacleField
 from ament_formation.core.scenario.loader import parse_scenario
 from ament_formation.core.sim.metrics import (

@@ -4,24 +4,19 @@ from __future__ import annotations
 
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from kernel_set import kn
 import numpy as np
-
-from ament_formation.core.control import kernels as kn
-from ament_formation.core.control.smc import (
+from oracle_dynamics import point_accel, point_velocity, rk4_step, s1_inv
+from oracle_smc import (
     reaching_time_bound,
     saturate_torque,
     sliding_mode_torque,
     sliding_mode_torque_raw,
     switching_gain_for,
 )
+
 from ament_formation.core.model.disturbance import Disturbance
-from ament_formation.core.model.dynamics import (
-    PlantCoeffs,
-    point_accel,
-    point_velocity,
-    rk4_step,
-    s1_inv,
-)
+from ament_formation.core.model.dynamics import PlantCoeffs
 from ament_formation.core.params import ControlGains, RobotParams
 
 GAINS = ControlGains()

@@ -75,7 +75,7 @@ def test_shortened_paper_run_all_nodes_in_one_process(ros_context, executor, tmp
 
     # leader round O1: positive clearance, back on its path at the end
     o1 = next(o for o in sc.obstacles if o.name == 'O1')
-    from ament_formation.core.control.limit_cycle import signed_distance_to_ellipse
+    from ament_formation.core.model.ellipse import signed_distance_to_ellipse
 
     dist = signed_distance_to_ellipse(
         x[:, 0, :2], np.asarray(o1.center_m), o1.orientation_rad, *o1.semi_axes_m

@@ -93,7 +93,7 @@ from ament_formation.core.control.controller import fast_reference, NeighbourSta
 from ament_formation.core.control.estimator import EstimatorParams, PoseEstimator
 from ament_formation.core.control.rewiring import FormationGraph
 from ament_formation.core.errors import ConfigError
-from ament_formation.core.model.dynamics import b2_inv, f2, PlantCoeffs
+from ament_formation.core.model.dynamics import b2_inv, f2, PlantCoeffs, point_velocity_k
 from ament_formation.core.params import ControlGains, param
 from ament_formation.core.scenario.loader import load_scenario
 from ament_formation.ros import diagnostics as diag
@@ -603,10 +603,9 @@ class ControllerNode(Node):
             if xp is None:
                 return None, None
             x, y, th, v, w = xp.tolist()
-            c, s = math.cos(th), math.sin(th)
             hit = (
                 np.array([x + offset[0], y + offset[1]]),
-                np.array([v * c - d * w * s, v * s + d * w * c]),
+                np.array(point_velocity_k(th, v, w, d)),
             )
         cache[rid] = hit
         return hit

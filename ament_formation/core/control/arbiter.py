@@ -31,7 +31,7 @@ from ament_formation.core.control.controller import EncounterAssignment
 from ament_formation.core.control.encounters import decide, KIND_OBSTACLE
 from ament_formation.core.control.law import gains_vector, goal_fields
 from ament_formation.core.control.rewiring import FormationGraph
-from ament_formation.core.model.dynamics import PlantCoeffs
+from ament_formation.core.model.dynamics import PlantCoeffs, point_velocities
 from ament_formation.core.model.obstacles import obstacle_arrays, obstacle_states
 
 
@@ -130,15 +130,7 @@ class EncounterArbiter:
             np.stack([np.asarray(states[r], dtype=float).reshape(5) for r in known])
         )
         d = self._d[rows]
-        pd = np.ascontiguousarray(
-            np.stack(
-                [
-                    x[:, 3] * np.cos(x[:, 2]) - d * x[:, 4] * np.sin(x[:, 2]),
-                    x[:, 3] * np.sin(x[:, 2]) + d * x[:, 4] * np.cos(x[:, 2]),
-                ],
-                axis=1,
-            )
-        )
+        pd = point_velocities(x, np.ascontiguousarray(d))
         ref = np.zeros((n, 6))
         orig_parent = np.full(n, -1, dtype=np.int64)
         orig_offset = np.zeros((n, 2))

@@ -35,6 +35,7 @@ from numba import njit
 import numpy as np
 
 from ament_formation.core.errors import ConfigError
+from ament_formation.core.model.ellipse import ellipse_coords, h_value, ray_time, segment_hits
 from ament_formation.core.params import AvoidanceParams
 
 MODE_C = 0
@@ -135,62 +136,6 @@ P_LEN = 24
 
 
 @njit(cache=True)
-def ellipse_coords(zx, zy, phi, r1, r2):
-    """Normalised body coordinates (U, W) = (u/r1, w/r2) of z (S6.2); h = U^2 + W^2 - 1."""
-    c = math.cos(phi)
-    s = math.sin(phi)
-    return (c * zx + s * zy) / r1, (-s * zx + c * zy) / r2
-
-
-@njit(cache=True)
-def h_value(zx, zy, phi, r1, r2):
-    """Ellipse function h = z^T A z - 1 of the ellipse (r1, r2, phi) (S6.2)."""
-    u, w = ellipse_coords(zx, zy, phi, r1, r2)
-    return u * u + w * w - 1.0
-
-
-@njit(cache=True)
-def ray_time(zx, zy, vx, vy, phi, r1, r2):
-    """Smallest lambda >= 0 with z + lambda v inside the ellipse (S8 heading test).
-
-    0 when z is already inside, +inf when the ray misses. With v a velocity, lambda is a time [s].
-    """
-    u, w = ellipse_coords(zx, zy, phi, r1, r2)
-    du, dw = ellipse_coords(vx, vy, phi, r1, r2)
-    q0 = u * u + w * w - 1.0
-    if q0 <= 0.0:
-        return 0.0
-    a = du * du + dw * dw
-    if a <= 1e-24:
-        return INF
-    b = 2.0 * (u * du + w * dw)
-    disc = b * b - 4.0 * a * q0
-    if disc < 0.0:
-        return INF
-    lam = (-b - math.sqrt(disc)) / (2.0 * a)
-    if lam < 0.0:
-        return INF
-    return lam
-
-
-@njit(cache=True)
-def segment_hits(p0x, p0y, p1x, p1y, cx, cy, phi, r1, r2):
-    """True when the segment [p0, p1] meets the ellipse (centre c) (S8.3 item 1)."""
-    u0, w0 = ellipse_coords(p0x - cx, p0y - cy, phi, r1, r2)
-    u1, w1 = ellipse_coords(p1x - cx, p1y - cy, phi, r1, r2)
-    du = u1 - u0
-    dw = w1 - w0
-    a = du * du + dw * dw
-    lam = 0.0
-    if a > 1e-24:
-        lam = -(u0 * du + w0 * dw) / a
-        lam = min(1.0, max(0.0, lam))
-    u = u0 + lam * du
-    w = w0 + lam * dw
-    return u * u + w * w <= 1.0
-
-
-@njit(cache=True)
 def relative_velocity(zx, zy, vx, vy, cvx, cvy, phi_dot):
     """S14.2: robot velocity relative to the obstacle's material point at z,
     p_dot - (c_dot + phi_dot J z).
@@ -249,85 +194,6 @@ def exit_conditions(px, py, gx, gy, vcx, vcy, cx, cy, cvx, cvy, phi, phi_dot, r1
     if h_dot_sign_value(zx, zy, rvx, rvy, phi, r1, r2) >= 0.0:
         return True
     return ray_time(zx, zy, rvx, rvy, phi, prm[P_IN] * r1, prm[P_IN] * r2) == INF
-
-
-@njit(cache=True)
-def anomaly(zx, zy, phi, r1, r2):
-    """Eccentric anomaly psi = atan2(w/R2, u/R1) of z on the ellipse (S6.5)."""
-    u, w = ellipse_coords(zx, zy, phi, r1, r2)
-    return math.atan2(w, u)
-
-
-@njit(cache=True)
-def arc_length(psi0, dpsi, r1, r2):
-    """Length of the ellipse arc from anomaly psi0 over dpsi >= 0 (midpoint rule, 64 nodes)."""
-    n = 64
-    h = dpsi / n
-    total = 0.0
-    for k in range(n):
-        p = psi0 + (k + 0.5) * h
-        sp = math.sin(p)
-        cp = math.cos(p)
-        total += math.sqrt(r1 * r1 * sp * sp + r2 * r2 * cp * cp)
-    return total * h
-
-
-@njit(cache=True)
-def choose_direction(
-    zx, zy, zdx, zdy, gx, gy, gdx, gdy, phi, big_r1, big_r2, look_ahead_m, velocity_tiebreak
-):
-    """Rotation sense s (+1 CCW, -1 CW) at entry, S6.6 rules 1-4 and 7.
-
-    z, z_dot: robot relative to the target centre; g, g_dot: goal relative to the centre and its
-    velocity relative to the centre's velocity; (big_r1, big_r2) = L. ``look_ahead_m`` = 2 kappa r1
-    (rule 1). Ties (rule 3 margin 10 % of the perimeter) go to sign((M z).z_dot) when
-    ``velocity_tiebreak`` (rule 4, obstacles) and to +1 otherwise (rule 7, yielding to a robot).
-    """
-    n = math.hypot(gdx, gdy)
-    if n > 1e-9:
-        gx += look_ahead_m * gdx / n
-        gy += look_ahead_m * gdy / n
-    psi_a = anomaly(zx, zy, phi, big_r1, big_r2)
-    psi_g = anomaly(gx, gy, phi, big_r1, big_r2)
-    dpsi = (psi_g - psi_a) % (2.0 * math.pi)
-    l_plus = arc_length(psi_a, dpsi, big_r1, big_r2)
-    perim = arc_length(0.0, 2.0 * math.pi, big_r1, big_r2)
-    l_minus = perim - l_plus
-    if l_plus < l_minus - 0.1 * perim:
-        return 1.0
-    if l_minus < l_plus - 0.1 * perim:
-        return -1.0
-    if not velocity_tiebreak:
-        return 1.0
-    c = math.cos(phi)
-    s = math.sin(phi)
-    a2 = big_r1 * big_r1
-    b2 = big_r2 * big_r2
-    h1 = (a2 - b2) * s * c
-    h2 = a2 * c * c + b2 * s * s
-    h3 = a2 * s * s + b2 * c * c
-    mx = h1 * zx - h2 * zy
-    my = h3 * zx - h1 * zy
-    return 1.0 if mx * zdx + my * zdy >= 0.0 else -1.0
-
-
-@njit(cache=True)
-def design_gains(r1, r2, v_tan, prm):
-    """S6.5 design: psi_dot_max = v_tan / sqrt(R1 R2), c_max = v_rad / (kappa sqrt(r1 r2) h_Q)."""
-    rho_l = prm[P_L]
-    kappa = prm[P_KAPPA]
-    big = rho_l * math.sqrt(r1 * r2)
-    h_q = (kappa / rho_l) ** 2 - 1.0
-    return v_tan / big, prm[P_VRAD] / (kappa * math.sqrt(r1 * r2) * h_q)
-
-
-@njit(cache=True)
-def gain_beta(t_since_s, prm):
-    """beta(t) and beta_dot(t) of the S6.5 schedule (beta0 start, time constant tau_g)."""
-    beta0 = prm[P_BETA0]
-    tau = prm[P_TAU_G]
-    e = math.exp(-max(t_since_s, 0.0) / tau)
-    return 1.0 - (1.0 - beta0) * e, (1.0 - beta0) * e / tau
 
 
 @njit(cache=True)

@@ -33,7 +33,7 @@ from ament_formation.core.control.automaton import (
 from ament_formation.core.control.encounters import decide
 from ament_formation.core.control.law import gains_vector, goal_fields, robot_law
 from ament_formation.core.errors import ConfigError
-from ament_formation.core.model.dynamics import PlantCoeffs
+from ament_formation.core.model.dynamics import PlantCoeffs, point_velocities
 from ament_formation.core.model.obstacles import (
     obstacle_arrays,
     obstacle_states,
@@ -505,13 +505,7 @@ class RobotController:
             r, rd, rdd = self.leader_path.reference(float(t_s))
             ref[me] = np.concatenate([np.asarray(r), np.asarray(rd), np.asarray(rdd)])
         d = coeffs[4]
-        pd = np.stack(
-            [
-                x[:, 3] * np.cos(x[:, 2]) - d * x[:, 4] * np.sin(x[:, 2]),
-                x[:, 3] * np.sin(x[:, 2]) + d * x[:, 4] * np.cos(x[:, 2]),
-            ],
-            axis=1,
-        )
+        pd = point_velocities(x, np.ascontiguousarray(d))
         m = len(self.obstacle_names)
         if obstacles is None:
             oc, ov, oa = np.empty((m, 2)), np.empty((m, 2)), np.empty((m, 2))

@@ -48,10 +48,8 @@ from numba import njit
 import numpy as np
 
 from ament_formation.core.control.automaton import (
-    choose_direction,
     exit_conditions,
     exit_timer,
-    h_value,
     in_cooldown,
     INF,
     MODE_C,
@@ -68,6 +66,8 @@ from ament_formation.core.control.automaton import (
     relative_velocity,
     threat_test,
 )
+from ament_formation.core.control.limit_cycle import choose_direction
+from ament_formation.core.model.ellipse import h_value
 
 KIND_OBSTACLE = 1  # cool-down bookkeeping: last target was an obstacle
 KIND_AGENT = 2  # ... or a robot

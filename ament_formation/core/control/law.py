@@ -16,7 +16,6 @@ from numba import njit
 import numpy as np
 
 from ament_formation.core.control.automaton import (
-    design_gains,
     MODE_C,
     MODE_MUTUAL,
     MODE_OBSTACLE,
@@ -29,13 +28,14 @@ from ament_formation.core.control.automaton import (
     P_VTAN_AGENT,
 )
 from ament_formation.core.control.encounters import keepout_radius
-from ament_formation.core.control.kernels import (
+from ament_formation.core.control.formation import tracking_field_k
+from ament_formation.core.control.limit_cycle import (
+    design_gains,
     ellipse_field_k,
     gain_schedule_k,
     parking_factor_k,
-    smc_torque_k,
-    tracking_field_k,
 )
+from ament_formation.core.control.smc import smc_torque_k
 
 # gains vector layout for the compiled code
 G_K, G_EPS, G_ALPHA, G_VCAP, G_LAMBDA = range(5)

@@ -3,8 +3,8 @@
 g_k(t) = sum_m A_km sin(2 pi f_km t + phi_km) per robot, with A_km >= 0 and sum_m A_km = g_bar_k,
 so |g1| <= g1_bar [m/s^2] and |g2| <= g2_bar [rad/s^2] hold exactly, g is C-infinity and the
 derivatives are bounded. Frequencies and phases are drawn from ``numpy.random.default_rng(seed)``:
-the same seed gives the same disturbance. Numba twin:
-:func:`ament_formation.core.control.kernels.disturbance_k`.
+the same seed gives the same disturbance. The closed loop evaluates it per robot with the kernels
+:func:`disturbance_k` (direct) and :func:`disturbance_phasor_advance_k` (phasor rotation).
 """
 
 from __future__ import annotations
@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 import math
 
+from numba import njit
 import numpy as np
 
 from ament_formation.core.errors import ConfigError
@@ -117,3 +118,55 @@ class Disturbance:
             self.freq_hz[index].reshape(-1, 2, m),
             self.phase_rad[index].reshape(-1, 2, m),
         )
+
+
+@njit(cache=True)
+def disturbance_k(t, amp, freq, phase):
+    """g(t) = sum_m A sin(2 pi f t + phi) for one robot; amp/freq/phase (2, M) -> (g1, g2)."""
+    g1 = 0.0
+    g2 = 0.0
+    for m in range(amp.shape[1]):
+        g1 += amp[0, m] * math.sin(2.0 * math.pi * freq[0, m] * t + phase[0, m])
+        g2 += amp[1, m] * math.sin(2.0 * math.pi * freq[1, m] * t + phase[1, m])
+    return g1, g2
+
+
+@njit(cache=True)
+def disturbance_phasor_init_k(t, freq, phase, sin_out, cos_out):
+    """Start the phasors of one robot at time t:
+    sin_out/cos_out (2, M) = sin/cos(2 pi f t + phi).
+    """
+    for k in range(2):
+        for m in range(freq.shape[1]):
+            arg = 2.0 * math.pi * freq[k, m] * t + phase[k, m]
+            sin_out[k, m] = math.sin(arg)
+            cos_out[k, m] = math.cos(arg)
+
+
+@njit(cache=True)
+def disturbance_phasor_advance_k(amp, sin_st, cos_st, cos_step, sin_step):
+    """Rotate the phasors of one robot by one step (angles 2 pi f h, from
+    :meth:`Disturbance.step_rotation`) in place and return g (g1, g2) at the new time.
+
+    No transcendental call per step: a closed loop with fixed dt evaluates g at t + dt/2 and t + dt
+    by two half-step rotations (reusing g(t) of the previous step). Rounding drift is ~1e-16 per
+    step relative to the bound; re-initialise with :func:`disturbance_phasor_init_k` now and then.
+    """
+    g1 = 0.0
+    g2 = 0.0
+    for m in range(amp.shape[1]):
+        s0 = sin_st[0, m]
+        c0 = cos_st[0, m]
+        sn = s0 * cos_step[0, m] + c0 * sin_step[0, m]
+        cn = c0 * cos_step[0, m] - s0 * sin_step[0, m]
+        sin_st[0, m] = sn
+        cos_st[0, m] = cn
+        g1 += amp[0, m] * sn
+        s0 = sin_st[1, m]
+        c0 = cos_st[1, m]
+        sn = s0 * cos_step[1, m] + c0 * sin_step[1, m]
+        cn = c0 * cos_step[1, m] - s0 * sin_step[1, m]
+        sin_st[1, m] = sn
+        cos_st[1, m] = cn
+        g2 += amp[1, m] * sn
+    return g1, g2

@@ -1,9 +1,14 @@
 """Differential-drive robot dynamics with the CoM ahead of the axle (spec S2.1, S2.2).
 
-Implements S2.2: the kinematics (16)-(18), the dynamics (19)-(20) in control-affine form
-x2dot = f2(x2) + B2 u + g, the output map S1(theta) (23) with its inverse and S1dot x2, the point
-acceleration p_ddot = S1 (f2 + B2 u + g) + S1dot x2, and a vectorised RK4 step with zero-order-hold
-torques. Numba scalar twins of the hot path live in :mod:`ament_formation.core.control.kernels`.
+Implements S2.2 as numba scalar kernels for ONE robot (the closed loop, the controller and the
+twin call them): the state derivative (16)-(20) (:func:`state_derivative_k`), the RK4 step with
+zero-order-hold torques (:func:`rk4_step_k`), the point velocity p_dot = S1(theta) x2
+(:func:`point_velocity_k`, the one place it is written) and the commanded point acceleration
+S1 (f2 + B2 u) + S1dot x2 (:func:`commanded_point_accel_k`); plus the plant coefficients and the
+control-affine terms f2(x2), B2 and B2^-1 for vectorised callers (the controlled stop).
+Plant coefficients go to the kernels as scalars in the order (mt, It, r, a, d, mc[, tau_max]) =
+(m~ [kg], I~ [kg m^2], wheel radius [m], axle length [m], CoM offset d [m], platform mass [kg],
+torque limit [N m]): the fields of :class:`PlantCoeffs`.
 
 Conventions: N robots; ``state`` (N, 5) rows [x_m, y_m, theta_rad, v_mps, omega_radps] where (x, y)
 is the controlled point p (CoM, distance d ahead of the axle midpoint); ``torque`` (N, 2) rows
@@ -13,8 +18,10 @@ is the controlled point p (CoM, distance d ahead of the axle midpoint); ``torque
 from __future__ import annotations
 
 from dataclasses import dataclass
+import math
 from typing import Callable, Sequence
 
+from numba import njit
 import numpy as np
 
 from ament_formation.core.errors import ConfigError
@@ -118,123 +125,147 @@ def b2_inv(k: PlantCoeffs) -> np.ndarray:
     return out
 
 
-def s1(theta: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """Output map S1(theta) = [[cos, -d sin], [sin, d cos]] (23). Returns (N, 2, 2)."""
-    c = np.cos(theta)
-    s = np.sin(theta)
-    d = np.broadcast_to(d, c.shape)
-    return np.stack((np.stack((c, -d * s), -1), np.stack((s, d * c), -1)), axis=-2)
+# ------------------------------------------------------------------------------- S2.2 kernels
 
 
-def s1_inv(theta: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """S1^-1 = [[cos, sin], [-sin/d, cos/d]] (S2.2; det S1 = d > 0). Returns (N, 2, 2)."""
-    c = np.cos(theta)
-    s = np.sin(theta)
-    d = np.broadcast_to(d, c.shape)
-    return np.stack((np.stack((c, s), -1), np.stack((-s / d, c / d), -1)), axis=-2)
+@njit(cache=True)
+def state_derivative_k(x, y, th, v, w, t1, t2, g1, g2, mt, It, r, a, d, mc):
+    """Xdot of (16)-(20) for one robot -> (xdot, ydot, thdot, vdot, wdot)."""
+    mcd = mc * d
+    dx, dy = point_velocity_k(th, v, w, d)
+    dv = mcd / mt * w * w + (t1 + t2) / (mt * r) + g1
+    dw = -mcd / It * w * v + a / (2.0 * It * r) * (t2 - t1) + g2
+    return dx, dy, w, dv, dw
 
 
-def s1dot_x2(state: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """S1dot x2 = w [-v sin - d w cos, v cos - d w sin] (S2.2). Returns (N, 2) [m/s^2]."""
-    th = state[:, 2]
-    v = state[:, 3]
-    w = state[:, 4]
-    c = np.cos(th)
-    s = np.sin(th)
-    return np.stack((w * (-v * s - d * w * c), w * (v * c - d * w * s)), axis=1)
-
-
-def point_velocity(state: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """p_dot = S1(theta) x2, eqs. (16)-(17). Returns (N, 2) [m/s]."""
-    th = state[:, 2]
-    v = state[:, 3]
-    w = state[:, 4]
-    c = np.cos(th)
-    s = np.sin(th)
-    return np.stack((v * c - d * w * s, v * s + d * w * c), axis=1)
-
-
-def _x2dot(state: np.ndarray, torque: np.ndarray, k: PlantCoeffs) -> np.ndarray:
-    """f2 + B2 u (disturbance-free), (19)-(20). Returns (N, 2)."""
-    v = state[:, 3]
-    w = state[:, 4]
-    mcd = k.m_c * k.d
-    t1 = torque[:, 0]
-    t2 = torque[:, 1]
-    vdot = mcd / k.m_tilde * w * w + (t1 + t2) / (k.m_tilde * k.r)
-    wdot = -mcd / k.I_tilde * w * v + k.a / (2.0 * k.I_tilde * k.r) * (t2 - t1)
-    return np.stack((vdot, wdot), axis=1)
-
-
-def _s1_apply(theta: np.ndarray, d: np.ndarray, vec: np.ndarray) -> np.ndarray:
-    c = np.cos(theta)
-    s = np.sin(theta)
-    return np.stack((c * vec[:, 0] - d * s * vec[:, 1], s * vec[:, 0] + d * c * vec[:, 1]), axis=1)
-
-
-def commanded_point_accel(state: np.ndarray, torque: np.ndarray, k: PlantCoeffs) -> np.ndarray:
-    """Disturbance-free point acceleration a = S1 (f2 + B2 u) + S1dot x2
-    (S2.2; a_j of S4). (N, 2).
+@njit(cache=True)
+def rk4_step_k(x, y, th, v, w, t1, t2, g0a, g0b, gha, ghb, g1a, g1b, dt, mt, It, r, a, d, mc):
+    """One RK4 step with ZOH torque; g0 at t, gh at t + dt/2, g1 at t + dt. -> new 5-tuple
+    state.
     """
-    return _s1_apply(state[:, 2], k.d, _x2dot(state, torque, k)) + s1dot_x2(state, k.d)
+    h = 0.5 * dt
+    k1 = state_derivative_k(x, y, th, v, w, t1, t2, g0a, g0b, mt, It, r, a, d, mc)
+    k2 = state_derivative_k(
+        x + h * k1[0],
+        y + h * k1[1],
+        th + h * k1[2],
+        v + h * k1[3],
+        w + h * k1[4],
+        t1,
+        t2,
+        gha,
+        ghb,
+        mt,
+        It,
+        r,
+        a,
+        d,
+        mc,
+    )
+    k3 = state_derivative_k(
+        x + h * k2[0],
+        y + h * k2[1],
+        th + h * k2[2],
+        v + h * k2[3],
+        w + h * k2[4],
+        t1,
+        t2,
+        gha,
+        ghb,
+        mt,
+        It,
+        r,
+        a,
+        d,
+        mc,
+    )
+    k4 = state_derivative_k(
+        x + dt * k3[0],
+        y + dt * k3[1],
+        th + dt * k3[2],
+        v + dt * k3[3],
+        w + dt * k3[4],
+        t1,
+        t2,
+        g1a,
+        g1b,
+        mt,
+        It,
+        r,
+        a,
+        d,
+        mc,
+    )
+    s6 = dt / 6.0
+    return (
+        x + s6 * (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0]),
+        y + s6 * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1]),
+        th + s6 * (k1[2] + 2.0 * k2[2] + 2.0 * k3[2] + k4[2]),
+        v + s6 * (k1[3] + 2.0 * k2[3] + 2.0 * k3[3] + k4[3]),
+        w + s6 * (k1[4] + 2.0 * k2[4] + 2.0 * k3[4] + k4[4]),
+    )
 
 
-def point_accel(
-    state: np.ndarray, torque: np.ndarray, disturbance: np.ndarray | None, k: PlantCoeffs
-) -> np.ndarray:
-    """True point acceleration p_ddot = S1 (f2 + B2 u + g) + S1dot x2 (S2.2). Returns (N, 2)."""
-    x2dot = _x2dot(state, torque, k)
-    if disturbance is not None:
-        x2dot = x2dot + disturbance
-    return _s1_apply(state[:, 2], k.d, x2dot) + s1dot_x2(state, k.d)
-
-
-def state_derivative(
-    state: np.ndarray, torque: np.ndarray, disturbance: np.ndarray | None, k: PlantCoeffs
-) -> np.ndarray:
-    """Xdot of (16)-(20) for every robot. ``disturbance`` (N, 2) or None (= 0). Returns (N, 5)."""
-    th = state[:, 2]
-    v = state[:, 3]
-    w = state[:, 4]
-    c = np.cos(th)
-    s = np.sin(th)
-    d = k.d
-    mcd = k.m_c * d
-    t1 = torque[:, 0]
-    t2 = torque[:, 1]
-    out = np.empty(state.shape)
-    out[:, 0] = v * c - d * w * s  # (16)
-    out[:, 1] = v * s + d * w * c  # (17)
-    out[:, 2] = w  # (18)
-    out[:, 3] = mcd / k.m_tilde * w * w + (t1 + t2) / (k.m_tilde * k.r)  # (19)
-    out[:, 4] = -mcd / k.I_tilde * w * v + k.a / (2.0 * k.I_tilde * k.r) * (t2 - t1)  # (20)
-    if disturbance is not None:
-        out[:, 3] += disturbance[:, 0]
-        out[:, 4] += disturbance[:, 1]
+@njit(cache=True)
+def rk4_step_all(state, torque, g0, gh, g1, dt, mt, It, r, a, d, mc, out):
+    """rk4_step_k over all rows: state (N, 5), torque/g0/gh/g1 (N, 2), coefficient arrays (N,);
+    writes the new state into ``out`` (N, 5) (may be ``state`` itself).
+    """
+    for i in range(state.shape[0]):
+        nx = rk4_step_k(
+            state[i, 0],
+            state[i, 1],
+            state[i, 2],
+            state[i, 3],
+            state[i, 4],
+            torque[i, 0],
+            torque[i, 1],
+            g0[i, 0],
+            g0[i, 1],
+            gh[i, 0],
+            gh[i, 1],
+            g1[i, 0],
+            g1[i, 1],
+            dt,
+            mt[i],
+            It[i],
+            r[i],
+            a[i],
+            d[i],
+            mc[i],
+        )
+        for j in range(5):
+            out[i, j] = nx[j]
     return out
 
 
-def rk4_step(
-    state: np.ndarray,
-    torque: np.ndarray,
-    disturbance_fn: DisturbanceFn | None,
-    t_s: float,
-    dt_s: float,
-    k: PlantCoeffs,
-) -> np.ndarray:
-    """One classical RK4 step of length ``dt_s`` with the torque held constant (ZOH).
+@njit(cache=True)
+def point_velocity_k(th, v, w, d):
+    """p_dot = S1(theta) x2, (16)-(17) -> (px_dot, py_dot)."""
+    c = math.cos(th)
+    s = math.sin(th)
+    return v * c - d * w * s, v * s + d * w * c
 
-    ``disturbance_fn(t_s) -> (N, 2)`` is evaluated at t, t + dt/2 (once, shared by the two
-    midpoint stages) and t + dt; None means no disturbance. Returns the new (N, 5) state.
+
+@njit(cache=True)
+def commanded_point_accel_k(th, v, w, t1, t2, mt, It, r, a, d, mc):
+    """A = S1 (f2 + B2 u) + S1dot x2 (disturbance-free) -> (ax, ay)."""
+    c = math.cos(th)
+    s = math.sin(th)
+    mcd = mc * d
+    vdot = mcd / mt * w * w + (t1 + t2) / (mt * r)
+    wdot = -mcd / It * w * v + a / (2.0 * It * r) * (t2 - t1)
+    ax = c * vdot - d * s * wdot + w * (-v * s - d * w * c)
+    ay = s * vdot + d * c * wdot + w * (v * c - d * w * s)
+    return ax, ay
+
+
+@njit(cache=True)
+def point_velocities(state, d):
+    """p_dot of every row: state (N, 5), d (N,) CoM offsets [m] -> (N, 2) [m/s]
+    (:func:`point_velocity_k` row by row).
     """
-    if disturbance_fn is None:
-        g0 = gh = g1 = None
-    else:
-        g0 = disturbance_fn(t_s)
-        gh = disturbance_fn(t_s + 0.5 * dt_s)
-        g1 = disturbance_fn(t_s + dt_s)
-    k1 = state_derivative(state, torque, g0, k)
-    k2 = state_derivative(state + (0.5 * dt_s) * k1, torque, gh, k)
-    k3 = state_derivative(state + (0.5 * dt_s) * k2, torque, gh, k)
-    k4 = state_derivative(state + dt_s * k3, torque, g1, k)
-    return state + (dt_s / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+    out = np.empty((state.shape[0], 2))
+    for i in range(state.shape[0]):
+        out[i, 0], out[i, 1] = point_velocity_k(state[i, 2], state[i, 3], state[i, 4], d[i])
+    return out

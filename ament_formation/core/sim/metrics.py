@@ -26,7 +26,7 @@ import math
 
 import numpy as np
 
-from ament_formation.core.control.limit_cycle import signed_distance_to_ellipse
+from ament_formation.core.model.ellipse import signed_distance_to_ellipse
 from ament_formation.core.sim.trajectory import SimResult
 
 SETTLE_DELAY_S = 10.0

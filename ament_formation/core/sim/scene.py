@@ -28,8 +28,8 @@ import math
 
 import numpy as np
 
-from ament_formation.core.control.limit_cycle import signed_distance_to_ellipse
 from ament_formation.core.control.rewiring import FormationGraph
+from ament_formation.core.model.ellipse import signed_distance_to_ellipse
 from ament_formation.core.model.obstacles import ObstacleField
 
 AVOIDANCE_MODES = ('obstacle', 'yield', 'mutual')  # S8 modes in which a robot goes round a target

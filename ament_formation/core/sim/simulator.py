@@ -39,13 +39,6 @@ from ament_formation.core.control.automaton import (
     SwitchingParams,
 )
 from ament_formation.core.control.encounters import decide
-from ament_formation.core.control.kernels import (
-    disturbance_k,
-    disturbance_phasor_advance_k,
-    disturbance_phasor_init_k,
-    point_velocity_k,
-    rk4_step_k,
-)
 from ament_formation.core.control.law import (
     G_EPS,
     G_LAMBDA,
@@ -53,8 +46,13 @@ from ament_formation.core.control.law import (
     goals_and_fields,
     robot_law,
 )
-from ament_formation.core.model.disturbance import Disturbance
-from ament_formation.core.model.dynamics import PlantCoeffs
+from ament_formation.core.model.disturbance import (
+    Disturbance,
+    disturbance_k,
+    disturbance_phasor_advance_k,
+    disturbance_phasor_init_k,
+)
+from ament_formation.core.model.dynamics import PlantCoeffs, point_velocity_k, rk4_step_k
 from ament_formation.core.model.obstacles import obstacle_arrays, obstacle_states
 from ament_formation.core.sim.trajectory import SimResult
 

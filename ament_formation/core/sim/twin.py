@@ -16,9 +16,8 @@ import math
 from numba import njit
 import numpy as np
 
-from ament_formation.core.control.kernels import rk4_step_k
 from ament_formation.core.model.disturbance import Disturbance
-from ament_formation.core.model.dynamics import PlantCoeffs
+from ament_formation.core.model.dynamics import PlantCoeffs, point_velocities, rk4_step_k
 from ament_formation.core.model.obstacles import ObstacleField, ObstacleStates
 
 
@@ -179,8 +178,5 @@ class PlantTwin:
 
     def pose_rates(self) -> np.ndarray:
         """(N, 3) [xdot_mps, ydot_mps, thetadot_radps] of p (kinematics (16)-(18))."""
-        th, v, w = self.state[:, 2], self.state[:, 3], self.state[:, 4]
-        d = self.k.d
-        return np.stack(
-            [v * np.cos(th) - d * w * np.sin(th), v * np.sin(th) + d * w * np.cos(th), w], axis=1
-        )
+        pd = point_velocities(np.ascontiguousarray(self.state), np.ascontiguousarray(self.k.d))
+        return np.concatenate([pd, self.state[:, 4:5]], axis=1)

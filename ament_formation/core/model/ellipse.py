@@ -1,0 +1,139 @@
+"""Ellipse geometry (S6.2, S8): body coordinates and the ellipse function h, the first time a ray
+enters an ellipse, whether a segment meets it, and the exact Euclidean signed distance of points to
+its boundary (metrics, the live view).
+
+An ellipse is (centre, orientation phi [rad], semi-axes r1, r2 [m]); z = p - centre. Scalar
+functions are numba kernels (``@njit(cache=True)``) the automaton and the law call; the signed
+distance is vectorised numpy.
+"""
+
+from __future__ import annotations
+
+import math
+
+from numba import njit
+import numpy as np
+
+INF = math.inf
+
+
+@njit(cache=True)
+def ellipse_coords(zx, zy, phi, r1, r2):
+    """Normalised body coordinates (U, W) = (u/r1, w/r2) of z (S6.2); h = U^2 + W^2 - 1."""
+    c = math.cos(phi)
+    s = math.sin(phi)
+    return (c * zx + s * zy) / r1, (-s * zx + c * zy) / r2
+
+
+@njit(cache=True)
+def h_value(zx, zy, phi, r1, r2):
+    """Ellipse function h = z^T A z - 1 of the ellipse (r1, r2, phi) (S6.2)."""
+    u, w = ellipse_coords(zx, zy, phi, r1, r2)
+    return u * u + w * w - 1.0
+
+
+@njit(cache=True)
+def ray_time(zx, zy, vx, vy, phi, r1, r2):
+    """Smallest lambda >= 0 with z + lambda v inside the ellipse (S8 heading test).
+
+    0 when z is already inside, +inf when the ray misses. With v a velocity, lambda is a time [s].
+    """
+    u, w = ellipse_coords(zx, zy, phi, r1, r2)
+    du, dw = ellipse_coords(vx, vy, phi, r1, r2)
+    q0 = u * u + w * w - 1.0
+    if q0 <= 0.0:
+        return 0.0
+    a = du * du + dw * dw
+    if a <= 1e-24:
+        return INF
+    b = 2.0 * (u * du + w * dw)
+    disc = b * b - 4.0 * a * q0
+    if disc < 0.0:
+        return INF
+    lam = (-b - math.sqrt(disc)) / (2.0 * a)
+    if lam < 0.0:
+        return INF
+    return lam
+
+
+@njit(cache=True)
+def segment_hits(p0x, p0y, p1x, p1y, cx, cy, phi, r1, r2):
+    """True when the segment [p0, p1] meets the ellipse (centre c) (S8.3 item 1)."""
+    u0, w0 = ellipse_coords(p0x - cx, p0y - cy, phi, r1, r2)
+    u1, w1 = ellipse_coords(p1x - cx, p1y - cy, phi, r1, r2)
+    du = u1 - u0
+    dw = w1 - w0
+    a = du * du + dw * dw
+    lam = 0.0
+    if a > 1e-24:
+        lam = -(u0 * du + w0 * dw) / a
+        lam = min(1.0, max(0.0, lam))
+    u = u0 + lam * du
+    w = w0 + lam * dw
+    return u * u + w * w <= 1.0
+
+
+def _distance_first_quadrant(y0, y1, e0, e1, iterations=200):
+    """Eberly's robust point-ellipse distance for y0, y1 >= 0, e0 >= e1 > 0 (vectorised)."""
+    # y1 > 0 and y0 > 0: bisection on the root s of F(s) = (r0 z0/(s + r0))^2 + (z1/(s + 1))^2 - 1
+    z0 = y0 / e0
+    z1 = y1 / e1
+    g = z0 * z0 + z1 * z1 - 1.0
+    r0 = (e0 / e1) ** 2
+    n0 = r0 * z0
+    s0 = z1 - 1.0
+    s1 = np.where(g < 0.0, 0.0, np.hypot(n0, z1) - 1.0)
+    s = 0.5 * (s0 + s1)
+    tiny = np.finfo(float).eps
+    for it in range(iterations):
+        s = 0.5 * (s0 + s1)
+        ratio0 = n0 / (s + r0)
+        ratio1 = z1 / (s + 1.0)
+        val = ratio0 * ratio0 + ratio1 * ratio1 - 1.0
+        pos = val > 0.0
+        s0 = np.where(pos, s, s0)
+        s1 = np.where(pos, s1, s)
+        if it % 8 == 7 and not np.any(s1 - s0 > 2.0 * tiny * np.maximum(np.abs(s), 1.0)):
+            break  # every bracket has collapsed to rounding level
+    s = 0.5 * (s0 + s1)
+    x0 = r0 * y0 / (s + r0)
+    x1 = y1 / (s + 1.0)
+    general = np.hypot(x0 - y0, x1 - y1)
+    general = np.where(g == 0.0, 0.0, general)
+    # y1 > 0, y0 == 0: nearest point (0, e1)
+    on_minor = np.abs(y1 - e1)
+    # y1 == 0
+    numer0 = e0 * y0
+    denom0 = e0 * e0 - e1 * e1
+    inner = numer0 < denom0
+    xde0 = np.where(inner, numer0 / np.where(denom0 > 0, denom0, 1.0), 1.0)
+    xa = e0 * xde0
+    xb = e1 * np.sqrt(np.maximum(1.0 - xde0 * xde0, 0.0))
+    on_major = np.where(inner, np.hypot(xa - y0, xb), np.abs(y0 - e0))
+    return np.where(y1 > 0.0, np.where(y0 > 0.0, general, on_minor), on_major)
+
+
+def signed_distance_to_ellipse(points, center, phi, r1, r2):
+    """Exact Euclidean signed distance of ``points`` (K, 2) to the ellipse boundary, < 0 inside.
+
+    ``center`` (2,) or (K, 2), ``phi`` [rad] and semi-axes ``r1``, ``r2`` [m] scalars or (K,).
+    Not the algebraic h: the true distance to the nearest boundary point. Returns (K,) [m].
+    """
+    points = np.asarray(points, dtype=float)
+    z = points - np.asarray(center, dtype=float)
+    k = z.shape[0]
+    phi = np.broadcast_to(np.asarray(phi, dtype=float), (k,))
+    r1 = np.broadcast_to(np.asarray(r1, dtype=float), (k,))
+    r2 = np.broadcast_to(np.asarray(r2, dtype=float), (k,))
+    c, s = np.cos(phi), np.sin(phi)
+    u = c * z[:, 0] + s * z[:, 1]
+    w = -s * z[:, 0] + c * z[:, 1]
+    swap = r2 > r1  # make e0 >= e1 along the first coordinate
+    e0 = np.where(swap, r2, r1)
+    e1 = np.where(swap, r1, r2)
+    y0 = np.abs(np.where(swap, w, u))
+    y1 = np.abs(np.where(swap, u, w))
+    with np.errstate(divide='ignore', invalid='ignore'):
+        dist = _distance_first_quadrant(y0, y1, e0, e1)
+    inside = (y0 / e0) ** 2 + (y1 / e1) ** 2 < 1.0
+    return np.where(inside, -dist, dist)
