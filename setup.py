@@ -6,6 +6,18 @@ import os
 from setuptools import find_packages, setup
 
 PACKAGE = 'ament_formation'
+# scripts/ files installed to share/ament_formation/scripts (the rest are source-tree tools)
+LAUNCH_SCRIPTS = [
+    f'scripts/{name}'
+    for name in (
+        'launch_common.sh',
+        'launch_sim.sh',
+        'launch_base.sh',
+        'launch_robot.sh',
+        'launch_info.py',
+        'ros_env.sh',
+    )
+]
 
 
 def config_files(subdir):
@@ -27,6 +39,9 @@ setup(
         ('share/ament_index/resource_index/packages', [f'resource/{PACKAGE}']),
         (f'share/{PACKAGE}', ['package.xml', 'LICENSE']),
         (f'share/{PACKAGE}/docs', glob('docs/*.md') + glob('docs/*.json')),
+        # the launchers (`formation run` starts scripts/launch_sim.sh): from share/ament_formation
+        # they start the installed programs (lib/ament_formation) with share's config/params
+        (f'share/{PACKAGE}/scripts', LAUNCH_SCRIPTS),
     ]
     + config_files(''),
     install_requires=['setuptools'],

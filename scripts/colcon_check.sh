@@ -16,6 +16,11 @@
 #     the python colcon runs pytest with imports rclpy, numpy, hypothesis, ...;
 #   * LD_LIBRARY_PATH for the ROS libraries, as the wheels' bootstrapper sets it for .venv/bin/python
 #     (_ROS_WHEELS_BOOTSTRAP_COMPLETE=1 tells it the environment is already set).
+# The run is self-contained: numba's compiled kernels go to WORK/numba_cache
+# (AMENT_FORMATION_CACHE_DIR; both copies of the package compile there once: the clone's, which
+# pytest imports, and the installed one, which the programs run) and pytest's temporary folders to
+# WORK/pytest (PYTEST_ADDOPTS --basetemp): other runs on the machine neither prune the cache during
+# the run nor rotate away the logs of a failed test (kept with --keep).
 # On a machine with ROS 2 Jazzy installed, none of this is needed:
 #   source /opt/ros/jazzy/setup.bash && colcon build && colcon test && colcon test-result --verbose
 # Exit status: that of colcon test-result (0 when every test passed), 2 for bad usage.
@@ -54,7 +59,11 @@ git clone --quiet "$here" "$src"
 echo "colcon_check: workspace $work (clone of $(git -C "$here" rev-parse --short HEAD))" >&2
 
 # 3. the clone's .venv: rclpy and the pinned dependencies (what /opt/ros/jazzy would provide)
+export AMENT_FORMATION_CACHE_DIR="$work/numba_cache"
+export PYTEST_ADDOPTS="${PYTEST_ADDOPTS:-} --basetemp=$work/pytest"
+t0=$SECONDS
 "$src/scripts/setup.sh"
+echo "colcon_check: clone and .venv ready in $((SECONDS - t0)) s" >&2
 venv_site="$("$src/.venv/bin/python" -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')"
 colcon_site="$("$colcon_venv/bin/python" -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')"
 echo "import site; site.addsitedir('$venv_site')" > "$colcon_site/ament_formation_venv.pth"
@@ -67,14 +76,17 @@ export PATH="$colcon_venv/bin:$PATH"
 
 # 4. build, test, results
 cd "$work"
+t0=$SECONDS
 colcon build --event-handlers console_direct-
+echo "colcon_check: colcon build took $((SECONDS - t0)) s" >&2
 test_args=(test --event-handlers console_direct+ --return-code-on-test-failure)
 if [ ${#pytest_args[@]} -gt 0 ]; then
   test_args+=(--pytest-args "${pytest_args[@]}")
 fi
 test_status=0
+t0=$SECONDS
 colcon "${test_args[@]}" || test_status=$?
-echo "colcon_check: colcon test exited $test_status" >&2
+echo "colcon_check: colcon test exited $test_status after $((SECONDS - t0)) s" >&2
 echo "colcon_check: installed params files:" \
   $(ls "$work/install/ament_formation/share/ament_formation/config/params") >&2
 colcon test-result --verbose

@@ -14,7 +14,24 @@
 # launching (e.g. to pin DDS to the robot network's interface); a file that does not exist is bad
 # input (exit code 2). docs/deployment.md.
 AF_ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
-AF_BIN="$AF_ROOT/.venv/bin"
+# The programs: the checkout's .venv (scripts/setup.sh); for the launchers colcon build installs
+# (<prefix>/share/ament_formation/scripts, what `formation run` of an installed package starts),
+# the installed console scripts in <prefix>/lib/ament_formation. AF_PYTHON runs launch_info.py: the
+# venv's python, or the installed programs' interpreter (their #! line).
+if [ ! -x "$AF_ROOT/.venv/bin/formation_world" ] \
+    && [ -x "$AF_ROOT/../../lib/ament_formation/formation_world" ]; then
+  AF_BIN="$(cd "$AF_ROOT/../../lib/ament_formation" && pwd)"
+  read -r _af_shebang <"$AF_BIN/formation_world" || true
+  read -r -a AF_PYTHON <<<"${_af_shebang#\#!}"
+  case "$(basename "${AF_PYTHON[0]:-sh}")" in
+    python*|env) ;;
+    *) AF_PYTHON=(python3) ;;   # e.g. setuptools' /bin/sh wrapper for a very long interpreter path
+  esac
+  unset _af_shebang
+else
+  AF_BIN="$AF_ROOT/.venv/bin"
+  AF_PYTHON=("$AF_BIN/python")
+fi
 # every node's params file (every parameter with its default; installed by colcon build to
 # share/ament_formation/config/params): launchers pass it first, then their -p overrides
 AF_PARAMS_DIR="$AF_ROOT/config/params"

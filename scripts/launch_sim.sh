@@ -73,7 +73,7 @@ rtp=()   # parameter of the control-path processes that own a control loop (cont
 run_dir="$(realpath -m "$run_dir")"
 
 # robot ids, marker ids (tracker lists) and torque limits (bridges) from the scenario
-info="$("$AF_BIN/python" "$here/launch_info.py" "$scenario")" || exit 2
+info="$("${AF_PYTHON[@]}" "$here/launch_info.py" "$scenario")" || exit 2
 eval "$info"   # sets ids, robot_ids_list, marker_ids_list, torque_<id>
 
 af_launch_init "$run_dir" $multi

@@ -40,16 +40,12 @@ except ImportError:  # pragma: no cover - hypothesis is pinned in requirements.t
 @pytest.fixture(scope='session', autouse=True)
 def _numba_kernels_compiled_once():
     """Numba's kernels compiled once (core/jit_cache.py), before any test starts processes, if
-    the core changed since scripts/setup.sh did it: not in every started process at once.
+    the core changed since scripts/setup.sh did it: not in every started process at once. Under
+    colcon test, for the installed copy the programs run as well (processes.warm_numba_kernels).
     """
-    import subprocess
-    import sys
+    from processes import warm_numba_kernels
 
-    subprocess.run(
-        [sys.executable, '-c', 'from ament_formation.core.sim.jit_warm import main; main()'],
-        check=False,
-        timeout=900,
-    )
+    warm_numba_kernels(timeout_s=900.0)
 
 
 _DOMAIN_LOCKS = Path(os.environ.get('TMPDIR', '/tmp')) / 'ament_formation_domains'

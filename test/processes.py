@@ -16,3 +16,25 @@ def alive(pid: int) -> bool:
         return Path(f'/proc/{pid}/stat').read_text().split()[2] != 'Z'
     except OSError:
         return False
+
+
+def warm_numba_kernels(timeout_s: float = 900.0, check: bool = False) -> None:
+    """Compile numba's kernels once (core/jit_cache.py), unless warm already, for each copy of the
+    package the tests run: the one this process imports, and the one a program started from
+    anywhere else imports. They differ under ``colcon test``: pytest runs in the source folder and
+    imports the checkout, while colcon's PYTHONPATH puts the installed copy
+    (install/ament_formation/lib/python3.X/site-packages) before the .venv's editable checkout, so
+    every console script runs the installed copy, whose kernels (numba keys its cache on the
+    source file's path) would otherwise compile in each program at start, all at once.
+    """
+    import subprocess
+    import sys
+    import tempfile
+
+    import ament_formation
+
+    mine = Path(ament_formation.__file__).resolve().parents[1]  # the folder holding the package
+    code = 'import sys; from ament_formation.core.sim.jit_warm import main; sys.exit(main())'
+    with tempfile.TemporaryDirectory(prefix='af_warm_') as elsewhere:
+        for cwd in (mine, elsewhere):  # '' (the cwd) comes first on a ``python -c`` sys.path
+            subprocess.run([sys.executable, '-c', code], cwd=cwd, check=check, timeout=timeout_s)

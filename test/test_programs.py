@@ -28,6 +28,7 @@ import subprocess
 import time
 
 import numpy as np
+from processes import warm_numba_kernels
 import pytest
 
 from ament_formation.core.config_files import config_file
@@ -199,12 +200,9 @@ def sets(tmp_path_factory):
     from ament_formation.ros.qos import QOS_CONTROL
 
     # numba's kernels compiled once, before the programs start, if the core changed since
-    # scripts/setup.sh did it (a fresh process: the sources as they are now)
-    subprocess.run(
-        [str(BIN / 'python'), '-c', 'from ament_formation.core.sim.jit_warm import main; main()'],
-        check=True,
-        timeout=600,
-    )
+    # scripts/setup.sh did it (a fresh process: the sources as they are now), for the copy of the
+    # package the programs import (under colcon test: the installed one)
+    warm_numba_kernels(timeout_s=600.0, check=True)
     tmp = tmp_path_factory.mktemp('programs')
     base = int(os.environ['ROS_DOMAIN_ID'])
     dom = {'mission': base, 'boards': (base + 67) % 200 + 1, 'camera': (base + 133) % 200 + 1}

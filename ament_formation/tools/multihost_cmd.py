@@ -42,10 +42,9 @@ import tempfile
 import time
 
 from ament_formation.core.errors import ConfigError
+from ament_formation.core.config_files import config_dir, program_file, script_file
 
-_ROOT = Path(__file__).resolve().parents[2]
-_BIN = Path(sys.executable).parent  # the venv's programs (formation_world)
-UDP_PROFILE = _ROOT / 'config' / 'fastdds_udp.xml'
+UDP_PROFILE = 'fastdds_udp.xml'  # config/ of the checkout or of share/ament_formation
 REST_SPEED_MPS = 0.005  # at rest below this point speed (docs/safety.md)
 CONTROL_GAP_MAX_S = 0.2  # a longer control-loop gap lets the board's watchdog brake on its own
 TRUTH_GAP_MAX_S = 1.0
@@ -226,11 +225,10 @@ class _Proc:
 
 
 def _program(name: str) -> str:
-    """A console script of this package: beside this interpreter (the venv), else on PATH."""
-    import shutil
-
-    here = _BIN / name
-    return str(here) if here.exists() else (shutil.which(name) or name)
+    """A console script of this package: beside this interpreter (the venv), else the installed
+    one (lib/ament_formation), else on PATH.
+    """
+    return program_file(name)
 
 
 def _log_lines(path: Path):
@@ -276,7 +274,7 @@ def run_multihost(args: argparse.Namespace) -> int:
     if args.rate is not None and not netns.valid_rate(args.rate):
         raise ConfigError(f'expected a tc rate such as 2mbit or 500kbit (got {args.rate!r})',
                           '--rate')  # fmt: skip
-    profile = Path(args.profile).resolve() if args.profile else UDP_PROFILE
+    profile = Path(args.profile).resolve() if args.profile else config_dir() / UDP_PROFILE
     if not profile.is_file():
         raise ConfigError('no such file', '--profile', str(profile))
     out = Path(args.out or tempfile.mkdtemp(prefix='ament_formation_multihost_')).resolve()
@@ -459,7 +457,7 @@ class _Run:
 
     def _execute(self) -> None:
         a, sc = self.args, str(self.scenario_path)
-        params = _ROOT / 'config' / 'params'
+        params = config_dir() / 'params'
         self._start(
             'world',
             'camera',
@@ -477,7 +475,7 @@ class _Run:
         self._start(
             'base',
             'camera',
-            [str(_ROOT / 'scripts' / 'launch_base.sh'), '--scenario', sc, '--run-dir',
+            [str(script_file('launch_base.sh')), '--scenario', sc, '--run-dir',
              str(self.out / 'base'), '--multi-machine'],
         )  # fmt: skip
         self._wait(
@@ -498,7 +496,7 @@ class _Run:
             self._start(
                 f'robot_{rid}',
                 rid,
-                [str(_ROOT / 'scripts' / 'launch_robot.sh'), '--id', str(rid), '--port',
+                [str(script_file('launch_robot.sh')), '--id', str(rid), '--port',
                  str(self.pty_dir / f'robot_{rid}'), '--scenario', sc, '--run-dir',
                  str(self.out / f'robot_{rid}'), '--multi-machine', *rt],
             )  # fmt: skip
@@ -764,7 +762,7 @@ def _coordinator_start_delay() -> float:
     try:
         import yaml
 
-        doc = yaml.safe_load((_ROOT / 'config' / 'params' / 'formation_coordinator.yaml')
+        doc = yaml.safe_load((config_dir() / 'params' / 'formation_coordinator.yaml')
                              .read_text())  # fmt: skip
         return float(next(iter(doc.values()))['ros__parameters'].get('start_delay_s', 1.0))
     except (OSError, ValueError, KeyError, TypeError, StopIteration):

@@ -437,7 +437,10 @@ def build_vectors() -> dict:
 
 
 def default_path() -> Path:
-    return Path(__file__).resolve().parents[2] / 'docs' / 'serial-protocol-vectors.json'
+    """docs/serial-protocol-vectors.json of the checkout (or of share/ament_formation)."""
+    from ament_formation.core.config_files import docs_file
+
+    return docs_file('serial-protocol-vectors.json')
 
 
 def render() -> str:
