@@ -41,14 +41,17 @@ def test_numba_sources_are_the_numba_modules_and_what_they_import(tmp_path):
     assert names == ['consts.py', 'deep.py', 'kernels.py', 'sub/geometry.py']
     shipped = {p.name for p in jit_cache.numba_sources()}
     assert {
-        'kernels.py',
+        'smc.py',
+        'limit_cycle.py',
+        'dynamics.py',
+        'ellipse.py',
         'automaton.py',
         'encounters.py',
         'simulator.py',
         'twin.py',
         'params.py',
     } <= shipped
-    assert 'jit_cache.py' not in shipped and 'scenario.py' not in shipped
+    assert 'jit_cache.py' not in shipped and 'loader.py' not in shipped
 
 
 def test_hash_changes_with_any_source_numba_code_can_reach_and_only_with_those(tmp_path):

@@ -28,13 +28,12 @@ import pytest
 import yaml
 
 from ament_formation.core.errors import ConfigError
-from ament_formation.core.model.ellipse import signed_distance_to_ellipse
+from ament_formation.core.model.ellipse import ellipse_outline, signed_distance_to_ellipse
 from ament_formation.core.model.obstacles import ObstacleField
 from ament_formation.core.scenario.loader import load_scenario, parse_scenario
 from ament_formation.core.sim.scene import (
     AVOIDANCE_MODES,
     circulation_heading_rad,
-    ellipse_outline,
     LiveScene,
     mode_label,
     scenario_time_s,

@@ -89,12 +89,15 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
-from ament_formation.core.control.controller import fast_reference, NeighbourState, RobotController
+from ament_formation.core.control.controller import NeighbourState, RobotController
 from ament_formation.core.control.estimator import EstimatorParams, PoseEstimator
+from ament_formation.core.control.neighbours import extrapolate_neighbour, neighbour_goal
 from ament_formation.core.control.rewiring import FormationGraph
+from ament_formation.core.control.stop import stop_torque
 from ament_formation.core.errors import ConfigError
-from ament_formation.core.model.dynamics import b2_inv, f2, PlantCoeffs, point_velocity_k
-from ament_formation.core.params import ControlGains, param
+from ament_formation.core.model.dynamics import PlantCoeffs
+from ament_formation.core.model.paths import fast_reference
+from ament_formation.core.params import param
 from ament_formation.core.scenario.loader import load_scenario
 from ament_formation.ros import diagnostics as diag
 from ament_formation.ros import messages as msgs
@@ -175,27 +178,6 @@ class ControllerParams:
                 f'must be an integer in [0, 98] (got {self.realtime_priority!r})',
                 'realtime_priority',
             )
-
-
-def stop_torque(
-    state: np.ndarray, k: PlantCoeffs, stop_time_s: float, gains: ControlGains
-) -> np.ndarray:
-    """Controlled stop (DESIGN §7): torques (N, 2) that bring (v, omega) to rest and hold them
-    there against the bounded disturbance g.
-
-    A sliding-mode velocity regulator on sigma = x2 (S2.2: x2dot = f2 + B2 u + g):
-    u = B2^-1 (-x2 / T - K sat(x2 / eps) - f2), with T = ``stop_time_s``, the point gain
-    K = (K_p, K_p / d) and eps = (eps_p, eps_p / d) / 2 from the formation law (S3.3, S3.5), so the
-    residual speed is |g| / (1/T + K/eps): about 1 mm/s and 0.01 rad/s with the defaults, where a
-    plain -x2/T brake would creep at g T. Uniformly scaled into the torque limit (S3.6).
-    """
-    x2 = state[:, 3:5]
-    gain = gains.switching_gain_mps2 * np.stack((np.ones_like(k.d), 1.0 / k.d), axis=-1)
-    eps = 0.5 * gains.boundary_layer_mps * np.stack((np.ones_like(k.d), 1.0 / k.d), axis=-1)
-    x2dot = -x2 / stop_time_s - gain * np.clip(x2 / eps, -1.0, 1.0) - f2(state, k)
-    u = np.einsum('nij,nj->ni', b2_inv(k), x2dot)
-    scale = np.maximum(1.0, np.max(np.abs(u), axis=1) / k.tau_max)
-    return u / scale[:, None]
 
 
 def set_realtime(priority: int, logger=None) -> bool:
@@ -567,20 +549,14 @@ class ControllerNode(Node):
         """
         if nb is None or nb.state is None:
             return None
-        age = now_s - nb.stamp_s
-        if age > self.prm.parent_hold_s:
-            return None
-        if age <= self.prm.parent_timeout_s:
-            return nb.state
-        dt = age
-        x = nb.state.copy()
-        d = self.k.d[0]
-        th, v, w = x[2], x[3], x[4]
-        pdot = np.array(
-            [v * math.cos(th) - d * w * math.sin(th), v * math.sin(th) + d * w * math.cos(th)]
+        return extrapolate_neighbour(
+            nb.state,
+            nb.accel,
+            now_s - nb.stamp_s,
+            float(self.k.d[0]),
+            self.prm.parent_timeout_s,
+            self.prm.parent_hold_s,
         )
-        x[:2] = x[:2] + pdot * dt + 0.5 * nb.accel * dt * dt
-        return x
 
     def _goal_of(self, rid: int, t_s: float, known: dict) -> tuple:
         """(g, g_dot) of robot ``rid`` at scenario time ``t_s`` (S8.3 item 1), each (2,) [m],
@@ -595,18 +571,9 @@ class ControllerNode(Node):
         if hit is not None:
             return hit
         path, p0, offset, d = self.goal_source[rid]
-        if path is not None:
-            r, rd, _ = path.reference(t_s)
-            hit = (np.asarray(r, dtype=float), np.asarray(rd, dtype=float))
-        else:
-            xp = known.get(p0)
-            if xp is None:
-                return None, None
-            x, y, th, v, w = xp.tolist()
-            hit = (
-                np.array([x + offset[0], y + offset[1]]),
-                np.array(point_velocity_k(th, v, w, d)),
-            )
+        hit = neighbour_goal(t_s, path, known.get(p0), offset, d)
+        if hit[0] is None:
+            return hit
         cache[rid] = hit
         return hit
 

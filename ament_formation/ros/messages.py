@@ -33,6 +33,7 @@ from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import ColorRGBA, String
 from visualization_msgs.msg import Marker, MarkerArray
 
+from ament_formation.core.model.ellipse import ellipse_outline
 from ament_formation.core.sim.scene import robot_rgb
 from ament_formation.ros import payloads
 
@@ -470,8 +471,7 @@ def robot_markers(
 
 def ellipse_points(center_m, phi_rad: float, semi_axes_m, n: int = 48) -> np.ndarray:
     """(n + 1, 2) closed polyline of the ellipse (centre, orientation, (r1, r2)) [m, world]."""
-    t = np.linspace(0.0, 2.0 * np.pi, n + 1)
-    local = np.stack([semi_axes_m[0] * np.cos(t), semi_axes_m[1] * np.sin(t)], axis=1)
+    local = ellipse_outline(semi_axes_m, n)
     c, s = math.cos(phi_rad), math.sin(phi_rad)
     rot = np.array([[c, -s], [s, c]])
     return local @ rot.T + np.asarray(center_m, dtype=float)

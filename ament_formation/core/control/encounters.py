@@ -320,6 +320,7 @@ def _form_mutual(
     return nev
 
 
+# implements: S7, S8
 @njit(cache=True)
 def decide(
     t,

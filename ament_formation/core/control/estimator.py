@@ -149,6 +149,7 @@ class _Step:
     dth_rad: float
 
 
+# implements: S10
 class PoseEstimator:
     """S10 fusion for one robot (see module docstring)."""
 

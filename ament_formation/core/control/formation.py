@@ -10,6 +10,7 @@ import math
 from numba import njit
 
 
+# implements: S4
 @njit(cache=True)
 def tracking_field_k(ex, ey, rvx, rvy, rax, ray, pdx, pdy, alpha, v_cap):
     """S4 field V_d = ref_vel - Phi(e), V_d_dot = ref_acc - DPhi(e)(p_dot - ref_vel).

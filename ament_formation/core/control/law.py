@@ -238,6 +238,15 @@ def robot_law(
 
 
 @njit(cache=True)
+def follower_goal_k(px, py, pdx, pdy, ox, oy):
+    """S8.3 item 1 for a follower: g = p of its original parent + delta, g_dot = that point's
+    velocity -> (gx, gy, gdx, gdy).
+    """
+    return px + ox, py + oy, pdx, pdy
+
+
+# implements: S8.3
+@njit(cache=True)
 def goals_and_fields(
     x, pd, ref, orig_parent, orig_offset, gains, goal, goal_dot, vc, with_fields=True
 ):
@@ -255,10 +264,9 @@ def goals_and_fields(
             goal_dot[i, 0] = ref[i, 2]
             goal_dot[i, 1] = ref[i, 3]
         else:
-            goal[i, 0] = x[j, 0] + orig_offset[i, 0]
-            goal[i, 1] = x[j, 1] + orig_offset[i, 1]
-            goal_dot[i, 0] = pd[j, 0]
-            goal_dot[i, 1] = pd[j, 1]
+            goal[i, 0], goal[i, 1], goal_dot[i, 0], goal_dot[i, 1] = follower_goal_k(
+                x[j, 0], x[j, 1], pd[j, 0], pd[j, 1], orig_offset[i, 0], orig_offset[i, 1]
+            )
         if not with_fields:
             continue
         vdx, vdy, _, _ = tracking_field_k(

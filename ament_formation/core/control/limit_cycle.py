@@ -22,6 +22,7 @@ from ament_formation.core.model.ellipse import ellipse_coords
 TWO_PI = 2.0 * math.pi
 
 
+# implements: S6
 @njit(cache=True)
 def ellipse_field_k(zx, zy, zdx, zdy, phi, phi_dot, phi_ddot, r1, r2, psi_dot, psi_ddot, c, c_dot):
     """S6.3 field and S6.4 closed-form derivative (c1 = c2 = c) -> (fx, fy, fdx, fdy, h, h_dot)."""
@@ -136,6 +137,7 @@ def arc_length(psi0, dpsi, r1, r2):
     return total * h
 
 
+# implements: S6.6
 @njit(cache=True)
 def choose_direction(
     zx, zy, zdx, zdy, gx, gy, gdx, gdy, phi, big_r1, big_r2, look_ahead_m, velocity_tiebreak
@@ -175,6 +177,7 @@ def choose_direction(
     return 1.0 if mx * zdx + my * zdy >= 0.0 else -1.0
 
 
+# implements: S6.5
 @njit(cache=True)
 def design_gains(r1, r2, v_tan, prm):
     """S6.5 design: psi_dot_max = v_tan / sqrt(R1 R2), c_max = v_rad / (kappa sqrt(r1 r2) h_Q)."""

@@ -95,6 +95,7 @@ class FormationGraph:
         return parent, team
 
     # --------------------------------------------------------------------------------------------
+    # implements: S9
     def rewire(self, avoiding: Iterable[int] = ()) -> dict[int, int | None]:
         """S9 steps 1-6: the current parent of every robot while ``avoiding`` robots avoid.
 

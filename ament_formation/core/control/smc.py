@@ -28,6 +28,7 @@ def _switch(sig, gain, eps):
     return 0.0
 
 
+# implements: S3, S5
 @njit(cache=True)
 def smc_torque_k(th, v, w, vdx, vdy, vddx, vddy, mt, It, r, a, d, mc, tau_max, k1, k2, eps):
     """S3.1, S3.2 with sat(sigma/eps) (S3.5, eps = 0: sign) and uniform scaling (S3.6).

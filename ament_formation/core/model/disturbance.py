@@ -120,6 +120,7 @@ class Disturbance:
         )
 
 
+# implements: S2.3
 @njit(cache=True)
 def disturbance_k(t, amp, freq, phase):
     """g(t) = sum_m A sin(2 pi f t + phi) for one robot; amp/freq/phase (2, M) -> (g1, g2)."""

@@ -128,6 +128,7 @@ def b2_inv(k: PlantCoeffs) -> np.ndarray:
 # ------------------------------------------------------------------------------- S2.2 kernels
 
 
+# implements: S2
 @njit(cache=True)
 def state_derivative_k(x, y, th, v, w, t1, t2, g1, g2, mt, It, r, a, d, mc):
     """Xdot of (16)-(20) for one robot -> (xdot, ydot, thdot, vdot, wdot)."""

@@ -25,6 +25,7 @@ def ellipse_coords(zx, zy, phi, r1, r2):
     return (c * zx + s * zy) / r1, (-s * zx + c * zy) / r2
 
 
+# implements: S6.2
 @njit(cache=True)
 def h_value(zx, zy, phi, r1, r2):
     """Ellipse function h = z^T A z - 1 of the ellipse (r1, r2, phi) (S6.2)."""
@@ -137,3 +138,13 @@ def signed_distance_to_ellipse(points, center, phi, r1, r2):
         dist = _distance_first_quadrant(y0, y1, e0, e1)
     inside = (y0 / e0) ** 2 + (y1 / e1) ** 2 < 1.0
     return np.where(inside, -dist, dist)
+
+
+def ellipse_outline(semi_axes_m, n: int = 64) -> np.ndarray:
+    """(n + 1, 2) closed polyline [m] of the ellipse with semi-axes (r1, r2) in its own frame
+    (major axis r1 along x; the first point is repeated at the end).
+    """
+    t = np.linspace(0.0, 2.0 * np.pi, n + 1)
+    out = np.stack((semi_axes_m[0] * np.cos(t), semi_axes_m[1] * np.sin(t)), axis=1)
+    out[-1] = out[0]
+    return out

@@ -139,6 +139,7 @@ def obstacle_arrays(obs) -> tuple:
     return c0, vel, amp, omega, phi0, phid, axes, static
 
 
+# implements: S6.1
 @njit(cache=True)
 def obstacle_states(t, c0, vel, amp, omega, phi0, phid, oc, ov, oa, ophi, ophid, ophidd):
     """Centre, velocity, acceleration, orientation and rates of every obstacle at t

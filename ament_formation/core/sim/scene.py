@@ -29,7 +29,7 @@ import math
 import numpy as np
 
 from ament_formation.core.control.rewiring import FormationGraph
-from ament_formation.core.model.ellipse import signed_distance_to_ellipse
+from ament_formation.core.model.ellipse import ellipse_outline, signed_distance_to_ellipse
 from ament_formation.core.model.obstacles import ObstacleField
 
 AVOIDANCE_MODES = ('obstacle', 'yield', 'mutual')  # S8 modes in which a robot goes round a target
@@ -50,16 +50,6 @@ PALETTE = (
 def robot_rgb(robot_id: int) -> tuple[float, float, float]:
     """(r, g, b) in [0, 1] of a robot id."""
     return PALETTE[int(robot_id) % len(PALETTE)]
-
-
-def ellipse_outline(semi_axes_m, n: int = 64) -> np.ndarray:
-    """(n + 1, 2) closed polyline [m] of the ellipse with semi-axes (r1, r2) in its own frame
-    (major axis r1 along x; the first point is repeated at the end).
-    """
-    t = np.linspace(0.0, 2.0 * np.pi, n + 1)
-    out = np.stack((semi_axes_m[0] * np.cos(t), semi_axes_m[1] * np.sin(t)), axis=1)
-    out[-1] = out[0]
-    return out
 
 
 def circulation_heading_rad(p_m, center_m, direction: str | None) -> float | None:
