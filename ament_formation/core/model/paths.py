@@ -341,12 +341,12 @@ class TabulatedReference:
     """A leader path's (r, r_dot, r_ddot) at scalar times from a table (the control period's cost).
 
     The sinusoid's r(t) inverts an arc-length integral by Newton iterations
-    (:meth:`SinusoidPath.reference`): about 0.15 ms per call, more than a robot's whole control period should cost on a small board. Here
-    the path is evaluated once per ``chunk_s`` of time on a grid of ``step_s`` (one vectorised
-    call), and a time in between is a cubic Hermite interpolation of r from (r, r_dot) at the two
-    nodes (error about step_s^4 max|r^(4)| / 384, ~1e-13 m for the shipped paths), r_dot from
-    (r_dot, r_ddot) likewise, r_ddot linear. Times before 0 or past ``max_nodes`` grid nodes go to
-    the path itself.
+    (:meth:`SinusoidPath.reference`): about 0.15 ms per call, more than a robot's whole control
+    period should cost on a small board. Here the path is evaluated once per ``chunk_s`` of time on
+    a grid of ``step_s`` (one vectorised call), and a time in between is a cubic Hermite
+    interpolation of r from (r, r_dot) at the two nodes (error about step_s^4 max|r^(4)| / 384,
+    ~1e-13 m for the shipped paths), r_dot from (r_dot, r_ddot) likewise, r_ddot linear. Times
+    before 0 or past ``max_nodes`` grid nodes go to the path itself.
     """
 
     def __init__(
