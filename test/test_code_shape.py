@@ -1,0 +1,61 @@
+"""Shape of the code (issue 12): no function longer than MAX_LINES lines, no compiled (numba)
+function with more than MAX_JIT_PARAMS parameters.
+
+A ratchet: the functions over the limits when the check was introduced are listed in ``KNOWN`` with
+their size then; they may only shrink (and leave the list when under the limits), and no other
+function may cross a limit. The issue's target is an empty ``KNOWN``.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+PKG = Path(__file__).resolve().parents[1] / 'ament_formation'
+MAX_LINES = 120
+MAX_JIT_PARAMS = 15
+
+# 'path:function' -> (lines, parameters) when the check was introduced
+KNOWN = {
+    'tools/serial_vectors.py:build_vectors': (381, 0),
+    'core/control/encounters.py:decide': (375, 27),
+    'core/control/controller.py:step': (335, 3),
+    'core/sim/simulator.py:_run_segment': (249, 66),
+    'core/sim/simulator.py:simulate': (225, 1),
+    'ros/run_record.py:load_run': (195, 4),
+    'tools/run_cmd.py:run_system': (195, 1),
+    'nodes/live_view.py:scene_update': (191, 3),
+    'core/sim/plot.py:render_figure': (183, 3),
+    'core/control/law.py:robot_law': (179, 27),
+    'nodes/controller.py:__init__': (151, 1),
+    'core/control/arbiter.py:decide': (141, 4),
+    'nodes/live_view.py:foxglove_layout': (131, 1),
+    'core/model/dynamics.py:rk4_step_k': (65, 20),
+    'core/control/smc.py:smc_torque_k': (35, 17),
+}
+
+
+def shapes(root: Path = PKG) -> dict[str, tuple[int, int, bool]]:
+    """'path:function' -> (lines, parameters, compiled) of every function in the package."""
+    out = {}
+    for path in sorted(root.rglob('*.py')):
+        tree = ast.parse(path.read_text())
+        for node in ast.walk(tree):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                decorators = [ast.unparse(d) for d in node.decorator_list]
+                jit = any('njit' in d or 'jit(' in d for d in decorators)
+                key = f'{path.relative_to(root).as_posix()}:{node.name}'
+                size = (node.end_lineno - node.lineno + 1, len(node.args.args), jit)
+                out[key] = max(out.get(key, size), size)
+    return out
+
+
+def test_no_long_function_and_no_wide_compiled_function_beyond_the_ratchet():
+    over = {}
+    for key, (lines, params, jit) in shapes().items():
+        if lines > MAX_LINES or (jit and params > MAX_JIT_PARAMS):
+            over[key] = (lines, params)
+    new = sorted(set(over) - set(KNOWN))
+    assert not new, f'over {MAX_LINES} lines, or compiled with > {MAX_JIT_PARAMS} params: {new}'
+    grown = [k for k, v in over.items() if v[0] > KNOWN[k][0] or v[1] > KNOWN[k][1]]
+    assert not grown, f'grew: {[(k, over[k], KNOWN[k]) for k in grown]}'
