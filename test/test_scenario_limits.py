@@ -12,13 +12,13 @@ import pytest
 from scenario_mutants import _alias_bomb, _deep_list, mutants
 import yaml
 
-from ament_formation.core.errors import MAX_LINE_CHARS, ConfigError
+from ament_formation.core.errors import ConfigError, MAX_LINE_CHARS
 from ament_formation.core.scenario import (
+    check_sim_budget,
+    load_scenario,
     MAX_FILE_BYTES,
     MAX_OBSTACLES,
     MAX_ROBOTS,
-    check_sim_budget,
-    load_scenario,
     parse_scenario_text,
 )
 

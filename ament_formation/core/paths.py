@@ -25,7 +25,7 @@ from typing import Union
 
 import numpy as np
 
-from ament_formation.core.errors import MAX_MAGNITUDE, ConfigError, excerpt
+from ament_formation.core.errors import ConfigError, excerpt, MAX_MAGNITUDE
 
 _GL_NODES, _GL_WEIGHTS = np.polynomial.legendre.leggauss(48)
 
