@@ -141,7 +141,8 @@ def main() -> int:
     )
     for r in (tracebacks + slow + big + long_lines)[:20]:
         print(
-            f'  {r["label"]}: rc {r["rc"]} {r.get("kind")} {r["wall_s"]:.1f} s {r["rss_mb"]:.0f} MB'
+            f'  {r["label"]}: rc {r["rc"]} {r.get("kind")} {r["wall_s"]:.1f} s '
+            f'{r["rss_mb"]:.0f} MB'
         )
     print(f'load average after: {os.getloadavg()}')
     return 1 if tracebacks or slow or big or long_lines else 0
