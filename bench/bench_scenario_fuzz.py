@@ -107,7 +107,9 @@ def main() -> int:
     wall0 = time.monotonic()
     with tempfile.TemporaryDirectory(prefix='ament_formation_fuzz_') as workdir:
         items = [(label, text, workdir) for label, text in mutants(args.seed, args.count)]
-        with ProcessPoolExecutor(args.workers, mp_context=multiprocessing.get_context('fork')) as ex:
+        with ProcessPoolExecutor(
+            args.workers, mp_context=multiprocessing.get_context('fork')
+        ) as ex:
             for i, row in enumerate(ex.map(run_one, items), 1):
                 rows.append(row)
                 if i % 100 == 0:
@@ -138,7 +140,10 @@ def main() -> int:
         f'longest refusal {max((len(r["stderr"].strip()) for r in refused), default=0)} chars'
     )
     for r in (tracebacks + slow + big + long_lines)[:20]:
-        print(f'  {r["label"]}: rc {r["rc"]} {r.get("kind")} {r["wall_s"]:.1f} s {r["rss_mb"]:.0f} MB')
+        print(
+            f'  {r["label"]}: rc {r["rc"]} {r.get("kind")} {r["wall_s"]:.1f} s '
+            f'{r["rss_mb"]:.0f} MB'
+        )
     print(f'load average after: {os.getloadavg()}')
     return 1 if tracebacks or slow or big or long_lines else 0
 

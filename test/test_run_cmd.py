@@ -270,8 +270,8 @@ def test_a_process_killed_mid_run_fails_the_run_naming_it(tmp_path):
 
 
 def test_sigterm_to_formation_run_stops_the_launch_and_every_process(tmp_path):
-    """A supervisor's SIGTERM to `formation run` mid-run ends it like Ctrl-C: the launcher and every
-    process it started are stopped (none is left running), and the exit status says so (143).
+    """A supervisor's SIGTERM to `formation run` mid-run ends it like Ctrl-C: the launcher and
+    every process it started are stopped (none is left running), and the exit status says so (143).
     """
     out = tmp_path / 'run'
     run = subprocess.Popen(

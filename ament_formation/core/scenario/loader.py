@@ -869,17 +869,18 @@ def _check_limit_cycles(obstacles, avoidance: AvoidanceParams, duration_s: float
             hit = ellipses_overlap(
                 centers[:n_t, a],
                 phis[:n_t, a],
-                np.repeat(axes[a : a + 1], n_t, 0),
+                np.repeat(axes[a: a + 1], n_t, 0),
                 centers[:n_t, b],
                 phis[:n_t, b],
-                np.repeat(axes[b : b + 1], n_t, 0),
+                np.repeat(axes[b: b + 1], n_t, 0),
             )
             if np.any(hit):
                 t_hit = float(times[int(np.argmax(hit))]) if n_t > 1 else 0.0
                 kind = '' if n_t == 1 else f' at t = {t_hit:.2f} s'
                 raise ConfigError(
                     f'the limit cycles (L = {avoidance.limit_cycle_scale} P) of obstacles '
-                    f'{excerpt(obstacles[a].name)} and {excerpt(obstacles[b].name)} overlap{kind}; '
+                    f'{excerpt(obstacles[a].name)} and {excerpt(obstacles[b].name)} '
+                    f'overlap{kind}; '
                     'move them apart or '
                     'merge them into one enclosing ellipse (S13 #3)',
                     f'obstacles[{b}]',
@@ -887,7 +888,7 @@ def _check_limit_cycles(obstacles, avoidance: AvoidanceParams, duration_s: float
 
 
 def check_sim_budget(scenario: Scenario, dt_s: float, record_every_s: float, budget=None) -> None:
-    """ConfigError (one line) when simulating ``scenario`` at ``dt_s`` with a record every
+    """Raise ConfigError (one line) when simulating ``scenario`` at ``dt_s`` with a record every
     ``record_every_s`` would exceed :data:`SIM_BUDGET` (or ``budget``): the work and memory a run
     of `formation sim` may take on this class of machine.
     """
@@ -902,8 +903,9 @@ def check_sim_budget(scenario: Scenario, dt_s: float, record_every_s: float, bud
     }
     for key, value in need.items():
         if value > budget[key]:
+            what = key.replace('_', '-')
             raise ConfigError(
-                f'{n} robots for {scenario.duration_s:g} s need {value:.3g} {key.replace("_", "-")}'
+                f'{n} robots for {scenario.duration_s:g} s need {value:.3g} {what}'
                 f', over the budget of {budget[key]:.3g} (docs/scenarios.md "Limits"): shorten '
                 'duration_s, use fewer robots or a longer record period',
                 'duration_s',
