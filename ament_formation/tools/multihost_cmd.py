@@ -41,8 +41,8 @@ import sys
 import tempfile
 import time
 
-from ament_formation.core.errors import ConfigError
 from ament_formation.core.config_files import config_dir, program_file, script_file
+from ament_formation.core.errors import ConfigError
 
 UDP_PROFILE = 'fastdds_udp.xml'  # config/ of the checkout or of share/ament_formation
 REST_SPEED_MPS = 0.005  # at rest below this point speed (docs/safety.md)
