@@ -1,6 +1,10 @@
 """What a robot's controller makes of the other robots it hears (S10, S8.3): a neighbour's state
 extrapolated to now with its broadcast commanded acceleration, and a neighbour's formation goal
 g_k, g_k_dot (for its side of a mutual pair's joint exit test and its V_c).
+
+Called once per heard robot per control period from Python, so the scalar kernels are called
+through ``.py_func`` (the same source, run by the interpreter): no dispatch, and nothing compiles
+while the robot drives.
 """
 
 from __future__ import annotations
@@ -9,6 +13,9 @@ import numpy as np
 
 from ament_formation.core.control.law import follower_goal_k
 from ament_formation.core.model.dynamics import point_velocity_k
+
+_point_velocity = point_velocity_k.py_func
+_follower_goal = follower_goal_k.py_func
 
 
 # implements: S10/neighbours
@@ -29,7 +36,7 @@ def extrapolate_neighbour(
     if age_s <= fresh_s:
         return state
     x = state.copy()
-    pdot = np.array(point_velocity_k(x[2], x[3], x[4], com_offset_m))
+    pdot = np.array(_point_velocity(x[2], x[3], x[4], com_offset_m))
     x[:2] = x[:2] + pdot * age_s + 0.5 * accel_mps2 * age_s * age_s
     return x
 
@@ -46,6 +53,6 @@ def neighbour_goal(t_s: float, path, parent_state, offset_m, com_offset_m: float
     if parent_state is None:
         return None, None
     x, y, th, v, w = (float(q) for q in parent_state)
-    pdx, pdy = point_velocity_k(th, v, w, com_offset_m)
-    gx, gy, gdx, gdy = follower_goal_k(x, y, pdx, pdy, float(offset_m[0]), float(offset_m[1]))
+    pdx, pdy = _point_velocity(th, v, w, com_offset_m)
+    gx, gy, gdx, gdy = _follower_goal(x, y, pdx, pdy, float(offset_m[0]), float(offset_m[1]))
     return np.array([gx, gy]), np.array([gdx, gdy])

@@ -38,7 +38,9 @@ def warm() -> None:
     for path in scenarios:
         sc = load_scenario(path)
         simulate(dataclasses.replace(sc, duration_s=0.05))
-        PlantTwin(sc)
+        twin = PlantTwin(sc)
+        twin.pose_rates()
+        twin.obstacle_states()
         arbiter = EncounterArbiter(sc)
         states = {r.id: np.array([*r.initial_pose, 0.0, 0.0]) for r in sc.robots}
         arbiter.decide(0.0, states, {r.id: {'mode': 'coordination'} for r in sc.robots})
