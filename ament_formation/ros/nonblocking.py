@@ -165,7 +165,6 @@ class PublishThread:
             return len(self._queue)
 
     def _run(self) -> None:
-        fn = self._fn
         msg = _Serialized()
         while True:
             with self._cv:  # everything queued, in one go (one wake-up per burst)
@@ -183,7 +182,7 @@ class PublishThread:
                 t0 = time.monotonic()
                 try:
                     with pub.handle:  # kept alive (not destroyed) during the call
-                        ret = fn(pub.handle.pointer, ctypes.byref(msg), None)
+                        ret = self._fn(pub.handle.pointer, ctypes.byref(msg), None)
                 except Exception:  # noqa: BLE001 - destroyed publisher, shut-down context
                     ret = -1
                 dt = time.monotonic() - t0
