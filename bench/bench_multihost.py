@@ -1,7 +1,8 @@
 """Robots as separate hosts (issue 11): traffic per robot link, the paper scenario, link losses.
 
     bench/run.sh bench_multihost.py [--traffic 2 4 8] [--paper] [--link-loss 3]
-        [--link-variants default lab lab_nofix] [--duration 20] [--out DIR] [--json OUT.json]
+        [--link-variants default lab lab_nofix] [--duration 20] [--robot-rt P]
+        [--quiet-load L [--quiet-wait S]] [--out DIR] [--json OUT.json]
 
 Every run is `formation multihost` (tools/multihost_cmd.py; root, network namespaces): the camera
 PC (world, tracker, coordinator, recorder) and each robot (launch_robot.sh --multi-machine) on a
@@ -20,7 +21,10 @@ host of its own, DDS over UDP only between them.
   blocking sends, only the robot process's publish thread protects its control loop), lab_nofix
   (the same with AMENT_FORMATION_PUBLISH_THREAD=0: publishing as before the fix).
 
-Prints one table per part and the load average; ``--json`` keeps everything.
+``--robot-rt P``: the robots' control loops under SCHED_FIFO P (launch_robot.sh --rt-priority), so
+that on a loaded machine a control-loop gap is the network's, not the scheduler's.
+``--quiet-load L``: each run starts once the 1-minute load average is below L (waiting at most
+``--quiet-wait`` s). Prints one line per run with the load average; ``--json`` keeps everything.
 """
 
 from __future__ import annotations
@@ -43,8 +47,26 @@ VARIANTS = {
 }
 
 
+QUIET = {'load': None, 'wait_s': 0.0, 'robot_rt': None}  # main() sets these
+
+
+def wait_for_quiet() -> float:
+    """Before a run: wait (at most QUIET['wait_s']) until the 1-minute load average is below
+    QUIET['load'] (a machine shared with other work); the load average when the run starts.
+    """
+    if QUIET['load'] is None:
+        return os.getloadavg()[0]
+    deadline = time.monotonic() + QUIET['wait_s']
+    while os.getloadavg()[0] >= QUIET['load'] and time.monotonic() < deadline:
+        time.sleep(5.0)
+    return os.getloadavg()[0]
+
+
 def multihost(out: Path, *args: str, timeout_s: float = 900.0, env: dict | None = None) -> dict:
     """One `formation multihost` run; its multihost.json and metrics.json (+ exit status)."""
+    wait_for_quiet()
+    if QUIET['robot_rt'] is not None:
+        args = (*args, '--robot-rt', str(QUIET['robot_rt']))
     t0 = time.monotonic()
     load0 = os.getloadavg()
     proc = subprocess.run(
@@ -251,12 +273,30 @@ def main() -> int:
         'lab_nofix: the same without the robot process publish thread (as before the fix)',
     )
     ap.add_argument('--duration', type=float, default=20.0)
+    ap.add_argument(
+        '--quiet-load',
+        type=float,
+        default=None,
+        metavar='L',
+        help='before each run wait until the 1-minute load average is below L',
+    )
+    ap.add_argument('--quiet-wait', type=float, default=1800.0, metavar='S')
+    ap.add_argument(
+        '--robot-rt', type=int, default=None, metavar='P', help='robots at SCHED_FIFO priority P'
+    )
     ap.add_argument('--out', type=Path, default=None)
     ap.add_argument('--json', type=Path, default=None)
     a = ap.parse_args()
+    QUIET.update(load=a.quiet_load, wait_s=a.quiet_wait, robot_rt=a.robot_rt)
     out = a.out or Path(tempfile.mkdtemp(prefix='bench_multihost_'))
     out.mkdir(parents=True, exist_ok=True)
-    report: dict = {'cpus': os.cpu_count(), 'load_avg_start': os.getloadavg(), 'out': str(out)}
+    report: dict = {
+        'cpus': os.cpu_count(),
+        'load_avg_start': os.getloadavg(),
+        'out': str(out),
+        'robot_rt': a.robot_rt,
+        'quiet_load': a.quiet_load,
+    }
     print(f'bench_multihost: runs in {out}; load average {os.getloadavg()}', flush=True)
     if a.traffic is not None:
         report['traffic'] = traffic_part(a.traffic or [2, 4, 8], a.duration, out)

@@ -19,7 +19,7 @@
 # The run is self-contained: numba's compiled kernels go to WORK/numba_cache
 # (AMENT_FORMATION_CACHE_DIR; both copies of the package compile there once: the clone's, which
 # pytest imports, and the installed one, which the programs run) and pytest's temporary folders to
-# WORK/pytest (PYTEST_ADDOPTS --basetemp): other runs on the machine neither prune the cache during
+# WORK/pytest (pytest --basetemp): other runs on the machine neither prune the cache during
 # the run nor rotate away the logs of a failed test (kept with --keep).
 # On a machine with ROS 2 Jazzy installed, none of this is needed:
 #   source /opt/ros/jazzy/setup.bash && colcon build && colcon test && colcon test-result --verbose
@@ -60,7 +60,6 @@ echo "colcon_check: workspace $work (clone of $(git -C "$here" rev-parse --short
 
 # 3. the clone's .venv: rclpy and the pinned dependencies (what /opt/ros/jazzy would provide)
 export AMENT_FORMATION_CACHE_DIR="$work/numba_cache"
-export PYTEST_ADDOPTS="${PYTEST_ADDOPTS:-} --basetemp=$work/pytest"
 t0=$SECONDS
 "$src/scripts/setup.sh"
 echo "colcon_check: clone and .venv ready in $((SECONDS - t0)) s" >&2
@@ -79,10 +78,10 @@ cd "$work"
 t0=$SECONDS
 colcon build --event-handlers console_direct-
 echo "colcon_check: colcon build took $((SECONDS - t0)) s" >&2
-test_args=(test --event-handlers console_direct+ --return-code-on-test-failure)
-if [ ${#pytest_args[@]} -gt 0 ]; then
-  test_args+=(--pytest-args "${pytest_args[@]}")
-fi
+# colcon sets PYTEST_ADDOPTS itself: pytest's own options go through --pytest-args (a leading
+# space keeps colcon's parser from taking them for its own; colcon strips it)
+test_args=(test --event-handlers console_direct+ --return-code-on-test-failure
+  --pytest-args " --basetemp=$work/pytest" "${pytest_args[@]}")
 test_status=0
 t0=$SECONDS
 colcon "${test_args[@]}" || test_status=$?

@@ -11,7 +11,9 @@ stamp="$venv/.requirements.sha256"
 want="$(sha256sum "$here/requirements.txt" "$here/setup.py" | sha256sum | cut -d' ' -f1)"
 
 warm_numba() {
-  "$venv/bin/python" -c 'import sys; from ament_formation.core.sim.jit_warm import main; sys.exit(main())' \
+  # from the checkout's folder: `python -c` imports the package of its working folder first, and
+  # the caller's may hold another checkout
+  (cd "$here" && "$venv/bin/python" -c 'import sys; from ament_formation.core.sim.jit_warm import main; sys.exit(main())') \
     || echo "setup: warning: compiling the numba kernels failed; they compile on first use" >&2
 }
 

@@ -154,41 +154,44 @@ class PublishThread:
                         break
                 self._count[key] -= 1
                 self.dropped += 1
+            idle = not self._queue  # the thread waits only on an empty queue
             self._queue.append((pub, data))
             self._count[key] = self._count.get(key, 0) + 1
-            self._cv.notify()
+            if idle:
+                self._cv.notify()
 
     def pending(self) -> int:
         with self._cv:
             return len(self._queue)
 
     def _run(self) -> None:
-        fn = self._fn
         msg = _Serialized()
         while True:
-            with self._cv:
+            with self._cv:  # everything queued, in one go (one wake-up per burst)
                 while not self._queue and not self._stop:
                     self._cv.wait()
                 if not self._queue:
                     return
-                pub, data = self._queue.popleft()
-                self._count[id(pub)] -= 1
-            buf = ctypes.create_string_buffer(data, len(data))
-            msg.buffer = ctypes.cast(buf, ctypes.c_void_p)
-            msg.buffer_length = msg.buffer_capacity = len(data)
-            t0 = time.monotonic()
-            try:
-                with pub.handle:  # kept alive (not destroyed) during the call
-                    ret = fn(pub.handle.pointer, ctypes.byref(msg), None)
-            except Exception:  # noqa: BLE001 - destroyed publisher, shut-down context
-                ret = -1
-            dt = time.monotonic() - t0
-            if dt > self.longest_call_s:
-                self.longest_call_s = dt
-            if ret == 0:
-                self.sent += 1
-            else:
-                self.errors += 1
+                batch = list(self._queue)
+                self._queue.clear()
+                self._count.clear()
+            for pub, data in batch:
+                # the bytes object's own buffer (no copy); ``data`` lives through the call
+                msg.buffer = ctypes.cast(ctypes.c_char_p(data), ctypes.c_void_p)
+                msg.buffer_length = msg.buffer_capacity = len(data)
+                t0 = time.monotonic()
+                try:
+                    with pub.handle:  # kept alive (not destroyed) during the call
+                        ret = self._fn(pub.handle.pointer, ctypes.byref(msg), None)
+                except Exception:  # noqa: BLE001 - destroyed publisher, shut-down context
+                    ret = -1
+                dt = time.monotonic() - t0
+                if dt > self.longest_call_s:
+                    self.longest_call_s = dt
+                if ret == 0:
+                    self.sent += 1
+                else:
+                    self.errors += 1
 
     def stop(self, flush_timeout_s: float = 1.0) -> bool:
         """Send what is queued (waiting at most ``flush_timeout_s``), then end the thread; True
@@ -202,4 +205,15 @@ class PublishThread:
         with self._cv:
             self._queue.clear()  # whatever could not be sent in time
             self._count.clear()
+        self.release()
         return not self._thread.is_alive()
+
+    def release(self) -> None:
+        """Give every adopted publisher its own ``publish`` back and drop the references to them
+        (the replaced method referred to its publisher: a cycle that would keep the publishers,
+        and with them the node and the DDS participant, until the process ends).
+        """
+        for pub in self.adopted:
+            pub.__dict__.pop('publish', None)
+            pub.__dict__.pop('_af_nonblocking', None)
+        self.adopted = []
