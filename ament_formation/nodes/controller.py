@@ -43,6 +43,7 @@ Topics (namespace robot_<id>; QoS from ros/qos.py)
                                 subscribed)
   pub  state                    nav_msgs/Odometry (fused pose; twist v, omega)
   QOS_CONTROL
+                                (while anyone subscribes)
   pub  accel                    geometry_msgs/AccelStamped (commanded point accel, S4)
   QOS_CONTROL
                                 (while anyone subscribes)
@@ -94,11 +95,14 @@ from ament_formation.core.estimator import EstimatorParams, PoseEstimator
 from ament_formation.core.graph import FormationGraph
 from ament_formation.core.params import ControlGains, param
 from ament_formation.core.scenario import load_scenario
+from ament_formation.ros import cdr
 from ament_formation.ros import diagnostics as diag
 from ament_formation.ros import messages as msgs
 from ament_formation.ros.executors import run_node
+from ament_formation.ros.listeners import Listeners
 from ament_formation.ros.params import declare_dataclass
 from ament_formation.ros.qos import QOS_CONTROL, QOS_GRAPH
+from ament_formation.ros.tick_inputs import served_by_executor, take_waiting, TakenAtTick
 
 HEAR_HYSTERESIS_M = 0.3  # a robot stays heard until this much beyond the hearing range
 
@@ -269,6 +273,7 @@ class ControllerNode(Node):
         peers: PeerTable | None = None,
         bridge=None,
         lock=None,
+        tick_inputs: bool = False,
         **node_kw,
     ):
         """``tick_timer=False``: no control timer of its own; the owner calls :meth:`control_tick`
@@ -279,7 +284,11 @@ class ControllerNode(Node):
         ``lock``: held by the callbacks that change what a control period reads (camera pose,
         graph, encounters) when the owner runs the control periods in a thread of their own
         (nodes/team.py ControlLoop, which holds it for each period); default: no lock.
+        ``tick_inputs``: the full-rate state and accel of the robots heard are taken by that
+        control loop at each period (:meth:`take_inputs`, ros/tick_inputs.py), not by the
+        executor.
         """
+        self._tick_inputs = tick_inputs
         super().__init__('formation_controller', context=context, **node_kw)
         self.lock = lock if lock is not None else contextlib.nullcontext()
         self._own_xy: tuple[float, float] | None = None  # own position of the last period [m]
@@ -366,6 +375,7 @@ class ControllerNode(Node):
         self.late_ticks = 0
         self._last_tick_wall = None
         self._sim_time = bool(self.get_parameter('use_sim_time').value)
+        self._now_ns = diag.clock_ns(self)  # the node's clock [ns] (read directly unless sim time)
         self.last_torque = np.zeros(2)
         self.peers = peers
         self.record = None if peers is None else peers.records[self.rid]  # what others read of us
@@ -375,7 +385,14 @@ class ControllerNode(Node):
         self.pub_state = self.create_publisher(msgs.Odometry, 'state', QOS_CONTROL)
         self.pub_accel = self.create_publisher(AccelStamped, 'accel', QOS_CONTROL)
         self.pub_mode = self.create_publisher(String, 'mode', QOS_CONTROL)
-        self.create_subscription(PoseStamped, 'pose', self._on_pose, QOS_CONTROL)
+        # matched subscriptions, asked of rmw at most every 0.1 s (ros/listeners.py)
+        self._state_heard, self._torque_heard, self._accel_heard = (
+            Listeners(self.pub_state),
+            Listeners(self.pub_torque),
+            Listeners(self.pub_accel),
+        )
+        # raw: the high-rate inputs are read from their serialized form (ros/cdr.py)
+        self.create_subscription(PoseStamped, 'pose', self._on_pose, QOS_CONTROL, raw=True)
         self.bridge = bridge
         if bridge is None:
             self.create_subscription(JointState, 'wheel_state', self._on_wheels, QOS_CONTROL)
@@ -412,13 +429,24 @@ class ControllerNode(Node):
         if tick_timer and self.prm.realtime_priority:  # the executor thread runs the control timer
             set_realtime(self.prm.realtime_priority, self.get_logger())
 
+    @property
+    def subscriptions(self):
+        """What an executor serves: every subscription but those :meth:`take_inputs` takes."""
+        return served_by_executor(super().subscriptions)
+
+    def take_inputs(self) -> None:
+        """Run the callbacks of the messages that arrived since the last call on the
+        subscriptions taken at each period (``tick_inputs``; holding ``lock``).
+        """
+        take_waiting(list(super().subscriptions))
+
     # ------------------------------------------------------------------ time
     def now_s(self) -> float:
-        return self.get_clock().now().nanoseconds * 1e-9
+        return self._now_ns() * 1e-9
 
     # ------------------------------------------------------------------ inputs
-    def _on_pose(self, msg: PoseStamped) -> None:
-        pose, stamp_s = msgs.pose_from_msg(msg)
+    def _on_pose(self, msg: PoseStamped | bytes) -> None:
+        pose, stamp_s = cdr.pose_from_msg(msg)
         with self.lock:
             outcome = self.estimator.camera_update(stamp_s, pose)
         if outcome.startswith('rejected'):
@@ -482,15 +510,15 @@ class ControllerNode(Node):
         nb = _Neighbour(rid)
 
         def on_state(msg, nb=nb):
-            state, stamp_s = msgs.state_from_odometry(msg)
-            if not np.all(np.isfinite(state)):
+            state, stamp_s = cdr.finite_state_from_odometry(msg)
+            if state is None:  # not finite
                 self.rejected['parent'] += 1
                 return
             nb.state, nb.stamp_s = state, stamp_s
 
         def on_accel(msg, nb=nb):
-            accel, _ = msgs.accel_from_msg(msg)
-            if not np.all(np.isfinite(accel)):
+            accel, _ = cdr.finite_accel_from_msg(msg)
+            if accel is None:  # not finite
                 self.rejected['parent'] += 1
                 return
             nb.accel = accel
@@ -504,7 +532,7 @@ class ControllerNode(Node):
             nb.mode, nb.target = threat_mode(mode)
 
         def on_camera(msg, nb=nb):
-            pose, _ = msgs.pose_from_msg(msg)
+            pose, _ = cdr.pose_from_msg(msg)
             own = self._own_xy
             if own is None or not (math.isfinite(pose[0]) and math.isfinite(pose[1])):
                 return
@@ -515,13 +543,19 @@ class ControllerNode(Node):
                 nb.in_range = in_range
                 self._update_hearing(nb)
 
-        nb.callbacks = (on_state, on_accel)
+        nb.callbacks = (
+            (TakenAtTick(on_state), TakenAtTick(on_accel))
+            if self._tick_inputs
+            else (on_state, on_accel)
+        )
         nb.low_subs = [
             self.create_subscription(String, f'/robot_{rid}/mode', on_mode, QOS_CONTROL)
         ]
         if not self.prm.hear_all:  # range gate from the camera poses (30 fps) of robot rid
             nb.low_subs.append(
-                self.create_subscription(PoseStamped, f'/robot_{rid}/pose', on_camera, QOS_CONTROL)
+                self.create_subscription(
+                    PoseStamped, f'/robot_{rid}/pose', on_camera, QOS_CONTROL, raw=True
+                )
             )
         return nb
 
@@ -547,17 +581,18 @@ class ControllerNode(Node):
                 on_state, on_accel = nb.callbacks
                 nb.subs = [
                     self.create_subscription(
-                        msgs.Odometry, f'/robot_{nb.rid}/state', on_state, QOS_CONTROL
+                        msgs.Odometry, f'/robot_{nb.rid}/state', on_state, QOS_CONTROL, raw=True
                     ),
                     self.create_subscription(
-                        AccelStamped, f'/robot_{nb.rid}/accel', on_accel, QOS_CONTROL
+                        AccelStamped, f'/robot_{nb.rid}/accel', on_accel, QOS_CONTROL, raw=True
                     ),
                 ]
             elif not need and nb.subs:
-                for sub in nb.subs:
-                    self.destroy_subscription(sub)
-                nb.subs = []
-                nb.state, nb.stamp_s = None, -math.inf  # not heard any more: not used
+                with self.lock:  # no message taken at a period (tick_inputs) after this
+                    for sub in nb.subs:
+                        self.destroy_subscription(sub)
+                    nb.subs = []
+                    nb.state, nb.stamp_s = None, -math.inf  # not heard any more: not used
 
     def _neighbour_now(self, nb: _Neighbour | None, now_s: float) -> np.ndarray | None:
         """The neighbour's state extrapolated to now with its commanded acceleration
@@ -638,7 +673,8 @@ class ControllerNode(Node):
         self._own_xy = (float(state[0]), float(state[1]))
         stamp = msgs.stamp_from_s(now)
         self._msg_state = msgs.odometry(state, stamp, f'robot_{self.rid}', out=self._msg_state)
-        self.pub_state.publish(self._msg_state)
+        if self._state_heard():  # (volatile: unheard, it reaches nobody)
+            self.pub_state.publish(self._msg_state)
         if self.record is not None:
             self.record.state, self.record.stamp_s = state, now
         if now - self.last_wheel_s > self.prm.wheel_timeout_s:
@@ -779,20 +815,24 @@ class ControllerNode(Node):
             self.diag.changed()  # a safety change is published when it happens
 
     def _send(self, torque: np.ndarray, accel: np.ndarray | None, now: float) -> None:
-        torque = np.where(np.isfinite(torque), torque, 0.0)
-        torque = np.clip(torque, -self.tau_max, self.tau_max)  # DESIGN §7: clamp here too
-        self.last_torque = torque
-        stamp = msgs.stamp_from_s(now)
-        if self.bridge is None or self.pub_torque.get_subscription_count():
+        lim = self.tau_max  # non-finite -> 0, then DESIGN §7: clamp here too (two scalars)
+        left, right = float(torque[0]), float(torque[1])
+        left = min(max(left if math.isfinite(left) else 0.0, -lim), lim)
+        right = min(max(right if math.isfinite(right) else 0.0, -lim), lim)
+        torque = self.last_torque = np.array([left, right])
+        stamp = None
+        if self.bridge is None or self._torque_heard():
+            stamp = msgs.stamp_from_s(now)
             self._msg_torque = msgs.wheel_torque(torque, stamp, out=self._msg_torque)
             self.pub_torque.publish(self._msg_torque)
         if self.bridge is not None:
-            self.bridge.command((float(torque[0]), float(torque[1])))
+            self.bridge.command((left, right))
         accel = np.zeros(2) if accel is None else accel
         if self.record is not None:
             self.record.accel = accel
             self.record.mode, self.record.target = threat_mode(self.mode)
-        if self.pub_accel.get_subscription_count():  # (in a team, often nobody outside)
+        if self._accel_heard():  # (in a team, often nobody outside)
+            stamp = msgs.stamp_from_s(now) if stamp is None else stamp
             self._msg_accel = msgs.accel_stamped(accel, stamp, out=self._msg_accel)
             self.pub_accel.publish(self._msg_accel)
         key = tuple(sorted(self.mode.items()))
