@@ -14,8 +14,10 @@ together; RobotController ``release``, never inside the partner's emergency circ
 robot's S8.3 goal is derived from the scenario (leader: r(t); follower: its original parent's
 point + slot offset), so the robot's own exit test sees the partner's goal too.
 Without the coordinator the controller arbitrates robot encounters itself with the same rules.
-Safety (DESIGN §7): no pose for ``pose_timeout_s`` or no wheel data for
-``wheel_timeout_s`` -> controlled stop (brake to rest, then zero torque); a parent silent for
+Safety (DESIGN §7): no pose for ``pose_timeout_s`` -> at rest by then (+ one control period): the
+controlled stop begins when the camera age exceeds ``pose_timeout_s`` minus the time to rest from
+the current speed under the stop law plus ``stop_margin_s`` (StopLead, docs/safety.md §7); no
+wheel data for ``wheel_timeout_s`` -> zero torque (nothing to brake with); a parent silent for
 ``parent_timeout_s`` is extrapolated with its commanded acceleration, after ``parent_hold_s`` the
 robot holds (brakes); NaN/inf inputs are rejected and counted; torques are clamped to the limit.
 Before the mission start (``start_s`` of the graph) the robot stands still (zero torque).
@@ -71,6 +73,10 @@ Parameters
   parent_hold_s     float  parent state older than this -> hold; other robots older than
                            this are ignored [s]                                      default 1.0
   stop_time_s       float  time constant of the controlled stop [s]                 default 0.3
+  stop_speed_max_mps float fastest |v| from which a camera loss ends at rest by pose_timeout_s
+                           [m/s]                                                     default 0.15
+  stop_turn_rate_max_radps float  fastest |omega| likewise [rad/s]                  default 2.5
+  stop_margin_s     float  added to the time to rest in the camera-loss stop lead [s] default 0.03
   camera_gain       float  S10 complementary gain per camera frame, (0, 1]          default 0.5
 """
 
@@ -127,6 +133,22 @@ class ControllerParams:
         range=(0.0, 60.0),
     )
     stop_time_s: float = param(0.3, 'time constant of the controlled stop [s]', range=(0.01, 10.0))
+    stop_speed_max_mps: float = param(
+        0.15,
+        'fastest |v| from which a camera loss ends at rest by pose_timeout_s (with '
+        'stop_turn_rate_max_radps: the stop lead there must fit in pose_timeout_s) [m/s]',
+        range=(0.001, 10.0),
+    )
+    stop_turn_rate_max_radps: float = param(
+        2.5,
+        'fastest |omega| from which a camera loss ends at rest by pose_timeout_s [rad/s]',
+        range=(0.001, 100.0),
+    )
+    stop_margin_s: float = param(
+        0.03,
+        'added to the time to rest of the camera-loss stop lead (command path to the wheels) [s]',
+        range=(0.0, 1.0),
+    )
     camera_gain: float = param(0.5, 'S10 complementary gain per camera frame, (0, 1]')
     hear_all: bool = param(
         False,
@@ -158,6 +180,9 @@ class ControllerParams:
             ('parent_timeout_s', 0.0, 10.0),
             ('parent_hold_s', 0.0, 60.0),
             ('stop_time_s', 0.01, 10.0),
+            ('stop_speed_max_mps', 0.001, 10.0),
+            ('stop_turn_rate_max_radps', 0.001, 100.0),
+            ('stop_margin_s', 0.0, 1.0),
         ):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and lo <= v <= hi):
@@ -191,13 +216,161 @@ def stop_torque(
     residual speed is |g| / (1/T + K/eps): about 1 mm/s and 0.01 rad/s with the defaults, where a
     plain -x2/T brake would creep at g T. Uniformly scaled into the torque limit (S3.6).
     """
+    u = _stop_law(state, k, stop_time_s, gains)
+    scale = np.maximum(1.0, np.max(np.abs(u), axis=1) / k.tau_max)
+    return u / scale[:, None]
+
+
+def _stop_law(state: np.ndarray, k: PlantCoeffs, stop_time_s: float, gains: ControlGains):
+    """The torques (N, 2) of :func:`stop_torque` before the scaling into the torque limit."""
     x2 = state[:, 3:5]
     gain = gains.switching_gain_mps2 * np.stack((np.ones_like(k.d), 1.0 / k.d), axis=-1)
     eps = 0.5 * gains.boundary_layer_mps * np.stack((np.ones_like(k.d), 1.0 / k.d), axis=-1)
     x2dot = -x2 / stop_time_s - gain * np.clip(x2 / eps, -1.0, 1.0) - f2(state, k)
-    u = np.einsum('nij,nj->ni', b2_inv(k), x2dot)
-    scale = np.maximum(1.0, np.max(np.abs(u), axis=1) / k.tau_max)
-    return u / scale[:, None]
+    return np.einsum('nij,nj->ni', b2_inv(k), x2dot)
+
+
+REST_SPEED_MPS = 0.005  # at rest: both wheels' rim speeds |v -+ (a/2) omega| below this
+# (docs/safety.md, bench/bench_stop.py REST_SPEED_MPS)
+
+
+def time_to_band(
+    y0: float, stop_time_s: float, gain: float, eps: float, g_bar: float, y_rest: float
+) -> float:
+    """Time [s] for one component y of x2 (v or omega) to fall from ``|y0|`` to ``y_rest`` under
+    the stop law, the disturbance at its bound against the motion (worst case):
+
+    * outside the boundary layer (|y| > eps): y' = -y/T - (K - g_bar): y + (K - g_bar) T decays
+      with time constant T, so eps is reached after T ln((|y0| + b T) / (eps + b T)),
+      b = K - g_bar;
+    * inside: y' = -(1/T + K/eps) y + g_bar: an exponential of rate c = 1/T + K/eps toward the
+      residual g_bar / c, reached to ``y_rest`` after ln((eps - res) / (y_rest - res)) / c.
+
+    Needs K > g_bar and g_bar / c < y_rest (checked by :class:`StopLead`). Exact for a constant
+    disturbance at its bound along the motion, an upper bound for any |g| <= g_bar (comparison),
+    while the law is not torque-limited (StopLead checks that up to its speed bounds).
+    """
+    y = abs(float(y0))
+    t = 0.0
+    b = gain - g_bar
+    if y > eps:
+        t = stop_time_s * math.log((y + b * stop_time_s) / (eps + b * stop_time_s))
+        y = eps
+    rate = 1.0 / stop_time_s + gain / eps
+    residual = g_bar / rate
+    if y > y_rest:
+        t += math.log((y - residual) / (y_rest - residual)) / rate
+    return t
+
+
+class StopLead:
+    """When the camera-loss stop must begin so that the robot is at rest by ``pose_timeout_s``
+    (DESIGN §7, docs/safety.md §7).
+
+    Rule: the controlled stop (:func:`stop_torque`) begins once the camera age exceeds
+    ``pose_timeout_s - lead(v, omega)``, lead = time to rest from the current speed under the stop
+    law + ``margin_s``, capped at its worst case ``max_s`` (the lead at the speed bounds
+    ``speed_max_mps``, ``turn_rate_max_radps``). At rest = both wheels' rim speeds
+    |v -+ (a/2) omega| below REST_SPEED_MPS, reached when |v| <= REST_SPEED_MPS / 2 and
+    (a/2)|omega| <= REST_SPEED_MPS / 2; the time to rest is the longer of the two components'
+    :func:`time_to_band` (the law acts on v and omega separately: u = B2^-1 (...) decouples them
+    while it is not torque-limited), with the disturbance at the scenario's bound (g1_bar, g2_bar).
+
+    Checks (ConfigError naming the parameter): the switching gain beats the disturbance bound and
+    holds the robot within the rest band; the unscaled stop law stays within the torque limit for
+    every |v| <= speed_max_mps, |omega| <= turn_rate_max_radps (so the closed form holds there);
+    ``max_s <= pose_timeout_s`` (:meth:`check`).
+    """
+
+    def __init__(
+        self,
+        robot,
+        stop_time_s: float,
+        gains: ControlGains,
+        disturbance_bound=(0.0, 0.0),
+        margin_s: float = 0.03,
+        speed_max_mps: float = 0.15,
+        turn_rate_max_radps: float = 2.5,
+    ):
+        d, a = robot.com_offset_m, robot.axle_length_m
+        self.stop_time_s = float(stop_time_s)
+        self.margin_s = float(margin_s)
+        self.speed_max_mps = float(speed_max_mps)
+        self.turn_rate_max_radps = float(turn_rate_max_radps)
+        gain = gains.switching_gain_mps2
+        eps = 0.5 * gains.boundary_layer_mps  # as stop_torque
+        g1, g2 = (float(g) for g in disturbance_bound)
+        # (K, eps, g_bar, rest band) of v [m/s] and of omega [rad/s]
+        self._v = (gain, eps, g1, 0.5 * REST_SPEED_MPS)
+        self._w = (gain / d, eps / d, g2, REST_SPEED_MPS / a)
+        for name, (k_c, eps_c, g_c, rest_c), unit in (
+            ('v', self._v, 'm/s^2'),
+            ('omega', self._w, 'rad/s^2'),
+        ):
+            residual = g_c / (1.0 / self.stop_time_s + k_c / eps_c)
+            if not (k_c > g_c and residual < rest_c):
+                raise ConfigError(
+                    f"the controlled stop cannot bring {name} to rest against the scenario's "
+                    f'disturbance bound {g_c:g} {unit} (switching gain {k_c:g} {unit}, residual '
+                    f'{residual:.4g} >= rest band {rest_c:.4g}): lower stop_time_s or raise '
+                    'control.switching_gain_mps2',
+                    'stop_time_s',
+                )
+        k = PlantCoeffs.from_params([robot])
+        self.peak_torque_nm = self._peak_torque(k, gains)
+        if self.peak_torque_nm > robot.torque_limit_nm:
+            raise ConfigError(
+                f'the controlled stop needs {self.peak_torque_nm:.3f} N m at speeds up to '
+                f'{self.speed_max_mps:g} m/s and {self.turn_rate_max_radps:g} rad/s, more than '
+                f'the torque limit {robot.torque_limit_nm:g} N m, so its time to rest is not '
+                'guaranteed: lower stop_speed_max_mps / stop_turn_rate_max_radps or raise '
+                'stop_time_s',
+                'stop_speed_max_mps',
+            )
+        self.time_to_rest_max_s = self.time_to_rest(self.speed_max_mps, self.turn_rate_max_radps)
+        self.max_s = self.time_to_rest_max_s + self.margin_s
+
+    def _peak_torque(self, k: PlantCoeffs, gains: ControlGains, n: int = 41) -> float:
+        """Largest unscaled stop-law torque [N m] over |v| <= speed_max_mps,
+        |omega| <= turn_rate_max_radps (an n x n grid of the box, its edges included).
+        """
+        vv, ww = np.meshgrid(
+            np.linspace(-self.speed_max_mps, self.speed_max_mps, n),
+            np.linspace(-self.turn_rate_max_radps, self.turn_rate_max_radps, n),
+        )
+        states = np.zeros((vv.size, 5))
+        states[:, 3], states[:, 4] = vv.ravel(), ww.ravel()
+        kn = k.take(np.zeros(vv.size, dtype=int))
+        return float(np.max(np.abs(_stop_law(states, kn, self.stop_time_s, gains))))
+
+    def time_to_rest(self, v: float, omega: float) -> float:
+        """Time [s] from (v, omega) to rest under the stop law (worst-case disturbance)."""
+        return max(
+            time_to_band(v, self.stop_time_s, *self._v),
+            time_to_band(omega, self.stop_time_s, *self._w),
+        )
+
+    def lead_s(self, v: float, omega: float) -> float:
+        """How long before ``pose_timeout_s`` the stop begins at (v, omega) [s], <= max_s."""
+        return min(self.time_to_rest(v, omega) + self.margin_s, self.max_s)
+
+    def over_bound(self, v: float, omega: float) -> bool:
+        """Faster than the speed bounds: the guarantee does not cover (v, omega)."""
+        return abs(v) > self.speed_max_mps or abs(omega) > self.turn_rate_max_radps
+
+    def check(self, pose_timeout_s: float) -> None:
+        """Raise ConfigError unless the worst-case lead fits in ``pose_timeout_s``."""
+        if self.max_s > pose_timeout_s:
+            raise ConfigError(
+                f'must be >= {self.max_s:.3f} s: the controlled stop from '
+                f'{self.speed_max_mps:g} m/s (stop_speed_max_mps) and '
+                f'{self.turn_rate_max_radps:g} rad/s (stop_turn_rate_max_radps) takes '
+                f'{self.time_to_rest_max_s:.3f} s to rest (stop_time_s {self.stop_time_s:g} s), '
+                f'plus stop_margin_s {self.margin_s:g} s, so it must begin that long before '
+                f'pose_timeout_s (got {pose_timeout_s:g} s); raise pose_timeout_s or lower '
+                'stop_speed_max_mps, stop_turn_rate_max_radps, stop_time_s or stop_margin_s',
+                'pose_timeout_s',
+            )
 
 
 def set_realtime(priority: int, logger=None) -> bool:
@@ -304,6 +477,28 @@ class ControllerNode(Node):
         spec = self.scenario.robot(self.rid)
         self.k = PlantCoeffs.from_params([spec.params])
         self.tau_max = spec.params.torque_limit_nm
+        # camera loss: the stop begins early enough to be at rest by pose_timeout_s (StopLead)
+        self.stop_lead = StopLead(
+            spec.params,
+            self.prm.stop_time_s,
+            self.scenario.control,
+            self.scenario.disturbance.accel_bound,
+            margin_s=self.prm.stop_margin_s,
+            speed_max_mps=self.prm.stop_speed_max_mps,
+            turn_rate_max_radps=self.prm.stop_turn_rate_max_radps,
+        )
+        self.stop_lead.check(self.prm.pose_timeout_s)
+        frame_s = 1.0 / self.scenario.camera.fps
+        if self.prm.pose_timeout_s - self.stop_lead.max_s < 2.0 * frame_s:
+            self.get_logger().warn(
+                f'at the speed bounds the camera-loss stop begins at a camera age of '
+                f'{self.prm.pose_timeout_s - self.stop_lead.max_s:.3f} s (pose_timeout_s - '
+                f'{self.stop_lead.max_s:.3f} s), less than two frame intervals: a late frame '
+                'will stop a robot driving that fast'
+            )
+        self._pose_stop = False  # the camera-loss stop is in force ...
+        self._pose_stop_camera_s = None  # ... since this newest camera stamp (latched)
+        self.over_stop_speed = 0  # ticks faster than stop_speed_max_mps/stop_turn_rate_max_radps
         self.estimator = PoseEstimator(
             EstimatorParams.from_robot(spec.params, camera_gain=self.prm.camera_gain)
         )
@@ -681,7 +876,7 @@ class ControllerNode(Node):
             self._safety('stopped_wheels')
             self._send(np.zeros(2), None, now)  # no encoder data: nothing to brake with
             return
-        if est.camera_age_s(now) > self.prm.pose_timeout_s:
+        if self._camera_lost(state, now):
             self._safety('stopped_pose')
             self._send(
                 stop_torque(state[None], self.k, self.prm.stop_time_s, self.scenario.control)[0],
@@ -766,10 +961,37 @@ class ControllerNode(Node):
             now,
         )
 
+    def _camera_lost(self, state: np.ndarray, now: float) -> bool:
+        """Camera loss (DESIGN §7): True once the camera age exceeds ``pose_timeout_s`` minus the
+        stop lead at the current speed (:class:`StopLead`: the time to rest under the stop law +
+        ``stop_margin_s``), so the robot is at rest by ``pose_timeout_s`` (+ one control period).
+        Latched until a newer camera pose is accepted: the lead shrinks as the robot slows, and
+        a stop once begun must not give way to driving on the same stale pose.
+        """
+        est = self.estimator
+        if self._pose_stop:
+            if est.last_camera_s == self._pose_stop_camera_s:
+                return True
+            self._pose_stop = False  # a new pose: decide afresh
+        v, omega = float(state[3]), float(state[4])
+        if self.stop_lead.over_bound(v, omega):
+            self.over_stop_speed += 1
+            self.get_logger().warn(
+                f'driving faster than the stop bounds ({self.stop_lead.speed_max_mps:g} m/s, '
+                f'{self.stop_lead.turn_rate_max_radps:g} rad/s): v {v:.3f} m/s, omega '
+                f'{omega:.2f} rad/s; a camera loss may end at rest after pose_timeout_s',
+                throttle_duration_sec=10.0,
+            )
+        if est.camera_age_s(now) > self.prm.pose_timeout_s - self.stop_lead.lead_s(v, omega):
+            self._pose_stop, self._pose_stop_camera_s = True, est.last_camera_s
+            return True
+        return False
+
     def _control_status(self) -> tuple[int, str, dict]:
         values = {
             'ticks': self.ticks,
             'late_ticks': self.late_ticks,
+            'over_stop_speed': self.over_stop_speed,
             'safety': self.safety,
             'mode': self.mode['mode'],
             **{f'rejected_{k}': v for k, v in self.rejected.items()},
