@@ -28,12 +28,16 @@ def scenario():
     return load_scenario(SCENARIO)
 
 
+DECEL_MPS2 = 0.8  # stop_decel_mps2's default
+
+
 def _lead(sc, **kw) -> StopLead:
     robot = sc.robot(1).params
+    kw.setdefault('decel_mps2', DECEL_MPS2)
     return StopLead(robot, 0.3, sc.control, sc.disturbance.accel_bound, **kw)
 
 
-def _simulated_time_to_rest(sc, v0: float, w0: float) -> float:
+def _simulated_time_to_rest(sc, v0: float, w0: float, decel_mps2: float) -> float:
     """The stop law at 100 Hz (ZOH) on the plant, the disturbance at its bound pushing along the
     initial motion (the worst case of the closed form): time until both wheels' rim speeds stay
     below REST_SPEED_MPS.
@@ -46,7 +50,7 @@ def _simulated_time_to_rest(sc, v0: float, w0: float) -> float:
     dt, t, last_moving = 0.001, 0.0, 0.0
     while t < 2.0:
         if round(t / dt) % round(PERIOD_S / dt) == 0:
-            u = stop_torque(x, k, 0.3, sc.control)
+            u = stop_torque(x, k, 0.3, sc.control, decel_mps2, PERIOD_S)
         x = rk4_step(x, u, lambda _t: g, t, dt, k)
         t += dt
         if abs(x[0, 3]) + half_axle * abs(x[0, 4]) >= REST_SPEED_MPS:
@@ -54,17 +58,18 @@ def _simulated_time_to_rest(sc, v0: float, w0: float) -> float:
     return last_moving
 
 
+@pytest.mark.parametrize('decel', [0.0, DECEL_MPS2])  # 0: the formation law's gain (hold_parent)
 @pytest.mark.parametrize(
     'v0, w0',
     [(0.05, 0.0), (0.2, 0.0), (0.25, 0.0), (0.08, 1.4), (-0.1, -1.0), (0.0, 2.5), (0.003, 0.0)],
 )
-def test_time_to_rest_bounds_the_stop_law_on_the_plant(scenario, v0, w0):
+def test_time_to_rest_bounds_the_stop_law_on_the_plant(scenario, v0, w0, decel):
     """The closed form is an upper bound of the sampled stop law (one period of slack for the ZOH)
     and tight: within 40 ms.
     """
-    lead = _lead(scenario)
+    lead = _lead(scenario, decel_mps2=decel)
     predicted = lead.time_to_rest(v0, w0)
-    simulated = _simulated_time_to_rest(scenario, v0, w0)
+    simulated = _simulated_time_to_rest(scenario, v0, w0, lead.decel_mps2)
     assert simulated <= predicted + PERIOD_S
     assert predicted - simulated < 0.04, (predicted, simulated)
 
@@ -80,15 +85,28 @@ def test_lead_grows_with_speed_and_is_capped_at_its_worst_case(scenario):
     assert lead.lead_s(0.6, 3.0) == lead.max_s  # beyond the bounds: capped (and counted)
     assert lead.over_bound(0.16, 0.0) and lead.over_bound(0.0, -2.6)
     assert not lead.over_bound(-0.15, 2.5)
-    # defaults: worst case 0.350 s to rest (from 0.15 m/s) + 0.03 s fits in 0.5 s
-    assert lead.max_s == pytest.approx(0.380, abs=0.002)
+    # defaults: worst case 0.308 s to rest (from 2.5 rad/s) + 0.03 s fits in 0.5 s
+    assert lead.max_s == pytest.approx(0.338, abs=0.002)
     lead.check(0.5)
+    # the harder brake on v shortens the lead at the speeds the formation drives
+    gentle = _lead(scenario, decel_mps2=0.0)
+    assert gentle.max_s == pytest.approx(0.380, abs=0.002)
+    assert lead.lead_s(0.08, 0.2) < 0.6 * gentle.lead_s(0.08, 0.2)
+
+
+def test_a_weaker_robot_gets_the_decel_its_torque_limit_allows(scenario):
+    import dataclasses
+
+    weak = dataclasses.replace(scenario.robot(1).params, torque_limit_nm=0.12)
+    lead = StopLead(weak, 0.3, scenario.control, scenario.disturbance.accel_bound, decel_mps2=0.8)
+    assert scenario.control.switching_gain_mps2 < lead.decel_mps2 < 0.8
+    assert 0.119 < lead.peak_torque_nm <= 0.12
 
 
 def test_parameters_whose_worst_case_lead_exceeds_pose_timeout_are_refused(scenario):
     lead = _lead(scenario, margin_s=0.03)
-    with pytest.raises(ConfigError, match=r'pose_timeout_s: must be >= 0\.38\d s') as err:
-        lead.check(0.35)
+    with pytest.raises(ConfigError, match=r'pose_timeout_s: must be >= 0\.33\d s') as err:
+        lead.check(0.3)
     for name in ('stop_speed_max_mps', 'stop_turn_rate_max_radps', 'stop_margin_s'):
         assert name in str(err.value)
     with pytest.raises(ConfigError, match='stop_speed_max_mps: .* more than the torque limit'):
@@ -156,9 +174,9 @@ def test_node_counts_speeds_beyond_the_bounds_and_caps_the_lead(ros_context):
     try:
         t0 = 1000.0
         node.estimator.camera_update(t0, (0.0, 1.0, 0.0))
-        states = _drive(node, t0, 0.2, 0.0, 30)
+        states = _drive(node, t0, 0.2, 3.0, 30)  # both beyond the bounds (0.15 m/s, 2.5 rad/s)
         first = states.index('stopped_pose')
-        threshold = 0.5 - node.stop_lead.max_s  # the cap: 0.12 s
+        threshold = 0.5 - node.stop_lead.max_s  # the cap: 0.162 s
         assert threshold < first * PERIOD_S <= threshold + PERIOD_S + 1e-9
         # every tick driven faster than the bound, the one that began the stop included
         assert node.over_stop_speed == first + 1
@@ -187,7 +205,7 @@ def test_node_stop_is_latched_until_a_new_pose(ros_context):
 
 
 def test_node_refuses_a_pose_timeout_shorter_than_the_worst_case_lead(ros_context):
-    with pytest.raises(ConfigError, match=r'pose_timeout_s: must be >= 0\.38'):
+    with pytest.raises(ConfigError, match=r'pose_timeout_s: must be >= 0\.33'):
         _node(ros_context, pose_timeout_s=0.3)
     node = _node(
         ros_context,

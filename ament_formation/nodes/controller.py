@@ -76,6 +76,7 @@ Parameters
   stop_speed_max_mps float fastest |v| from which a camera loss ends at rest by pose_timeout_s
                            [m/s]                                                     default 0.15
   stop_turn_rate_max_radps float  fastest |omega| likewise [rad/s]                  default 2.5
+  stop_decel_mps2   float  switching gain of the camera-loss stop on v [m/s^2]      default 0.8
   stop_margin_s     float  added to the time to rest in the camera-loss stop lead [s] default 0.03
   camera_gain       float  S10 complementary gain per camera frame, (0, 1]          default 0.5
 """
@@ -144,6 +145,13 @@ class ControllerParams:
         'fastest |omega| from which a camera loss ends at rest by pose_timeout_s [rad/s]',
         range=(0.001, 100.0),
     )
+    stop_decel_mps2: float = param(
+        0.8,
+        "switching gain of the camera-loss stop on v [m/s^2] (at least the formation law's "
+        'K_p, at most what the torque limit allows within the stop speed bounds; boundary layer '
+        '2 decel / control_rate_hz): a harder brake, a shorter stop lead',
+        range=(0.0, 10.0),
+    )
     stop_margin_s: float = param(
         0.03,
         'added to the time to rest of the camera-loss stop lead (command path to the wheels) [s]',
@@ -182,6 +190,7 @@ class ControllerParams:
             ('stop_time_s', 0.01, 10.0),
             ('stop_speed_max_mps', 0.001, 10.0),
             ('stop_turn_rate_max_radps', 0.001, 100.0),
+            ('stop_decel_mps2', 0.0, 10.0),
             ('stop_margin_s', 0.0, 1.0),
         ):
             v = getattr(self, name)
@@ -205,7 +214,12 @@ class ControllerParams:
 
 
 def stop_torque(
-    state: np.ndarray, k: PlantCoeffs, stop_time_s: float, gains: ControlGains
+    state: np.ndarray,
+    k: PlantCoeffs,
+    stop_time_s: float,
+    gains: ControlGains,
+    decel_mps2: float = 0.0,
+    period_s: float = 0.01,
 ) -> np.ndarray:
     """Controlled stop (DESIGN §7): torques (N, 2) that bring (v, omega) to rest and hold them
     there against the bounded disturbance g.
@@ -215,17 +229,43 @@ def stop_torque(
     K = (K_p, K_p / d) and eps = (eps_p, eps_p / d) / 2 from the formation law (S3.3, S3.5), so the
     residual speed is |g| / (1/T + K/eps): about 1 mm/s and 0.01 rad/s with the defaults, where a
     plain -x2/T brake would creep at g T. Uniformly scaled into the torque limit (S3.6).
+    ``decel_mps2`` (the camera-loss stop): the v component's gain raised to it, its boundary layer
+    widened to 2 ``decel_mps2`` ``period_s`` (the sampling rule at the control period,
+    :func:`stop_gains`).
     """
-    u = _stop_law(state, k, stop_time_s, gains)
+    u = _stop_law(state, k, stop_time_s, gains, decel_mps2, period_s)
     scale = np.maximum(1.0, np.max(np.abs(u), axis=1) / k.tau_max)
     return u / scale[:, None]
 
 
-def _stop_law(state: np.ndarray, k: PlantCoeffs, stop_time_s: float, gains: ControlGains):
+def stop_gains(
+    gains: ControlGains, decel_mps2: float = 0.0, period_s: float = 0.01
+) -> tuple[float, float]:
+    """(K, eps) of the stop law's v component [m/s^2, m/s]: the formation law's K_p and eps_p / 2,
+    or, with ``decel_mps2`` above K_p, that gain and eps = max(eps_p / 2, 2 decel_mps2 period_s)
+    (S3.5's eps >= K T_s at the control period, with a factor 2: (1/T + K/eps) period_s <= 0.6).
+    The omega component keeps (K_p / d, eps_p / (2 d)).
+    """
+    gain, eps = gains.switching_gain_mps2, 0.5 * gains.boundary_layer_mps
+    if decel_mps2 > gain:
+        gain, eps = decel_mps2, max(eps, 2.0 * decel_mps2 * period_s)
+    return gain, eps
+
+
+def _stop_law(
+    state: np.ndarray,
+    k: PlantCoeffs,
+    stop_time_s: float,
+    gains: ControlGains,
+    decel_mps2: float = 0.0,
+    period_s: float = 0.01,
+):
     """The torques (N, 2) of :func:`stop_torque` before the scaling into the torque limit."""
     x2 = state[:, 3:5]
-    gain = gains.switching_gain_mps2 * np.stack((np.ones_like(k.d), 1.0 / k.d), axis=-1)
-    eps = 0.5 * gains.boundary_layer_mps * np.stack((np.ones_like(k.d), 1.0 / k.d), axis=-1)
+    gain_v, eps_v = stop_gains(gains, decel_mps2, period_s)
+    gain_p, eps_p = gains.switching_gain_mps2, 0.5 * gains.boundary_layer_mps
+    gain = np.stack((np.full_like(k.d, gain_v), gain_p / k.d), axis=-1)
+    eps = np.stack((np.full_like(k.d, eps_v), eps_p / k.d), axis=-1)
     x2dot = -x2 / stop_time_s - gain * np.clip(x2 / eps, -1.0, 1.0) - f2(state, k)
     return np.einsum('nij,nj->ni', b2_inv(k), x2dot)
 
@@ -291,17 +331,46 @@ class StopLead:
         margin_s: float = 0.03,
         speed_max_mps: float = 0.15,
         turn_rate_max_radps: float = 2.5,
+        decel_mps2: float = 0.0,
+        period_s: float = 0.01,
     ):
         d, a = robot.com_offset_m, robot.axle_length_m
         self.stop_time_s = float(stop_time_s)
+        self.decel_mps2, self.period_s = float(decel_mps2), float(period_s)
         self.margin_s = float(margin_s)
         self.speed_max_mps = float(speed_max_mps)
         self.turn_rate_max_radps = float(turn_rate_max_radps)
-        gain = gains.switching_gain_mps2
-        eps = 0.5 * gains.boundary_layer_mps  # as stop_torque
+        k = PlantCoeffs.from_params([robot])
+        self.peak_torque_nm = self._peak_torque(k, gains)
+        if (
+            self.peak_torque_nm > robot.torque_limit_nm
+            and self.decel_mps2 > gains.switching_gain_mps2
+        ):
+            # the largest v gain the torque limit allows within the bounds (a weaker robot)
+            lo, hi = gains.switching_gain_mps2, self.decel_mps2
+            for _ in range(20):
+                self.decel_mps2 = 0.5 * (lo + hi)
+                lo, hi = (
+                    (self.decel_mps2, hi)
+                    if self._peak_torque(k, gains) <= robot.torque_limit_nm
+                    else (lo, self.decel_mps2)
+                )
+            self.decel_mps2 = lo
+            self.peak_torque_nm = self._peak_torque(k, gains)
+        if self.peak_torque_nm > robot.torque_limit_nm:
+            raise ConfigError(
+                f'the controlled stop needs {self.peak_torque_nm:.3f} N m at speeds up to '
+                f'{self.speed_max_mps:g} m/s and {self.turn_rate_max_radps:g} rad/s, more than '
+                f'the torque limit {robot.torque_limit_nm:g} N m, so its time to rest is not '
+                'guaranteed: lower stop_speed_max_mps / stop_turn_rate_max_radps or raise '
+                'stop_time_s',
+                'stop_speed_max_mps',
+            )
+        gain_v, eps_v = stop_gains(gains, self.decel_mps2, self.period_s)  # as stop_torque
+        gain, eps = gains.switching_gain_mps2, 0.5 * gains.boundary_layer_mps
         g1, g2 = (float(g) for g in disturbance_bound)
         # (K, eps, g_bar, rest band) of v [m/s] and of omega [rad/s]
-        self._v = (gain, eps, g1, 0.5 * REST_SPEED_MPS)
+        self._v = (gain_v, eps_v, g1, 0.5 * REST_SPEED_MPS)
         self._w = (gain / d, eps / d, g2, REST_SPEED_MPS / a)
         for name, (k_c, eps_c, g_c, rest_c), unit in (
             ('v', self._v, 'm/s^2'),
@@ -316,17 +385,6 @@ class StopLead:
                     'control.switching_gain_mps2',
                     'stop_time_s',
                 )
-        k = PlantCoeffs.from_params([robot])
-        self.peak_torque_nm = self._peak_torque(k, gains)
-        if self.peak_torque_nm > robot.torque_limit_nm:
-            raise ConfigError(
-                f'the controlled stop needs {self.peak_torque_nm:.3f} N m at speeds up to '
-                f'{self.speed_max_mps:g} m/s and {self.turn_rate_max_radps:g} rad/s, more than '
-                f'the torque limit {robot.torque_limit_nm:g} N m, so its time to rest is not '
-                'guaranteed: lower stop_speed_max_mps / stop_turn_rate_max_radps or raise '
-                'stop_time_s',
-                'stop_speed_max_mps',
-            )
         self.time_to_rest_max_s = self.time_to_rest(self.speed_max_mps, self.turn_rate_max_radps)
         self.max_s = self.time_to_rest_max_s + self.margin_s
 
@@ -341,7 +399,8 @@ class StopLead:
         states = np.zeros((vv.size, 5))
         states[:, 3], states[:, 4] = vv.ravel(), ww.ravel()
         kn = k.take(np.zeros(vv.size, dtype=int))
-        return float(np.max(np.abs(_stop_law(states, kn, self.stop_time_s, gains))))
+        u = _stop_law(states, kn, self.stop_time_s, gains, self.decel_mps2, self.period_s)
+        return float(np.max(np.abs(u)))
 
     def time_to_rest(self, v: float, omega: float) -> float:
         """Time [s] from (v, omega) to rest under the stop law (worst-case disturbance)."""
@@ -486,6 +545,8 @@ class ControllerNode(Node):
             margin_s=self.prm.stop_margin_s,
             speed_max_mps=self.prm.stop_speed_max_mps,
             turn_rate_max_radps=self.prm.stop_turn_rate_max_radps,
+            decel_mps2=self.prm.stop_decel_mps2,
+            period_s=1.0 / self.prm.control_rate_hz,
         )
         self.stop_lead.check(self.prm.pose_timeout_s)
         frame_s = 1.0 / self.scenario.camera.fps
@@ -878,8 +939,16 @@ class ControllerNode(Node):
             return
         if self._camera_lost(state, now):
             self._safety('stopped_pose')
+            lead = self.stop_lead  # the stop law its lead was computed for
             self._send(
-                stop_torque(state[None], self.k, self.prm.stop_time_s, self.scenario.control)[0],
+                stop_torque(
+                    state[None],
+                    self.k,
+                    self.prm.stop_time_s,
+                    self.scenario.control,
+                    lead.decel_mps2,
+                    lead.period_s,
+                )[0],
                 None,
                 now,
             )
