@@ -37,10 +37,13 @@ def _lead(sc, **kw) -> StopLead:
     return StopLead(robot, 0.3, sc.control, sc.disturbance.accel_bound, **kw)
 
 
-def _simulated_time_to_rest(sc, v0: float, w0: float, decel_mps2: float) -> float:
+def _simulated_time_to_rest(
+    sc, v0: float, w0: float, decel_mps2: float, delay_periods: int = 0, horizon_s: float = 2.0
+) -> float:
     """The stop law at 100 Hz (ZOH) on the plant, the disturbance at its bound pushing along the
     initial motion (the worst case of the closed form): time until both wheels' rim speeds stay
-    below REST_SPEED_MPS.
+    below REST_SPEED_MPS. ``delay_periods``: each command computed from the state that many
+    periods old (the loop through the board's telemetry, the bridge and the estimator).
     """
     robot = sc.robot(1).params
     k = PlantCoeffs.from_params([robot])
@@ -48,9 +51,11 @@ def _simulated_time_to_rest(sc, v0: float, w0: float, decel_mps2: float) -> floa
     x = np.array([[0.0, 0.0, 0.3, v0, w0]])
     half_axle = 0.5 * robot.axle_length_m
     dt, t, last_moving = 0.001, 0.0, 0.0
-    while t < 2.0:
+    seen = [x.copy()] * (delay_periods + 1)
+    while t < horizon_s:
         if round(t / dt) % round(PERIOD_S / dt) == 0:
-            u = stop_torque(x, k, 0.3, sc.control, decel_mps2, PERIOD_S)
+            seen = seen[1:] + [x.copy()]
+            u = stop_torque(seen[0], k, 0.3, sc.control, decel_mps2, PERIOD_S)
         x = rk4_step(x, u, lambda _t: g, t, dt, k)
         t += dt
         if abs(x[0, 3]) + half_axle * abs(x[0, 4]) >= REST_SPEED_MPS:
@@ -65,13 +70,27 @@ def _simulated_time_to_rest(sc, v0: float, w0: float, decel_mps2: float) -> floa
 )
 def test_time_to_rest_bounds_the_stop_law_on_the_plant(scenario, v0, w0, decel):
     """The closed form is an upper bound of the sampled stop law (one period of slack for the ZOH)
-    and tight: within 40 ms.
+    and tight: within 60 ms.
     """
     lead = _lead(scenario, decel_mps2=decel)
     predicted = lead.time_to_rest(v0, w0)
     simulated = _simulated_time_to_rest(scenario, v0, w0, lead.decel_mps2)
     assert simulated <= predicted + PERIOD_S
-    assert predicted - simulated < 0.04, (predicted, simulated)
+    assert predicted - simulated < 0.06, (predicted, simulated)
+
+
+@pytest.mark.parametrize('decel', [0.0, DECEL_MPS2])
+@pytest.mark.parametrize('v0, w0', [(0.08, 0.3), (0.0, 1.0), (0.15, -2.5)])
+def test_the_stop_comes_to_rest_through_a_loop_three_periods_late(scenario, v0, w0, decel):
+    """The commands act on wheel speeds about 3.5 control periods old (board telemetry, bridge,
+    estimator; measured in the twin). With boundary layers of 1.85 K T_s the stop chattered there
+    at up to 0.15 rad/s and never came to rest; with STOP_LAYER_PERIODS it rests, and stays so.
+    """
+    lead = _lead(scenario, decel_mps2=decel)
+    for delay in (1, 2, 3):
+        late = _simulated_time_to_rest(scenario, v0, w0, lead.decel_mps2, delay, horizon_s=4.0)
+        assert late < 2.0, f'{delay} periods late: still moving after 2 s (the loop chatters)'
+        assert late <= lead.lead_s(v0, w0) + PERIOD_S, (delay, late)  # margin: the path
 
 
 def test_lead_grows_with_speed_and_is_capped_at_its_worst_case(scenario):
@@ -85,13 +104,13 @@ def test_lead_grows_with_speed_and_is_capped_at_its_worst_case(scenario):
     assert lead.lead_s(0.6, 3.0) == lead.max_s  # beyond the bounds: capped (and counted)
     assert lead.over_bound(0.16, 0.0) and lead.over_bound(0.0, -2.6)
     assert not lead.over_bound(-0.15, 2.5)
-    # defaults: worst case 0.308 s to rest (from 2.5 rad/s) + 0.03 s fits in 0.5 s
-    assert lead.max_s == pytest.approx(0.338, abs=0.002)
+    # defaults: worst case 0.429 s to rest (from 0.15 m/s and 2.5 rad/s) + 0.03 s fits in 0.5 s
+    assert lead.max_s == pytest.approx(0.459, abs=0.002)
     lead.check(0.5)
     # the harder brake on v shortens the lead at the speeds the formation drives
     gentle = _lead(scenario, decel_mps2=0.0)
-    assert gentle.max_s == pytest.approx(0.380, abs=0.002)
-    assert lead.lead_s(0.08, 0.2) < 0.6 * gentle.lead_s(0.08, 0.2)
+    assert gentle.max_s == pytest.approx(0.478, abs=0.002)
+    assert lead.lead_s(0.08, 0.2) < 0.8 * gentle.lead_s(0.08, 0.2)
 
 
 def test_a_weaker_robot_gets_the_decel_its_torque_limit_allows(scenario):
@@ -105,7 +124,7 @@ def test_a_weaker_robot_gets_the_decel_its_torque_limit_allows(scenario):
 
 def test_parameters_whose_worst_case_lead_exceeds_pose_timeout_are_refused(scenario):
     lead = _lead(scenario, margin_s=0.03)
-    with pytest.raises(ConfigError, match=r'pose_timeout_s: must be >= 0\.33\d s') as err:
+    with pytest.raises(ConfigError, match=r'pose_timeout_s: must be >= 0\.45\d s') as err:
         lead.check(0.3)
     for name in ('stop_speed_max_mps', 'stop_turn_rate_max_radps', 'stop_margin_s'):
         assert name in str(err.value)
@@ -176,7 +195,7 @@ def test_node_counts_speeds_beyond_the_bounds_and_caps_the_lead(ros_context):
         node.estimator.camera_update(t0, (0.0, 1.0, 0.0))
         states = _drive(node, t0, 0.2, 3.0, 30)  # both beyond the bounds (0.15 m/s, 2.5 rad/s)
         first = states.index('stopped_pose')
-        threshold = 0.5 - node.stop_lead.max_s  # the cap: 0.162 s
+        threshold = 0.5 - node.stop_lead.max_s  # the cap: 0.041 s
         assert threshold < first * PERIOD_S <= threshold + PERIOD_S + 1e-9
         # every tick driven faster than the bound, the one that began the stop included
         assert node.over_stop_speed == first + 1
@@ -205,13 +224,13 @@ def test_node_stop_is_latched_until_a_new_pose(ros_context):
 
 
 def test_node_refuses_a_pose_timeout_shorter_than_the_worst_case_lead(ros_context):
-    with pytest.raises(ConfigError, match=r'pose_timeout_s: must be >= 0\.33'):
+    with pytest.raises(ConfigError, match=r'pose_timeout_s: must be >= 0\.45'):
         _node(ros_context, pose_timeout_s=0.3)
     node = _node(
         ros_context,
         pose_timeout_s=0.3,
         stop_speed_max_mps=0.05,
-        stop_turn_rate_max_radps=1.0,
+        stop_turn_rate_max_radps=0.5,
         stop_margin_s=0.02,
     )
     try:

@@ -149,7 +149,7 @@ class ControllerParams:
         0.8,
         "switching gain of the camera-loss stop on v [m/s^2] (at least the formation law's "
         'K_p, at most what the torque limit allows within the stop speed bounds; boundary layer '
-        '2 decel / control_rate_hz): a harder brake, a shorter stop lead',
+        '5 decel / control_rate_hz): a harder brake, a shorter stop lead',
         range=(0.0, 10.0),
     )
     stop_margin_s: float = param(
@@ -225,31 +225,43 @@ def stop_torque(
     there against the bounded disturbance g.
 
     A sliding-mode velocity regulator on sigma = x2 (S2.2: x2dot = f2 + B2 u + g):
-    u = B2^-1 (-x2 / T - K sat(x2 / eps) - f2), with T = ``stop_time_s``, the point gain
-    K = (K_p, K_p / d) and eps = (eps_p, eps_p / d) / 2 from the formation law (S3.3, S3.5), so the
-    residual speed is |g| / (1/T + K/eps): about 1 mm/s and 0.01 rad/s with the defaults, where a
-    plain -x2/T brake would creep at g T. Uniformly scaled into the torque limit (S3.6).
-    ``decel_mps2`` (the camera-loss stop): the v component's gain raised to it, its boundary layer
-    widened to 2 ``decel_mps2`` ``period_s`` (the sampling rule at the control period,
-    :func:`stop_gains`).
+    u = B2^-1 (-x2 / T - K sat(x2 / eps) - f2), with T = ``stop_time_s`` and the gains of
+    :func:`stop_gains` (the formation law's K_p, or ``decel_mps2`` on v; boundary layers wide
+    enough for the sampled loop at ``period_s``), so the residual speed is |g| / (1/T + K/eps):
+    about 2 mm/s and 0.02 rad/s with the defaults, where a plain -x2/T brake would creep at g T.
+    Uniformly scaled into the torque limit (S3.6).
     """
     u = _stop_law(state, k, stop_time_s, gains, decel_mps2, period_s)
     scale = np.maximum(1.0, np.max(np.abs(u), axis=1) / k.tau_max)
     return u / scale[:, None]
 
 
+# The boundary layer of the stop law is at least STOP_LAYER_PERIODS * K * T_s (S3.5 asks
+# eps >= K T_s). Inside it the law is linear with rate 1/T + K/eps, and the loop from a torque
+# command to the wheel speeds it makes, back through the board's telemetry, the bridge and the
+# estimator, is about 3.5 control periods long: in the twin the stop chattered (|omega| up to
+# 0.15 rad/s, never at rest) at K/eps = 54 /s, i.e. eps = 1.85 K T_s, and settled from 3 K T_s
+# (docs/safety.md §7). The formation law itself runs at eps_p = 3.7 K_p T_s.
+STOP_LAYER_PERIODS = 5.0
+
+
 def stop_gains(
     gains: ControlGains, decel_mps2: float = 0.0, period_s: float = 0.01
-) -> tuple[float, float]:
-    """(K, eps) of the stop law's v component [m/s^2, m/s]: the formation law's K_p and eps_p / 2,
-    or, with ``decel_mps2`` above K_p, that gain and eps = max(eps_p / 2, 2 decel_mps2 period_s)
-    (S3.5's eps >= K T_s at the control period, with a factor 2: (1/T + K/eps) period_s <= 0.6).
-    The omega component keeps (K_p / d, eps_p / (2 d)).
+) -> tuple[tuple[float, float], tuple[float, float]]:
+    """((K, eps) of v [m/s^2, m/s], (K, eps) of omega [rad/s^2, rad/s]) of the stop law for a
+    robot with the formation law's ``gains`` (per unit of d: the omega pair is divided by d by
+    the caller, as the formation law's point gains are).
+
+    K: the formation law's K_p, on v raised to ``decel_mps2`` when that is larger (the camera-loss
+    stop). eps: the formation law's eps_p / 2, or STOP_LAYER_PERIODS K ``period_s`` when that is
+    wider (the sampled loop's stability, above).
     """
-    gain, eps = gains.switching_gain_mps2, 0.5 * gains.boundary_layer_mps
-    if decel_mps2 > gain:
-        gain, eps = decel_mps2, max(eps, 2.0 * decel_mps2 * period_s)
-    return gain, eps
+    k_p, half_eps = gains.switching_gain_mps2, 0.5 * gains.boundary_layer_mps
+    k_v = max(k_p, decel_mps2)
+    return (
+        (k_v, max(half_eps, STOP_LAYER_PERIODS * k_v * period_s)),
+        (k_p, max(half_eps, STOP_LAYER_PERIODS * k_p * period_s)),
+    )
 
 
 def _stop_law(
@@ -262,10 +274,9 @@ def _stop_law(
 ):
     """The torques (N, 2) of :func:`stop_torque` before the scaling into the torque limit."""
     x2 = state[:, 3:5]
-    gain_v, eps_v = stop_gains(gains, decel_mps2, period_s)
-    gain_p, eps_p = gains.switching_gain_mps2, 0.5 * gains.boundary_layer_mps
-    gain = np.stack((np.full_like(k.d, gain_v), gain_p / k.d), axis=-1)
-    eps = np.stack((np.full_like(k.d, eps_v), eps_p / k.d), axis=-1)
+    (gain_v, eps_v), (gain_w, eps_w) = stop_gains(gains, decel_mps2, period_s)
+    gain = np.stack((np.full_like(k.d, gain_v), gain_w / k.d), axis=-1)
+    eps = np.stack((np.full_like(k.d, eps_v), eps_w / k.d), axis=-1)
     x2dot = -x2 / stop_time_s - gain * np.clip(x2 / eps, -1.0, 1.0) - f2(state, k)
     return np.einsum('nij,nj->ni', b2_inv(k), x2dot)
 
@@ -366,12 +377,11 @@ class StopLead:
                 'stop_time_s',
                 'stop_speed_max_mps',
             )
-        gain_v, eps_v = stop_gains(gains, self.decel_mps2, self.period_s)  # as stop_torque
-        gain, eps = gains.switching_gain_mps2, 0.5 * gains.boundary_layer_mps
+        (gain_v, eps_v), (gain_w, eps_w) = stop_gains(gains, self.decel_mps2, self.period_s)
         g1, g2 = (float(g) for g in disturbance_bound)
-        # (K, eps, g_bar, rest band) of v [m/s] and of omega [rad/s]
+        # (K, eps, g_bar, rest band) of v [m/s] and of omega [rad/s], as stop_torque
         self._v = (gain_v, eps_v, g1, 0.5 * REST_SPEED_MPS)
-        self._w = (gain / d, eps / d, g2, REST_SPEED_MPS / a)
+        self._w = (gain_w / d, eps_w / d, g2, REST_SPEED_MPS / a)
         for name, (k_c, eps_c, g_c, rest_c), unit in (
             ('v', self._v, 'm/s^2'),
             ('omega', self._w, 'rad/s^2'),
@@ -962,7 +972,13 @@ class ControllerNode(Node):
         if self.parent is not None and parent_state is None:
             self._safety('hold_parent')
             self._send(
-                stop_torque(state[None], self.k, self.prm.stop_time_s, self.scenario.control)[0],
+                stop_torque(
+                    state[None],
+                    self.k,
+                    self.prm.stop_time_s,
+                    self.scenario.control,
+                    period_s=self.stop_lead.period_s,
+                )[0],
                 None,
                 now,
             )
