@@ -5,8 +5,9 @@
                                                      [--workers 2] [--seed 1]
 
 Each trial takes one valid frame (half TORQUE_CMD, half any message type, random fields and
-sequence numbers, COBS-encoded), applies one random corruption (core/byte_faults.mutate: 1-3 bit
-flips, a byte replaced / inserted / deleted, a burst of up to 16 bits, 2-4 bytes replaced), and
+sequence numbers, COBS-encoded), applies one random corruption (core/serial/byte_faults.mutate:
+1-3 bit flips, a byte replaced / inserted / deleted, a burst of up to 16 bits, 2-4 bytes replaced),
+and
 feeds it between two
 delimiters to a FrameDecoder. Any frame the decoder returns is a corrupted frame accepted. Version
 2

@@ -2,8 +2,11 @@
 # Build and test a fresh clone of this repository the way a ROS 2 workspace does:
 #   colcon build && colcon test && colcon test-result --verbose
 #
-# Usage: scripts/colcon_check.sh [--work DIR] [--keep] [-- PYTEST ARGS...]
+# Usage: scripts/colcon_check.sh [--work DIR] [--keep] [--subset] [-- PYTEST ARGS...]
 #   --work DIR   workspace folder (default: a new folder under /tmp, removed at the end unless --keep)
+#   --subset     every test but the five files that run whole missions over and over (SLOW_TESTS
+#                below: ~2/3 of the suite's time); lint, the params files, the programs' mission
+#                (test_programs), the launchers and every unit and node test stay (docs/package.md)
 #   PYTEST ARGS  passed to colcon test --pytest-args (default: the whole suite), e.g.
 #                -- test/test_params_files.py test/test_scenario_validation.py
 #                (an option needs a leading space for colcon's parser: -- " -k params")
@@ -29,12 +32,18 @@ here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 work=""
 keep=0
 pytest_args=()
+subset=0
+# whole-system tests: formation run end to end (test_run_cmd, test_live_view), network namespaces
+# (test_multihost), camera sources through the system (test_tracker_source), all nodes in one
+# process (test_system)
+SLOW_TESTS=(test_run_cmd.py test_live_view.py test_multihost.py test_tracker_source.py test_system.py)
 while [ $# -gt 0 ]; do
   case "$1" in
     --work) work="$2"; shift 2 ;;
     --keep) keep=1; shift ;;
+    --subset) subset=1; shift ;;
     --) shift; pytest_args=("$@"); break ;;
-    *) echo "colcon_check: unknown argument $1 (usage: --work DIR, --keep, -- PYTEST ARGS)" >&2; exit 2 ;;
+    *) echo "colcon_check: unknown argument $1 (usage: --work DIR, --keep, --subset, -- PYTEST ARGS)" >&2; exit 2 ;;
   esac
 done
 if [ -z "$work" ]; then
@@ -82,6 +91,9 @@ echo "colcon_check: colcon build took $((SECONDS - t0)) s" >&2
 # space keeps colcon's parser from taking them for its own; colcon strips it)
 test_args=(test --event-handlers console_direct+ --return-code-on-test-failure
   --pytest-args " --basetemp=$work/pytest" "${pytest_args[@]}")
+if [ "$subset" = 1 ]; then
+  for f in "${SLOW_TESTS[@]}"; do test_args+=(" --ignore=test/$f"); done
+fi
 test_status=0
 t0=$SECONDS
 colcon "${test_args[@]}" || test_status=$?

@@ -12,6 +12,7 @@ from pathlib import Path
 import shutil
 import tempfile
 
+from processes import take_free_domain
 import pytest
 
 _ROOT = Path(__file__).resolve().parents[1]
@@ -48,35 +49,8 @@ def _numba_kernels_compiled_once():
     warm_numba_kernels(timeout_s=900.0)
 
 
-_DOMAIN_LOCKS = Path(os.environ.get('TMPDIR', '/tmp')) / 'ament_formation_domains'
 _SHM = Path('/dev/shm')
 _SHM_PREFIXES = ('fastrtps_', 'sem.fastrtps_')
-
-
-def _take_free_domain(avoid: int) -> tuple[int, int] | None:
-    """A DDS domain id in 1..200 that no other run on this machine holds: (id, fd of its lock).
-
-    The lock files of scripts/ros_env.sh (flock on ``<id>.lock``, released when the fd closes).
-    """
-    import fcntl
-    import random
-
-    try:
-        _DOMAIN_LOCKS.mkdir(parents=True, exist_ok=True)
-    except OSError:
-        return None
-    first = random.randrange(200)
-    for i in range(200):
-        domain = (first + i) % 200 + 1
-        if domain == avoid:
-            continue
-        fd = os.open(_DOMAIN_LOCKS / f'{domain}.lock', os.O_CREAT | os.O_WRONLY | os.O_APPEND)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            return domain, fd
-        except OSError:
-            os.close(fd)
-    return None
 
 
 def _fast_dds_segments() -> set[str]:
@@ -106,7 +80,7 @@ def _module_dds_domain():
     once nobody maps it: a later module never meets a dead participant's segments.
     """
     session_domain = os.environ['ROS_DOMAIN_ID']
-    taken = _take_free_domain(int(session_domain))
+    taken = take_free_domain(avoid=(int(session_domain),))
     if taken is not None:
         os.environ['ROS_DOMAIN_ID'] = str(taken[0])
     before = _fast_dds_segments()

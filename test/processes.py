@@ -38,3 +38,34 @@ def warm_numba_kernels(timeout_s: float = 900.0, check: bool = False) -> None:
     with tempfile.TemporaryDirectory(prefix='af_warm_') as elsewhere:
         for cwd in (mine, elsewhere):  # '' (the cwd) comes first on a ``python -c`` sys.path
             subprocess.run([sys.executable, '-c', code], cwd=cwd, check=check, timeout=timeout_s)
+
+
+DOMAIN_LOCKS = Path(os.environ.get('TMPDIR', '/tmp')) / 'ament_formation_domains'
+
+
+def take_free_domain(avoid=()) -> tuple[int, int] | None:
+    """A DDS domain id in 1..200 that no other run on this machine holds and not in ``avoid``:
+    (id, fd of its lock; close it to release the id), or None.
+
+    The lock files of scripts/ros_env.sh (flock on ``<id>.lock``, released when the fd closes):
+    concurrent runs in one domain see each other's nodes and topics.
+    """
+    import fcntl
+    import random
+
+    try:
+        DOMAIN_LOCKS.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        return None
+    first = random.randrange(200)
+    for i in range(200):
+        domain = (first + i) % 200 + 1
+        if domain in avoid:
+            continue
+        fd = os.open(DOMAIN_LOCKS / f'{domain}.lock', os.O_CREAT | os.O_WRONLY | os.O_APPEND)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return domain, fd
+        except OSError:
+            os.close(fd)
+    return None

@@ -27,7 +27,7 @@ KNOWN = {
     'nodes/live_view.py:scene_update': (191, 3),
     'core/sim/plot.py:render_figure': (183, 3),
     'core/control/law.py:robot_law': (179, 27),
-    'nodes/controller.py:__init__': (151, 1),
+    'nodes/controller.py:__init__': (149, 1),
     'core/control/arbiter.py:decide': (141, 4),
     'nodes/live_view.py:foxglove_layout': (131, 1),
     'core/model/dynamics.py:rk4_step_k': (65, 20),

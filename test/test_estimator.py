@@ -251,3 +251,30 @@ def test_params_validate():
     with pytest.raises(ConfigError, match='gate_position_m'):
         EstimatorParams(gate_position_m=float('nan'))
     assert float(wrap_angle(3 * math.pi)) == pytest.approx(-math.pi)
+
+
+def test_wheel_samples_as_pairs_of_floats_give_the_same_estimate():
+    """The bridge hands its samples over as (left, right) tuples: the same estimate, bit for bit,
+    as from arrays; a tuple that is not a pair is rejected as before.
+    """
+    rng = np.random.default_rng(7)
+    a = PoseEstimator(EstimatorParams())
+    b = PoseEstimator(EstimatorParams())
+    for est in (a, b):
+        est.camera_update(0.0, np.array([0.1, 0.2, 0.3]))
+    q = np.zeros(2)
+    for k in range(1, 300):
+        rate = rng.normal(3.0, 1.0, 2)
+        q = q + 0.01 * rate
+        t = 0.01 * k
+        assert a.wheel_update(t, q.copy(), rate.copy())
+        assert b.wheel_update(t, (float(q[0]), float(q[1])), (float(rate[0]), float(rate[1])))
+        if k % 3 == 0:
+            pose = a.state_at(t)[:3] + rng.normal(0.0, 0.002, 3)
+            assert a.camera_update(t - 0.02, pose) == b.camera_update(t - 0.02, pose)
+        assert a.state_at(t + 0.004).tobytes() == b.state_at(t + 0.004).tobytes()
+    assert not b.wheel_update(3.5, (0.0, 0.0, 0.0), (0.0, 0.0))
+    assert a.counters.as_dict() == {
+        **b.counters.as_dict(),
+        'rejected_nonfinite': b.counters.rejected_nonfinite - 1,
+    }

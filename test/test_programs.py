@@ -28,7 +28,7 @@ import subprocess
 import time
 
 import numpy as np
-from processes import warm_numba_kernels
+from processes import take_free_domain, warm_numba_kernels
 import pytest
 
 from ament_formation.core.config_files import config_file
@@ -204,8 +204,15 @@ def sets(tmp_path_factory):
     # package the programs import (under colcon test: the installed one)
     warm_numba_kernels(timeout_s=600.0, check=True)
     tmp = tmp_path_factory.mktemp('programs')
+    # a domain per set, each held by this run (scripts/ros_env.sh's locks): another run on the
+    # machine in one of them would see, and answer, our nodes and topics
     base = int(os.environ['ROS_DOMAIN_ID'])
-    dom = {'mission': base, 'boards': (base + 67) % 200 + 1, 'camera': (base + 133) % 200 + 1}
+    held = []
+    for _ in range(2):
+        taken = take_free_domain(avoid=(base, *(d for d, _ in held)))
+        assert taken is not None, 'no free ROS domain id on this machine'
+        held.append(taken)
+    dom = {'mission': base, 'boards': held[0][0], 'camera': held[1][0]}
     scen = f'scenario:={SCENARIO}'
     programs: dict[str, Program] = {}
     boards: dict[str, Board] = {}
@@ -345,6 +352,8 @@ def sets(tmp_path_factory):
             obs.close()
         for board in boards.values():
             board.close()
+        for _, fd in held:
+            os.close(fd)
 
 
 def _stamp_s(stamp) -> float:

@@ -537,7 +537,7 @@ def test_cli_malformed_yaml_and_bad_option(tmp_path):
 
 
 # ---------------------------------------------------------------------------------------------
-# The expect block and the checks made with it (core/metrics.check_run)
+# The expect block and the checks made with it (core/sim/metrics.check_run)
 # ---------------------------------------------------------------------------------------------
 
 

@@ -94,3 +94,99 @@ def test_process_exits_2_on_bad_parameters(tmp_path):
     assert proc.returncode == 2, proc.stderr
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and 'robot_ids' in lines[0] and '9' in lines[0], proc.stderr
+
+
+class _FakeBridge:
+    """A hosted bridge as ControlLoop sees it: a port with a file descriptor and poll()."""
+
+    def __init__(self, fd: int, drain: bool):
+        import types
+
+        self._port = types.SimpleNamespace(fileno=lambda: fd)
+        self.fd, self.drain, self.polls = fd, drain, []
+
+    def poll(self) -> None:
+        import os
+        import time
+
+        self.polls.append(time.monotonic())
+        if self.drain:
+            try:
+                os.read(self.fd, 4096)
+            except BlockingIOError:
+                pass
+
+
+class _FakeTeam:
+    """What ControlLoop uses of a TeamNode."""
+
+    def __init__(self, bridge: _FakeBridge):
+        import threading
+        import types
+
+        self.bridges = {0: bridge}
+        self.lock = threading.Lock()
+        self.ticks: list[float] = []
+        self.context = types.SimpleNamespace(ok=lambda: True)
+
+    def _control(self) -> None:
+        import time
+
+        self.ticks.append(time.monotonic())
+
+    def get_logger(self):
+        import logging
+
+        return logging.getLogger('test_team')
+
+
+def test_control_loop_reads_telemetry_as_it_arrives_and_never_spins_on_a_hung_port():
+    """ControlLoop: data on a port is read when it arrives, between the periods; a port that
+    stays readable without data (a hung-up pty: here a pipe whose writer is gone) is read at most
+    once per MIN_READ_GAP_S, not in a busy loop.
+    """
+    import os
+    import time
+
+    from ament_formation.nodes.team import ControlLoop
+
+    r, w = os.pipe()
+    os.set_blocking(r, False)
+    bridge = _FakeBridge(r, drain=True)
+    team = _FakeTeam(bridge)
+    loop = ControlLoop(team, rate_hz=5.0)  # periods of 0.2 s
+    t0 = time.monotonic()
+    loop.start()
+    try:
+        time.sleep(0.05)
+        os.write(w, b'\x00telemetry\x00')
+        deadline = time.monotonic() + 5.0
+        while not bridge.polls and time.monotonic() < deadline:
+            time.sleep(0.005)
+        assert bridge.polls, 'the data was never read'
+        # read on readiness, before the first period's poll (0.2 s after the start)
+        assert not team.ticks or bridge.polls[0] < team.ticks[0]
+        assert bridge.polls[0] - t0 < 0.2 + 0.1
+    finally:
+        loop.stop()
+        os.close(w)
+        os.close(r)
+
+    r, w = os.pipe()
+    os.close(w)  # the read end is readable (end of file) for ever
+    bridge = _FakeBridge(r, drain=False)
+    team = _FakeTeam(bridge)
+    loop = ControlLoop(team, rate_hz=100.0)
+    cpu0 = time.process_time()
+    t0 = time.monotonic()
+    loop.start()
+    try:
+        time.sleep(0.5)
+    finally:
+        loop.stop()
+        os.close(r)
+    elapsed = time.monotonic() - t0
+    reads = len(bridge.polls) - len(team.ticks)  # polls on readiness (each period polls too)
+    assert len(team.ticks) >= 1 and reads >= 1
+    assert reads <= elapsed / ControlLoop.MIN_READ_GAP_S + 2, (reads, elapsed)
+    assert time.process_time() - cpu0 < 0.5 * elapsed  # not a busy loop

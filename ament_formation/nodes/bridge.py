@@ -12,7 +12,7 @@ Topics (type; QoS; direction):
   hardware_id robot_<id> (the port when not in a robot namespace); QOS_DIAGNOSTICS; every
   diagnostics_period_s and at once on a link state change
 
-Parameters (core.serial_link.LinkParams): port (path or pyserial URL, "/dev/ttyACM0"),
+Parameters (core.serial.serial_link.LinkParams): port (path or pyserial URL, "/dev/ttyACM0"),
 baud_rate (115200), torque_limit_nm (0.15 N·m), watchdog_s (0.2 s, sent to the board),
 input_timeout_s (0.2 s: older wheel_torque -> STOP: the board brakes), command_rate_hz (100 Hz),
 telemetry_period_s (0.01 s), ack_timeout_s (0.006 s), link_timeout_s (0.5 s),
@@ -37,11 +37,17 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 import serial
 
+try:
+    from serial.serialposix import Serial as _PosixSerial
+except ImportError:  # not a POSIX system: pyserial's read for every port
+    _PosixSerial = None
+
 from ament_formation.core.errors import ConfigError
 from ament_formation.core.serial import serial_link as sl
 from ament_formation.ros import diagnostics as diag
 from ament_formation.ros.executors import run_node
-from ament_formation.ros.messages import wheel_state
+from ament_formation.ros.listeners import Listeners
+from ament_formation.ros.messages import stamp_from_ns, wheel_state
 from ament_formation.ros.params import declare_dataclass
 from ament_formation.ros.qos import QOS_CONTROL
 from ament_formation.ros.wheels import torques_from_joint_state
@@ -90,13 +96,15 @@ class BridgeNode(Node):
         """``poll_timer=False``: no poll timer of its own; the owner calls :meth:`poll` at
         ``poll_rate_hz`` (nodes/team.py). ``torque_topic=False``: no wheel_torque subscription;
         the owner's controller calls :meth:`command` (a team: the controller in the same process).
-        ``telemetry_sinks``: callables ``(position_rad (2,), velocity_radps (2,), stamp_s)`` given
-        every wheel sample; with a sink, wheel_state is published only while someone subscribes.
+        ``telemetry_sinks``: callables ``(position_rad, velocity_radps, stamp_s)`` given every
+        wheel sample (pairs of floats, left and right); with a sink, wheel_state is published only
+        while someone subscribes.
         """
         super().__init__('formation_bridge', context=context, **kwargs)
         self.params = declare_dataclass(self, sl.LinkParams)
         self.link = sl.LinkHost(self.params)
         self._mono = clock
+        self._now_ns = diag.clock_ns(self)  # the node's clock [ns] (wheel sample stamps)
         self._port: serial.SerialBase | None = None
         self._backoff = sl.Backoff(self.params.reconnect_initial_s, self.params.reconnect_max_s)
         self._next_open_s = 0.0
@@ -117,6 +125,7 @@ class BridgeNode(Node):
                 ) from None
             self._write(self.link.connected(clock()))
         self._pub_state = self.create_publisher(JointState, 'wheel_state', QOS_CONTROL)
+        self._state_heard = Listeners(self._pub_state)  # matched subscriptions (0.1 s old at most)
         self.diag = diag.Diagnostics(self, self.params.diagnostics_period_s)
         robot = diag.robot_of_namespace(self.get_namespace())
         self.diag.add(
@@ -170,40 +179,74 @@ class BridgeNode(Node):
 
     def _poll(self) -> None:
         now = self._mono()
-        if self._port is None:
+        port = self._port
+        if port is None:
             if now >= self._next_open_s:
                 self._try_open(now)
             return
         try:  # ask the driver first: an empty poll is one ioctl instead of pyserial's select loop
-            waiting = self._port.in_waiting
-            data = self._port.read(min(waiting, 4096)) if waiting else b''
+            waiting = port.in_waiting
+            data = self._read(port, min(waiting, 4096)) if waiting else b''
         except (serial.SerialException, OSError) as err:
             self._lost(now, f'read: {err}')
             return
-        samples, answer = self.link.receive(data, now) if data else ([], b'')
-        for s in samples:
-            stamp = self.get_clock().now()
-            for sink in self.telemetry_sinks:
-                sink(s.position_rad, s.velocity_radps, stamp.nanoseconds * 1e-9)
-            if not self.telemetry_sinks or self._pub_state.get_subscription_count():
-                self._pub_state.publish(
-                    wheel_state(s.position_rad, s.velocity_radps, stamp.to_msg())
-                )
-        self._write(answer + self.link.poll(now))
-        if (
-            self.link.state == sl.VERSION_MISMATCH
-            and self._last_error != self.link.version_mismatch_text()
-        ):
-            self._last_error = self.link.version_mismatch_text()  # once per connection
+        link = self.link
+        if data:
+            samples, answer = link.receive(data, now)
+            if samples:
+                self._samples(samples)
+            out = answer + link.poll(now)
+        else:
+            out = link.poll(now)
+        if out:
+            self._write(out)
+        state = link.state
+        if state == sl.VERSION_MISMATCH and self._last_error != link.version_mismatch_text():
+            self._last_error = link.version_mismatch_text()  # once per connection
             self.get_logger().error(f'{self.params.port}: {self._last_error}')
-        if self.link.state == sl.UP and self.link_up_since_s is None:
+        if state == sl.UP and self.link_up_since_s is None:
             self.link_up_since_s = now
             self.get_logger().info(f'link up on {self.params.port}')
-        if self._port is not None and self.link.timed_out(now):
+        if self._port is not None and link.timed_out(now):
             self._lost(now, 'no valid frame from the board')
-        if self.link.state != self._link_state_seen:  # published when it happens
-            self._link_state_seen = self.link.state
+        if link.state != self._link_state_seen:  # published when it happens
+            self._link_state_seen = link.state
             self.diag.changed()
+
+    def _samples(self, samples: list) -> None:
+        """Hand the wheel samples of one read to the sinks and publish them on wheel_state (with
+        sinks: while someone subscribes). Stamp: the node's clock when they are handed on.
+        """
+        sinks = self.telemetry_sinks
+        for s in samples:
+            stamp_ns = self._now_ns()
+            for sink in sinks:
+                sink(s.position_rad, s.velocity_radps, stamp_ns * 1e-9)
+            if not sinks or self._state_heard():
+                self._pub_state.publish(
+                    wheel_state(s.position_rad, s.velocity_radps, stamp_from_ns(stamp_ns))
+                )
+
+    @staticmethod
+    def _read(port, size: int) -> bytes:
+        """Up to ``size`` bytes the driver said are waiting: on a POSIX port one os.read of its
+        descriptor (what pyserial's read does after a select that in_waiting made redundant; its
+        errors as pyserial raises them), on any other port (pyserial URLs) pyserial's read.
+        """
+        if type(port) is not _PosixSerial or not port.is_open:
+            return port.read(size)
+        try:
+            data = os.read(port.fd, size)
+        except (BlockingIOError, InterruptedError):
+            return b''
+        except OSError as err:
+            raise serial.SerialException(f'read failed: {err}') from None
+        if not data:  # as pyserial: a disconnected device reads as ready with nothing to read
+            raise serial.SerialException(
+                'device reports readiness to read but returned no data '
+                '(device disconnected or multiple access on port?)'
+            )
+        return data
 
     def _try_open(self, now: float) -> None:
         try:
@@ -219,10 +262,21 @@ class BridgeNode(Node):
         self._write(self.link.connected(now))
 
     def _write(self, data: bytes) -> None:
-        if not data or self._port is None:
+        port = self._port
+        if not data or port is None:
             return
         try:
-            self._port.write(data)
+            if type(port) is _PosixSerial and port.is_open and port.write_timeout == 0:
+                # what pyserial's non-blocking write does: one os.write (it retries one that
+                # would block, as does its write below)
+                try:
+                    os.write(port.fd, data)
+                    return
+                except (BlockingIOError, InterruptedError):
+                    pass
+                except OSError as err:
+                    raise serial.SerialException(f'write failed: {err}') from None
+            port.write(data)
         except (serial.SerialException, OSError) as err:
             self._lost(self._mono(), f'write: {err}')
 

@@ -16,8 +16,10 @@ together; RobotController ``release``, never inside the partner's emergency circ
 robot's S8.3 goal is derived from the scenario (leader: r(t); follower: its original parent's
 point + slot offset), so the robot's own exit test sees the partner's goal too.
 Without the coordinator the controller arbitrates robot encounters itself with the same rules.
-Safety (DESIGN §7): no pose for ``pose_timeout_s`` or no wheel data for
-``wheel_timeout_s`` -> controlled stop (brake to rest, then zero torque); a parent silent for
+Safety (DESIGN §7): no pose for ``pose_timeout_s`` -> at rest by then (+ one control period): the
+controlled stop begins when the camera age exceeds ``pose_timeout_s`` minus the time to rest from
+the current speed under the stop law plus ``stop_margin_s`` (StopLead, docs/safety.md §7); no
+wheel data for ``wheel_timeout_s`` -> zero torque (nothing to brake with); a parent silent for
 ``parent_timeout_s`` is extrapolated with its commanded acceleration, after ``parent_hold_s`` the
 robot holds (brakes); NaN/inf inputs are rejected and counted; torques are clamped to the limit.
 Before the mission start (``start_s`` of the graph) the robot stands still (zero torque).
@@ -45,6 +47,7 @@ Topics (namespace robot_<id>; QoS from ros/qos.py)
                                 subscribed)
   pub  state                    nav_msgs/Odometry (fused pose; twist v, omega)
   QOS_CONTROL
+                                (while anyone subscribes)
   pub  accel                    geometry_msgs/AccelStamped (commanded point accel, S4)
   QOS_CONTROL
                                 (while anyone subscribes)
@@ -72,6 +75,11 @@ Parameters
   parent_hold_s     float  parent state older than this -> hold; other robots older than
                            this are ignored [s]                                      default 1.0
   stop_time_s       float  time constant of the controlled stop [s]                 default 0.3
+  stop_speed_max_mps float fastest |v| from which a camera loss ends at rest by pose_timeout_s
+                           [m/s]                                                     default 0.15
+  stop_turn_rate_max_radps float  fastest |omega| likewise [rad/s]                  default 2.5
+  stop_decel_mps2   float  switching gain of the camera-loss stop on v [m/s^2]      default 0.8
+  stop_margin_s     float  added to the time to rest in the camera-loss stop lead [s] default 0.03
   camera_gain       float  S10 complementary gain per camera frame, (0, 1]          default 0.5
 """
 
@@ -93,17 +101,20 @@ from ament_formation.core.control.controller import NeighbourState, RobotControl
 from ament_formation.core.control.estimator import EstimatorParams, PoseEstimator
 from ament_formation.core.control.neighbours import extrapolate_neighbour, neighbour_goal
 from ament_formation.core.control.rewiring import FormationGraph
-from ament_formation.core.control.stop import stop_torque
+from ament_formation.core.control.stop import stop_torque, StopLead
 from ament_formation.core.errors import ConfigError
 from ament_formation.core.model.dynamics import PlantCoeffs
 from ament_formation.core.model.paths import fast_reference
 from ament_formation.core.params import param
 from ament_formation.core.scenario.loader import load_scenario
+from ament_formation.ros import cdr
 from ament_formation.ros import diagnostics as diag
 from ament_formation.ros import messages as msgs
 from ament_formation.ros.executors import run_node
+from ament_formation.ros.listeners import Listeners
 from ament_formation.ros.params import declare_dataclass
 from ament_formation.ros.qos import QOS_CONTROL, QOS_GRAPH
+from ament_formation.ros.tick_inputs import served_by_executor, take_waiting, TakenAtTick
 
 HEAR_HYSTERESIS_M = 0.3  # a robot stays heard until this much beyond the hearing range
 
@@ -128,6 +139,29 @@ class ControllerParams:
         range=(0.0, 60.0),
     )
     stop_time_s: float = param(0.3, 'time constant of the controlled stop [s]', range=(0.01, 10.0))
+    stop_speed_max_mps: float = param(
+        0.15,
+        'fastest |v| from which a camera loss ends at rest by pose_timeout_s (with '
+        'stop_turn_rate_max_radps: the stop lead there must fit in pose_timeout_s) [m/s]',
+        range=(0.001, 10.0),
+    )
+    stop_turn_rate_max_radps: float = param(
+        2.5,
+        'fastest |omega| from which a camera loss ends at rest by pose_timeout_s [rad/s]',
+        range=(0.001, 100.0),
+    )
+    stop_decel_mps2: float = param(
+        0.8,
+        "switching gain of the camera-loss stop on v [m/s^2] (at least the formation law's "
+        'K_p, at most what the torque limit allows within the stop speed bounds; boundary layer '
+        '5 decel / control_rate_hz): a harder brake, a shorter stop lead',
+        range=(0.0, 10.0),
+    )
+    stop_margin_s: float = param(
+        0.03,
+        'added to the time to rest of the camera-loss stop lead (command path to the wheels) [s]',
+        range=(0.0, 1.0),
+    )
     camera_gain: float = param(0.5, 'S10 complementary gain per camera frame, (0, 1]')
     hear_all: bool = param(
         False,
@@ -159,6 +193,10 @@ class ControllerParams:
             ('parent_timeout_s', 0.0, 10.0),
             ('parent_hold_s', 0.0, 60.0),
             ('stop_time_s', 0.01, 10.0),
+            ('stop_speed_max_mps', 0.001, 10.0),
+            ('stop_turn_rate_max_radps', 0.001, 100.0),
+            ('stop_decel_mps2', 0.0, 10.0),
+            ('stop_margin_s', 0.0, 1.0),
         ):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and lo <= v <= hi):
@@ -178,6 +216,28 @@ class ControllerParams:
                 f'must be an integer in [0, 98] (got {self.realtime_priority!r})',
                 'realtime_priority',
             )
+
+
+def _robot_tables(sc, fgraph: FormationGraph) -> tuple[dict, dict]:
+    """(goal_source, robot_info) of every robot of scenario ``sc``, by id: its S8.3 goal source
+    (leader: (path, None, None, 0.0); follower: (None, original parent, delta, parent's d),
+    S8.3 item 1) and what the S7 tests need of it (body radius, team, d).
+    """
+    goal_source, robot_info = {}, {}
+    for r in sc.robots:
+        p0 = fgraph.original_parent.get(r.id)
+        goal_source[r.id] = (
+            (fast_reference(r.path), None, None, 0.0)
+            if p0 is None
+            else (
+                None,
+                p0,
+                tuple(float(v) for v in fgraph.offset(r.id, p0)),
+                sc.robot(p0).params.com_offset_m,
+            )
+        )
+        robot_info[r.id] = (r.params.body_radius_m, sc.team_leader(r.id), r.params.com_offset_m)
+    return goal_source, robot_info
 
 
 def set_realtime(priority: int, logger=None) -> bool:
@@ -253,6 +313,7 @@ class ControllerNode(Node):
         peers: PeerTable | None = None,
         bridge=None,
         lock=None,
+        tick_inputs: bool = False,
         **node_kw,
     ):
         """``tick_timer=False``: no control timer of its own; the owner calls :meth:`control_tick`
@@ -263,7 +324,11 @@ class ControllerNode(Node):
         ``lock``: held by the callbacks that change what a control period reads (camera pose,
         graph, encounters) when the owner runs the control periods in a thread of their own
         (nodes/team.py ControlLoop, which holds it for each period); default: no lock.
+        ``tick_inputs``: the full-rate state and accel of the robots heard are taken by that
+        control loop at each period (:meth:`take_inputs`, ros/tick_inputs.py), not by the
+        executor.
         """
+        self._tick_inputs = tick_inputs
         super().__init__('formation_controller', context=context, **node_kw)
         self.lock = lock if lock is not None else contextlib.nullcontext()
         self._own_xy: tuple[float, float] | None = None  # own position of the last period [m]
@@ -279,6 +344,11 @@ class ControllerNode(Node):
         spec = self.scenario.robot(self.rid)
         self.k = PlantCoeffs.from_params([spec.params])
         self.tau_max = spec.params.torque_limit_nm
+        # camera loss: the stop begins early enough to be at rest by pose_timeout_s (StopLead)
+        self.stop_lead = self._make_stop_lead(spec.params)
+        self._pose_stop = False  # the camera-loss stop is in force ...
+        self._pose_stop_camera_s = None  # ... since this newest camera stamp (latched)
+        self.over_stop_speed = 0  # ticks faster than stop_speed_max_mps/stop_turn_rate_max_radps
         self.estimator = PoseEstimator(
             EstimatorParams.from_robot(spec.params, camera_gain=self.prm.camera_gain)
         )
@@ -293,27 +363,7 @@ class ControllerNode(Node):
             team=sc.team_leader(self.rid),
         )
         fgraph = FormationGraph.from_scenario(sc)
-        # every robot's S8.3 goal source: leader path, or (original parent, delta, parent's d)
-        # (S8.3 item 1); and what the S7 tests need of it (body radius, team, d)
-        self.goal_source = {}
-        self.robot_info = {}
-        for r in sc.robots:
-            p0 = fgraph.original_parent.get(r.id)
-            self.goal_source[r.id] = (
-                (fast_reference(r.path), None, None, 0.0)
-                if p0 is None
-                else (
-                    None,
-                    p0,
-                    tuple(float(v) for v in fgraph.offset(r.id, p0)),
-                    sc.robot(p0).params.com_offset_m,
-                )
-            )
-            self.robot_info[r.id] = (
-                r.params.body_radius_m,
-                sc.team_leader(r.id),
-                r.params.com_offset_m,
-            )
+        self.goal_source, self.robot_info = _robot_tables(sc, fgraph)
         av = sc.avoidance  # S7: Q of robot k seen by this robot is kappa R_aa about p_k
         self._hear_range_m = {
             r.id: av.protected_scale
@@ -350,6 +400,7 @@ class ControllerNode(Node):
         self.late_ticks = 0
         self._last_tick_wall = None
         self._sim_time = bool(self.get_parameter('use_sim_time').value)
+        self._now_ns = diag.clock_ns(self)  # the node's clock [ns] (read directly unless sim time)
         self.last_torque = np.zeros(2)
         self.peers = peers
         self.record = None if peers is None else peers.records[self.rid]  # what others read of us
@@ -359,7 +410,14 @@ class ControllerNode(Node):
         self.pub_state = self.create_publisher(msgs.Odometry, 'state', QOS_CONTROL)
         self.pub_accel = self.create_publisher(AccelStamped, 'accel', QOS_CONTROL)
         self.pub_mode = self.create_publisher(String, 'mode', QOS_CONTROL)
-        self.create_subscription(PoseStamped, 'pose', self._on_pose, QOS_CONTROL)
+        # matched subscriptions, asked of rmw at most every 0.1 s (ros/listeners.py)
+        self._state_heard, self._torque_heard, self._accel_heard = (
+            Listeners(self.pub_state),
+            Listeners(self.pub_torque),
+            Listeners(self.pub_accel),
+        )
+        # raw: the high-rate inputs are read from their serialized form (ros/cdr.py)
+        self.create_subscription(PoseStamped, 'pose', self._on_pose, QOS_CONTROL, raw=True)
         self.bridge = bridge
         if bridge is None:
             self.create_subscription(JointState, 'wheel_state', self._on_wheels, QOS_CONTROL)
@@ -396,13 +454,51 @@ class ControllerNode(Node):
         if tick_timer and self.prm.realtime_priority:  # the executor thread runs the control timer
             set_realtime(self.prm.realtime_priority, self.get_logger())
 
+    def _make_stop_lead(self, robot) -> StopLead:
+        """The camera-loss stop's :class:`StopLead` for this robot's ``robot`` parameters and the
+        node's stop parameters; ConfigError when its worst case does not fit in
+        ``pose_timeout_s``, a warning when it leaves less than two camera frame intervals.
+        """
+        lead = StopLead(
+            robot,
+            self.prm.stop_time_s,
+            self.scenario.control,
+            self.scenario.disturbance.accel_bound,
+            margin_s=self.prm.stop_margin_s,
+            speed_max_mps=self.prm.stop_speed_max_mps,
+            turn_rate_max_radps=self.prm.stop_turn_rate_max_radps,
+            decel_mps2=self.prm.stop_decel_mps2,
+            period_s=1.0 / self.prm.control_rate_hz,
+        )
+        lead.check(self.prm.pose_timeout_s)
+        frame_s = 1.0 / self.scenario.camera.fps
+        if self.prm.pose_timeout_s - lead.max_s < 2.0 * frame_s:
+            self.get_logger().warn(
+                f'at the speed bounds the camera-loss stop begins at a camera age of '
+                f'{self.prm.pose_timeout_s - lead.max_s:.3f} s (pose_timeout_s - '
+                f'{lead.max_s:.3f} s), less than two frame intervals: a late frame '
+                'will stop a robot driving that fast'
+            )
+        return lead
+
+    @property
+    def subscriptions(self):
+        """What an executor serves: every subscription but those :meth:`take_inputs` takes."""
+        return served_by_executor(super().subscriptions)
+
+    def take_inputs(self) -> None:
+        """Run the callbacks of the messages that arrived since the last call on the
+        subscriptions taken at each period (``tick_inputs``; holding ``lock``).
+        """
+        take_waiting(list(super().subscriptions))
+
     # ------------------------------------------------------------------ time
     def now_s(self) -> float:
-        return self.get_clock().now().nanoseconds * 1e-9
+        return self._now_ns() * 1e-9
 
     # ------------------------------------------------------------------ inputs
-    def _on_pose(self, msg: PoseStamped) -> None:
-        pose, stamp_s = msgs.pose_from_msg(msg)
+    def _on_pose(self, msg: PoseStamped | bytes) -> None:
+        pose, stamp_s = cdr.pose_from_msg(msg)
         with self.lock:
             outcome = self.estimator.camera_update(stamp_s, pose)
         if outcome.startswith('rejected'):
@@ -466,15 +562,15 @@ class ControllerNode(Node):
         nb = _Neighbour(rid)
 
         def on_state(msg, nb=nb):
-            state, stamp_s = msgs.state_from_odometry(msg)
-            if not np.all(np.isfinite(state)):
+            state, stamp_s = cdr.finite_state_from_odometry(msg)
+            if state is None:  # not finite
                 self.rejected['parent'] += 1
                 return
             nb.state, nb.stamp_s = state, stamp_s
 
         def on_accel(msg, nb=nb):
-            accel, _ = msgs.accel_from_msg(msg)
-            if not np.all(np.isfinite(accel)):
+            accel, _ = cdr.finite_accel_from_msg(msg)
+            if accel is None:  # not finite
                 self.rejected['parent'] += 1
                 return
             nb.accel = accel
@@ -488,7 +584,7 @@ class ControllerNode(Node):
             nb.mode, nb.target = threat_mode(mode)
 
         def on_camera(msg, nb=nb):
-            pose, _ = msgs.pose_from_msg(msg)
+            pose, _ = cdr.pose_from_msg(msg)
             own = self._own_xy
             if own is None or not (math.isfinite(pose[0]) and math.isfinite(pose[1])):
                 return
@@ -499,13 +595,19 @@ class ControllerNode(Node):
                 nb.in_range = in_range
                 self._update_hearing(nb)
 
-        nb.callbacks = (on_state, on_accel)
+        nb.callbacks = (
+            (TakenAtTick(on_state), TakenAtTick(on_accel))
+            if self._tick_inputs
+            else (on_state, on_accel)
+        )
         nb.low_subs = [
             self.create_subscription(String, f'/robot_{rid}/mode', on_mode, QOS_CONTROL)
         ]
         if not self.prm.hear_all:  # range gate from the camera poses (30 fps) of robot rid
             nb.low_subs.append(
-                self.create_subscription(PoseStamped, f'/robot_{rid}/pose', on_camera, QOS_CONTROL)
+                self.create_subscription(
+                    PoseStamped, f'/robot_{rid}/pose', on_camera, QOS_CONTROL, raw=True
+                )
             )
         return nb
 
@@ -531,17 +633,18 @@ class ControllerNode(Node):
                 on_state, on_accel = nb.callbacks
                 nb.subs = [
                     self.create_subscription(
-                        msgs.Odometry, f'/robot_{nb.rid}/state', on_state, QOS_CONTROL
+                        msgs.Odometry, f'/robot_{nb.rid}/state', on_state, QOS_CONTROL, raw=True
                     ),
                     self.create_subscription(
-                        AccelStamped, f'/robot_{nb.rid}/accel', on_accel, QOS_CONTROL
+                        AccelStamped, f'/robot_{nb.rid}/accel', on_accel, QOS_CONTROL, raw=True
                     ),
                 ]
             elif not need and nb.subs:
-                for sub in nb.subs:
-                    self.destroy_subscription(sub)
-                nb.subs = []
-                nb.state, nb.stamp_s = None, -math.inf  # not heard any more: not used
+                with self.lock:  # no message taken at a period (tick_inputs) after this
+                    for sub in nb.subs:
+                        self.destroy_subscription(sub)
+                    nb.subs = []
+                    nb.state, nb.stamp_s = None, -math.inf  # not heard any more: not used
 
     def _neighbour_now(self, nb: _Neighbour | None, now_s: float) -> np.ndarray | None:
         """The neighbour's state extrapolated to now with its commanded acceleration
@@ -606,20 +709,17 @@ class ControllerNode(Node):
         self._own_xy = (float(state[0]), float(state[1]))
         stamp = msgs.stamp_from_s(now)
         self._msg_state = msgs.odometry(state, stamp, f'robot_{self.rid}', out=self._msg_state)
-        self.pub_state.publish(self._msg_state)
+        if self._state_heard():  # (volatile: unheard, it reaches nobody)
+            self.pub_state.publish(self._msg_state)
         if self.record is not None:
             self.record.state, self.record.stamp_s = state, now
         if now - self.last_wheel_s > self.prm.wheel_timeout_s:
             self._safety('stopped_wheels')
             self._send(np.zeros(2), None, now)  # no encoder data: nothing to brake with
             return
-        if est.camera_age_s(now) > self.prm.pose_timeout_s:
+        if self._camera_lost(state, now):
             self._safety('stopped_pose')
-            self._send(
-                stop_torque(state[None], self.k, self.prm.stop_time_s, self.scenario.control)[0],
-                None,
-                now,
-            )
+            self._brake(state, now, camera_loss=True)
             return
         if self.start_s is None or now < self.start_s:
             self._safety('waiting')
@@ -629,11 +729,7 @@ class ControllerNode(Node):
         parent_state = self._neighbour_now(self.parent, now)
         if self.parent is not None and parent_state is None:
             self._safety('hold_parent')
-            self._send(
-                stop_torque(state[None], self.k, self.prm.stop_time_s, self.scenario.control)[0],
-                None,
-                now,
-            )
+            self._brake(state, now, camera_loss=False)
             return
         self._safety('running')
         heard: dict[int, NeighbourState] = {}
@@ -698,10 +794,54 @@ class ControllerNode(Node):
             now,
         )
 
+    def _brake(self, state: np.ndarray, now: float, camera_loss: bool) -> None:
+        """Send the controlled stop's torque (DESIGN §7, :func:`stop_torque`), with the boundary
+        layers of the control period: the camera-loss stop (``camera_loss``) brakes v with the
+        gain its :class:`StopLead` was computed for (stop_decel_mps2); hold_parent keeps the
+        formation law's gains.
+        """
+        lead = self.stop_lead  # the stop law its lead was computed for
+        torque = stop_torque(
+            state[None],
+            self.k,
+            self.prm.stop_time_s,
+            self.scenario.control,
+            lead.decel_mps2 if camera_loss else 0.0,
+            lead.period_s,
+        )[0]
+        self._send(torque, None, now)
+
+    def _camera_lost(self, state: np.ndarray, now: float) -> bool:
+        """Camera loss (DESIGN §7): True once the camera age exceeds ``pose_timeout_s`` minus the
+        stop lead at the current speed (:class:`StopLead`: the time to rest under the stop law +
+        ``stop_margin_s``), so the robot is at rest by ``pose_timeout_s`` (+ one control period).
+        Latched until a newer camera pose is accepted: the lead shrinks as the robot slows, and
+        a stop once begun must not give way to driving on the same stale pose.
+        """
+        est = self.estimator
+        if self._pose_stop:
+            if est.last_camera_s == self._pose_stop_camera_s:
+                return True
+            self._pose_stop = False  # a new pose: decide afresh
+        v, omega = float(state[3]), float(state[4])
+        if self.stop_lead.over_bound(v, omega):
+            self.over_stop_speed += 1
+            self.get_logger().warn(
+                f'driving faster than the stop bounds ({self.stop_lead.speed_max_mps:g} m/s, '
+                f'{self.stop_lead.turn_rate_max_radps:g} rad/s): v {v:.3f} m/s, omega '
+                f'{omega:.2f} rad/s; a camera loss may end at rest after pose_timeout_s',
+                throttle_duration_sec=10.0,
+            )
+        if est.camera_age_s(now) > self.prm.pose_timeout_s - self.stop_lead.lead_s(v, omega):
+            self._pose_stop, self._pose_stop_camera_s = True, est.last_camera_s
+            return True
+        return False
+
     def _control_status(self) -> tuple[int, str, dict]:
         values = {
             'ticks': self.ticks,
             'late_ticks': self.late_ticks,
+            'over_stop_speed': self.over_stop_speed,
             'safety': self.safety,
             'mode': self.mode['mode'],
             **{f'rejected_{k}': v for k, v in self.rejected.items()},
@@ -747,20 +887,24 @@ class ControllerNode(Node):
             self.diag.changed()  # a safety change is published when it happens
 
     def _send(self, torque: np.ndarray, accel: np.ndarray | None, now: float) -> None:
-        torque = np.where(np.isfinite(torque), torque, 0.0)
-        torque = np.clip(torque, -self.tau_max, self.tau_max)  # DESIGN §7: clamp here too
-        self.last_torque = torque
-        stamp = msgs.stamp_from_s(now)
-        if self.bridge is None or self.pub_torque.get_subscription_count():
+        lim = self.tau_max  # non-finite -> 0, then DESIGN §7: clamp here too (two scalars)
+        left, right = float(torque[0]), float(torque[1])
+        left = min(max(left if math.isfinite(left) else 0.0, -lim), lim)
+        right = min(max(right if math.isfinite(right) else 0.0, -lim), lim)
+        torque = self.last_torque = np.array([left, right])
+        stamp = None
+        if self.bridge is None or self._torque_heard():
+            stamp = msgs.stamp_from_s(now)
             self._msg_torque = msgs.wheel_torque(torque, stamp, out=self._msg_torque)
             self.pub_torque.publish(self._msg_torque)
         if self.bridge is not None:
-            self.bridge.command((float(torque[0]), float(torque[1])))
+            self.bridge.command((left, right))
         accel = np.zeros(2) if accel is None else accel
         if self.record is not None:
             self.record.accel = accel
             self.record.mode, self.record.target = threat_mode(self.mode)
-        if self.pub_accel.get_subscription_count():  # (in a team, often nobody outside)
+        if self._accel_heard():  # (in a team, often nobody outside)
+            stamp = msgs.stamp_from_s(now) if stamp is None else stamp
             self._msg_accel = msgs.accel_stamped(accel, stamp, out=self._msg_accel)
             self.pub_accel.publish(self._msg_accel)
         key = tuple(sorted(self.mode.items()))

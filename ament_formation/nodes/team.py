@@ -18,9 +18,12 @@ On wall-clock time the control periods run in a thread of their own (:class:`Con
 on an executor timer: a period starts on time whatever the executor is doing (decoding messages,
 diagnostics), reads the serial ports first, then runs every hosted controller; between periods
 the thread sleeps in select() on the ports and reads telemetry the moment it arrives (no poll
-timer). Callbacks that change what a period reads (camera pose, graph, encounters) take the
-team's lock. With ``realtime_priority`` P the loop thread runs under SCHED_FIFO P and the
-executor thread under P - 1. On simulated time (``use_sim_time``) executor timers run the periods.
+timer). The full-rate state and accel of the robots the controllers hear (other processes) are
+taken by the loop at the start of each period, what arrived since the previous one
+(ros/tick_inputs.py: no executor wake per message). Callbacks that change what a period reads
+(camera pose, graph, encounters) take the team's lock. With ``realtime_priority`` P the loop
+thread runs under SCHED_FIFO P and the executor thread under P - 1. On simulated time
+(``use_sim_time``) executor timers run the periods.
 
 The robot process of a robot's computer (scripts/launch_robot.sh, default): a team of one robot,
 ``robot_ids:=[N]``, ``port_template:=/dev/ttyACM0`` (no ``{id}`` needed for one robot). For
@@ -42,6 +45,7 @@ Torque limits of the bridges come from the scenario.
 from __future__ import annotations
 
 from dataclasses import dataclass
+import math
 import select
 import sys
 import threading
@@ -158,6 +162,7 @@ class TeamNode(Node):
                     peers=self.peers,
                     bridge=self.bridges.get(rid),
                     lock=self.lock,
+                    tick_inputs=threaded,  # the heard robots' state/accel: taken at each period
                     parameter_overrides=common
                     + [
                         Parameter('scenario', value=str(self.prm.scenario)),
@@ -194,6 +199,9 @@ class TeamNode(Node):
             bridge.poll()
 
     def _control(self) -> None:
+        if self.loop is not None:  # what arrived since the last period (ros/tick_inputs.py)
+            for controller in self.controllers.values():
+                controller.take_inputs()
         now_s = self._now_ns() * 1e-9  # one time for the whole period
         for controller in self.controllers.values():
             controller.control_tick(now_s)
@@ -254,6 +262,7 @@ class ControlLoop:
             set_realtime(self.priority, self.team.get_logger())
         lock, team, period = self.team.lock, self.team, self.period_s
         next_s = time.monotonic() + period
+        read_ok_s = -math.inf  # the next read on readiness is due from then on
         while not self._stop.is_set():
             try:
                 wait = next_s - time.monotonic()
@@ -265,12 +274,18 @@ class ControlLoop:
                         else self._stop.wait(wait) and []
                     )
                     if ready:
-                        with lock:
-                            self._poll_all()  # telemetry as it arrives
                         # at most one read per MIN_READ_GAP_S: a port that stays readable without
                         # data (a hung-up pty) must not turn this (real-time) thread into a busy
-                        # loop (a plain sleep: cheaper than an Event's wait; stop() waits for it)
-                        time.sleep(min(self.MIN_READ_GAP_S, max(0.0, next_s - time.monotonic())))
+                        # loop. Data that comes sooner waits for the gap's end (a plain sleep:
+                        # cheaper than an Event's wait; stop() waits for it); a period with no
+                        # data after its read wakes only at its end
+                        now = time.monotonic()
+                        if now < read_ok_s:
+                            time.sleep(min(read_ok_s, next_s) - now)
+                            continue
+                        with lock:
+                            self._poll_all()  # telemetry as it arrives
+                        read_ok_s = time.monotonic() + self.MIN_READ_GAP_S
                     continue
                 with lock:
                     self._poll_all()

@@ -10,6 +10,7 @@ import time
 from typing import Callable
 
 from rclpy.executors import Executor, ExternalShutdownException
+from rclpy.task import Future
 
 
 def spin_until(
@@ -115,9 +116,18 @@ def spin_node(node, process: str | None = None) -> None:
     for n in nodes:
         executor.add_node(n)
     try:
-        # EventsExecutor.spin() does not return on SIGTERM in Jazzy: loop on spin_once instead
-        while node.context.ok() and not getattr(node, 'done', False):
-            executor.spin_once(timeout_sec=0.1)
+        # EventsExecutor.spin() does not return on SIGTERM in Jazzy: spin in slices of 0.1 s
+        # instead; the EventsExecutor's slice is spin_until_future_complete on a future that
+        # never completes (it runs every callback due in the slice without returning to Python
+        # between them; spin_once returns after each), the Python executors' spin_once (their
+        # spin_until_future_complete adds a callback to the future per call)
+        if isinstance(executor, Executor):
+            while node.context.ok() and not getattr(node, 'done', False):
+                executor.spin_once(timeout_sec=0.1)
+        else:
+            never = Future()
+            while node.context.ok() and not getattr(node, 'done', False):
+                executor.spin_until_future_complete(never, timeout_sec=0.1)
     except ExternalShutdownException:  # SIGINT/SIGTERM shut the context down: a clean exit
         pass
     finally:

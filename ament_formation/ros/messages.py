@@ -122,7 +122,7 @@ def odometry(
     ``out``: a message this function filled before (same frames), refilled instead of building a
     new one (a publisher at 100 Hz; rclpy serializes at publish, so reuse is safe).
     """
-    x, y, th, v, w = (float(s) for s in state)
+    x, y, th, v, w = map(float, state)
     if out is None:
         msg = Odometry()
         msg.header.frame_id = frame_id

@@ -19,7 +19,7 @@ Prints and writes to DIR/multihost.json: discovery (robot launchers started -> e
 heard by the camera PC -> mission start -> every controller running), bytes/s per robot link
 during the mission (switch port counters: from / to the robot), each link-loss event (the robot's
 controller stop, time and distance to rest from the ground truth, rejoin) and the run's checks
-(core/metrics.check_run on the recorded ground truth, as `formation run`, plus the multi-host
+(core/sim/metrics.check_run on the recorded ground truth, as `formation run`, plus the multi-host
 checks). DIR/metrics.json, DIR/run.mcap and DIR/figure.png as `formation run`. Exit status 0
 when every check passed, 1 when one failed, 2 for bad input or when namespaces are unavailable
 (not root, no `ip netns`).

@@ -31,7 +31,7 @@ TRUTH_GAP_MAX_S = (
 
 
 def check(*args, **kw) -> dict:
-    """core/metrics.check, imported when needed (the `formation` tool starts without numpy)."""
+    """core/sim/metrics.check, imported when needed (the `formation` tool starts without numpy)."""
     from ament_formation.core.sim.metrics import check as make
 
     return make(*args, **kw)
@@ -412,9 +412,9 @@ def _process_check(launch_log: Path, launch_rc, proc_dir: Path) -> dict:
 
 
 def _evaluate(mcap_path: Path, scenario, out: Path, wall_s: float, args, extra: list[dict]) -> int:
-    """Metrics from the recording, the checks (core/metrics.check_run: every run's, the scenario's
-    ``expect:`` and ``extra``), metrics.json, figure, summary. Exit status 0 exactly when
-    metrics.json says ``"ok": true``; otherwise one line on stderr names what failed.
+    """Metrics from the recording, the checks (core/sim/metrics.check_run: every run's, the
+    scenario's ``expect:`` and ``extra``), metrics.json, figure, summary. Exit status 0 exactly
+    when metrics.json says ``"ok": true``; otherwise one line on stderr names what failed.
     """
     from ament_formation.core.sim.metrics import check_run, compute_metrics
     from ament_formation.core.sim.records import write_metrics, write_run

@@ -5,7 +5,7 @@ run
       directory (core/sim/records.py): metrics.json, figure.png, trajectories.csv, obstacles.csv,
       events.json, run.json, scenario.yaml. A summary goes to stdout; progress of runs longer than
       about a second goes to stderr. The run is checked like `formation run`
-      (core/metrics.check_run:
+      (core/sim/metrics.check_run:
       no prohibited entry, no contact, the scenario's ``expect:`` block); exit status 1 and one
       line
       on stderr naming the failed checks when it fails (metrics.json ``ok``/``checks`` say the

@@ -57,8 +57,8 @@
 #define DEFAULT_TORQUE_LIMIT_NM 0.15f            /* |tau_w| clamp, matches the scenario default */
 #define MAX_TORQUE_LIMIT_NM 2.0f                 /* a config message can never raise it above this */
 
-/* ---- stop brake on command loss (docs/safety.md; the emulated board core/motor_board.py uses
- * the same numbers). After the command watchdog trips, each wheel is regulated to zero speed:
+/* ---- stop brake on command loss (docs/safety.md; the emulated board core/serial/motor_board.py
+ * uses the same numbers). After the command watchdog trips, each wheel is regulated to zero speed:
  * tau = clamp(-BRAKE_GAIN * omega_encoder, +-min(BRAKE_TORQUE_LIMIT, torque limit)); released
  * (H-bridge off) once both wheels stayed within one encoder count of a reference position for
  * BRAKE_REST_MS (at rest), or after BRAKE_MAX_MS whatever the speed.                                                  */

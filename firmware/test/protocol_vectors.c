@@ -11,7 +11,8 @@
  *   C <hex>        prints "C <crc16 of the bytes as 0x....>"
  *   K <hex>        prints "K <crc32c of the bytes as 0x........>"
  *   X <hex>        COBS-decode one block; prints "X <hex>" or "X invalid"
- * Field and type names are those of the document (and of ament_formation.core.serial_protocol).
+ * Field and type names are those of the document (and of
+ * ament_formation.core.serial.serial_protocol).
  */
 #include <stddef.h>
 #include <stdio.h>

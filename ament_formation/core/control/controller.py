@@ -31,7 +31,7 @@ from ament_formation.core.control.automaton import (
     SwitchingParams,
 )
 from ament_formation.core.control.encounters import decide
-from ament_formation.core.control.law import gains_vector, goal_fields, robot_law
+from ament_formation.core.control.law import gains_vector, goals_and_fields, robot_law
 from ament_formation.core.errors import ConfigError
 from ament_formation.core.model.dynamics import PlantCoeffs, point_velocities
 from ament_formation.core.model.obstacles import (
@@ -170,6 +170,58 @@ class ControlOutput:
         return {'mode': self.mode, 'target': self.target, 'direction': self.direction}
 
 
+class _Scratch:
+    """Work arrays of :meth:`RobotController.step` for ``n`` robots, made once: the own plant
+    coefficients in every column (copied per step); the automaton state, as a new
+    AutomatonState(n) has it, and the step's references, offsets, goals and parent rows, each a
+    view into one of four blocks that :meth:`reset` refills (one copy or fill per block instead of
+    one per array); the obstacles' states and the decision's event rows (written by the compiled
+    code).
+    """
+
+    def __init__(self, n: int, own_coeffs: np.ndarray, m: int):
+        self.coeffs = np.repeat(own_coeffs[:, None], n, axis=1)
+        fresh = AutomatonState(n)
+        self._ints0 = np.stack([fresh.mode, fresh.tgt, fresh.last_kind, fresh.last_tgt])
+        self._floats0 = np.concatenate(
+            [fresh.sdir, fresh.t_entry, fresh.since, fresh.last_exit, fresh.wc.ravel(),
+             fresh.wtgt.ravel()]
+        )
+        self._ints = self._ints0.copy()
+        self._floats = self._floats0.copy()
+        st = self.state = fresh  # its arrays replaced by views of the blocks (same types)
+        st.mode, st.tgt, st.last_kind, st.last_tgt = self._ints
+        f = self._floats
+        st.sdir, st.t_entry, st.since, st.last_exit = (f[k * n:(k + 1) * n] for k in range(4))
+        st.wc, st.wtgt = f[4 * n:6 * n].reshape(n, 2), f[6 * n:8 * n].reshape(n, 2)
+        self._work = np.zeros(16 * n)  # ref (n, 6), then five (n, 2): offsets and goals
+        w = self._work
+        self.ref = w[:6 * n].reshape(n, 6)
+        self.orig_offset, self.offset, self.goal, self.goal_dot, self.vc = (
+            w[(6 + 2 * k) * n:(8 + 2 * k) * n].reshape(n, 2) for k in range(5)
+        )
+        self._rows = np.empty((2, n), dtype=np.int64)
+        self.orig_parent, self.parent_row = self._rows
+        self.obstacles = (
+            np.empty((m, 2)),
+            np.empty((m, 2)),
+            np.empty((m, 2)),
+            np.empty(m),
+            np.empty(m),
+            np.empty(m),
+        )
+        self.events = np.zeros((8 * n + 16, 6))
+
+    def reset(self) -> None:
+        """The automaton state of a new AutomatonState(n); zero references, offsets and goals;
+        no parents (-1).
+        """
+        self._ints[...] = self._ints0
+        self._floats[...] = self._floats0
+        self._work.fill(0.0)
+        self._rows.fill(-1)
+
+
 class RobotController:
     """ONE robot's S8 automaton and sliding-mode law (same compiled functions as the simulator).
 
@@ -262,6 +314,7 @@ class RobotController:
         self._orig_offset = np.zeros(2)
         self._last_decision_s = -math.inf
         self._last_step_s: float | None = None
+        self._scratch: dict[int, _Scratch] = {}  # work arrays of step() per robot count
 
     # ------------------------------------------------------------------ graph
     def set_graph(
@@ -305,6 +358,7 @@ class RobotController:
         """
         clone = copy.deepcopy(self)
         clone._last_decision_s = -math.inf
+        clone._scratch = {}  # (views into blocks do not survive a deep copy as views)
         other = NeighbourState(np.zeros(5))
         clone.step(
             0.0,
@@ -314,6 +368,14 @@ class RobotController:
         )
 
     # ------------------------------------------------------------------ step
+    def _scratch_for(self, n: int) -> _Scratch:
+        """The work arrays of :meth:`step` for ``n`` robots (made once per robot count), reset."""
+        scratch = self._scratch.get(n)
+        if scratch is None:
+            scratch = self._scratch[n] = _Scratch(n, self._own_coeffs, len(self.obstacle_names))
+        scratch.reset()
+        return scratch
+
     def step(
         self,
         t_s: float,
@@ -328,7 +390,7 @@ class RobotController:
     ) -> ControlOutput:
         """One control period: (maybe) decide, then the law. See the class docstring."""
         own = np.asarray(own_state, dtype=float).reshape(-1)
-        if own.shape != (5,) or not np.all(np.isfinite(own)):
+        if own.shape != (5,) or not all(map(math.isfinite, own.tolist())):
             raise ValueError(f'own_state: must be 5 finite numbers (got {own_state!r})')
         others: dict[int, NeighbourState] = dict(neighbours or {})
         if self._parent is not None:
@@ -393,12 +455,13 @@ class RobotController:
         acmd = np.array(accs, dtype=float)
         rbody = np.array(radii, dtype=float)
         team = np.array(teams, dtype=np.int64)
-        coeffs = np.repeat(self._own_coeffs[:, None], n, axis=1)
+        scratch = self._scratch_for(n)  # refilled as new arrays would be, not rebuilt
+        coeffs = scratch.coeffs.copy()
         coeffs[4] = ds
-        st = AutomatonState(n)
+        st = scratch.state  # as a new AutomatonState(n) with these modes and targets
         st.mode[:] = modes
         st.tgt[:] = tgts
-        st.t_entry[:] = -1e9  # others' entry times are not known here
+        st.t_entry.fill(-1e9)  # others' entry times are not known here
         # own automaton state (targets stored as ids -> rows)
         src = self._state
         for name in ('mode', 'sdir', 't_entry', 'since', 'last_kind', 'last_exit'):
@@ -424,16 +487,14 @@ class RobotController:
             st.t_entry[k] = st.t_entry[me]
 
         # references, obstacles, point velocities, goals
-        ref = np.zeros((n, 6))
+        ref = scratch.ref
         if self.leader_path is not None:
             r, rd, rdd = self.leader_path.reference(float(t_s))
             ref[me] = np.concatenate([np.asarray(r), np.asarray(rd), np.asarray(rdd)])
         d = coeffs[4]
-        pd = point_velocities(x, np.ascontiguousarray(d))
-        m = len(self.obstacle_names)
+        pd = point_velocities(x, np.ascontiguousarray(d))  # the one p_dot = S1(theta) x2
         if obstacles is None:
-            oc, ov, oa = np.empty((m, 2)), np.empty((m, 2)), np.empty((m, 2))
-            ophi, ophid, ophidd = np.empty(m), np.empty(m), np.empty(m)
+            oc, ov, oa, ophi, ophid, ophidd = scratch.obstacles  # every entry written below
             obstacle_states(
                 float(t_s),
                 self._c0,
@@ -458,24 +519,26 @@ class RobotController:
             ophid = np.ascontiguousarray(obstacles.phi_dot_radps, dtype=float)
             ophidd = np.ascontiguousarray(obstacles.phi_ddot_radps2, dtype=float)
             oaxes = np.ascontiguousarray(obstacles.semi_axes_m, dtype=float)
-        orig_parent = np.full(n, -1, dtype=np.int64)
-        orig_offset = np.zeros((n, 2))
+        orig_parent, orig_offset = scratch.orig_parent, scratch.orig_offset
         if self._orig_parent is not None:
             orig_parent[me] = row[self._orig_parent]
             orig_offset[me] = self._orig_offset
         # others: their goal when known, else their position and point velocity
-        if goal_rows:
-            ref[goal_rows, 0:4] = goal_vals
+        for q, vals in zip(goal_rows, goal_vals):
+            ref[q, 0:4] = vals
         if blind_rows:
             ref[blind_rows, 0:2] = x[blind_rows, 0:2]
             ref[blind_rows, 2:4] = pd[blind_rows]
-        goal, goal_dot, vc = goal_fields(x, pd, ref, orig_parent, orig_offset, self._gains)
+        goal, goal_dot, vc = scratch.goal, scratch.goal_dot, scratch.vc  # as goal_fields()
+        goals_and_fields(
+            x, pd, ref, orig_parent, orig_offset, self._gains, goal, goal_dot, vc, True
+        )
 
         events: list[dict] = []
         t_s = float(t_s)
         if t_s - self._last_decision_s >= self.switching.decision_period_s - 1e-9:
             self._last_decision_s = t_s
-            ev = np.zeros((8 * n + 16, 6))
+            ev = scratch.events  # decide() writes the rows it reports
             nev = decide(
                 t_s,
                 np.ascontiguousarray(x[:, :2]),
@@ -581,8 +644,7 @@ class RobotController:
                 st.wtgt[me] = st.wc[me]
 
         # the law (S3.2 with the mode's field)
-        parent_row = np.full(n, -1, dtype=np.int64)
-        offset = np.zeros((n, 2))
+        parent_row, offset = scratch.parent_row, scratch.offset
         if self._parent is not None:
             parent_row[me] = row[self._parent]
             offset[me] = self._offset

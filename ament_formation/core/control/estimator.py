@@ -206,13 +206,22 @@ class PoseEstimator:
 
         Returns False (and counts why) when the sample was rejected.
         """
-        q = np.asarray(wheel_angle_rad, dtype=float)
-        w = np.asarray(wheel_rate_radps, dtype=float)
-        if q.shape != (2,) or w.shape != (2,):
-            self.counters.rejected_nonfinite += 1
-            return False
-        ql, qr = q.tolist()
-        wl, wr = w.tolist()
+        if (
+            type(wheel_angle_rad) is tuple
+            and type(wheel_rate_radps) is tuple
+            and len(wheel_angle_rad) == 2
+            and len(wheel_rate_radps) == 2
+        ):  # two pairs of numbers (the bridge's samples): no arrays
+            ql, qr = float(wheel_angle_rad[0]), float(wheel_angle_rad[1])
+            wl, wr = float(wheel_rate_radps[0]), float(wheel_rate_radps[1])
+        else:
+            q = np.asarray(wheel_angle_rad, dtype=float)
+            w = np.asarray(wheel_rate_radps, dtype=float)
+            if q.shape != (2,) or w.shape != (2,):
+                self.counters.rejected_nonfinite += 1
+                return False
+            ql, qr = q.tolist()
+            wl, wr = w.tolist()
         if not all(map(math.isfinite, (ql, qr, wl, wr, t_s))):
             self.counters.rejected_nonfinite += 1
             return False

@@ -105,7 +105,7 @@ class Disturbance:
 
     def step_rotation(self, h_s: float) -> tuple[np.ndarray, np.ndarray]:
         """(cos, sin) of the phase advance 2 pi f h_s of every term, each (N, 2, M), for
-        :func:`ament_formation.core.control.kernels.disturbance_phasor_advance_k`.
+        :func:`disturbance_phasor_advance_k`.
         """
         ang = 2.0 * math.pi * self.freq_hz * h_s
         return np.cos(ang), np.sin(ang)

@@ -117,12 +117,12 @@ class Backoff:
 
 @dataclass(frozen=True)
 class WheelSample:
-    """Wheel state from one TELEMETRY: positions [rad] and velocities [rad/s],
-    shape (2,) [left, right].
+    """Wheel state from one TELEMETRY: positions [rad] and velocities [rad/s], each a pair
+    (left, right) of floats.
     """
 
-    position_rad: np.ndarray
-    velocity_radps: np.ndarray
+    position_rad: tuple[float, float]
+    velocity_radps: tuple[float, float]
     flags: int
     cmd_seq: int
     received_s: float
@@ -150,8 +150,8 @@ class LinkHost:
         self.board_status: sp.Status | None = None
         self.board_version: int | None = None
         self.flags = 0
-        self._unwrap_ticks: np.ndarray | None = None  # kept across reconnects
-        self._last_ticks = np.zeros(2, dtype=np.int64)
+        self._unwrap_ticks: tuple[int, int] | None = None  # kept across reconnects
+        self._last_ticks = (0, 0)
         self._input: tuple[float, float] | None = None  # latest valid input [N·m]
         self._input_s = -math.inf
         self._input_id = 0
@@ -163,6 +163,7 @@ class LinkHost:
         self._last_cmd_sent_s = -math.inf
         self._sent_input_id = 0
         self._min_gap_s = 0.25 / params.command_rate_hz
+        self._wire_limit = int(math.floor(params.torque_limit_nm / sp.TORQUE_LSB_NM + 1e-9))
         self._last_rx_s = -math.inf
         self._last_hello_s = -math.inf
         self._last_heartbeat_s = -math.inf
@@ -219,7 +220,8 @@ class LinkHost:
         """
         self.stats['inputs'] += 1
         try:
-            left, right = (float(t) for t in torques_nm)
+            left, right = torques_nm
+            left, right = float(left), float(right)
         except (TypeError, ValueError):
             self.stats['inputs_rejected'] += 1
             return False
@@ -260,7 +262,7 @@ class LinkHost:
         wire = (sp.torque_to_wire(self._input[0]), sp.torque_to_wire(self._input[1]))
         input_id = self._input_id
         # the bridge clamp in wire units too, so rounding can never exceed the limit
-        lim = int(math.floor(self.p.torque_limit_nm / sp.TORQUE_LSB_NM + 1e-9))
+        lim = self._wire_limit
         wire = (max(-lim, min(lim, wire[0])), max(-lim, min(lim, wire[1])))
         seq = self._seq
         data = self._frame(sp.TorqueCommand(*wire))
@@ -392,13 +394,18 @@ class LinkHost:
         )
 
     def _on_telemetry(self, msg: sp.Telemetry, now_s: float) -> WheelSample:
-        ticks = np.array([msg.left_ticks, msg.right_ticks], dtype=np.int64)
+        # scalars (two wheels: numpy costs more than it saves); the same float64 operations
+        left, right = msg.left_ticks, msg.right_ticks
         if self._unwrap_ticks is None:
-            self._unwrap_ticks = ticks.copy()
+            self._unwrap_ticks = (left, right)
         else:
-            delta = ((ticks - self._last_ticks + 0x8000) & 0xFFFF) - 0x8000
-            self._unwrap_ticks = self._unwrap_ticks + delta
-        self._last_ticks = ticks
+            last_l, last_r = self._last_ticks
+            unwrap_l, unwrap_r = self._unwrap_ticks
+            self._unwrap_ticks = (
+                unwrap_l + ((left - last_l + 0x8000) & 0xFFFF) - 0x8000,
+                unwrap_r + ((right - last_r + 0x8000) & 0xFFFF) - 0x8000,
+            )
+        self._last_ticks = (left, right)
         self.flags = msg.flags
         if msg.cmd_seq != self._last_echo:
             self._last_echo = msg.cmd_seq
@@ -411,10 +418,12 @@ class LinkHost:
                 )
             if self._pending_ack is not None and self._pending_ack[0] == msg.cmd_seq:
                 self._pending_ack = None
+        rad_per_tick = TWO_PI / self.ticks_per_rev
+        lsb = sp.VELOCITY_LSB_RADPS
+        unwrap_l, unwrap_r = self._unwrap_ticks
         return WheelSample(
-            position_rad=self._unwrap_ticks * (TWO_PI / self.ticks_per_rev),
-            velocity_radps=np.array([msg.left_vel_mradps, msg.right_vel_mradps], dtype=float)
-            * sp.VELOCITY_LSB_RADPS,
+            position_rad=(float(unwrap_l) * rad_per_tick, float(unwrap_r) * rad_per_tick),
+            velocity_radps=(float(msg.left_vel_mradps) * lsb, float(msg.right_vel_mradps) * lsb),
             flags=msg.flags,
             cmd_seq=msg.cmd_seq,
             received_s=now_s,

@@ -64,34 +64,49 @@ class MsgType(IntEnum):
     STOP = 0xA  # version 2
 
 
+_LIMITS = {'B': (0, 0xFF), 'H': (0, 0xFFFF), 'I': (0, 0xFFFFFFFF), 'h': (-0x8000, 0x7FFF)}
+
+
 def _check_ranges(msg) -> None:
     """Raise ValueError naming the field when a value does not fit its wire type."""
-    limits = {'B': (0, 0xFF), 'H': (0, 0xFFFF), 'I': (0, 0xFFFFFFFF), 'h': (-0x8000, 0x7FFF)}
-    for f, code in zip(fields(msg), msg.FORMAT[1:]):
-        value = getattr(msg, f.name)
-        lo, hi = limits[code]
+    for name, lo, hi in msg._RANGES:
+        value = getattr(msg, name)
         if not isinstance(value, int) or isinstance(value, bool) or not lo <= value <= hi:
             raise ValueError(
-                f'{type(msg).__name__}.{f.name}: {value!r} is not an integer in [{lo}, {hi}]'
+                f'{type(msg).__name__}.{name}: {value!r} is not an integer in [{lo}, {hi}]'
             )
 
 
 class _Message:
     TYPE: ClassVar[MsgType]
     FORMAT: ClassVar[str]
+    # per class, set by _layout() below (not dataclass fields): field names in wire order,
+    # (name, lo, hi) of each, the compiled struct of FORMAT
+    _FIELDS: ClassVar[tuple[str, ...]] = ()
+    _RANGES: ClassVar[tuple[tuple[str, int, int], ...]] = ()
+    _STRUCT: ClassVar[struct.Struct]
 
     def __post_init__(self) -> None:
         _check_ranges(self)
 
+    @classmethod
+    def from_wire(cls, values: tuple):
+        """The message of the values ``struct.unpack(FORMAT, body)`` gave: in range by
+        construction (each wire type holds only values of its range), so not checked again.
+        """
+        obj = object.__new__(cls)
+        obj.__dict__.update(zip(cls._FIELDS, values))
+        return obj
+
     def pack(self) -> bytes:
-        return struct.pack(self.FORMAT, *(getattr(self, f.name) for f in fields(self)))
+        return self._STRUCT.pack(*[getattr(self, name) for name in self._FIELDS])
 
     def check_values(self) -> str | None:
         """Why the decoded values are invalid, or None."""
         return None
 
     def to_dict(self) -> dict:
-        return {'type': self.TYPE.name, **{f.name: getattr(self, f.name) for f in fields(self)}}
+        return {'type': self.TYPE.name, **{name: getattr(self, name) for name in self._FIELDS}}
 
 
 @dataclass(frozen=True)
@@ -270,7 +285,22 @@ MESSAGE_CLASSES = {
     )
 }
 BODY_BYTES = {t: struct.calcsize(cls.FORMAT) for t, cls in MESSAGE_CLASSES.items()}
+
+
+def _layout(cls) -> None:
+    names = tuple(f.name for f in fields(cls))
+    codes = cls.FORMAT[1:]
+    assert len(names) == len(codes), cls
+    cls._FIELDS = names
+    cls._RANGES = tuple((name, *_LIMITS[code]) for name, code in zip(names, codes))
+    cls._STRUCT = struct.Struct(cls.FORMAT)
+
+
+for _cls in MESSAGE_CLASSES.values():
+    _layout(_cls)
+del _cls
 VERSION_FREE_TYPES = (MsgType.HELLO, MsgType.HELLO_ACK)  # layout frozen across versions
+_MSG_TYPES = {int(t): t for t in MsgType}  # type code -> MsgType (decode: no enum call)
 
 
 @dataclass(frozen=True)
@@ -286,6 +316,13 @@ class Frame:
             raise ValueError(f'Frame.seq: {self.seq} not in [0, 255]')
         if not 1 <= self.version <= 0xF:
             raise ValueError(f'Frame.version: {self.version} not in [1, 15]')
+
+    @classmethod
+    def trusted(cls, seq: int, msg: Message, version: int) -> 'Frame':
+        """A frame of values already known valid (a decoded header: uint8 seq, version 1..15)."""
+        obj = object.__new__(cls)
+        obj.__dict__.update(seq=seq, msg=msg, version=version)
+        return obj
 
 
 def crc_bytes(version: int) -> int:
@@ -324,27 +361,32 @@ def decode_raw(raw: bytes, accepted_version: int = PROTOCOL_VERSION) -> Frame | 
     if len(raw) < HEADER_BYTES + 1 + 2:
         return 'length'
     version, type_code = raw[0] >> 4, raw[0] & 0x0F
-    n_check = crc_bytes(version)
-    if len(raw) < HEADER_BYTES + 1 + n_check:
-        return 'length'
-    if frame_check(raw[:-n_check], version) != raw[-n_check:]:
-        return 'crc'
-    try:
-        mtype = MsgType(type_code)
-    except ValueError:
+    if version == 1:
+        n_check = 2
+        if len(raw) < HEADER_BYTES + 1 + n_check:
+            return 'length'
+        if crc16(raw[:-2]) != int.from_bytes(raw[-2:], 'little'):
+            return 'crc'
+    else:
+        n_check = 4
+        if len(raw) < HEADER_BYTES + 1 + n_check:
+            return 'length'
+        if crc32c(raw[:-4]) != int.from_bytes(raw[-4:], 'little'):
+            return 'crc'
+    mtype = _MSG_TYPES.get(type_code)
+    if mtype is None:
         return 'type'
     if version != accepted_version and mtype not in VERSION_FREE_TYPES:
         return 'version'
     if version == 0:
         return 'version'
-    body = raw[HEADER_BYTES:-n_check]
-    if len(body) != BODY_BYTES[mtype]:
-        return 'length'
     cls = MESSAGE_CLASSES[mtype]
-    msg = cls(*struct.unpack(cls.FORMAT, body))
+    if len(raw) - HEADER_BYTES - n_check != cls._STRUCT.size:
+        return 'length'
+    msg = cls.from_wire(cls._STRUCT.unpack_from(raw, HEADER_BYTES))
     if msg.check_values() is not None:
         return 'value'
-    return Frame(seq=raw[1], msg=msg, version=version)
+    return Frame.trusted(raw[1], msg, version)
 
 
 class FrameDecoder:
@@ -378,6 +420,19 @@ class FrameDecoder:
         while start < n:
             zero = data.find(b'\x00', start)
             end = n if zero < 0 else zero
+            if zero >= 0 and not self._buf and not self._discarding:
+                # a whole block in this chunk (the usual case): decoded without the buffer
+                if end - start > MAX_ENCODED_BYTES:
+                    self.rejected['oversize'] += 1
+                elif end > start:
+                    result = self._decode_block(data[start:end])
+                    if isinstance(result, str):
+                        self.rejected[result] += 1
+                    else:
+                        self.accepted += 1
+                        frames.append(result)
+                start = zero + 1
+                continue
             if not self._discarding:
                 self._buf += data[start:end]
                 if len(self._buf) > MAX_ENCODED_BYTES:

@@ -2,7 +2,7 @@
 
 Distances use the exact Euclidean signed distance of the controlled point p to the prohibited
 ellipse P_j (< 0 inside;
-:func:`ament_formation.core.control.limit_cycle.signed_distance_to_ellipse`), not
+:func:`ament_formation.core.model.ellipse.signed_distance_to_ellipse`), not
 the algebraic h. Robot pairs use the robot prohibited circle R_i + R_k + margin (S7).
 
 Conventions (samples k = 0..T-1 at times t_k):
