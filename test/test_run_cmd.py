@@ -107,12 +107,29 @@ def _ppid(proc_dir: Path) -> int:
         return -1
 
 
+def _why(res, out: Path, metrics: dict) -> str:
+    """A failed run's evidence for the assertion message: its stderr, failed checks, the metrics
+    that say how much was recorded, and the last lines of each process log.
+    """
+    failed = [c for c in metrics.get('checks', []) if not c.get('ok')]
+    keys = ('sim_time_s', 'wall_time_s', 'truth_max_gap_s', 'torque_max_gap_s')
+    lines = [
+        res.stderr[-1500:],
+        f'failed checks: {failed}',
+        str({k: metrics.get(k) for k in keys}),
+    ]
+    for log in sorted(out.rglob('*.log')):
+        tail = log.read_text(errors='replace').splitlines()[-6:]
+        lines.append(f'--- {log.relative_to(out)}: ' + ' | '.join(tail))
+    return '\n'.join(lines)[-6000:]
+
+
 def test_formation_run_records_evaluates_and_stops_every_process(passing_run):
     from ament_formation.ros.recorder import read_topic
 
     res, out, (shm_before, run_segments) = passing_run
     metrics = json.loads((out / 'metrics.json').read_text())
-    assert res.returncode == 0, res.stderr[-2000:]
+    assert res.returncode == 0, _why(res, out, metrics)
     assert metrics['ok'] is True and metrics['failure'] is None, metrics.get('failure')
     assert res.stderr.strip() == ''  # --quiet and nothing failed
     names = {c['name'] for c in metrics['checks']}

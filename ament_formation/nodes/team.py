@@ -281,7 +281,9 @@ class ControlLoop:
                         # data after its read wakes only at its end
                         now = time.monotonic()
                         if now < read_ok_s:
-                            time.sleep(min(read_ok_s, next_s) - now)
+                            pause = min(read_ok_s, next_s) - now  # < 0 once the period is due
+                            if pause > 0.0:
+                                time.sleep(pause)
                             continue
                         with lock:
                             self._poll_all()  # telemetry as it arrives
