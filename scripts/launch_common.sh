@@ -88,6 +88,7 @@ af_alive() { kill -0 "$1" 2>/dev/null; }
 af_stop_all() {
   local status=$? i pid deadline
   trap - EXIT INT TERM
+  af_shm_note_used "${AF_PIDS[@]}"
   for (( i=${#AF_PIDS[@]}-1; i>=0; i-- )); do
     pid="${AF_PIDS[$i]}"; af_alive "$pid" && kill -TERM "$pid" 2>/dev/null || true
   done

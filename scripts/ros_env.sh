@@ -53,14 +53,29 @@ unset _af_root
 # never a segment a live process still maps (another launcher's processes on the same machine,
 # e.g. launch_base.sh next to launch_robot.sh, share Fast DDS port segments with ours).
 _af_shm_pattern='^(lttng-ust-wait|fastrtps_|sem\.fastrtps_)'
+# af_shm_note_used PID...: also remove, at clean-up, the segments these processes map now (call it
+# just before stopping them): a segment that existed before our snapshot but that our processes
+# used is ours to remove too once nobody maps it. Without this, launchers started one after the
+# other and stopped together left segments behind: the first one's segments were in the later
+# ones' snapshots, and when the first one cleaned up, the later ones' processes still mapped them.
 af_shm_snapshot() {
   _af_shm_before="$(ls /dev/shm 2>/dev/null | grep -E "$_af_shm_pattern" || true)"
+  _af_shm_used=""
+}
+af_shm_note_used() {
+  local pid
+  for pid in "$@"; do
+    _af_shm_used+="$(grep -o '/dev/shm/[^ ]*' "/proc/$pid/maps" 2>/dev/null | sed 's|^/dev/shm/||' | sort -u || true)"$'\n'
+  done
 }
 af_shm_cleanup() {
   local f in_use
   in_use="$(cat /proc/[0-9]*/maps 2>/dev/null | grep -o '/dev/shm/[^ ]*' | sort -u || true)"
   for f in $(ls /dev/shm 2>/dev/null | grep -E "$_af_shm_pattern" || true); do
-    if ! grep -qxF "$f" <<<"${_af_shm_before:-}" && ! grep -qxF "/dev/shm/$f" <<<"$in_use"; then
+    if grep -qxF "/dev/shm/$f" <<<"$in_use"; then
+      continue  # still mapped by a live process
+    fi
+    if ! grep -qxF "$f" <<<"${_af_shm_before:-}" || grep -qxF "$f" <<<"${_af_shm_used:-}"; then
       rm -f "/dev/shm/$f"
     fi
   done

@@ -946,11 +946,14 @@ def test_scene_shows_the_avoidance_and_its_direction(live_run):
     exits = [e['t_s'] for e in metrics['mode_events'] if e['robot'] == 0 and e['event'] == 'exit']
     t_in = enters[0]['t_s']
     t_out = next((t for t in exits if t > t_in), math.inf)
-    shown = []
+    shown, stopped = [], []
     for t, ents in _scenes(live_run['events']):
         if not (t_in + 0.5 < t < t_out - 0.5):
             continue
         meta = _meta(ents['robot_0'])
+        if meta['mode'] == 'stopped':  # a safety stop inside the window (a pose gap under load):
+            stopped.append(t)  # shown as it is; the avoidance resumes after it
+            continue
         assert meta['mode'] in AVOIDANCE_MODES and meta['target'] == 'O1', meta
         assert meta['direction'] == enters[0]['direction']
         arrow = ents['avoid_0']['arrows'][0]
@@ -964,7 +967,7 @@ def test_scene_shows_the_avoidance_and_its_direction(live_run):
         assert (cross > 0) == (meta['direction'] == 'ccw')
         assert ents['robot_0']['texts'][0]['text'].endswith(f'O1 {meta["direction"]}')
         shown.append(t)
-    assert len(shown) >= 5, (t_in, t_out)
+    assert len(shown) >= 5 and len(stopped) <= len(shown), (t_in, t_out, stopped)
     # outside avoidance the arrow is gone
     calm = [ents for t, ents in _scenes(live_run['events']) if t < t_in - 0.5]
     assert calm and all(not e['avoid_0']['arrows'] for e in calm)

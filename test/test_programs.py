@@ -401,17 +401,27 @@ def test_mission_through_the_programs(sets):
             if truth[0][0] <= _stamp_s(p.header.stamp) <= truth[-1][0]
         ]
         assert poses, f"robot {rid}: no pose inside the truth's time span"
-        pose = poses[-1]
+        # the newest pose whose capture time the truth brackets within 0.1 s (this test's own
+        # subscriber can miss truth samples while the machine is busy: seen once, a 2.6 s gap)
+        times = [tt for tt, _ in truth]
+        bracketed = []
+        for pose in poses:
+            t = _stamp_s(pose.header.stamp)
+            k = next(i for i in range(1, len(truth)) if truth[i][0] >= t)
+            if truth[k][0] - truth[k - 1][0] < 0.1:
+                bracketed.append((pose, t, k))
+        gap = max(np.diff(times), default=0.0)
+        assert bracketed, f'robot {rid}: no pose between truth samples < 0.1 s apart (gap {gap} s)'
+        pose, t, k = bracketed[-1]
         assert pose.header.frame_id == 'world'
-        t = _stamp_s(pose.header.stamp)
-        k = next(i for i in range(1, len(truth)) if truth[i][0] >= t)
         (t0, a), (t1, b) = truth[k - 1], truth[k]
         w = 0.0 if t1 == t0 else (t - t0) / (t1 - t0)
         err = math.hypot(
             pose.pose.position.x - (a.x + w * (b.x - a.x)),
             pose.pose.position.y - (a.y + w * (b.y - a.y)),
         )
-        assert t1 - t0 < 0.1 and err < 0.01, f'robot {rid}: pose {err * 1e3:.1f} mm from the truth'
+        assert err < 0.01, f'robot {rid}: pose {err * 1e3:.1f} mm from the truth'
+        assert len(bracketed) >= len(poses) // 2, (len(bracketed), len(poses), gap)
     # the team drives: robot 0's truth moves 2 cm after the mission start
     x0 = seen['m_truth_0'][-1][1].pose.pose.position
 
