@@ -47,36 +47,52 @@ unset _af_root
 
 # Shared memory the ROS processes of a run leave in /dev/shm: liblttng-ust (loaded by the ROS
 # wheels) creates lttng-ust-wait-*, and Fast DDS's shared-memory transport leaves fastrtps_* and
-# sem.fastrtps_* segments behind when a process is killed (a clean exit removes them; rmw_fastrtps
+# sem.fastrtps_* entries behind when a process is killed (a clean exit removes them; rmw_fastrtps
 # keeps that same-host transport next to the loopback UDP one). af_shm_snapshot remembers what
-# existed; af_shm_cleanup removes only what appeared since, once the run's processes are gone, and
-# never a segment a live process still maps (another launcher's processes on the same machine,
-# e.g. launch_base.sh next to launch_robot.sh, share Fast DDS port segments with ours).
+# existed; af_shm_cleanup removes what appeared since (and what our processes used, below), once
+# the run's processes are gone, and never an entry of a live participant: Fast DDS keeps a segment
+# (fastrtps_<id>, fastrtps_port<N>) mapped, but its liveness lock file (<segment>_el, _sl) only
+# open and its port mutex (sem.fastrtps_port<N>_mutex) neither mapped nor open between uses. So an
+# entry is in use when any entry of its group (the name without sem. and _mutex/_el/_sl) is mapped
+# or open by a live process. Removing a live participant's lock file or mutex (as the clean-up did
+# before, for any entry not mapped) broke its shared-memory delivery: another run's world, recorder
+# and controllers stopped hearing each other mid-run.
+# af_shm_note_used PID...: also remove, at clean-up, the entries these processes map or hold open
+# now (call it just before stopping them): an entry that existed before our snapshot but that our
+# processes used is ours to remove too once nobody uses it. Without this, launchers started one
+# after the other and stopped together left entries behind: the first one's were in the later
+# ones' snapshots, and when the first one cleaned up, the later ones' processes still used them.
 _af_shm_pattern='^(lttng-ust-wait|fastrtps_|sem\.fastrtps_)'
-# af_shm_note_used PID...: also remove, at clean-up, the segments these processes map now (call it
-# just before stopping them): a segment that existed before our snapshot but that our processes
-# used is ours to remove too once nobody maps it. Without this, launchers started one after the
-# other and stopped together left segments behind: the first one's segments were in the later
-# ones' snapshots, and when the first one cleaned up, the later ones' processes still mapped them.
+AF_SHM_DIR="${AF_SHM_DIR:-/dev/shm}"
 af_shm_snapshot() {
-  _af_shm_before="$(ls /dev/shm 2>/dev/null | grep -E "$_af_shm_pattern" || true)"
+  _af_shm_before="$(ls "$AF_SHM_DIR" 2>/dev/null | grep -E "$_af_shm_pattern" || true)"
   _af_shm_used=""
 }
+_af_shm_group() {  # stdin: names -> their groups
+  sed -E 's/^sem\.//; s/_(mutex|el|sl)$//'
+}
+_af_shm_open_by() {  # PID... (none: every process): the names in AF_SHM_DIR they map or hold open
+  local dirs=() pid
+  if [ $# -eq 0 ]; then dirs=(/proc/[0-9]*); else for pid in "$@"; do dirs+=("/proc/$pid"); done; fi
+  {
+    for pid in "${dirs[@]}"; do cat "$pid/maps" 2>/dev/null; done | grep -o "$AF_SHM_DIR/[^ ]*"
+    for pid in "${dirs[@]}"; do ls -l "$pid/fd" 2>/dev/null; done | grep -o "$AF_SHM_DIR/[^ ]*"
+  } | sed "s|^$AF_SHM_DIR/||" | sort -u || true
+}
 af_shm_note_used() {
-  local pid
-  for pid in "$@"; do
-    _af_shm_used+="$(grep -o '/dev/shm/[^ ]*' "/proc/$pid/maps" 2>/dev/null | sed 's|^/dev/shm/||' | sort -u || true)"$'\n'
-  done
+  [ $# -gt 0 ] || return 0
+  _af_shm_used+="$(_af_shm_open_by "$@" | _af_shm_group)"$'\n'
 }
 af_shm_cleanup() {
-  local f in_use
-  in_use="$(cat /proc/[0-9]*/maps 2>/dev/null | grep -o '/dev/shm/[^ ]*' | sort -u || true)"
-  for f in $(ls /dev/shm 2>/dev/null | grep -E "$_af_shm_pattern" || true); do
-    if grep -qxF "/dev/shm/$f" <<<"$in_use"; then
-      continue  # still mapped by a live process
+  local f key busy
+  busy="$(_af_shm_open_by | _af_shm_group | sort -u)"
+  for f in $(ls "$AF_SHM_DIR" 2>/dev/null | grep -E "$_af_shm_pattern" || true); do
+    key="${f#sem.}"; key="${key%_mutex}"; key="${key%_el}"; key="${key%_sl}"
+    if grep -qxF "$key" <<<"$busy"; then
+      continue  # its group is in use by a live process
     fi
-    if ! grep -qxF "$f" <<<"${_af_shm_before:-}" || grep -qxF "$f" <<<"${_af_shm_used:-}"; then
-      rm -f "/dev/shm/$f"
+    if ! grep -qxF "$f" <<<"${_af_shm_before:-}" || grep -qxF "$key" <<<"${_af_shm_used:-}"; then
+      rm -f "${AF_SHM_DIR:?}/$f"
     fi
   done
 }
