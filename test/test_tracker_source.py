@@ -219,7 +219,12 @@ def test_video_file_becomes_poses_with_capture_stamps(tmp_path, probe, executor)
             START_TIMEOUT_S + N_FRAMES / 30.0,
         ), 'the file did not play to its end'
         assert proc.poll() is None, stderr_of(proc)
-        res = assert_tracked_like_truth(probe, 0, min_frames=N_FRAMES // 3)
+        # the file plays from the tracker's start; this probe hears it once discovery matched
+        # them (up to ~3 s on a busy machine: frames played before are not this test's to see),
+        # so a third of the frames played from the first one heard, and at least 10
+        heard = pose_errors(probe, 0)['frames']
+        k_first = min((k for _, k in heard), default=N_FRAMES)
+        res = assert_tracked_like_truth(probe, 0, min_frames=max(10, (N_FRAMES - k_first) // 3))
         # a frame's poses carry the time it was grabbed: after the test started, before receipt
         for r in probe.robots:
             for m, received_ns in probe.poses[r]:
