@@ -18,7 +18,9 @@ Topics (QoS from ros/qos.py)
   QOS_GRAPH
   pub  /diagnostics               "formation_world: simulation" (ticks, overruns: WARN for 5 s
   after
-                                  one, rejected graphs), "formation_world: plant loop" (stalls)
+                                  one, rejected graphs), "formation_world: plant loop" (stalls),
+                                  "formation_world: board robot_<id>" (watchdog trips, STOPs,
+                                  brakes: cause, start and release in world time)
 
 Parameters
   scenario         str    scenario YAML (required)
@@ -139,6 +141,8 @@ class WorldNode(Node):
             self.boards.append(board)
         self.board_runner = PtyBoardGroup(self.boards, step_period_s=0.005)  # one thread for all
         self.board_runner.start()
+        for rid, b in zip(self.ids, self.boards):
+            self.diag.add(f'board robot_{rid}', self._board_status(b.board), f'robot_{rid}')
 
         # camera
         self.camera = None
@@ -229,6 +233,27 @@ class WorldNode(Node):
         if self.overruns and now - self._overruns_seen[1] <= 5.0:
             return diag.WARN, 'behind real time: plant steps dropped', values
         return diag.OK, 'waiting for the mission start' if t is None else 'running', values
+
+    @staticmethod
+    def _board_status(board: MotorBoard):
+        """The emulated board's stops: its watchdog trips, STOPs received, brakes (when the last
+        one started and was released, world time [s], and what started it: watchdog | stop).
+        """
+
+        def status() -> tuple[int, str, dict]:
+            values = {
+                'watchdog_trips': board.watchdog_trips,
+                'stops_received': board.stops_received,
+                'brakes': board.brakes,
+                'braking': board.braking,
+                'brake_cause': board.brake_cause or 'none',
+                'brake_started_s': board.brake_started_s or 'none',
+                'brake_released_s': board.brake_released_s or 'none',
+                'last_command_s': board.last_command_s or 'none',
+            }
+            return diag.OK, 'braking' if board.braking else 'ok', values
+
+        return status
 
     def _step_once(self) -> None:
         tick = self.prm.tick_s
