@@ -269,6 +269,7 @@ def fault_part(trials: int, kinds: list[str], out: Path) -> list[dict]:
                 'time_to_rest_s': tr.get('time_to_rest_s'),
                 'distance_to_rest_m': tr.get('distance_to_rest_m'),
                 'brake_cause': tr.get('brake_cause'),
+                'stop_reason': tr.get('stop_reason'),
                 'brake_after_s': tr.get('brake_after_s'),
                 'brake_released_after_s': tr.get('brake_released_after_s'),
                 'drift_after_rest_m': tr.get('drift_after_rest_m'),
@@ -282,7 +283,7 @@ def fault_part(trials: int, kinds: list[str], out: Path) -> list[dict]:
             rows.append(row)
             print(
                 f'fault {kind} trial {k}: R1 at {_f(row["speed_at_fault_mps"])} m/s, board brake '
-                f'({row["brake_cause"]}) after {_f(row["brake_after_s"])} s, at rest after '
+                f'({_cause(row)}) after {_f(row["brake_after_s"])} s, at rest after '
                 f'{_f(row["time_to_rest_s"])} s / {_f(row["distance_to_rest_m"])} m, drift after '
                 f'{_f(row["drift_after_rest_m"])} m; fault checks ok={row["fault_checks_ok"]}, '
                 f'run ok={row["ok"]}, load {row["load_avg"][0]:.1f}',
@@ -306,7 +307,7 @@ def fault_table(rows: list[dict]) -> str:
     for r in rows:
         lines.append(
             f'| {r["kind"]} | {r["trial"]} | {_f(r["speed_at_fault_mps"])} m/s | '
-            f'{_f(r["brake_after_s"])} s ({r["brake_cause"]}) | {_f(r["time_to_rest_s"])} s | '
+            f'{_f(r["brake_after_s"])} s ({_cause(r)}) | {_f(r["time_to_rest_s"])} s | '
             f'{_f(r["distance_to_rest_m"])} m | {_f(r["drift_after_rest_m"])} m | '
             f'{r["load_avg"][0]:.1f} |'
         )
@@ -325,6 +326,12 @@ def fault_table(rows: list[dict]) -> str:
             + f'; fault checks failed in {sum(not r["fault_checks_ok"] for r in mine)} run(s)'
         )
     return '\n'.join(lines)
+
+
+def _cause(row: dict) -> str:
+    """What started the board's brake: watchdog, or stop and the STOP's reason."""
+    cause = str(row.get('brake_cause'))
+    return f'{cause}: {row["stop_reason"]}' if row.get('stop_reason') else cause
 
 
 def _longest_publish(run_dir: Path):

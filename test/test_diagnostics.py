@@ -244,11 +244,12 @@ def test_world_reports_each_board_brake_and_its_cause(ros_context, tmp_path):
         board = world.boards[1].board
         now = world.now_s()
         board.receive(sp.encode_frame(sp.TorqueCommand(100, 100), 1), now)
-        board.receive(sp.encode_frame(sp.Stop(), 2), now + 0.01)
+        board.receive(sp.encode_frame(sp.Stop(sp.STOP_INPUT_STALE), 2), now + 0.01)
         statuses = {t.name: (level, values) for t, level, _m, values in world.diag._evaluate()}
         level, values = statuses['formation_world: board robot_1']
         assert level == 0 and values['brake_cause'] == 'stop' and values['brakes'] == 1
         assert values['stops_received'] == 1 and values['brake_started_s'] == now + 0.01
+        assert values['last_stop_reason'] == 'input_stale'
         assert statuses['formation_world: board robot_0'][1]['brake_cause'] == 'none'
     finally:
         world.destroy_node()

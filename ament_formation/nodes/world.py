@@ -55,6 +55,11 @@ from ament_formation.core.errors import ConfigError
 from ament_formation.core.params import param
 from ament_formation.core.scenario.loader import load_scenario
 from ament_formation.core.serial.motor_board import BoardConfig, MotorBoard
+from ament_formation.core.serial.serial_protocol import (
+    STOP_HOST_SHUTDOWN,
+    STOP_INPUT_STALE,
+    STOP_UNSPECIFIED,
+)
 from ament_formation.core.sim.twin import PlantTwin
 from ament_formation.core.vision.camera_model import load_camera_yaml
 from ament_formation.core.vision.synthetic_camera import Obstacles, RenderOptions, SyntheticCamera
@@ -67,6 +72,11 @@ from ament_formation.ros.params import declare_dataclass
 from ament_formation.ros.qos import QOS_CLOCK, QOS_CONTROL, QOS_GRAPH, QOS_IMAGE
 
 SIM_CLOCK_START_S = 1.0  # /clock starts here (ROS time 0 means "no time yet")
+STOP_REASONS = {
+    STOP_UNSPECIFIED: 'unspecified',
+    STOP_INPUT_STALE: 'input_stale',  # the bridge's input (the controller's torques) went stale
+    STOP_HOST_SHUTDOWN: 'host_shutdown',  # the bridge shutting down
+}
 
 
 @dataclass(frozen=True)
@@ -244,6 +254,7 @@ class WorldNode(Node):
             values = {
                 'watchdog_trips': board.watchdog_trips,
                 'stops_received': board.stops_received,
+                'last_stop_reason': STOP_REASONS.get(board.last_stop_reason, 'none'),
                 'brakes': board.brakes,
                 'braking': board.braking,
                 'brake_cause': board.brake_cause or 'none',

@@ -1038,6 +1038,8 @@ def board_brakes(mcap: Path, ids) -> dict:
                     continue
                 rec = out[int(m.group(1))].setdefault(started, {'started_s': started})
                 rec['cause'] = values.get('brake_cause')
+                if rec['cause'] == 'stop':
+                    rec.setdefault('stop_reason', values.get('last_stop_reason'))
                 released = _num(values.get('brake_released_s'))
                 if released is not None:
                     rec['released_s'] = released
@@ -1072,6 +1074,7 @@ def fault_trace(result, scenario, ev: dict, brakes: list, modes) -> dict:
         'launcher_exit_after_s': ev.get('launcher_exit_after_s'),
         'launcher_exit_status': ev.get('launcher_exit_status'),
         'brake_cause': None,
+        'stop_reason': None,  # a brake started by a STOP: input_stale | host_shutdown
         'brake_after_s': None,
         'brake_released_after_s': None,
     }
@@ -1079,6 +1082,7 @@ def fault_trace(result, scenario, ev: dict, brakes: list, modes) -> dict:
     brake = next((b for b in brakes if b['started_s'] >= w0 - 0.005), None)
     if brake is not None:
         trace['brake_cause'] = brake.get('cause')
+        trace['stop_reason'] = brake.get('stop_reason')
         trace['brake_after_s'] = _rel(brake['started_s'], w0)
         trace['brake_released_after_s'] = _rel(brake.get('released_s'), w0)
     if 'cont_wall' in ev:
@@ -1196,7 +1200,9 @@ def summary(report: dict) -> str:
         lines.append(
             f'fault R{ft["robot"]} {ft["kind"]} ({ft["process"]}) t = {ft["fault_t_s"]:.2f} s: '
             f'at rest after {_s(ft["time_to_rest_s"])} and {_m(ft["distance_to_rest_m"])} (from '
-            f'{_m(ft["speed_at_fault_mps"])}/s); board brake ({ft["brake_cause"]}) after '
+            f'{_m(ft["speed_at_fault_mps"])}/s); board brake ({ft["brake_cause"]}'
+            + (f' {ft["stop_reason"]}' if ft['stop_reason'] else '')
+            + f') after '
             f'{_s(ft["brake_after_s"])}, released after {_s(ft["brake_released_after_s"])}, '
             f'drift after rest {_m(ft["drift_after_rest_m"])}; '
             f'launcher exited after {_s(ft["launcher_exit_after_s"])}'

@@ -145,6 +145,7 @@ class MotorBoard:
         self._next_brake_step_s = now_s
         self._brake_armed = False  # a TORQUE_CMD since the last brake: the next stop brakes
         self.stops_received = 0
+        self.last_stop_reason: int | None = None  # sp.STOP_* of the last STOP
         if not hasattr(self, 'wheel_pos_rad'):
             self.wheel_pos_rad = np.zeros(2)
             self.wheel_vel_radps = np.zeros(2)
@@ -336,6 +337,7 @@ class MotorBoard:
         if isinstance(msg, sp.TorqueCommand):
             self._torque(msg, now_s)
         elif isinstance(msg, sp.Stop):
+            self.last_stop_reason = msg.reason
             self._stop(now_s)
         elif isinstance(msg, sp.Hello):
             self.flags &= ~sp.FLAG_RESET
