@@ -1,8 +1,10 @@
-"""Robots as separate hosts (issue 11): traffic per robot link, the paper scenario, link losses.
+"""Robots as separate hosts (issue 11): traffic per robot link, the paper scenario, link losses,
+process faults.
 
     bench/run.sh bench_multihost.py [--traffic 2 4 8] [--paper] [--link-loss 3]
-        [--link-variants default lab lab_nofix] [--duration 20] [--robot-rt P]
-        [--quiet-load L [--quiet-wait S]] [--out DIR] [--json OUT.json]
+        [--link-variants default lab lab_nofix] [--faults 5 [--fault-kinds KIND ...]]
+        [--duration 20] [--robot-rt P] [--quiet-load L [--quiet-wait S]] [--out DIR]
+        [--json OUT.json]
 
 Every run is `formation multihost` (tools/multihost_cmd.py; root, network namespaces): the camera
 PC (world, tracker, coordinator, recorder) and each robot (launch_robot.sh --multi-machine) on a
@@ -20,6 +22,14 @@ host of its own, DDS over UDP only between them.
   (config/fastdds_udp.xml: non-blocking sends), lab (test/data/fastdds_lab_udp.xml: Fast DDS's
   blocking sends, only the robot process's publish thread protects its control loop), lab_nofix
   (the same with AMENT_FORMATION_PUBLISH_THREAD=0: publishing as before the fix).
+* ``--faults K``: K runs per fault kind of test/data/paper_short.yaml with robot 1 (launched
+  with launch_robot.sh --split) hit at t = 4 s (`--fault 1:4:KIND`): controller-kill (SIGKILL to
+  its controller process), controller-stop (SIGSTOP, SIGCONT 3 s later), bridge-kill (SIGKILL to
+  its bridge process: the board's watchdog). Per run, from the ground truth: speed at the fault,
+  time and distance from the fault to rest (point speed < 5 mm/s for 0.1 s, docs/safety.md), the
+  drift after rest, the board's brake (STOP or watchdog, from the world's diagnostics) and when
+  the launcher exited; then a table and the worst case per kind. The kinds alternate within a
+  trial, so that a change of the machine's load hits them alike.
 
 ``--robot-rt P``: the robots' control loops under SCHED_FIFO P (launch_robot.sh --rt-priority), so
 that on a loaded machine a control-loop gap is the network's, not the scheduler's.
@@ -232,6 +242,98 @@ def link_loss_part(trials: int, variants: list[str], out: Path) -> list[dict]:
     return rows
 
 
+FAULT_KINDS = ['controller-kill', 'controller-stop', 'bridge-kill']
+
+
+def fault_part(trials: int, kinds: list[str], out: Path) -> list[dict]:
+    rows = []
+    scenario = ROOT / 'test' / 'data' / 'paper_short.yaml'
+    for k in range(trials):
+        for kind in kinds:
+            run_dir = out / f'fault_{kind}_{k}'
+            # the subject is the faulted robot's stop: a loaded 2-core machine's few-hundred-ms
+            # control-loop gaps of the other robot are not (test_multihost.py's limit)
+            run = multihost(
+                run_dir, '--scenario', str(scenario), '--fault', f'1:4:{kind}',
+                '--control-gap-max', '1.0',
+            )  # fmt: skip
+            tr = (run['report'].get('faults') or [{}])[0]
+            checks = [
+                c for c in (run['report'].get('checks') or []) if c['name'].startswith('fault[')
+            ]
+            row = {
+                'kind': kind,
+                'trial': k,
+                'status': run['status'],
+                'speed_at_fault_mps': tr.get('speed_at_fault_mps'),
+                'time_to_rest_s': tr.get('time_to_rest_s'),
+                'distance_to_rest_m': tr.get('distance_to_rest_m'),
+                'brake_cause': tr.get('brake_cause'),
+                'stop_reason': tr.get('stop_reason'),
+                'brake_after_s': tr.get('brake_after_s'),
+                'brake_released_after_s': tr.get('brake_released_after_s'),
+                'drift_after_rest_m': tr.get('drift_after_rest_m'),
+                'max_speed_after_rest_mps': tr.get('max_speed_after_rest_mps'),
+                'launcher_exit_after_s': tr.get('launcher_exit_after_s'),
+                'heard_running_after_cont_s': tr.get('heard_running_after_cont_s'),
+                'fault_checks_ok': bool(checks) and all(c['ok'] for c in checks),
+                'load_avg': [run['load_avg_before'][0], run['load_avg_after'][0]],
+                **_health(run),
+            }
+            rows.append(row)
+            print(
+                f'fault {kind} trial {k}: R1 at {_f(row["speed_at_fault_mps"])} m/s, board brake '
+                f'({_cause(row)}) after {_f(row["brake_after_s"])} s, at rest after '
+                f'{_f(row["time_to_rest_s"])} s / {_f(row["distance_to_rest_m"])} m, drift after '
+                f'{_f(row["drift_after_rest_m"])} m; fault checks ok={row["fault_checks_ok"]}, '
+                f'run ok={row["ok"]}, load {row["load_avg"][0]:.1f}',
+                flush=True,
+            )
+            if not row['ok']:
+                print(f'   failure: {row["failure"]}', flush=True)
+                if run['stderr']:
+                    print(f'   stderr: {run["stderr"][-300:]}', flush=True)
+    print(fault_table(rows), flush=True)
+    return rows
+
+
+def fault_table(rows: list[dict]) -> str:
+    """The markdown table of the fault runs and the worst case per kind."""
+    lines = [
+        '| kind | trial | speed at the fault | board brake (cause) | time to rest | distance to '
+        'rest | drift after rest | load avg |',
+        '|---|---|---|---|---|---|---|---|',
+    ]
+    for r in rows:
+        lines.append(
+            f'| {r["kind"]} | {r["trial"]} | {_f(r["speed_at_fault_mps"])} m/s | '
+            f'{_f(r["brake_after_s"])} s ({_cause(r)}) | {_f(r["time_to_rest_s"])} s | '
+            f'{_f(r["distance_to_rest_m"])} m | {_f(r["drift_after_rest_m"])} m | '
+            f'{r["load_avg"][0]:.1f} |'
+        )
+    lines.append('')
+    for kind in dict.fromkeys(r['kind'] for r in rows):
+        mine = [r for r in rows if r['kind'] == kind]
+        times = [r['time_to_rest_s'] for r in mine]
+        dists = [r['distance_to_rest_m'] for r in mine]
+        never = sum(v is None for v in times)
+        worst_t = max((v for v in times if v is not None), default=None)
+        worst_d = max((v for v in dists if v is not None), default=None)
+        lines.append(
+            f'worst case {kind} ({len(mine)} runs): at rest after {_f(worst_t)} s and '
+            f'{_f(worst_d)} m'
+            + (f'; NOT AT REST in {never} run(s)' if never else '')
+            + f'; fault checks failed in {sum(not r["fault_checks_ok"] for r in mine)} run(s)'
+        )
+    return '\n'.join(lines)
+
+
+def _cause(row: dict) -> str:
+    """What started the board's brake: watchdog, or stop and the STOP's reason."""
+    cause = str(row.get('brake_cause'))
+    return f'{cause}: {row["stop_reason"]}' if row.get('stop_reason') else cause
+
+
 def _longest_publish(run_dir: Path):
     """The robot process's own report of its longest rcl publish call (nodes/team.py)."""
     try:
@@ -272,6 +374,8 @@ def main() -> int:
         help='default: config/fastdds_udp.xml; lab: a lab profile with blocking sends; '
         'lab_nofix: the same without the robot process publish thread (as before the fix)',
     )
+    ap.add_argument('--faults', type=int, default=0, metavar='K', help='K runs per fault kind')
+    ap.add_argument('--fault-kinds', nargs='+', choices=FAULT_KINDS, default=FAULT_KINDS)
     ap.add_argument('--duration', type=float, default=20.0)
     ap.add_argument(
         '--quiet-load',
@@ -304,6 +408,8 @@ def main() -> int:
         report['paper'] = paper_part(out)
     if a.link_loss:
         report['link_loss'] = link_loss_part(a.link_loss, a.link_variants, out)
+    if a.faults:
+        report['faults'] = fault_part(a.faults, a.fault_kinds, out)
     report['load_avg_end'] = os.getloadavg()
     print(f'load average at the end {os.getloadavg()}', flush=True)
     if a.json:

@@ -224,6 +224,37 @@ def test_controller_safety_stop_is_published_when_it_happens(controller, executo
     )
 
 
+def test_world_reports_each_board_brake_and_its_cause(ros_context, tmp_path):
+    """formation_world: one "board robot_<id>" status per emulated board (what formation multihost
+    --fault reads): watchdog trips, STOPs, brakes, the cause and times of the last one.
+    """
+    from ament_formation.core.serial import serial_protocol as sp
+    from ament_formation.nodes.world import WorldNode, WorldParams
+
+    world = WorldNode(
+        context=ros_context,
+        params=WorldParams(
+            scenario=str(DATA / 'paper_short.yaml'),
+            pty_dir=str(tmp_path / 'pty'),
+            camera_enabled=False,
+            exit_at_end=False,
+        ),
+    )
+    try:
+        board = world.boards[1].board
+        now = world.now_s()
+        board.receive(sp.encode_frame(sp.TorqueCommand(100, 100), 1), now)
+        board.receive(sp.encode_frame(sp.Stop(sp.STOP_INPUT_STALE), 2), now + 0.01)
+        statuses = {t.name: (level, values) for t, level, _m, values in world.diag._evaluate()}
+        level, values = statuses['formation_world: board robot_1']
+        assert level == 0 and values['brake_cause'] == 'stop' and values['brakes'] == 1
+        assert values['stops_received'] == 1 and values['brake_started_s'] == now + 0.01
+        assert values['last_stop_reason'] == 'input_stale'
+        assert statuses['formation_world: board robot_0'][1]['brake_cause'] == 'none'
+    finally:
+        world.destroy_node()
+
+
 def test_a_change_during_shutdown_is_not_an_error():
     """A bridge closing its port in destroy_node reports the lost link: after the context is shut
     down this must be a no-op, not an exception that turns a clean exit into a traceback.

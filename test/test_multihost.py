@@ -12,7 +12,8 @@ Two robots of test/data/paper_short.yaml (14 s):
   control loop does not stall on the network (the 2-3 s blocked publish of ros/nonblocking.py's
   docstring), robot 0 goes on, robot 1 runs again once its link is back, and the run completes.
 
-Skipped, with the reason, when network namespaces cannot be made here (not root, no `ip netns`).
+The runs are skipped, with the reason, when network namespaces cannot be made here (not root, no
+`ip netns`); the parsing of --link-down and --fault is tested anyway.
 """
 
 from __future__ import annotations
@@ -25,7 +26,9 @@ import sys
 
 import pytest
 
+from ament_formation.core.errors import ConfigError
 from ament_formation.tools import netns
+from ament_formation.tools.multihost_cmd import parse_fault, parse_faults, parse_link_down
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIO = ROOT / 'test' / 'data' / 'paper_short.yaml'
@@ -35,10 +38,8 @@ REASON = netns.unavailable_reason()
 # gives gaps of a few hundred ms
 GAP_LIMIT_S = 1.0
 
-pytestmark = [
-    pytest.mark.skipif(REASON is not None, reason=f'multi-host test: {REASON}'),
-    pytest.mark.timeout(600),
-]
+pytestmark = [pytest.mark.timeout(600)]
+needs_netns = pytest.mark.skipif(REASON is not None, reason=f'multi-host test: {REASON}')
 
 
 def _multihost(out: Path, *extra: str) -> tuple[subprocess.CompletedProcess, dict]:
@@ -74,6 +75,7 @@ def _no_namespaces_left(report: dict) -> None:
     assert not mine & set(netns.list_namespaces()), 'namespaces of the run still exist'
 
 
+@needs_netns
 def test_two_robot_hosts_complete_the_mission(tmp_path):
     out = tmp_path / 'run'
     proc, report = _multihost(out)
@@ -102,6 +104,7 @@ def test_two_robot_hosts_complete_the_mission(tmp_path):
     _no_namespaces_left(report)
 
 
+@needs_netns
 def test_link_loss_stops_the_robot_which_rejoins(tmp_path):
     out = tmp_path / 'run'
     proc, report = _multihost(out, '--link-down', '1:4:3', '--profile', str(LAB_PROFILE))
@@ -132,11 +135,13 @@ def test_link_loss_stops_the_robot_which_rejoins(tmp_path):
     _no_namespaces_left(report)
 
 
+@needs_netns
 def test_bad_input_and_no_leftovers(tmp_path):
     base = [sys.executable, '-m', 'ament_formation.tools.cli', 'multihost']
     for args, word in (
         (['--scenario', str(SCENARIO), '--link-down', '7:1:1'], '--link-down'),
         (['--scenario', str(SCENARIO), '--link-down', '1:x'], '--link-down'),
+        (['--scenario', str(SCENARIO), '--fault', '1:4:bridge-stop'], '--fault'),
         (['--scenario', str(SCENARIO), '--rate', 'fast'], '--rate'),
         (['--scenario', str(SCENARIO), '--profile', str(tmp_path / 'no.xml')], '--profile'),
         (['--robots', '12'], '--robots'),
@@ -161,3 +166,38 @@ def test_bad_input_and_no_leftovers(tmp_path):
             if n.rsplit('_', 1)[-1][:-4] == str(run.pid % 10000)
         ]
         assert ours == [], ours
+
+
+def test_fault_and_link_down_parsing():
+    """--fault ROBOT:AT_S:KIND and --link-down ROBOT:AT_S:DURATION_S: the values, and bad input
+    as one ConfigError naming the option (no run).
+    """
+    ids = [0, 1]
+    assert parse_fault('1:4:controller-kill', ids) == (1, 4.0, 'controller-kill')
+    assert parse_fault('0:0.5:controller-stop', ids) == (0, 0.5, 'controller-stop')
+    assert parse_fault('1:4:bridge-kill', ids) == (1, 4.0, 'bridge-kill')
+    assert parse_faults(['0:2:bridge-kill', '1:4:controller-kill'], ids) == [
+        (0, 2.0, 'bridge-kill'),
+        (1, 4.0, 'controller-kill'),
+    ]
+    assert parse_link_down('1:4:3', ids) == (1, 4.0, 3.0)
+    for bad in (
+        '1:4',
+        '1:4:controller-kill:2',
+        'x:4:controller-kill',
+        '1:soon:bridge-kill',
+        '7:4:controller-kill',
+        '1:-1:bridge-kill',
+        '1:nan:bridge-kill',
+        '1:4:kill',
+        '',
+    ):
+        with pytest.raises(ConfigError) as err:
+            parse_fault(bad, ids)
+        assert '--fault' in str(err.value) and '\n' not in str(err.value), bad
+    with pytest.raises(ConfigError, match='more than one fault'):
+        parse_faults(['1:4:controller-kill', '1:6:bridge-kill'], ids)
+    for bad in ('1:4', '7:1:1', '1:4:0'):
+        with pytest.raises(ConfigError) as err:
+            parse_link_down(bad, ids)
+        assert '--link-down' in str(err.value), bad

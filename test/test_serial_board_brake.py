@@ -78,6 +78,7 @@ def test_command_loss_brakes_to_rest_with_bounded_torque_then_releases():
     ts, w, ang, tau, flags = (np.array(c) for c in zip(*rows))
     braking = (flags & sp.FLAG_BRAKING) != 0
     assert braking.any() and board.brakes == 1
+    assert board.brake_cause == 'watchdog'  # what the world's diagnostics report
     t_brake = ts[braking][0]
     assert 0.19 <= t_brake - t_loss <= 0.21  # after the 200 ms watchdog
     assert np.all(tau[ts < t_brake] == 1500)  # the command holds until then
@@ -114,6 +115,21 @@ def test_brake_gives_way_to_commands_and_estop():
     assert board.braking and board.brakes == 2
     board.receive(sp.encode_frame(sp.EmergencyStop(1), 201), t + 0.25)
     assert not board.braking and board.applied_e4nm == [0, 0]
+
+
+def test_brake_cause_is_the_bridges_stop_or_the_watchdog():
+    """What the world's board diagnostics report (formation multihost --fault)."""
+    board = MotorBoard(
+        BoardConfig(wheel_inertia_kgm2=1.6e-3, wheel_damping_nms=2e-3), standalone=True
+    )
+    assert board.brake_cause is None
+    t = _drive(board, 800, 0.5, 0.0)
+    board.receive(sp.encode_frame(sp.Stop(), 200), t)  # the bridge's STOP brakes at once
+    assert board.braking and board.brakes == 1 and board.brake_cause == 'stop'
+    t += DT_S
+    board.receive(sp.encode_frame(sp.TorqueCommand(300, -300), 201), t)
+    _run_silent(board, t, 0.25)
+    assert board.braking and board.brakes == 2 and board.brake_cause == 'watchdog'
 
 
 def test_no_brake_at_boot_and_bounded_by_a_lowered_limit():

@@ -18,7 +18,9 @@ Topics (QoS from ros/qos.py)
   QOS_GRAPH
   pub  /diagnostics               "formation_world: simulation" (ticks, overruns: WARN for 5 s
   after
-                                  one, rejected graphs), "formation_world: plant loop" (stalls)
+                                  one, rejected graphs), "formation_world: plant loop" (stalls),
+                                  "formation_world: board robot_<id>" (watchdog trips, STOPs,
+                                  brakes: cause, start and release in world time)
 
 Parameters
   scenario         str    scenario YAML (required)
@@ -53,6 +55,11 @@ from ament_formation.core.errors import ConfigError
 from ament_formation.core.params import param
 from ament_formation.core.scenario.loader import load_scenario
 from ament_formation.core.serial.motor_board import BoardConfig, MotorBoard
+from ament_formation.core.serial.serial_protocol import (
+    STOP_HOST_SHUTDOWN,
+    STOP_INPUT_STALE,
+    STOP_UNSPECIFIED,
+)
 from ament_formation.core.sim.twin import PlantTwin
 from ament_formation.core.vision.camera_model import load_camera_yaml
 from ament_formation.core.vision.synthetic_camera import Obstacles, RenderOptions, SyntheticCamera
@@ -65,6 +72,11 @@ from ament_formation.ros.params import declare_dataclass
 from ament_formation.ros.qos import QOS_CLOCK, QOS_CONTROL, QOS_GRAPH, QOS_IMAGE
 
 SIM_CLOCK_START_S = 1.0  # /clock starts here (ROS time 0 means "no time yet")
+STOP_REASONS = {
+    STOP_UNSPECIFIED: 'unspecified',
+    STOP_INPUT_STALE: 'input_stale',  # the bridge's input (the controller's torques) went stale
+    STOP_HOST_SHUTDOWN: 'host_shutdown',  # the bridge shutting down
+}
 
 
 @dataclass(frozen=True)
@@ -139,6 +151,8 @@ class WorldNode(Node):
             self.boards.append(board)
         self.board_runner = PtyBoardGroup(self.boards, step_period_s=0.005)  # one thread for all
         self.board_runner.start()
+        for rid, b in zip(self.ids, self.boards):
+            self.diag.add(f'board robot_{rid}', self._board_status(b.board), f'robot_{rid}')
 
         # camera
         self.camera = None
@@ -229,6 +243,28 @@ class WorldNode(Node):
         if self.overruns and now - self._overruns_seen[1] <= 5.0:
             return diag.WARN, 'behind real time: plant steps dropped', values
         return diag.OK, 'waiting for the mission start' if t is None else 'running', values
+
+    @staticmethod
+    def _board_status(board: MotorBoard):
+        """The emulated board's stops: its watchdog trips, STOPs received, brakes (when the last
+        one started and was released, world time [s], and what started it: watchdog | stop).
+        """
+
+        def status() -> tuple[int, str, dict]:
+            values = {
+                'watchdog_trips': board.watchdog_trips,
+                'stops_received': board.stops_received,
+                'last_stop_reason': STOP_REASONS.get(board.last_stop_reason, 'none'),
+                'brakes': board.brakes,
+                'braking': board.braking,
+                'brake_cause': board.brake_cause or 'none',
+                'brake_started_s': board.brake_started_s or 'none',
+                'brake_released_s': board.brake_released_s or 'none',
+                'last_command_s': board.last_command_s or 'none',
+            }
+            return diag.OK, 'braking' if board.braking else 'ok', values
+
+        return status
 
     def _step_once(self) -> None:
         tick = self.prm.tick_s

@@ -2,7 +2,8 @@
 own, made of Linux network namespaces on this machine (docs/multi-machine.md).
 
     formation multihost --scenario S.yaml [--out DIR] [--link-down ROBOT:AT_S:DURATION_S ...]
-                        [--rate LIMIT] [--profile LAB.xml] [--no-expect]
+                        [--fault ROBOT:AT_S:KIND ...] [--rate LIMIT] [--profile LAB.xml]
+                        [--no-expect]
     formation multihost --robots N [--duration S]          # a generated N-robot formation
 
 Hosts (tools/netns.py): ``af_cam_<run>`` runs the simulated twin's world (plant, emulated motor
@@ -18,7 +19,9 @@ after a failure or Ctrl-C.
 Prints and writes to DIR/multihost.json: discovery (robot launchers started -> each controller
 heard by the camera PC -> mission start -> every controller running), bytes/s per robot link
 during the mission (switch port counters: from / to the robot), each link-loss event (the robot's
-controller stop, time and distance to rest from the ground truth, rejoin) and the run's checks
+controller stop, time and distance to rest from the ground truth, rejoin), each process fault
+(``--fault``: its controller or bridge process killed or frozen; time and distance to rest from the
+ground truth, the emulated board's brake and what started it) and the run's checks
 (core/sim/metrics.check_run on the recorded ground truth, as `formation run`, plus the multi-host
 checks). DIR/metrics.json, DIR/run.mcap and DIR/figure.png as `formation run`. Exit status 0
 when every check passed, 1 when one failed, 2 for bad input or when namespaces are unavailable
@@ -49,6 +52,23 @@ REST_SPEED_MPS = 0.005  # at rest below this point speed (docs/safety.md)
 CONTROL_GAP_MAX_S = 0.2  # a longer control-loop gap lets the board's watchdog brake on its own
 TRUTH_GAP_MAX_S = 1.0
 REJOIN_MAX_S = 5.0  # after the link is back, the robot runs again within this [s]
+# --fault KIND: (the robot process it hits, the signal); the robot runs launch_robot.sh --split
+FAULT_KINDS = {
+    'controller-kill': ('controller', signal.SIGKILL),
+    'controller-stop': ('controller', signal.SIGSTOP),  # frozen, not dead: SIGCONT after a hold
+    'bridge-kill': ('bridge', signal.SIGKILL),  # no STOP, port closed: the board's watchdog
+}
+FAULT_HOLD_S = 3.0  # controller-stop: SIGCONT this long after the SIGSTOP
+# A robot whose commands stop is at rest within 0.8 s and 0.35 m of where it was, at the top
+# speed (docs/safety.md §3-4: 0.2 s bridge input timeout or board watchdog, then the brake;
+# analytic 0.67 s / 0.32 m, measured <= 0.8 s / 0.35 m).
+FAULT_REST_MAX_S = 0.8
+FAULT_REST_MAX_M = 0.35
+# After a fault nothing holds the robot once its board released the brake: in the twin (no
+# friction) the scenario's disturbance then moves it again, so a fault's rest is the first time
+# the point speed stays below REST_SPEED_MPS for this long (the board's own rest test: 50 ms)
+# and the drift after it is reported on its own.
+FAULT_REST_HOLD_S = 0.1
 _LOG_TIME = re.compile(r'^\[(\w+)\] \[(\d+\.\d+)\] \[([^\]]*)\]: (.*)$')
 
 
@@ -85,6 +105,16 @@ def register(subparsers) -> None:
         '(repeatable)',
     )
     p.add_argument(
+        '--fault',
+        action='append',
+        default=[],
+        metavar='ROBOT:AT_S:KIND',
+        help="at scenario time AT_S, KIND = controller-kill (SIGKILL to robot ROBOT's controller "
+        f'process), controller-stop (SIGSTOP, SIGCONT {FAULT_HOLD_S:g} s later) or bridge-kill '
+        "(SIGKILL to its bridge process: the board's watchdog stops it); that robot runs "
+        'launch_robot.sh --split (repeatable, one fault per robot)',
+    )
+    p.add_argument(
         '--rate',
         default=None,
         metavar='LIMIT',
@@ -99,8 +129,8 @@ def register(subparsers) -> None:
     p.add_argument(
         '--no-expect',
         action='store_true',
-        help="skip the scenario's expect: block (implied by --link-down: a robot that stood "
-        'for seconds cannot meet the nominal errors); every-run checks still apply',
+        help="skip the scenario's expect: block (implied by --link-down and --fault: a robot "
+        'that stood for seconds cannot meet the nominal errors); every-run checks still apply',
     )
     p.add_argument(
         '--robot-rt', type=int, default=None, metavar='P', help='launch_robot.sh --rt-priority P'
@@ -192,6 +222,33 @@ def parse_link_down(text: str, ids) -> tuple[int, float, float]:
     if not (math.isfinite(at_s) and at_s >= 0 and math.isfinite(dur_s) and dur_s > 0):
         raise ConfigError(f'expected AT_S >= 0 and DURATION_S > 0 (got {text!r})', '--link-down')
     return rid, at_s, dur_s
+
+
+def parse_fault(text: str, ids) -> tuple[int, float, str]:
+    """``ROBOT:AT_S:KIND`` of ``--fault`` -> (robot, at_s, kind); ConfigError naming --fault."""
+    try:
+        rid, at_s, kind = text.split(':')
+        rid, at_s = int(rid), float(at_s)
+    except ValueError:
+        raise ConfigError(f'expected ROBOT:AT_S:KIND (got {text!r})', '--fault')
+    if rid not in ids:
+        raise ConfigError(f'robot {rid} is not in the scenario (ids {list(ids)})', '--fault')
+    if not (math.isfinite(at_s) and at_s >= 0):
+        raise ConfigError(f'expected AT_S >= 0 (got {text!r})', '--fault')
+    if kind not in FAULT_KINDS:
+        raise ConfigError(f'KIND must be one of {", ".join(FAULT_KINDS)} (got {kind!r})',
+                          '--fault')  # fmt: skip
+    return rid, at_s, kind
+
+
+def parse_faults(texts, ids) -> list[tuple[int, float, str]]:
+    """Every ``--fault``; at most one per robot (a killed process cannot be hit again)."""
+    faults = [parse_fault(t, ids) for t in texts]
+    robots = [f[0] for f in faults]
+    for rid in robots:
+        if robots.count(rid) > 1:
+            raise ConfigError(f'robot {rid} has more than one fault', '--fault')
+    return faults
 
 
 # ------------------------------------------------------------------------------- processes
@@ -293,10 +350,9 @@ def run_multihost(args: argparse.Namespace) -> int:
     scenario = load_scenario(str(scenario_path))
     ids = list(scenario.robot_ids)
     if args.robots is not None and args.robots != len(ids):
-        raise ConfigError(
-            f'{args.robots} robots asked, the scenario has {len(ids)}', '--robots'
-        )
+        raise ConfigError(f'{args.robots} robots asked, the scenario has {len(ids)}', '--robots')
     events = [parse_link_down(t, ids) for t in args.link_down]
+    faults = parse_faults(args.fault, ids)
     from ament_formation.tools.run_cmd import _free_domain_id
 
     domain = os.environ.get('AF_MULTIHOST_DOMAIN_ID') or _free_domain_id()
@@ -325,7 +381,7 @@ def run_multihost(args: argparse.Namespace) -> int:
         net.build()
         say(f'namespaces {", ".join(net.made)} (domain {domain}, profile {profile.name})')
         run = _Run(args, out, scenario, scenario_path, ids, events, net, profile, domain, procs,
-                   report, say)  # fmt: skip
+                   report, say, faults)  # fmt: skip
         run.execute()
         status = run.evaluate()
     except KeyboardInterrupt:
@@ -348,7 +404,7 @@ def run_multihost(args: argparse.Namespace) -> int:
 
 class _Run:
     def __init__(self, args, out, scenario, scenario_path, ids, events, net, profile, domain,
-                 procs, report, say):  # fmt: skip
+                 procs, report, say, faults=()):  # fmt: skip
         self.args, self.out, self.scenario, self.scenario_path = args, out, scenario, scenario_path
         self.ids, self.events, self.net, self.profile = ids, events, net, profile
         self.domain, self.procs, self.report, self.say = domain, procs, report, say
@@ -366,6 +422,9 @@ class _Run:
         self.samples: list[tuple[float, dict]] = []  # (wall, link counters)
         self.stop_reason: dict | None = None
         self.link_log: list[dict] = []
+        self.faults = list(faults)
+        self.split = {f[0] for f in faults}  # robots launched with --split
+        self.fault_log: list[dict] = []
         self.wall0 = time.monotonic()
 
     # ---------------------------------------------------------------- processes
@@ -498,7 +557,8 @@ class _Run:
                 rid,
                 [str(script_file('launch_robot.sh')), '--id', str(rid), '--port',
                  str(self.pty_dir / f'robot_{rid}'), '--scenario', sc, '--run-dir',
-                 str(self.out / f'robot_{rid}'), '--multi-machine', *rt],
+                 str(self.out / f'robot_{rid}'), '--multi-machine', *rt,
+                 *(['--split'] if rid in self.split else [])],
             )  # fmt: skip
         self.say(f'{len(self.ids)} robot hosts launched; waiting for the mission start')
         self.report['launched_wall'] = launched
@@ -513,7 +573,7 @@ class _Run:
         """The Fast DDS profile each robot process really runs with (its /proc environment)."""
         used = {}
         for rid in self.ids:
-            pid = _pid_of(self.out / f'robot_{rid}', f'robot_{rid}')
+            pid = _pid_of(self.out / f'robot_{rid}', self._process_name(rid))
             env = _environ(pid) if pid else {}
             used[str(rid)] = {
                 'FASTRTPS_DEFAULT_PROFILES_FILE': env.get('FASTRTPS_DEFAULT_PROFILES_FILE'),
@@ -522,8 +582,71 @@ class _Run:
             }
         self.report['robot_process_environment'] = used
 
+    def _process_name(self, rid, part: str = 'controller') -> str:
+        """The name of robot ``rid``'s process in its launcher's pids file (``part`` of a split
+        robot: controller | bridge).
+        """
+        return f'{part}_{rid}' if rid in self.split else f'robot_{rid}'
+
+    def _apply_faults(self, t: float, pending: list, frozen: list) -> None:
+        """Hit the processes whose fault is due at scenario time ``t``; SIGCONT the frozen ones
+        whose hold is over.
+        """
+        while pending and t >= pending[0][1]:
+            rid, at_s, kind = pending.pop(0)
+            part, sig = FAULT_KINDS[kind]
+            name = self._process_name(rid, part)
+            pid = _pid_of(self.out / f'robot_{rid}', name)
+            if pid is None:
+                raise _Abort(f'--fault {rid}:{at_s:g}:{kind}: no {name} in the pids file of '
+                             f'robot {rid}')  # fmt: skip
+            os.kill(pid, sig)
+            ev = {'robot': rid, 'at_s': at_s, 'kind': kind, 'process': name, 'pid': pid,
+                  'fault_wall': time.time()}  # fmt: skip
+            ev['fault_t_s'] = ev['fault_wall'] - self.start_s
+            self.fault_log.append(ev)
+            if sig == signal.SIGSTOP:
+                frozen.append(ev)
+            self.say(f'robot {rid}: {kind} ({name}, pid {pid}) at t = {ev["fault_t_s"]:.2f} s')
+        for ev in list(frozen):
+            if time.time() >= ev['fault_wall'] + FAULT_HOLD_S:
+                self._resume(ev)
+                frozen.remove(ev)
+
+    def _resume(self, ev: dict) -> None:
+        try:
+            os.kill(ev['pid'], signal.SIGCONT)
+        except ProcessLookupError:
+            pass
+        ev['cont_wall'] = time.time()
+        ev['cont_t_s'] = ev['cont_wall'] - self.start_s
+        self.say(f'robot {ev["robot"]}: SIGCONT to {ev["process"]} at t = {ev["cont_t_s"]:.2f} s')
+
+    def _launcher_gone_by_fault(self, name: str) -> bool:
+        """A robot's launcher that exited because a fault killed one of its processes (it then
+        stops the other: expected).
+        """
+        return any(
+            f'robot_{ev["robot"]}' == name and FAULT_KINDS[ev['kind']][1] == signal.SIGKILL
+            for ev in self.fault_log
+        )
+
     def _mission(self, everyone) -> None:
+        frozen: list[dict] = []
+        try:
+            self._mission_loop(everyone, frozen)
+        finally:
+            for ev in frozen:  # never leave a process stopped (its launcher could not stop it)
+                self._resume(ev)
+        for ev in self.fault_log:
+            proc = self.procs.get(f'robot_{ev["robot"]}')
+            if proc is not None and proc.poll() is not None:
+                ev['launcher_exit_status'] = proc.rc
+                ev['launcher_exit_after_s'] = round(proc.exited_wall - ev['fault_wall'], 3)
+
+    def _mission_loop(self, everyone, frozen: list) -> None:
         a = self.args
+        faults = sorted(self.faults, key=lambda f: f[1])
         pending = sorted(self.events, key=lambda e: e[1])
         down: list[dict] = []  # links currently down
         counters_at_start = None
@@ -540,6 +663,7 @@ class _Run:
                 self.samples.append((now, self.net.counters()))
                 next_sample = mono + 0.5
             t = now - self.start_s  # scenario time (the world runs on the wall clock)
+            self._apply_faults(t, faults, frozen)
             while pending and t >= pending[0][1]:
                 rid, at_s, dur_s = pending.pop(0)
                 self.net.set_link(rid, up=False)
@@ -564,7 +688,13 @@ class _Run:
             world = self.procs['world'].poll()
             if world is not None:
                 break
-            dead = [n for n in everyone if n != 'world' and self.procs[n].poll() is not None]
+            dead = [
+                n
+                for n in everyone
+                if n != 'world'
+                and self.procs[n].poll() is not None
+                and not self._launcher_gone_by_fault(n)
+            ]
             if dead:
                 raise _Abort(f'{dead[0]} exited with status {self.procs[dead[0]].rc} before the '
                              f'world finished; see {self.procs[dead[0]].log}')  # fmt: skip
@@ -591,6 +721,7 @@ class _Run:
         wall_s = time.monotonic() - self.wall0
         self.report['discovery'] = self._discovery()
         self.report['link_events'] = self.link_log
+        self.report['fault_events'] = self.fault_log
         self.report['load_avg_end'] = os.getloadavg()
         extra = []
         if self.stop_reason is not None:
@@ -606,10 +737,11 @@ class _Run:
             return {}
         up = {}
         for rid in self.ids:
+            split = rid in self.split  # node up: the controller process's first log line
             for _sev, wall, _logger, message in _log_lines(
-                self.out / f'robot_{rid}' / f'robot_{rid}.log'
+                self.out / f'robot_{rid}' / f'{self._process_name(rid)}.log'
             ):
-                if message.startswith('hosting robots'):
+                if split or message.startswith('hosting robots'):
                     up[rid] = wall
                     break
         running = {}
@@ -654,7 +786,7 @@ class _Run:
         from ament_formation.ros.run_record import load_run
 
         scenario = self.scenario
-        if self.args.no_expect or self.events:
+        if self.args.no_expect or self.events or self.faults:
             scenario = replace(scenario, expect=ExpectSpec())
             self.report['expect_checked'] = False
         else:
@@ -688,6 +820,8 @@ class _Run:
         loops = control_loops(self.mcap, self.ids)
         self.report['control_loops'] = loops
         for rid in self.ids:
+            if rid in self.split:
+                continue  # its controller was killed or frozen on purpose (--fault)
             gap_s = (loops.get(str(rid)) or {}).get('max_gap_s')
             limit = self.args.control_gap_max
             extra.append(
@@ -701,9 +835,17 @@ class _Run:
             traces.append(trace)
             extra += trace.pop('checks')
         self.report['link_loss'] = traces
+        boards = board_brakes(self.mcap, self.ids) if self.fault_log else {}
+        faults = []
+        for ev in self.fault_log:
+            trace = fault_trace(result, scenario, ev, boards.get(ev['robot'], []), self.modes)
+            faults.append(trace)
+            extra += trace.pop('checks')
+        self.report['faults'] = faults
         check_run(metrics, scenario, extra=extra)
         metrics['multihost'] = {
-            k: self.report.get(k) for k in ('discovery', 'traffic', 'link_loss', 'control_loops')
+            k: self.report.get(k)
+            for k in ('discovery', 'traffic', 'link_loss', 'faults', 'control_loops')
         }
         write_run(self.out, result, scenario, metrics)
         if not self.args.no_figure:
@@ -827,6 +969,140 @@ def _num(text):
         return None
 
 
+def rest_trace(result, scenario, rid: int, t0: float, t1: float, hold_s=None) -> dict:
+    """Robot ``rid`` from scenario time ``t0`` to ``t1`` in the ground truth: its point speed at
+    ``t0``, the time [s] and path length [m] from ``t0`` until it is at rest for good (point speed
+    below REST_SPEED_MPS from then until ``t1``; None when it never is), the largest speed after.
+    ``hold_s``: at rest once the speed stays below REST_SPEED_MPS for ``hold_s`` instead; then also
+    how far it drifted from that point until ``t1`` (the largest distance) and its largest speed.
+    """
+    import numpy as np
+
+    k = list(result.robot_ids).index(rid)
+    t = result.t_s
+    x = result.state[:, k]
+    d = scenario.robot(rid).params.com_offset_m
+    speed = np.hypot(x[:, 3], d * x[:, 4])
+    idx = np.flatnonzero((t >= t0) & (t <= t1))
+    out: dict = {
+        'speed_at_start_mps': None,
+        'time_to_rest_s': None,
+        'distance_to_rest_m': None,
+        'max_speed_at_rest_mps': None,
+    }
+    if idx.size:
+        i0 = idx[0]
+        out['speed_at_start_mps'] = float(speed[i0])
+        moving = np.flatnonzero(speed[idx] >= REST_SPEED_MPS)
+        i_rest = idx[0] if not moving.size else (idx[moving[-1]] + 1)
+        if hold_s is not None:
+            i_rest = idx[-1] + 1
+            slow = speed[idx] < REST_SPEED_MPS
+            run_from = None
+            for j, ok in enumerate(slow):
+                if not ok:
+                    run_from = None
+                    continue
+                run_from = j if run_from is None else run_from
+                if t[idx[j]] - t[idx[run_from]] >= hold_s:
+                    i_rest = idx[run_from]
+                    break
+        if i_rest <= idx[-1]:
+            path = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(x[:, :2], axis=0).T))])
+            out['time_to_rest_s'] = float(t[i_rest] - t0)
+            out['distance_to_rest_m'] = float(path[i_rest] - path[i0])
+            i_end = idx[-1] + 1
+            out['max_speed_at_rest_mps'] = float(np.max(speed[i_rest:i_end]))
+            if hold_s is not None:
+                drift = np.hypot(*(x[i_rest:i_end, :2] - x[i_rest, :2]).T)
+                out['drift_after_rest_m'] = float(np.max(drift))
+    return out
+
+
+def board_brakes(mcap: Path, ids) -> dict:
+    """Per robot, the brakes of its emulated board (the world's "board robot_<id>" /diagnostics
+    in the recording): [{'cause', 'started_s', 'released_s'}] in world time [s], one per brake.
+    """
+    from ament_formation.ros.recorder import read_messages
+
+    out: dict = {r: {} for r in ids}
+    try:
+        for _topic, _t, msg in read_messages(mcap, ['/diagnostics']):
+            for st in msg.status:
+                m = re.match(r'.*: board robot_(\d+)$', st.name)
+                if not m or int(m.group(1)) not in out:
+                    continue
+                values = {kv.key: kv.value for kv in st.values}
+                started = _num(values.get('brake_started_s'))
+                if started is None:
+                    continue
+                rec = out[int(m.group(1))].setdefault(started, {'started_s': started})
+                rec['cause'] = values.get('brake_cause')
+                if rec['cause'] == 'stop':
+                    rec.setdefault('stop_reason', values.get('last_stop_reason'))
+                released = _num(values.get('brake_released_s'))
+                if released is not None:
+                    rec['released_s'] = released
+    except (OSError, ValueError):
+        pass
+    return {r: sorted(v.values(), key=lambda b: b['started_s']) for r, v in out.items()}
+
+
+def fault_trace(result, scenario, ev: dict, brakes: list, modes) -> dict:
+    """What the robot whose controller or bridge process was hit (``--fault``) did, from the
+    ground truth: times [s] from the fault, until the end of the run (a frozen controller: until
+    its SIGCONT). Its board's first brake after the fault (the world's diagnostics: started by a
+    STOP of the bridge or by the board's watchdog). Checks: at rest within FAULT_REST_MAX_S and
+    FAULT_REST_MAX_M (docs/safety.md), and the board braked.
+    """
+    rid, kind = ev['robot'], ev['kind']
+    t = result.t_s
+    t0 = ev['fault_t_s']
+    t1 = ev.get('cont_t_s', float(t[-1]))
+    rest = rest_trace(result, scenario, rid, t0, t1, hold_s=FAULT_REST_HOLD_S)
+    trace: dict = {
+        'robot': rid,
+        'kind': kind,
+        'process': ev['process'],
+        'fault_t_s': round(t0, 3),
+        'until_t_s': round(t1, 3),
+        'speed_at_fault_mps': rest['speed_at_start_mps'],
+        'time_to_rest_s': rest['time_to_rest_s'],
+        'distance_to_rest_m': rest['distance_to_rest_m'],
+        'max_speed_after_rest_mps': rest['max_speed_at_rest_mps'],
+        'drift_after_rest_m': rest.get('drift_after_rest_m'),
+        'launcher_exit_after_s': ev.get('launcher_exit_after_s'),
+        'launcher_exit_status': ev.get('launcher_exit_status'),
+        'brake_cause': None,
+        'stop_reason': None,  # a brake started by a STOP: input_stale | host_shutdown
+        'brake_after_s': None,
+        'brake_released_after_s': None,
+    }
+    w0 = ev['fault_wall']
+    brake = next((b for b in brakes if b['started_s'] >= w0 - 0.005), None)
+    if brake is not None:
+        trace['brake_cause'] = brake.get('cause')
+        trace['stop_reason'] = brake.get('stop_reason')
+        trace['brake_after_s'] = _rel(brake['started_s'], w0)
+        trace['brake_released_after_s'] = _rel(brake.get('released_s'), w0)
+    if 'cont_wall' in ev:
+        cont = ev['cont_wall']
+        heard = [w for w, r, m in modes if r == rid and w >= cont and m not in ('hold', 'stopped')]
+        trace['heard_running_after_cont_s'] = _rel(min(heard), cont) if heard else None
+    name = f'fault[R{rid}@{ev["at_s"]:g}s {kind}]'
+    rest_s, rest_m = trace['time_to_rest_s'], trace['distance_to_rest_m']
+    trace['checks'] = [
+        _check(f'{name}.at_rest_s', rest_s is not None and rest_s <= FAULT_REST_MAX_S, rest_s,
+               FAULT_REST_MAX_S, '<=',
+               f'not at rest (< {REST_SPEED_MPS} m/s) within {FAULT_REST_MAX_S} s of the fault'),
+        _check(f'{name}.distance_to_rest_m', rest_m is not None and rest_m <= FAULT_REST_MAX_M,
+               rest_m, FAULT_REST_MAX_M, '<=', 'rolled too far after the fault'),
+        _check(f'{name}.board_brake', brake is not None, trace['brake_cause'], 'stop|watchdog',
+               '==', "its board did not brake after the fault (the world's diagnostics)"),
+    ]  # fmt: skip
+    return trace
+
+
 def link_loss_trace(result, scenario, ev: dict, out: Path, modes) -> dict:
     """What the robot that lost its link did, from the ground truth (SimResult on scenario time)
     and its controller's log, and what the others did meanwhile. Times [s] from the link going
@@ -838,33 +1114,19 @@ def link_loss_trace(result, scenario, ev: dict, out: Path, modes) -> dict:
 
     rid = ev['robot']
     ids = list(result.robot_ids)
-    k = ids.index(rid)
     t = result.t_s
     t_down, t_up = ev['down_t_s'], ev.get('up_t_s', t[-1])
-    x = result.state[:, k]
-    d = scenario.robot(rid).params.com_offset_m
-    speed = np.hypot(x[:, 3], d * x[:, 4])
     win = (t >= t_down) & (t <= t_up)
-    idx = np.flatnonzero(win)
+    rest = rest_trace(result, scenario, rid, t_down, t_up)
     trace: dict = {
         'robot': rid,
         'down_t_s': round(t_down, 3),
         'up_t_s': round(t_up, 3),
-        'speed_at_loss_mps': None,
-        'time_to_rest_s': None,
-        'distance_to_rest_m': None,
-        'max_speed_at_rest_mps': None,
+        'speed_at_loss_mps': rest['speed_at_start_mps'],
+        'time_to_rest_s': rest['time_to_rest_s'],
+        'distance_to_rest_m': rest['distance_to_rest_m'],
+        'max_speed_at_rest_mps': rest['max_speed_at_rest_mps'],
     }
-    if idx.size:
-        i0 = idx[0]
-        trace['speed_at_loss_mps'] = float(speed[i0])
-        moving = np.flatnonzero(speed[idx] >= REST_SPEED_MPS)
-        i_rest = idx[0] if not moving.size else (idx[moving[-1]] + 1)
-        if i_rest <= idx[-1]:
-            path = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(x[:, :2], axis=0).T))])
-            trace['time_to_rest_s'] = float(t[i_rest] - t_down)
-            trace['distance_to_rest_m'] = float(path[i_rest] - path[i0])
-            trace['max_speed_at_rest_mps'] = float(np.max(speed[i_rest:idx[-1] + 1]))
     # the robot's own view: its controller's safety transitions (its log, wall clock)
     log = out / f'robot_{rid}' / f'robot_{rid}.log'
     down_w, up_w = ev['down_wall'], ev.get('up_wall', math.inf)
@@ -934,6 +1196,17 @@ def summary(report: dict) -> str:
             if h != 'camera'
         )
         lines.append(f'traffic per robot link over {tr["window_s"]:.1f} s: {per}')
+    for ft in report.get('faults') or []:
+        lines.append(
+            f'fault R{ft["robot"]} {ft["kind"]} ({ft["process"]}) t = {ft["fault_t_s"]:.2f} s: '
+            f'at rest after {_s(ft["time_to_rest_s"])} and {_m(ft["distance_to_rest_m"])} (from '
+            f'{_m(ft["speed_at_fault_mps"])}/s); board brake ({ft["brake_cause"]}'
+            + (f' {ft["stop_reason"]}' if ft['stop_reason'] else '')
+            + f') after '
+            f'{_s(ft["brake_after_s"])}, released after {_s(ft["brake_released_after_s"])}, '
+            f'drift after rest {_m(ft["drift_after_rest_m"])}; '
+            f'launcher exited after {_s(ft["launcher_exit_after_s"])}'
+        )
     for lt in report.get('link_loss') or []:
         lines.append(
             f'link loss R{lt["robot"]} t = {lt["down_t_s"]:.2f}..{lt["up_t_s"]:.2f} s: controller '

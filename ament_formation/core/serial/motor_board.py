@@ -140,10 +140,12 @@ class MotorBoard:
         self.brake_started_s: float | None = None
         self.brake_released_s: float | None = None
         self.brakes = 0
+        self.brake_cause: str | None = None  # what started the last brake: 'watchdog' | 'stop'
         self._rest_since_s: float | None = None
         self._next_brake_step_s = now_s
         self._brake_armed = False  # a TORQUE_CMD since the last brake: the next stop brakes
         self.stops_received = 0
+        self.last_stop_reason: int | None = None  # sp.STOP_* of the last STOP
         if not hasattr(self, 'wheel_pos_rad'):
             self.wheel_pos_rad = np.zeros(2)
             self.wheel_vel_radps = np.zeros(2)
@@ -195,7 +197,7 @@ class MotorBoard:
                 self.watchdog_trips += 1
                 self.watchdog_tripped_at_s = now_s
                 if self._brake_armed and not self.estop:
-                    self._start_brake(now_s)
+                    self._start_brake(now_s, 'watchdog')
             if not self.braking:
                 self.applied_e4nm = [0, 0]
         if self.braking and now_s >= self._next_brake_step_s:
@@ -232,17 +234,18 @@ class MotorBoard:
         self.flags &= ~sp.FLAG_WATCHDOG
         self._last_cmd_s = now_s
         if self._brake_armed and not self.estop:
-            self._start_brake(now_s)
+            self._start_brake(now_s, 'stop')
             self._brake_step(now_s)
             self._next_brake_step_s = now_s + CONTROL_PERIOD_S
         elif not self.braking:
             self.applied_e4nm = [0, 0]
         self._send_telemetry(now_s)
 
-    def _start_brake(self, now_s: float) -> None:
+    def _start_brake(self, now_s: float, cause: str) -> None:
         self._brake_armed = False
         self.braking = True
         self.brakes += 1
+        self.brake_cause = cause
         self.brake_started_s = now_s
         self.brake_released_s = None
         self._rest_since_s = now_s
@@ -334,6 +337,7 @@ class MotorBoard:
         if isinstance(msg, sp.TorqueCommand):
             self._torque(msg, now_s)
         elif isinstance(msg, sp.Stop):
+            self.last_stop_reason = msg.reason
             self._stop(now_s)
         elif isinstance(msg, sp.Hello):
             self.flags &= ~sp.FLAG_RESET
