@@ -361,9 +361,10 @@ def robot_count(
     probe = rclpy.create_node('_bench_diag', context=ctx)
 
     def on_diag(msg):
-        for st in msg.status:
-            if st.name.startswith('formation_controller'):
-                diag[st.name] = {kv.key: kv.value for kv in st.values}
+        for st in msg.status:  # the control-loop status (a controller publishes several)
+            vals = {kv.key: kv.value for kv in st.values}
+            if st.name.startswith('formation_controller') and 'late_ticks' in vals:
+                diag[st.name] = vals
 
     probe.create_subscription(DiagnosticArray, '/diagnostics', on_diag, QOS_DIAGNOSTICS)
     ex.add_node(world)
