@@ -348,6 +348,13 @@ def run_system(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         status = 128 + (terminated['signal'] or signal.SIGINT)
         launch_rc = None
+    except Exception:  # noqa: BLE001 - the signal's KeyboardInterrupt raised inside rclpy's C++
+        # code (a message being taken) comes out as pybind11's RuntimeError "Unable to convert
+        # call argument": the same stop
+        if terminated['signal'] is None:
+            raise
+        status = 128 + terminated['signal']
+        launch_rc = None
     finally:
         if launch.poll() is None:
             launch.send_signal(signal.SIGTERM)  # launch_sim.sh stops every process it started
