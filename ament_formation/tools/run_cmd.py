@@ -345,16 +345,8 @@ def run_system(args: argparse.Namespace) -> int:
             if start['s'] is not None and last_truth['wall'] is None:
                 last_truth['wall'] = now  # the stall clock runs from the start
         launch_rc = launch.poll()
-    except KeyboardInterrupt:
-        status = 128 + (terminated['signal'] or signal.SIGINT)
-        launch_rc = None
-    except Exception:  # noqa: BLE001 - the signal's KeyboardInterrupt raised inside rclpy's C++
-        # code (a message being taken) comes out as pybind11's RuntimeError "Unable to convert
-        # call argument": the same stop
-        if terminated['signal'] is None:
-            raise
-        status = 128 + terminated['signal']
-        launch_rc = None
+    except (KeyboardInterrupt, RuntimeError) as err:
+        status, launch_rc = _signal_status(err, terminated), None
     finally:
         if launch.poll() is None:
             launch.send_signal(signal.SIGTERM)  # launch_sim.sh stops every process it started
@@ -416,6 +408,17 @@ def _process_check(launch_log: Path, launch_rc, proc_dir: Path) -> dict:
         '==',
         f'{name} {how} before the world finished; see {proc_dir / (name + ".log")}',
     )
+
+
+def _signal_status(err: BaseException, terminated: dict) -> int:
+    """Exit status of a run stopped by SIGINT/SIGTERM (128 + the signal). A signal's
+    KeyboardInterrupt raised inside rclpy's C++ code (a message being taken) comes out as
+    pybind11's RuntimeError "Unable to convert call argument": the same stop. Any other error is
+    raised again.
+    """
+    if terminated['signal'] is None and not isinstance(err, KeyboardInterrupt):
+        raise err
+    return 128 + (terminated['signal'] or signal.SIGINT)
 
 
 def _evaluate(mcap_path: Path, scenario, out: Path, wall_s: float, args, extra: list[dict]) -> int:
