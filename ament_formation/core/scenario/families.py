@@ -9,10 +9,8 @@ sub-seed; :func:`generate` reports how many draws it took.
 Families
 --------
 formation   one team of 2-8 robots in a line, column, wedge or V behind a leader on a line,
-            sinusoid
-            or waypoint path at 0.03-0.065 m/s, among 0-5 static, moving and rotating
-            obstacles
-            placed on the team's way
+            sinusoid or waypoint path at 0.03-0.065 m/s, among 0-5 static, moving and
+            rotating obstacles placed on the team's way
 crossing    2-4 one-robot teams crossing near one point from different directions (waypoint paths
             that end at rest on the far side), with 0-2 obstacles near the crossing point
 two_teams   two formations of 2-4 robots whose paths cross, with 0-2 obstacles near the crossing
