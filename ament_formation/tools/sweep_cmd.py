@@ -134,11 +134,12 @@ def _dask(cases, on_row, args):
         client = Client(cluster)
         engine = {'engine': 'dask-embedded', 'scheduler': cluster.scheduler_address}
     try:
-        engine['workers'] = len(client.scheduler_info(n_workers=-1)['workers'])
+        client.wait_for_workers(1, timeout=120)
         futures = client.map(run_case, cases, pure=False)
         for future in as_completed(futures):
             on_row(future.result())
             future.release()
+        engine['workers'] = len(client.scheduler_info(n_workers=-1)['workers'])
     finally:
         client.close()
         if cluster is not None:
