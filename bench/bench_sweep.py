@@ -43,6 +43,18 @@ def _key(rows):
     return sorted(tuple(r[k] for k in KEY) for r in rows)
 
 
+def _typed(row: dict) -> dict:
+    """A runs.csv row with KEY's numbers as numbers (as run_case returns them)."""
+    out = dict(row)
+    for k in KEY:
+        v = row[k]
+        if k == 'index':
+            out[k] = int(v)
+        elif k not in ('status', 'classes'):
+            out[k] = None if v == '' else float(v)
+    return out
+
+
 def inprocess(cases, workers):
     return [run_case(c) for c in cases], 0.0
 
@@ -89,11 +101,7 @@ def dask_scheduler(cases, workers, args):
         import csv
 
         with open(out / 'runs.csv') as f:
-            rows = [
-                {k: (None if v == '' else (int(v) if k == 'index' else (
-                    float(v) if k not in ('status', 'classes') else v))) for k, v in r.items()}
-                for r in csv.DictReader(f)
-            ]
+            rows = [_typed(r) for r in csv.DictReader(f)]
         return rows, wall
     finally:
         for p in reversed(procs):
