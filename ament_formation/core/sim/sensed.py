@@ -1,7 +1,7 @@
-"""The closed loop with what the robots really have (issue 13, "sensing in the fast simulator").
+"""The closed loop with what the robots really have (issue 13: sensing in the fast simulator).
 
-Where :func:`ament_formation.core.sim.simulator.simulate` closes the loop on the TRUE state at every
-1 ms step, :func:`simulate_sensed` runs each robot as the ROS system does, with the same core
+Where :func:`ament_formation.core.sim.simulator.simulate` closes the loop on the TRUE state at
+every 1 ms step, :func:`simulate_sensed` runs each robot as the ROS system does, with the same core
 objects the nodes hold:
 
 * camera: every robot's pose of p captured at the scenario's ``camera.fps`` (or ``fps``), with
@@ -14,8 +14,8 @@ objects the nodes hold:
   ``control_rate_hz`` on its estimate and on the other robots' broadcasts of the previous period
   (state, commanded acceleration, mode; extrapolated with
   :func:`~ament_formation.core.control.neighbours.extrapolate_neighbour`, goals with
-  :func:`~ament_formation.core.control.neighbours.neighbour_goal`), torque held (ZOH) until the next
-  period;
+  :func:`~ament_formation.core.control.neighbours.neighbour_goal`), torque held (ZOH) until the
+  next period;
 * the coordinator (nodes/coordinator.py): S9 rewiring with
   :class:`~ament_formation.core.control.rewiring.FormationGraph` whenever the set of avoiding
   robots changes, S7 arbitration with
@@ -49,14 +49,15 @@ from ament_formation.core.control.controller import NeighbourState, RobotControl
 from ament_formation.core.control.estimator import EstimatorParams, PoseEstimator
 from ament_formation.core.control.neighbours import extrapolate_neighbour, neighbour_goal
 from ament_formation.core.control.rewiring import FormationGraph
-from ament_formation.core.errors import ConfigError
+from ament_formation.core.errors import ConfigError, excerpt
 from ament_formation.core.model.paths import fast_reference
 from ament_formation.core.sim.trajectory import SimResult
 from ament_formation.core.sim.twin import PlantTwin
 
 # The tracker's measured accuracy (docs/camera.md "Marker size", 0.12 m markers): position p95
 # 0.43 mm (radial: 2.448 sigma per axis), heading p95 0.30 deg (1.96 sigma), detection 100 %;
-# capture -> pose p50 / p95 8.0 / 12.2 ms on a live MJPEG stream (docs/camera.md "The real camera").
+# capture -> pose p50 / p95 8.0 / 12.2 ms on a live MJPEG stream (docs/camera.md, "The real
+# camera"): the p95.
 MEASURED_NOISE_M = 0.43e-3 / 2.448  # 0.176 mm per axis
 MEASURED_NOISE_RAD = math.radians(0.30) / 1.96  # 0.153 deg
 MEASURED_LATENCY_S = 0.012
@@ -91,7 +92,7 @@ class SensingParams:
 
     def __post_init__(self) -> None:
         def bad(name, value, what):
-            raise ConfigError(f'must be {what} (got {value!r})', name)
+            raise ConfigError(f'must be {what} (got {excerpt(value)})', name)
 
         def number(v):
             return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
@@ -119,12 +120,12 @@ class SensingParams:
 
     @classmethod
     def preset(cls, name: str, **overrides) -> 'SensingParams':
-        """A named preset (:data:`PRESETS`: ``camera`` the tracker's measured figures,
-        ``camera-stress`` issue 13's 30 fps, 50 ms, 3 mm, 5 % drops, ``camera-perfect`` no noise,
-        latency or drops) with ``overrides`` (fields; None values are ignored).
+        """The figures called ``name`` in :data:`PRESETS` with ``overrides`` (fields; None values
+        are ignored): ``camera`` the tracker's measured figures, ``camera-stress`` issue 13's
+        30 fps, 50 ms, 3 mm, 5 % drops, ``camera-perfect`` no noise, latency or drops.
         """
         if name not in PRESETS:
-            raise ConfigError(f'must be one of {sorted(PRESETS)} (got {name!r})', 'sensing')
+            raise ConfigError(f'must be one of {sorted(PRESETS)} (got {excerpt(name)})', 'sensing')
         kept = {k: v for k, v in overrides.items() if v is not None}
         return replace(PRESETS[name], **kept)
 
@@ -153,8 +154,9 @@ PRESETS = {
 
 @dataclass
 class SensedResult(SimResult):
-    """A :class:`SimResult` (TRUE state) plus ``sensing``: {params, frames, poses_sent,
-    poses_dropped, estimator: summed counters, estimate_error_m: {rms, max} of |p_hat - p| at
+    """A :class:`SimResult` (TRUE state) plus ``sensing``: {params, prestart_frames (fused by
+    every robot at rest before t = 0), frames (from t = 0), poses_sent, poses_dropped, estimator:
+    summed counters (pre-start frames included), estimate_error_m: {rms, max} of |p_hat - p| at
     the control periods}.
     """
 
@@ -337,7 +339,7 @@ class _Loop:
         self.twin = PlantTwin(scenario, dt_s)
         twin_row = {int(rid): q for q, rid in enumerate(self.twin.ids)}
         self.rows = np.array([twin_row[rid] for rid in self.ids], dtype=np.int64)
-        self.tau_max = np.array([r.params.torque_limit_nm for r in robots])[:, None]
+        self.tau_max = [float(r.params.torque_limit_nm) for r in robots]
         fgraph = FormationGraph.from_scenario(scenario)
         self.nodes = [_RobotNode(scenario, r, fgraph, sensing) for r in robots]
         self.coord = _Coordinator(scenario, sensing)
@@ -390,6 +392,7 @@ class _Loop:
                 node.est.wheel_update(stamp, (0.0, 0.0), (0.0, 0.0))
             self.camera.capture(stamp, pose)
             self.camera.deliver(math.inf, [n.est for n in self.nodes])
+        self.camera.frames = self.camera.sent = self.camera.dropped = 0  # mission frames only
         for node in self.nodes:
             self.pub[node.rid] = (node.est.state(), np.zeros(2), 0.0, 'coordination', None)
 
@@ -415,21 +418,26 @@ class _Loop:
     def tick(self, t_s: float, arbitrate: bool) -> None:
         """One control period of every robot, then the coordinator."""
         tw = self.twin
-        self.camera.deliver(t_s, [n.est for n in self.nodes])
-        q = tw.wheel_angle_rad[self.rows]
-        w = tw.wheel_rate_radps[self.rows]
-        truth = tw.state[self.rows, :2]
+        q = tw.wheel_angle_rad[self.rows].tolist()
+        w = tw.wheel_rate_radps[self.rows].tolist()
+        for i, node in enumerate(self.nodes):  # the encoder sample of this period, then ...
+            node.est.wheel_update(t_s, tuple(q[i]), tuple(w[i]))
+        self.camera.deliver(t_s, [n.est for n in self.nodes])  # ... the frames arrived by now
+        truth = tw.state[self.rows, :2].tolist()
         heard = self.heard(t_s)
         pub = {}
         for i, node in enumerate(self.nodes):
-            node.est.wheel_update(t_s, (q[i, 0], q[i, 1]), (w[i, 0], w[i, 1]))
             state = node.est.state_at(t_s)
-            e = math.hypot(state[0] - truth[i, 0], state[1] - truth[i, 1])
+            e = math.hypot(state[0] - truth[i][0], state[1] - truth[i][1])
             self.err_sq += e * e
             self.err_max = max(self.err_max, e)
             self.err_n += 1
             out = node.step(t_s, state, heard)
-            self.torque[i] = np.clip(out.torque_nm, -self.tau_max[i], self.tau_max[i])
+            lim = self.tau_max[i]  # DESIGN §7: clamped in the controller (non-finite -> 0)
+            left, right = out.torque_nm.tolist()
+            left = min(max(left if math.isfinite(left) else 0.0, -lim), lim)
+            right = min(max(right if math.isfinite(right) else 0.0, -lim), lim)
+            self.torque[i] = (left, right)
             self.saturated[i] = out.saturated
             self.mode_events.extend(out.events)
             mode, target = _threat_mode(out.mode, out.target)
@@ -475,9 +483,7 @@ def _schedule(duration_s: float, dt_s: float, ctrl_every: int, rec_every: int, f
     cap = np.unique(np.round(np.arange(n_frames) / fps / dt_s).astype(np.int64))
     cap = cap[cap < n_steps]
     steps = np.unique(
-        np.concatenate(
-            [np.arange(0, n_steps, ctrl_every), np.arange(0, n_steps, rec_every), cap]
-        )
+        np.concatenate([np.arange(0, n_steps, ctrl_every), np.arange(0, n_steps, rec_every), cap])
     )
     return n_steps, steps.tolist(), set(cap.tolist())
 
@@ -592,6 +598,7 @@ def simulate_sensed(
         wall_time_s=time.perf_counter() - wall0,
         sensing={
             'params': sensing.as_dict(scenario),
+            'prestart_frames': PRESTART_FRAMES,
             'frames': cam.frames,
             'poses_sent': cam.sent,
             'poses_dropped': cam.dropped,
