@@ -153,9 +153,11 @@ def test_dropouts_happen_and_the_estimator_bridges_them(short):
     assert m['robots']['1']['final_error_m'] < 0.015
 
 
-def test_robot_encounter_goes_through_the_coordinator():
+@pytest.mark.parametrize('hear_all', [False, True])
+def test_robot_encounter_goes_through_the_coordinator(hear_all):
+    # (hear_all False: the robots hear each other only once their camera poses come in range)
     sc = load_scenario(DATA / 'head_on.yaml')
-    res = simulate_sensed(sc, SensingParams.preset('camera-stress'))
+    res = simulate_sensed(sc, SensingParams.preset('camera-stress', hear_all=hear_all))
     m = _metrics(res, sc)
     assert m['ok'], m['failure']
     assert m['min_inter_robot_distance_m'] > 0.3  # ideal 0.347 m

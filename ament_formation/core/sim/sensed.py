@@ -25,9 +25,9 @@ objects the nodes hold:
   disturbance, obstacle motion).
 
 Not modelled: the controller's safety stops (camera loss after ``pose_timeout_s``, wheel timeout,
-parent hold: a run never starves them at drop rates below about 0.5), encoder quantisation, the
-hearing range (every robot hears every other, as with ``hear_all``) and DDS delays (a broadcast
-reaches the others by their next period).
+parent hold: a run never starves them at drop rates below about 0.5), encoder quantisation and
+DDS delays (a broadcast reaches the robots that hear it by their next period; a robot coming into
+hearing range is heard at once).
 
 The record is the TRUE state (the same :class:`~ament_formation.core.sim.trajectory.SimResult` as
 ``simulate``); :attr:`SensedResult.sensing` adds the sensing figures (frames, drops, estimator
@@ -76,7 +76,9 @@ class SensingParams:
     of p [m]; ``noise_rad`` of its heading [rad]; ``drop_prob`` probability that a robot's pose is
     missing from a frame, [0, 1); ``seed`` of the sensing noise and drops. The robot side, as in
     config/params: ``control_rate_hz`` (formation_controller, 100 Hz), ``camera_gain`` (its S10
-    gain, 0.5), ``encounter_rate_hz`` and ``republish_s`` (formation_coordinator, 50 Hz, 1 s).
+    gain, 0.5), ``hear_all`` and ``hear_margin_m`` (its hearing range: parents, the assignment's
+    partner and the robots whose camera pose is within kappa R_aa + 0.6 m, 0.3 m hysteresis),
+    ``encounter_rate_hz`` and ``republish_s`` (formation_coordinator, 50 Hz, 1 s).
     """
 
     fps: float | None = None
@@ -89,6 +91,8 @@ class SensingParams:
     camera_gain: float = 0.5
     encounter_rate_hz: float = 50.0
     republish_s: float = 1.0
+    hear_all: bool = False
+    hear_margin_m: float = 0.6
 
     def __post_init__(self) -> None:
         def bad(name, value, what):
@@ -117,6 +121,10 @@ class SensingParams:
                 bad(name, v, f'a number in [{lo:g}, {hi:g}]')
         if not (number(self.camera_gain) and 0 < self.camera_gain <= 1):
             bad('camera_gain', self.camera_gain, 'a number in (0, 1]')
+        if not isinstance(self.hear_all, bool):
+            bad('hear_all', self.hear_all, 'true or false')
+        if not (number(self.hear_margin_m) and 0 <= self.hear_margin_m <= 100):
+            bad('hear_margin_m', self.hear_margin_m, 'a number in [0, 100] m')
 
     @classmethod
     def preset(cls, name: str, **overrides) -> 'SensingParams':
@@ -196,19 +204,25 @@ class _Camera:
         self.dropped += self.n - int(kept.sum())
         self.queue.append((stamp_s + self.lat_s, stamp_s, pose, kept))
 
-    def deliver(self, now_s: float, estimators: list) -> None:
-        """Every frame arrived by ``now_s`` into the robots' estimators (capture stamps)."""
+    def deliver(self, now_s: float, estimators: list) -> list:
+        """Every frame arrived by ``now_s`` into the robots' estimators (capture stamps);
+        returns those frames [(poses (N, 3), kept (N,))].
+        """
         q = self.queue
+        out = []
         while q and q[0][0] <= now_s + 1e-12:
             _arr, stamp, pose, kept = q.popleft()
             for i in np.flatnonzero(kept):
                 estimators[i].camera_update(stamp, pose[i])
+            out.append((pose, kept))
+        return out
 
 
 # the controller node's defaults (config/params/formation_controller.yaml)
 PARENT_TIMEOUT_S = 0.1  # an older broadcast is extrapolated ...
 PARENT_HOLD_S = 1.0  # ... up to this age
 PRESTART_FRAMES = 10  # frames the estimators fuse before the mission starts (robots at rest)
+HEAR_HYSTERESIS_M = 0.3  # nodes/controller.py: heard until this much beyond the hearing range
 
 
 class _RobotNode:
@@ -336,6 +350,7 @@ class _Loop:
         self.dt = dt_s
         robots = sorted(scenario.robots, key=lambda r: r.id)
         self.ids = tuple(int(r.id) for r in robots)
+        self.row = {rid: i for i, rid in enumerate(self.ids)}
         self.twin = PlantTwin(scenario, dt_s)
         twin_row = {int(rid): q for q, rid in enumerate(self.twin.ids)}
         self.rows = np.array([twin_row[rid] for rid in self.ids], dtype=np.int64)
@@ -372,6 +387,16 @@ class _Loop:
         self.err_max = 0.0
         self.err_n = 0
         self._apply_parents(self.coord.parents)
+        # hearing (ControllerNode._needed): range [m] of robot k seen by robot i, who is in range
+        av = scenario.avoidance
+        rb = np.array([r.params.body_radius_m for r in robots])
+        self.hear_all = sensing.hear_all
+        self.reach = (
+            av.protected_scale * (rb[:, None] + rb[None, :] + av.agent_keepout_margin_m)
+            + sensing.hear_margin_m
+        )
+        self.in_range = np.zeros((len(robots), len(robots)), dtype=bool)
+        self.own_xy: np.ndarray | None = None  # own positions of the last period [m]
 
     def _apply_parents(self, parents: dict) -> None:
         offsets = self.coord.graph.offsets(parents)
@@ -422,17 +447,20 @@ class _Loop:
         w = tw.wheel_rate_radps[self.rows].tolist()
         for i, node in enumerate(self.nodes):  # the encoder sample of this period, then ...
             node.est.wheel_update(t_s, tuple(q[i]), tuple(w[i]))
-        self.camera.deliver(t_s, [n.est for n in self.nodes])  # ... the frames arrived by now
+        frames = self.camera.deliver(t_s, [n.est for n in self.nodes])  # ... the frames by now
+        self._update_hearing(frames)
         truth = tw.state[self.rows, :2].tolist()
         heard = self.heard(t_s)
         pub = {}
+        own_xy = np.zeros((len(self.nodes), 2))
         for i, node in enumerate(self.nodes):
             state = node.est.state_at(t_s)
+            own_xy[i] = state[:2]
             e = math.hypot(state[0] - truth[i][0], state[1] - truth[i][1])
             self.err_sq += e * e
             self.err_max = max(self.err_max, e)
             self.err_n += 1
-            out = node.step(t_s, state, heard)
+            out = node.step(t_s, state, self._heard_by(i, heard))
             lim = self.tau_max[i]  # DESIGN §7: clamped in the controller (non-finite -> 0)
             left, right = out.torque_nm.tolist()
             left = min(max(left if math.isfinite(left) else 0.0, -lim), lim)
@@ -449,6 +477,7 @@ class _Loop:
                 'avoiding': out.mode != 'coordination',
             }
         self.pub = pub
+        self.own_xy = own_xy
         parents_before = self.coord.parents
         new_parents = self.coord.on_modes(self.modes)
         if new_parents is not None:
@@ -463,6 +492,34 @@ class _Loop:
             if published is not None:
                 for node in self.nodes:
                     node.assignment = published.get(node.rid)
+
+    def _update_hearing(self, frames: list) -> None:
+        """The range gate of every controller on the camera poses just delivered."""
+        if self.hear_all or self.own_xy is None:
+            return
+        for pose, kept in frames:
+            d = np.hypot(
+                pose[None, :, 0] - self.own_xy[:, 0:1], pose[None, :, 1] - self.own_xy[:, 1:2]
+            )
+            near = (d < self.reach) | (self.in_range & (d < self.reach + HEAR_HYSTERESIS_M))
+            self.in_range = np.where(kept[None, :], near, self.in_range)
+
+    def _heard_by(self, i: int, heard: dict) -> dict:
+        """The broadcasts robot row ``i`` hears: every robot with ``hear_all``, else its parents,
+        its assignment's partner and the robots in range (ControllerNode._needed).
+        """
+        if self.hear_all:
+            return heard
+        node = self.nodes[i]
+        partner = None if node.assignment is None else node.assignment.partner
+        keep = {node.parent, node.orig_parent_id, partner}
+        in_range = self.in_range[i]
+        row = self.row
+        return {
+            rid: nb
+            for rid, nb in heard.items()
+            if rid in keep or (rid != node.rid and in_range[row[rid]])
+        }
 
     def estimator_counters(self) -> dict:
         total: dict = {}
