@@ -400,3 +400,17 @@ def test_dask_scheduler_with_two_worker_processes_on_loopback_gives_the_same_row
                 p.wait()
         for f in logs:
             f.close()
+
+
+def test_a_campaign_run_with_camera_sensing_is_classified_and_seeded_per_run():
+    rows = [
+        campaign.run_case({'family': 'crossing', 'seed': 2, 'index': i, 'sensing': 'camera'})
+        for i in (0, 0, 3)
+    ]
+    for row in rows:
+        assert row['sensing'] == 'camera' and row['classes'] != 'error', row['reason']
+        assert row['min_robot_distance_m'] is not None
+    assert rows[0]['min_robot_distance_m'] == rows[1]['min_robot_distance_m']  # reproducible
+    ideal = campaign.run_case({'family': 'crossing', 'seed': 2, 'index': 0})
+    assert ideal['name'] == rows[0]['name']
+    assert ideal['min_robot_distance_m'] != rows[0]['min_robot_distance_m']  # it did sense

@@ -30,7 +30,7 @@ import time
 
 from ament_formation.core.errors import ConfigError
 
-SENSING = ('ideal', 'camera', 'camera-stress')
+from ament_formation.tools.sensing_args import SENSING_CHOICES as SENSING
 
 
 def register(subparsers) -> None:

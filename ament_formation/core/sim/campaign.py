@@ -136,14 +136,18 @@ def build_scenario(case: dict):
     return parse_scenario(mapping), mapping, draws
 
 
-def _simulate(scenario, sensing: str, dt_s: float):
+def _simulate(scenario, sensing: str, dt_s: float, seed: int):
+    """The run: ideal sensing, or a camera preset (core/sim/sensed.py) whose noise and drops are
+    seeded by the case (``seed``), so each run of a campaign sees its own camera.
+    """
     if sensing == 'ideal':
         from ament_formation.core.sim.simulator import simulate
 
         return simulate(scenario, dt_s=dt_s, record_every_s=0.01)
     from ament_formation.core.sim.sensed import SensingParams, simulate_sensed
 
-    return simulate_sensed(scenario, SensingParams.preset(sensing), dt_s=dt_s, record_every_s=0.01)
+    params = SensingParams.preset(sensing, seed=seed)
+    return simulate_sensed(scenario, params, dt_s=dt_s, record_every_s=0.01)
 
 
 def run_case(case: dict) -> dict:
@@ -161,7 +165,8 @@ def run_case(case: dict) -> dict:
         scenario, mapping, draws = build_scenario(case)
         row.update(name=scenario.name, robots=len(scenario.robots), draws=draws)
         row['obstacles'] = len(scenario.obstacles)
-        result = _simulate(scenario, sensing, case.get('dt_s', 0.001))
+        sensing_seed = (case.get('seed', 0) * 1_000_003 + (case.get('index') or 0)) % 2**31
+        result = _simulate(scenario, sensing, case.get('dt_s', 0.001), sensing_seed)
         metrics = compute_metrics(result, scenario)
         classes, reason = classify(metrics, result, scenario)
         rms = [r['formation_rms_settled_m'] for r in metrics['robots'].values()]
