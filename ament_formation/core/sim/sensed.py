@@ -45,6 +45,7 @@ from typing import Callable
 import numpy as np
 
 from ament_formation.core.control.arbiter import EncounterArbiter
+from ament_formation.core.control.assignment import AssignedLaw, original_parent_state
 from ament_formation.core.control.controller import NeighbourState, RobotController
 from ament_formation.core.control.estimator import EstimatorParams, PoseEstimator
 from ament_formation.core.control.neighbours import extrapolate_neighbour, neighbour_goal
@@ -254,9 +255,7 @@ class _RobotNode:
             self.orig_parent_id, self.orig_offset, self.orig_parent_id, self.orig_offset
         )
         self.parent: int | None = None
-        self.assignment = None  # the coordinator's EncounterAssignment for this robot
-        self._applied = None  # key of the assignment in force
-        self._done: set = set()  # assignments already left (S8.3)
+        self.assigned = AssignedLaw(self.law)  # the coordinator's assignment applied (S7, S8.3)
 
     def apply_graph(self, parent: int | None, offset_m) -> None:
         """A /formation/graph message (ControllerNode._apply_graph)."""
@@ -267,40 +266,8 @@ class _RobotNode:
         """One control period on the own estimate ``state`` (5,) and the broadcasts ``heard``
         {id: NeighbourState} (ControllerNode._control from the parent lookup on).
         """
-        orig_state = None
-        if self.orig_parent_id is not None:
-            orig_state = heard.get(self.orig_parent_id)
-            if orig_state is None:  # pi0 silent: goal = own position (no exit pull)
-                orig_state = NeighbourState(state - np.r_[self.orig_offset, 0.0, 0.0, 0.0])
-        assignment = self.assignment
-        key = None
-        if assignment is not None:
-            key = (assignment.mode, assignment.partner, assignment.t_entry_s)
-            if key in self._done or assignment.partner not in heard:
-                assignment = None
-        withdrawn = self._applied is not None and key != self._applied
-        release = self._applied[1] if withdrawn else None
-        out = self.law.step(
-            t_s,
-            state,
-            parent=None if self.parent is None else heard[self.parent],
-            original_parent=orig_state,
-            neighbours=heard,
-            assignment=assignment,
-            release=release,
-        )
-        if withdrawn and (out.mode, out.target) != (self._applied[0], f'robot_{self._applied[1]}'):
-            self._done.add(self._applied)  # left on the coordinator's release
-            self._applied = None
-        if assignment is not None:
-            self._applied = key
-        if self._applied is not None and (out.mode, out.target) != (
-            self._applied[0],
-            f'robot_{self._applied[1]}',
-        ):
-            self._done.add(self._applied)  # left (or replaced) with its own exit test
-            self._applied = None
-        return out
+        orig_state = original_parent_state(heard, self.orig_parent_id, self.orig_offset, state)
+        return self.assigned.step(t_s, state, self.parent, orig_state, heard)
 
 
 class _Coordinator:
@@ -491,7 +458,7 @@ class _Loop:
             published = self.coord.arbitrate(t_s, states, self.modes)
             if published is not None:
                 for node in self.nodes:
-                    node.assignment = published.get(node.rid)
+                    node.assigned.assignment = published.get(node.rid)
 
     def _update_hearing(self, frames: list) -> None:
         """The range gate of every controller on the camera poses just delivered."""
@@ -511,7 +478,7 @@ class _Loop:
         if self.hear_all:
             return heard
         node = self.nodes[i]
-        partner = None if node.assignment is None else node.assignment.partner
+        partner = None if node.assigned.assignment is None else node.assigned.assignment.partner
         keep = {node.parent, node.orig_parent_id, partner}
         in_range = self.in_range[i]
         row = self.row
