@@ -139,14 +139,7 @@ class PlantTwin:
         n = len(self.ids)
         if self.started:  # g at every half step, one vectorised evaluation
             t = self.t_s + 0.5 * self.dt_s * np.arange(2 * n_steps + 1)
-            d = self.disturbance
-            g = np.sum(
-                d.amplitude[None]
-                * np.sin(
-                    2.0 * math.pi * d.freq_hz[None] * t[:, None, None, None] + d.phase_rad[None]
-                ),
-                axis=3,
-            )
+            g = self.disturbance.at_times(t)
         else:
             g = np.zeros((2 * n_steps + 1, n, 2))
         k = self.k
