@@ -52,7 +52,12 @@ from ament_formation.core.model.disturbance import (
     disturbance_phasor_advance_k,
     disturbance_phasor_init_k,
 )
-from ament_formation.core.model.dynamics import PlantCoeffs, point_velocity_k, rk4_step_k
+from ament_formation.core.model.dynamics import (
+    PlantCoeffs,
+    point_velocity_k,
+    rk4_step_k,
+    RobotPlant,
+)
 from ament_formation.core.model.obstacles import obstacle_arrays, obstacle_states
 from ament_formation.core.model.paths import quintic_hermite_k
 from ament_formation.core.sim.trajectory import SimResult
@@ -315,26 +320,20 @@ def _run_segment(
             g_prev[i, 0] = g1a
             g_prev[i, 1] = g1b
             nx = rk4_step_k(
-                x[i, 0],
-                x[i, 1],
-                x[i, 2],
-                x[i, 3],
-                x[i, 4],
-                torque[i, 0],
-                torque[i, 1],
-                g0a,
-                g0b,
-                gha,
-                ghb,
-                g1a,
-                g1b,
+                (x[i, 0], x[i, 1], x[i, 2], x[i, 3], x[i, 4]),
+                (torque[i, 0], torque[i, 1]),
+                (g0a, g0b),
+                (gha, ghb),
+                (g1a, g1b),
                 dt,
-                coeffs[0, i],
-                coeffs[1, i],
-                coeffs[2, i],
-                coeffs[3, i],
-                coeffs[4, i],
-                coeffs[5, i],
+                RobotPlant(
+                    coeffs[0, i],
+                    coeffs[1, i],
+                    coeffs[2, i],
+                    coeffs[3, i],
+                    coeffs[4, i],
+                    coeffs[5, i],
+                ),
             )
             for q in range(5):
                 x[i, q] = nx[q]
