@@ -296,3 +296,29 @@ def test_neighbour_goal_feeds_the_partners_side_of_the_exit_test():
     assert set(with_goal) == {'mutual'}
     with pytest.raises(Exception, match='goal_m'):
         NeighbourState(np.zeros(5), goal_m=(np.nan, 0.0))
+
+
+@pytest.mark.parametrize('obstacles', ['none', 'paper'])
+def test_a_neighbour_busy_with_a_robot_not_heard_is_never_read_as_an_obstacle(
+    monkeypatch, obstacles
+):
+    """A neighbour yielding to a robot this controller does not hear enters the decision as busy
+    (MODE_OBSTACLE without an obstacle). The decision must not index the obstacle arrays with it:
+    the compiled code has no bounds checks, so without obstacles it read memory past the arrays
+    (found by `formation sweep --sensing camera`: a ZeroDivisionError in 7 of 300 runs, depending
+    on that memory). Here the decision runs as plain Python: it raises IndexError on such a read.
+    """
+    from ament_formation.core.control import controller as controller_module
+    from ament_formation.core.control.encounters import decide
+
+    monkeypatch.setattr(controller_module, 'decide', decide.py_func)
+    sc = load_scenario(config_file('scenarios/paper.yaml'))
+    p = sc.robots[0].params
+    obs = () if obstacles == 'none' else sc.obstacles
+    c = RobotController(1, p, sc.control, sc.avoidance, obs, team=1)
+    busy = NeighbourState(
+        np.array([1.8, 1.5, 0.0, 0.08, 0.0]), team=2, mode='yield', target='robot_9'
+    )
+    for k in range(3):
+        out = c.step(1.0 + 0.02 * k, np.array([1.7, 0.5, 0.0, 0.0, 0.0]), neighbours={2: busy})
+        assert out.mode == 'coordination' and np.all(np.isfinite(out.torque_nm))

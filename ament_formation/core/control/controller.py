@@ -30,7 +30,7 @@ from ament_formation.core.control.automaton import (
     P_KEEPOUT_MARGIN,
     SwitchingParams,
 )
-from ament_formation.core.control.encounters import decide
+from ament_formation.core.control.encounters import decide, KIND_AGENT
 from ament_formation.core.control.law import gains_vector, goals_and_fields, robot_law
 from ament_formation.core.errors import ConfigError
 from ament_formation.core.model.dynamics import PlantCoeffs, point_velocities
@@ -475,7 +475,7 @@ class RobotController:
                 st.mode[me] = MODE_C
         else:
             st.tgt[me] = self._target_id
-        if src.last_kind[0] == 2:
+        if src.last_kind[0] == KIND_AGENT:
             st.last_tgt[me] = row.get(int(src.last_tgt[0]), -1)
         else:
             st.last_tgt[me] = src.last_tgt[0]
@@ -595,7 +595,7 @@ class RobotController:
                         'direction': 'ccw' if st.sdir[me] > 0 else 'cw',
                     }
                 )
-                st.last_kind[me] = 2  # S8.4 cool-down record (robot target)
+                st.last_kind[me] = KIND_AGENT  # S8.4 cool-down record (robot target)
                 st.last_tgt[me] = k
                 st.last_exit[me] = t_s
                 st.mode[me] = MODE_C

@@ -466,9 +466,9 @@ def decide(
                 th_em[a, slot] = em
                 th_lam[a, slot] = lam
                 th_hem[a, slot] = h_em
-    # ---- 3. obstacle transitions (S8.1 entry, S8.2 re-targeting, S8.3 exit)
-    for i in range(n):
-        if mode[i] == MODE_OBSTACLE:
+    # ---- 3. obstacle transitions (S8.1 entry, S8.2 re-targeting, S8.3 exit); a row busy with no
+    for i in range(n):  # known obstacle (tgt -1: a neighbour busy with a robot not heard) has none
+        if mode[i] == MODE_OBSTACLE and tgt[i] >= 0:
             j = tgt[i]
             jn = ob_j[i]
             if jn >= 0 and not cur_em[i] and (ob_em[i] or ob_hl[i] < cur_hl[i]):
