@@ -100,7 +100,7 @@ def scalar_baseline(scenario, n_steps: int) -> float:
     from ament_formation.core.control.automaton import SwitchingParams
     from ament_formation.core.control.law import robot_law
     from ament_formation.core.model.disturbance import disturbance_k
-    from ament_formation.core.model.dynamics import rk4_step_k
+    from ament_formation.core.model.dynamics import rk4_step_k, RobotPlant
     from ament_formation.core.model.obstacles import obstacle_states
     from ament_formation.core.sim import simulator as S
 
@@ -181,26 +181,7 @@ def scalar_baseline(scenario, n_steps: int) -> float:
             g1 = disturbance_k(t + 0.001, setup.d_amp[i], setup.d_freq[i], setup.d_phase[i])
             c = setup.coeffs[:, i]
             x[i] = rk4_step_k(
-                x[i, 0],
-                x[i, 1],
-                x[i, 2],
-                x[i, 3],
-                x[i, 4],
-                out[0],
-                out[1],
-                g0[0],
-                g0[1],
-                gh[0],
-                gh[1],
-                g1[0],
-                g1[1],
-                0.001,
-                c[0],
-                c[1],
-                c[2],
-                c[3],
-                c[4],
-                c[5],
+                tuple(x[i]), (out[0], out[1]), g0, gh, g1, 0.001, RobotPlant(*c[:6])
             )
     return n * n_steps / (time.perf_counter() - t0)
 
