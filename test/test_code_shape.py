@@ -17,7 +17,6 @@ MAX_JIT_PARAMS = 15
 
 # 'path:function' -> (lines, parameters) when the check was introduced
 KNOWN = {
-    'tools/serial_vectors.py:build_vectors': (381, 0),
     'core/control/encounters.py:decide': (375, 27),
     'core/control/controller.py:step': (335, 3),
     'core/sim/simulator.py:_run_segment': (249, 66),
