@@ -24,7 +24,6 @@ KNOWN = {
     'ros/run_record.py:load_run': (195, 4),
     'tools/run_cmd.py:run_system': (195, 1),
     'nodes/live_view.py:scene_update': (191, 3),
-    'core/sim/plot.py:render_figure': (183, 3),
     'core/control/law.py:robot_law': (179, 27),
     'nodes/controller.py:__init__': (149, 1),
     'core/control/arbiter.py:decide': (141, 4),
