@@ -21,7 +21,6 @@ KNOWN = {
     'core/control/controller.py:step': (335, 3),
     'core/sim/simulator.py:_run_segment': (249, 66),
     'core/sim/simulator.py:simulate': (225, 1),
-    'nodes/live_view.py:scene_update': (191, 3),
     'core/control/law.py:robot_law': (179, 27),
     'nodes/controller.py:__init__': (149, 1),
     'core/control/arbiter.py:decide': (141, 4),
