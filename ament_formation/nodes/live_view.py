@@ -453,6 +453,121 @@ def jpeg_of(msg: Image, quality: int) -> bytes:
 LAYOUT_ROBOT_IDS = tuple(range(6))  # config/foxglove/formation_layout.json plots robots 0..5
 
 
+def _layout_series(field: str, label: str, rid: int) -> dict:
+    """A Plot panel's path: robot ``rid``'s series ``field`` in the robot's colour."""
+    return {
+        'value': f'{SERIES_TOPIC.format(id=rid)}.{field}',
+        'enabled': True,
+        'timestampMethod': 'receiveTime',
+        'label': label,
+        'color': '#{:02x}{:02x}{:02x}'.format(*(int(255 * c) for c in robot_rgb(rid))),
+    }
+
+
+def _layout_plot(title: str, paths: list[dict], y_label: str) -> dict:
+    """A Plot panel of ``paths`` against time."""
+    return {
+        'foxglovePanelTitle': title,
+        'paths': paths,
+        'xAxisVal': 'timestamp',
+        'showLegend': True,
+        'legendDisplay': 'floating',
+        'showXAxisLabels': True,
+        'showYAxisLabels': True,
+        'isSynced': True,
+        'yAxisLabel': y_label,
+        'timeWindowMode': 'automatic',
+    }
+
+
+def _layout_3d_panel() -> dict:
+    """The 3D panel: top-down on the arena, /formation/scene, a grid."""
+    return {
+        'foxglovePanelTitle': 'arena (world frame, top-down)',
+        'cameraState': {
+            'perspective': False,
+            'distance': 5.0,
+            'phi': 0.0,
+            'thetaOffset': 90.0,
+            'target': [1.0, 0.6, 0.0],
+            'targetOffset': [0.0, 0.0, 0.0],
+            'targetOrientation': [0.0, 0.0, 0.0, 1.0],
+            'fovy': 45.0,
+            'near': 0.01,
+            'far': 5000.0,
+        },
+        'followMode': 'follow-none',
+        'followTf': WORLD_FRAME,
+        'scene': {'enableStats': False},
+        'transforms': {},
+        'topics': {SCENE_TOPIC: {'visible': True}},
+        'layers': {
+            'grid': {
+                'visible': True,
+                'layerId': 'foxglove.Grid',
+                'frameId': WORLD_FRAME,
+                'size': 6.0,
+                'divisions': 30,
+                'lineWidth': 1.0,
+                'color': '#24242440',
+                'position': [1.0, 0.5, 0.0],
+                'rotation': [0.0, 0.0, 0.0],
+                'order': 1,
+            }
+        },
+    }
+
+
+def _layout_image_panel() -> dict:
+    """The Image panel of the overhead camera."""
+    return {
+        'foxglovePanelTitle': 'overhead camera',
+        'imageMode': {'imageTopic': IMAGE_TOPIC},
+        'cameraState': {
+            'distance': 20.0,
+            'perspective': True,
+            'phi': 60.0,
+            'target': [0.0, 0.0, 0.0],
+            'targetOffset': [0.0, 0.0, 0.0],
+            'targetOrientation': [0.0, 0.0, 0.0, 1.0],
+            'thetaOffset': 45.0,
+            'fovy': 45.0,
+            'near': 0.5,
+            'far': 5000.0,
+        },
+        'followMode': 'follow-pose',
+        'scene': {},
+        'transforms': {},
+        'topics': {},
+        'layers': {},
+    }
+
+
+def _layout_mosaic() -> dict:
+    """Where the panels go: the 3D panel on the left, the image and the three plots stacked."""
+    return {
+        'direction': 'row',
+        'splitPercentage': 55,
+        'first': '3D!formation',
+        'second': {
+            'direction': 'column',
+            'splitPercentage': 34,
+            'first': 'Image!camera',
+            'second': {
+                'direction': 'column',
+                'splitPercentage': 33,
+                'first': 'Plot!formation_error',
+                'second': {
+                    'direction': 'column',
+                    'splitPercentage': 50,
+                    'first': 'Plot!clearance',
+                    'second': 'Plot!torques',
+                },
+            },
+        },
+    }
+
+
 def foxglove_layout(robot_ids=LAYOUT_ROBOT_IDS) -> dict:
     """A Foxglove layout (the app's "Import from file" JSON: configById + mosaic) with the 3D panel
     (top-down on the arena, /formation/scene), the Image panel (/camera/image/compressed) and three
@@ -460,129 +575,35 @@ def foxglove_layout(robot_ids=LAYOUT_ROBOT_IDS) -> dict:
     config/foxglove/formation_layout.json is this for robots 0..5 (test_live_view keeps them
     equal).
     """
-
-    def series(field: str, label: str, rid: int) -> dict:
-        return {
-            'value': f'{SERIES_TOPIC.format(id=rid)}.{field}',
-            'enabled': True,
-            'timestampMethod': 'receiveTime',
-            'label': label,
-            'color': '#{:02x}{:02x}{:02x}'.format(*(int(255 * c) for c in robot_rgb(rid))),
-        }
-
-    def plot(title: str, paths: list[dict], y_label: str) -> dict:
-        return {
-            'foxglovePanelTitle': title,
-            'paths': paths,
-            'xAxisVal': 'timestamp',
-            'showLegend': True,
-            'legendDisplay': 'floating',
-            'showXAxisLabels': True,
-            'showYAxisLabels': True,
-            'isSynced': True,
-            'yAxisLabel': y_label,
-            'timeWindowMode': 'automatic',
-        }
-
     torque_paths = []
     for rid in robot_ids:
         torque_paths += [
-            series('torque_left_nm', f'robot {rid} left', rid),
-            {**series('torque_right_nm', f'robot {rid} right', rid), 'lineStyle': 'dashed'},
+            _layout_series('torque_left_nm', f'robot {rid} left', rid),
+            {
+                **_layout_series('torque_right_nm', f'robot {rid} right', rid),
+                'lineStyle': 'dashed',
+            },
         ]
     return {
         'configById': {
-            '3D!formation': {
-                'foxglovePanelTitle': 'arena (world frame, top-down)',
-                'cameraState': {
-                    'perspective': False,
-                    'distance': 5.0,
-                    'phi': 0.0,
-                    'thetaOffset': 90.0,
-                    'target': [1.0, 0.6, 0.0],
-                    'targetOffset': [0.0, 0.0, 0.0],
-                    'targetOrientation': [0.0, 0.0, 0.0, 1.0],
-                    'fovy': 45.0,
-                    'near': 0.01,
-                    'far': 5000.0,
-                },
-                'followMode': 'follow-none',
-                'followTf': WORLD_FRAME,
-                'scene': {'enableStats': False},
-                'transforms': {},
-                'topics': {SCENE_TOPIC: {'visible': True}},
-                'layers': {
-                    'grid': {
-                        'visible': True,
-                        'layerId': 'foxglove.Grid',
-                        'frameId': WORLD_FRAME,
-                        'size': 6.0,
-                        'divisions': 30,
-                        'lineWidth': 1.0,
-                        'color': '#24242440',
-                        'position': [1.0, 0.5, 0.0],
-                        'rotation': [0.0, 0.0, 0.0],
-                        'order': 1,
-                    }
-                },
-            },
-            'Image!camera': {
-                'foxglovePanelTitle': 'overhead camera',
-                'imageMode': {'imageTopic': IMAGE_TOPIC},
-                'cameraState': {
-                    'distance': 20.0,
-                    'perspective': True,
-                    'phi': 60.0,
-                    'target': [0.0, 0.0, 0.0],
-                    'targetOffset': [0.0, 0.0, 0.0],
-                    'targetOrientation': [0.0, 0.0, 0.0, 1.0],
-                    'thetaOffset': 45.0,
-                    'fovy': 45.0,
-                    'near': 0.5,
-                    'far': 5000.0,
-                },
-                'followMode': 'follow-pose',
-                'scene': {},
-                'transforms': {},
-                'topics': {},
-                'layers': {},
-            },
-            'Plot!formation_error': plot(
+            '3D!formation': _layout_3d_panel(),
+            'Image!camera': _layout_image_panel(),
+            'Plot!formation_error': _layout_plot(
                 'formation error |p - g| [m]',
-                [series('formation_error_m', f'robot {rid}', rid) for rid in robot_ids],
+                [_layout_series('formation_error_m', f'robot {rid}', rid) for rid in robot_ids],
                 'm',
             ),
-            'Plot!clearance': plot(
+            'Plot!clearance': _layout_plot(
                 'clearance to the nearest P [m] (< 0 inside)',
-                [series('clearance_m', f'robot {rid}', rid) for rid in robot_ids],
+                [_layout_series('clearance_m', f'robot {rid}', rid) for rid in robot_ids],
                 'm',
             ),
-            'Plot!torques': plot('wheel torques [N m]', torque_paths, 'N m'),
+            'Plot!torques': _layout_plot('wheel torques [N m]', torque_paths, 'N m'),
         },
         'globalVariables': {},
         'userNodes': {},
         'playbackConfig': {'speed': 1.0},
-        'layout': {
-            'direction': 'row',
-            'splitPercentage': 55,
-            'first': '3D!formation',
-            'second': {
-                'direction': 'column',
-                'splitPercentage': 34,
-                'first': 'Image!camera',
-                'second': {
-                    'direction': 'column',
-                    'splitPercentage': 33,
-                    'first': 'Plot!formation_error',
-                    'second': {
-                        'direction': 'column',
-                        'splitPercentage': 50,
-                        'first': 'Plot!clearance',
-                        'second': 'Plot!torques',
-                    },
-                },
-            },
-        },
+        'layout': _layout_mosaic(),
     }
 
 
