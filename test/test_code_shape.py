@@ -22,7 +22,6 @@ KNOWN = {
     'core/sim/simulator.py:_run_segment': (249, 66),
     'core/sim/simulator.py:simulate': (225, 1),
     'core/control/law.py:robot_law': (179, 27),
-    'nodes/controller.py:__init__': (149, 1),
     'core/control/arbiter.py:decide': (141, 4),
     'core/model/dynamics.py:rk4_step_k': (65, 20),
     'core/control/smc.py:smc_torque_k': (35, 17),
