@@ -1,5 +1,6 @@
 """Campaign throughput of `formation sweep` per engine, in one run on the same cases:
-`bench/run.sh bench_sweep.py [--count 300] [--seed 1] [--engines inprocess,dask,dask-scheduler,ray]`.
+`bench/run.sh bench_sweep.py [--count 300] [--seed 1] [--engines ENGINE,..]`, engines
+inprocess,dask,dask-scheduler,ray (the default).
 
 inprocess       every case in this process, one after the other (the baseline: ratio 1)
 dask            what `formation sweep` does by default: an embedded LocalCluster of --workers

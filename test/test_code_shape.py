@@ -17,19 +17,12 @@ MAX_JIT_PARAMS = 15
 
 # 'path:function' -> (lines, parameters) when the check was introduced
 KNOWN = {
-    'tools/serial_vectors.py:build_vectors': (381, 0),
     'core/control/encounters.py:decide': (375, 27),
     'core/control/controller.py:step': (335, 3),
     'core/sim/simulator.py:_run_segment': (249, 66),
     'core/sim/simulator.py:simulate': (225, 1),
-    'ros/run_record.py:load_run': (195, 4),
-    'tools/run_cmd.py:run_system': (195, 1),
-    'nodes/live_view.py:scene_update': (191, 3),
-    'core/sim/plot.py:render_figure': (183, 3),
     'core/control/law.py:robot_law': (179, 27),
-    'nodes/controller.py:__init__': (149, 1),
     'core/control/arbiter.py:decide': (141, 4),
-    'nodes/live_view.py:foxglove_layout': (131, 1),
     'core/control/smc.py:smc_torque_k': (35, 17),
 }
 

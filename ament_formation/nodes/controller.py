@@ -333,6 +333,26 @@ class ControllerNode(Node):
         super().__init__('formation_controller', context=context, **node_kw)
         self.lock = lock if lock is not None else contextlib.nullcontext()
         self._own_xy: tuple[float, float] | None = None  # own position of the last period [m]
+        spec = self._init_robot(params)
+        self._init_law(spec)
+        self._init_state(peers)
+        self._init_publishers()
+        self._init_subscriptions(bridge, peers)
+        self._init_diagnostics()
+        self.timer = (
+            self.create_timer(1.0 / self.prm.control_rate_hz, self._control)
+            if tick_timer
+            else None
+        )
+        self.law.warm_up()  # compile (or load) the law's kernels now, not in the first tick
+        if tick_timer and self.prm.realtime_priority:  # the executor thread runs the control timer
+            set_realtime(self.prm.realtime_priority, self.get_logger())
+
+    def _init_robot(self, params: ControllerParams | None):
+        """Parameters, scenario, this robot's plant coefficients, camera-loss stop and pose
+        estimator; ConfigError when ``robot_id`` is not a robot of the scenario. Returns the
+        robot's spec.
+        """
         self.prm = params if params is not None else declare_dataclass(self, ControllerParams)
         self.scenario = load_scenario(self.prm.scenario)
         if self.prm.robot_id not in self.scenario.robot_ids:
@@ -353,6 +373,12 @@ class ControllerNode(Node):
         self.estimator = PoseEstimator(
             EstimatorParams.from_robot(spec.params, camera_gain=self.prm.camera_gain)
         )
+        return spec
+
+    def _init_law(self, spec) -> None:
+        """The robot's law (RobotController) on its original formation graph, the goal and
+        robot tables, the hearing ranges.
+        """
         sc = self.scenario
         self.law = RobotController(
             self.rid,
@@ -386,6 +412,9 @@ class ControllerNode(Node):
             self.orig_parent_id, self.orig_offset, self.orig_parent_id, self.orig_offset
         )
         self.orig: _Neighbour | None = None
+
+    def _init_state(self, peers: PeerTable | None) -> None:
+        """Assignment, mode, safety state, counters and clock of the control periods."""
         self.encounter_revision = -1
         self.assigned = AssignedLaw(self.law)  # the coordinator's assignment applied (S7, S8.3)
         self.events: list[dict] = []  # mode events of the law (scenario time)
@@ -405,6 +434,8 @@ class ControllerNode(Node):
         self.record = None if peers is None else peers.records[self.rid]  # what others read of us
         self._msg_state = self._msg_torque = self._msg_accel = None  # refilled every period
 
+    def _init_publishers(self) -> None:
+        """wheel_torque, state, accel and mode, with their matched-subscription listeners."""
         self.pub_torque = self.create_publisher(JointState, 'wheel_torque', QOS_CONTROL)
         self.pub_state = self.create_publisher(msgs.Odometry, 'state', QOS_CONTROL)
         self.pub_accel = self.create_publisher(AccelStamped, 'accel', QOS_CONTROL)
@@ -415,6 +446,11 @@ class ControllerNode(Node):
             Listeners(self.pub_torque),
             Listeners(self.pub_accel),
         )
+
+    def _init_subscriptions(self, bridge, peers: PeerTable | None) -> None:
+        """Camera pose, wheels (topic or the bridge in the process), graph, encounters and the
+        other robots (subscribed, or the records of the peers in the process).
+        """
         # raw: the high-rate inputs are read from their serialized form (ros/cdr.py)
         self.create_subscription(PoseStamped, 'pose', self._on_pose, QOS_CONTROL, raw=True)
         self.bridge = bridge
@@ -424,6 +460,7 @@ class ControllerNode(Node):
             bridge.telemetry_sinks.append(self.wheel_sample)
         self.create_subscription(String, '/formation/graph', self._on_graph, QOS_GRAPH)
         self.create_subscription(String, '/formation/encounters', self._on_encounters, QOS_GRAPH)
+        sc = self.scenario
         self.neighbours = {
             k: (
                 peers.records[k]
@@ -436,6 +473,9 @@ class ControllerNode(Node):
         if self.orig_parent_id is not None:
             self.orig = self.neighbours[self.orig_parent_id]
         self._update_hearing()
+
+    def _init_diagnostics(self) -> None:
+        """Diagnostics of the control, the control loop's period and the inputs."""
         self.diag = diag.Diagnostics(self)
         robot = f'robot_{self.rid}'
         self.diag.add(f'{robot} control', self._control_status, hardware_id=robot)
@@ -444,14 +484,6 @@ class ControllerNode(Node):
         )
         self.diag.add(f'{robot} inputs', self._inputs_status, hardware_id=robot)
         self._rejected_seen = (0, -math.inf)  # (total, when it last grew [s])
-        self.timer = (
-            self.create_timer(1.0 / self.prm.control_rate_hz, self._control)
-            if tick_timer
-            else None
-        )
-        self.law.warm_up()  # compile (or load) the law's kernels now, not in the first tick
-        if tick_timer and self.prm.realtime_priority:  # the executor thread runs the control timer
-            set_realtime(self.prm.realtime_priority, self.get_logger())
 
     def _make_stop_lead(self, robot) -> StopLead:
         """The camera-loss stop's :class:`StopLead` for this robot's ``robot`` parameters and the

@@ -222,161 +222,155 @@ OUTLINE_RGBA = {'P': (0.8, 0.1, 0.1, 1.0), 'L': (0.1, 0.5, 0.9, 1.0), 'Q': (0.5,
 CCW_RGB, CW_RGB = (0.1, 0.7, 0.2), (1.0, 0.55, 0.0)
 
 
-def scene_update(scene: Scene, stamp_ns: int, cache: dict | None = None):
-    """Foxglove SceneUpdate of a core Scene (entities keep their ids from update to update, so each
-    update replaces the previous one; ids: robot_<id>, goal_<id>, avoid_<id>, obstacle_<name>,
-    graph_edges). Robot entities carry metadata t_s, mode, target, direction. ``cache``: a dict
-    kept by the caller for the obstacle outlines' points (fixed in the obstacle frame).
+def _robot_entities(fx, entity, r, t_text: str) -> None:
+    """Robot r's entities: robot_<id> (body disc, heading arrow, label, metadata), goal_<id> (the
+    goal and a line to it, empty without a goal), avoid_<id> (the circulation arrow and a line to
+    the target while avoiding, else empty).
     """
-    fx = _fx()
-    cache = {} if cache is None else cache
-    ts = fx.Timestamp(sec=int(stamp_ns // 1_000_000_000), nsec=int(stamp_ns % 1_000_000_000))
-    t_text = '' if scene.t_s is None else f'{scene.t_s:.3f}'
-    entities = []
-
-    def entity(eid: str, **kw):
-        entities.append(fx.SceneEntity(timestamp=ts, frame_id=WORLD_FRAME, id=eid, **kw))
-
-    for r in scene.robots:
-        x, y, th = (float(v) for v in r.pose)
-        rad = r.body_radius_m
-        rgb = robot_rgb(r.id)
-        meta = [
-            fx.KeyValuePair(key='t_s', value=t_text),
-            fx.KeyValuePair(key='mode', value=r.mode),
-            fx.KeyValuePair(key='target', value='' if r.target is None else str(r.target)),
-            fx.KeyValuePair(
-                key='direction', value='' if r.direction is None else str(r.direction)
-            ),
-        ]
+    x, y, th = (float(v) for v in r.pose)
+    rad = r.body_radius_m
+    rgb = robot_rgb(r.id)
+    meta = [
+        fx.KeyValuePair(key='t_s', value=t_text),
+        fx.KeyValuePair(key='mode', value=r.mode),
+        fx.KeyValuePair(key='target', value='' if r.target is None else str(r.target)),
+        fx.KeyValuePair(key='direction', value='' if r.direction is None else str(r.direction)),
+    ]
+    entity(
+        f'robot_{r.id}',
+        metadata=meta,
+        cylinders=[
+            fx.CylinderPrimitive(
+                pose=_pose(fx, x, y, 0.025),
+                size=fx.Vector3(x=2 * rad, y=2 * rad, z=0.05),
+                bottom_scale=1.0,
+                top_scale=1.0,
+                color=_color(fx, (1.0, 0.2, 0.2) if r.avoiding else rgb, 0.85),
+            )
+        ],
+        arrows=[
+            fx.ArrowPrimitive(
+                pose=_pose(fx, x, y, 0.07, th),
+                shaft_length=1.2 * rad,
+                shaft_diameter=0.02,
+                head_length=0.05,
+                head_diameter=0.05,
+                color=_color(fx, rgb),
+            )
+        ],
+        texts=[
+            fx.TextPrimitive(
+                pose=_pose(fx, x, y + rad + 0.05, 0.15),
+                billboard=True,
+                font_size=14.0,
+                scale_invariant=True,
+                color=_color(fx, (0.05, 0.05, 0.05)),
+                text=r.label,
+            )
+        ],
+    )
+    if r.goal_m is not None:
+        gx, gy = float(r.goal_m[0]), float(r.goal_m[1])
         entity(
-            f'robot_{r.id}',
-            metadata=meta,
-            cylinders=[
-                fx.CylinderPrimitive(
-                    pose=_pose(fx, x, y, 0.025),
-                    size=fx.Vector3(x=2 * rad, y=2 * rad, z=0.05),
-                    bottom_scale=1.0,
-                    top_scale=1.0,
-                    color=_color(fx, (1.0, 0.2, 0.2) if r.avoiding else rgb, 0.85),
+            f'goal_{r.id}',
+            spheres=[
+                fx.SpherePrimitive(
+                    pose=_pose(fx, gx, gy, 0.02),
+                    size=fx.Vector3(x=0.05, y=0.05, z=0.05),
+                    color=_color(fx, rgb, 0.8),
                 )
             ],
-            arrows=[
-                fx.ArrowPrimitive(
-                    pose=_pose(fx, x, y, 0.07, th),
-                    shaft_length=1.2 * rad,
-                    shaft_diameter=0.02,
-                    head_length=0.05,
-                    head_diameter=0.05,
-                    color=_color(fx, rgb),
-                )
-            ],
-            texts=[
-                fx.TextPrimitive(
-                    pose=_pose(fx, x, y + rad + 0.05, 0.15),
-                    billboard=True,
-                    font_size=14.0,
-                    scale_invariant=True,
-                    color=_color(fx, (0.05, 0.05, 0.05)),
-                    text=r.label,
-                )
-            ],
-        )
-        if r.goal_m is not None:
-            gx, gy = float(r.goal_m[0]), float(r.goal_m[1])
-            entity(
-                f'goal_{r.id}',
-                spheres=[
-                    fx.SpherePrimitive(
-                        pose=_pose(fx, gx, gy, 0.02),
-                        size=fx.Vector3(x=0.05, y=0.05, z=0.05),
-                        color=_color(fx, rgb, 0.8),
-                    )
-                ],
-                lines=[
-                    fx.LinePrimitive(
-                        type=fx.LinePrimitiveLineType.LineStrip,
-                        thickness=0.005,
-                        points=[fx.Point3(x=x, y=y, z=0.02), fx.Point3(x=gx, y=gy, z=0.02)],
-                        color=_color(fx, rgb, 0.5),
-                    )
-                ],
-            )
-        else:
-            entity(f'goal_{r.id}')
-        if r.avoiding and r.circulation_rad is not None:
-            rgb_dir = CCW_RGB if r.direction == 'ccw' else CW_RGB
-            tx, ty = float(r.target_m[0]), float(r.target_m[1])
-            entity(
-                f'avoid_{r.id}',
-                arrows=[
-                    fx.ArrowPrimitive(
-                        pose=_pose(fx, x, y, 0.12, r.circulation_rad),
-                        shaft_length=2.0 * rad,
-                        shaft_diameter=0.025,
-                        head_length=0.07,
-                        head_diameter=0.07,
-                        color=_color(fx, rgb_dir),
-                    )
-                ],
-                lines=[
-                    fx.LinePrimitive(
-                        type=fx.LinePrimitiveLineType.LineStrip,
-                        thickness=0.006,
-                        points=[fx.Point3(x=x, y=y, z=0.12), fx.Point3(x=tx, y=ty, z=0.12)],
-                        color=_color(fx, rgb_dir, 0.6),
-                    )
-                ],
-            )
-        else:
-            entity(f'avoid_{r.id}')  # empty: replaces the previous arrow
-    for o in scene.obstacles:
-        cx, cy = float(o.center_m[0]), float(o.center_m[1])
-        pose = _pose(fx, cx, cy, 0.0, o.phi_rad)
-        lines = []
-        for key, (_scale, outline) in o.outlines.items():
-            points = cache.get((o.name, key, id(outline)))
-            if points is None:
-                points = cache[(o.name, key, id(outline))] = [
-                    fx.Point3(x=float(px), y=float(py), z=0.005) for px, py in outline
-                ]
-            lines.append(
+            lines=[
                 fx.LinePrimitive(
                     type=fx.LinePrimitiveLineType.LineStrip,
-                    pose=pose,
-                    thickness=0.012 if key == 'P' else 0.008,
-                    points=points,
-                    color=_color(fx, OUTLINE_RGBA[key][:3], OUTLINE_RGBA[key][3]),
-                )
-            )
-        r1, r2 = (float(v) for v in o.semi_axes_m)
-        entity(
-            f'obstacle_{o.name}',
-            metadata=[fx.KeyValuePair(key='t_s', value=t_text)],
-            lines=lines,
-            cylinders=[
-                fx.CylinderPrimitive(
-                    pose=_pose(fx, cx, cy, 0.002, o.phi_rad),
-                    size=fx.Vector3(x=2 * r1, y=2 * r2, z=0.004),
-                    bottom_scale=1.0,
-                    top_scale=1.0,
-                    color=_color(fx, (0.8, 0.1, 0.1), 0.25),
-                )
-            ],
-            texts=[
-                fx.TextPrimitive(
-                    pose=_pose(fx, cx, cy, 0.1),
-                    billboard=True,
-                    font_size=13.0,
-                    scale_invariant=True,
-                    color=_color(fx, (0.5, 0.05, 0.05)),
-                    text=o.name,
+                    thickness=0.005,
+                    points=[fx.Point3(x=x, y=y, z=0.02), fx.Point3(x=gx, y=gy, z=0.02)],
+                    color=_color(fx, rgb, 0.5),
                 )
             ],
         )
+    else:
+        entity(f'goal_{r.id}')
+    if r.avoiding and r.circulation_rad is not None:
+        rgb_dir = CCW_RGB if r.direction == 'ccw' else CW_RGB
+        tx, ty = float(r.target_m[0]), float(r.target_m[1])
+        entity(
+            f'avoid_{r.id}',
+            arrows=[
+                fx.ArrowPrimitive(
+                    pose=_pose(fx, x, y, 0.12, r.circulation_rad),
+                    shaft_length=2.0 * rad,
+                    shaft_diameter=0.025,
+                    head_length=0.07,
+                    head_diameter=0.07,
+                    color=_color(fx, rgb_dir),
+                )
+            ],
+            lines=[
+                fx.LinePrimitive(
+                    type=fx.LinePrimitiveLineType.LineStrip,
+                    thickness=0.006,
+                    points=[fx.Point3(x=x, y=y, z=0.12), fx.Point3(x=tx, y=ty, z=0.12)],
+                    color=_color(fx, rgb_dir, 0.6),
+                )
+            ],
+        )
+    else:
+        entity(f'avoid_{r.id}')  # empty: replaces the previous arrow
+
+
+def _obstacle_entity(fx, entity, o, t_text: str, cache: dict) -> None:
+    """obstacle_<name>: its P, L and Q outlines (points cached in ``cache``), P filled, name."""
+    cx, cy = float(o.center_m[0]), float(o.center_m[1])
+    pose = _pose(fx, cx, cy, 0.0, o.phi_rad)
+    lines = []
+    for key, (_scale, outline) in o.outlines.items():
+        points = cache.get((o.name, key, id(outline)))
+        if points is None:
+            points = cache[(o.name, key, id(outline))] = [
+                fx.Point3(x=float(px), y=float(py), z=0.005) for px, py in outline
+            ]
+        lines.append(
+            fx.LinePrimitive(
+                type=fx.LinePrimitiveLineType.LineStrip,
+                pose=pose,
+                thickness=0.012 if key == 'P' else 0.008,
+                points=points,
+                color=_color(fx, OUTLINE_RGBA[key][:3], OUTLINE_RGBA[key][3]),
+            )
+        )
+    r1, r2 = (float(v) for v in o.semi_axes_m)
+    entity(
+        f'obstacle_{o.name}',
+        metadata=[fx.KeyValuePair(key='t_s', value=t_text)],
+        lines=lines,
+        cylinders=[
+            fx.CylinderPrimitive(
+                pose=_pose(fx, cx, cy, 0.002, o.phi_rad),
+                size=fx.Vector3(x=2 * r1, y=2 * r2, z=0.004),
+                bottom_scale=1.0,
+                top_scale=1.0,
+                color=_color(fx, (0.8, 0.1, 0.1), 0.25),
+            )
+        ],
+        texts=[
+            fx.TextPrimitive(
+                pose=_pose(fx, cx, cy, 0.1),
+                billboard=True,
+                font_size=13.0,
+                scale_invariant=True,
+                color=_color(fx, (0.5, 0.05, 0.05)),
+                text=o.name,
+            )
+        ],
+    )
+
+
+def _graph_entity(fx, entity, edges) -> None:
+    """graph_edges: one line per edge with an arrowhead half-way, the edges as metadata."""
     edge_points = []
     arrows = []
-    for e in scene.edges:
+    for e in edges:
         (ax, ay), (bx, by) = (float(v) for v in e.parent_m), (float(v) for v in e.child_m)
         edge_points += [fx.Point3(x=ax, y=ay, z=0.1), fx.Point3(x=bx, y=by, z=0.1)]
         length = math.hypot(bx - ax, by - ay)
@@ -407,11 +401,31 @@ def scene_update(scene: Scene, stamp_ns: int, cache: dict | None = None):
         else [],
         arrows=arrows,
         metadata=[
-            fx.KeyValuePair(
-                key='edges', value=json.dumps([[e.parent, e.child] for e in scene.edges])
-            )
+            fx.KeyValuePair(key='edges', value=json.dumps([[e.parent, e.child] for e in edges]))
         ],
     )
+
+
+def scene_update(scene: Scene, stamp_ns: int, cache: dict | None = None):
+    """Foxglove SceneUpdate of a core Scene (entities keep their ids from update to update, so each
+    update replaces the previous one; ids: robot_<id>, goal_<id>, avoid_<id>, obstacle_<name>,
+    graph_edges). Robot entities carry metadata t_s, mode, target, direction. ``cache``: a dict
+    kept by the caller for the obstacle outlines' points (fixed in the obstacle frame).
+    """
+    fx = _fx()
+    cache = {} if cache is None else cache
+    ts = fx.Timestamp(sec=int(stamp_ns // 1_000_000_000), nsec=int(stamp_ns % 1_000_000_000))
+    t_text = '' if scene.t_s is None else f'{scene.t_s:.3f}'
+    entities = []
+
+    def entity(eid: str, **kw):
+        entities.append(fx.SceneEntity(timestamp=ts, frame_id=WORLD_FRAME, id=eid, **kw))
+
+    for r in scene.robots:
+        _robot_entities(fx, entity, r, t_text)
+    for o in scene.obstacles:
+        _obstacle_entity(fx, entity, o, t_text, cache)
+    _graph_entity(fx, entity, scene.edges)
     return fx.SceneUpdate(entities=entities)
 
 
@@ -439,6 +453,121 @@ def jpeg_of(msg: Image, quality: int) -> bytes:
 LAYOUT_ROBOT_IDS = tuple(range(6))  # config/foxglove/formation_layout.json plots robots 0..5
 
 
+def _layout_series(field: str, label: str, rid: int) -> dict:
+    """A Plot panel's path: robot ``rid``'s series ``field`` in the robot's colour."""
+    return {
+        'value': f'{SERIES_TOPIC.format(id=rid)}.{field}',
+        'enabled': True,
+        'timestampMethod': 'receiveTime',
+        'label': label,
+        'color': '#{:02x}{:02x}{:02x}'.format(*(int(255 * c) for c in robot_rgb(rid))),
+    }
+
+
+def _layout_plot(title: str, paths: list[dict], y_label: str) -> dict:
+    """A Plot panel of ``paths`` against time."""
+    return {
+        'foxglovePanelTitle': title,
+        'paths': paths,
+        'xAxisVal': 'timestamp',
+        'showLegend': True,
+        'legendDisplay': 'floating',
+        'showXAxisLabels': True,
+        'showYAxisLabels': True,
+        'isSynced': True,
+        'yAxisLabel': y_label,
+        'timeWindowMode': 'automatic',
+    }
+
+
+def _layout_3d_panel() -> dict:
+    """The 3D panel: top-down on the arena, /formation/scene, a grid."""
+    return {
+        'foxglovePanelTitle': 'arena (world frame, top-down)',
+        'cameraState': {
+            'perspective': False,
+            'distance': 5.0,
+            'phi': 0.0,
+            'thetaOffset': 90.0,
+            'target': [1.0, 0.6, 0.0],
+            'targetOffset': [0.0, 0.0, 0.0],
+            'targetOrientation': [0.0, 0.0, 0.0, 1.0],
+            'fovy': 45.0,
+            'near': 0.01,
+            'far': 5000.0,
+        },
+        'followMode': 'follow-none',
+        'followTf': WORLD_FRAME,
+        'scene': {'enableStats': False},
+        'transforms': {},
+        'topics': {SCENE_TOPIC: {'visible': True}},
+        'layers': {
+            'grid': {
+                'visible': True,
+                'layerId': 'foxglove.Grid',
+                'frameId': WORLD_FRAME,
+                'size': 6.0,
+                'divisions': 30,
+                'lineWidth': 1.0,
+                'color': '#24242440',
+                'position': [1.0, 0.5, 0.0],
+                'rotation': [0.0, 0.0, 0.0],
+                'order': 1,
+            }
+        },
+    }
+
+
+def _layout_image_panel() -> dict:
+    """The Image panel of the overhead camera."""
+    return {
+        'foxglovePanelTitle': 'overhead camera',
+        'imageMode': {'imageTopic': IMAGE_TOPIC},
+        'cameraState': {
+            'distance': 20.0,
+            'perspective': True,
+            'phi': 60.0,
+            'target': [0.0, 0.0, 0.0],
+            'targetOffset': [0.0, 0.0, 0.0],
+            'targetOrientation': [0.0, 0.0, 0.0, 1.0],
+            'thetaOffset': 45.0,
+            'fovy': 45.0,
+            'near': 0.5,
+            'far': 5000.0,
+        },
+        'followMode': 'follow-pose',
+        'scene': {},
+        'transforms': {},
+        'topics': {},
+        'layers': {},
+    }
+
+
+def _layout_mosaic() -> dict:
+    """Where the panels go: the 3D panel on the left, the image and the three plots stacked."""
+    return {
+        'direction': 'row',
+        'splitPercentage': 55,
+        'first': '3D!formation',
+        'second': {
+            'direction': 'column',
+            'splitPercentage': 34,
+            'first': 'Image!camera',
+            'second': {
+                'direction': 'column',
+                'splitPercentage': 33,
+                'first': 'Plot!formation_error',
+                'second': {
+                    'direction': 'column',
+                    'splitPercentage': 50,
+                    'first': 'Plot!clearance',
+                    'second': 'Plot!torques',
+                },
+            },
+        },
+    }
+
+
 def foxglove_layout(robot_ids=LAYOUT_ROBOT_IDS) -> dict:
     """A Foxglove layout (the app's "Import from file" JSON: configById + mosaic) with the 3D panel
     (top-down on the arena, /formation/scene), the Image panel (/camera/image/compressed) and three
@@ -446,129 +575,35 @@ def foxglove_layout(robot_ids=LAYOUT_ROBOT_IDS) -> dict:
     config/foxglove/formation_layout.json is this for robots 0..5 (test_live_view keeps them
     equal).
     """
-
-    def series(field: str, label: str, rid: int) -> dict:
-        return {
-            'value': f'{SERIES_TOPIC.format(id=rid)}.{field}',
-            'enabled': True,
-            'timestampMethod': 'receiveTime',
-            'label': label,
-            'color': '#{:02x}{:02x}{:02x}'.format(*(int(255 * c) for c in robot_rgb(rid))),
-        }
-
-    def plot(title: str, paths: list[dict], y_label: str) -> dict:
-        return {
-            'foxglovePanelTitle': title,
-            'paths': paths,
-            'xAxisVal': 'timestamp',
-            'showLegend': True,
-            'legendDisplay': 'floating',
-            'showXAxisLabels': True,
-            'showYAxisLabels': True,
-            'isSynced': True,
-            'yAxisLabel': y_label,
-            'timeWindowMode': 'automatic',
-        }
-
     torque_paths = []
     for rid in robot_ids:
         torque_paths += [
-            series('torque_left_nm', f'robot {rid} left', rid),
-            {**series('torque_right_nm', f'robot {rid} right', rid), 'lineStyle': 'dashed'},
+            _layout_series('torque_left_nm', f'robot {rid} left', rid),
+            {
+                **_layout_series('torque_right_nm', f'robot {rid} right', rid),
+                'lineStyle': 'dashed',
+            },
         ]
     return {
         'configById': {
-            '3D!formation': {
-                'foxglovePanelTitle': 'arena (world frame, top-down)',
-                'cameraState': {
-                    'perspective': False,
-                    'distance': 5.0,
-                    'phi': 0.0,
-                    'thetaOffset': 90.0,
-                    'target': [1.0, 0.6, 0.0],
-                    'targetOffset': [0.0, 0.0, 0.0],
-                    'targetOrientation': [0.0, 0.0, 0.0, 1.0],
-                    'fovy': 45.0,
-                    'near': 0.01,
-                    'far': 5000.0,
-                },
-                'followMode': 'follow-none',
-                'followTf': WORLD_FRAME,
-                'scene': {'enableStats': False},
-                'transforms': {},
-                'topics': {SCENE_TOPIC: {'visible': True}},
-                'layers': {
-                    'grid': {
-                        'visible': True,
-                        'layerId': 'foxglove.Grid',
-                        'frameId': WORLD_FRAME,
-                        'size': 6.0,
-                        'divisions': 30,
-                        'lineWidth': 1.0,
-                        'color': '#24242440',
-                        'position': [1.0, 0.5, 0.0],
-                        'rotation': [0.0, 0.0, 0.0],
-                        'order': 1,
-                    }
-                },
-            },
-            'Image!camera': {
-                'foxglovePanelTitle': 'overhead camera',
-                'imageMode': {'imageTopic': IMAGE_TOPIC},
-                'cameraState': {
-                    'distance': 20.0,
-                    'perspective': True,
-                    'phi': 60.0,
-                    'target': [0.0, 0.0, 0.0],
-                    'targetOffset': [0.0, 0.0, 0.0],
-                    'targetOrientation': [0.0, 0.0, 0.0, 1.0],
-                    'thetaOffset': 45.0,
-                    'fovy': 45.0,
-                    'near': 0.5,
-                    'far': 5000.0,
-                },
-                'followMode': 'follow-pose',
-                'scene': {},
-                'transforms': {},
-                'topics': {},
-                'layers': {},
-            },
-            'Plot!formation_error': plot(
+            '3D!formation': _layout_3d_panel(),
+            'Image!camera': _layout_image_panel(),
+            'Plot!formation_error': _layout_plot(
                 'formation error |p - g| [m]',
-                [series('formation_error_m', f'robot {rid}', rid) for rid in robot_ids],
+                [_layout_series('formation_error_m', f'robot {rid}', rid) for rid in robot_ids],
                 'm',
             ),
-            'Plot!clearance': plot(
+            'Plot!clearance': _layout_plot(
                 'clearance to the nearest P [m] (< 0 inside)',
-                [series('clearance_m', f'robot {rid}', rid) for rid in robot_ids],
+                [_layout_series('clearance_m', f'robot {rid}', rid) for rid in robot_ids],
                 'm',
             ),
-            'Plot!torques': plot('wheel torques [N m]', torque_paths, 'N m'),
+            'Plot!torques': _layout_plot('wheel torques [N m]', torque_paths, 'N m'),
         },
         'globalVariables': {},
         'userNodes': {},
         'playbackConfig': {'speed': 1.0},
-        'layout': {
-            'direction': 'row',
-            'splitPercentage': 55,
-            'first': '3D!formation',
-            'second': {
-                'direction': 'column',
-                'splitPercentage': 34,
-                'first': 'Image!camera',
-                'second': {
-                    'direction': 'column',
-                    'splitPercentage': 33,
-                    'first': 'Plot!formation_error',
-                    'second': {
-                        'direction': 'column',
-                        'splitPercentage': 50,
-                        'first': 'Plot!clearance',
-                        'second': 'Plot!torques',
-                    },
-                },
-            },
-        },
+        'layout': _layout_mosaic(),
     }
 
 

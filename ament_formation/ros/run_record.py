@@ -29,26 +29,12 @@ def _zoh_index(sample_t: np.ndarray, grid: np.ndarray) -> np.ndarray:
     return np.searchsorted(sample_t, grid, side='right') - 1
 
 
-def load_run(
-    path: str | Path, scenario, record_every_s: float = 0.01, stats: dict | None = None
-) -> SimResult:
-    """Read ``path`` (run.mcap) into a SimResult on scenario time; ValueError when the recording
-    lacks the mission start or the ground truth.
+def _read_topics(path, ids):
+    """The recording's messages by kind: (truth, torque, modes, graphs).
 
-    ``stats`` (a dict, filled when given): ``truth_max_gap_s`` the longest pause [s, scenario time]
-    between consecutive ground-truth samples of any robot from t = 0 to the end of the recording
-    (the world or the recorder stalled), ``truth_max_gap_at_s`` where it starts,
-    ``truth_end_s`` the scenario time of the last sample every robot has, and ``torque_max_gap_s``
-    {robot id: the longest pause [s] of its recorded wheel_torque commands over the same span,
-    the end included (a stalled or dead controller)}, ``safety_stops`` {robot id: [(from_s, to_s)]
-    intervals of scenario time in which its controller reported a safety stop or hold}.
-
-    Avoidance (``avoiding``, mode events) follows the controllers' mode messages; a safety stop or
-    hold in the middle of an avoidance does not end it (the robot resumes the same avoidance), so
-    ``avoidance_entries`` counts avoidance decisions, and stop-and-go shows in ``safety_stops``.
+    truth {id: [(stamp, state)]}, torque {id: [(log time, tau)]}, modes {id: [(log time, mode)]},
+    graphs [(log time, GraphMessage)]; messages that fail to parse are skipped (not the truth).
     """
-    ids = tuple(r.id for r in scenario.robots)
-    index = {rid: k for k, rid in enumerate(ids)}
     truth: dict[int, list] = {rid: [] for rid in ids}
     torque: dict[int, list] = {rid: [] for rid in ids}
     modes: dict[int, list] = {rid: [] for rid in ids}
@@ -77,6 +63,13 @@ def load_run(
                 graphs.append((log_ns * 1e-9, msgs.graph_from_msg(msg)))
             except ValueError:
                 continue
+    return truth, torque, modes, graphs
+
+
+def _mission_start(path, graphs, truth: dict, ids) -> float:
+    """start_s of the first graph message that has one; ValueError when none, or when a robot
+    has no ground truth.
+    """
     starts = [g.start_s for _, g in graphs if g.start_s is not None]
     if not starts:
         raise ValueError(f'{path}: no /formation/graph with a mission start (start_s)')
@@ -84,6 +77,152 @@ def load_run(
     if any(not truth[rid] for rid in ids):
         missing = [rid for rid in ids if not truth[rid]]
         raise ValueError(f'{path}: no ground truth for robots {missing}')
+    return start_s
+
+
+def _sample_truth(truth_rid: list, start_s: float, grid: np.ndarray) -> np.ndarray:
+    """One robot's ground-truth state on the grid (zero-order hold, the first sample before)."""
+    ts = np.array([s for s, _ in truth_rid]) - start_s
+    order = np.argsort(ts, kind='stable')
+    ts, xs = ts[order], np.stack([x for _, x in truth_rid])[order]
+    idx = np.clip(_zoh_index(ts, grid + 1e-9), 0, len(ts) - 1)
+    return xs[idx]
+
+
+def _sample_torque(torque_rid: list, start_s: float, grid: np.ndarray) -> np.ndarray:
+    """One robot's commanded torques on the grid (zero-order hold, zero before the first)."""
+    tt = np.array([s for s, _ in torque_rid]) - start_s
+    tv = np.stack([v for _, v in torque_rid])
+    j = _zoh_index(tt, grid)
+    return np.where((j >= 0)[:, None], tv[np.clip(j, 0, None)], 0.0)
+
+
+def _robot_modes(rid: int, modes_rid: list, start_s: float):
+    """One robot's mode messages as (mode events, safety stops, avoidance flag times, flags).
+
+    A safety stop or hold pauses the robot, not its avoidance decision (see load_run); a stop
+    still under way at the end of the recording ends at None.
+    """
+    mode_events: list[dict] = []
+    stops: list = []
+    prev = None
+    flags_t, flags_v = [], []
+    stop_from = None
+    for s, mode in modes_rid:
+        t = s - start_s
+        if mode.get('mode') in _PAUSED and prev is not None and t >= 0.0:
+            # a safety stop or a hold pauses the robot, not its avoidance decision: the
+            # avoidance it resumes is the same entry (stop-and-go is counted in safety_stops)
+            if stop_from is None:
+                stop_from = t
+            flags_t.append(t)
+            flags_v.append(prev[0])
+            continue
+        if stop_from is not None:
+            stops.append((stop_from, t))
+            stop_from = None
+        av = bool(
+            mode.get('avoiding', mode.get('mode') not in ('coordination', 'hold', 'stopped'))
+        )
+        key = (av, mode.get('target'), mode.get('direction')) if av else (False, None, None)
+        if key != prev and t >= 0.0:
+            if prev is not None and prev[0]:
+                mode_events.append(
+                    {
+                        't_s': t,
+                        'robot': rid,
+                        'event': 'exit',
+                        'target': prev[1],
+                        'direction': prev[2],
+                    }
+                )
+            if av:
+                mode_events.append(
+                    {
+                        't_s': t,
+                        'robot': rid,
+                        'event': 'enter',
+                        'target': mode.get('target'),
+                        'direction': mode.get('direction'),
+                    }
+                )
+        if t >= 0.0 or prev is None:
+            prev = key
+        flags_t.append(t)
+        flags_v.append(av)
+    if stop_from is not None:
+        stops.append((stop_from, None))  # still stopped at the end of the recording
+    return mode_events, stops, flags_t, flags_v
+
+
+def _goals(scenario, index: dict, grid: np.ndarray, state: np.ndarray) -> np.ndarray:
+    """Goals: leader r(t); follower p of its original parent + delta (S1)."""
+    graph = FormationGraph.from_scenario(scenario)
+    goal = np.zeros((len(grid), len(index), 2))
+    for r in scenario.robots:
+        k = index[r.id]
+        if r.leader and r.path is not None:
+            goal[:, k] = np.array([r.path.reference(float(t))[0] for t in grid])
+        else:
+            parent = graph.original_parent[r.id]
+            goal[:, k] = state[:, index[parent], :2] + graph.offset(r.id, parent)
+    return goal
+
+
+def _obstacle_samples(scenario, grid: np.ndarray):
+    """(field, centres (T, M, 2), orientations (T, M)) of the scenario's obstacles on the grid."""
+    field = ObstacleField(scenario.obstacles)
+    m = len(field)
+    oc = np.zeros((len(grid), m, 2))
+    ophi = np.zeros((len(grid), m))
+    if m:
+        for i, t in enumerate(grid):
+            o = field.at(float(t))
+            oc[i], ophi[i] = o.center_m, o.phi_rad
+    return field, oc, ophi
+
+
+def _graph_events(graphs: list, start_s: float) -> list[dict]:
+    """The graph messages as events: one per change of the parents, repeats skipped."""
+    graph_events = []
+    last_rev = None
+    for s, g in graphs:
+        if g.revision == last_rev or s - start_s < -1e-9 and graph_events:
+            continue
+        if (
+            last_rev is not None
+            and graph_events
+            and graph_events[-1]['parents'] == _parents_json(g.parents)
+        ):
+            last_rev = g.revision
+            continue
+        last_rev = g.revision
+        graph_events.append({'t_s': max(0.0, s - start_s), 'parents': _parents_json(g.parents)})
+    return graph_events
+
+
+def load_run(
+    path: str | Path, scenario, record_every_s: float = 0.01, stats: dict | None = None
+) -> SimResult:
+    """Read ``path`` (run.mcap) into a SimResult on scenario time; ValueError when the recording
+    lacks the mission start or the ground truth.
+
+    ``stats`` (a dict, filled when given): ``truth_max_gap_s`` the longest pause [s, scenario time]
+    between consecutive ground-truth samples of any robot from t = 0 to the end of the recording
+    (the world or the recorder stalled), ``truth_max_gap_at_s`` where it starts,
+    ``truth_end_s`` the scenario time of the last sample every robot has, and ``torque_max_gap_s``
+    {robot id: the longest pause [s] of its recorded wheel_torque commands over the same span,
+    the end included (a stalled or dead controller)}, ``safety_stops`` {robot id: [(from_s, to_s)]
+    intervals of scenario time in which its controller reported a safety stop or hold}.
+
+    Avoidance (``avoiding``, mode events) follows the controllers' mode messages; a safety stop or
+    hold in the middle of an avoidance does not end it (the robot resumes the same avoidance), so
+    ``avoidance_entries`` counts avoidance decisions, and stop-and-go shows in ``safety_stops``.
+    """
+    ids = tuple(r.id for r in scenario.robots)
+    index = {rid: k for k, rid in enumerate(ids)}
+    truth, torque, modes, graphs = _read_topics(path, ids)
+    start_s = _mission_start(path, graphs, truth, ids)
 
     t_end = min(max(s for s, _ in truth[rid]) for rid in ids) - start_s
     if stats is not None:
@@ -101,63 +240,11 @@ def load_run(
     stops: dict[int, list] = {}
     for rid in ids:
         k = index[rid]
-        ts = np.array([s for s, _ in truth[rid]]) - start_s
-        order = np.argsort(ts, kind='stable')
-        ts, xs = ts[order], np.stack([x for _, x in truth[rid]])[order]
-        idx = np.clip(_zoh_index(ts, grid + 1e-9), 0, len(ts) - 1)
-        state[:, k] = xs[idx]
+        state[:, k] = _sample_truth(truth[rid], start_s, grid)
         if torque[rid]:
-            tt = np.array([s for s, _ in torque[rid]]) - start_s
-            tv = np.stack([v for _, v in torque[rid]])
-            j = _zoh_index(tt, grid)
-            tau[:, k] = np.where((j >= 0)[:, None], tv[np.clip(j, 0, None)], 0.0)
-        prev = None
-        flags_t, flags_v = [], []
-        stop_from, stops[rid] = None, []
-        for s, mode in modes[rid]:
-            t = s - start_s
-            if mode.get('mode') in _PAUSED and prev is not None and t >= 0.0:
-                # a safety stop or a hold pauses the robot, not its avoidance decision: the
-                # avoidance it resumes is the same entry (stop-and-go is counted in safety_stops)
-                if stop_from is None:
-                    stop_from = t
-                flags_t.append(t)
-                flags_v.append(prev[0])
-                continue
-            if stop_from is not None:
-                stops[rid].append((stop_from, t))
-                stop_from = None
-            av = bool(
-                mode.get('avoiding', mode.get('mode') not in ('coordination', 'hold', 'stopped'))
-            )
-            key = (av, mode.get('target'), mode.get('direction')) if av else (False, None, None)
-            if key != prev and t >= 0.0:
-                if prev is not None and prev[0]:
-                    mode_events.append(
-                        {
-                            't_s': t,
-                            'robot': rid,
-                            'event': 'exit',
-                            'target': prev[1],
-                            'direction': prev[2],
-                        }
-                    )
-                if av:
-                    mode_events.append(
-                        {
-                            't_s': t,
-                            'robot': rid,
-                            'event': 'enter',
-                            'target': mode.get('target'),
-                            'direction': mode.get('direction'),
-                        }
-                    )
-            if t >= 0.0 or prev is None:
-                prev = key
-            flags_t.append(t)
-            flags_v.append(av)
-        if stop_from is not None:
-            stops[rid].append((stop_from, None))  # still stopped at the end of the recording
+            tau[:, k] = _sample_torque(torque[rid], start_s, grid)
+        events, stops[rid], flags_t, flags_v = _robot_modes(rid, modes[rid], start_s)
+        mode_events.extend(events)
         if flags_t:
             j = _zoh_index(np.array(flags_t), grid)
             avoiding[:, k] = np.where(j >= 0, np.array(flags_v)[np.clip(j, 0, None)], False)
@@ -172,41 +259,9 @@ def load_run(
 
     tau_max = np.array([r.params.torque_limit_nm for r in scenario.robots])
     saturated = np.max(np.abs(tau), axis=2) >= tau_max[None, :] * (1.0 - 1e-6)
-
-    # goals: leader r(t); follower p of its original parent + delta (S1)
-    graph = FormationGraph.from_scenario(scenario)
-    goal = np.zeros((big_t, n, 2))
-    for r in scenario.robots:
-        k = index[r.id]
-        if r.leader and r.path is not None:
-            goal[:, k] = np.array([r.path.reference(float(t))[0] for t in grid])
-        else:
-            parent = graph.original_parent[r.id]
-            goal[:, k] = state[:, index[parent], :2] + graph.offset(r.id, parent)
-
-    field = ObstacleField(scenario.obstacles)
-    m = len(field)
-    oc = np.zeros((big_t, m, 2))
-    ophi = np.zeros((big_t, m))
-    if m:
-        for i, t in enumerate(grid):
-            o = field.at(float(t))
-            oc[i], ophi[i] = o.center_m, o.phi_rad
-
-    graph_events = []
-    last_rev = None
-    for s, g in graphs:
-        if g.revision == last_rev or s - start_s < -1e-9 and graph_events:
-            continue
-        if (
-            last_rev is not None
-            and graph_events
-            and graph_events[-1]['parents'] == _parents_json(g.parents)
-        ):
-            last_rev = g.revision
-            continue
-        last_rev = g.revision
-        graph_events.append({'t_s': max(0.0, s - start_s), 'parents': _parents_json(g.parents)})
+    goal = _goals(scenario, index, grid, state)
+    field, oc, ophi = _obstacle_samples(scenario, grid)
+    graph_events = _graph_events(graphs, start_s)
 
     return SimResult(
         scenario_name=scenario.name,

@@ -179,9 +179,8 @@ class _Progress:
             self.stream.write('\n')
 
 
-def run_system(args: argparse.Namespace) -> int:
-    from ament_formation.core.scenario.loader import load_scenario
-
+def _check_options(args: argparse.Namespace) -> None:
+    """Raise ConfigError for an option of `formation run` out of its range."""
     if not (math.isfinite(args.speed) and 0.05 <= args.speed <= 50.0):
         raise ConfigError(f'must be in [0.05, 50] (got {args.speed})', '--speed')
     if args.team is not None and args.team < 1:
@@ -192,20 +191,16 @@ def run_system(args: argparse.Namespace) -> int:
         raise ConfigError(f'must be in [-20, 19] (got {args.control_nice})', '--control-nice')
     if args.live is not None and not 0 <= args.live <= 65535:
         raise ConfigError(f'must be a TCP port in [0, 65535] (got {args.live})', '--live')
-    out = Path(args.out).resolve()
-    if out.exists() and not out.is_dir():
-        raise ConfigError('exists and is not a directory', '--out', str(out))
-    scenario = load_scenario(args.scenario)
-    out.mkdir(parents=True, exist_ok=True)
-    loopback_env(out / 'ros_log')
-    from ament_formation.ros import shm
 
-    shm_before = shm.snapshot()  # what this run leaves in /dev/shm is removed at its end
 
+def _recording_node(ctx, args: argparse.Namespace, scenario, mcap_path: Path):
+    """The recorder's node: every topic to ``mcap_path``; the mission start and the leader's
+    latest ground-truth stamp kept in the returned dicts.
+
+    Returns (node, executor, recorder, start {'s'}, latest {'s'}).
+    """
     import rclpy
-    from rclpy.context import Context
     from rclpy.parameter import Parameter
-    from rclpy.signals import SignalHandlerOptions
     from std_msgs.msg import String
 
     from ament_formation.ros import messages as msgs
@@ -213,21 +208,6 @@ def run_system(args: argparse.Namespace) -> int:
     from ament_formation.ros.qos import QOS_CONTROL, QOS_GRAPH
     from ament_formation.ros.recorder import McapWriter, TopicRecorder
 
-    mcap_path = out / 'run.mcap'
-    if mcap_path.exists():
-        mcap_path.unlink()
-    ctx = Context()
-    # SIGINT and SIGTERM end the run through the same clean-up (the launch and every process it
-    # started are stopped, the recording closed): rclpy's own handlers would end this process with
-    # the launch still running
-    rclpy.init(context=ctx, signal_handler_options=SignalHandlerOptions.NO)
-    terminated = {'signal': None}
-
-    def on_signal(signum, _frame):
-        terminated['signal'] = signum
-        raise KeyboardInterrupt
-
-    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     use_sim_time = args.speed != 1.0
     node = rclpy.create_node(
         '_formation_run_recorder',
@@ -261,10 +241,12 @@ def run_system(args: argparse.Namespace) -> int:
         lambda m: latest.__setitem__('s', msgs.stamp_to_s(m.header.stamp)),
         QOS_CONTROL,
     )
+    return node, executor, recorder, start, latest
 
-    wall0 = time.monotonic()
-    proc_dir = out / 'processes'
-    launch = subprocess.Popen(
+
+def _start_launch(args: argparse.Namespace, out: Path, proc_dir: Path) -> subprocess.Popen:
+    """scripts/launch_sim.sh with the run's options, its output to out/launch.log."""
+    return subprocess.Popen(
         [
             str(script_file('launch_sim.sh')),  # the checkout's, or share/ament_formation's
             str(Path(args.scenario).resolve()),
@@ -285,85 +267,153 @@ def run_system(args: argparse.Namespace) -> int:
         stderr=subprocess.STDOUT,
         start_new_session=True,
     )
+
+
+def _timeout_check(now, wall0, start, latest, last_truth, args, proc_dir):
+    """The failed ``started`` or ``stalled`` check when the mission did not start in time or the
+    ground truth stopped coming, else None (``last_truth`` follows the latest sample).
+    """
+    if start['s'] is None and now - wall0 > args.startup_timeout:
+        return check(
+            'started',
+            False,
+            round(now - wall0, 2),
+            args.startup_timeout,
+            '<=',
+            f'the mission did not start within {args.startup_timeout:g} s; see {proc_dir}/*.log',
+        )
+    if latest['s'] != last_truth['s']:
+        last_truth.update(s=latest['s'], wall=now)
+    elif start['s'] is not None and now - (last_truth['wall'] or now) > args.stall_timeout:
+        t = None if latest['s'] is None else latest['s'] - start['s']
+        where = 'before the first sample' if t is None else f'at t = {t:.2f} s'
+        return check(
+            'stalled',
+            False,
+            round(now - last_truth['wall'], 2),
+            args.stall_timeout,
+            '<=',
+            f'no ground truth for {now - last_truth["wall"]:.0f} s {where} (a frozen '
+            f'process or recorder); see {proc_dir}/*.log',
+        )
+    if start['s'] is not None and last_truth['wall'] is None:
+        last_truth['wall'] = now  # the stall clock runs from the start
+    return None
+
+
+def _supervise(
+    launch, executor, recorder, args, scenario, proc_dir, wall0, start, latest, progress
+):
+    """Spin the recorder until the launch ends; the failed check that stopped it early, if any.
+
+    Shows progress (unless --quiet) and, once, where the live view is.
+    """
+    last_truth = {'s': None, 'wall': None}
+    live_log = proc_dir / 'live_view.log' if (args.live, args.live_host) != (None, None) else None
+    while launch.poll() is None:
+        executor.spin_once(timeout_sec=0.05)
+        if (
+            live_log is not None and not args.quiet and live_log.exists()
+        ):  # say where to look, once
+            url = next((w for w in live_log.read_text().split() if w.startswith('ws://')), None)
+            if url is not None:
+                print(
+                    f'run: live view on {url} (Foxglove: open a Foxglove WebSocket connection)',
+                    file=sys.stderr,
+                )
+                live_log = None
+        if progress is not None:
+            if start['s'] is None or latest['s'] is None:
+                progress(f'run: starting the system ({time.monotonic() - wall0:4.1f} s)')
+            else:
+                t = max(0.0, latest['s'] - start['s'])
+                progress(
+                    f'run: t = {t:6.1f} / {scenario.duration_s:.1f} s, '
+                    f'{recorder.writer.message_count} messages recorded'
+                )
+        now = time.monotonic()
+        stop_reason = _timeout_check(now, wall0, start, latest, last_truth, args, proc_dir)
+        if stop_reason is not None:
+            return stop_reason
+    return None
+
+
+def _stop_system(launch, progress, recorder, executor, node, ctx, shm_before, previous) -> None:
+    """Stop the launch (and so every process it started), close the recording, shut ROS down,
+    remove what the run left in /dev/shm, restore the signal handlers.
+    """
+    import rclpy
+
+    from ament_formation.ros import shm
+
+    if launch.poll() is None:
+        launch.send_signal(signal.SIGTERM)  # launch_sim.sh stops every process it started
+        try:
+            launch.wait(timeout=15)
+        except subprocess.TimeoutExpired:
+            launch.kill()
+            launch.wait()
+    if progress is not None:
+        progress.finish()
+    recorder.close()
+    executor.shutdown(timeout_sec=1.0)
+    node.destroy_node()
+    rclpy.try_shutdown(context=ctx)
+    shm.cleanup(shm_before, ignore_pid=os.getpid())  # this process is done with DDS
+    for signum, handler in previous.items():
+        signal.signal(signum, handler)
+
+
+def run_system(args: argparse.Namespace) -> int:
+    from ament_formation.core.scenario.loader import load_scenario
+
+    _check_options(args)
+    out = Path(args.out).resolve()
+    if out.exists() and not out.is_dir():
+        raise ConfigError('exists and is not a directory', '--out', str(out))
+    scenario = load_scenario(args.scenario)
+    out.mkdir(parents=True, exist_ok=True)
+    loopback_env(out / 'ros_log')
+    from ament_formation.ros import shm
+
+    shm_before = shm.snapshot()  # what this run leaves in /dev/shm is removed at its end
+
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.signals import SignalHandlerOptions
+
+    mcap_path = out / 'run.mcap'
+    if mcap_path.exists():
+        mcap_path.unlink()
+    ctx = Context()
+    # SIGINT and SIGTERM end the run through the same clean-up (the launch and every process it
+    # started are stopped, the recording closed): rclpy's own handlers would end this process with
+    # the launch still running
+    rclpy.init(context=ctx, signal_handler_options=SignalHandlerOptions.NO)
+    terminated = {'signal': None}
+
+    def on_signal(signum, _frame):
+        terminated['signal'] = signum
+        raise KeyboardInterrupt
+
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    node, executor, recorder, start, latest = _recording_node(ctx, args, scenario, mcap_path)
+
+    wall0 = time.monotonic()
+    proc_dir = out / 'processes'
+    launch = _start_launch(args, out, proc_dir)
     progress = None if args.quiet else _Progress(sys.stderr, scenario.duration_s)
     status = 0
     stop_reason = None  # why this process stopped the system early (a failed check)
-    last_truth = {'s': None, 'wall': None}
-    live_log = proc_dir / 'live_view.log' if (args.live, args.live_host) != (None, None) else None
     try:
-        while launch.poll() is None:
-            executor.spin_once(timeout_sec=0.05)
-            if (
-                live_log is not None and not args.quiet and live_log.exists()
-            ):  # say where to look, once
-                url = next(
-                    (w for w in live_log.read_text().split() if w.startswith('ws://')), None
-                )
-                if url is not None:
-                    print(
-                        f'run: live view on {url} '
-                        '(Foxglove: open a Foxglove WebSocket connection)',
-                        file=sys.stderr,
-                    )
-                    live_log = None
-            if progress is not None:
-                if start['s'] is None or latest['s'] is None:
-                    progress(f'run: starting the system ({time.monotonic() - wall0:4.1f} s)')
-                else:
-                    t = max(0.0, latest['s'] - start['s'])
-                    progress(
-                        f'run: t = {t:6.1f} / {scenario.duration_s:.1f} s, '
-                        f'{recorder.writer.message_count} messages recorded'
-                    )
-            now = time.monotonic()
-            if start['s'] is None and now - wall0 > args.startup_timeout:
-                stop_reason = check(
-                    'started',
-                    False,
-                    round(now - wall0, 2),
-                    args.startup_timeout,
-                    '<=',
-                    f'the mission did not start within {args.startup_timeout:g} s; '
-                    f'see {proc_dir}/*.log',
-                )
-                break
-            if latest['s'] != last_truth['s']:
-                last_truth.update(s=latest['s'], wall=now)
-            elif start['s'] is not None and now - (last_truth['wall'] or now) > args.stall_timeout:
-                t = None if latest['s'] is None else latest['s'] - start['s']
-                where = 'before the first sample' if t is None else f'at t = {t:.2f} s'
-                stop_reason = check(
-                    'stalled',
-                    False,
-                    round(now - last_truth['wall'], 2),
-                    args.stall_timeout,
-                    '<=',
-                    f'no ground truth for {now - last_truth["wall"]:.0f} s {where} (a frozen '
-                    f'process or recorder); see {proc_dir}/*.log',
-                )
-                break
-            if start['s'] is not None and last_truth['wall'] is None:
-                last_truth['wall'] = now  # the stall clock runs from the start
+        stop_reason = _supervise(
+            launch, executor, recorder, args, scenario, proc_dir, wall0, start, latest, progress
+        )
         launch_rc = launch.poll()
     except (KeyboardInterrupt, RuntimeError) as err:
         status, launch_rc = _signal_status(err, terminated), None
     finally:
-        if launch.poll() is None:
-            launch.send_signal(signal.SIGTERM)  # launch_sim.sh stops every process it started
-            try:
-                launch.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                launch.kill()
-                launch.wait()
-        if progress is not None:
-            progress.finish()
-        recorder.close()
-        executor.shutdown(timeout_sec=1.0)
-        node.destroy_node()
-        rclpy.try_shutdown(context=ctx)
-        shm.cleanup(shm_before, ignore_pid=os.getpid())  # this process is done with DDS
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
+        _stop_system(launch, progress, recorder, executor, node, ctx, shm_before, previous)
     wall_s = time.monotonic() - wall0
     if status:
         return status

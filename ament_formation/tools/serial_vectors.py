@@ -53,10 +53,9 @@ def _with_crc(head_and_body: bytes) -> bytes:
     return head_and_body + sp.frame_check(head_and_body, head_and_body[0] >> 4)
 
 
-def build_vectors() -> dict:
-    """The whole vector file as a JSON-ready dict."""
-    v = []
-    v.append(
+def _handshake_vectors() -> list[dict]:
+    """HELLO and HELLO_ACK in the current protocol."""
+    return [
         _valid(
             'hello',
             'host->board',
@@ -65,9 +64,7 @@ def build_vectors() -> dict:
             True,
             {'protocol_version': 2, 'note': 'HELLO always travels in version-1 framing (CRC-16)'},
             version=1,
-        )
-    )
-    v.append(
+        ),
         _valid(
             'hello_ack',
             'board->host',
@@ -80,9 +77,13 @@ def build_vectors() -> dict:
                 'watchdog_s': 0.2,
                 'telemetry_rate_hz': 100,
             },
-        )
-    )
-    v.append(
+        ),
+    ]
+
+
+def _torque_vectors() -> list[dict]:
+    """TORQUE_CMD frames."""
+    return [
         _valid(
             'torque_cmd_zero',
             'host->board',
@@ -90,9 +91,7 @@ def build_vectors() -> dict:
             1,
             True,
             {'left_nm': 0.0, 'right_nm': 0.0},
-        )
-    )
-    v.append(
+        ),
         _valid(
             'torque_cmd',
             'host->board',
@@ -100,9 +99,7 @@ def build_vectors() -> dict:
             2,
             True,
             {'left_nm': 0.1234, 'right_nm': -0.0567},
-        )
-    )
-    v.append(
+        ),
         _valid(
             'torque_cmd_extremes',
             'host->board',
@@ -110,9 +107,7 @@ def build_vectors() -> dict:
             255,
             True,
             {'left_nm': 3.2767, 'right_nm': -3.2768, 'note': 'board clamps to its torque limit'},
-        )
-    )
-    v.append(
+        ),
         _valid(
             'torque_cmd_no_leading_delimiter',
             'host->board',
@@ -120,9 +115,13 @@ def build_vectors() -> dict:
             3,
             False,
             {'left_nm': -0.15, 'right_nm': 0.15},
-        )
-    )
-    v.append(
+        ),
+    ]
+
+
+def _telemetry_vectors() -> list[dict]:
+    """TELEMETRY and STATUS frames."""
+    return [
         _valid(
             'telemetry',
             'board->host',
@@ -137,9 +136,7 @@ def build_vectors() -> dict:
                 'cmd_seq': 2,
                 'flags': ['CLAMPED'],
             },
-        )
-    )
-    v.append(
+        ),
         _valid(
             'telemetry_wrapped_watchdog',
             'board->host',
@@ -147,9 +144,7 @@ def build_vectors() -> dict:
             0,
             False,
             {'note': 'ticks wrap modulo 65536; host unwraps', 'flags': ['WATCHDOG', 'RESET']},
-        )
-    )
-    v.append(
+        ),
         _valid(
             'telemetry_estop_rx_error',
             'board->host',
@@ -157,9 +152,7 @@ def build_vectors() -> dict:
             200,
             False,
             {'flags': ['WATCHDOG', 'ESTOP', 'RX_ERROR']},
-        )
-    )
-    v.append(
+        ),
         _valid(
             'status',
             'board->host',
@@ -167,14 +160,16 @@ def build_vectors() -> dict:
             18,
             False,
             {'uptime_s': 123.456, 'left_applied_nm': 0.15, 'right_applied_nm': -0.15},
-        )
-    )
-    v.append(
+        ),
+    ]
+
+
+def _heartbeat_estop_config_vectors() -> list[dict]:
+    """HEARTBEAT, ESTOP, CONFIG and CONFIG_ACK frames."""
+    return [
         _valid(
             'heartbeat', 'host->board', sp.Heartbeat(0xDEADBEEF), 4, True, {'stamp_ms': 3735928559}
-        )
-    )
-    v.append(
+        ),
         _valid(
             'heartbeat_echo',
             'board->host',
@@ -182,13 +177,9 @@ def build_vectors() -> dict:
             19,
             False,
             {'note': "board returns the host's body unchanged with its own sequence number"},
-        )
-    )
-    v.append(_valid('estop_engage', 'host->board', sp.EmergencyStop(1), 5, True, {'engage': True}))
-    v.append(
-        _valid('estop_release', 'host->board', sp.EmergencyStop(0), 6, True, {'engage': False})
-    )
-    v.append(
+        ),
+        _valid('estop_engage', 'host->board', sp.EmergencyStop(1), 5, True, {'engage': True}),
+        _valid('estop_release', 'host->board', sp.EmergencyStop(0), 6, True, {'engage': False}),
         _valid(
             'config',
             'host->board',
@@ -196,9 +187,7 @@ def build_vectors() -> dict:
             7,
             True,
             {'torque_limit_nm': 0.12, 'watchdog_s': 0.2, 'telemetry_rate_hz': 100},
-        )
-    )
-    v.append(
+        ),
         _valid(
             'config_ack',
             'board->host',
@@ -206,9 +195,13 @@ def build_vectors() -> dict:
             20,
             False,
             {'torque_limit_nm': 0.12, 'watchdog_s': 0.2, 'telemetry_rate_hz': 100},
-        )
-    )
-    v.append(
+        ),
+    ]
+
+
+def _version_1_vectors() -> list[dict]:
+    """The handshake with a version-1 peer (version-1 framing)."""
+    return [
         _valid(
             'hello_from_version_1_host',
             'host->board',
@@ -217,9 +210,7 @@ def build_vectors() -> dict:
             True,
             {'note': 'what a version-1 bridge sends'},
             version=1,
-        )
-    )
-    v.append(
+        ),
         _valid(
             'hello_ack_to_version_1_host',
             'board->host',
@@ -231,9 +222,7 @@ def build_vectors() -> dict:
                 'reads protocol_version 2 and reports the mismatch'
             },
             version=1,
-        )
-    )
-    v.append(
+        ),
         _valid(
             'hello_ack_from_version_1_board',
             'board->host',
@@ -242,9 +231,13 @@ def build_vectors() -> dict:
             False,
             {'note': 'a version-1 board: the host reports the mismatch and sends no torque'},
             version=1,
-        )
-    )
-    v.append(
+        ),
+    ]
+
+
+def _stop_vectors() -> list[dict]:
+    """STOP frames and the braking telemetry that acknowledges them."""
+    return [
         _valid(
             'stop_input_stale',
             'host->board',
@@ -255,9 +248,7 @@ def build_vectors() -> dict:
                 'reason': 'input stale',
                 'note': 'brake to rest, then release; acknowledged by TELEMETRY',
             },
-        )
-    )
-    v.append(
+        ),
         _valid(
             'stop_host_shutdown',
             'host->board',
@@ -265,9 +256,7 @@ def build_vectors() -> dict:
             10,
             True,
             {'reason': 'host shutdown'},
-        )
-    )
-    v.append(
+        ),
         _valid(
             'telemetry_braking',
             'board->host',
@@ -278,16 +267,19 @@ def build_vectors() -> dict:
                 'flags': ['WATCHDOG', 'BRAKING'],
                 'note': 'commands stopped: the board brakes the wheels',
             },
-        )
-    )
+        ),
+    ]
 
+
+def _invalid_vectors() -> list[dict]:
+    """Frames the decoder must reject, each with the reason it gives."""
     good = sp.raw_frame(sp.TorqueCommand(1234, -567), 2)
     bad_crc = bytearray(good)
     bad_crc[3] ^= 0x01
     crc16_framed = good[:-4] + crc16(good[:-4]).to_bytes(2, 'little')
     bad_cobs = bytearray(cobs.encode(good))
     bad_cobs[0] = 0x30
-    invalid = [
+    return [
         {
             'name': 'bad_crc_one_bit',
             'hex': _cobs_wire(bytes(bad_crc)),
@@ -375,6 +367,10 @@ def build_vectors() -> dict:
             'note': '70 bytes without a delimiter (limit 62)',
         },
     ]
+
+
+def _stream_vectors() -> list[dict]:
+    """Byte streams mixing frames, garbage and empty frames, checked against the decoder."""
     cmd = sp.encode_frame(sp.TorqueCommand(1234, -567), 2, leading_delimiter=True)
     tel = sp.encode_frame(sp.Telemetry(720, -360, 3142, -1571, 2, sp.FLAG_CLAMPED), 17)
     streams = [
@@ -407,6 +403,21 @@ def build_vectors() -> dict:
         counts = {k: c for k, c in dec.rejected.items() if c}
         if got != s['frames'] or counts != s['rejected']:
             raise RuntimeError(f'stream vector {s["name"]}: decoder gives {got} {counts}')
+    return streams
+
+
+def build_vectors() -> dict:
+    """The whole vector file as a JSON-ready dict."""
+    v = (
+        _handshake_vectors()
+        + _torque_vectors()
+        + _telemetry_vectors()
+        + _heartbeat_estop_config_vectors()
+        + _version_1_vectors()
+        + _stop_vectors()
+    )
+    invalid = _invalid_vectors()
+    streams = _stream_vectors()
     return {
         'protocol': 'ament_formation motor-board serial protocol',
         'protocol_version': sp.PROTOCOL_VERSION,

@@ -70,35 +70,11 @@ def _limits(result: SimResult, axes_by_name: dict, kappa: float):
     return (lo[0] - pad, hi[0] + pad), (lo[1] - pad, hi[1] + pad)
 
 
-def render_figure(
-    result: SimResult,
-    scenario,
-    path,
-    *,
-    arrow_every_s: float | None = None,
-    obstacle_instants: int = 4,
-    dpi: int = 110,
-) -> Path:
-    """Draw the figure of ``result`` and save it as PNG at ``path``. Returns the path.
+def _figure_layout(n: int, xlim, ylim, dpi: int):
+    """The figure: the phase portrait across the top, torque panels below in two columns.
 
-    Parameters
-    ----------
-    result : the run (T samples, N robots, M obstacles)
-    scenario : its Scenario (semi-axes, rho_L, kappa, torque limits, leader paths)
-    arrow_every_s : spacing of orientation arrows [s] (default: duration / 14)
-    obstacle_instants : how many instants to draw a moving/rotating obstacle at
+    Returns (figure, portrait axes, torque grid, columns of the torque grid).
     """
-    t = np.asarray(result.t_s, dtype=float)
-    ids = list(result.robot_ids)
-    n = len(ids)
-    by_id = {r.id: r for r in scenario.robots}
-    axes_by_name = {o.name: o.semi_axes_m for o in scenario.obstacles}
-    rho_l = scenario.avoidance.limit_cycle_scale
-    kappa = scenario.avoidance.protected_scale
-    duration = float(t[-1] - t[0]) if len(t) > 1 else 1.0
-
-    # layout: the phase portrait across the top, torque panels below in two columns
-    xlim, ylim = _limits(result, axes_by_name, kappa)
     width_in = 14.0
     portrait_in = float(
         np.clip(0.78 * width_in * (ylim[1] - ylim[0]) / (xlim[1] - xlim[0]), 4.0, 9.0)
@@ -110,8 +86,11 @@ def render_figure(
     outer = fig.add_gridspec(2, 1, height_ratios=(portrait_in, 1.9 * rows), hspace=0.16)
     ax = fig.add_subplot(outer[0])
     tgrid = outer[1].subgridspec(rows, cols, hspace=0.45, wspace=0.15)
+    return fig, ax, tgrid, cols
 
-    # ---- obstacles: P filled, L dashed, Q dotted, at a few instants when they move
+
+def _draw_obstacles(ax, result: SimResult, t, axes_by_name, rho_l, kappa, obstacle_instants):
+    """Every obstacle's P filled, L dashed, Q dotted, at a few instants when it moves; its name."""
     for j, name in enumerate(result.obstacle_names):
         ax_m = axes_by_name[name]
         instants = _obstacle_instants(result, j, obstacle_instants)
@@ -149,7 +128,9 @@ def render_figure(
             color='0.15',
         )
 
-    # ---- robots
+
+def _arrow_samples(t, arrow_every_s, duration):
+    """(stride, t[::stride], indices into it of the orientation arrows)."""
     every = arrow_every_s if arrow_every_s and arrow_every_s > 0 else max(duration / 14.0, 1e-9)
     stride = max(1, math.ceil(len(t) / 6000))
     ts = t[::stride]
@@ -157,51 +138,58 @@ def render_figure(
         np.unique(np.searchsorted(ts, np.arange(t[0], t[-1] + 1e-9, every))) if len(t) else []
     )
     arrow_idx = [k for k in arrow_idx if k < len(ts)]
-    for i, rid in enumerate(ids):
-        color = _COLORS[i % len(_COLORS)]
-        x, y, th = result.state[:, i, 0], result.state[:, i, 1], result.state[:, i, 2]
-        x, y, th, avoid = (
-            v[::stride] for v in (x, y, th, np.asarray(result.avoiding[:, i], dtype=bool))
-        )
-        spec = by_id.get(rid)
-        if spec is not None and spec.leader and spec.path is not None and len(t):
-            r, _, _ = spec.path.reference(ts)
-            ax.plot(r[:, 0], r[:, 1], ls='--', lw=0.8, color=color, alpha=0.6)
+    return stride, ts, arrow_idx
+
+
+def _draw_robot(ax, result: SimResult, i: int, rid, spec, t, stride, ts, arrow_idx):
+    """Robot i's path (thick while avoiding), its leader reference, arrows, start and end."""
+    color = _COLORS[i % len(_COLORS)]
+    x, y, th = result.state[:, i, 0], result.state[:, i, 1], result.state[:, i, 2]
+    x, y, th, avoid = (
+        v[::stride] for v in (x, y, th, np.asarray(result.avoiding[:, i], dtype=bool))
+    )
+    if spec is not None and spec.leader and spec.path is not None and len(t):
+        r, _, _ = spec.path.reference(ts)
+        ax.plot(r[:, 0], r[:, 1], ls='--', lw=0.8, color=color, alpha=0.6)
+    ax.plot(
+        x,
+        y,
+        lw=1.2,
+        color=color,
+        label=f'R{rid}' + (' (leader)' if spec and spec.leader else ''),
+    )
+    if avoid.any():
+        # extend each avoiding run by one sample so short runs still draw a segment
+        thick = avoid | np.concatenate([[False], avoid[:-1]])
         ax.plot(
-            x,
-            y,
-            lw=1.2,
+            np.where(thick, x, np.nan),
+            np.where(thick, y, np.nan),
+            lw=4.0,
             color=color,
-            label=f'R{rid}' + (' (leader)' if spec and spec.leader else ''),
+            alpha=0.85,
+            solid_capstyle='butt',
         )
-        if avoid.any():
-            # extend each avoiding run by one sample so short runs still draw a segment
-            thick = avoid | np.concatenate([[False], avoid[:-1]])
-            ax.plot(
-                np.where(thick, x, np.nan),
-                np.where(thick, y, np.nan),
-                lw=4.0,
-                color=color,
-                alpha=0.85,
-                solid_capstyle='butt',
-            )
-        if len(arrow_idx):
-            ax.quiver(
-                x[arrow_idx],
-                y[arrow_idx],
-                np.cos(th[arrow_idx]),
-                np.sin(th[arrow_idx]),
-                color=color,
-                angles='xy',
-                scale_units='xy',
-                scale=1 / 0.12,
-                width=0.004,
-                headwidth=3.5,
-                zorder=4,
-            )
-        if len(t):
-            ax.plot(x[0], y[0], 'o', mfc='white', mec=color, mew=1.6, ms=8, zorder=5)
-            ax.plot(x[-1], y[-1], 's', color=color, ms=7, zorder=5)
+    if len(arrow_idx):
+        ax.quiver(
+            x[arrow_idx],
+            y[arrow_idx],
+            np.cos(th[arrow_idx]),
+            np.sin(th[arrow_idx]),
+            color=color,
+            angles='xy',
+            scale_units='xy',
+            scale=1 / 0.12,
+            width=0.004,
+            headwidth=3.5,
+            zorder=4,
+        )
+    if len(t):
+        ax.plot(x[0], y[0], 'o', mfc='white', mec=color, mew=1.6, ms=8, zorder=5)
+        ax.plot(x[-1], y[-1], 's', color=color, ms=7, zorder=5)
+
+
+def _finish_portrait(ax, result: SimResult, xlim, ylim, rho_l, kappa):
+    """Legend entries, limits, grid, labels and title of the phase portrait."""
     ax.plot([], [], lw=4.0, color='0.3', label='avoidance mode')
     ax.plot([], [], 'o', mfc='white', mec='0.3', label='start')
     ax.plot([], [], 's', color='0.3', label='end')
@@ -219,7 +207,10 @@ def render_figure(
     )
     ax.legend(loc='upper left', bbox_to_anchor=(1.01, 1.0), fontsize=8, framealpha=0.8)
 
-    # ---- torques
+
+def _draw_torques(fig, tgrid, result: SimResult, t, ids, by_id, cols: int):
+    """One panel per robot: tau_1 and tau_2 vs time, +-tau_max dashed, avoidance shaded."""
+    n = len(ids)
     first = None
     for i, rid in enumerate(ids):
         tax = fig.add_subplot(tgrid[i // cols, i % cols], sharex=first)
@@ -249,6 +240,43 @@ def render_figure(
             tax.tick_params(labelbottom=False)
         else:
             tax.set_xlabel('t [s]')
+
+
+def render_figure(
+    result: SimResult,
+    scenario,
+    path,
+    *,
+    arrow_every_s: float | None = None,
+    obstacle_instants: int = 4,
+    dpi: int = 110,
+) -> Path:
+    """Draw the figure of ``result`` and save it as PNG at ``path``. Returns the path.
+
+    Parameters
+    ----------
+    result : the run (T samples, N robots, M obstacles)
+    scenario : its Scenario (semi-axes, rho_L, kappa, torque limits, leader paths)
+    arrow_every_s : spacing of orientation arrows [s] (default: duration / 14)
+    obstacle_instants : how many instants to draw a moving/rotating obstacle at
+    """
+    t = np.asarray(result.t_s, dtype=float)
+    ids = list(result.robot_ids)
+    n = len(ids)
+    by_id = {r.id: r for r in scenario.robots}
+    axes_by_name = {o.name: o.semi_axes_m for o in scenario.obstacles}
+    rho_l = scenario.avoidance.limit_cycle_scale
+    kappa = scenario.avoidance.protected_scale
+    duration = float(t[-1] - t[0]) if len(t) > 1 else 1.0
+
+    xlim, ylim = _limits(result, axes_by_name, kappa)
+    fig, ax, tgrid, cols = _figure_layout(n, xlim, ylim, dpi)
+    _draw_obstacles(ax, result, t, axes_by_name, rho_l, kappa, obstacle_instants)
+    stride, ts, arrow_idx = _arrow_samples(t, arrow_every_s, duration)
+    for i, rid in enumerate(ids):
+        _draw_robot(ax, result, i, rid, by_id.get(rid), t, stride, ts, arrow_idx)
+    _finish_portrait(ax, result, xlim, ylim, rho_l, kappa)
+    _draw_torques(fig, tgrid, result, t, ids, by_id, cols)
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=dpi, bbox_inches='tight')
