@@ -231,6 +231,9 @@ def test_sweep_writes_every_output_and_its_status_agrees_with_the_runs(serial_sw
     assert summary['counts']['all']['hard'] == len(hard)
     assert rc == (1 if hard else 0)
     assert (out / 'distributions.png').stat().st_size > 10_000
+    spread = summary['distributions']['min_robot_distance_m']
+    assert spread['n'] == 9 and spread['min'] <= spread['p50'] <= spread['max']
+    assert spread['min'] == pytest.approx(min(float(r['min_robot_distance_m']) for r in rows))
     files = sorted((out / 'failures').glob('*.yaml')) if hard else []
     assert len(files) == len(hard) == len(summary['failures'])
     for r in rows:

@@ -255,7 +255,7 @@ def _table(counts: dict) -> str:
 
 
 def run_sweep(args: argparse.Namespace) -> int:
-    from ament_formation.core.sim.campaign import class_counts
+    from ament_formation.core.sim.campaign import class_counts, quantiles
 
     out = Path(args.out)
     if out.exists() and not out.is_dir():
@@ -298,6 +298,7 @@ def run_sweep(args: argparse.Namespace) -> int:
         'wall_s': wall,
         'runs_per_min': 60.0 * len(rows) / wall if wall > 0 else None,
         'counts': counts,
+        'distributions': quantiles(rows),
         'failures': sorted(r['failure_file'] for r in rows if r['failure_file']),
     }
     _write_table(out, rows)

@@ -212,3 +212,28 @@ def distribution(rows: list[dict], column: str) -> np.ndarray:
     values = [row[column] for row in rows if row.get(column) is not None]
     arr = np.asarray(values, dtype=float)
     return arr[np.isfinite(arr)]
+
+
+DISTRIBUTED = (
+    'min_clearance_m',
+    'min_robot_distance_m',
+    'settled_rms_max_m',
+    'mode_events_max',
+    'peak_speed_mps',
+    'final_error_max_m',
+    'wall_s',
+)
+
+
+def quantiles(rows: list[dict]) -> dict[str, dict[str, float]]:
+    """{column: {n, min, p1, p50, p99, max}} of each distributed column over ``rows``."""
+    out = {}
+    for column in DISTRIBUTED:
+        v = distribution(rows, column)
+        if v.size:
+            q = np.quantile(v, [0.0, 0.01, 0.5, 0.99, 1.0])
+            out[column] = {
+                'n': int(v.size),
+                **dict(zip(('min', 'p1', 'p50', 'p99', 'max'), map(float, q))),
+            }
+    return out
