@@ -4,6 +4,8 @@ exhaust memory, and every refusal is one short line (docs/scenarios.md "Limits")
 
 from __future__ import annotations
 
+import contextlib
+import io
 from pathlib import Path
 import subprocess
 import time
@@ -121,7 +123,40 @@ def test_formation_sim_refuses_an_over_budget_scenario_in_one_line(tmp_path):
     )
     assert res.returncode == 2, res.stderr
     lines = res.stderr.strip().splitlines()
-    assert len(lines) == 1 and 'over the budget' in lines[0] and len(lines[0]) < 320
+    assert len(lines) == 1 and 'over the budget' in lines[0] and len(lines[0]) <= MAX_LINE_CHARS
+
+
+def _cli_refusal(path, tmp_path) -> str:
+    from ament_formation.tools import cli
+
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        rc = cli.main(['sim', str(path), '--out', str(tmp_path / 'out'), '--quiet'])
+    lines = err.getvalue().strip().splitlines()
+    assert rc == 2 and len(lines) == 1 and len(lines[0]) <= MAX_LINE_CHARS, lines
+    return lines[0]
+
+
+def test_refusals_found_by_the_mutant_bench_stay_one_short_line(tmp_path):
+    """bench_scenario_fuzz over 1,000 mutants found: a misspelt key named with every allowed key
+    (over 300 characters with the command and a long file path), a path type that is a list
+    (TypeError) and a duration shorter than one step (ValueError while writing the run).
+    """
+    deep = tmp_path / ('d' * 90) / ('e' * 90)
+    deep.mkdir(parents=True)
+    data = _paper()
+    data['robot']['torqe_limit_nm'] = data['robot'].pop('torque_limit_nm')
+    (deep / 'misspelt.yaml').write_text(yaml.safe_dump(data, sort_keys=False))
+    line = _cli_refusal(deep / 'misspelt.yaml', tmp_path)
+    assert 'did you mean torque_limit_nm?' in line
+    data = _paper()
+    data['robots'][0]['path']['type'] = [['sinusoid']]
+    (tmp_path / 'type.yaml').write_text(yaml.safe_dump(data, sort_keys=False))
+    assert 'unknown path type' in _cli_refusal(tmp_path / 'type.yaml', tmp_path)
+    data = _paper()
+    data['duration_s'] = 5.5e-8
+    (tmp_path / 'tiny.yaml').write_text(yaml.safe_dump(data, sort_keys=False))
+    assert 'shorter than one step' in _cli_refusal(tmp_path / 'tiny.yaml', tmp_path)
 
 
 def test_seeded_mutants_of_the_shipped_files_never_crash_the_validator():

@@ -22,7 +22,8 @@ def excerpt(value, limit: int = _EXCERPT_CHARS) -> str:
     return text if size is None else f'{text} ({size} chars)'
 
 
-def _one_line(text: str, limit: int) -> str:
+def one_line(text: str, limit: int = MAX_LINE_CHARS) -> str:
+    """``text`` on one line (whitespace runs become one space), cut to ``limit`` characters."""
     text = ' '.join(str(text).split())
     return text if len(text) <= limit else f'{text[: limit - 3]}...'
 
@@ -42,8 +43,8 @@ class ConfigError(ValueError):
 
     def _line(self) -> str:
         """``FILE: FIELD: problem`` on one line of at most :data:`MAX_LINE_CHARS` characters."""
-        parts = [_one_line(p, 100) for p in (self.file, self.field) if p]
-        return _one_line(': '.join(parts + [str(self.problem)]), MAX_LINE_CHARS)
+        parts = [one_line(p, 100) for p in (self.file, self.field) if p]
+        return one_line(': '.join(parts + [str(self.problem)]), MAX_LINE_CHARS)
 
     def with_file(self, file: str) -> 'ConfigError':
         """The same error, naming ``file``."""

@@ -11,7 +11,7 @@ import argparse
 import importlib
 import sys
 
-from ament_formation.core.errors import ConfigError
+from ament_formation.core.errors import ConfigError, one_line
 
 _COMMAND_MODULES = (
     'ament_formation.tools.sim_cmd',  # sim, plot
@@ -48,7 +48,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except ConfigError as err:
-        print(f'formation {args.command}: {err}', file=sys.stderr)
+        print(one_line(f'formation {args.command}: {err}'), file=sys.stderr)  # <= 300 chars
         return 2
     except KeyboardInterrupt:
         return 130

@@ -460,7 +460,7 @@ def path_from_config(cfg) -> Path:
     if 'type' not in cfg:
         raise ConfigError(f'missing required key (one of {sorted(_PATH_KEYS)})', 'type')
     kind = cfg['type']
-    if kind not in _PATH_KEYS:
+    if not isinstance(kind, str) or kind not in _PATH_KEYS:
         raise ConfigError(
             f'unknown path type {excerpt(kind)} (expected one of {sorted(_PATH_KEYS)})', 'type'
         )

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass, field, fields
+import difflib
 from functools import cached_property
 import math
 from pathlib import Path as FsPath
@@ -388,9 +389,9 @@ def _keys(mapping, where: str, required: set, optional: set) -> None:
             raise ConfigError(f'keys must be strings (got {excerpt(key)})', where or None)
     allowed = required | optional
     for key in sorted(set(mapping) - allowed):
-        raise ConfigError(
-            f'unknown key (allowed: {", ".join(sorted(allowed))})', _join(where, key)
-        )
+        close = difflib.get_close_matches(key, allowed, n=1, cutoff=0.75)
+        hint = f'did you mean {close[0]}?' if close else f'allowed: {", ".join(sorted(allowed))}'
+        raise ConfigError(f'unknown key ({hint})', _join(where, key))
     for key in sorted(required - set(mapping)):
         raise ConfigError('missing required key', _join(where, key))
 
@@ -940,6 +941,12 @@ def check_sim_budget(scenario: Scenario, dt_s: float, record_every_s: float, bud
     of `formation sim` may take on this class of machine.
     """
     budget = {**SIM_BUDGET, **(budget or {})}
+    if scenario.duration_s < max(dt_s, record_every_s):
+        raise ConfigError(
+            f'{scenario.duration_s:g} s is shorter than one step or record '
+            f'({max(dt_s, record_every_s):g} s): nothing would be simulated',
+            'duration_s',
+        )
     n = len(scenario.robots)
     steps = scenario.duration_s / dt_s
     samples = scenario.duration_s / max(record_every_s, dt_s)
