@@ -19,8 +19,7 @@ MAX_JIT_PARAMS = 15
 KNOWN = {
     'core/control/encounters.py:decide': (375, 27),
     'core/control/controller.py:step': (335, 3),
-    'core/sim/simulator.py:_run_segment': (249, 66),
-    'core/sim/simulator.py:simulate': (225, 1),
+    'core/sim/simulator.py:_run_segment': (206, 14),
     'core/control/law.py:robot_law': (179, 27),
     'core/control/arbiter.py:decide': (141, 4),
     'core/control/smc.py:smc_torque_k': (35, 17),

@@ -24,6 +24,7 @@ Structure (fast path, numba ``cache=True``):
 
 from __future__ import annotations
 
+from collections import namedtuple
 import math
 import time
 from typing import Callable
@@ -64,6 +65,26 @@ from ament_formation.core.sim.trajectory import SimResult
 
 REF_SUB = 10  # leader references are tabulated every REF_SUB steps and interpolated
 
+# What _run_segment takes, grouped and named (numba compiles named tuples of arrays as records).
+Clock = namedtuple('Clock', ['dt', 'dec_every', 'rec_every'])
+Reference = namedtuple('Reference', ['k0', 'sub', 'table', 'leader_rows'])
+RobotArrays = namedtuple(
+    'RobotArrays', ['x', 'acmd', 'torque', 'sat_flag', 'pd', 'goal', 'goal_dot', 'vc', 'ref']
+)
+GraphArrays = namedtuple(
+    'GraphArrays', ['parent', 'offset', 'order', 'orig_parent', 'orig_offset', 'team']
+)
+PlantArrays = namedtuple(
+    'PlantArrays', ['rbody', 'coeffs', 'gains', 'd_amp', 'd_freq', 'd_phase', 'd_hc', 'd_hs']
+)
+ObstacleArrays = namedtuple(
+    'ObstacleArrays', ['c0', 'v', 'amp', 'w', 'phi0', 'phid', 'axes', 'static']
+)
+ReachArrays = namedtuple('ReachArrays', ['pending', 'active', 't0', 'sigma0', 'records', 'count'])
+RecordArrays = namedtuple(
+    'RecordArrays', ['state', 'torque', 'goal', 'avoiding', 'saturated', 'ob_center', 'ob_phi']
+)
+
 
 @njit(cache=True)
 def reference_at(step, sub, dt, tab, ref, rows):
@@ -99,71 +120,34 @@ def _run_segment(
     k0,
     k_end,
     skip_decide,
-    dt,
-    dec_every,
-    rec_every,
-    ref_k0,
-    ref_sub,
-    ref_tab,
-    leader_rows,
-    x,
-    acmd,
-    torque,
-    sat_flag,
-    pd,
-    goal,
-    goal_dot,
-    vc,
-    ref,
-    parent,
-    offset,
-    order,
-    orig_parent,
-    orig_offset,
-    team,
-    rbody,
-    coeffs,
-    gains,
-    d_amp,
-    d_freq,
-    d_phase,
-    d_hc,
-    d_hs,
-    ob_c0,
-    ob_v,
-    ob_amp,
-    ob_w,
-    ob_phi0,
-    ob_phid,
-    oaxes,
-    ostatic,
-    mode,
-    tgt,
-    sdir,
-    t_entry,
-    since,
-    last_kind,
-    last_tgt,
-    last_exit,
-    wc,
-    wtgt,
+    clock,
+    reference,
+    robots,
+    graph,
+    plant,
+    obstacles,
+    automaton,
     prm,
     ev,
-    reach_pending,
-    reach_active,
-    reach_t0,
-    reach_sig0,
-    reach_rec,
-    nreach,
-    rec_state,
-    rec_torque,
-    rec_goal,
-    rec_avoid,
-    rec_sat,
-    rec_oc,
-    rec_ophi,
+    reach,
+    rec,
 ):
-    """Steps k0 .. k_end-1 of the closed loop. Returns (next step, number of new events)."""
+    """Steps k0 .. k_end-1 of the closed loop. Returns (next step, number of new events).
+
+    The arrays come grouped in named tuples (:class:`Clock`, :class:`Reference`,
+    :class:`RobotArrays`, :class:`GraphArrays`, :class:`PlantArrays`, :class:`ObstacleArrays`,
+    :meth:`AutomatonState.arrays` order, :class:`ReachArrays`, :class:`RecordArrays`); the
+    loop's arrays are updated in place.
+    """
+    dt, dec_every, rec_every = clock
+    ref_k0, ref_sub, ref_tab, leader_rows = reference
+    x, acmd, torque, sat_flag, pd, goal, goal_dot, vc, ref = robots
+    parent, offset, order, orig_parent, orig_offset, team = graph
+    rbody, coeffs, gains, d_amp, d_freq, d_phase, d_hc, d_hs = plant
+    ob_c0, ob_v, ob_amp, ob_w, ob_phi0, ob_phid, oaxes, ostatic = obstacles
+    mode, tgt, sdir, t_entry, since, last_kind, last_tgt, last_exit, wc, wtgt = automaton
+    reach_pending, reach_active, reach_t0, reach_sig0, reach_rec, nreach = reach
+    rec_state, rec_torque, rec_goal, rec_avoid, rec_sat, rec_oc, rec_ophi = rec
     n = x.shape[0]
     m = ob_c0.shape[0]
     oc = np.empty((m, 2))
@@ -397,6 +381,32 @@ class _Setup:
         for i, r in enumerate(robots):
             self.state[i, :3] = r.initial_pose
 
+    def plant_arrays(self) -> PlantArrays:
+        """Bodies, plant coefficients, gains and disturbance terms (fixed for the run)."""
+        return PlantArrays(
+            self.rbody,
+            self.coeffs,
+            self.gains,
+            self.d_amp,
+            self.d_freq,
+            self.d_phase,
+            self.d_hc,
+            self.d_hs,
+        )
+
+    def obstacle_arrays(self) -> ObstacleArrays:
+        """The obstacles' motion parameters, semi-axes and static flags."""
+        return ObstacleArrays(
+            self.ob_c0,
+            self.ob_v,
+            self.ob_amp,
+            self.ob_w,
+            self.ob_phi0,
+            self.ob_phid,
+            self.oaxes,
+            self.ostatic,
+        )
+
     def parents_from(self, parents: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(parent rows, offsets, topological order) of a parents dict
         {child_id: parent_id | None}.
@@ -439,6 +449,55 @@ class _Setup:
         return tab
 
 
+def _loop_arrays(setup: _Setup, n_rec: int):
+    """The closed loop's arrays as a run starts: (RobotArrays, the automaton arrays in
+    AutomatonState order, ReachArrays, RecordArrays of ``n_rec`` samples).
+    """
+    n, m = setup.n, len(setup.obstacle_names)
+    z2 = lambda: np.zeros((n, 2))  # noqa: E731 - a fresh (n, 2) array each call
+    robots = RobotArrays(
+        setup.state.copy(),
+        z2(),
+        z2(),
+        np.zeros(n, dtype=np.bool_),
+        z2(),
+        z2(),
+        z2(),
+        z2(),
+        np.zeros((n, 6)),
+    )
+    automaton = (
+        np.zeros(n, dtype=np.int64),  # mode
+        np.full(n, -1, dtype=np.int64),  # tgt
+        np.ones(n),  # sdir
+        np.zeros(n),  # t_entry
+        np.full(n, -1.0),  # since
+        np.zeros(n, dtype=np.int64),  # last_kind
+        np.full(n, -1, dtype=np.int64),  # last_tgt
+        np.full(n, -1e9),  # last_exit
+        z2(),  # wc
+        z2(),  # wtgt
+    )
+    reach = ReachArrays(
+        np.ones(n, dtype=np.bool_),
+        np.zeros(n, dtype=np.bool_),
+        np.zeros(n),
+        np.zeros(n),
+        np.zeros((max(64, 16 * n), 5)),
+        np.zeros(1, dtype=np.int64),
+    )
+    rec = RecordArrays(
+        np.zeros((n_rec, n, 5)),
+        np.zeros((n_rec, n, 2)),
+        np.zeros((n_rec, n, 2)),
+        np.zeros((n_rec, n), dtype=np.bool_),
+        np.zeros((n_rec, n), dtype=np.bool_),
+        np.zeros((n_rec, m, 2)),
+        np.zeros((n_rec, m)),
+    )
+    return robots, automaton, reach, rec
+
+
 def _target_name(setup: _Setup, mode: int, target: int) -> str:
     if mode == MODE_OBSTACLE:
         return setup.obstacle_names[target]
@@ -472,70 +531,24 @@ def simulate(
     switching = switching or SwitchingParams(avoidance=scenario.avoidance)
     setup = _Setup(scenario, dt_s, switching)
     n = setup.n
-    m = len(setup.obstacle_names)
     n_steps = int(round(scenario.duration_s / dt_s))
     rec_every = max(1, int(round(record_every_s / dt_s)))
     dec_every = max(1, int(round(switching.decision_period_s / dt_s)))
     n_rec = (n_steps - 1) // rec_every + 1
     chunk = max(1, int(round(chunk_s / dt_s)))
 
-    x = setup.state.copy()
-    acmd = np.zeros((n, 2))
-    torque = np.zeros((n, 2))
-    sat_flag = np.zeros(n, dtype=np.bool_)
-    pd = np.zeros((n, 2))
-    goal = np.zeros((n, 2))
-    goal_dot = np.zeros((n, 2))
-    vc = np.zeros((n, 2))
-    ref = np.zeros((n, 6))
-    mode = np.zeros(n, dtype=np.int64)
-    tgt = np.full(n, -1, dtype=np.int64)
-    sdir = np.ones(n)
-    t_entry = np.zeros(n)
-    since = np.full(n, -1.0)
-    last_kind = np.zeros(n, dtype=np.int64)
-    last_tgt = np.full(n, -1, dtype=np.int64)
-    last_exit = np.full(n, -1e9)
-    wc = np.zeros((n, 2))
-    wtgt = np.zeros((n, 2))
     ev = np.zeros((8 * n + 16, 6))
-    reach_pending = np.ones(n, dtype=np.bool_)
-    reach_active = np.zeros(n, dtype=np.bool_)
-    reach_t0 = np.zeros(n)
-    reach_sig0 = np.zeros(n)
-    reach_rec = np.zeros((max(64, 16 * n), 5))
-    nreach = np.zeros(1, dtype=np.int64)
-    rec_state = np.zeros((n_rec, n, 5))
-    rec_torque = np.zeros((n_rec, n, 2))
-    rec_goal = np.zeros((n_rec, n, 2))
-    rec_avoid = np.zeros((n_rec, n), dtype=np.bool_)
-    rec_sat = np.zeros((n_rec, n), dtype=np.bool_)
-    rec_oc = np.zeros((n_rec, m, 2))
-    rec_ophi = np.zeros((n_rec, m))
-
+    clock = Clock(dt_s, dec_every, rec_every)
+    robots, automaton, reach, rec = _loop_arrays(setup, n_rec)
+    plant, obstacles = setup.plant_arrays(), setup.obstacle_arrays()
+    mode = automaton[0]
+    reach_pending, reach_rec, nreach = reach.pending, reach.records, reach.count
     avoiding: frozenset[int] = frozenset()
     parents = setup.graph.rewire(set())
     parent, offset, order = setup.parents_from(parents)
     mode_events: list[dict] = []
     graph_events: list[dict] = [{'t_s': 0.0, 'parents': _parents_json(parents)}]
     reaching: list[dict] = []
-    lam = float(setup.gains[G_LAMBDA])
-
-    def drain_reaching() -> None:
-        for r in range(int(nreach[0])):
-            i, t0, s0, tr, done = reach_rec[r]
-            reaching.append(
-                {
-                    'robot': setup.ids[int(i)],
-                    't_s': float(t0),
-                    'sigma0_inf_mps': float(s0),
-                    't_reach_s': float(tr),
-                    'bound_s': float(s0) / lam,
-                    'completed': bool(done),
-                }
-            )
-        nreach[0] = 0
-
     k = 0
     skip = False
     while k < n_steps:
@@ -547,93 +560,29 @@ def simulate(
                 k,
                 k_chunk_end,
                 skip,
-                dt_s,
-                dec_every,
-                rec_every,
-                ref_k0,
-                REF_SUB,
-                ref_tab,
-                setup.leader_rows,
-                x,
-                acmd,
-                torque,
-                sat_flag,
-                pd,
-                goal,
-                goal_dot,
-                vc,
-                ref,
-                parent,
-                offset,
-                order,
-                setup.orig_parent,
-                setup.orig_offset,
-                setup.team,
-                setup.rbody,
-                setup.coeffs,
-                setup.gains,
-                setup.d_amp,
-                setup.d_freq,
-                setup.d_phase,
-                setup.d_hc,
-                setup.d_hs,
-                setup.ob_c0,
-                setup.ob_v,
-                setup.ob_amp,
-                setup.ob_w,
-                setup.ob_phi0,
-                setup.ob_phid,
-                setup.oaxes,
-                setup.ostatic,
-                mode,
-                tgt,
-                sdir,
-                t_entry,
-                since,
-                last_kind,
-                last_tgt,
-                last_exit,
-                wc,
-                wtgt,
+                clock,
+                Reference(ref_k0, REF_SUB, ref_tab, setup.leader_rows),
+                robots,
+                GraphArrays(
+                    parent, offset, order, setup.orig_parent, setup.orig_offset, setup.team
+                ),
+                plant,
+                obstacles,
+                automaton,
                 setup.prm,
                 ev,
-                reach_pending,
-                reach_active,
-                reach_t0,
-                reach_sig0,
-                reach_rec,
-                nreach,
-                rec_state,
-                rec_torque,
-                rec_goal,
-                rec_avoid,
-                rec_sat,
-                rec_oc,
-                rec_ophi,
+                reach,
+                rec,
             )
             if nreach[0] > reach_rec.shape[0] // 2:
-                drain_reaching()
+                _drain_reaching(setup, reach, reaching)
             skip = False
             if nev == 0:
                 continue
             if nev > ev.shape[0]:
                 raise RuntimeError('mode event buffer overflow')  # cannot happen: <= 8 per robot
             skip = True
-            changed = set()
-            for row in ev[:nev]:
-                t_ev, i, enter, md, target, s = row
-                i = int(i)
-                changed.add(i)
-                mode_events.append(
-                    {
-                        't_s': round(float(t_ev), 9),
-                        'robot': setup.ids[i],
-                        'event': 'enter' if enter > 0.5 else 'exit',
-                        'mode': MODE_NAMES[int(md)],
-                        'target': _target_name(setup, int(md), int(target)),
-                        'direction': 'ccw' if s > 0 else 'cw',
-                    }
-                )
+            changed = _mode_events(setup, ev[:nev], mode_events)
             for i in changed:
                 reach_pending[i] = True
             now_avoiding = frozenset(setup.ids[i] for i in range(n) if mode[i] != MODE_C)
@@ -651,25 +600,65 @@ def simulate(
                     )
         if progress is not None:
             progress(k * dt_s, scenario.duration_s)
-    drain_reaching()
+    _drain_reaching(setup, reach, reaching)
     return SimResult(
         scenario_name=scenario.name,
         robot_ids=setup.ids,
         obstacle_names=setup.obstacle_names,
         t_s=np.arange(n_rec) * rec_every * dt_s,
-        state=rec_state,
-        torque_nm=rec_torque,
-        goal_m=rec_goal,
-        avoiding=rec_avoid,
-        saturated=rec_sat,
-        obstacle_center_m=rec_oc,
-        obstacle_phi_rad=rec_ophi,
+        state=rec.state,
+        torque_nm=rec.torque,
+        goal_m=rec.goal,
+        avoiding=rec.avoiding,
+        saturated=rec.saturated,
+        obstacle_center_m=rec.ob_center,
+        obstacle_phi_rad=rec.ob_phi,
         mode_events=mode_events,
         graph_events=graph_events,
         reaching=reaching,
         dt_s=dt_s,
         wall_time_s=time.perf_counter() - wall0,
     )
+
+
+def _drain_reaching(setup: _Setup, reach: ReachArrays, reaching: list[dict]) -> None:
+    """Move the reaching-phase records the loop wrote (S3.4) to ``reaching`` as dicts."""
+    lam = float(setup.gains[G_LAMBDA])
+    for r in range(int(reach.count[0])):
+        i, t0, s0, tr, done = reach.records[r]
+        reaching.append(
+            {
+                'robot': setup.ids[int(i)],
+                't_s': float(t0),
+                'sigma0_inf_mps': float(s0),
+                't_reach_s': float(tr),
+                'bound_s': float(s0) / lam,
+                'completed': bool(done),
+            }
+        )
+    reach.count[0] = 0
+
+
+def _mode_events(setup: _Setup, rows: np.ndarray, mode_events: list[dict]) -> set[int]:
+    """Append the event rows the loop wrote (t, robot row, enter, mode, target, direction) to
+    ``mode_events`` as dicts; the set of robot rows that switched.
+    """
+    changed = set()
+    for row in rows:
+        t_ev, i, enter, md, target, s = row
+        i = int(i)
+        changed.add(i)
+        mode_events.append(
+            {
+                't_s': round(float(t_ev), 9),
+                'robot': setup.ids[i],
+                'event': 'enter' if enter > 0.5 else 'exit',
+                'mode': MODE_NAMES[int(md)],
+                'target': _target_name(setup, int(md), int(target)),
+                'direction': 'ccw' if s > 0 else 'cw',
+            }
+        )
+    return changed
 
 
 def _parents_json(parents: dict) -> dict:
