@@ -311,7 +311,7 @@ def _supervise(
     last_truth = {'s': None, 'wall': None}
     live_log = proc_dir / 'live_view.log' if (args.live, args.live_host) != (None, None) else None
     while launch.poll() is None:
-        executor.spin_once(timeout_sec=0.05)
+        _spin_slice(executor, 0.05)
         if (
             live_log is not None and not args.quiet and live_log.exists()
         ):  # say where to look, once
@@ -338,7 +338,35 @@ def _supervise(
     return None
 
 
-def _stop_system(launch, progress, recorder, executor, node, ctx, shm_before, previous) -> None:
+def _spin_slice(executor, slice_s: float) -> None:
+    """Run the recorder's callbacks for ``slice_s`` of wall time: spin_once runs one callback,
+    and the recorder takes ~1,500 messages/s from a whole system (one callback per spin_once
+    between progress and timeout checks fell behind under CPU load, until its queues of 100
+    messages per topic overflowed: recordings with gaps, runs judged incomplete).
+    """
+    end = time.monotonic() + slice_s
+    while True:
+        remaining = end - time.monotonic()
+        if remaining <= 0.0:
+            return
+        executor.spin_once(timeout_sec=remaining)
+
+
+def _drain(executor, recorder, quiet_s: float = 0.3, max_s: float = 5.0) -> None:
+    """After the system stopped: record what is still queued until nothing came for ``quiet_s``
+    (at most ``max_s``), so a recorder a little behind keeps the run's last seconds.
+    """
+    t0 = last_change = time.monotonic()
+    count = recorder.writer.message_count
+    while time.monotonic() - t0 < max_s and time.monotonic() - last_change < quiet_s:
+        _spin_slice(executor, 0.05)
+        if recorder.writer.message_count != count:
+            count, last_change = recorder.writer.message_count, time.monotonic()
+
+
+def _stop_system(
+    launch, progress, recorder, executor, node, ctx, shm_before, previous, drain: bool = True
+) -> None:
     """Stop the launch (and so every process it started), close the recording, shut ROS down,
     remove what the run left in /dev/shm, restore the signal handlers.
     """
@@ -355,6 +383,11 @@ def _stop_system(launch, progress, recorder, executor, node, ctx, shm_before, pr
             launch.wait()
     if progress is not None:
         progress.finish()
+    if drain:  # not after SIGINT/SIGTERM: the user asked to stop now
+        try:
+            _drain(executor, recorder)
+        except (KeyboardInterrupt, RuntimeError):  # a signal while draining: stop now
+            pass
     recorder.close()
     executor.shutdown(timeout_sec=1.0)
     node.destroy_node()
@@ -413,7 +446,17 @@ def run_system(args: argparse.Namespace) -> int:
     except (KeyboardInterrupt, RuntimeError) as err:
         status, launch_rc = _signal_status(err, terminated), None
     finally:
-        _stop_system(launch, progress, recorder, executor, node, ctx, shm_before, previous)
+        _stop_system(
+            launch,
+            progress,
+            recorder,
+            executor,
+            node,
+            ctx,
+            shm_before,
+            previous,
+            drain=terminated['signal'] is None,
+        )
     wall_s = time.monotonic() - wall0
     if status:
         return status
