@@ -6,10 +6,10 @@ the encounter arbitration decided, the desired point velocity V_d handed to the 
   and the mode's V_d itself are clipped to what a robot can do (``speed_limit_mps``; the
   acceleration bound 2 tau_max / (m~ r) of S2.2, S3.6). A feed-forward loop can then never drive a
   robot beyond the speed limit.
-* **Braking barrier**: every control period, against the nearest obstacle boundary (P, whose
-  boundary velocity includes the obstacle's rotation, S14.2) and the nearest robot (contact circle
-  R_i + R_k), the speed of approach of V_d relative to the boundary is limited to
-  sqrt(2 a_brk (gap - gap_0)), the speed from which the robot can still brake to rest before the
+* **Braking barrier**: every control period, against every obstacle boundary (P, whose boundary
+  velocity includes the obstacle's rotation, S14.2) and every robot (contact circle R_i + R_k)
+  within ``safety_range_m``, the speed of approach of V_d relative to the boundary is limited to
+  sqrt(2 a_brk (gap - gap_0)) (robot pairs: half of it each, reciprocally), the speed from which the robot can still brake to rest before the
   gap closes (a_brk: a fraction of the switching gain K, the deceleration the S3 loop realises
   without a feed-forward). Only the approaching normal component is removed: the tangential part
   is kept (heading-preserving), so two robots slide past each other instead of deadlocking, and a
@@ -68,67 +68,61 @@ def _barrier(vdx, vdy, vddx, vddy, nx, ny, bvx, bvy, gap, a_brk):
 
 
 @njit(cache=True)
-def _nearest_obstacle(px, py, oc, ov, ophi, ophid, oaxes, reach):
-    """(gap, nx, ny, bvx, bvy) of the nearest obstacle boundary P within ``reach`` [m] of p, or
-    gap = inf. The gap is the first-order distance (k - 1)/|grad k| to P (k: the level of p in
-    P's similar ellipses), the normal is grad k, the boundary velocity that of the material point
-    under p (translation and rotation, S14.2).
+def _obstacle_gap(px, py, oc, ov, ophi, ophid, oaxes, j):
+    """(gap, nx, ny, bvx, bvy) of obstacle j's boundary P seen from p: the first-order distance
+    (k - 1)/|grad k| (k: the level of p in P's similar ellipses), the normal grad k/|grad k| and
+    the velocity of the material point under p (translation and rotation, S14.2).
     """
-    best = math.inf
-    bnx = bny = bvx = bvy = 0.0
-    for j in range(oc.shape[0]):
-        zx = px - oc[j, 0]
-        zy = py - oc[j, 1]
-        r1 = oaxes[j, 0]
-        r2 = oaxes[j, 1]
-        if abs(zx) > r1 + reach or abs(zy) > r1 + reach:
-            continue
-        c = math.cos(ophi[j])
-        s = math.sin(ophi[j])
-        u = (c * zx + s * zy) / r1
-        w = (-s * zx + c * zy) / r2
-        k = math.sqrt(u * u + w * w)
-        if k < 1e-9:
-            continue
-        gu = u / (k * r1)  # grad k in body axes
-        gw = w / (k * r2)
-        gx = c * gu - s * gw
-        gy = s * gu + c * gw
-        gn = math.hypot(gx, gy)
-        gap = (k - 1.0) / gn
-        if gap < best:
-            best = gap
-            bnx = gx / gn
-            bny = gy / gn
-            bvx = ov[j, 0] - ophid[j] * zy
-            bvy = ov[j, 1] + ophid[j] * zx
-    return best, bnx, bny, bvx, bvy
+    zx = px - oc[j, 0]
+    zy = py - oc[j, 1]
+    r1 = oaxes[j, 0]
+    r2 = oaxes[j, 1]
+    c = math.cos(ophi[j])
+    s = math.sin(ophi[j])
+    u = (c * zx + s * zy) / r1
+    w = (-s * zx + c * zy) / r2
+    k = max(math.sqrt(u * u + w * w), 1e-9)
+    gu = u / (k * r1)  # grad k in body axes
+    gw = w / (k * r2)
+    gx = c * gu - s * gw
+    gy = s * gu + c * gw
+    gn = max(math.hypot(gx, gy), 1e-12)
+    return (k - 1.0) / gn, gx / gn, gy / gn, ov[j, 0] - ophid[j] * zy, ov[j, 1] + ophid[j] * zx
 
 
 @njit(cache=True)
-def _nearest_robot(i, x, pd, rbody, reach):
-    """(gap, nx, ny, bvx, bvy) of the nearest other robot's contact circle R_i + R_k within
-    ``reach`` [m], or gap = inf; n points from that robot to robot i.
+def _robot_barriers(i, x, vdx, vdy, vddx, vddy, rbody, g0, a_brk, reach):
+    """The barrier against every other robot whose contact circle R_i + R_k is within ``reach``
+    (reciprocal: each robot of a pair takes half of the approach speed budget).
     """
-    best = math.inf
-    bnx = bny = bvx = bvy = 0.0
     for k in range(x.shape[0]):
-        if k == i:
-            continue
         dx = x[i, 0] - x[k, 0]
         dy = x[i, 1] - x[k, 1]
         lim = rbody[i] + rbody[k] + reach
-        if abs(dx) > lim or abs(dy) > lim:
+        if k == i or abs(dx) > lim or abs(dy) > lim:
             continue
         dist = math.hypot(dx, dy)
         gap = dist - rbody[i] - rbody[k]
-        if gap < best and dist > 1e-9:
-            best = gap
-            bnx = dx / dist
-            bny = dy / dist
-            bvx = pd[k, 0]
-            bvy = pd[k, 1]
-    return best, bnx, bny, bvx, bvy
+        if gap < reach and dist > 1e-9:
+            vdx, vdy, vddx, vddy, _a = _barrier(
+                vdx, vdy, vddx, vddy, dx / dist, dy / dist, 0.0, 0.0, gap - g0, 0.25 * a_brk
+            )
+    return vdx, vdy, vddx, vddy
+
+
+@njit(cache=True)
+def _obstacle_barriers(px, py, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, g0, a_brk, reach):
+    """The barrier against every obstacle boundary P within ``reach`` (boundary velocity included)."""
+    for j in range(oc.shape[0]):
+        r1 = oaxes[j, 0]
+        if abs(px - oc[j, 0]) > r1 + reach or abs(py - oc[j, 1]) > r1 + reach:
+            continue
+        gap, nx, ny, bvx, bvy = _obstacle_gap(px, py, oc, ov, ophi, ophid, oaxes, j)
+        if gap < reach:
+            vdx, vdy, vddx, vddy, _a = _barrier(
+                vdx, vdy, vddx, vddy, nx, ny, bvx, bvy, gap - g0, a_brk
+            )
+    return vdx, vdy, vddx, vddy
 
 
 # implements: S3 (safety filter of V_d)
@@ -142,19 +136,9 @@ def safe_field(i, x, pd, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, rbody
     a_brk = prm[P_SAFE_ACCEL] * gain_k  # the S3 loop's deceleration without feed-forward
     reach = prm[P_SAFE_RANGE]
     g0 = prm[P_SAFE_GAP]
-    px = x[i, 0]
-    py = x[i, 1]
-    go, onx, ony, obx, oby = _nearest_obstacle(px, py, oc, ov, ophi, ophid, oaxes, reach)
-    gr, rnx, rny, _bx, _by = _nearest_robot(i, x, pd, rbody, reach)
-    for _ in range(
-        2
-    ):  # the second pass re-checks the robot constraint; obstacles have the last word
-        if gr < reach:  # reciprocal: each robot takes half of the approach budget
-            vdx, vdy, vddx, vddy, _a = _barrier(
-                vdx, vdy, vddx, vddy, rnx, rny, 0.0, 0.0, gr - g0, 0.25 * a_brk
-            )
-        if go < reach:
-            vdx, vdy, vddx, vddy, _a = _barrier(
-                vdx, vdy, vddx, vddy, onx, ony, obx, oby, go - g0, a_brk
-            )
+    for _ in range(2):  # the second pass re-checks the robots; obstacles have the last word
+        vdx, vdy, vddx, vddy = _robot_barriers(i, x, vdx, vdy, vddx, vddy, rbody, g0, a_brk, reach)
+        vdx, vdy, vddx, vddy = _obstacle_barriers(
+            x[i, 0], x[i, 1], vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, g0, a_brk, reach
+        )
     return vdx, vdy, vddx, vddy
