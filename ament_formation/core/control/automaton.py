@@ -63,9 +63,10 @@ class SwitchingParams:
     mutual_drift_tau_s: float = 2.0  # S14.1: w_c relaxes toward the pair's mean V_c
     mutual_drift_cap_mps: float = 0.05  # |w_c target| cap
     speed_limit_mps: float = 0.3  # S2.3 v_max: V_d and every velocity feed-forward clipped to it
-    brake_gain_fraction: float = 0.6  # safety barrier: braking deceleration = this x K
+    brake_gain_fraction: float = 0.4  # safety barrier: braking deceleration = this x K
     safety_gap_m: float = 0.01  # safety barrier: the robot stops this far outside P / contact
     safety_range_m: float = 0.3  # safety barrier: threats within this gap are checked
+    safety_lag_s: float = 0.3  # safety barrier: reaction time of the S3 loop before it brakes
 
     def __post_init__(self) -> None:
         for name in (
@@ -79,6 +80,7 @@ class SwitchingParams:
             'brake_gain_fraction',
             'safety_gap_m',
             'safety_range_m',
+            'safety_lag_s',
         ):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
@@ -89,7 +91,7 @@ class SwitchingParams:
         return dataclasses.replace(self, avoidance=avoidance)
 
     def as_array(self) -> np.ndarray:
-        """Packed (24,) float vector for the compiled code (see ``P_*`` indices)."""
+        """Packed (P_LEN,) float vector for the compiled code (see ``P_*`` indices)."""
         a = self.avoidance
         out = np.zeros(P_LEN)
         out[P_EM] = a.emergency_scale
@@ -116,6 +118,7 @@ class SwitchingParams:
         out[P_SAFE_ACCEL] = self.brake_gain_fraction
         out[P_SAFE_GAP] = self.safety_gap_m
         out[P_SAFE_RANGE] = self.safety_range_m
+        out[P_SAFE_LAG] = self.safety_lag_s
         return out
 
 
@@ -144,8 +147,9 @@ class SwitchingParams:
     P_SAFE_ACCEL,
     P_SAFE_GAP,
     P_SAFE_RANGE,
-) = range(24)
-P_LEN = 24
+    P_SAFE_LAG,
+) = range(25)
+P_LEN = 25
 
 
 # --------------------------------------------------------------------------- ellipse geometry

@@ -184,27 +184,21 @@ class _Scratch:
         fresh = AutomatonState(n)
         self._ints0 = np.stack([fresh.mode, fresh.tgt, fresh.last_kind, fresh.last_tgt])
         self._floats0 = np.concatenate(
-            [
-                fresh.sdir,
-                fresh.t_entry,
-                fresh.since,
-                fresh.last_exit,
-                fresh.wc.ravel(),
-                fresh.wtgt.ravel(),
-            ]
+            [fresh.sdir, fresh.t_entry, fresh.since, fresh.last_exit, fresh.wc.ravel(),
+             fresh.wtgt.ravel()]
         )
         self._ints = self._ints0.copy()
         self._floats = self._floats0.copy()
         st = self.state = fresh  # its arrays replaced by views of the blocks (same types)
         st.mode, st.tgt, st.last_kind, st.last_tgt = self._ints
         f = self._floats
-        st.sdir, st.t_entry, st.since, st.last_exit = (f[k * n : (k + 1) * n] for k in range(4))
-        st.wc, st.wtgt = f[4 * n : 6 * n].reshape(n, 2), f[6 * n : 8 * n].reshape(n, 2)
+        st.sdir, st.t_entry, st.since, st.last_exit = (f[k * n:(k + 1) * n] for k in range(4))
+        st.wc, st.wtgt = f[4 * n:6 * n].reshape(n, 2), f[6 * n:8 * n].reshape(n, 2)
         self._work = np.zeros(16 * n)  # ref (n, 6), then five (n, 2): offsets and goals
         w = self._work
-        self.ref = w[: 6 * n].reshape(n, 6)
+        self.ref = w[:6 * n].reshape(n, 6)
         self.orig_offset, self.offset, self.goal, self.goal_dot, self.vc = (
-            w[(6 + 2 * k) * n : (8 + 2 * k) * n].reshape(n, 2) for k in range(5)
+            w[(6 + 2 * k) * n:(8 + 2 * k) * n].reshape(n, 2) for k in range(5)
         )
         self._rows = np.empty((2, n), dtype=np.int64)
         self.orig_parent, self.parent_row = self._rows
@@ -450,7 +444,7 @@ class RobotController:
             ds.append(nb.com_offset_m)
             mode, tgt, tgt_name = _MODE_BY_NAME[nb.mode], -1, nb.target
             if nb.mode in ('yield', 'mutual') and tgt_name and tgt_name.startswith('robot_'):
-                tgt = row.get(int(tgt_name[len('robot_') :]), -1)
+                tgt = row.get(int(tgt_name[len('robot_'):]), -1)
                 if tgt < 0:
                     mode = MODE_OBSTACLE  # busy with a robot we do not hear
             elif nb.mode == 'obstacle':

@@ -651,8 +651,8 @@ def decide(
         if th_cnt[i] == 0:
             continue
         if mode[i] == MODE_OBSTACLE:
-            # stand-on; two stand-on robots: the higher ID yields, in an emergency only; not on the
-            # same obstacle (one sense: the safety barrier spaces them, S14.6), not within the dwell
+            # stand-on; two stand-on robots: the higher ID yields, in an emergency only; not on
+            # the same obstacle (one sense, the safety barrier spaces them: S14.6), nor in dwell
             if cur_em[i] or _reason_dwell(t, t_entry[i], 0.0, prm):
                 continue
             kb = -1

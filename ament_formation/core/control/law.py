@@ -24,8 +24,8 @@ from ament_formation.core.control.automaton import (
     P_L,
     P_PSI_SLOW,
     P_TAU_G,
-    P_VTAN,
     P_VMAX,
+    P_VTAN,
     P_VTAN_AGENT,
 )
 from ament_formation.core.control.encounters import keepout_radius

@@ -9,11 +9,13 @@ the encounter arbitration decided, the desired point velocity V_d handed to the 
 * **Braking barrier**: every control period, against every obstacle boundary (P, whose boundary
   velocity includes the obstacle's rotation, S14.2) and every robot (contact circle R_i + R_k)
   within ``safety_range_m``, the speed of approach of V_d relative to the boundary is limited to
-  sqrt(2 a_brk (gap - gap_0)) (robot pairs: half of it each, reciprocally), the speed from which the robot can still brake to rest before the
-  gap closes (a_brk: a fraction of the switching gain K, the deceleration the S3 loop realises
-  without a feed-forward). Only the approaching normal component is removed: the tangential part
-  is kept (heading-preserving), so two robots slide past each other instead of deadlocking, and a
-  robot moving away from a threat is never held back (liveness).
+  the speed from which the robot still stops before ``safety_gap_m`` after a reaction time
+  ``safety_lag_s`` at the deceleration a_brk (a fraction of the switching gain K: what the S3
+  loop realises without a feed-forward); a robot pair shares that budget (half each). Only the
+  approaching normal component is removed, the tangential part is kept (heading-preserving), so
+  two robots slide past each other instead of deadlocking, and a robot moving away from a threat
+  is never held back (liveness). The constraints are met by alternating projections; a robot
+  still squeezed between a robot and an obstacle stops (relative to the obstacles).
 
 Both run inside :func:`ament_formation.core.control.law.robot_law`, so the simulator and the
 robot's controller run them alike. Scalar numba kernels.
@@ -28,9 +30,13 @@ from numba import njit
 from ament_formation.core.control.automaton import (
     P_SAFE_ACCEL,
     P_SAFE_GAP,
+    P_SAFE_LAG,
     P_SAFE_RANGE,
     P_VMAX,
 )
+
+
+PASSES = 4  # alternating projections of the barrier (then a stop if a robot's is still violated)
 
 
 @njit(cache=True)
@@ -49,22 +55,30 @@ def accel_limit(coeffs, i):
 
 
 @njit(cache=True)
-def _barrier(vdx, vdy, vddx, vddy, nx, ny, bvx, bvy, gap, a_brk):
-    """Limit the approach of V_d toward a boundary (outward normal n, boundary velocity bv) to
-    sqrt(2 a_brk gap); returns (vdx, vdy, vddx, vddy, active).
+def _barrier(vdx, vdy, vddx, vddy, pdx, pdy, nx, ny, bvx, bvy, gap, a_brk, lag, brake):
+    """Limit the approach of V_d toward a boundary (outward normal n, boundary velocity bv) to the
+    speed that still stops within ``gap`` after a reaction time ``lag`` at deceleration ``a_brk``:
+    sqrt(2 a gap + (a lag)^2) - a lag. With ``brake``, when the robot's own velocity p_dot exceeds
+    it (the S3 loop lags V_d), V_d_dot gets the braking acceleration that removes the excess within
+    lag / 3 (beyond the switching gain K). Returns (vdx, vdy, vddx, vddy, active).
     """
-    ux = vdx - bvx
-    uy = vdy - bvy
-    approach = -(ux * nx + uy * ny)
-    allowed = math.sqrt(2.0 * a_brk * gap) if gap > 0.0 else 0.0
-    if approach <= allowed:
+    al = a_brk * lag
+    allowed = math.sqrt(2.0 * a_brk * gap + al * al) - al if gap > 0.0 else 0.0
+    approach = -((vdx - bvx) * nx + (vdy - bvy) * ny)
+    excess = -((pdx - bvx) * nx + (pdy - bvy) * ny) - allowed if brake else 0.0
+    if approach <= allowed and excess <= 0.0:
         return vdx, vdy, vddx, vddy, False
-    cut = approach - allowed
     dn = vddx * nx + vddy * ny
     if dn < 0.0:  # no feed-forward toward the boundary while braking
         vddx -= dn * nx
         vddy -= dn * ny
-    return vdx + cut * nx, vdy + cut * ny, vddx, vddy, True
+    if excess > 0.0:
+        vddx += 3.0 * excess / lag * nx
+        vddy += 3.0 * excess / lag * ny
+    if approach > allowed:
+        vdx += (approach - allowed) * nx
+        vdy += (approach - allowed) * ny
+    return vdx, vdy, vddx, vddy, True
 
 
 @njit(cache=True)
@@ -91,10 +105,13 @@ def _obstacle_gap(px, py, oc, ov, ophi, ophid, oaxes, j):
 
 
 @njit(cache=True)
-def _robot_barriers(i, x, vdx, vdy, vddx, vddy, rbody, g0, a_brk, reach):
+def _robot_barriers(i, x, pd, vdx, vdy, vddx, vddy, rbody, a_brk, prm, brake):
     """The barrier against every other robot whose contact circle R_i + R_k is within ``reach``
-    (reciprocal: each robot of a pair takes half of the approach speed budget).
+    (reciprocal: each robot of a pair takes half of the approach speed budget). Returns
+    (vdx, vdy, vddx, vddy, active).
     """
+    g0, reach, lag = prm[P_SAFE_GAP], prm[P_SAFE_RANGE], prm[P_SAFE_LAG]
+    active = False
     for k in range(x.shape[0]):
         dx = x[i, 0] - x[k, 0]
         dy = x[i, 1] - x[k, 1]
@@ -104,23 +121,43 @@ def _robot_barriers(i, x, vdx, vdy, vddx, vddy, rbody, g0, a_brk, reach):
         dist = math.hypot(dx, dy)
         gap = dist - rbody[i] - rbody[k]
         if gap < reach and dist > 1e-9:
-            vdx, vdy, vddx, vddy, _a = _barrier(
-                vdx, vdy, vddx, vddy, dx / dist, dy / dist, 0.0, 0.0, gap - g0, 0.25 * a_brk
+            vdx, vdy, vddx, vddy, act = _barrier(
+                vdx,
+                vdy,
+                vddx,
+                vddy,
+                pd[i, 0],
+                pd[i, 1],
+                dx / dist,
+                dy / dist,
+                0.0,
+                0.0,
+                gap - g0,
+                0.25 * a_brk,
+                lag,
+                brake,
             )
-    return vdx, vdy, vddx, vddy
+            active = active or act
+    return vdx, vdy, vddx, vddy, active
 
 
 @njit(cache=True)
-def _obstacle_barriers(px, py, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, g0, a_brk, reach):
-    """The barrier against every obstacle boundary P within ``reach`` (boundary velocity included)."""
+def _obstacle_barriers(p, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, a_brk, prm, brake):
+    """The barrier against every obstacle boundary P within ``safety_range_m`` (boundary velocity
+    included).
+    """
+    g0, reach, lag = prm[P_SAFE_GAP], prm[P_SAFE_RANGE], prm[P_SAFE_LAG]
+    px, py, pdx, pdy = p
     for j in range(oc.shape[0]):
         r1 = oaxes[j, 0]
         if abs(px - oc[j, 0]) > r1 + reach or abs(py - oc[j, 1]) > r1 + reach:
             continue
         gap, nx, ny, bvx, bvy = _obstacle_gap(px, py, oc, ov, ophi, ophid, oaxes, j)
+        # margin scaled to the boundary speed (S14.2): the boundary may move a lag further
+        margin = g0 + lag * (math.hypot(ov[j, 0], ov[j, 1]) + abs(ophid[j]) * r1)
         if gap < reach:
             vdx, vdy, vddx, vddy, _a = _barrier(
-                vdx, vdy, vddx, vddy, nx, ny, bvx, bvy, gap - g0, a_brk
+                vdx, vdy, vddx, vddy, pdx, pdy, nx, ny, bvx, bvy, gap - margin, a_brk, lag, brake
             )
     return vdx, vdy, vddx, vddy
 
@@ -134,11 +171,24 @@ def safe_field(i, x, pd, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, rbody
     """
     vdx, vdy = clip_norm(vdx, vdy, prm[P_VMAX])
     a_brk = prm[P_SAFE_ACCEL] * gain_k  # the S3 loop's deceleration without feed-forward
-    reach = prm[P_SAFE_RANGE]
-    g0 = prm[P_SAFE_GAP]
-    for _ in range(2):  # the second pass re-checks the robots; obstacles have the last word
-        vdx, vdy, vddx, vddy = _robot_barriers(i, x, vdx, vdy, vddx, vddy, rbody, g0, a_brk, reach)
-        vdx, vdy, vddx, vddy = _obstacle_barriers(
-            x[i, 0], x[i, 1], vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, g0, a_brk, reach
+    p = (x[i, 0], x[i, 1], pd[i, 0], pd[i, 1])
+    for _ in range(PASSES):  # alternating projections onto the robots' and obstacles' half-planes
+        vdx, vdy, vddx, vddy, _act = _robot_barriers(
+            i, x, pd, vdx, vdy, vddx, vddy, rbody, a_brk, prm, False
         )
+        vdx, vdy, vddx, vddy = _obstacle_barriers(
+            p, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, a_brk, prm, False
+        )
+    _x, _y, _a, _b, squeezed = _robot_barriers(
+        i, x, pd, vdx, vdy, vddx, vddy, rbody, a_brk, prm, False
+    )
+    if squeezed:  # between a robot and an obstacle: stop (only the obstacles may move it)
+        vdx, vdy, vddx, vddy = 0.0, 0.0, 0.0, 0.0
+    # the braking acceleration where the robot's own velocity is beyond the limits
+    vdx, vdy, vddx, vddy, _act = _robot_barriers(
+        i, x, pd, vdx, vdy, vddx, vddy, rbody, a_brk, prm, True
+    )
+    vdx, vdy, vddx, vddy = _obstacle_barriers(
+        p, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, a_brk, prm, True
+    )
     return vdx, vdy, vddx, vddy
