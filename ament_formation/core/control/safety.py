@@ -162,7 +162,7 @@ def _obstacle_barriers(p, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, a_br
     return vdx, vdy, vddx, vddy
 
 
-# implements: S3 (safety filter of V_d)
+# implements: S14
 @njit(cache=True)
 def safe_field(i, x, pd, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, rbody, gain_k, prm):
     """V_d, V_d_dot of robot i after the speed limit and the braking barrier (module docstring).
