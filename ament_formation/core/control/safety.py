@@ -107,7 +107,8 @@ def _obstacle_gap(px, py, oc, ov, ophi, ophid, oaxes, j):
 @njit(cache=True)
 def _robot_barriers(i, x, pd, vdx, vdy, vddx, vddy, rbody, a_brk, prm, brake):
     """The barrier against every other robot whose contact circle R_i + R_k is within ``reach``
-    (reciprocal: each robot of a pair takes half of the approach speed budget). Returns
+    (reciprocal: each robot of a pair takes half of the approach speed budget, and makes way for
+    the other's own approach, e.g. when an obstacle pushes that robot). Returns
     (vdx, vdy, vddx, vddy, active).
     """
     g0, reach, lag = prm[P_SAFE_GAP], prm[P_SAFE_RANGE], prm[P_SAFE_LAG]
@@ -121,6 +122,9 @@ def _robot_barriers(i, x, pd, vdx, vdy, vddx, vddy, rbody, a_brk, prm, brake):
         dist = math.hypot(dx, dy)
         gap = dist - rbody[i] - rbody[k]
         if gap < reach and dist > 1e-9:
+            nx = dx / dist
+            ny = dy / dist
+            push = max(0.0, pd[k, 0] * nx + pd[k, 1] * ny)  # k coming at i: i makes way
             vdx, vdy, vddx, vddy, act = _barrier(
                 vdx,
                 vdy,
@@ -128,10 +132,10 @@ def _robot_barriers(i, x, pd, vdx, vdy, vddx, vddy, rbody, a_brk, prm, brake):
                 vddy,
                 pd[i, 0],
                 pd[i, 1],
-                dx / dist,
-                dy / dist,
-                0.0,
-                0.0,
+                nx,
+                ny,
+                push * nx,
+                push * ny,
                 gap - g0,
                 0.25 * a_brk,
                 lag,
