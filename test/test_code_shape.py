@@ -30,7 +30,6 @@ KNOWN = {
     'nodes/controller.py:__init__': (149, 1),
     'core/control/arbiter.py:decide': (141, 4),
     'nodes/live_view.py:foxglove_layout': (131, 1),
-    'core/model/dynamics.py:rk4_step_k': (65, 20),
     'core/control/smc.py:smc_torque_k': (35, 17),
 }
 

@@ -15,7 +15,7 @@ from ament_formation.core.control.controller import (
 )
 from ament_formation.core.control.rewiring import FormationGraph
 from ament_formation.core.model.disturbance import Disturbance
-from ament_formation.core.model.dynamics import rk4_step_k
+from ament_formation.core.model.dynamics import rk4_step_k, RobotPlant
 from ament_formation.core.scenario.loader import load_scenario
 from ament_formation.core.sim.simulator import simulate
 
@@ -79,18 +79,20 @@ def closed_loop_with_controllers(sc, duration_s, dt=0.001):
             p = r.params
             x[r.id] = np.array(
                 rk4_step_k(
-                    *x[r.id],
-                    *torques[r.id],
-                    *g[0][q],
-                    *g[1][q],
-                    *g[2][q],
+                    tuple(x[r.id]),
+                    tuple(torques[r.id]),
+                    tuple(g[0][q]),
+                    tuple(g[1][q]),
+                    tuple(g[2][q]),
                     dt,
-                    p.mass_tilde_kg,
-                    p.inertia_tilde_kgm2,
-                    p.wheel_radius_m,
-                    p.axle_length_m,
-                    p.com_offset_m,
-                    p.platform_mass_kg,
+                    RobotPlant(
+                        p.mass_tilde_kg,
+                        p.inertia_tilde_kgm2,
+                        p.wheel_radius_m,
+                        p.axle_length_m,
+                        p.com_offset_m,
+                        p.platform_mass_kg,
+                    ),
                 )
             )
     return x, events

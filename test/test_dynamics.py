@@ -233,6 +233,19 @@ def test_kernels_match_numpy_dynamics():
     np.testing.assert_allclose(out, ref, rtol=1e-12, atol=1e-15)
 
 
+def test_disturbance_at_times_is_the_sum_of_sinusoids():
+    """Disturbance.at_times / __call__ (disturbance_k over a grid) against the numpy formula."""
+    dist = Disturbance.from_bounds(5, (0.05, 0.5), seed=3)
+    t = np.linspace(0.0, 30.0, 301)
+    oracle = np.sum(
+        dist.amplitude[None]
+        * np.sin(2 * np.pi * dist.freq_hz[None] * t[:, None, None, None] + dist.phase_rad[None]),
+        axis=3,
+    )
+    np.testing.assert_allclose(dist.at_times(t), oracle, rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(dist(t[17]), dist.at_times(t)[17])
+
+
 def test_phasor_disturbance_kernels_track_the_exact_disturbance():
     dist = Disturbance.from_bounds(3, (0.05, 0.5), seed=9)
     dt = 1e-3

@@ -17,7 +17,7 @@ from oracle_formation import (
 from oracle_smc import sliding_mode_torque
 
 from ament_formation.core.model.disturbance import Disturbance
-from ament_formation.core.model.dynamics import PlantCoeffs
+from ament_formation.core.model.dynamics import PlantCoeffs, RobotPlant
 from ament_formation.core.params import ControlGains, RobotParams
 
 GAINS = ControlGains()
@@ -172,7 +172,15 @@ def test_closed_loop_leader_follower_formation_converges():
         errs.append((np.linalg.norm(x[0, :2] - r[0]), np.linalg.norm(x[1, :2] - x[0, :2] - delta)))
         g0, gh, g1 = dist(t), dist(t + dt / 2), dist(t + dt)
         for j in range(2):
-            x[j] = kn.rk4_step_k(*x[j], *torque[j], *g0[j], *gh[j], *g1[j], dt, *co[j])
+            x[j] = kn.rk4_step_k(
+                tuple(x[j]),
+                tuple(torque[j]),
+                tuple(g0[j]),
+                tuple(gh[j]),
+                tuple(g1[j]),
+                dt,
+                RobotPlant(*co[j]),
+            )
     errs = np.array(errs)
     assert errs[0].max() > 0.05
     settled = errs[int(20.0 / dt):]

@@ -11,7 +11,12 @@ import pytest
 from ament_formation.core.control.law import gains_vector, goal_fields
 from ament_formation.core.control.neighbours import extrapolate_neighbour, neighbour_goal
 from ament_formation.core.control.stop import stop_torque
-from ament_formation.core.model.dynamics import PlantCoeffs, point_velocities, rk4_step_k
+from ament_formation.core.model.dynamics import (
+    PlantCoeffs,
+    point_velocities,
+    rk4_step_k,
+    RobotPlant,
+)
 from ament_formation.core.model.paths import LinePath
 from ament_formation.core.params import ControlGains, RobotParams
 
@@ -35,7 +40,9 @@ def test_stop_brings_the_wheels_to_rest():
     for _ in range(3000):  # 3 s, six stop times
         t1, t2 = stop_torque(x[None], K, 0.5, GAINS)[0]
         k = [K.m_tilde[0], K.I_tilde[0], K.r[0], K.a[0], K.d[0], K.m_c[0]]
-        x = np.array(rk4_step_k(*x, t1, t2, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, dt, *k))
+        x = np.array(
+            rk4_step_k(tuple(x), (t1, t2), (0.0, 0.0), (0.0, 0.0), (0.0, 0.0), dt, RobotPlant(*k))
+        )
     assert abs(x[3]) < 1e-4 and abs(x[4]) < 1e-3
 
 
@@ -58,7 +65,11 @@ def test_neighbour_goal_is_the_law_s_goal():
     g, gd = neighbour_goal(4.0, None, x[0], offset, d[0])
     pd = point_velocities(x, d)
     goal, goal_dot, _ = goal_fields(
-        x, pd, np.zeros((2, 6)), np.array([-1, 0]), np.array([[0.0, 0.0], offset]),
+        x,
+        pd,
+        np.zeros((2, 6)),
+        np.array([-1, 0]),
+        np.array([[0.0, 0.0], offset]),
         gains_vector(GAINS),
     )
     np.testing.assert_array_equal(g, goal[1])

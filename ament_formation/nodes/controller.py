@@ -97,6 +97,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
+from ament_formation.core.control.assignment import AssignedLaw, original_parent_state
 from ament_formation.core.control.controller import NeighbourState, RobotController
 from ament_formation.core.control.estimator import EstimatorParams, PoseEstimator
 from ament_formation.core.control.neighbours import extrapolate_neighbour, neighbour_goal
@@ -386,9 +387,7 @@ class ControllerNode(Node):
         )
         self.orig: _Neighbour | None = None
         self.encounter_revision = -1
-        self.assignment = None  # this robot's EncounterAssignment from the coordinator
-        self._applied = None  # key of the assignment in force
-        self._done: set = set()  # assignments this robot has already left (S8.3)
+        self.assigned = AssignedLaw(self.law)  # the coordinator's assignment applied (S7, S8.3)
         self.events: list[dict] = []  # mode events of the law (scenario time)
         self.last_wheel_s = -math.inf
         self.rejected = {'pose': 0, 'wheel': 0, 'parent': 0, 'graph': 0, 'encounters': 0}
@@ -555,7 +554,7 @@ class ControllerNode(Node):
             return
         with self.lock:
             self.encounter_revision = revision
-            self.assignment = assignments.get(self.rid)
+            self.assigned.assignment = assignments.get(self.rid)
         self._update_hearing()
 
     def _subscribe_neighbour(self, rid: int) -> _Neighbour:
@@ -618,7 +617,7 @@ class ControllerNode(Node):
         """
         if self.prm.hear_all or nb is self.parent or nb.rid == self.orig_parent_id or nb.in_range:
             return True
-        a = self.assignment
+        a = self.assigned.assignment
         return a is not None and a.partner == nb.rid
 
     def _update_hearing(self, only: _Neighbour | None = None) -> None:
@@ -747,40 +746,9 @@ class ControllerNode(Node):
             heard[k] = NeighbourState.trusted(
                 xk, nb.accel, radius, team, nb.mode, nb.target, d, goal, goal_dot
             )
-        orig_state = None
-        if self.orig_parent_id is not None:
-            orig_state = heard.get(self.orig_parent_id)
-            if orig_state is None:  # pi0 silent: goal = own position (no exit pull)
-                orig_state = NeighbourState(state - np.r_[self.orig_offset, 0.0, 0.0, 0.0])
-        assignment = self.assignment
-        key = None
-        if assignment is not None:
-            key = (assignment.mode, assignment.partner, assignment.t_entry_s)
-            if key in self._done or assignment.partner not in heard:
-                assignment = None
-        # the coordinator withdrew (or replaced) the assignment in force: its joint exit (S8.3)
-        withdrawn = self._applied is not None and key != self._applied
-        release = self._applied[1] if withdrawn else None
-        out = self.law.step(
-            t,
-            state,
-            parent=None if self.parent is None else heard[self.parent.rid],
-            original_parent=orig_state,
-            neighbours=heard,
-            assignment=assignment,
-            release=release,
-        )
-        if withdrawn and (out.mode, out.target) != (self._applied[0], f'robot_{self._applied[1]}'):
-            self._done.add(self._applied)  # left on the coordinator's release
-            self._applied = None
-        if assignment is not None:
-            self._applied = key
-        if self._applied is not None and (out.mode, out.target) != (
-            self._applied[0],
-            f'robot_{self._applied[1]}',
-        ):
-            self._done.add(self._applied)  # left (or replaced) with its own exit test
-            self._applied = None
+        parent = None if self.parent is None else self.parent.rid
+        orig_state = original_parent_state(heard, self.orig_parent_id, self.orig_offset, state)
+        out = self.assigned.step(t, state, parent, orig_state, heard)
         self.events.extend(out.events)
         self.mode = {
             'mode': out.mode,

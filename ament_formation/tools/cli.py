@@ -20,6 +20,7 @@ _COMMAND_MODULES = (
     'ament_formation.tools.topic_cmd',  # topics, nodes, echo, hz
     'ament_formation.tools.board_cmd',  # board --pty (emulated motor board)
     'ament_formation.tools.multihost_cmd',  # multihost (hosts in network namespaces)
+    'ament_formation.tools.sweep_cmd',  # sweep (Monte Carlo campaigns, Dask)
 )
 
 

@@ -25,6 +25,7 @@ import sys
 import time
 
 from ament_formation.core.errors import ConfigError
+from ament_formation.tools.sensing_args import add_sensing_arguments, sensing_from_args
 
 
 def register(subparsers) -> None:
@@ -57,6 +58,7 @@ def register(subparsers) -> None:
     )
     sim.add_argument('--no-figure', action='store_true', help='skip figure.png')
     sim.add_argument('--quiet', action='store_true', help='no progress and no summary')
+    add_sensing_arguments(sim)
     sim.set_defaults(func=run_sim)
 
     plot = subparsers.add_parser(
@@ -174,6 +176,9 @@ def run_sim(args: argparse.Namespace) -> int:
     record_s = _positive(args.record_every_s, '--record-every-s')
     if record_s < dt_s:
         raise ConfigError(f'must be >= --dt-s ({dt_s}) (got {record_s})', '--record-every-s')
+    sensing = sensing_from_args(args)  # None: ideal sensing
+    if sensing is not None and dt_s > 0.01:
+        raise ConfigError(f'must be <= 0.01 with camera sensing (got {dt_s})', '--dt-s')
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise ConfigError('exists and is not a directory', '--out', str(out))
@@ -184,11 +189,18 @@ def run_sim(args: argparse.Namespace) -> int:
 
     progress = None if args.quiet else _Progress(sys.stderr)
     try:
-        result = simulate(scenario, dt_s=dt_s, record_every_s=record_s, progress=progress)
+        if sensing is None:
+            result = simulate(scenario, dt_s=dt_s, record_every_s=record_s, progress=progress)
+        else:
+            from ament_formation.core.sim.sensed import simulate_sensed
+
+            result = simulate_sensed(scenario, sensing, dt_s, record_s, progress=progress)
     finally:
         if progress is not None:
             progress.finish()
     metrics = check_run(compute_metrics(result, scenario), scenario)
+    if sensing is not None:  # (an ideal run's metrics.json is as before)
+        metrics['sensing'] = {'model': args.sensing, **result.sensing}
     write_run(out, result, scenario, metrics)
     if not args.no_figure:
         from ament_formation.core.sim.plot import render_figure

@@ -4,7 +4,9 @@ g_k(t) = sum_m A_km sin(2 pi f_km t + phi_km) per robot, with A_km >= 0 and sum_
 so |g1| <= g1_bar [m/s^2] and |g2| <= g2_bar [rad/s^2] hold exactly, g is C-infinity and the
 derivatives are bounded. Frequencies and phases are drawn from ``numpy.random.default_rng(seed)``:
 the same seed gives the same disturbance. The closed loop evaluates it per robot with the kernels
-:func:`disturbance_k` (direct) and :func:`disturbance_phasor_advance_k` (phasor rotation).
+:func:`disturbance_k` (direct) and :func:`disturbance_phasor_advance_k` (phasor rotation); the
+twin and :meth:`Disturbance.__call__` through :func:`disturbance_grid_k`, which calls
+:func:`disturbance_k`.
 """
 
 from __future__ import annotations
@@ -99,9 +101,14 @@ class Disturbance:
 
     def __call__(self, t_s: float) -> np.ndarray:
         """g(t_s) (N, 2)."""
-        return np.sum(
-            self.amplitude * np.sin(2.0 * math.pi * self.freq_hz * t_s + self.phase_rad), axis=2
-        )
+        return self.at_times(np.array([float(t_s)]))[0]
+
+    def at_times(self, t_s: np.ndarray) -> np.ndarray:
+        """The disturbance at every time of ``t_s`` (T,): (T, N, 2), by :func:`disturbance_k`."""
+        t = np.ascontiguousarray(np.asarray(t_s, dtype=float).reshape(-1))
+        out = np.empty((t.shape[0], self.n, 2))
+        disturbance_grid_k(t, self.amplitude, self.freq_hz, self.phase_rad, out)
+        return out
 
     def step_rotation(self, h_s: float) -> tuple[np.ndarray, np.ndarray]:
         """(cos, sin) of the phase advance 2 pi f h_s of every term, each (N, 2, M), for
@@ -130,6 +137,18 @@ def disturbance_k(t, amp, freq, phase):
         g1 += amp[0, m] * math.sin(2.0 * math.pi * freq[0, m] * t + phase[0, m])
         g2 += amp[1, m] * math.sin(2.0 * math.pi * freq[1, m] * t + phase[1, m])
     return g1, g2
+
+
+@njit(cache=True)
+def disturbance_grid_k(t, amp, freq, phase, out):
+    """The disturbance of every robot at every time: t (T,), amp/freq/phase (N, 2, M) -> out
+    (T, N, 2).
+    """
+    for s in range(t.shape[0]):
+        for i in range(amp.shape[0]):
+            g1, g2 = disturbance_k(t[s], amp[i], freq[i], phase[i])
+            out[s, i, 0] = g1
+            out[s, i, 1] = g2
 
 
 @njit(cache=True)

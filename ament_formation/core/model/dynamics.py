@@ -17,6 +17,8 @@ is the controlled point p (CoM, distance d ahead of the axle midpoint); ``torque
 
 from __future__ import annotations
 
+from collections import namedtuple
+
 from dataclasses import dataclass
 import math
 from typing import Callable, Sequence
@@ -139,13 +141,22 @@ def state_derivative_k(x, y, th, v, w, t1, t2, g1, g2, mt, It, r, a, d, mc):
     return dx, dy, w, dv, dw
 
 
+RobotPlant = namedtuple('RobotPlant', ['m_tilde', 'I_tilde', 'r', 'a', 'd', 'm_c'])
+RobotPlant.__doc__ = """One robot's plant coefficients as :func:`rk4_step_k` takes them (floats,
+the fields of :class:`PlantCoeffs` for one robot without the torque limit)."""
+
+
 @njit(cache=True)
-def rk4_step_k(x, y, th, v, w, t1, t2, g0a, g0b, gha, ghb, g1a, g1b, dt, mt, It, r, a, d, mc):
-    """One RK4 step with ZOH torque; g0 at t, gh at t + dt/2, g1 at t + dt. -> new 5-tuple
-    state.
+def rk4_step_k(s, tau, g0, gh, g1, dt, p):
+    """One RK4 step of one robot with ZOH torque: state ``s`` (x, y, theta, v, omega), torque
+    ``tau`` (left, right), the disturbance g (g1, g2) at t (``g0``), t + dt/2 (``gh``) and t + dt
+    (``g1``), coefficients ``p`` (:data:`RobotPlant`) -> the new state (5-tuple).
     """
     h = 0.5 * dt
-    k1 = state_derivative_k(x, y, th, v, w, t1, t2, g0a, g0b, mt, It, r, a, d, mc)
+    mt, It, r, a, d, mc = p.m_tilde, p.I_tilde, p.r, p.a, p.d, p.m_c
+    x, y, th, v, w = s[0], s[1], s[2], s[3], s[4]
+    t1, t2 = tau[0], tau[1]
+    k1 = state_derivative_k(x, y, th, v, w, t1, t2, g0[0], g0[1], mt, It, r, a, d, mc)
     k2 = state_derivative_k(
         x + h * k1[0],
         y + h * k1[1],
@@ -154,8 +165,8 @@ def rk4_step_k(x, y, th, v, w, t1, t2, g0a, g0b, gha, ghb, g1a, g1b, dt, mt, It,
         w + h * k1[4],
         t1,
         t2,
-        gha,
-        ghb,
+        gh[0],
+        gh[1],
         mt,
         It,
         r,
@@ -171,8 +182,8 @@ def rk4_step_k(x, y, th, v, w, t1, t2, g0a, g0b, gha, ghb, g1a, g1b, dt, mt, It,
         w + h * k2[4],
         t1,
         t2,
-        gha,
-        ghb,
+        gh[0],
+        gh[1],
         mt,
         It,
         r,
@@ -188,8 +199,8 @@ def rk4_step_k(x, y, th, v, w, t1, t2, g0a, g0b, gha, ghb, g1a, g1b, dt, mt, It,
         w + dt * k3[4],
         t1,
         t2,
-        g1a,
-        g1b,
+        g1[0],
+        g1[1],
         mt,
         It,
         r,
@@ -214,26 +225,13 @@ def rk4_step_all(state, torque, g0, gh, g1, dt, mt, It, r, a, d, mc, out):
     """
     for i in range(state.shape[0]):
         nx = rk4_step_k(
-            state[i, 0],
-            state[i, 1],
-            state[i, 2],
-            state[i, 3],
-            state[i, 4],
-            torque[i, 0],
-            torque[i, 1],
-            g0[i, 0],
-            g0[i, 1],
-            gh[i, 0],
-            gh[i, 1],
-            g1[i, 0],
-            g1[i, 1],
+            (state[i, 0], state[i, 1], state[i, 2], state[i, 3], state[i, 4]),
+            (torque[i, 0], torque[i, 1]),
+            (g0[i, 0], g0[i, 1]),
+            (gh[i, 0], gh[i, 1]),
+            (g1[i, 0], g1[i, 1]),
             dt,
-            mt[i],
-            It[i],
-            r[i],
-            a[i],
-            d[i],
-            mc[i],
+            RobotPlant(mt[i], It[i], r[i], a[i], d[i], mc[i]),
         )
         for j in range(5):
             out[i, j] = nx[j]

@@ -103,6 +103,18 @@ class CameraSpec:
 
 
 @dataclass(frozen=True)
+class FloorSpec:
+    """The floor the robots drive on: x_m = (x_min, x_max), y_m = (y_min, y_max) [m], world frame.
+
+    A run in which a robot's body (the circle of ``body_radius_m`` around p) crosses the floor's
+    edge fails its ``on_floor`` check (core/sim/metrics.check_run).
+    """
+
+    x_m: tuple[float, float]
+    y_m: tuple[float, float]
+
+
+@dataclass(frozen=True)
 class ExpectSpec:
     """What a run of the scenario must achieve (the ``expect:`` block; docs/scenarios.md), besides
     the checks every run gets (complete, no prohibited entry, no contact). Per-robot limits are
@@ -149,6 +161,7 @@ class Scenario:
     camera: CameraSpec = field(default_factory=CameraSpec)
     expect: ExpectSpec = field(default_factory=ExpectSpec)
     source: str | None = None
+    floor: FloorSpec | None = None
 
     @property
     def robot_ids(self) -> tuple[int, ...]:
@@ -351,6 +364,7 @@ _TOP_OPTIONAL = {
     'control',
     'camera',
     'expect',
+    'floor',
 }
 _EXPECT_KEYS = {
     'settled_rms_max_m',
@@ -461,6 +475,7 @@ def _parse(data, source) -> Scenario:
     avoidance = _parse_params_block(data, 'avoidance', AvoidanceParams)
     control = _parse_params_block(data, 'control', ControlGains)
     camera = _parse_camera(data.get('camera', {}))
+    floor = _parse_floor(data['floor']) if data.get('floor') is not None else None
 
     robots = _parse_robots(data['robots'], base)
     ids = [r.id for r in robots]
@@ -469,6 +484,8 @@ def _parse(data, source) -> Scenario:
 
     _check_teams(robots, edges)
     _check_start_geometry(robots, obstacles, avoidance)
+    if floor is not None:
+        _check_start_on_floor(robots, floor)
     _check_limit_cycles(obstacles, avoidance, duration)
     expect = _parse_expect(data.get('expect', {}), ids)
 
@@ -484,6 +501,7 @@ def _parse(data, source) -> Scenario:
         camera=camera,
         expect=expect,
         source=source,
+        floor=floor,
     )
 
 
@@ -515,6 +533,19 @@ def _parse_camera(block) -> CameraSpec:
         if not 0 < value <= MAX_IMAGE_PX:
             raise ConfigError(f'must be > 0 and <= {MAX_IMAGE_PX} (got {value})', f'camera.{key}')
     return CameraSpec(fps=fps, width_px=width, height_px=height)
+
+
+def _parse_floor(block) -> FloorSpec:
+    _keys(block, 'floor', {'x_m', 'y_m'}, set())
+    limits = []
+    for key in ('x_m', 'y_m'):
+        lo, hi = _vector(block[key], f'floor.{key}', 2)
+        if not hi > lo:
+            raise ConfigError(
+                f'must be [min, max] with min < max (got {[lo, hi]})', f'floor.{key}'
+            )
+        limits.append((lo, hi))
+    return FloorSpec(x_m=limits[0], y_m=limits[1])
 
 
 def _per_robot(value, where: str, ids: list[int], parse_one) -> tuple:
@@ -783,6 +814,22 @@ def _check_teams(robots: list[RobotSpec], edges: list[tuple[int, int]]) -> None:
             )
 
 
+def _check_start_on_floor(robots, floor: FloorSpec) -> None:
+    for i, r in enumerate(robots):
+        x, y = r.initial_pose[:2]
+        rad = r.params.body_radius_m
+        inside = (
+            floor.x_m[0] + rad <= x <= floor.x_m[1] - rad
+            and floor.y_m[0] + rad <= y <= floor.y_m[1] - rad
+        )
+        if not inside:
+            raise ConfigError(
+                f'robot {r.id} starts at ({x:.3f}, {y:.3f}) m with its body '
+                f'(radius {rad:g} m) not on the floor x {list(floor.x_m)}, y {list(floor.y_m)}',
+                f'robots[{i}].initial_pose',
+            )
+
+
 def _check_start_geometry(robots, obstacles, avoidance: AvoidanceParams) -> None:
     if obstacles:
         field_ = ObstacleField(obstacles).at(0.0)
@@ -869,10 +916,10 @@ def _check_limit_cycles(obstacles, avoidance: AvoidanceParams, duration_s: float
             hit = ellipses_overlap(
                 centers[:n_t, a],
                 phis[:n_t, a],
-                np.repeat(axes[a: a + 1], n_t, 0),
+                np.repeat(axes[a:a + 1], n_t, 0),
                 centers[:n_t, b],
                 phis[:n_t, b],
-                np.repeat(axes[b: b + 1], n_t, 0),
+                np.repeat(axes[b:b + 1], n_t, 0),
             )
             if np.any(hit):
                 t_hit = float(times[int(np.argmax(hit))]) if n_t > 1 else 0.0
@@ -1008,6 +1055,8 @@ def scenario_to_mapping(scenario: Scenario) -> dict:
             'height_px': int(scenario.camera.height_px),
         },
     }
+    if scenario.floor is not None:
+        out['floor'] = {'x_m': floats(scenario.floor.x_m), 'y_m': floats(scenario.floor.y_m)}
     e = scenario.expect
     if not e.empty:
         expect = {}

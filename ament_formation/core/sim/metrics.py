@@ -263,7 +263,32 @@ def compute_metrics(result: SimResult, scenario) -> dict:
         'robot_pair_min_distance_m': pair_min,
         'reaching_ratio_max': max(ratios) if ratios else None,
     }
-    return json_ready(metrics)
+    return json_ready({**metrics, **motion_metrics(result, scenario)})
+
+
+def motion_metrics(result: SimResult, scenario) -> dict:
+    """How fast and how far the robots went: ``peak_speed_mps`` {robot: max |v|} and, when the
+    scenario declares its floor, ``floor_excursion_m``: the largest distance by which a robot's
+    body (radius ``body_radius_m`` around p) reached past the floor's edge (<= 0: always on it).
+    """
+    ids = list(result.robot_ids)
+    speed = np.abs(result.state[:, :, 3]) if len(result.t_s) else np.zeros((1, len(ids)))
+    out = {'peak_speed_mps': {str(rid): float(speed[:, i].max()) for i, rid in enumerate(ids)}}
+    floor = getattr(scenario, 'floor', None)
+    if floor is not None and len(result.t_s):
+        radius = {r.id: r.params.body_radius_m for r in scenario.robots}
+        rad = np.asarray([radius[rid] for rid in ids])
+        x, y = result.state[:, :, 0], result.state[:, :, 1]
+        past = np.maximum.reduce(
+            [
+                floor.x_m[0] - (x - rad),
+                x + rad - floor.x_m[1],
+                floor.y_m[0] - (y - rad),
+                y + rad - floor.y_m[1],
+            ]
+        )
+        out['floor_excursion_m'] = float(past.max())
+    return out
 
 
 # ------------------------------------------------------------------------------------------------
@@ -341,6 +366,8 @@ def check_run(
             check('contact', worst[0] >= 0.0, worst[2], worst[3], '>=', f'robots {worst[1]}')
         )
 
+    if getattr(scenario, 'floor', None) is not None:
+        checks.append(_le('on_floor', metrics.get('floor_excursion_m'), 0.0))
     e = scenario.expect
     robots = metrics.get('robots') or {}
     for rid, limit in e.settled_rms_max_m:

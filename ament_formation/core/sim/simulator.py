@@ -52,8 +52,14 @@ from ament_formation.core.model.disturbance import (
     disturbance_phasor_advance_k,
     disturbance_phasor_init_k,
 )
-from ament_formation.core.model.dynamics import PlantCoeffs, point_velocity_k, rk4_step_k
+from ament_formation.core.model.dynamics import (
+    PlantCoeffs,
+    point_velocity_k,
+    rk4_step_k,
+    RobotPlant,
+)
 from ament_formation.core.model.obstacles import obstacle_arrays, obstacle_states
+from ament_formation.core.model.paths import quintic_hermite_k
 from ament_formation.core.sim.trajectory import SimResult
 
 REF_SUB = 10  # leader references are tabulated every REF_SUB steps and interpolated
@@ -61,47 +67,28 @@ REF_SUB = 10  # leader references are tabulated every REF_SUB steps and interpol
 
 @njit(cache=True)
 def reference_at(step, sub, dt, tab, ref, rows):
-    """Quintic Hermite interpolation of the tabulated leader references (exact r, r_dot, r_ddot at
-    the grid nodes, C2 in between; error ~ h^6 r^(6)) for step ``step`` of the chunk -> ``ref`` (N,
-    6)
-    rows ``rows`` (the leaders; other rows are left untouched).
+    """Quintic Hermite interpolation (:func:`quintic_hermite_k`) of the tabulated leader references
+    for step ``step`` of the chunk -> ``ref`` (N, 6) rows ``rows`` (the leaders; other rows are
+    left untouched).
     """
     g = step // sub
     h = sub * dt
     s = (step - g * sub) / sub
-    s2 = s * s
-    s3 = s2 * s
-    s4 = s3 * s
-    s5 = s4 * s
-    b0 = 1.0 - 10.0 * s3 + 15.0 * s4 - 6.0 * s5
-    b1 = s - 6.0 * s3 + 8.0 * s4 - 3.0 * s5
-    b2 = 0.5 * s2 - 1.5 * s3 + 1.5 * s4 - 0.5 * s5
-    b3 = 0.5 * s3 - s4 + 0.5 * s5
-    b4 = -4.0 * s3 + 7.0 * s4 - 3.0 * s5
-    b5 = 10.0 * s3 - 15.0 * s4 + 6.0 * s5
-    d0 = -30.0 * s2 + 60.0 * s3 - 30.0 * s4
-    d1 = 1.0 - 18.0 * s2 + 32.0 * s3 - 15.0 * s4
-    d2 = s - 4.5 * s2 + 6.0 * s3 - 2.5 * s4
-    d3 = 1.5 * s2 - 4.0 * s3 + 2.5 * s4
-    d4 = -12.0 * s2 + 28.0 * s3 - 15.0 * s4
-    d5 = -d0
-    e0 = -60.0 * s + 180.0 * s2 - 120.0 * s3
-    e1 = -36.0 * s + 96.0 * s2 - 60.0 * s3
-    e2 = 1.0 - 9.0 * s + 18.0 * s2 - 10.0 * s3
-    e3 = 3.0 * s - 12.0 * s2 + 10.0 * s3
-    e4 = -24.0 * s + 84.0 * s2 - 60.0 * s3
-    e5 = -e0
     for i in rows:
         for q in range(2):
-            p0 = tab[i, g, q]
-            v0 = tab[i, g, 2 + q] * h
-            a0 = tab[i, g, 4 + q] * h * h
-            p1 = tab[i, g + 1, q]
-            v1 = tab[i, g + 1, 2 + q] * h
-            a1 = tab[i, g + 1, 4 + q] * h * h
-            ref[i, q] = b0 * p0 + b1 * v0 + b2 * a0 + b3 * a1 + b4 * v1 + b5 * p1
-            ref[i, 2 + q] = (d0 * p0 + d1 * v0 + d2 * a0 + d3 * a1 + d4 * v1 + d5 * p1) / h
-            ref[i, 4 + q] = (e0 * p0 + e1 * v0 + e2 * a0 + e3 * a1 + e4 * v1 + e5 * p1) / (h * h)
+            r, rd, rdd = quintic_hermite_k(
+                s,
+                h,
+                tab[i, g, q],
+                tab[i, g, 2 + q],
+                tab[i, g, 4 + q],
+                tab[i, g + 1, q],
+                tab[i, g + 1, 2 + q],
+                tab[i, g + 1, 4 + q],
+            )
+            ref[i, q] = r
+            ref[i, 2 + q] = rd
+            ref[i, 4 + q] = rdd
 
 
 # ------------------------------------------------------------------------------ the 1 kHz loop
@@ -332,26 +319,20 @@ def _run_segment(
             g_prev[i, 0] = g1a
             g_prev[i, 1] = g1b
             nx = rk4_step_k(
-                x[i, 0],
-                x[i, 1],
-                x[i, 2],
-                x[i, 3],
-                x[i, 4],
-                torque[i, 0],
-                torque[i, 1],
-                g0a,
-                g0b,
-                gha,
-                ghb,
-                g1a,
-                g1b,
+                (x[i, 0], x[i, 1], x[i, 2], x[i, 3], x[i, 4]),
+                (torque[i, 0], torque[i, 1]),
+                (g0a, g0b),
+                (gha, ghb),
+                (g1a, g1b),
                 dt,
-                coeffs[0, i],
-                coeffs[1, i],
-                coeffs[2, i],
-                coeffs[3, i],
-                coeffs[4, i],
-                coeffs[5, i],
+                RobotPlant(
+                    coeffs[0, i],
+                    coeffs[1, i],
+                    coeffs[2, i],
+                    coeffs[3, i],
+                    coeffs[4, i],
+                    coeffs[5, i],
+                ),
             )
             for q in range(5):
                 x[i, q] = nx[q]

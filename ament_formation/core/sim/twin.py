@@ -17,7 +17,12 @@ from numba import njit
 import numpy as np
 
 from ament_formation.core.model.disturbance import Disturbance
-from ament_formation.core.model.dynamics import PlantCoeffs, point_velocities, rk4_step_k
+from ament_formation.core.model.dynamics import (
+    PlantCoeffs,
+    point_velocities,
+    rk4_step_k,
+    RobotPlant,
+)
 from ament_formation.core.model.obstacles import ObstacleField, ObstacleStates
 
 
@@ -29,30 +34,18 @@ def _advance_k(state, wheel, tau, g, dt, mt, It, r, a, d, mc):
     n_steps = (g.shape[0] - 1) // 2
     for i in range(state.shape[0]):
         half = 0.5 * a[i]
+        plant = RobotPlant(mt[i], It[i], r[i], a[i], d[i], mc[i])
         for s in range(n_steps):
             wl0 = (state[i, 3] - half * state[i, 4]) / r[i]
             wr0 = (state[i, 3] + half * state[i, 4]) / r[i]
             nx = rk4_step_k(
-                state[i, 0],
-                state[i, 1],
-                state[i, 2],
-                state[i, 3],
-                state[i, 4],
-                tau[i, 0],
-                tau[i, 1],
-                g[2 * s, i, 0],
-                g[2 * s, i, 1],
-                g[2 * s + 1, i, 0],
-                g[2 * s + 1, i, 1],
-                g[2 * s + 2, i, 0],
-                g[2 * s + 2, i, 1],
+                (state[i, 0], state[i, 1], state[i, 2], state[i, 3], state[i, 4]),
+                (tau[i, 0], tau[i, 1]),
+                (g[2 * s, i, 0], g[2 * s, i, 1]),
+                (g[2 * s + 1, i, 0], g[2 * s + 1, i, 1]),
+                (g[2 * s + 2, i, 0], g[2 * s + 2, i, 1]),
                 dt,
-                mt[i],
-                It[i],
-                r[i],
-                a[i],
-                d[i],
-                mc[i],
+                plant,
             )
             for q in range(5):
                 state[i, q] = nx[q]
@@ -139,14 +132,7 @@ class PlantTwin:
         n = len(self.ids)
         if self.started:  # g at every half step, one vectorised evaluation
             t = self.t_s + 0.5 * self.dt_s * np.arange(2 * n_steps + 1)
-            d = self.disturbance
-            g = np.sum(
-                d.amplitude[None]
-                * np.sin(
-                    2.0 * math.pi * d.freq_hz[None] * t[:, None, None, None] + d.phase_rad[None]
-                ),
-                axis=3,
-            )
+            g = self.disturbance.at_times(t)
         else:
             g = np.zeros((2 * n_steps + 1, n, 2))
         k = self.k

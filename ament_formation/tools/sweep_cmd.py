@@ -1,0 +1,326 @@
+"""`formation sweep --out DIR`: a Monte Carlo campaign of closed-loop runs.
+
+Cases are random scenarios of declared families (core/scenario/families.py) or seeded
+perturbations of a given scenario (``--perturb SCENARIO.yaml``); each runs in the fast simulator
+(``--sensing ideal``, or camera sensing) and is classified (core/sim/campaign.py). Engines:
+
+* embedded (default): a Dask ``LocalCluster`` of ``--workers`` processes on 127.0.0.1, started and
+  stopped by the command (``--workers 0``: every run in this process, no Dask);
+* a cluster: ``--scheduler tcp://HOST:PORT`` (or ``--scheduler-file FILE``) of a running Dask
+  scheduler whose workers can import ament_formation (the same version).
+
+Writes DIR/runs.csv (one row per run), DIR/summary.json (class counts per family, throughput),
+DIR/distributions.png and DIR/failures/*.yaml (each failing scenario, replayable with
+`formation sim`, its reason on the first line). Exit status 1 when a run has a hard failure class,
+0 otherwise; 2 for bad options.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import os
+from pathlib import Path
+import shutil
+import sys
+import tempfile
+import time
+
+from ament_formation.core.errors import ConfigError
+
+from ament_formation.tools.sensing_args import SENSING_CHOICES as SENSING
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        'sweep',
+        help='Monte Carlo campaign: random or perturbed scenarios in the fast simulator',
+        description='Run COUNT seeded random scenarios (or perturbations of one) in the fast '
+        'simulator, in parallel, and write a table of every run, class counts, distributions and '
+        'each failing scenario as a replayable YAML.',
+    )
+    p.add_argument('--out', required=True, metavar='DIR', help='campaign directory (created)')
+    p.add_argument('--count', type=int, default=100, metavar='N', help='runs (default 100)')
+    p.add_argument('--seed', type=int, default=0, metavar='S', help='campaign seed (default 0)')
+    p.add_argument(
+        '--families',
+        default='formation,crossing,two_teams',
+        metavar='F,..',
+        help='families, taken in turn (default formation,crossing,two_teams)',
+    )
+    p.add_argument(
+        '--perturb', metavar='SCENARIO.yaml', help='perturb this scenario instead of generating'
+    )
+    p.add_argument('--scale', type=float, default=1.0, help='perturbation size (default 1)')
+    p.add_argument('--sensing', choices=SENSING, default='ideal', help='default ideal')
+    p.add_argument(
+        '--workers',
+        type=int,
+        default=None,
+        metavar='K',
+        help='embedded worker processes (default: CPU count; 0: run in this process)',
+    )
+    p.add_argument('--scheduler', metavar='ADDRESS', help='Dask scheduler, e.g. tcp://HOST:8786')
+    p.add_argument('--scheduler-file', metavar='FILE', help="Dask scheduler's address file")
+    p.add_argument('--no-plot', action='store_true', help='skip distributions.png')
+    p.add_argument('--quiet', action='store_true', help='no progress and no summary')
+    p.set_defaults(func=run_sweep)
+
+
+# ------------------------------------------------------------------------------------------------
+# Cases and engines
+# ------------------------------------------------------------------------------------------------
+
+
+def _cases(args) -> list[dict]:
+    from ament_formation.core.scenario import families
+    from ament_formation.core.scenario.loader import load_scenario, scenario_to_mapping
+
+    if not 0 < args.count <= 1_000_000:
+        raise ConfigError(f'must be in [1, 1000000] (got {args.count})', '--count')
+    if not (math.isfinite(args.scale) and 0.0 < args.scale <= 10.0):
+        raise ConfigError(f'must be in (0, 10] (got {args.scale})', '--scale')
+    common = {'seed': args.seed, 'sensing': args.sensing}
+    if args.perturb:
+        base = scenario_to_mapping(load_scenario(args.perturb))
+        return [
+            {**common, 'index': i, 'family': 'perturbed', 'base': base, 'scale': args.scale}
+            for i in range(args.count)
+        ]
+    names = [f.strip() for f in args.families.split(',') if f.strip()]
+    for name in names:
+        if name not in families.FAMILIES:
+            raise ConfigError(
+                f'unknown family {name[:40]!r} (one of {", ".join(families.FAMILIES)})',
+                '--families',
+            )
+    if not names:
+        raise ConfigError('names no family', '--families')
+    return [{**common, 'index': i, 'family': names[i % len(names)]} for i in range(args.count)]
+
+
+def _serial(cases, on_row):
+    from ament_formation.core.sim.campaign import run_case
+
+    for case in cases:
+        on_row(run_case(case))
+    return {'engine': 'in-process', 'workers': 1}
+
+
+def _dask(cases, on_row, args):
+    import logging
+
+    from dask.distributed import as_completed, Client, LocalCluster
+
+    from ament_formation.core.sim.campaign import run_case
+
+    cluster, scratch = None, None
+    if args.scheduler or args.scheduler_file:
+        client = Client(args.scheduler, scheduler_file=args.scheduler_file, timeout='30s')
+        engine = {'engine': 'dask', 'scheduler': client.scheduler.address}
+    else:
+        scratch = tempfile.mkdtemp(prefix='af_sweep_dask_')
+        cluster = LocalCluster(
+            n_workers=args.workers,
+            threads_per_worker=1,
+            processes=True,
+            host='127.0.0.1',
+            dashboard_address=None,
+            local_directory=scratch,
+            silence_logs=logging.ERROR,
+        )
+        client = Client(cluster)
+        engine = {'engine': 'dask-embedded', 'scheduler': cluster.scheduler_address}
+    try:
+        client.wait_for_workers(1, timeout=120)
+        futures = client.map(run_case, cases, pure=False)
+        for future in as_completed(futures):
+            on_row(future.result())
+            future.release()
+        engine['workers'] = len(client.scheduler_info(n_workers=-1)['workers'])
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+        if scratch is not None:
+            shutil.rmtree(scratch, ignore_errors=True)
+    return engine
+
+
+class _Progress:
+    """Runs done, failed and the rate, on stderr (a tty line rewritten, else a line per 10 %)."""
+
+    def __init__(self, total: int, quiet: bool):
+        self.total, self.quiet = total, quiet
+        self.done = self.failed = 0
+        self.t0 = time.monotonic()
+        self.tty = sys.stderr.isatty()
+        self._next_line = 0
+
+    def __call__(self, row: dict) -> None:
+        self.done += 1
+        self.failed += row['status'] == 'fail'
+        if self.quiet:
+            return
+        if not self.tty and self.done < self._next_line and self.done != self.total:
+            return
+        self._next_line = self.done + max(self.total // 10, 1)
+        rate = self.done / max(time.monotonic() - self.t0, 1e-9)
+        eta = (self.total - self.done) / rate
+        line = (
+            f'sweep: {self.done}/{self.total} runs, {self.failed} failed, '
+            f'{60.0 * rate:.0f} runs/min, eta {eta:.0f} s'
+        )
+        sys.stderr.write(('\r' + line) if self.tty else line + '\n')
+        if self.tty and self.done == self.total:
+            sys.stderr.write('\n')
+        sys.stderr.flush()
+
+
+# ------------------------------------------------------------------------------------------------
+# Outputs
+# ------------------------------------------------------------------------------------------------
+
+
+def _write_failure(out: Path, row: dict) -> str | None:
+    import yaml
+
+    if row['mapping'] is None:
+        return None
+    name = f'{row["index"]:05d}-{row["name"]}.yaml'
+    text = (
+        f'# formation sweep ({row["sensing"]} sensing): {row["reason"]}\n'
+        f'# replay: formation sim failures/{name} --out RUN_DIR\n'
+        + yaml.safe_dump(row['mapping'], sort_keys=False, default_flow_style=None)
+    )
+    (out / 'failures').mkdir(exist_ok=True)
+    (out / 'failures' / name).write_text(text)
+    return name
+
+
+def _write_table(out: Path, rows: list[dict]) -> None:
+    from ament_formation.core.sim.campaign import COLUMNS
+
+    with open(out / 'runs.csv', 'w', newline='') as f:
+        writer = csv.DictWriter(f, fieldnames=list(COLUMNS), extrasaction='ignore')
+        writer.writeheader()
+        for row in sorted(rows, key=lambda r: r['index']):
+            writer.writerow(row)
+
+
+def _plot(out: Path, rows: list[dict]) -> None:
+    import matplotlib
+
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    from ament_formation.core.sim.campaign import distribution
+
+    panels = (
+        ('min_clearance_m', 'min clearance to P [m]', 0.0),
+        ('min_robot_distance_m', 'min robot distance [m]', 0.20),
+        ('settled_rms_max_m', 'settled RMS, worst robot [m]', None),
+        ('mode_events_max', 'mode events, worst robot', 50),
+        ('peak_speed_mps', 'peak speed [m/s]', 0.3),
+        ('wall_s', 'wall time per run [s]', None),
+    )
+    fig, axes = plt.subplots(2, 3, figsize=(13, 7))
+    for ax, (column, title, limit) in zip(axes.flat, panels):
+        values = distribution(rows, column)
+        if values.size:
+            ax.hist(values, bins=40, color='tab:blue')
+        if limit is not None:
+            ax.axvline(limit, color='tab:red', linestyle='--', label='failure limit')
+            ax.legend(loc='upper right', fontsize=8)
+        ax.set_title(f'{title} (n = {values.size})', fontsize=10)
+        ax.set_yscale('log')
+    fig.suptitle(f'formation sweep: {len(rows)} runs')
+    fig.tight_layout()
+    fig.savefig(out / 'distributions.png', dpi=90)
+    plt.close(fig)
+
+
+def _table(counts: dict) -> str:
+    from ament_formation.core.sim.campaign import CLASSES
+
+    keys = [k for k in counts if k != 'all'] + ['all']
+    head = f'{"class":<14}' + ''.join(f'{k:>12}' for k in keys)
+    lines = [head, f'{"runs":<14}' + ''.join(f'{counts[k]["runs"]:>12}' for k in keys)]
+    lines.append(f'{"any hard":<14}' + ''.join(f'{counts[k]["hard"]:>12}' for k in keys))
+    for c in CLASSES:
+        lines.append(f'{c:<14}' + ''.join(f'{counts[k][c]:>12}' for k in keys))
+    return '\n'.join(lines)
+
+
+def run_sweep(args: argparse.Namespace) -> int:
+    from ament_formation.core.sim.campaign import class_counts
+
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise ConfigError('exists and is not a directory', '--out', str(out))
+    if args.workers is not None and not 0 <= args.workers <= 1024:
+        raise ConfigError(f'must be in [0, 1024] (got {args.workers})', '--workers')
+    if args.scheduler and args.scheduler_file:
+        raise ConfigError('give --scheduler or --scheduler-file, not both', '--scheduler')
+    cases = _cases(args)
+    out.mkdir(parents=True, exist_ok=True)
+    shutil.rmtree(out / 'failures', ignore_errors=True)
+    rows: list[dict] = []
+    progress = _Progress(len(cases), args.quiet)
+
+    def on_row(row: dict) -> None:
+        row['failure_file'] = _write_failure(out, row) if row['status'] == 'fail' else None
+        row['mapping'] = None
+        rows.append(row)
+        progress(row)
+
+    t0 = time.monotonic()
+    interrupted = False
+    try:
+        if args.workers == 0 and not (args.scheduler or args.scheduler_file):
+            engine = _serial(cases, on_row)
+        else:
+            args.workers = args.workers or os.cpu_count() or 1
+            engine = _dask(cases, on_row, args)
+    except KeyboardInterrupt:
+        interrupted, engine = True, {'engine': 'interrupted'}
+    wall = time.monotonic() - t0
+    counts = class_counts(rows)
+    summary = {
+        **engine,
+        'runs': len(rows),
+        'requested': len(cases),
+        'seed': args.seed,
+        'sensing': args.sensing,
+        'families': sorted({r['family'] for r in rows}),
+        'wall_s': wall,
+        'runs_per_min': 60.0 * len(rows) / wall if wall > 0 else None,
+        'counts': counts,
+        'failures': sorted(r['failure_file'] for r in rows if r['failure_file']),
+    }
+    _write_table(out, rows)
+    (out / 'summary.json').write_text(json.dumps(summary, indent=2) + '\n')
+    if rows and not args.no_plot:
+        _plot(out, rows)
+    hard = counts.get('all', {}).get('hard', 0)
+    if not args.quiet and rows:
+        print(_table(counts))
+        print(
+            f'{len(rows)} runs in {wall:.1f} s ({summary["runs_per_min"]:.0f} runs/min, '
+            f'{engine["engine"]}, {engine.get("workers", "?")} workers); {hard} with a hard '
+            f'failure; wrote {out}/ (runs.csv, summary.json'
+            + (', distributions.png' if not args.no_plot else '')
+            + (', failures/' if hard else '')
+            + ')'
+        )
+    if interrupted:
+        return 130
+    if hard:
+        print(
+            f'formation sweep: FAILED: {hard} of {len(rows)} runs with a hard failure class',
+            file=sys.stderr,
+        )
+        return 1
+    return 0

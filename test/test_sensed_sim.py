@@ -1,0 +1,221 @@
+"""The fast simulator with camera sensing (core/sim/sensed.py, issue 13): camera poses with
+latency, noise and drops, the S10 estimators, the law at the controller's period, the
+coordinator; and the `formation sim --sensing` option.
+"""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from ament_formation.core.config_files import config_file
+from ament_formation.core.errors import ConfigError
+from ament_formation.core.scenario.loader import load_scenario
+from ament_formation.core.sim.metrics import check_run, compute_metrics
+from ament_formation.core.sim.sensed import (
+    MEASURED_NOISE_M,
+    MEASURED_NOISE_RAD,
+    SensedResult,
+    SensingParams,
+    simulate_sensed,
+)
+from ament_formation.core.sim.simulator import simulate
+from ament_formation.core.sim.trajectory import SimResult
+from ament_formation.tools.cli import main as formation
+
+DATA = Path(__file__).resolve().parent / 'data'
+
+
+@pytest.fixture(scope='module')
+def short():
+    return load_scenario(DATA / 'paper_short.yaml')
+
+
+@pytest.fixture(scope='module')
+def ideal(short):
+    return simulate(short)
+
+
+@pytest.fixture(scope='module')
+def camera(short):
+    return simulate_sensed(short, SensingParams.preset('camera'))
+
+
+def _metrics(result, scenario):
+    return check_run(compute_metrics(result, scenario), scenario)
+
+
+def test_presets_carry_the_measured_and_the_stress_figures():
+    cam = SensingParams.preset('camera')
+    assert cam.fps is None and cam.drop_prob == 0.0  # the scenario's rate; 100 % detection
+    assert 2.448 * cam.noise_m == pytest.approx(0.43e-3)  # radial p95 0.43 mm
+    assert 1.96 * cam.noise_rad == pytest.approx(np.radians(0.30))  # heading p95 0.30 deg
+    assert cam.noise_m == MEASURED_NOISE_M and cam.noise_rad == MEASURED_NOISE_RAD
+    assert 0.008 <= cam.latency_s <= 0.023  # capture -> pose p50 .. p95 (docs/camera.md)
+    stress = SensingParams.preset('camera-stress')
+    assert (stress.fps, stress.latency_s, stress.noise_m, stress.drop_prob) == (
+        30.0,
+        0.050,
+        0.003,
+        0.05,
+    )
+    assert SensingParams.preset('camera', seed=7, latency_s=None).seed == 7
+    # the robot side is the shipped nodes' configuration
+    ctrl = yaml.safe_load(config_file('params/formation_controller.yaml').read_text())
+    coord = yaml.safe_load(config_file('params/formation_coordinator.yaml').read_text())
+    ctrl = ctrl['/**/formation_controller']['ros__parameters']
+    coord = next(iter(coord.values()))['ros__parameters']
+    assert cam.control_rate_hz == ctrl['control_rate_hz']
+    assert cam.camera_gain == ctrl['camera_gain']
+    assert cam.encounter_rate_hz == coord['encounter_rate_hz']
+    assert cam.republish_s == coord['republish_s']
+
+
+@pytest.mark.parametrize(
+    'field, value',
+    [
+        ('fps', 0.0),
+        ('latency_s', -0.01),
+        ('noise_m', float('nan')),
+        ('drop_prob', 1.0),
+        ('seed', -1),
+        ('control_rate_hz', 0.5),
+    ],
+)
+def test_bad_sensing_values_name_the_field(field, value):
+    with pytest.raises(ConfigError, match=field):
+        SensingParams(**{field: value})
+    with pytest.raises(ConfigError, match='sensing'):
+        SensingParams.preset('sonar')
+
+
+def test_camera_run_is_a_simresult_and_stays_accurate(short, camera):
+    assert isinstance(camera, SimResult) and isinstance(camera, SensedResult)
+    m = _metrics(camera, short)
+    assert m['ok'], m['failure']
+    assert m['prohibited_entries'] == 0
+    assert m['min_clearance_m'] > 0.05  # ideal 0.062 m
+    assert m['robots']['0']['final_error_m'] < 0.012  # ideal 8.3 mm (after its detour)
+    assert m['robots']['1']['final_error_m'] < 0.003  # ideal 1.4 mm
+    assert [(e['robot'], e['event'], e['target']) for e in camera.mode_events] == [
+        (0, 'enter', 'O1'),
+        (0, 'exit', 'O1'),
+    ]
+    s = camera.sensing
+    assert s['poses_dropped'] == 0 and s['poses_sent'] == 2 * s['frames']
+    assert s['frames'] == pytest.approx(30 * short.duration_s, abs=1)
+    assert s['estimator']['camera_accepted'] == s['poses_sent'] + 2 * 10  # + the pre-start frames
+    assert s['estimate_error_m']['rms'] < 0.5e-3  # the estimator fuses 0.18 mm noise
+
+
+def test_perfect_sensing_is_close_to_the_ideal_run(short, ideal):
+    perfect = simulate_sensed(short, SensingParams.preset('camera-perfect'))
+    assert perfect.state.shape == ideal.state.shape
+    np.testing.assert_allclose(perfect.t_s, ideal.t_s)
+    # the law at 100 Hz on the broadcasts of the last period vs at 1 kHz on the true state
+    assert np.abs(perfect.state[:, :, :2] - ideal.state[:, :, :2]).max() < 2e-3
+    assert perfect.sensing['estimate_error_m']['max'] < 1e-4
+    ev_i = [(e['robot'], e['event'], e['target']) for e in ideal.mode_events]
+    ev_p = [(e['robot'], e['event'], e['target']) for e in perfect.mode_events]
+    assert ev_p == ev_i
+    for a, b in zip(perfect.mode_events, ideal.mode_events):
+        assert abs(a['t_s'] - b['t_s']) <= 0.05
+    assert perfect.graph_events == ideal.graph_events
+
+
+def test_a_seed_reproduces_the_run_and_another_seed_does_not(short, camera):
+    again = simulate_sensed(short, SensingParams.preset('camera'))
+    np.testing.assert_array_equal(again.state, camera.state)
+    np.testing.assert_array_equal(again.torque_nm, camera.torque_nm)
+    assert again.mode_events == camera.mode_events
+    other = simulate_sensed(short, SensingParams.preset('camera', seed=1))
+    assert not np.array_equal(other.state, camera.state)
+
+
+def test_dropouts_happen_and_the_estimator_bridges_them(short):
+    res = simulate_sensed(
+        short, SensingParams.preset('camera-stress', drop_prob=0.3, seed=3, fps=20.0)
+    )
+    s = res.sensing
+    total = 2 * s['frames']
+    assert s['frames'] == pytest.approx(20 * short.duration_s, abs=1)
+    assert s['poses_sent'] + s['poses_dropped'] == total
+    assert 0.22 * total < s['poses_dropped'] < 0.38 * total  # binomial, > 5 sigma wide
+    est = s['estimator']
+    # every pose sent is fused (but the last frame, still in flight at the end; plus those of the
+    # pre-start frames that were not dropped)
+    assert est['rejected_outlier'] == 0
+    assert s['poses_sent'] - 2 <= est['camera_accepted'] <= s['poses_sent'] + 2 * 10
+    m = _metrics(res, short)
+    assert m['prohibited_entries'] == 0
+    assert m['robots']['1']['final_error_m'] < 0.015
+
+
+@pytest.mark.parametrize('hear_all', [False, True])
+def test_robot_encounter_goes_through_the_coordinator(hear_all):
+    # (hear_all False: the robots hear each other only once their camera poses come in range)
+    sc = load_scenario(DATA / 'head_on.yaml')
+    res = simulate_sensed(sc, SensingParams.preset('camera-stress', hear_all=hear_all))
+    m = _metrics(res, sc)
+    assert m['ok'], m['failure']
+    assert m['min_inter_robot_distance_m'] > 0.3  # ideal 0.347 m
+    kinds = {(e['robot'], e['event'], e['mode']) for e in res.mode_events}
+    assert kinds == {(r, ev, 'mutual') for r in (0, 1) for ev in ('enter', 'exit')}
+
+
+def test_cli_sensing_option_writes_metrics_and_exit_status_follows_the_checks(tmp_path, capsys):
+    out = tmp_path / 'run'
+    args = ['sim', str(DATA / 'paper_short.yaml'), '--out', str(out), '--no-figure', '--quiet']
+    rc = formation([*args, '--sensing', 'camera', '--sensing-seed', '4'])
+    metrics = json.loads((out / 'metrics.json').read_text())
+    assert rc == (0 if metrics['ok'] else 1) == 0
+    assert metrics['sensing']['model'] == 'camera'
+    assert metrics['sensing']['params']['seed'] == 4
+    assert metrics['sensing']['params']['fps'] == 30.0
+    # a scenario whose expectation the sensed run cannot meet: exit 1, one line naming it
+    sc = yaml.safe_load((DATA / 'paper_short.yaml').read_text())
+    sc['expect']['final_error_max_m'] = {0: 0.0001, 1: 0.015}
+    strict = tmp_path / 'strict.yaml'
+    strict.write_text(yaml.safe_dump(sc))
+    capsys.readouterr()
+    rc = formation(
+        [
+            'sim',
+            str(strict),
+            '--out',
+            str(tmp_path / 'r2'),
+            '--no-figure',
+            '--quiet',
+            '--sensing',
+            'camera-stress',
+            '--camera-latency-s',
+            '0.03',
+        ]
+    )
+    metrics = json.loads((tmp_path / 'r2' / 'metrics.json').read_text())
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 1 and not metrics['ok']
+    assert metrics['sensing']['params']['latency_s'] == 0.03
+    assert len(err) == 1 and 'final_error_m[R0]' in err[0]
+
+
+@pytest.mark.parametrize(
+    'extra, option',
+    [
+        (['--sensing', 'sonar'], '--sensing'),
+        (['--camera-drop', '0.1'], '--camera-drop'),  # an override needs a camera model
+        (['--sensing', 'camera', '--camera-drop', '1.5'], '--camera-drop'),
+        (['--sensing', 'camera', '--camera-noise-m', 'x'], '--camera-noise-m'),
+        (['--sensing', 'camera', '--sensing-seed', '2.5'], '--sensing-seed'),
+        (['--sensing', 'camera', '--camera-fps', '-30'], '--camera-fps'),
+        (['--sensing', 'camera', '--dt-s', '0.02', '--record-every-s', '0.02'], '--dt-s'),
+    ],
+)
+def test_bad_sensing_options_exit_2_with_one_line(tmp_path, capsys, extra, option):
+    rc = formation(['sim', str(DATA / 'paper_short.yaml'), '--out', str(tmp_path / 'r'), *extra])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2
+    assert len(err) == 1 and err[0].startswith(f'formation sim: {option}:'), err
+    assert not (tmp_path / 'r').exists()
