@@ -62,7 +62,7 @@ class SwitchingParams:
     teammate_rel_speed_mps: float = 0.02  # S14.3: teammates holding slots below this are no threat
     mutual_drift_tau_s: float = 2.0  # S14.1: w_c relaxes toward the pair's mean V_c
     mutual_drift_cap_mps: float = 0.05  # |w_c target| cap
-    speed_limit_mps: float = 0.3  # S2.3 v_max: V_d and every velocity feed-forward clipped to it
+    speed_limit_mps: float = 0.25  # below S2.3 v_max (0.3): V_d and velocity feed-forwards clipped
     brake_gain_fraction: float = 0.4  # safety barrier: braking deceleration = this x K
     safety_gap_m: float = 0.01  # safety barrier: the robot stops this far outside P / contact
     safety_range_m: float = 0.3  # safety barrier: threats within this gap are checked
