@@ -55,6 +55,18 @@ def accel_limit(coeffs, i):
 
 
 @njit(cache=True)
+def allowed_speed(gap, a_brk, lag):
+    """Approach speed [m/s] from which a robot stops within ``gap`` [m] after a reaction time
+    ``lag`` [s] at the deceleration ``a_brk`` [m/s^2]: sqrt(2 a gap + (a lag)^2) - a lag (0 when
+    the gap is closed).
+    """
+    if gap <= 0.0:
+        return 0.0
+    al = a_brk * lag
+    return math.sqrt(2.0 * a_brk * gap + al * al) - al
+
+
+@njit(cache=True)
 def _barrier(vdx, vdy, vddx, vddy, pdx, pdy, nx, ny, bvx, bvy, gap, a_brk, lag, brake):
     """Limit the approach of V_d toward a boundary (outward normal n, boundary velocity bv) to the
     speed that still stops within ``gap`` after a reaction time ``lag`` at deceleration ``a_brk``:
@@ -62,8 +74,7 @@ def _barrier(vdx, vdy, vddx, vddy, pdx, pdy, nx, ny, bvx, bvy, gap, a_brk, lag, 
     it (the S3 loop lags V_d), V_d_dot gets the braking acceleration that removes the excess within
     lag / 3 (beyond the switching gain K). Returns (vdx, vdy, vddx, vddy, active).
     """
-    al = a_brk * lag
-    allowed = math.sqrt(2.0 * a_brk * gap + al * al) - al if gap > 0.0 else 0.0
+    allowed = allowed_speed(gap, a_brk, lag)
     approach = -((vdx - bvx) * nx + (vdy - bvy) * ny)
     excess = -((pdx - bvx) * nx + (pdy - bvy) * ny) - allowed if brake else 0.0
     if approach <= allowed and excess <= 0.0:
@@ -108,7 +119,7 @@ def _obstacle_gap(px, py, oc, ov, ophi, ophid, oaxes, j):
 def _robot_barriers(i, x, pd, vdx, vdy, vddx, vddy, rbody, a_brk, prm, brake):
     """The barrier against every other robot whose contact circle R_i + R_k is within ``reach``
     (reciprocal: each robot of a pair takes half of the approach speed budget, and makes way for
-    the other's own approach, e.g. when an obstacle pushes that robot). Returns
+    the other's approach beyond its half, e.g. when an obstacle pushes that robot). Returns
     (vdx, vdy, vddx, vddy, active).
     """
     g0, reach, lag = prm[P_SAFE_GAP], prm[P_SAFE_RANGE], prm[P_SAFE_LAG]
@@ -124,7 +135,9 @@ def _robot_barriers(i, x, pd, vdx, vdy, vddx, vddy, rbody, a_brk, prm, brake):
         if gap < reach and dist > 1e-9:
             nx = dx / dist
             ny = dy / dist
-            push = max(0.0, pd[k, 0] * nx + pd[k, 1] * ny)  # k coming at i: i makes way
+            # k coming at i faster than its own share (pushed, or lagging): i makes way
+            share = allowed_speed(gap - g0, 0.25 * a_brk, lag)
+            push = max(0.0, pd[k, 0] * nx + pd[k, 1] * ny - share)
             vdx, vdy, vddx, vddy, act = _barrier(
                 vdx,
                 vdy,
