@@ -36,7 +36,7 @@ from ament_formation.core.control.automaton import (
 )
 
 
-PASSES = 4  # alternating projections of the barrier (then a stop if a robot's is still violated)
+PASSES = 8  # alternating projections of the barrier (then a stop if a robot's is still violated)
 
 
 @njit(cache=True)
@@ -57,11 +57,12 @@ def accel_limit(coeffs, i):
 @njit(cache=True)
 def allowed_speed(gap, a_brk, lag):
     """Approach speed [m/s] from which a robot stops within ``gap`` [m] after a reaction time
-    ``lag`` [s] at the deceleration ``a_brk`` [m/s^2]: sqrt(2 a gap + (a lag)^2) - a lag (0 when
-    the gap is closed).
+    ``lag`` [s] at the deceleration ``a_brk`` [m/s^2]: sqrt(2 a gap + (a lag)^2) - a lag. A closed
+    gap (inside the margin: a disturbance drifted the robot in, below the boundary layer of S3.5)
+    asks for a retreat at gap / (3 lag).
     """
     if gap <= 0.0:
-        return 0.0
+        return gap / (3.0 * lag)
     al = a_brk * lag
     return math.sqrt(2.0 * a_brk * gap + al * al) - al
 
@@ -136,7 +137,7 @@ def _robot_barriers(i, x, pd, vdx, vdy, vddx, vddy, rbody, a_brk, prm, brake):
             nx = dx / dist
             ny = dy / dist
             # k coming at i faster than its own share (pushed, or lagging): i makes way
-            share = allowed_speed(gap - g0, 0.25 * a_brk, lag)
+            share = max(0.0, allowed_speed(gap - g0, 0.25 * a_brk, lag))
             push = max(0.0, pd[k, 0] * nx + pd[k, 1] * ny - share)
             vdx, vdy, vddx, vddy, act = _barrier(
                 vdx,
@@ -161,9 +162,10 @@ def _robot_barriers(i, x, pd, vdx, vdy, vddx, vddy, rbody, a_brk, prm, brake):
 @njit(cache=True)
 def _obstacle_barriers(p, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, a_brk, prm, brake):
     """The barrier against every obstacle boundary P within ``safety_range_m`` (boundary velocity
-    included).
+    included). Returns (vdx, vdy, vddx, vddy, active).
     """
     g0, reach, lag = prm[P_SAFE_GAP], prm[P_SAFE_RANGE], prm[P_SAFE_LAG]
+    active = False
     px, py, pdx, pdy = p
     for j in range(oc.shape[0]):
         r1 = oaxes[j, 0]
@@ -173,10 +175,11 @@ def _obstacle_barriers(p, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, a_br
         # margin scaled to the boundary speed (S14.2): the boundary may move a lag further
         margin = g0 + lag * (math.hypot(ov[j, 0], ov[j, 1]) + abs(ophid[j]) * r1)
         if gap < reach:
-            vdx, vdy, vddx, vddy, _a = _barrier(
+            vdx, vdy, vddx, vddy, act = _barrier(
                 vdx, vdy, vddx, vddy, pdx, pdy, nx, ny, bvx, bvy, gap - margin, a_brk, lag, brake
             )
-    return vdx, vdy, vddx, vddy
+            active = active or act
+    return vdx, vdy, vddx, vddy, active
 
 
 # implements: S14
@@ -193,9 +196,11 @@ def safe_field(i, x, pd, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, rbody
         vdx, vdy, vddx, vddy, _act = _robot_barriers(
             i, x, pd, vdx, vdy, vddx, vddy, rbody, a_brk, prm, False
         )
-        vdx, vdy, vddx, vddy = _obstacle_barriers(
+        vdx, vdy, vddx, vddy, act_o = _obstacle_barriers(
             p, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, a_brk, prm, False
         )
+        if not act_o:
+            break  # the obstacles did not move V_d: the robots' projection holds too
     _x, _y, _a, _b, squeezed = _robot_barriers(
         i, x, pd, vdx, vdy, vddx, vddy, rbody, a_brk, prm, False
     )
@@ -205,7 +210,7 @@ def safe_field(i, x, pd, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, rbody
     vdx, vdy, vddx, vddy, _act = _robot_barriers(
         i, x, pd, vdx, vdy, vddx, vddy, rbody, a_brk, prm, True
     )
-    vdx, vdy, vddx, vddy = _obstacle_barriers(
+    vdx, vdy, vddx, vddy, _act = _obstacle_barriers(
         p, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, a_brk, prm, True
     )
     return vdx, vdy, vddx, vddy
