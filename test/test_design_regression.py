@@ -63,10 +63,11 @@ def test_safety_filter_leaves_a_free_robot_alone_and_caps_its_speed():
 
 
 def test_safety_filter_stops_the_approach_but_keeps_the_tangential_motion():
-    # robot 1 is 1 mm beyond the contact circle ahead: no approach left, sliding past allowed
+    # robot 1 is 1 mm beyond the contact circle ahead, inside the 1 cm margin: no approach left
+    # (a slow retreat), sliding past allowed
     x = np.array([[0.0, 0.0, 0.0, 0.1, 0.0], [0.201, 0.0, 0.0, 0.0, 0.0]])
     vx, vy, _, _ = _field(x, (0.1, 0.05))
-    assert vx <= 1e-12 and vy == pytest.approx(0.05)
+    assert -0.02 < vx < 0.0 and vy == pytest.approx(0.05)
     # moving away is never held back (liveness)
     assert _field(x, (-0.1, 0.0))[:2] == (-0.1, 0.0)
 
@@ -80,9 +81,9 @@ def test_safety_filter_sees_a_rotating_obstacle_sweeping_toward_the_robot():
         np.array([0.5]),
         np.array([[0.3, 0.05]]),
     )
-    x = np.array([[0.0, 0.1, 0.0, 0.0, 0.0]])  # above the bar's middle, at rest
+    x = np.array([[0.0, 0.15, 0.0, 0.0, 0.0]])  # above the bar's middle, at rest
     vx, vy, _, _ = _field(x, (0.0, 0.0), obstacles)
     assert (vx, vy) == (0.0, 0.0)  # the material point under the robot moves along -x only
-    x = np.array([[0.25, 0.1, 0.0, 0.0, 0.0]])  # above the tip, which moves +y at 0.125 m/s
+    x = np.array([[0.25, 0.15, 0.0, 0.0, 0.0]])  # above the tip, which moves +y at 0.125 m/s
     vx, vy, _, _ = _field(x, (0.0, 0.0), obstacles)
-    assert vy > 0.05  # the robot is told to get out of the way
+    assert vy > 0.02  # the robot is told to get out of the way

@@ -683,10 +683,10 @@ def decide(
             em = th_em[i, q]
             if (mode[i] == MODE_YIELD or mode[i] == MODE_MUTUAL) and tgt[i] == k:
                 continue
-            if not em and in_cooldown(
+            if (not em or th_hem[i, q] >= 0.0) and in_cooldown(
                 KIND_AGENT, k, t, last_kind[i], last_tgt[i], last_exit[i], prm
             ):
-                continue
+                continue  # S8.4; an imminent contact (not inside E) waits too (S14.2)
             if not em and reacts_to(k, i, mode, tgt, parent):
                 continue  # k is responsible (S7 acyclicity)
             if _better(em, th_hem[i, q], th_lam[i, q], best >= 0, b_em, b_hem, b_lam):

@@ -36,7 +36,7 @@ from ament_formation.core.control.automaton import (
 )
 
 
-PASSES = 8  # alternating projections of the barrier (then a stop if a robot's is still violated)
+PASSES = 4  # alternating projections of the barrier (then a stop if a robot's is still violated)
 
 
 @njit(cache=True)
@@ -162,10 +162,9 @@ def _robot_barriers(i, x, pd, vdx, vdy, vddx, vddy, rbody, a_brk, prm, brake):
 @njit(cache=True)
 def _obstacle_barriers(p, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, a_brk, prm, brake):
     """The barrier against every obstacle boundary P within ``safety_range_m`` (boundary velocity
-    included). Returns (vdx, vdy, vddx, vddy, active).
+    included).
     """
     g0, reach, lag = prm[P_SAFE_GAP], prm[P_SAFE_RANGE], prm[P_SAFE_LAG]
-    active = False
     px, py, pdx, pdy = p
     for j in range(oc.shape[0]):
         r1 = oaxes[j, 0]
@@ -175,11 +174,10 @@ def _obstacle_barriers(p, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, a_br
         # margin scaled to the boundary speed (S14.2): the boundary may move a lag further
         margin = g0 + lag * (math.hypot(ov[j, 0], ov[j, 1]) + abs(ophid[j]) * r1)
         if gap < reach:
-            vdx, vdy, vddx, vddy, act = _barrier(
+            vdx, vdy, vddx, vddy, _a = _barrier(
                 vdx, vdy, vddx, vddy, pdx, pdy, nx, ny, bvx, bvy, gap - margin, a_brk, lag, brake
             )
-            active = active or act
-    return vdx, vdy, vddx, vddy, active
+    return vdx, vdy, vddx, vddy
 
 
 # implements: S14
@@ -196,21 +194,21 @@ def safe_field(i, x, pd, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, rbody
         vdx, vdy, vddx, vddy, _act = _robot_barriers(
             i, x, pd, vdx, vdy, vddx, vddy, rbody, a_brk, prm, False
         )
-        vdx, vdy, vddx, vddy, act_o = _obstacle_barriers(
+        vdx, vdy, vddx, vddy = _obstacle_barriers(
             p, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, a_brk, prm, False
         )
-        if not act_o:
-            break  # the obstacles did not move V_d: the robots' projection holds too
-    _x, _y, _a, _b, squeezed = _robot_barriers(
+    qx, qy, _a, _b, _act = _robot_barriers(
         i, x, pd, vdx, vdy, vddx, vddy, rbody, a_brk, prm, False
     )
-    if squeezed:  # between a robot and an obstacle: stop (only the obstacles may move it)
+    if (
+        abs(qx - vdx) + abs(qy - vdy) > 1e-9
+    ):  # between a robot and an obstacle: stop (only the obstacles may move it)
         vdx, vdy, vddx, vddy = 0.0, 0.0, 0.0, 0.0
     # the braking acceleration where the robot's own velocity is beyond the limits
     vdx, vdy, vddx, vddy, _act = _robot_barriers(
         i, x, pd, vdx, vdy, vddx, vddy, rbody, a_brk, prm, True
     )
-    vdx, vdy, vddx, vddy, _act = _obstacle_barriers(
+    vdx, vdy, vddx, vddy = _obstacle_barriers(
         p, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, a_brk, prm, True
     )
     return vdx, vdy, vddx, vddy
