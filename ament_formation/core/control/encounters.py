@@ -629,7 +629,7 @@ def decide(
                 prm,
             )
             ok, since[i] = exit_timer(cond, t, since[i], t_entry[i], prm)
-            if ok:
+            if ok and not th_em[i, :th_cnt[i]].any():  # S14.7: no exit into a robot emergency
                 nev = _leave(i, t, mode, tgt, sdir, since, last_kind, last_tgt, last_exit, ev, nev)
         elif ob_j[i] >= 0:
             if mode[i] != MODE_C:
