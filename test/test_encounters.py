@@ -169,7 +169,10 @@ def test_robot_does_not_react_to_a_robot_that_already_yields_to_it():
     # closing at 4 cm/s: a threat (contact with I in 1.6 s) but no emergency (P in 2.5 s)
     decide(st_, 2.0, [(0.0, 0.0), (0.35, 0.02)], [(0.02, 0.0), (-0.02, 0.0)])
     assert st_.mode[0] == MODE_C  # 1 is responsible
-    assert reacts_to(1, 0, st_.mode, st_.tgt) and not reacts_to(0, 1, st_.mode, st_.tgt)
+    none = np.full(2, -1)
+    assert reacts_to(1, 0, st_.mode, st_.tgt, none) and not reacts_to(
+        0, 1, st_.mode, st_.tgt, none
+    )
 
 
 def test_emergency_converts_yield_into_mutual_pair():
@@ -177,6 +180,38 @@ def test_emergency_converts_yield_into_mutual_pair():
     st_.set_mode(1, MODE_YIELD, 0, -1.0, 0.0)
     decide(st_, 2.0, [(0.0, 0.0), (0.25, 0.0)], [(0.05, 0.0), (-0.05, 0.0)])  # inside E
     assert list(st_.mode) == [MODE_MUTUAL, MODE_MUTUAL] and list(st_.sdir) == [1.0, 1.0]
+
+
+def test_formation_links_count_in_the_acyclicity_check():
+    # S14.5: 1 yields to 0, 2 follows 1 (formation parent): 0 must not yield to 2 (the loop
+    # 0 -> 2 -> 1 -> 0 of velocity feed-forwards); 2 is threatened by 0 and reacts instead
+    st_ = AutomatonState(3)
+    st_.set_mode(1, MODE_YIELD, 0, 1.0, 0.0)
+    p = np.array([(0.0, 0.0), (0.0, 0.6), (0.35, 0.02)])
+    pd = np.array([(0.02, 0.0), (0.0, 0.0), (-0.02, 0.0)])
+    parent = np.array([-1, -1, 1])
+    team = np.arange(3)
+    decide_once(
+        2.0, st_, p, pd, p + 3 * pd, pd, pd, team, np.full(3, 0.1), NO_OBS, PRM, parent=parent
+    )
+    assert reacts_to(2, 0, st_.mode, st_.tgt, parent) or st_.mode[2] != MODE_C
+    assert not (st_.mode[0] == MODE_YIELD and st_.tgt[0] == 2)
+
+
+def test_a_loop_closed_by_a_re_parenting_becomes_a_mutual_pair():
+    # 0 yields to 2, 1 yields to 0, and 2 was just re-parented to 1: the loop is broken
+    st_ = AutomatonState(3)
+    st_.set_mode(0, MODE_YIELD, 2, 1.0, 0.0)
+    st_.set_mode(1, MODE_YIELD, 0, 1.0, 0.0)
+    p = np.array([(0.0, 0.0), (0.0, 0.6), (0.6, 0.0)])
+    pd = np.zeros((3, 2))
+    parent = np.array([-1, -1, 1])
+    decide_once(
+        5.0, st_, p, pd, p, pd, pd, np.arange(3), np.full(3, 0.1), NO_OBS, PRM, parent=parent
+    )
+    for i in range(3):
+        if st_.mode[i] == MODE_YIELD:
+            assert not reacts_to(st_.tgt[i], i, st_.mode, st_.tgt, parent)
 
 
 def test_teammates_holding_slots_are_not_threats_but_strangers_are():
@@ -199,7 +234,7 @@ def _check_invariants(state):
             np.testing.assert_array_equal(state.wc[i], state.wc[k])
         if state.mode[i] == MODE_YIELD:
             # the reacts-to graph is acyclic apart from mutual pairs
-            assert not reacts_to(state.tgt[i], i, state.mode, state.tgt)
+            assert not reacts_to(state.tgt[i], i, state.mode, state.tgt, np.full(n, -1))
 
 
 @settings(max_examples=40, deadline=None)

@@ -58,7 +58,7 @@ class EncounterArbiter:
         self._gains = gains_vector(scenario.control)
         self._d = PlantCoeffs.from_params([r.params for r in robots]).d
         self._rbody = np.array([r.params.body_radius_m for r in robots], dtype=float)
-        graph = FormationGraph.from_scenario(scenario)
+        graph = self._graph = FormationGraph.from_scenario(scenario)
         self._orig = {rid: graph.original_parent.get(rid) for rid in self.ids}
         self._orig_off = {
             rid: (graph.offset(rid, p) if p is not None else np.zeros(2))
@@ -215,9 +215,9 @@ class EncounterArbiter:
             self._axes,
             self._static,
             *sub.arrays(),
+            self._parent_rows(sub, known, row),
             self._prm,
             ev,
-            0,
         )
         for r_ in ev[: min(nev, ev.shape[0])]:
             md = int(r_[3])
@@ -255,6 +255,19 @@ class EncounterArbiter:
                 self.index[known[lt]] if sub.last_kind[q] == 2 and 0 <= lt < n else lt
             )
         return self.assignments()
+
+    def _parent_rows(self, sub: AutomatonState, known: list[int], row: dict) -> np.ndarray:
+        """Current formation parent row of each known robot (S9 rewiring with the robots in an
+        avoidance mode as roots), for the S14.5 acyclicity check of every following link.
+        """
+        avoiding = [rid for q, rid in enumerate(known) if sub.mode[q] != MODE_C]
+        parents = self._graph.rewire(avoiding)
+        out = np.full(len(known), -1, dtype=np.int64)
+        for q, rid in enumerate(known):
+            par = parents.get(rid)
+            if par is not None and par in row:
+                out[q] = row[par]
+        return out
 
     def assignments(self) -> dict[int, EncounterAssignment]:
         """{robot id: EncounterAssignment} of the robots currently in yield or mutual mode."""

@@ -62,6 +62,11 @@ class SwitchingParams:
     teammate_rel_speed_mps: float = 0.02  # S14.3: teammates holding slots below this are no threat
     mutual_drift_tau_s: float = 2.0  # S14.1: w_c relaxes toward the pair's mean V_c
     mutual_drift_cap_mps: float = 0.05  # |w_c target| cap
+    speed_limit_mps: float = 0.25  # below S2.3 v_max (0.3): V_d and velocity feed-forwards clipped
+    brake_gain_fraction: float = 0.4  # safety barrier: braking deceleration = this x K
+    safety_gap_m: float = 0.01  # safety barrier: the robot stops this far outside P / contact
+    safety_range_m: float = 0.3  # safety barrier: threats within this gap are checked
+    safety_lag_s: float = 0.3  # safety barrier: reaction time of the S3 loop before it brakes
 
     def __post_init__(self) -> None:
         for name in (
@@ -71,6 +76,11 @@ class SwitchingParams:
             'teammate_rel_speed_mps',
             'mutual_drift_tau_s',
             'mutual_drift_cap_mps',
+            'speed_limit_mps',
+            'brake_gain_fraction',
+            'safety_gap_m',
+            'safety_range_m',
+            'safety_lag_s',
         ):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
@@ -81,7 +91,7 @@ class SwitchingParams:
         return dataclasses.replace(self, avoidance=avoidance)
 
     def as_array(self) -> np.ndarray:
-        """Packed (24,) float vector for the compiled code (see ``P_*`` indices)."""
+        """Packed (P_LEN,) float vector for the compiled code (see ``P_*`` indices)."""
         a = self.avoidance
         out = np.zeros(P_LEN)
         out[P_EM] = a.emergency_scale
@@ -104,6 +114,11 @@ class SwitchingParams:
         out[P_TEAM_VREL] = self.teammate_rel_speed_mps
         out[P_DRIFT_TAU] = self.mutual_drift_tau_s
         out[P_DRIFT_CAP] = self.mutual_drift_cap_mps
+        out[P_VMAX] = self.speed_limit_mps
+        out[P_SAFE_ACCEL] = self.brake_gain_fraction
+        out[P_SAFE_GAP] = self.safety_gap_m
+        out[P_SAFE_RANGE] = self.safety_range_m
+        out[P_SAFE_LAG] = self.safety_lag_s
         return out
 
 
@@ -128,8 +143,13 @@ class SwitchingParams:
     P_TEAM_VREL,
     P_DRIFT_TAU,
     P_DRIFT_CAP,
-) = range(20)
-P_LEN = 24
+    P_VMAX,
+    P_SAFE_ACCEL,
+    P_SAFE_GAP,
+    P_SAFE_RANGE,
+    P_SAFE_LAG,
+) = range(25)
+P_LEN = 25
 
 
 # --------------------------------------------------------------------------- ellipse geometry

@@ -368,6 +368,14 @@ class RobotController:
         )
 
     # ------------------------------------------------------------------ step
+    def _parent_rows(self, parent_row: np.ndarray, row: Mapping[int, int], me: int) -> np.ndarray:
+        """The formation parent rows known here for the S14.5 acyclicity check: our own current
+        parent (the others' are not heard: -1).
+        """
+        if self._parent is not None and self._parent in row:
+            parent_row[me] = row[self._parent]
+        return parent_row
+
     def _scratch_for(self, n: int) -> _Scratch:
         """The work arrays of :meth:`step` for ``n`` robots (made once per robot count), reset."""
         scratch = self._scratch.get(n)
@@ -555,9 +563,9 @@ class RobotController:
                 oaxes,
                 self._static,
                 *st.arrays(),
+                self._parent_rows(scratch.parent_row, row, me),
                 self._prm,
                 ev,
-                0,
             )
             for r_ in ev[:nev]:
                 if int(r_[1]) == me:

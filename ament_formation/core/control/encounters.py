@@ -63,6 +63,7 @@ from ament_formation.core.control.automaton import (
     P_KEEPOUT_MARGIN,
     P_L,
     P_TEAM_VREL,
+    P_TMIN,
     relative_velocity,
     threat_test,
 )
@@ -155,15 +156,21 @@ def candidate_pairs(p, cell_m):
 
 
 @njit(cache=True)
-def reacts_to(k, i, mode, tgt):
-    """True when robot k reacts to robot i directly or through a chain of yields (S7
-    acyclicity).
+def reacts_to(k, i, mode, tgt, parent):
+    """True when robot k reacts to robot i directly or through a chain of following links: yields
+    (S7) and formation tracking links to the current parent (S4; ``parent`` row or -1), whose
+    velocity and acceleration are feed-forward too (S14.5).
     """
     cur = k
     for _ in range(mode.shape[0] + 1):
-        if mode[cur] != MODE_YIELD and mode[cur] != MODE_MUTUAL:
+        if mode[cur] == MODE_C:
+            nxt = parent[cur]
+            if nxt < 0:
+                return False
+        elif mode[cur] == MODE_YIELD or mode[cur] == MODE_MUTUAL:
+            nxt = tgt[cur]
+        else:
             return False
-        nxt = tgt[cur]
         if nxt == i:
             return True
         if mode[cur] == MODE_MUTUAL:
@@ -223,7 +230,13 @@ def _release(i, t, mode, tgt, sdir, t_entry, since, last_kind, last_tgt, last_ex
 
 
 @njit(cache=True)
-def _obstacle_dir(i, j, p, pd, goal, goal_dot, oc, ov, ophi, ophid, oaxes, prm):
+def _obstacle_dir(i, j, p, pd, goal, goal_dot, oc, ov, ophi, ophid, oaxes, mode, tgt, sdir, prm):
+    """S6.6 rotation sense of robot i entering obstacle j; one sense per obstacle for everyone on
+    it (S14.6): a robot already circling j gives its sense.
+    """
+    for q in range(mode.shape[0]):
+        if q != i and mode[q] == MODE_OBSTACLE and tgt[q] == j:
+            return sdir[q]
     zx = p[i, 0] - oc[j, 0]
     zy = p[i, 1] - oc[j, 1]
     rvx, rvy = relative_velocity(zx, zy, pd[i, 0], pd[i, 1], ov[j, 0], ov[j, 1], ophid[j])
@@ -277,6 +290,15 @@ def _agent_urgency(i, k, p, pd, rbody, prm):
 
 
 @njit(cache=True)
+def _reason_dwell(t, t_entry, h_stay, prm):
+    """S14.2: a switch between an obstacle and a robot reason waits 2 T_min after the last switch,
+    unless the robot is inside the obstacle's emergency ellipse (``h_stay`` = its h_em < 0); the
+    safety barrier of the law covers the wait.
+    """
+    return t - t_entry < 2.0 * prm[P_TMIN] and h_stay >= 0.0
+
+
+@njit(cache=True)
 def _better(em, key_em, lam, best_set, best_em, best_key_em, best_lam):
     """S8.1 ranking: emergencies first (smallest h_em), then the earliest contact (smallest
     lambda).
@@ -320,6 +342,96 @@ def _form_mutual(
     return nev
 
 
+@njit(cache=True)
+def _pair_exit_conditions(i, k, p, pd, goal, vc, rbody, mutual, prm):
+    """S8.3 items 1-3 of robot i avoiding robot k: a yielder against k's velocity; a mutual pair
+    for both robots, each against the other's coordination field (both leave).
+    """
+    r = keepout_radius(rbody, i, k, prm)
+    if not mutual:
+        return exit_conditions(
+            p[i, 0],
+            p[i, 1],
+            goal[i, 0],
+            goal[i, 1],
+            vc[i, 0],
+            vc[i, 1],
+            p[k, 0],
+            p[k, 1],
+            pd[k, 0],
+            pd[k, 1],
+            0.0,
+            0.0,
+            r,
+            r,
+            prm,
+        )
+    return exit_conditions(
+        p[i, 0],
+        p[i, 1],
+        goal[i, 0],
+        goal[i, 1],
+        vc[i, 0],
+        vc[i, 1],
+        p[k, 0],
+        p[k, 1],
+        vc[k, 0],
+        vc[k, 1],
+        0.0,
+        0.0,
+        r,
+        r,
+        prm,
+    ) and exit_conditions(
+        p[k, 0],
+        p[k, 1],
+        goal[k, 0],
+        goal[k, 1],
+        vc[k, 0],
+        vc[k, 1],
+        p[i, 0],
+        p[i, 1],
+        vc[i, 0],
+        vc[i, 1],
+        0.0,
+        0.0,
+        r,
+        r,
+        prm,
+    )
+
+
+@njit(cache=True)
+def _break_cycles(
+    t, pd, mode, tgt, sdir, t_entry, since, last_kind, last_tgt, last_exit, wc, parent, ev
+):
+    """S14.5: a yield whose target reacts back to the yielder through a chain of following links
+    (a re-parenting can close one after the yield was decided) becomes a mutual pair, whose
+    reciprocal field has no velocity feed-forward loop. Returns the event count.
+    """
+    nev = 0
+    for i in range(mode.shape[0]):
+        if mode[i] == MODE_YIELD and reacts_to(tgt[i], i, mode, tgt, parent):
+            nev = _form_mutual(
+                i,
+                tgt[i],
+                t,
+                pd,
+                mode,
+                tgt,
+                sdir,
+                t_entry,
+                since,
+                last_kind,
+                last_tgt,
+                last_exit,
+                wc,
+                ev,
+                nev,
+            )
+    return nev
+
+
 # implements: S7, S8
 @njit(cache=True)
 def decide(
@@ -347,9 +459,9 @@ def decide(
     last_exit,
     wc,
     wtgt,
+    parent,
     prm,
     ev,
-    nev,
 ):
     """One decision of every robot's automaton (S8) with robot encounters arbitrated jointly (S7).
 
@@ -366,13 +478,17 @@ def decide(
     mode, tgt, sdir, t_entry, since, last_kind, last_tgt, last_exit : (N,) automaton state, updated
         in place (``since`` < 0: exit conditions not holding; ``last_*``: cool-down bookkeeping).
     wc, wtgt : (N, 2) mutual-pair drift w_c and its relaxation target (updated in place).
+    parent : (N,) current formation parent row of each robot (-1: root or unknown), for the
+        acyclicity of every following link (S14.5).
     prm : packed :class:`~ament_formation.core.control.automaton.SwitchingParams`.
-    ev : (E, 6) event buffer, nev : events already in it. Returns the new event count (may exceed
-    E:
-        the caller must then enlarge the buffer; rows beyond E are dropped).
+    ev : (E, 6) event buffer (filled from row 0). Returns the event count (may exceed E: the caller
+        must then enlarge the buffer; rows beyond E are dropped).
     """
     n = p.shape[0]
     m = oc.shape[0]
+    nev = _break_cycles(
+        t, pd, mode, tgt, sdir, t_entry, since, last_kind, last_tgt, last_exit, wc, parent, ev
+    )
     # ---- 1. obstacle entry candidates (S8.1, S14.2)
     ob_j = np.full(n, -1, dtype=np.int64)
     ob_em = np.zeros(n, dtype=np.bool_)
@@ -476,7 +592,21 @@ def decide(
                     s = sdir[i]  # S6.6 rule 5: keep the sweep direction
                 else:
                     s = _obstacle_dir(
-                        i, jn, p, pd, goal, goal_dot, oc, ov, ophi, ophid, oaxes, prm
+                        i,
+                        jn,
+                        p,
+                        pd,
+                        goal,
+                        goal_dot,
+                        oc,
+                        ov,
+                        ophi,
+                        ophid,
+                        oaxes,
+                        mode,
+                        tgt,
+                        sdir,
+                        prm,
                     )
                 nev = _leave(i, t, mode, tgt, sdir, since, last_kind, last_tgt, last_exit, ev, nev)
                 nev = _enter(i, t, MODE_OBSTACLE, jn, s, mode, tgt, sdir, t_entry, since, ev, nev)
@@ -499,37 +629,47 @@ def decide(
                 prm,
             )
             ok, since[i] = exit_timer(cond, t, since[i], t_entry[i], prm)
-            if ok:
+            if ok and not th_em[i, :th_cnt[i]].any():  # S14.7: no exit into a robot emergency
                 nev = _leave(i, t, mode, tgt, sdir, since, last_kind, last_tgt, last_exit, ev, nev)
         elif ob_j[i] >= 0:
             if mode[i] != MODE_C:
                 # static obstacles beat robots (S7), unless the robot is in emergency and the
                 # obstacle is not (S14.2: never swap one emergency for a lesser threat)
                 em_k, hl_k = _agent_urgency(i, tgt[i], p, pd, rbody, prm)
-                if em_k and not ob_em[i]:
-                    continue
+                if (em_k and not ob_em[i]) or _reason_dwell(t, t_entry[i], ob_hem[i], prm):
+                    continue  # S14.2: no flipping between two emergency reasons
                 nev = _release(
                     i, t, mode, tgt, sdir, t_entry, since, last_kind, last_tgt, last_exit, ev, nev
                 )
             jn = ob_j[i]
-            s = _obstacle_dir(i, jn, p, pd, goal, goal_dot, oc, ov, ophi, ophid, oaxes, prm)
+            s = _obstacle_dir(
+                i, jn, p, pd, goal, goal_dot, oc, ov, ophi, ophid, oaxes, mode, tgt, sdir, prm
+            )
             nev = _enter(i, t, MODE_OBSTACLE, jn, s, mode, tgt, sdir, t_entry, since, ev, nev)
     # ---- 4. robot-robot arbitration over all robots (S7, S14.1)
     for i in range(n):
         if th_cnt[i] == 0:
             continue
         if mode[i] == MODE_OBSTACLE:
-            # stand-on; two stand-on robots: the higher ID yields, in an emergency only
-            if cur_em[i]:
+            # stand-on; two stand-on robots: the higher ID yields, in an emergency only; not on
+            # the same obstacle (one sense, the safety barrier spaces them: S14.6), nor in dwell
+            if cur_em[i] or _reason_dwell(t, t_entry[i], 0.0, prm):
                 continue
             kb = -1
             hb = INF
             for q in range(th_cnt[i]):
                 k = th_k[i, q]
-                if th_em[i, q] and mode[k] == MODE_OBSTACLE and k < i and th_hem[i, q] < hb:
+                same = tgt[k] == tgt[i]
+                if (
+                    th_em[i, q]
+                    and mode[k] == MODE_OBSTACLE
+                    and k < i
+                    and not same
+                    and th_hem[i, q] < hb
+                ):
                     kb = k
                     hb = th_hem[i, q]
-            if kb >= 0 and not reacts_to(kb, i, mode, tgt):
+            if kb >= 0 and not reacts_to(kb, i, mode, tgt, parent):
                 s = _agent_dir(i, kb, p, pd, goal, goal_dot, rbody, prm)
                 nev = _leave(i, t, mode, tgt, sdir, since, last_kind, last_tgt, last_exit, ev, nev)
                 nev = _enter(i, t, MODE_YIELD, kb, s, mode, tgt, sdir, t_entry, since, ev, nev)
@@ -543,11 +683,11 @@ def decide(
             em = th_em[i, q]
             if (mode[i] == MODE_YIELD or mode[i] == MODE_MUTUAL) and tgt[i] == k:
                 continue
-            if not em and in_cooldown(
+            if (not em or th_hem[i, q] >= 0.0) and in_cooldown(
                 KIND_AGENT, k, t, last_kind[i], last_tgt[i], last_exit[i], prm
             ):
-                continue
-            if not em and reacts_to(k, i, mode, tgt):
+                continue  # S8.4; an imminent contact (not inside E) waits too (S14.2)
+            if not em and reacts_to(k, i, mode, tgt, parent):
                 continue  # k is responsible (S7 acyclicity)
             if _better(em, th_hem[i, q], th_lam[i, q], best >= 0, b_em, b_hem, b_lam):
                 best = k
@@ -567,7 +707,7 @@ def decide(
             hl_new = h_value(p[i, 0] - p[k, 0], p[i, 1] - p[k, 1], 0.0, prm[P_L] * r, prm[P_L] * r)
             if not (b_em or hl_new < hl_cur - RETARGET_MARGIN):
                 continue
-        if reacts_to(k, i, mode, tgt):
+        if reacts_to(k, i, mode, tgt, parent):
             # emergency against a robot that already reacts to i: convert to a mutual pair
             if t - t_entry[k] < prm[P_DWELL]:
                 continue
@@ -619,70 +759,19 @@ def decide(
             nev = _enter(i, t, MODE_YIELD, k, s, mode, tgt, sdir, t_entry, since, ev, nev)
     # ---- 5. exits of yielding robots and mutual pairs (S8.3)
     for i in range(n):
-        if mode[i] == MODE_YIELD:
+        if mode[i] == MODE_YIELD or (mode[i] == MODE_MUTUAL and tgt[i] > i):
             k = tgt[i]
-            r = keepout_radius(rbody, i, k, prm)
-            cond = exit_conditions(
-                p[i, 0],
-                p[i, 1],
-                goal[i, 0],
-                goal[i, 1],
-                vc[i, 0],
-                vc[i, 1],
-                p[k, 0],
-                p[k, 1],
-                pd[k, 0],
-                pd[k, 1],
-                0.0,
-                0.0,
-                r,
-                r,
-                prm,
-            )
+            mutual = mode[i] == MODE_MUTUAL
+            cond = _pair_exit_conditions(i, k, p, pd, goal, vc, rbody, mutual, prm)
             ok, since[i] = exit_timer(cond, t, since[i], t_entry[i], prm)
-            if ok:
-                nev = _leave(i, t, mode, tgt, sdir, since, last_kind, last_tgt, last_exit, ev, nev)
-        elif mode[i] == MODE_MUTUAL and tgt[i] > i:
-            k = tgt[i]
-            r = keepout_radius(rbody, i, k, prm)
-            cond = exit_conditions(
-                p[i, 0],
-                p[i, 1],
-                goal[i, 0],
-                goal[i, 1],
-                vc[i, 0],
-                vc[i, 1],
-                p[k, 0],
-                p[k, 1],
-                vc[k, 0],
-                vc[k, 1],
-                0.0,
-                0.0,
-                r,
-                r,
-                prm,
-            ) and exit_conditions(
-                p[k, 0],
-                p[k, 1],
-                goal[k, 0],
-                goal[k, 1],
-                vc[k, 0],
-                vc[k, 1],
-                p[i, 0],
-                p[i, 1],
-                vc[i, 0],
-                vc[i, 1],
-                0.0,
-                0.0,
-                r,
-                r,
-                prm,
-            )
-            ok, since[i] = exit_timer(cond, t, since[i], t_entry[i], prm)
-            since[k] = since[i]
+            if mutual:
+                since[k] = since[i]
             if ok:  # pairs exit jointly
                 nev = _leave(i, t, mode, tgt, sdir, since, last_kind, last_tgt, last_exit, ev, nev)
-                nev = _leave(k, t, mode, tgt, sdir, since, last_kind, last_tgt, last_exit, ev, nev)
+                if mutual:
+                    nev = _leave(
+                        k, t, mode, tgt, sdir, since, last_kind, last_tgt, last_exit, ev, nev
+                    )
     # ---- 6. drift target of mutual pairs (S14.1)
     cap = prm[P_DRIFT_CAP]
     for i in range(n):
@@ -712,6 +801,7 @@ def decide_once(
     obstacles,
     prm,
     ev_capacity: int | None = None,
+    parent=None,
 ) -> list[tuple]:
     """Python convenience around :func:`decide` (tests, controller): returns the events as tuples
     (t_s, robot_row, 'enter'|'exit', mode, target, direction).
@@ -719,7 +809,7 @@ def decide_once(
     ``state`` : :class:`~ament_formation.core.control.automaton.AutomatonState`; ``obstacles`` :
     tuple
     (centres (M, 2), velocities (M, 2), phi (M,), phi_dot (M,), semi-axes (M, 2), static (M,)
-    bool);
+    bool); ``parent`` : (N,) current formation parent rows (default: none);
     other arrays as in :func:`decide`.
     """
     n = state.n
@@ -745,9 +835,11 @@ def decide_once(
         f(oaxes).reshape(-1, 2),
         np.ascontiguousarray(ostatic, dtype=np.bool_).reshape(-1),
         *state.arrays(),
+        np.full(n, -1, dtype=np.int64)
+        if parent is None
+        else np.ascontiguousarray(parent, dtype=np.int64),
         prm,
         ev,
-        0,
     )
     return [
         (

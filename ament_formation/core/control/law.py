@@ -24,6 +24,7 @@ from ament_formation.core.control.automaton import (
     P_L,
     P_PSI_SLOW,
     P_TAU_G,
+    P_VMAX,
     P_VTAN,
     P_VTAN_AGENT,
 )
@@ -35,6 +36,7 @@ from ament_formation.core.control.limit_cycle import (
     gain_schedule_k,
     parking_factor_k,
 )
+from ament_formation.core.control.safety import accel_limit, clip_norm, safe_field
 from ament_formation.core.control.smc import smc_torque_k
 
 # gains vector layout for the compiled code
@@ -52,6 +54,43 @@ def gains_vector(control) -> np.ndarray:
             control.reaching_rate_mps2,
         ],
         dtype=float,
+    )
+
+
+@njit(cache=True)
+def _target_k(i, md, k, x, pd, acmd, oc, ov, oa, ophi, ophid, ophidd, oaxes, rbody, prm):
+    """The avoidance target of robot i: (c, c_dot, c_ddot, phi, phi_dot, phi_ddot, r1, r2, v_tan)
+    of obstacle k (MODE_OBSTACLE, S6) or of robot k (yield/mutual: the circle R_aa, S7).
+    """
+    if md == MODE_OBSTACLE:
+        return (
+            oc[k, 0],
+            oc[k, 1],
+            ov[k, 0],
+            ov[k, 1],
+            oa[k, 0],
+            oa[k, 1],
+            ophi[k],
+            ophid[k],
+            ophidd[k],
+            oaxes[k, 0],
+            oaxes[k, 1],
+            prm[P_VTAN],
+        )
+    r = keepout_radius(rbody, i, k, prm)
+    return (
+        x[k, 0],
+        x[k, 1],
+        pd[k, 0],
+        pd[k, 1],
+        acmd[k, 0],
+        acmd[k, 1],
+        0.0,
+        0.0,
+        0.0,
+        r,
+        r,
+        prm[P_VTAN_AGENT],
     )
 
 
@@ -112,62 +151,34 @@ def robot_law(
     wdx = 0.0
     wdy = 0.0
     md = mode[i]
+    vmax = prm[P_VMAX]
+    amax = accel_limit(coeffs, i)
     if md == MODE_C:
         j = parent[i]
         if j < 0:  # leader: e = p - r (S4)
-            vdx, vdy, vddx, vddy = tracking_field_k(
+            ex, ey, rvx, rvy, rax, ray = (
                 x[i, 0] - ref[i, 0],
                 x[i, 1] - ref[i, 1],
                 ref[i, 2],
                 ref[i, 3],
                 ref[i, 4],
                 ref[i, 5],
-                pdx,
-                pdy,
-                gains[G_ALPHA],
-                gains[G_VCAP],
             )
-        else:  # follower: e = p_i - p_j - delta, feed-forward a_j (S4)
-            vdx, vdy, vddx, vddy = tracking_field_k(
-                x[i, 0] - x[j, 0] - offset[i, 0],
-                x[i, 1] - x[j, 1] - offset[i, 1],
-                pd[j, 0],
-                pd[j, 1],
-                acmd[j, 0],
-                acmd[j, 1],
-                pdx,
-                pdy,
-                gains[G_ALPHA],
-                gains[G_VCAP],
-            )
+        else:  # follower: e = p_i - p_j - delta, feed-forward p_dot_j, a_j (S4), bounded (S14.5)
+            ex, ey = x[i, 0] - x[j, 0] - offset[i, 0], x[i, 1] - x[j, 1] - offset[i, 1]
+            rvx, rvy = clip_norm(pd[j, 0], pd[j, 1], vmax)
+            rax, ray = clip_norm(acmd[j, 0], acmd[j, 1], amax)
+        vdx, vdy, vddx, vddy = tracking_field_k(
+            ex, ey, rvx, rvy, rax, ray, pdx, pdy, gains[G_ALPHA], gains[G_VCAP]
+        )
     else:
         k = tgt[i]
-        if md == MODE_OBSTACLE:
-            cx = oc[k, 0]
-            cy = oc[k, 1]
-            cvx = ov[k, 0]
-            cvy = ov[k, 1]
-            cax = oa[k, 0]
-            cay = oa[k, 1]
-            phi = ophi[k]
-            phd = ophid[k]
-            phdd = ophidd[k]
-            r1 = oaxes[k, 0]
-            r2 = oaxes[k, 1]
-            vtan = prm[P_VTAN]
-        else:
-            cx = x[k, 0]
-            cy = x[k, 1]
-            cvx = pd[k, 0]
-            cvy = pd[k, 1]
-            cax = acmd[k, 0]
-            cay = acmd[k, 1]
-            phi = 0.0
-            phd = 0.0
-            phdd = 0.0
-            r1 = keepout_radius(rbody, i, k, prm)
-            r2 = r1
-            vtan = prm[P_VTAN_AGENT]
+        cx, cy, cvx, cvy, cax, cay, phi, phd, phdd, r1, r2, vtan = _target_k(
+            i, md, k, x, pd, acmd, oc, ov, oa, ophi, ophid, ophidd, oaxes, rbody, prm
+        )
+        if md != MODE_OBSTACLE:  # a robot target's feed-forward is bounded (S14.5)
+            cvx, cvy = clip_norm(cvx, cvy, vmax)
+            cax, cay = clip_norm(cax, cay, amax)
         big1 = prm[P_L] * r1
         big2 = prm[P_L] * r2
         psi_max, c_max = design_gains(r1, r2, vtan, prm)  # S6.5
@@ -206,15 +217,13 @@ def robot_law(
             tau = prm[P_DRIFT_TAU]
             wdx = (wtgt[i, 0] - wc[i, 0]) / tau
             wdy = (wtgt[i, 1] - wc[i, 1]) / tau
-            vdx = wc[i, 0] + 0.5 * fx
-            vdy = wc[i, 1] + 0.5 * fy
-            vddx = wdx + 0.5 * fdx
-            vddy = wdy + 0.5 * fdy
+            vdx, vdy = wc[i, 0] + 0.5 * fx, wc[i, 1] + 0.5 * fy
+            vddx, vddy = wdx + 0.5 * fdx, wdy + 0.5 * fdy
         else:  # S6.3/S6.4 (obstacle) and S7 yield: V_d = x~dot + F
-            vdx = cvx + fx
-            vdy = cvy + fy
-            vddx = cax + fdx
-            vddy = cay + fdy
+            vdx, vdy, vddx, vddy = cvx + fx, cvy + fy, cax + fdx, cay + fdy
+    vdx, vdy, vddx, vddy = safe_field(  # speed limit and braking barrier (core/control/safety.py)
+        i, x, pd, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, rbody, gains[G_K], prm
+    )
     t1, t2, sx, sy, sat, acx, acy = smc_torque_k(
         th,
         v,

@@ -161,7 +161,6 @@ def _run_segment(
     d_cos = np.empty_like(d_amp)
     g_prev = np.empty((n, 2))
     pos = np.empty((n, 2))  # contiguous positions for decide (one compiled specialisation)
-    nev0 = np.int64(0)  # not a literal 0: same specialisation as calls from Python
     for i in range(n):  # (re-)start the disturbance phasors at t(k0): no drift accumulates
         disturbance_phasor_init_k(k0 * dt, d_freq[i], d_phase[i], d_sin[i], d_cos[i])
         g_prev[i, 0], g_prev[i, 1] = disturbance_k(k0 * dt, d_amp[i], d_freq[i], d_phase[i])
@@ -206,9 +205,9 @@ def _run_segment(
                 last_exit,
                 wc,
                 wtgt,
+                parent,
                 prm,
                 ev,
-                nev0,
             )
             if nev > 0:
                 return kk, nev

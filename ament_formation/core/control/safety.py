@@ -1,0 +1,214 @@
+"""The last line of defence of the law (docs/law-changes.md, issue 13): whatever the automaton and
+the encounter arbitration decided, the desired point velocity V_d handed to the sliding-mode law
+(S3.2) is filtered so that a robot can always stop before contact.
+
+* **Bounded feed-forward** (S14.5): a parent's velocity and acceleration, a yield target's velocity
+  and the mode's V_d itself are clipped to what a robot can do (``speed_limit_mps``; the
+  acceleration bound 2 tau_max / (m~ r) of S2.2, S3.6). A feed-forward loop can then never drive a
+  robot beyond the speed limit.
+* **Braking barrier**: every control period, against every obstacle boundary (P, whose boundary
+  velocity includes the obstacle's rotation, S14.2) and every robot (contact circle R_i + R_k)
+  within ``safety_range_m``, the speed of approach of V_d relative to the boundary is limited to
+  the speed from which the robot still stops before ``safety_gap_m`` after a reaction time
+  ``safety_lag_s`` at the deceleration a_brk (a fraction of the switching gain K: what the S3
+  loop realises without a feed-forward); a robot pair shares that budget (half each). Only the
+  approaching normal component is removed, the tangential part is kept (heading-preserving), so
+  two robots slide past each other instead of deadlocking, and a robot moving away from a threat
+  is never held back (liveness). The constraints are met by alternating projections; a robot
+  still squeezed between a robot and an obstacle stops (relative to the obstacles).
+
+Both run inside :func:`ament_formation.core.control.law.robot_law`, so the simulator and the
+robot's controller run them alike. Scalar numba kernels.
+"""
+
+from __future__ import annotations
+
+import math
+
+from numba import njit
+
+from ament_formation.core.control.automaton import (
+    P_SAFE_ACCEL,
+    P_SAFE_GAP,
+    P_SAFE_LAG,
+    P_SAFE_RANGE,
+    P_VMAX,
+)
+
+
+PASSES = 4  # alternating projections of the barrier (then a stop if a robot's is still violated)
+
+
+@njit(cache=True)
+def clip_norm(vx, vy, cap):
+    """(vx, vy) scaled down to length ``cap`` when longer."""
+    nrm = math.hypot(vx, vy)
+    if nrm > cap and nrm > 0.0:
+        return vx * cap / nrm, vy * cap / nrm
+    return vx, vy
+
+
+@njit(cache=True)
+def accel_limit(coeffs, i):
+    """Largest point acceleration the torque limit allows, 2 tau_max / (m~ r) [m/s^2] (S2.2)."""
+    return 2.0 * coeffs[6, i] / (coeffs[0, i] * coeffs[2, i])
+
+
+@njit(cache=True)
+def allowed_speed(gap, a_brk, lag):
+    """Approach speed [m/s] from which a robot stops within ``gap`` [m] after a reaction time
+    ``lag`` [s] at the deceleration ``a_brk`` [m/s^2]: sqrt(2 a gap + (a lag)^2) - a lag. A closed
+    gap (inside the margin: a disturbance drifted the robot in, below the boundary layer of S3.5)
+    asks for a retreat at gap / (3 lag).
+    """
+    if gap <= 0.0:
+        return gap / (3.0 * lag)
+    al = a_brk * lag
+    return math.sqrt(2.0 * a_brk * gap + al * al) - al
+
+
+@njit(cache=True)
+def _barrier(vdx, vdy, vddx, vddy, pdx, pdy, nx, ny, bvx, bvy, gap, a_brk, lag, brake):
+    """Limit the approach of V_d toward a boundary (outward normal n, boundary velocity bv) to the
+    speed that still stops within ``gap`` after a reaction time ``lag`` at deceleration ``a_brk``:
+    sqrt(2 a gap + (a lag)^2) - a lag. With ``brake``, when the robot's own velocity p_dot exceeds
+    it (the S3 loop lags V_d), V_d_dot gets the braking acceleration that removes the excess within
+    lag / 3 (beyond the switching gain K). Returns (vdx, vdy, vddx, vddy, active).
+    """
+    allowed = allowed_speed(gap, a_brk, lag)
+    approach = -((vdx - bvx) * nx + (vdy - bvy) * ny)
+    excess = -((pdx - bvx) * nx + (pdy - bvy) * ny) - allowed if brake else 0.0
+    if approach <= allowed and excess <= 0.0:
+        return vdx, vdy, vddx, vddy, False
+    dn = vddx * nx + vddy * ny
+    if dn < 0.0:  # no feed-forward toward the boundary while braking
+        vddx -= dn * nx
+        vddy -= dn * ny
+    if excess > 0.0:
+        vddx += 3.0 * excess / lag * nx
+        vddy += 3.0 * excess / lag * ny
+    if approach > allowed:
+        vdx += (approach - allowed) * nx
+        vdy += (approach - allowed) * ny
+    return vdx, vdy, vddx, vddy, True
+
+
+@njit(cache=True)
+def _obstacle_gap(px, py, oc, ov, ophi, ophid, oaxes, j):
+    """(gap, nx, ny, bvx, bvy) of obstacle j's boundary P seen from p: the first-order distance
+    (k - 1)/|grad k| (k: the level of p in P's similar ellipses), the normal grad k/|grad k| and
+    the velocity of the material point under p (translation and rotation, S14.2).
+    """
+    zx = px - oc[j, 0]
+    zy = py - oc[j, 1]
+    r1 = oaxes[j, 0]
+    r2 = oaxes[j, 1]
+    c = math.cos(ophi[j])
+    s = math.sin(ophi[j])
+    u = (c * zx + s * zy) / r1
+    w = (-s * zx + c * zy) / r2
+    k = max(math.sqrt(u * u + w * w), 1e-9)
+    gu = u / (k * r1)  # grad k in body axes
+    gw = w / (k * r2)
+    gx = c * gu - s * gw
+    gy = s * gu + c * gw
+    gn = max(math.hypot(gx, gy), 1e-12)
+    return (k - 1.0) / gn, gx / gn, gy / gn, ov[j, 0] - ophid[j] * zy, ov[j, 1] + ophid[j] * zx
+
+
+@njit(cache=True)
+def _robot_barriers(i, x, pd, vdx, vdy, vddx, vddy, rbody, a_brk, prm, brake):
+    """The barrier against every other robot whose contact circle R_i + R_k is within ``reach``
+    (reciprocal: each robot of a pair takes half of the approach speed budget, and makes way for
+    the other's approach beyond its half, e.g. when an obstacle pushes that robot). Returns
+    (vdx, vdy, vddx, vddy, active).
+    """
+    g0, reach, lag = prm[P_SAFE_GAP], prm[P_SAFE_RANGE], prm[P_SAFE_LAG]
+    active = False
+    for k in range(x.shape[0]):
+        dx = x[i, 0] - x[k, 0]
+        dy = x[i, 1] - x[k, 1]
+        lim = rbody[i] + rbody[k] + reach
+        if k == i or abs(dx) > lim or abs(dy) > lim:
+            continue
+        dist = math.hypot(dx, dy)
+        gap = dist - rbody[i] - rbody[k]
+        if gap < reach and dist > 1e-9:
+            nx = dx / dist
+            ny = dy / dist
+            # k coming at i faster than its own share (pushed, or lagging): i makes way
+            share = max(0.0, allowed_speed(gap - g0, 0.25 * a_brk, lag))
+            push = max(0.0, pd[k, 0] * nx + pd[k, 1] * ny - share)
+            vdx, vdy, vddx, vddy, act = _barrier(
+                vdx,
+                vdy,
+                vddx,
+                vddy,
+                pd[i, 0],
+                pd[i, 1],
+                nx,
+                ny,
+                push * nx,
+                push * ny,
+                gap - g0,
+                0.25 * a_brk,
+                lag,
+                brake,
+            )
+            active = active or act
+    return vdx, vdy, vddx, vddy, active
+
+
+@njit(cache=True)
+def _obstacle_barriers(p, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, a_brk, prm, brake):
+    """The barrier against every obstacle boundary P within ``safety_range_m`` (boundary velocity
+    included).
+    """
+    g0, reach, lag = prm[P_SAFE_GAP], prm[P_SAFE_RANGE], prm[P_SAFE_LAG]
+    px, py, pdx, pdy = p
+    for j in range(oc.shape[0]):
+        r1 = oaxes[j, 0]
+        if abs(px - oc[j, 0]) > r1 + reach or abs(py - oc[j, 1]) > r1 + reach:
+            continue
+        gap, nx, ny, bvx, bvy = _obstacle_gap(px, py, oc, ov, ophi, ophid, oaxes, j)
+        # margin scaled to the boundary speed (S14.2): the boundary may move a lag further
+        margin = g0 + lag * (math.hypot(ov[j, 0], ov[j, 1]) + abs(ophid[j]) * r1)
+        if gap < reach:
+            vdx, vdy, vddx, vddy, _a = _barrier(
+                vdx, vdy, vddx, vddy, pdx, pdy, nx, ny, bvx, bvy, gap - margin, a_brk, lag, brake
+            )
+    return vdx, vdy, vddx, vddy
+
+
+# implements: S14
+@njit(cache=True)
+def safe_field(i, x, pd, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, rbody, gain_k, prm):
+    """V_d, V_d_dot of robot i after the speed limit and the braking barrier (module docstring).
+
+    Returns (vdx, vdy, vddx, vddy).
+    """
+    vdx, vdy = clip_norm(vdx, vdy, prm[P_VMAX])
+    a_brk = prm[P_SAFE_ACCEL] * gain_k  # the S3 loop's deceleration without feed-forward
+    p = (x[i, 0], x[i, 1], pd[i, 0], pd[i, 1])
+    for _ in range(PASSES):  # alternating projections onto the robots' and obstacles' half-planes
+        vdx, vdy, vddx, vddy, _act = _robot_barriers(
+            i, x, pd, vdx, vdy, vddx, vddy, rbody, a_brk, prm, False
+        )
+        vdx, vdy, vddx, vddy = _obstacle_barriers(
+            p, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, a_brk, prm, False
+        )
+    qx, qy, _a, _b, _act = _robot_barriers(
+        i, x, pd, vdx, vdy, vddx, vddy, rbody, a_brk, prm, False
+    )
+    if (
+        abs(qx - vdx) + abs(qy - vdy) > 1e-9
+    ):  # between a robot and an obstacle: stop (only the obstacles may move it)
+        vdx, vdy, vddx, vddy = 0.0, 0.0, 0.0, 0.0
+    # the braking acceleration where the robot's own velocity is beyond the limits
+    vdx, vdy, vddx, vddy, _act = _robot_barriers(
+        i, x, pd, vdx, vdy, vddx, vddy, rbody, a_brk, prm, True
+    )
+    vdx, vdy, vddx, vddy = _obstacle_barriers(
+        p, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, a_brk, prm, True
+    )
+    return vdx, vdy, vddx, vddy

@@ -1,0 +1,89 @@
+"""Issue 13, "a design with no contact and no runaway": random scenarios that failed before the
+design changes of docs/law-changes.md (test/scenarios_regression/*.yaml, each with its old failure
+in its header) must run without a hard failure, and the law's safety filter
+(core/control/safety.py) must behave as documented.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ament_formation.core.control.automaton import SwitchingParams
+from ament_formation.core.control.safety import safe_field
+from ament_formation.core.scenario.loader import load_scenario
+from ament_formation.core.sim.metrics import compute_metrics
+from ament_formation.core.sim.simulator import simulate
+
+FILES = sorted((Path(__file__).resolve().parent / 'scenarios_regression').glob('*.yaml'))
+CONTACT_M = 0.20  # two robot bodies touch (R_body = 0.1 m)
+PEAK_SPEED_MPS = 0.3  # the sweep's runaway speed (the law's speed limit is 0.25 m/s)
+MAX_EVENTS = 50  # mode events of one robot: more is chattering
+PRM = SwitchingParams().as_array()
+
+
+@pytest.mark.parametrize('path', FILES, ids=[p.stem for p in FILES])
+def test_formerly_failing_random_scenario_has_no_hard_failure(path):
+    scenario = load_scenario(path)
+    result = simulate(scenario)
+    m = compute_metrics(result, scenario)
+    assert m['min_clearance_m'] > 0.0, 'a robot entered an obstacle region P'
+    assert m['min_inter_robot_distance_m'] >= CONTACT_M, 'robot bodies touched'
+    vel = np.diff(result.state[:, :, :2], axis=0) / np.diff(result.t_s)[:, None, None]
+    assert np.linalg.norm(vel, axis=2).max() <= PEAK_SPEED_MPS, 'runaway'
+    events = Counter(e['robot'] for e in m['mode_events'])
+    assert max(events.values(), default=0) <= MAX_EVENTS, f'chattering: {events}'
+
+
+def _field(x, vd, obstacles=None):
+    n = x.shape[0]
+    pd = np.zeros((n, 2))  # heading 0, omega 0: p_dot = (v, 0)
+    pd[:, 0] = x[:, 3]
+    oc, ov, ophi, ophid, oaxes = obstacles or (
+        np.zeros((0, 2)),
+        np.zeros((0, 2)),
+        np.zeros(0),
+        np.zeros(0),
+        np.zeros((0, 2)),
+    )
+    return safe_field(
+        0, x, pd, vd[0], vd[1], 0.0, 0.0, oc, ov, ophi, ophid, oaxes, np.full(n, 0.1), 0.27, PRM
+    )
+
+
+def test_safety_filter_leaves_a_free_robot_alone_and_caps_its_speed():
+    x = np.array([[0.0, 0.0, 0.0, 0.05, 0.0], [2.0, 0.0, 0.0, 0.0, 0.0]])
+    assert _field(x, (0.05, 0.01)) == (0.05, 0.01, 0.0, 0.0)  # untouched, bit for bit
+    vx, vy, _, _ = _field(x, (3.0, 4.0))
+    assert np.hypot(vx, vy) == pytest.approx(SwitchingParams().speed_limit_mps)
+    assert vx / vy == pytest.approx(0.75)
+
+
+def test_safety_filter_stops_the_approach_but_keeps_the_tangential_motion():
+    # robot 1 is 1 mm beyond the contact circle ahead, inside the 1 cm margin: no approach left
+    # (a slow retreat), sliding past allowed
+    x = np.array([[0.0, 0.0, 0.0, 0.1, 0.0], [0.201, 0.0, 0.0, 0.0, 0.0]])
+    vx, vy, _, _ = _field(x, (0.1, 0.05))
+    assert -0.02 < vx < 0.0 and vy == pytest.approx(0.05)
+    # moving away is never held back (liveness)
+    assert _field(x, (-0.1, 0.0))[:2] == (-0.1, 0.0)
+
+
+def test_safety_filter_sees_a_rotating_obstacle_sweeping_toward_the_robot():
+    # a bar (P 0.3 x 0.05 m) turning CCW at 0.5 rad/s; the robot 5 cm beyond its tip's path
+    obstacles = (
+        np.zeros((1, 2)),
+        np.zeros((1, 2)),
+        np.array([0.0]),
+        np.array([0.5]),
+        np.array([[0.3, 0.05]]),
+    )
+    x = np.array([[0.0, 0.15, 0.0, 0.0, 0.0]])  # above the bar's middle, at rest
+    vx, vy, _, _ = _field(x, (0.0, 0.0), obstacles)
+    assert (vx, vy) == (0.0, 0.0)  # the material point under the robot moves along -x only
+    x = np.array([[0.25, 0.15, 0.0, 0.0, 0.0]])  # above the tip, which moves +y at 0.125 m/s
+    vx, vy, _, _ = _field(x, (0.0, 0.0), obstacles)
+    assert vy > 0.02  # the robot is told to get out of the way
