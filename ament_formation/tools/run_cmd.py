@@ -339,17 +339,17 @@ def _supervise(
 
 
 def _spin_slice(executor, slice_s: float) -> None:
-    """Run the recorder's callbacks for ``slice_s`` of wall time: spin_once runs one callback,
-    and the recorder takes ~1,500 messages/s from a whole system (one callback per spin_once
-    between progress and timeout checks fell behind under CPU load, until its queues of 100
-    messages per topic overflowed: recordings with gaps, runs judged incomplete).
+    """Run the recorder's callbacks for about ``slice_s`` of wall time: spin_once runs one
+    callback, and the recorder takes ~1,500 messages/s from a whole system (one callback per
+    spin_once between progress and timeout checks fell behind under CPU load). The timeout stays
+    the same on every call: rclpy keeps the ready entities of one wait across spin_once calls
+    only while the arguments do not change; a new timeout each call makes it wait anew and serve
+    the first ready subscription again and again, starving the others (a robot's topics then
+    went unrecorded for a whole run).
     """
     end = time.monotonic() + slice_s
-    while True:
-        remaining = end - time.monotonic()
-        if remaining <= 0.0:
-            return
-        executor.spin_once(timeout_sec=remaining)
+    while time.monotonic() < end:
+        executor.spin_once(timeout_sec=slice_s)
 
 
 def _drain(executor, recorder, quiet_s: float = 0.3, max_s: float = 5.0) -> None:
