@@ -417,3 +417,33 @@ def test_a_campaign_run_with_camera_sensing_is_classified_and_seeded_per_run():
     ideal = campaign.run_case({'family': 'crossing', 'seed': 2, 'index': 0})
     assert ideal['name'] == rows[0]['name']
     assert ideal['min_robot_distance_m'] != rows[0]['min_robot_distance_m']  # it did sense
+
+
+def test_sigint_stops_a_dask_campaign_and_keeps_what_is_done(tmp_path):
+    """Ctrl-C on the console script: the campaign stops after the runs in hand (Dask's client
+    swallowed the KeyboardInterrupt: it kept running), writes the rows done and exits 130.
+    """
+    out = tmp_path / 'out'
+    proc = subprocess.Popen(
+        [str(BIN / 'formation'), 'sweep', '--out', str(out), '--count', '400', '--seed', '5',
+         '--workers', '2', '--no-plot'],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    try:
+        first = ''
+        for _ in range(50):  # the first progress line (a run is done), after any warnings
+            first = proc.stderr.readline()
+            if first.startswith('sweep: ') or not first:
+                break
+        assert first.startswith('sweep: 1/400'), first
+        proc.send_signal(signal.SIGINT)
+        _out, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    summary = json.loads((out / 'summary.json').read_text())
+    assert proc.returncode == 130, err
+    assert 'stopped by signal 2' in err
+    assert 1 <= summary['runs'] < 400 and summary['interrupted_by_signal'] == 2
+    assert len(_rows(out)) == summary['runs']

@@ -24,6 +24,7 @@ import math
 import os
 from pathlib import Path
 import shutil
+import signal
 import sys
 import tempfile
 import time
@@ -101,15 +102,40 @@ def _cases(args) -> list[dict]:
     return [{**common, 'index': i, 'family': names[i % len(names)]} for i in range(args.count)]
 
 
-def _serial(cases, on_row):
+class _Stop:
+    """SIGINT/SIGTERM while a campaign runs: remembered, and the campaign stops after the run in
+    hand (Dask's client swallows a KeyboardInterrupt raised while it waits for results), keeping
+    what is done.
+    """
+
+    def __init__(self):
+        self.signal = None
+        self._previous = {}
+
+    def __enter__(self) -> '_Stop':
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            self._previous[signum] = signal.signal(signum, self._on_signal)
+        return self
+
+    def _on_signal(self, signum, _frame) -> None:
+        self.signal = signum
+
+    def __exit__(self, *exc) -> None:
+        for signum, handler in self._previous.items():
+            signal.signal(signum, handler)
+
+
+def _serial(cases, on_row, stop: _Stop):
     from ament_formation.core.sim.campaign import run_case
 
     for case in cases:
         on_row(run_case(case))
+        if stop.signal is not None:
+            break
     return {'engine': 'in-process', 'workers': 1}
 
 
-def _dask(cases, on_row, args):
+def _dask(cases, on_row, args, stop: _Stop):
     import logging
 
     from dask.distributed import as_completed, Client, LocalCluster
@@ -139,6 +165,9 @@ def _dask(cases, on_row, args):
         for future in as_completed(futures):
             on_row(future.result())
             future.release()
+            if stop.signal is not None:
+                client.cancel(futures)
+                break
         engine['workers'] = len(client.scheduler_info(n_workers=-1)['workers'])
     finally:
         client.close()
@@ -277,15 +306,14 @@ def run_sweep(args: argparse.Namespace) -> int:
         progress(row)
 
     t0 = time.monotonic()
-    interrupted = False
-    try:
+    with _Stop() as stop:
         if args.workers == 0 and not (args.scheduler or args.scheduler_file):
-            engine = _serial(cases, on_row)
+            engine = _serial(cases, on_row, stop)
         else:
             args.workers = args.workers or os.cpu_count() or 1
-            engine = _dask(cases, on_row, args)
-    except KeyboardInterrupt:
-        interrupted, engine = True, {'engine': 'interrupted'}
+            engine = _dask(cases, on_row, args, stop)
+    interrupted = stop.signal is not None
+    engine['interrupted_by_signal'] = stop.signal
     wall = time.monotonic() - t0
     counts = class_counts(rows)
     summary = {
@@ -317,7 +345,12 @@ def run_sweep(args: argparse.Namespace) -> int:
             + ')'
         )
     if interrupted:
-        return 130
+        print(
+            f'formation sweep: stopped by signal {stop.signal} after {len(rows)} of {len(cases)} '
+            'runs (their results are written)',
+            file=sys.stderr,
+        )
+        return 128 + stop.signal
     if hard:
         print(
             f'formation sweep: FAILED: {hard} of {len(rows)} runs with a hard failure class',
