@@ -138,6 +138,7 @@ def _serial(cases, on_row, stop: _Stop):
 def _dask(cases, on_row, args, stop: _Stop):
     import logging
 
+    import dask
     from dask.distributed import as_completed, Client, LocalCluster
 
     from ament_formation.core.sim.campaign import run_case
@@ -148,6 +149,7 @@ def _dask(cases, on_row, args, stop: _Stop):
         engine = {'engine': 'dask', 'scheduler': client.scheduler.address}
     else:
         scratch = tempfile.mkdtemp(prefix='af_sweep_dask_')
+        dask.config.set({'temporary-directory': scratch})  # its lock files too, removed at the end
         cluster = LocalCluster(
             n_workers=args.workers,
             threads_per_worker=1,
