@@ -97,7 +97,11 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
-from ament_formation.core.control.assignment import AssignedLaw, original_parent_state
+from ament_formation.core.control.assignment import (
+    AssignedLaw,
+    original_parent_link,
+    original_parent_state,
+)
 from ament_formation.core.control.controller import NeighbourState, RobotController
 from ament_formation.core.control.estimator import EstimatorParams, PoseEstimator
 from ament_formation.core.control.neighbours import extrapolate_neighbour, neighbour_goal
@@ -402,12 +406,7 @@ class ControllerNode(Node):
         self.start_s: float | None = None
         self.graph: msgs.GraphMessage | None = None
         self.parent: _Neighbour | None = None
-        self.orig_parent_id = fgraph.original_parent.get(self.rid)
-        self.orig_offset = (
-            np.zeros(2)
-            if self.orig_parent_id is None
-            else np.asarray(fgraph.offset(self.rid, self.orig_parent_id), dtype=float)
-        )
+        self.orig_parent_id, self.orig_offset = original_parent_link(fgraph, self.rid)
         self.law.set_graph(
             self.orig_parent_id, self.orig_offset, self.orig_parent_id, self.orig_offset
         )

@@ -15,6 +15,16 @@ import numpy as np
 from ament_formation.core.control.controller import NeighbourState
 
 
+def original_parent_link(fgraph, robot_id: int) -> tuple[int | None, np.ndarray]:
+    """The robot's original parent pi0 in the scenario's graph (S9: where it returns after an
+    avoidance) and its slot offset from pi0 (2,); (None, zeros) for a team leader.
+    """
+    parent = fgraph.original_parent.get(robot_id)
+    if parent is None:
+        return None, np.zeros(2)
+    return parent, np.asarray(fgraph.offset(robot_id, parent), dtype=float)
+
+
 def original_parent_state(
     heard: dict, orig_parent_id, orig_offset, state
 ) -> NeighbourState | None:

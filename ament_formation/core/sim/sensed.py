@@ -45,7 +45,11 @@ from typing import Callable
 import numpy as np
 
 from ament_formation.core.control.arbiter import EncounterArbiter
-from ament_formation.core.control.assignment import AssignedLaw, original_parent_state
+from ament_formation.core.control.assignment import (
+    AssignedLaw,
+    original_parent_link,
+    original_parent_state,
+)
 from ament_formation.core.control.controller import NeighbourState, RobotController
 from ament_formation.core.control.estimator import EstimatorParams, PoseEstimator
 from ament_formation.core.control.neighbours import extrapolate_neighbour, neighbour_goal
@@ -245,12 +249,7 @@ class _RobotNode:
             leader_path=spec.path if spec.leader else None,
             team=scenario.team_leader(self.rid),
         )
-        self.orig_parent_id = fgraph.original_parent.get(self.rid)
-        self.orig_offset = (
-            np.zeros(2)
-            if self.orig_parent_id is None
-            else np.asarray(fgraph.offset(self.rid, self.orig_parent_id), dtype=float)
-        )
+        self.orig_parent_id, self.orig_offset = original_parent_link(fgraph, self.rid)
         self.law.set_graph(
             self.orig_parent_id, self.orig_offset, self.orig_parent_id, self.orig_offset
         )
