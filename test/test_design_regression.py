@@ -36,6 +36,8 @@ def test_formerly_failing_random_scenario_has_no_hard_failure(path):
     assert np.linalg.norm(vel, axis=2).max() <= PEAK_SPEED_MPS, 'runaway'
     events = Counter(e['robot'] for e in m['mode_events'])
     assert max(events.values(), default=0) <= MAX_EVENTS, f'chattering: {events}'
+    if scenario.floor is not None:
+        assert m['floor_excursion_m'] <= 0.0, 'a robot body crossed the floor edge'
 
 
 def _field(x, vd, obstacles=None):
@@ -87,3 +89,33 @@ def test_safety_filter_sees_a_rotating_obstacle_sweeping_toward_the_robot():
     x = np.array([[0.25, 0.15, 0.0, 0.0, 0.0]])  # above the tip, which moves +y at 0.125 m/s
     vx, vy, _, _ = _field(x, (0.0, 0.0), obstacles)
     assert vy > 0.02  # the robot is told to get out of the way
+
+
+def _wall_field(px, vd, floor=(0.0, 3.0, 0.0, 2.5)):
+    """Robot 0 at (px, 1.0) moving with V_d on a floor with walls (safety filter only)."""
+    x = np.array([[px, 1.0, 0.0, vd[0], 0.0]])
+    pd = np.array([[vd[0], vd[1]]])
+    prm = SwitchingParams(floor_m=floor).as_array()
+    none = (np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros((0, 2)))
+    return safe_field(0, x, pd, vd[0], vd[1], 0.0, 0.0, *none, np.full(1, 0.1), 0.27, prm)
+
+
+def test_safety_filter_treats_the_floor_edges_as_walls():
+    # 2 cm from the x_max wall (body radius 0.1 m: p at 3.0 - 0.12): the approach is cut to the
+    # braking speed, the motion along the wall is kept
+    vx, vy, _, _ = _wall_field(2.88, (0.05, 0.03))
+    assert vx < 0.03 and vy == pytest.approx(0.03)
+    # inside the gap (p past the wall's safety margin): a retreat is commanded
+    assert _wall_field(2.895, (0.05, 0.0))[0] < 0.0
+    # moving away from the wall, far from it, or with no declared floor: untouched
+    assert _wall_field(2.88, (-0.05, 0.03))[:2] == (-0.05, 0.03)
+    assert _wall_field(1.5, (0.05, 0.03))[:2] == (0.05, 0.03)
+    assert _wall_field(2.88, (0.05, 0.03), floor=None)[:2] == (0.05, 0.03)
+    # the x_min and y_min walls alike
+    x = np.array([[0.12, 0.12, 0.0, -0.05, 0.0]])
+    prm = SwitchingParams(floor_m=(0.0, 3.0, 0.0, 2.5)).as_array()
+    none = (np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros((0, 2)))
+    vx, vy, _, _ = safe_field(
+        0, x, np.array([[-0.05, -0.05]]), -0.05, -0.05, 0.0, 0.0, *none, np.full(1, 0.1), 0.27, prm
+    )
+    assert vx > -0.03 and vy > -0.03

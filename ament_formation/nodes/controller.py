@@ -392,6 +392,7 @@ class ControllerNode(Node):
             sc.obstacles,
             leader_path=spec.path if spec.leader else None,
             team=sc.team_leader(self.rid),
+            floor=sc.floor,
         )
         fgraph = FormationGraph.from_scenario(sc)
         self.goal_source, self.robot_info = _robot_tables(sc, fgraph)

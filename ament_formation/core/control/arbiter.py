@@ -53,7 +53,7 @@ class EncounterArbiter:
         self.index = {rid: q for q, rid in enumerate(self.ids)}
         n = len(robots)
         base = switching or SwitchingParams()
-        self.switching = base.for_avoidance(scenario.avoidance)
+        self.switching = base.for_avoidance(scenario.avoidance).on_floor(scenario.floor)
         self._prm = self.switching.as_array()
         self._gains = gains_vector(scenario.control)
         self._d = PlantCoeffs.from_params([r.params for r in robots]).d

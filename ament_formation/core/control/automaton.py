@@ -67,6 +67,8 @@ class SwitchingParams:
     safety_gap_m: float = 0.01  # safety barrier: the robot stops this far outside P / contact
     safety_range_m: float = 0.3  # safety barrier: threats within this gap are checked
     safety_lag_s: float = 0.3  # safety barrier: reaction time of the S3 loop before it brakes
+    # safety barrier: the floor's edges (x_min, x_max, y_min, y_max) [m] as walls; None: unbounded
+    floor_m: tuple[float, float, float, float] | None = None
 
     def __post_init__(self) -> None:
         for name in (
@@ -89,6 +91,15 @@ class SwitchingParams:
     def for_avoidance(self, avoidance: AvoidanceParams) -> 'SwitchingParams':
         """These timings and thresholds with ``avoidance`` (a scenario's) in place of our own."""
         return dataclasses.replace(self, avoidance=avoidance)
+
+    def on_floor(self, floor) -> 'SwitchingParams':
+        """These parameters with the walls of ``floor`` (a scenario's :class:`FloorSpec`, with
+        ``x_m`` and ``y_m`` pairs; None: no walls).
+        """
+        if floor is None:
+            return dataclasses.replace(self, floor_m=None)
+        bounds = (*map(float, floor.x_m), *map(float, floor.y_m))
+        return dataclasses.replace(self, floor_m=bounds)
 
     def as_array(self) -> np.ndarray:
         """Packed (P_LEN,) float vector for the compiled code (see ``P_*`` indices)."""
@@ -119,6 +130,8 @@ class SwitchingParams:
         out[P_SAFE_GAP] = self.safety_gap_m
         out[P_SAFE_RANGE] = self.safety_range_m
         out[P_SAFE_LAG] = self.safety_lag_s
+        floor = self.floor_m or (-math.inf, math.inf, -math.inf, math.inf)
+        out[P_FLOOR_X0], out[P_FLOOR_X1], out[P_FLOOR_Y0], out[P_FLOOR_Y1] = floor
         return out
 
 
@@ -148,8 +161,12 @@ class SwitchingParams:
     P_SAFE_GAP,
     P_SAFE_RANGE,
     P_SAFE_LAG,
-) = range(25)
-P_LEN = 25
+    P_FLOOR_X0,
+    P_FLOOR_X1,
+    P_FLOOR_Y0,
+    P_FLOOR_Y1,
+) = range(29)
+P_LEN = 29
 
 
 # --------------------------------------------------------------------------- ellipse geometry

@@ -228,7 +228,7 @@ class RobotController:
     Construction
     ------------
     ``RobotController(robot_id, params, control, avoidance, obstacles, *, leader_path=None,
-    team=None, switching=None)``
+    team=None, switching=None, floor=None)``
       * ``params`` :class:`RobotParams`; ``control`` :class:`ControlGains` (K, epsilon, alpha,
       v_cap,
         lambda); ``avoidance`` :class:`AvoidanceParams`; ``obstacles`` the known
@@ -237,7 +237,8 @@ class RobotController:
       * ``leader_path``: a path with ``reference(t_s) -> (r, r_dot, r_ddot)`` when this robot leads
         a team (then it tracks r(t), S4), else None;
       * ``team``: id of its team leader (S14.3); ``switching``: :class:`SwitchingParams`
-        (decision period, default 0.01 s = 100 Hz).
+        (decision period, default 0.01 s = 100 Hz); ``floor``: the scenario's
+        :class:`FloorSpec` (its edges are walls of the safety barrier) or None.
 
     Graph (from the coordinator's ``/formation/graph``, S9)
     -------------------------------------------------------
@@ -282,13 +283,14 @@ class RobotController:
         leader_path=None,
         team: int | None = None,
         switching: SwitchingParams | None = None,
+        floor=None,
     ):
         self.robot_id = int(robot_id)
         self.params = params
         self.leader_path = fast_reference(leader_path)
         self.team = self.robot_id if team is None else int(team)
         base = switching or SwitchingParams()
-        self.switching = base.for_avoidance(avoidance)
+        self.switching = base.for_avoidance(avoidance).on_floor(floor)
         self._prm = self.switching.as_array()
         self._gains = gains_vector(control)
         k = PlantCoeffs.from_params([params])

@@ -15,7 +15,8 @@ the encounter arbitration decided, the desired point velocity V_d handed to the 
   approaching normal component is removed, the tangential part is kept (heading-preserving), so
   two robots slide past each other instead of deadlocking, and a robot moving away from a threat
   is never held back (liveness). The constraints are met by alternating projections; a robot
-  still squeezed between a robot and an obstacle stops (relative to the obstacles).
+  still squeezed between a robot and an obstacle stops (relative to the obstacles). The edges of a
+  declared floor (``SwitchingParams.floor_m``) are walls of the same barrier.
 
 Both run inside :func:`ament_formation.core.control.law.robot_law`, so the simulator and the
 robot's controller run them alike. Scalar numba kernels.
@@ -28,6 +29,7 @@ import math
 from numba import njit
 
 from ament_formation.core.control.automaton import (
+    P_FLOOR_X0,
     P_SAFE_ACCEL,
     P_SAFE_GAP,
     P_SAFE_LAG,
@@ -180,6 +182,28 @@ def _obstacle_barriers(p, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, a_br
     return vdx, vdy, vddx, vddy
 
 
+@njit(cache=True)
+def _floor_barriers(p, vdx, vdy, vddx, vddy, rb, a_brk, prm, brake):
+    """The barrier against each edge of a declared floor within ``safety_range_m`` of the body
+    (radius ``rb`` about p): the edges are walls that do not move (an undeclared floor has its
+    edges at infinity).
+    """
+    g0, reach, lag = prm[P_SAFE_GAP], prm[P_SAFE_RANGE], prm[P_SAFE_LAG]
+    px, py, pdx, pdy = p
+    for wall in range(4):
+        edge = prm[P_FLOOR_X0 + wall]  # x_min, x_max, y_min, y_max in turn
+        sign = 1.0 if wall % 2 == 0 else -1.0  # inward normal: + from a min edge, - from a max
+        coord = px if wall < 2 else py
+        gap = sign * (coord - edge) - rb
+        if gap < reach:
+            nx = sign if wall < 2 else 0.0
+            ny = sign if wall >= 2 else 0.0
+            vdx, vdy, vddx, vddy, _a = _barrier(
+                vdx, vdy, vddx, vddy, pdx, pdy, nx, ny, 0.0, 0.0, gap - g0, a_brk, lag, brake
+            )
+    return vdx, vdy, vddx, vddy
+
+
 # implements: S14
 @njit(cache=True)
 def safe_field(i, x, pd, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, rbody, gain_k, prm):
@@ -190,25 +214,29 @@ def safe_field(i, x, pd, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, rbody
     vdx, vdy = clip_norm(vdx, vdy, prm[P_VMAX])
     a_brk = prm[P_SAFE_ACCEL] * gain_k  # the S3 loop's deceleration without feed-forward
     p = (x[i, 0], x[i, 1], pd[i, 0], pd[i, 1])
+    rb = rbody[i]
     for _ in range(PASSES):  # alternating projections onto the robots' and obstacles' half-planes
         vdx, vdy, vddx, vddy, _act = _robot_barriers(
             i, x, pd, vdx, vdy, vddx, vddy, rbody, a_brk, prm, False
         )
+        vdx, vdy, vddx, vddy = _floor_barriers(p, vdx, vdy, vddx, vddy, rb, a_brk, prm, False)
         vdx, vdy, vddx, vddy = _obstacle_barriers(
             p, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, a_brk, prm, False
         )
     qx, qy, _a, _b, _act = _robot_barriers(
         i, x, pd, vdx, vdy, vddx, vddy, rbody, a_brk, prm, False
     )
+    fx, fy, _c, _d = _floor_barriers(p, vdx, vdy, vddx, vddy, rb, a_brk, prm, False)
+    squeezed = abs(qx - vdx) + abs(qy - vdy) + abs(fx - vdx) + abs(fy - vdy)
     if (
-        abs(qx - vdx) + abs(qy - vdy) > 1e-9
-    ):  # between a robot and an obstacle: stop (only the obstacles may move it)
+        squeezed > 1e-9
+    ):  # between a robot or wall and an obstacle: stop (the obstacles may move it)
         vdx, vdy, vddx, vddy = 0.0, 0.0, 0.0, 0.0
     # the braking acceleration where the robot's own velocity is beyond the limits
     vdx, vdy, vddx, vddy, _act = _robot_barriers(
         i, x, pd, vdx, vdy, vddx, vddy, rbody, a_brk, prm, True
     )
-    vdx, vdy, vddx, vddy = _obstacle_barriers(
+    vdx, vdy, vddx, vddy = _floor_barriers(p, vdx, vdy, vddx, vddy, rb, a_brk, prm, True)
+    return _obstacle_barriers(
         p, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, a_brk, prm, True
     )
-    return vdx, vdy, vddx, vddy

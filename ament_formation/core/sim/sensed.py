@@ -248,6 +248,7 @@ class _RobotNode:
             scenario.obstacles,
             leader_path=spec.path if spec.leader else None,
             team=scenario.team_leader(self.rid),
+            floor=scenario.floor,
         )
         self.orig_parent_id, self.orig_offset = original_parent_link(fgraph, self.rid)
         self.law.set_graph(

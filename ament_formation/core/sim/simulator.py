@@ -344,7 +344,7 @@ class _Setup:
         )
         self.rbody = np.array([r.params.body_radius_m for r in robots], dtype=float)
         self.gains = gains_vector(scenario.control)
-        self.prm = switching.for_avoidance(scenario.avoidance).as_array()
+        self.prm = switching.for_avoidance(scenario.avoidance).on_floor(scenario.floor).as_array()
         bound = np.asarray(scenario.disturbance.accel_bound, dtype=float)
         dist = Disturbance.from_bounds(n, bound, scenario.disturbance.seed)
         self.d_amp, self.d_freq, self.d_phase = dist.amplitude, dist.freq_hz, dist.phase_rad
