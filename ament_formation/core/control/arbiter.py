@@ -121,16 +121,46 @@ class EncounterArbiter:
         t_s = float(t_s)
         self._sync_reported(t_s, modes)
         known = [rid for rid in self.ids if rid in states and np.all(np.isfinite(states[rid]))]
-        rows = np.array([self.index[r] for r in known], dtype=np.int64)
         n = len(known)
         if n == 0:
             return {}
+        rows = np.array([self.index[r] for r in known], dtype=np.int64)
         row = {rid: q for q, rid in enumerate(known)}
         x = np.ascontiguousarray(
             np.stack([np.asarray(states[r], dtype=float).reshape(5) for r in known])
         )
-        d = self._d[rows]
-        pd = point_velocities(x, np.ascontiguousarray(d))
+        pd = point_velocities(x, np.ascontiguousarray(self._d[rows]))
+        goal, goal_dot, vc = self._goals(t_s, known, row, x, pd)
+        team = np.array(
+            [row.get(self._team[r], -1 - self.index[r]) for r in known], dtype=np.int64
+        )
+        sub = self._sub_state(t_s, known, rows)
+        ev = np.zeros((8 * n + 16, 6))
+        nev = self._decide(
+            t_s,
+            x,
+            pd,
+            goal,
+            goal_dot,
+            vc,
+            team,
+            self._rbody[rows],
+            self._obstacles_at(t_s),
+            sub,
+            self._parent_rows(sub, known, row),
+            ev,
+        )
+        self._record_events(ev, nev, known)
+        self._write_back(sub, known, modes)
+        return self.assignments()
+
+    def _goals(
+        self, t_s: float, known: list[int], row: Mapping[int, int], x: np.ndarray, pd: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(goal, goal_dot, V_c) of the known robots (S8.3): a leader's r(t), a follower's
+        original parent + delta when that parent is known, else the robot's own position.
+        """
+        n = len(known)
         ref = np.zeros((n, 6))
         orig_parent = np.full(n, -1, dtype=np.int64)
         orig_offset = np.zeros((n, 2))
@@ -146,10 +176,12 @@ class EncounterArbiter:
             else:  # goal unknown: its own position
                 ref[q, 0:2] = x[q, 0:2]
                 ref[q, 2:4] = pd[q]
-        goal, goal_dot, vc = goal_fields(x, pd, ref, orig_parent, orig_offset, self._gains)
-        team = np.array(
-            [row.get(self._team[r], -1 - self.index[r]) for r in known], dtype=np.int64
-        )
+        return goal_fields(x, pd, ref, orig_parent, orig_offset, self._gains)
+
+    def _obstacles_at(self, t_s: float) -> tuple:
+        """(centres, velocities, accelerations, phi, phi_dot, phi_ddot) of the obstacles at
+        ``t_s`` (S6.1 motion model).
+        """
         m = len(self.obstacle_names)
         oc, ov, oa = np.empty((m, 2)), np.empty((m, 2)), np.empty((m, 2))
         ophi, ophid, ophidd = np.empty(m), np.empty(m), np.empty(m)
@@ -168,9 +200,15 @@ class EncounterArbiter:
             ophid,
             ophidd,
         )
+        return oc, ov, oa, ophi, ophid, ophidd
 
-        # sub-state of the known robots (robot targets as rows of the sub-problem)
+    def _sub_state(self, t_s: float, known: list[int], rows: np.ndarray) -> AutomatonState:
+        """The automaton state of the known robots (robot targets as rows of the sub-problem; a
+        silent partner sends the robot back to coordination), w_c relaxed toward w_tgt since the
+        last decision (S14.1, as the law does).
+        """
         full = self.state
+        n = len(known)
         sub = AutomatonState(n)
         for name in (
             'mode',
@@ -198,8 +236,16 @@ class EncounterArbiter:
             a = min(1.0, max(0.0, t_s - self._drift_t) / tau) if tau > 0 else 1.0
             sub.wc += a * (sub.wtgt - sub.wc) * (sub.mode == MODE_MUTUAL)[:, None]
         self._drift_t = t_s
-        ev = np.zeros((8 * n + 16, 6))
-        nev = decide(
+        return sub
+
+    def _decide(
+        self, t_s, x, pd, goal, goal_dot, vc, team, rbody, obstacles, sub, parent_rows, ev
+    ) -> int:
+        """The compiled S7/S8 decision over the known robots (``sub`` updated in place, events
+        into ``ev``); returns the event count.
+        """
+        oc, ov, _oa, ophi, ophid, _ophidd = obstacles
+        return decide(
             t_s,
             np.ascontiguousarray(x[:, :2]),
             pd,
@@ -207,7 +253,7 @@ class EncounterArbiter:
             goal_dot,
             vc,
             team,
-            self._rbody[rows],
+            rbody,
             oc,
             ov,
             ophi,
@@ -215,10 +261,13 @@ class EncounterArbiter:
             self._axes,
             self._static,
             *sub.arrays(),
-            self._parent_rows(sub, known, row),
+            parent_rows,
             self._prm,
             ev,
         )
+
+    def _record_events(self, ev: np.ndarray, nev: int, known: list[int]) -> None:
+        """The decision's robot-robot events into :attr:`events` (ids, scenario time)."""
         for r_ in ev[: min(nev, ev.shape[0])]:
             md = int(r_[3])
             if md in (MODE_YIELD, MODE_MUTUAL):
@@ -231,7 +280,15 @@ class EncounterArbiter:
                         'target': f'robot_{known[int(r_[4])]}',
                     }
                 )
-        # write back (robot targets as full-state rows); obstacle modes stay the robots' own
+
+    def _write_back(
+        self, sub: AutomatonState, known: list[int], modes: Mapping[int, dict]
+    ) -> None:
+        """The sub-state into the full state (robot targets as full-state rows); obstacle modes
+        stay the robots' own: an obstacle entry decided here is not kept.
+        """
+        full = self.state
+        n = len(known)
         for q, rid in enumerate(known):
             i = self.index[rid]
             reported_obstacle = (modes.get(rid) or {}).get('mode') == 'obstacle'
@@ -254,7 +311,6 @@ class EncounterArbiter:
             full.last_tgt[i] = (
                 self.index[known[lt]] if sub.last_kind[q] == 2 and 0 <= lt < n else lt
             )
-        return self.assignments()
 
     def _parent_rows(self, sub: AutomatonState, known: list[int], row: dict) -> np.ndarray:
         """Current formation parent row of each known robot (S9 rewiring with the robots in an
