@@ -77,6 +77,10 @@ class EncounterArbiter:
             self._axes,
             self._static,
         ) = obstacle_arrays(scenario.obstacles)
+        m = len(self.obstacle_names)
+        self._obs = (np.empty((m, 2)), np.empty((m, 2)), np.empty((m, 2)))
+        self._obs += (np.empty(m), np.empty(m), np.empty(m))  # written by every decision
+        self._rewired: dict[tuple, dict] = {}  # S9 parents by avoiding set (the graph is fixed)
         self.state = AutomatonState(n)  # all robots, rows in robot-id order
         self.events: list[dict] = []  # robot-robot events decided here (ids, scenario time)
         self._drift_t: float | None = None
@@ -120,7 +124,7 @@ class EncounterArbiter:
         """One S7/S8 decision over every robot with a known state; see the class docstring."""
         t_s = float(t_s)
         self._sync_reported(t_s, modes)
-        known = [rid for rid in self.ids if rid in states and np.all(np.isfinite(states[rid]))]
+        known = [rid for rid in self.ids if rid in states and np.isfinite(states[rid]).all()]
         n = len(known)
         if n == 0:
             return {}
@@ -151,7 +155,7 @@ class EncounterArbiter:
             ev,
         )
         self._record_events(ev, nev, known)
-        self._write_back(sub, known, modes)
+        self._write_back(sub, known, rows, modes)
         return self.assignments()
 
     def _goals(
@@ -182,9 +186,7 @@ class EncounterArbiter:
         """(centres, velocities, accelerations, phi, phi_dot, phi_ddot) of the obstacles at
         ``t_s`` (S6.1 motion model).
         """
-        m = len(self.obstacle_names)
-        oc, ov, oa = np.empty((m, 2)), np.empty((m, 2)), np.empty((m, 2))
-        ophi, ophid, ophidd = np.empty(m), np.empty(m), np.empty(m)
+        oc, ov, oa, ophi, ophid, ophidd = self._obs
         obstacle_states(
             t_s,
             self._c0,
@@ -200,7 +202,7 @@ class EncounterArbiter:
             ophid,
             ophidd,
         )
-        return oc, ov, oa, ophi, ophid, ophidd
+        return self._obs
 
     def _sub_state(self, t_s: float, known: list[int], rows: np.ndarray) -> AutomatonState:
         """The automaton state of the known robots (robot targets as rows of the sub-problem; a
@@ -224,13 +226,12 @@ class EncounterArbiter:
         ):
             getattr(sub, name)[:] = getattr(full, name)[rows]
         idx_row = {self.index[r]: q for q, r in enumerate(known)}
-        for q in range(n):
-            if sub.mode[q] in (MODE_YIELD, MODE_MUTUAL):
-                sub.tgt[q] = idx_row.get(int(sub.tgt[q]), -1)
-                if sub.tgt[q] < 0:  # partner silent: back to coordination
-                    sub.mode[q] = MODE_C
-            if sub.last_kind[q] == 2:
-                sub.last_tgt[q] = idx_row.get(int(sub.last_tgt[q]), -1)
+        for q in np.flatnonzero((sub.mode == MODE_YIELD) | (sub.mode == MODE_MUTUAL)):
+            sub.tgt[q] = idx_row.get(int(sub.tgt[q]), -1)
+            if sub.tgt[q] < 0:  # partner silent: back to coordination
+                sub.mode[q] = MODE_C
+        for q in np.flatnonzero(sub.last_kind == 2):
+            sub.last_tgt[q] = idx_row.get(int(sub.last_tgt[q]), -1)
         if self._drift_t is not None:  # w_c relaxes toward w_tgt (S14.1), as the law does
             tau = self.switching.mutual_drift_tau_s
             a = min(1.0, max(0.0, t_s - self._drift_t) / tau) if tau > 0 else 1.0
@@ -282,42 +283,38 @@ class EncounterArbiter:
                 )
 
     def _write_back(
-        self, sub: AutomatonState, known: list[int], modes: Mapping[int, dict]
+        self, sub: AutomatonState, known: list[int], rows: np.ndarray, modes: Mapping[int, dict]
     ) -> None:
         """The sub-state into the full state (robot targets as full-state rows); obstacle modes
         stay the robots' own: an obstacle entry decided here is not kept.
         """
         full = self.state
         n = len(known)
-        for q, rid in enumerate(known):
-            i = self.index[rid]
-            reported_obstacle = (modes.get(rid) or {}).get('mode') == 'obstacle'
-            if (
-                sub.mode[q] == MODE_OBSTACLE
-                and not reported_obstacle
-                and full.mode[i] != MODE_OBSTACLE
-            ):
-                continue  # the arbiter does not decide obstacle entries
-            for name in ('mode', 'sdir', 't_entry', 'since', 'last_kind', 'last_exit'):
-                getattr(full, name)[i] = getattr(sub, name)[q]
-            full.wc[i] = sub.wc[q]
-            full.wtgt[i] = sub.wtgt[q]
-            full.tgt[i] = (
-                self.index[known[int(sub.tgt[q])]]
-                if sub.mode[q] in (MODE_YIELD, MODE_MUTUAL)
-                else sub.tgt[q]
-            )
-            lt = int(sub.last_tgt[q])
-            full.last_tgt[i] = (
-                self.index[known[lt]] if sub.last_kind[q] == 2 and 0 <= lt < n else lt
-            )
+        reported_obstacle = np.array(
+            [(modes.get(rid) or {}).get('mode') == 'obstacle' for rid in known], dtype=bool
+        )
+        keep = ~(
+            (sub.mode == MODE_OBSTACLE) & ~reported_obstacle & (full.mode[rows] != MODE_OBSTACLE)
+        )  # the arbiter does not decide obstacle entries
+        i, q = rows[keep], np.flatnonzero(keep)
+        for name in ('mode', 'sdir', 't_entry', 'since', 'last_kind', 'last_exit', 'wc', 'wtgt'):
+            getattr(full, name)[i] = getattr(sub, name)[q]
+        tgt, lt = sub.tgt[q], sub.last_tgt[q]
+        robot = (sub.mode[q] == MODE_YIELD) | (sub.mode[q] == MODE_MUTUAL)
+        full.tgt[i] = np.where(robot, rows[np.clip(tgt, -n, n - 1)], tgt)
+        known_lt = (sub.last_kind[q] == 2) & (lt >= 0) & (lt < n)
+        full.last_tgt[i] = np.where(known_lt, rows[np.clip(lt, 0, n - 1)], lt)
 
     def _parent_rows(self, sub: AutomatonState, known: list[int], row: dict) -> np.ndarray:
         """Current formation parent row of each known robot (S9 rewiring with the robots in an
         avoidance mode as roots), for the S14.5 acyclicity check of every following link.
         """
-        avoiding = [rid for q, rid in enumerate(known) if sub.mode[q] != MODE_C]
-        parents = self._graph.rewire(avoiding)
+        avoiding = tuple(rid for q, rid in enumerate(known) if sub.mode[q] != MODE_C)
+        parents = self._rewired.get(avoiding)
+        if parents is None:
+            if len(self._rewired) >= 1024:
+                self._rewired.clear()
+            parents = self._rewired[avoiding] = self._graph.rewire(avoiding)
         out = np.full(len(known), -1, dtype=np.int64)
         for q, rid in enumerate(known):
             par = parents.get(rid)
