@@ -77,6 +77,10 @@ class EncounterArbiter:
             self._axes,
             self._static,
         ) = obstacle_arrays(scenario.obstacles)
+        m = len(self.obstacle_names)
+        self._obs = (np.empty((m, 2)), np.empty((m, 2)), np.empty((m, 2)))
+        self._obs += (np.empty(m), np.empty(m), np.empty(m))  # written by every decision
+        self._rewired: dict[tuple, dict] = {}  # S9 parents by avoiding set (the graph is fixed)
         self.state = AutomatonState(n)  # all robots, rows in robot-id order
         self.events: list[dict] = []  # robot-robot events decided here (ids, scenario time)
         self._drift_t: float | None = None
@@ -120,17 +124,47 @@ class EncounterArbiter:
         """One S7/S8 decision over every robot with a known state; see the class docstring."""
         t_s = float(t_s)
         self._sync_reported(t_s, modes)
-        known = [rid for rid in self.ids if rid in states and np.all(np.isfinite(states[rid]))]
-        rows = np.array([self.index[r] for r in known], dtype=np.int64)
+        known = [rid for rid in self.ids if rid in states and np.isfinite(states[rid]).all()]
         n = len(known)
         if n == 0:
             return {}
+        rows = np.array([self.index[r] for r in known], dtype=np.int64)
         row = {rid: q for q, rid in enumerate(known)}
         x = np.ascontiguousarray(
             np.stack([np.asarray(states[r], dtype=float).reshape(5) for r in known])
         )
-        d = self._d[rows]
-        pd = point_velocities(x, np.ascontiguousarray(d))
+        pd = point_velocities(x, np.ascontiguousarray(self._d[rows]))
+        goal, goal_dot, vc = self._goals(t_s, known, row, x, pd)
+        team = np.array(
+            [row.get(self._team[r], -1 - self.index[r]) for r in known], dtype=np.int64
+        )
+        sub = self._sub_state(t_s, known, rows)
+        ev = np.zeros((8 * n + 16, 6))
+        nev = self._decide(
+            t_s,
+            x,
+            pd,
+            goal,
+            goal_dot,
+            vc,
+            team,
+            self._rbody[rows],
+            self._obstacles_at(t_s),
+            sub,
+            self._parent_rows(sub, known, row),
+            ev,
+        )
+        self._record_events(ev, nev, known)
+        self._write_back(sub, known, rows, modes)
+        return self.assignments()
+
+    def _goals(
+        self, t_s: float, known: list[int], row: Mapping[int, int], x: np.ndarray, pd: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(goal, goal_dot, V_c) of the known robots (S8.3): a leader's r(t), a follower's
+        original parent + delta when that parent is known, else the robot's own position.
+        """
+        n = len(known)
         ref = np.zeros((n, 6))
         orig_parent = np.full(n, -1, dtype=np.int64)
         orig_offset = np.zeros((n, 2))
@@ -146,13 +180,13 @@ class EncounterArbiter:
             else:  # goal unknown: its own position
                 ref[q, 0:2] = x[q, 0:2]
                 ref[q, 2:4] = pd[q]
-        goal, goal_dot, vc = goal_fields(x, pd, ref, orig_parent, orig_offset, self._gains)
-        team = np.array(
-            [row.get(self._team[r], -1 - self.index[r]) for r in known], dtype=np.int64
-        )
-        m = len(self.obstacle_names)
-        oc, ov, oa = np.empty((m, 2)), np.empty((m, 2)), np.empty((m, 2))
-        ophi, ophid, ophidd = np.empty(m), np.empty(m), np.empty(m)
+        return goal_fields(x, pd, ref, orig_parent, orig_offset, self._gains)
+
+    def _obstacles_at(self, t_s: float) -> tuple:
+        """(centres, velocities, accelerations, phi, phi_dot, phi_ddot) of the obstacles at
+        ``t_s`` (S6.1 motion model).
+        """
+        oc, ov, oa, ophi, ophid, ophidd = self._obs
         obstacle_states(
             t_s,
             self._c0,
@@ -168,9 +202,15 @@ class EncounterArbiter:
             ophid,
             ophidd,
         )
+        return self._obs
 
-        # sub-state of the known robots (robot targets as rows of the sub-problem)
+    def _sub_state(self, t_s: float, known: list[int], rows: np.ndarray) -> AutomatonState:
+        """The automaton state of the known robots (robot targets as rows of the sub-problem; a
+        silent partner sends the robot back to coordination), w_c relaxed toward w_tgt since the
+        last decision (S14.1, as the law does).
+        """
         full = self.state
+        n = len(known)
         sub = AutomatonState(n)
         for name in (
             'mode',
@@ -186,20 +226,27 @@ class EncounterArbiter:
         ):
             getattr(sub, name)[:] = getattr(full, name)[rows]
         idx_row = {self.index[r]: q for q, r in enumerate(known)}
-        for q in range(n):
-            if sub.mode[q] in (MODE_YIELD, MODE_MUTUAL):
-                sub.tgt[q] = idx_row.get(int(sub.tgt[q]), -1)
-                if sub.tgt[q] < 0:  # partner silent: back to coordination
-                    sub.mode[q] = MODE_C
-            if sub.last_kind[q] == 2:
-                sub.last_tgt[q] = idx_row.get(int(sub.last_tgt[q]), -1)
+        for q in np.flatnonzero((sub.mode == MODE_YIELD) | (sub.mode == MODE_MUTUAL)):
+            sub.tgt[q] = idx_row.get(int(sub.tgt[q]), -1)
+            if sub.tgt[q] < 0:  # partner silent: back to coordination
+                sub.mode[q] = MODE_C
+        for q in np.flatnonzero(sub.last_kind == 2):
+            sub.last_tgt[q] = idx_row.get(int(sub.last_tgt[q]), -1)
         if self._drift_t is not None:  # w_c relaxes toward w_tgt (S14.1), as the law does
             tau = self.switching.mutual_drift_tau_s
             a = min(1.0, max(0.0, t_s - self._drift_t) / tau) if tau > 0 else 1.0
             sub.wc += a * (sub.wtgt - sub.wc) * (sub.mode == MODE_MUTUAL)[:, None]
         self._drift_t = t_s
-        ev = np.zeros((8 * n + 16, 6))
-        nev = decide(
+        return sub
+
+    def _decide(
+        self, t_s, x, pd, goal, goal_dot, vc, team, rbody, obstacles, sub, parent_rows, ev
+    ) -> int:
+        """The compiled S7/S8 decision over the known robots (``sub`` updated in place, events
+        into ``ev``); returns the event count.
+        """
+        oc, ov, _oa, ophi, ophid, _ophidd = obstacles
+        return decide(
             t_s,
             np.ascontiguousarray(x[:, :2]),
             pd,
@@ -207,7 +254,7 @@ class EncounterArbiter:
             goal_dot,
             vc,
             team,
-            self._rbody[rows],
+            rbody,
             oc,
             ov,
             ophi,
@@ -215,10 +262,13 @@ class EncounterArbiter:
             self._axes,
             self._static,
             *sub.arrays(),
-            self._parent_rows(sub, known, row),
+            parent_rows,
             self._prm,
             ev,
         )
+
+    def _record_events(self, ev: np.ndarray, nev: int, known: list[int]) -> None:
+        """The decision's robot-robot events into :attr:`events` (ids, scenario time)."""
         for r_ in ev[: min(nev, ev.shape[0])]:
             md = int(r_[3])
             if md in (MODE_YIELD, MODE_MUTUAL):
@@ -231,37 +281,40 @@ class EncounterArbiter:
                         'target': f'robot_{known[int(r_[4])]}',
                     }
                 )
-        # write back (robot targets as full-state rows); obstacle modes stay the robots' own
-        for q, rid in enumerate(known):
-            i = self.index[rid]
-            reported_obstacle = (modes.get(rid) or {}).get('mode') == 'obstacle'
-            if (
-                sub.mode[q] == MODE_OBSTACLE
-                and not reported_obstacle
-                and full.mode[i] != MODE_OBSTACLE
-            ):
-                continue  # the arbiter does not decide obstacle entries
-            for name in ('mode', 'sdir', 't_entry', 'since', 'last_kind', 'last_exit'):
-                getattr(full, name)[i] = getattr(sub, name)[q]
-            full.wc[i] = sub.wc[q]
-            full.wtgt[i] = sub.wtgt[q]
-            full.tgt[i] = (
-                self.index[known[int(sub.tgt[q])]]
-                if sub.mode[q] in (MODE_YIELD, MODE_MUTUAL)
-                else sub.tgt[q]
-            )
-            lt = int(sub.last_tgt[q])
-            full.last_tgt[i] = (
-                self.index[known[lt]] if sub.last_kind[q] == 2 and 0 <= lt < n else lt
-            )
-        return self.assignments()
+
+    def _write_back(
+        self, sub: AutomatonState, known: list[int], rows: np.ndarray, modes: Mapping[int, dict]
+    ) -> None:
+        """The sub-state into the full state (robot targets as full-state rows); obstacle modes
+        stay the robots' own: an obstacle entry decided here is not kept.
+        """
+        full = self.state
+        n = len(known)
+        reported_obstacle = np.array(
+            [(modes.get(rid) or {}).get('mode') == 'obstacle' for rid in known], dtype=bool
+        )
+        keep = ~(
+            (sub.mode == MODE_OBSTACLE) & ~reported_obstacle & (full.mode[rows] != MODE_OBSTACLE)
+        )  # the arbiter does not decide obstacle entries
+        i, q = rows[keep], np.flatnonzero(keep)
+        for name in ('mode', 'sdir', 't_entry', 'since', 'last_kind', 'last_exit', 'wc', 'wtgt'):
+            getattr(full, name)[i] = getattr(sub, name)[q]
+        tgt, lt = sub.tgt[q], sub.last_tgt[q]
+        robot = (sub.mode[q] == MODE_YIELD) | (sub.mode[q] == MODE_MUTUAL)
+        full.tgt[i] = np.where(robot, rows[np.clip(tgt, -n, n - 1)], tgt)
+        known_lt = (sub.last_kind[q] == 2) & (lt >= 0) & (lt < n)
+        full.last_tgt[i] = np.where(known_lt, rows[np.clip(lt, 0, n - 1)], lt)
 
     def _parent_rows(self, sub: AutomatonState, known: list[int], row: dict) -> np.ndarray:
         """Current formation parent row of each known robot (S9 rewiring with the robots in an
         avoidance mode as roots), for the S14.5 acyclicity check of every following link.
         """
-        avoiding = [rid for q, rid in enumerate(known) if sub.mode[q] != MODE_C]
-        parents = self._graph.rewire(avoiding)
+        avoiding = tuple(rid for q, rid in enumerate(known) if sub.mode[q] != MODE_C)
+        parents = self._rewired.get(avoiding)
+        if parents is None:
+            if len(self._rewired) >= 1024:
+                self._rewired.clear()
+            parents = self._rewired[avoiding] = self._graph.rewire(avoiding)
         out = np.full(len(known), -1, dtype=np.int64)
         for q, rid in enumerate(known):
             par = parents.get(rid)

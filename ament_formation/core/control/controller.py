@@ -171,12 +171,15 @@ class ControlOutput:
 
 
 class _Scratch:
-    """Work arrays of :meth:`RobotController.step` for ``n`` robots, made once: the own plant
-    coefficients in every column (copied per step); the automaton state, as a new
-    AutomatonState(n) has it, and the step's references, offsets, goals and parent rows, each a
-    view into one of four blocks that :meth:`reset` refills (one copy or fill per block instead of
-    one per array); the obstacles' states and the decision's event rows (written by the compiled
-    code).
+    """Work arrays of :meth:`RobotController.step` for ``n`` robots, made once: the packed robot
+    rows (states ``x``, commanded accelerations ``acmd``, radii ``rbody``, teams ``team``, plant
+    coefficients ``coeffs``: the own ones in every column, row 4 the CoM offsets of the step); the
+    automaton state, as a new AutomatonState(n) has it, and the step's references, offsets, goals
+    and parent rows, each a view into one of four blocks that :meth:`reset` refills (one copy or
+    fill per block instead of one per array); the obstacles' states and the decision's event rows
+    (written by the compiled code); the row layout of the last robot set (``ids`` sorted, ``row``
+    {id: row}, ``me`` the own row); ``pd`` and ``obs``, the step's point velocities and obstacle
+    arrays.
     """
 
     def __init__(self, n: int, own_coeffs: np.ndarray, m: int):
@@ -211,6 +214,15 @@ class _Scratch:
             np.empty(m),
         )
         self.events = np.zeros((8 * n + 16, 6))
+        self.x = np.zeros((n, 5))
+        self.acmd = np.zeros((n, 2))
+        self.rbody = np.zeros(n)
+        self.team = np.zeros(n, dtype=np.int64)
+        self.ids: list[int] | None = None
+        self.row: dict[int, int] = {}
+        self.me = -1
+        self.pd = np.zeros((n, 2))
+        self.obs: tuple = ()
 
     def reset(self) -> None:
         """The automaton state of a new AutomatonState(n); zero references, offsets and goals;
@@ -298,6 +310,9 @@ class RobotController:
             [k.m_tilde[0], k.I_tilde[0], k.r[0], k.a[0], k.d[0], k.m_c[0], k.tau_max[0]]
         )
         self.obstacle_names = tuple(o.name for o in obstacles)
+        self._obstacle_index: dict[str, int] = {}  # name -> first index (as tuple.index)
+        for j, name in enumerate(self.obstacle_names):
+            self._obstacle_index.setdefault(name, j)
         (
             self._c0,
             self._v,
@@ -370,22 +385,6 @@ class RobotController:
         )
 
     # ------------------------------------------------------------------ step
-    def _parent_rows(self, parent_row: np.ndarray, row: Mapping[int, int], me: int) -> np.ndarray:
-        """The formation parent rows known here for the S14.5 acyclicity check: our own current
-        parent (the others' are not heard: -1).
-        """
-        if self._parent is not None and self._parent in row:
-            parent_row[me] = row[self._parent]
-        return parent_row
-
-    def _scratch_for(self, n: int) -> _Scratch:
-        """The work arrays of :meth:`step` for ``n`` robots (made once per robot count), reset."""
-        scratch = self._scratch.get(n)
-        if scratch is None:
-            scratch = self._scratch[n] = _Scratch(n, self._own_coeffs, len(self.obstacle_names))
-        scratch.reset()
-        return scratch
-
     def step(
         self,
         t_s: float,
@@ -399,9 +398,57 @@ class RobotController:
         release: int | None = None,
     ) -> ControlOutput:
         """One control period: (maybe) decide, then the law. See the class docstring."""
+        own = self._checked_own_state(own_state)
+        others = self._others(parent, original_parent, neighbours)
+        sc = self._layout(others)
+        blind = self._pack(sc, own, others)
+        self._load_own_automaton(sc)
+        t_s = float(t_s)
+        sc.pd = self._point_velocities(sc)
+        sc.obs = self._obstacles_at(t_s, obstacles, sc)
+        self._goals(t_s, sc, blind)
+        events: list[dict] = []
+        if t_s - self._last_decision_s >= self.switching.decision_period_s - 1e-9:
+            self._last_decision_s = t_s
+            events.extend(self._decision_events(t_s, sc))
+        if release is not None:
+            self._release(t_s, sc, release, events)
+        if assignment is not None:
+            self._assign(t_s, sc, assignment, events)
+        self._law_links(sc)
+        t1, t2, sx, sy, sat, acx, acy, wdx, wdy = self._robot_law(t_s, sc)
+        st, me = sc.state, sc.me
+        if st.mode[me] == MODE_MUTUAL and self._last_step_s is not None:
+            st.wc[me] += (t_s - self._last_step_s) * np.array([wdx, wdy])
+        self._last_step_s = t_s
+        self._keep_own_automaton(sc)
+        return ControlOutput(
+            torque_nm=np.array([t1, t2]),
+            accel_cmd_mps2=np.array([acx, acy]),
+            sigma_mps=np.array([sx, sy]),
+            saturated=bool(sat),
+            mode=self.mode,
+            target=self.target,
+            direction=self.direction,
+            events=tuple(events),
+        )
+
+    def _checked_own_state(self, own_state) -> np.ndarray:
+        """``own_state`` as a (5,) float array; ValueError unless 5 finite numbers."""
         own = np.asarray(own_state, dtype=float).reshape(-1)
         if own.shape != (5,) or not all(map(math.isfinite, own.tolist())):
             raise ValueError(f'own_state: must be 5 finite numbers (got {own_state!r})')
+        return own
+
+    def _others(
+        self,
+        parent: NeighbourState | None,
+        original_parent: NeighbourState | None,
+        neighbours: Mapping[int, NeighbourState] | None,
+    ) -> dict[int, NeighbourState]:
+        """{id: NeighbourState} of every other robot of this step: the neighbours and the
+        parents (required when the graph names them; the current parent's state wins).
+        """
         others: dict[int, NeighbourState] = dict(neighbours or {})
         if self._parent is not None:
             if parent is None:
@@ -416,70 +463,87 @@ class RobotController:
                 )
             others.setdefault(self._orig_parent, original_parent)
         others.pop(self.robot_id, None)
-        ids = sorted(set(others) | {self.robot_id})
-        row = {rid: q for q, rid in enumerate(ids)}
-        me = row[self.robot_id]
-        n = len(ids)
+        return others
 
-        # pack the robots as rows (one list per array, then one conversion each)
-        xs, accs, radii, teams, ds, modes, tgts = [], [], [], [], [], [], []
-        goal_rows, goal_vals, blind_rows = (
-            [],
-            [],
-            [],
-        )  # rows with a known goal (g, g_dot), rows without
-        for rid in ids:
-            if rid == self.robot_id:
-                xs.append(own)
-                accs.append((0.0, 0.0))
-                radii.append(self.params.body_radius_m)
-                teams.append(self.team)
-                ds.append(self._own_coeffs[4])
-                modes.append(MODE_C)
-                tgts.append(-1)
+    def _layout(self, others: Mapping[int, NeighbourState]) -> _Scratch:
+        """The work arrays for this robot and ``others``, reset, with the rows in id order
+        (``ids``, ``row`` {id: row}, ``me``); the own row's constants are written when the set
+        of robots changes.
+        """
+        ids = sorted([*others, self.robot_id])
+        n = len(ids)
+        sc = self._scratch.get(n)
+        if sc is None:
+            sc = self._scratch[n] = _Scratch(n, self._own_coeffs, len(self.obstacle_names))
+        sc.reset()
+        if sc.ids != ids:
+            sc.ids = ids
+            sc.row = {rid: q for q, rid in enumerate(ids)}
+            me = sc.me = sc.row[self.robot_id]
+            sc.acmd[me] = 0.0
+            sc.rbody[me] = self.params.body_radius_m
+            sc.team[me] = self.team
+            sc.coeffs[4, me] = self._own_coeffs[4]
+        return sc
+
+    def _pack(self, sc: _Scratch, own: np.ndarray, others: Mapping[int, NeighbourState]) -> list:
+        """The robots as rows: state, commanded acceleration, radius, team, CoM offset, reported
+        mode and target (S7 acyclicity) and, when known, goal (into ``ref``). Returns the rows
+        whose goal is not known.
+        """
+        x, acmd, rbody, team, d = sc.x, sc.acmd, sc.rbody, sc.team, sc.coeffs[4]
+        mode, tgt, ref, row = sc.state.mode, sc.state.tgt, sc.ref, sc.row
+        me = sc.me
+        x[me] = own
+        blind = []
+        for q, rid in enumerate(sc.ids):
+            if q == me:
                 continue
             nb = others[rid]
-            xs.append(nb.state_m)
-            accs.append(nb.accel_mps2)
-            radii.append(nb.body_radius_m)
-            teams.append(nb.team if nb.team is not None else -1 - rid)
-            ds.append(nb.com_offset_m)
-            mode, tgt, tgt_name = _MODE_BY_NAME[nb.mode], -1, nb.target
-            if nb.mode in ('yield', 'mutual') and tgt_name and tgt_name.startswith('robot_'):
-                tgt = row.get(int(tgt_name[len('robot_'):]), -1)
-                if tgt < 0:
-                    mode = MODE_OBSTACLE  # busy with a robot we do not hear
-            elif nb.mode == 'obstacle':
-                tgt = (
-                    self.obstacle_names.index(tgt_name) if tgt_name in self.obstacle_names else -1
-                )
-            modes.append(mode)
-            tgts.append(tgt)
-            if nb.goal_m is None:
-                blind_rows.append(len(xs) - 1)
+            x[q] = nb.state_m
+            acmd[q] = nb.accel_mps2
+            rbody[q] = nb.body_radius_m
+            team[q] = nb.team if nb.team is not None else -1 - rid
+            d[q] = nb.com_offset_m
+            if nb.mode != 'coordination':
+                mode[q], tgt[q] = self._reported_mode(nb.mode, nb.target, row)
+            goal = nb.goal_m
+            if goal is None:
+                blind.append(q)
             else:
-                goal_rows.append(len(xs) - 1)
-                gd = (0.0, 0.0) if nb.goal_dot_mps is None else nb.goal_dot_mps
-                goal_vals.append((nb.goal_m[0], nb.goal_m[1], gd[0], gd[1]))
-        x = np.array(xs, dtype=float)
-        acmd = np.array(accs, dtype=float)
-        rbody = np.array(radii, dtype=float)
-        team = np.array(teams, dtype=np.int64)
-        scratch = self._scratch_for(n)  # refilled as new arrays would be, not rebuilt
-        coeffs = scratch.coeffs.copy()
-        coeffs[4] = ds
-        st = scratch.state  # as a new AutomatonState(n) with these modes and targets
-        st.mode[:] = modes
-        st.tgt[:] = tgts
-        st.t_entry.fill(-1e9)  # others' entry times are not known here
-        # own automaton state (targets stored as ids -> rows)
-        src = self._state
-        for name in ('mode', 'sdir', 't_entry', 'since', 'last_kind', 'last_exit'):
-            getattr(st, name)[me] = getattr(src, name)[0]
+                ref[q, 0:2] = goal
+                if nb.goal_dot_mps is not None:
+                    ref[q, 2:4] = nb.goal_dot_mps
+        return blind
+
+    def _reported_mode(self, name: str, target: str | None, row: Mapping[int, int]) -> tuple:
+        """(mode, target row or obstacle index) of another robot's reported mode; a robot busy
+        with a robot we do not hear counts as busy with an obstacle (-1).
+        """
+        mode, tgt = _MODE_BY_NAME[name], -1
+        if name in ('yield', 'mutual') and target and target.startswith('robot_'):
+            tgt = row.get(int(target[len('robot_'):]), -1)
+            if tgt < 0:
+                mode = MODE_OBSTACLE
+        elif name == 'obstacle':
+            tgt = self._obstacle_index.get(target, -1)
+        return mode, tgt
+
+    def _load_own_automaton(self, sc: _Scratch) -> None:
+        """Own automaton state into row ``me`` (robot targets: ids -> rows); others' entry times
+        are not known here (-1e9); a mutual partner's row is made reciprocal.
+        """
+        st, me, row, src = sc.state, sc.me, sc.row, self._state
+        st.t_entry.fill(-1e9)
+        st.mode[me] = src.mode[0]
+        st.sdir[me] = src.sdir[0]
+        st.t_entry[me] = src.t_entry[0]
+        st.since[me] = src.since[0]
+        st.last_kind[me] = src.last_kind[0]
+        st.last_exit[me] = src.last_exit[0]
         st.wc[me] = src.wc[0]
         st.wtgt[me] = src.wtgt[0]
-        own_mode = int(src.mode[0])
-        if own_mode in (MODE_YIELD, MODE_MUTUAL):
+        if int(src.mode[0]) in (MODE_YIELD, MODE_MUTUAL):
             st.tgt[me] = row.get(self._target_id, -1)
             if st.tgt[me] < 0:  # partner no longer heard: back to coordination
                 st.mode[me] = MODE_C
@@ -496,186 +560,247 @@ class RobotController:
             st.sdir[k] = 1.0
             st.t_entry[k] = st.t_entry[me]
 
-        # references, obstacles, point velocities, goals
-        ref = scratch.ref
-        if self.leader_path is not None:
-            r, rd, rdd = self.leader_path.reference(float(t_s))
-            ref[me] = np.concatenate([np.asarray(r), np.asarray(rd), np.asarray(rdd)])
-        d = coeffs[4]
-        pd = point_velocities(x, np.ascontiguousarray(d))  # the one p_dot = S1(theta) x2
-        if obstacles is None:
-            oc, ov, oa, ophi, ophid, ophidd = scratch.obstacles  # every entry written below
-            obstacle_states(
-                float(t_s),
-                self._c0,
-                self._v,
-                self._amp,
-                self._w,
-                self._phi0,
-                self._phid,
-                oc,
-                ov,
-                oa,
-                ophi,
-                ophid,
-                ophidd,
+    def _point_velocities(self, sc: _Scratch) -> np.ndarray:
+        """(N, 2) p_dot = S1(theta) x2 of every row."""
+        return point_velocities(sc.x, np.ascontiguousarray(sc.coeffs[4]))
+
+    def _obstacles_at(self, t_s: float, obstacles: ObstacleStates | None, sc: _Scratch) -> tuple:
+        """(centres, velocities, accelerations, phi, phi_dot, phi_ddot, semi-axes) of the
+        obstacles at ``t_s``: the measured ``obstacles``, else the specs' motion model.
+        """
+        if obstacles is not None:
+            return tuple(
+                np.ascontiguousarray(a, dtype=float)
+                for a in (
+                    obstacles.center_m,
+                    obstacles.velocity_mps,
+                    obstacles.accel_mps2,
+                    obstacles.phi_rad,
+                    obstacles.phi_dot_radps,
+                    obstacles.phi_ddot_radps2,
+                    obstacles.semi_axes_m,
+                )
             )
-            oaxes = self._axes
-        else:
-            oc = np.ascontiguousarray(obstacles.center_m, dtype=float)
-            ov = np.ascontiguousarray(obstacles.velocity_mps, dtype=float)
-            oa = np.ascontiguousarray(obstacles.accel_mps2, dtype=float)
-            ophi = np.ascontiguousarray(obstacles.phi_rad, dtype=float)
-            ophid = np.ascontiguousarray(obstacles.phi_dot_radps, dtype=float)
-            ophidd = np.ascontiguousarray(obstacles.phi_ddot_radps2, dtype=float)
-            oaxes = np.ascontiguousarray(obstacles.semi_axes_m, dtype=float)
-        orig_parent, orig_offset = scratch.orig_parent, scratch.orig_offset
+        return self._obstacle_states(t_s, sc)
+
+    def _obstacle_states(self, t_s: float, sc: _Scratch) -> tuple:
+        """The specs' motion model at ``t_s`` (S6.1) into the scratch's obstacle arrays."""
+        oc, ov, oa, ophi, ophid, ophidd = sc.obstacles  # every entry written below
+        obstacle_states(
+            t_s,
+            self._c0,
+            self._v,
+            self._amp,
+            self._w,
+            self._phi0,
+            self._phid,
+            oc,
+            ov,
+            oa,
+            ophi,
+            ophid,
+            ophidd,
+        )
+        return oc, ov, oa, ophi, ophid, ophidd, self._axes
+
+    def _goals(self, t_s: float, sc: _Scratch, blind: list) -> None:
+        """References (own: r(t) when leading; others: their goal when known, else their
+        position and point velocity), own pi0 link, then goals and V_c (S8.3).
+        """
+        me, ref = sc.me, sc.ref
+        if self.leader_path is not None:
+            r, rd, rdd = self.leader_path.reference(t_s)
+            ref[me, 0:2] = r
+            ref[me, 2:4] = rd
+            ref[me, 4:6] = rdd
         if self._orig_parent is not None:
-            orig_parent[me] = row[self._orig_parent]
-            orig_offset[me] = self._orig_offset
-        # others: their goal when known, else their position and point velocity
-        for q, vals in zip(goal_rows, goal_vals):
-            ref[q, 0:4] = vals
-        if blind_rows:
-            ref[blind_rows, 0:2] = x[blind_rows, 0:2]
-            ref[blind_rows, 2:4] = pd[blind_rows]
-        goal, goal_dot, vc = scratch.goal, scratch.goal_dot, scratch.vc  # as goal_fields()
+            sc.orig_parent[me] = sc.row[self._orig_parent]
+            sc.orig_offset[me] = self._orig_offset
+        if blind:
+            ref[blind, 0:2] = sc.x[blind, 0:2]
+            ref[blind, 2:4] = sc.pd[blind]
+        self._goals_and_fields(sc)
+
+    def _goals_and_fields(self, sc: _Scratch) -> None:
+        """Goals g, g_dot and V_c of every row into the scratch (as goal_fields())."""
         goals_and_fields(
-            x, pd, ref, orig_parent, orig_offset, self._gains, goal, goal_dot, vc, True
+            sc.x,
+            sc.pd,
+            sc.ref,
+            sc.orig_parent,
+            sc.orig_offset,
+            self._gains,
+            sc.goal,
+            sc.goal_dot,
+            sc.vc,
+            True,
         )
 
-        events: list[dict] = []
-        t_s = float(t_s)
-        if t_s - self._last_decision_s >= self.switching.decision_period_s - 1e-9:
-            self._last_decision_s = t_s
-            ev = scratch.events  # decide() writes the rows it reports
-            nev = decide(
-                t_s,
-                np.ascontiguousarray(x[:, :2]),
-                pd,
-                goal,
-                goal_dot,
-                vc,
-                team,
-                rbody,
-                oc,
-                ov,
-                ophi,
-                ophid,
-                oaxes,
-                self._static,
-                *st.arrays(),
-                self._parent_rows(scratch.parent_row, row, me),
-                self._prm,
-                ev,
-            )
-            for r_ in ev[:nev]:
-                if int(r_[1]) == me:
-                    md = int(r_[3])
-                    tg = int(r_[4])
-                    events.append(
-                        {
-                            't_s': float(r_[0]),
-                            'robot': self.robot_id,
-                            'event': 'enter' if r_[2] > 0.5 else 'exit',
-                            'mode': MODE_NAMES[md],
-                            'target': self._target_name(
-                                md, ids[tg] if md != MODE_OBSTACLE else tg
-                            ),
-                            'direction': 'ccw' if r_[5] > 0 else 'cw',
-                        }
-                    )
-        if (
-            release is not None
-            and st.mode[me] in (MODE_YIELD, MODE_MUTUAL)
-            and ids[int(st.tgt[me])] == int(release)
-        ):
-            k = int(st.tgt[me])
-            # S8.3 item 2: never leave inside the partner's emergency circle E (rho_em R_aa, S7)
-            r_em = self._prm[P_EM] * (rbody[me] + rbody[k] + self._prm[P_KEEPOUT_MARGIN])
-            h_em = ((x[me, 0] - x[k, 0]) ** 2 + (x[me, 1] - x[k, 1]) ** 2) / r_em**2 - 1.0
-            if h_em >= 0.0:
+    def _decide(self, t_s: float, sc: _Scratch) -> int:
+        """The compiled S7/S8 decision over every row (automaton state updated in place, events
+        into ``sc.events``); returns the event count.
+        """
+        oc, ov, _oa, ophi, ophid, _ophidd, oaxes = sc.obs
+        return decide(
+            t_s,
+            np.ascontiguousarray(sc.x[:, :2]),
+            sc.pd,
+            sc.goal,
+            sc.goal_dot,
+            sc.vc,
+            sc.team,
+            sc.rbody,
+            oc,
+            ov,
+            ophi,
+            ophid,
+            oaxes,
+            self._static,
+            *sc.state.arrays(),
+            self._parent_rows(sc.parent_row, sc.row, sc.me),
+            self._prm,
+            sc.events,
+        )
+
+    def _parent_rows(self, parent_row: np.ndarray, row: Mapping[int, int], me: int) -> np.ndarray:
+        """The formation parent rows known here for the S14.5 acyclicity check: our own current
+        parent (the others' are not heard: -1).
+        """
+        if self._parent is not None and self._parent in row:
+            parent_row[me] = row[self._parent]
+        return parent_row
+
+    def _decision_events(self, t_s: float, sc: _Scratch) -> list[dict]:
+        """Decide; the own mode events of the decision ({t_s, robot, event, mode, target,
+        direction}).
+        """
+        nev = self._decide(t_s, sc)
+        events = []
+        for r_ in sc.events[:nev]:
+            if int(r_[1]) == sc.me:
+                md = int(r_[3])
+                tg = int(r_[4])
                 events.append(
                     {
-                        't_s': t_s,
+                        't_s': float(r_[0]),
                         'robot': self.robot_id,
-                        'event': 'exit',
-                        'mode': MODE_NAMES[int(st.mode[me])],
-                        'target': f'robot_{ids[k]}',
-                        'direction': 'ccw' if st.sdir[me] > 0 else 'cw',
+                        'event': 'enter' if r_[2] > 0.5 else 'exit',
+                        'mode': MODE_NAMES[md],
+                        'target': self._target_name(md, sc.ids[tg] if md != MODE_OBSTACLE else tg),
+                        'direction': 'ccw' if r_[5] > 0 else 'cw',
                     }
                 )
-                st.last_kind[me] = KIND_AGENT  # S8.4 cool-down record (robot target)
-                st.last_tgt[me] = k
-                st.last_exit[me] = t_s
-                st.mode[me] = MODE_C
-                st.tgt[me] = -1
-                st.since[me] = -1.0
+        return events
+
+    def _release(self, t_s: float, sc: _Scratch, release: int, events: list) -> None:
+        """The coordinator withdrew the encounter with robot ``release``: leave it now (event
+        ``exit``, S8.4 cool-down), unless inside the partner's emergency circle (S8.3 item 2).
+        """
+        st, me, ids = sc.state, sc.me, sc.ids
+        if not (st.mode[me] in (MODE_YIELD, MODE_MUTUAL) and ids[int(st.tgt[me])] == int(release)):
+            return
+        k = int(st.tgt[me])
+        x, rbody = sc.x, sc.rbody
+        # S8.3 item 2: never leave inside the partner's emergency circle E (rho_em R_aa, S7)
+        r_em = self._prm[P_EM] * (rbody[me] + rbody[k] + self._prm[P_KEEPOUT_MARGIN])
+        h_em = ((x[me, 0] - x[k, 0]) ** 2 + (x[me, 1] - x[k, 1]) ** 2) / r_em**2 - 1.0
+        if h_em < 0.0:
+            return
+        events.append(
+            {
+                't_s': t_s,
+                'robot': self.robot_id,
+                'event': 'exit',
+                'mode': MODE_NAMES[int(st.mode[me])],
+                'target': f'robot_{ids[k]}',
+                'direction': 'ccw' if st.sdir[me] > 0 else 'cw',
+            }
+        )
+        st.last_kind[me] = KIND_AGENT  # S8.4 cool-down record (robot target)
+        st.last_tgt[me] = k
+        st.last_exit[me] = t_s
+        st.mode[me] = MODE_C
+        st.tgt[me] = -1
+        st.since[me] = -1.0
+
+    def _assign(
+        self, t_s: float, sc: _Scratch, assignment: EncounterAssignment, events: list
+    ) -> None:
+        """Apply the coordinator's assignment (not over an obstacle avoidance, S7; an encounter
+        left at this very decision is not re-entered, S8.3): enter it, or take its w_c.
+        """
+        st, me = sc.state, sc.me
         left_now = {(e['mode'], e['target']) for e in events if e['event'] == 'exit'}
         if (
-            assignment is not None
-            and st.mode[me] != MODE_OBSTACLE
-            and (assignment.mode, f'robot_{assignment.partner}') not in left_now
+            st.mode[me] == MODE_OBSTACLE
+            or (assignment.mode, f'robot_{assignment.partner}') in left_now
         ):
-            # (an encounter the robot left at this very decision, S8.3, is not re-entered)
-            k = row.get(int(assignment.partner))
-            if k is None:
-                raise ValueError(f'assignment: partner {assignment.partner} is not a known robot')
-            new_mode = MODE_YIELD if assignment.mode == 'yield' else MODE_MUTUAL
-            if st.mode[me] != new_mode or st.tgt[me] != k:
-                st.set_mode(
-                    me,
-                    new_mode,
-                    k,
-                    1.0 if new_mode == MODE_MUTUAL else float(assignment.direction),
-                    t_s if assignment.t_entry_s is None else float(assignment.t_entry_s),
-                )
-                w = (
-                    0.5 * (pd[me] + pd[k])
-                    if assignment.drift_mps is None
-                    else np.asarray(assignment.drift_mps, dtype=float)
-                )
-                st.wc[me] = w
-                st.wtgt[me] = w
-                events.append(
-                    {
-                        't_s': t_s,
-                        'robot': self.robot_id,
-                        'event': 'enter',
-                        'mode': MODE_NAMES[new_mode],
-                        'target': f'robot_{assignment.partner}',
-                        'direction': 'ccw' if st.sdir[me] > 0 else 'cw',
-                    }
-                )
-            elif new_mode == MODE_MUTUAL and assignment.drift_mps is not None:
-                # the pair's w_c is the coordinator's (it knows both goals): common to both robots,
-                # so z_dot = F(z) holds exactly (S7); the own relaxation would use a guessed goal
-                st.wc[me] = np.asarray(assignment.drift_mps, dtype=float)
-                st.wtgt[me] = st.wc[me]
+            return
+        k = sc.row.get(int(assignment.partner))
+        if k is None:
+            raise ValueError(f'assignment: partner {assignment.partner} is not a known robot')
+        new_mode = MODE_YIELD if assignment.mode == 'yield' else MODE_MUTUAL
+        if st.mode[me] != new_mode or st.tgt[me] != k:
+            st.set_mode(
+                me,
+                new_mode,
+                k,
+                1.0 if new_mode == MODE_MUTUAL else float(assignment.direction),
+                t_s if assignment.t_entry_s is None else float(assignment.t_entry_s),
+            )
+            w = (
+                0.5 * (sc.pd[me] + sc.pd[k])
+                if assignment.drift_mps is None
+                else np.asarray(assignment.drift_mps, dtype=float)
+            )
+            st.wc[me] = w
+            st.wtgt[me] = w
+            events.append(
+                {
+                    't_s': t_s,
+                    'robot': self.robot_id,
+                    'event': 'enter',
+                    'mode': MODE_NAMES[new_mode],
+                    'target': f'robot_{assignment.partner}',
+                    'direction': 'ccw' if st.sdir[me] > 0 else 'cw',
+                }
+            )
+        elif new_mode == MODE_MUTUAL and assignment.drift_mps is not None:
+            # the pair's w_c is the coordinator's (it knows both goals): common to both robots,
+            # so z_dot = F(z) holds exactly (S7); the own relaxation would use a guessed goal
+            st.wc[me] = np.asarray(assignment.drift_mps, dtype=float)
+            st.wtgt[me] = st.wc[me]
 
-        # the law (S3.2 with the mode's field)
-        parent_row, offset = scratch.parent_row, scratch.offset
+    def _law_links(self, sc: _Scratch) -> None:
+        """The own parent row and offset for the law (S4): the current parent; a follower
+        without one (graph not received yet) holds via its original goal in coordination.
+        """
+        me = sc.me
         if self._parent is not None:
-            parent_row[me] = row[self._parent]
-            offset[me] = self._offset
-        if self.leader_path is not None and self._parent is None:
-            pass
-        elif self._parent is None and st.mode[me] == MODE_C:
-            # a follower without a parent (graph not received yet): hold via its original goal
+            sc.parent_row[me] = sc.row[self._parent]
+            sc.offset[me] = self._offset
+        elif self.leader_path is None and sc.state.mode[me] == MODE_C:
             if self._orig_parent is not None:
-                parent_row[me] = row[self._orig_parent]
-                offset[me] = self._orig_offset
-        t1, t2, sx, sy, sat, acx, acy, wdx, wdy = robot_law(
-            me,
+                sc.parent_row[me] = sc.row[self._orig_parent]
+                sc.offset[me] = self._orig_offset
+
+    def _robot_law(self, t_s: float, sc: _Scratch) -> tuple:
+        """The compiled law of row ``me`` (S3.2 with the mode's field): (tau_l, tau_r, sigma_x,
+        sigma_y, saturated, a_cmd_x, a_cmd_y, w_c_dot_x, w_c_dot_y).
+        """
+        st = sc.state
+        oc, ov, oa, ophi, ophid, ophidd, oaxes = sc.obs
+        return robot_law(
+            sc.me,
             t_s,
-            x,
-            pd,
-            acmd,
-            parent_row,
-            offset,
-            ref,
-            goal,
-            goal_dot,
+            sc.x,
+            sc.pd,
+            sc.acmd,
+            sc.parent_row,
+            sc.offset,
+            sc.ref,
+            sc.goal,
+            sc.goal_dot,
             st.mode,
             st.tgt,
             st.sdir,
@@ -689,18 +814,21 @@ class RobotController:
             ophid,
             ophidd,
             oaxes,
-            rbody,
-            coeffs,
+            sc.rbody,
+            sc.coeffs,
             self._gains,
             self._prm,
         )
-        if st.mode[me] == MODE_MUTUAL and self._last_step_s is not None:
-            st.wc[me] += (t_s - self._last_step_s) * np.array([wdx, wdy])
-        self._last_step_s = t_s
 
-        # keep own state (robot targets as ids)
-        for name in ('mode', 'sdir', 't_entry', 'since', 'last_kind', 'last_exit'):
-            getattr(src, name)[0] = getattr(st, name)[me]
+    def _keep_own_automaton(self, sc: _Scratch) -> None:
+        """Row ``me`` of the automaton state back into the own state (robot targets as ids)."""
+        st, me, ids, src = sc.state, sc.me, sc.ids, self._state
+        src.mode[0] = st.mode[me]
+        src.sdir[0] = st.sdir[me]
+        src.t_entry[0] = st.t_entry[me]
+        src.since[0] = st.since[me]
+        src.last_kind[0] = st.last_kind[me]
+        src.last_exit[0] = st.last_exit[me]
         src.wc[0] = st.wc[me]
         src.wtgt[0] = st.wtgt[me]
         new_mode = int(st.mode[me])
@@ -710,14 +838,4 @@ class RobotController:
         src.tgt[0] = self._target_id
         lk = int(st.last_kind[me])
         lt = int(st.last_tgt[me])
-        src.last_tgt[0] = ids[lt] if (lk == 2 and 0 <= lt < n) else lt
-        return ControlOutput(
-            torque_nm=np.array([t1, t2]),
-            accel_cmd_mps2=np.array([acx, acy]),
-            sigma_mps=np.array([sx, sy]),
-            saturated=bool(sat),
-            mode=self.mode,
-            target=self.target,
-            direction=self.direction,
-            events=tuple(events),
-        )
+        src.last_tgt[0] = ids[lt] if (lk == 2 and 0 <= lt < len(ids)) else lt

@@ -163,6 +163,12 @@ class LinePath:
     def reference(self, t_s):
         """(r, r_dot, r_ddot) at ``t_s`` [s]: each (2,) for a scalar time, (T, 2) for an array."""
         t, scalar = _as_time(t_s)
+        if scalar:  # the same arithmetic on floats, without the (T, 2) arrays (control periods)
+            t = float(t)
+            vx = self.speed_mps * math.cos(self.heading_rad)
+            vy = self.speed_mps * math.sin(self.heading_rad)
+            x0, y0 = self.start_m
+            return np.array([x0 + t * vx, y0 + t * vy]), np.array([vx, vy]), np.zeros(2)
         t = np.atleast_1d(t)
         vel = self.speed_mps * np.array([math.cos(self.heading_rad), math.sin(self.heading_rad)])
         r = np.asarray(self.start_m, dtype=float) + t[:, None] * vel
@@ -295,9 +301,22 @@ class WaypointPath:
     def reference(self, t_s):
         """(r, r_dot, r_ddot) at ``t_s`` [s]: each (2,) for a scalar time, (T, 2) for an array.
 
-        Before t = 0 the reference moves back along the first segment at speed v.
+        Before t = 0 the reference moves back along the first segment at speed v. A scalar time
+        equal (bit for bit) to the previous one's reuses its result (copies): a control period asks
+        it of a leader's controller, its neighbours and the coordinator.
         """
         t, scalar = _as_time(t_s)
+        if not scalar:
+            return self._reference_rows(t)
+        key = t.tobytes()
+        memo = self._table.get('memo')
+        if memo is None or memo[0] != key:
+            r, r_dot, r_ddot = self._reference_rows(np.atleast_1d(t))
+            memo = self._table['memo'] = (key, r[0], r_dot[0], r_ddot[0])
+        return memo[1].copy(), memo[2].copy(), memo[3].copy()
+
+    def _reference_rows(self, t: np.ndarray):
+        """(r, r_dot, r_ddot), each (T, 2), at the times ``t`` (T,) [s]."""
         t = np.atleast_1d(t)
         s, s_dot, s_ddot = self._progress(t)
         prims = self._table['prims']
@@ -323,7 +342,7 @@ class WaypointPath:
                 curv_vec[sel] = -radial / radius
         r_dot = s_dot[:, None] * tang
         r_ddot = s_ddot[:, None] * tang + (s_dot**2)[:, None] * curv_vec
-        return _out(r, scalar), _out(r_dot, scalar), _out(r_ddot, scalar)
+        return r, r_dot, r_ddot
 
 
 Path = Union[SinusoidPath, LinePath, WaypointPath]
