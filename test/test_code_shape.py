@@ -20,9 +20,7 @@ KNOWN = {
     'core/control/encounters.py:decide': (352, 27),
     'core/control/controller.py:step': (335, 3),
     'core/sim/simulator.py:_run_segment': (205, 14),
-    'core/control/law.py:robot_law': (149, 27),
     'core/control/arbiter.py:decide': (141, 4),
-    'core/control/smc.py:smc_torque_k': (35, 17),
 }
 
 

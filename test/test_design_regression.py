@@ -22,7 +22,7 @@ FILES = sorted((Path(__file__).resolve().parent / 'scenarios_regression').glob('
 CONTACT_M = 0.20  # two robot bodies touch (R_body = 0.1 m)
 PEAK_SPEED_MPS = 0.3  # the sweep's runaway speed (the law's speed limit is 0.25 m/s)
 MAX_EVENTS = 50  # mode events of one robot: more is chattering
-PRM = SwitchingParams().as_array()
+PRM = SwitchingParams().compiled()
 
 
 @pytest.mark.parametrize('path', FILES, ids=[p.stem for p in FILES])

@@ -54,7 +54,7 @@ class EncounterArbiter:
         n = len(robots)
         base = switching or SwitchingParams()
         self.switching = base.for_avoidance(scenario.avoidance)
-        self._prm = self.switching.as_array()
+        self._prm = self.switching.compiled()
         self._gains = gains_vector(scenario.control)
         self._d = PlantCoeffs.from_params([r.params for r in robots]).d
         self._rbody = np.array([r.params.body_radius_m for r in robots], dtype=float)

@@ -26,17 +26,22 @@ from ament_formation.core.control.automaton import (
     MODE_NAMES,
     MODE_OBSTACLE,
     MODE_YIELD,
-    P_EM,
-    P_KEEPOUT_MARGIN,
     SwitchingParams,
 )
 from ament_formation.core.control.encounters import decide, KIND_AGENT
-from ament_formation.core.control.law import gains_vector, goals_and_fields, robot_law
+from ament_formation.core.control.law import (
+    gains_vector,
+    goals_and_fields,
+    LawRobots,
+    robot_law,
+    Tracking,
+)
 from ament_formation.core.errors import ConfigError
 from ament_formation.core.model.dynamics import PlantCoeffs, point_velocities
 from ament_formation.core.model.obstacles import (
     obstacle_arrays,
     obstacle_states,
+    ObstacleSnapshot,
     ObstacleSpec,
     ObstacleStates,
 )
@@ -289,7 +294,7 @@ class RobotController:
         self.team = self.robot_id if team is None else int(team)
         base = switching or SwitchingParams()
         self.switching = base.for_avoidance(avoidance)
-        self._prm = self.switching.as_array()
+        self._prm = self.switching.compiled()
         self._gains = gains_vector(control)
         k = PlantCoeffs.from_params([params])
         self._own_coeffs = np.array(
@@ -590,7 +595,9 @@ class RobotController:
         ):
             k = int(st.tgt[me])
             # S8.3 item 2: never leave inside the partner's emergency circle E (rho_em R_aa, S7)
-            r_em = self._prm[P_EM] * (rbody[me] + rbody[k] + self._prm[P_KEEPOUT_MARGIN])
+            r_em = self._prm.emergency_scale * (
+                rbody[me] + rbody[k] + self._prm.agent_keepout_margin_m
+            )
             h_em = ((x[me, 0] - x[k, 0]) ** 2 + (x[me, 1] - x[k, 1]) ** 2) / r_em**2 - 1.0
             if h_em >= 0.0:
                 events.append(
@@ -666,29 +673,10 @@ class RobotController:
         t1, t2, sx, sy, sat, acx, acy, wdx, wdy = robot_law(
             me,
             t_s,
-            x,
-            pd,
-            acmd,
-            parent_row,
-            offset,
-            ref,
-            goal,
-            goal_dot,
-            st.mode,
-            st.tgt,
-            st.sdir,
-            st.t_entry,
-            st.wc,
-            st.wtgt,
-            oc,
-            ov,
-            oa,
-            ophi,
-            ophid,
-            ophidd,
-            oaxes,
-            rbody,
-            coeffs,
+            LawRobots(x, pd, acmd, rbody, coeffs),
+            Tracking(parent_row, offset, ref, goal, goal_dot),
+            st.arrays(),
+            ObstacleSnapshot(oc, ov, oa, ophi, ophid, ophidd, oaxes, self._static),
             self._gains,
             self._prm,
         )

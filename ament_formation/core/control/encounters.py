@@ -56,14 +56,6 @@ from ament_formation.core.control.automaton import (
     MODE_MUTUAL,
     MODE_OBSTACLE,
     MODE_YIELD,
-    P_DRIFT_CAP,
-    P_DWELL,
-    P_HORIZON,
-    P_KAPPA,
-    P_KEEPOUT_MARGIN,
-    P_L,
-    P_TEAM_VREL,
-    P_TMIN,
     relative_velocity,
     threat_test,
 )
@@ -79,7 +71,7 @@ RETARGET_MARGIN = 0.1  # S8.2 between robots: the new h_L must be lower by this 
 @njit(cache=True)
 def keepout_radius(rbody, i, k, prm):
     """R_aa of the pair (S7): R_body,i + R_body,k + margin (= 2 R_body + 0.05 m by default)."""
-    return rbody[i] + rbody[k] + prm[P_KEEPOUT_MARGIN]
+    return rbody[i] + rbody[k] + prm.agent_keepout_margin_m
 
 
 @njit(cache=True)
@@ -250,9 +242,9 @@ def _obstacle_dir(i, j, p, pd, goal, goal_dot, oc, ov, ophi, ophid, oaxes, mode,
         goal_dot[i, 0] - ov[j, 0],
         goal_dot[i, 1] - ov[j, 1],
         ophi[j],
-        prm[P_L] * oaxes[j, 0],
-        prm[P_L] * oaxes[j, 1],
-        2.0 * prm[P_KAPPA] * oaxes[j, 0],
+        prm.limit_cycle_scale * oaxes[j, 0],
+        prm.limit_cycle_scale * oaxes[j, 1],
+        2.0 * prm.protected_scale * oaxes[j, 0],
         True,
     )
 
@@ -270,9 +262,9 @@ def _agent_dir(i, k, p, pd, goal, goal_dot, rbody, prm):
         goal_dot[i, 0] - pd[k, 0],
         goal_dot[i, 1] - pd[k, 1],
         0.0,
-        prm[P_L] * r,
-        prm[P_L] * r,
-        2.0 * prm[P_KAPPA] * r,
+        prm.limit_cycle_scale * r,
+        prm.limit_cycle_scale * r,
+        2.0 * prm.protected_scale * r,
         False,
     )
 
@@ -295,7 +287,7 @@ def _reason_dwell(t, t_entry, h_stay, prm):
     unless the robot is inside the obstacle's emergency ellipse (``h_stay`` = its h_em < 0); the
     safety barrier of the law covers the wait.
     """
-    return t - t_entry < 2.0 * prm[P_TMIN] and h_stay >= 0.0
+    return t - t_entry < 2.0 * prm.min_avoid_s and h_stay >= 0.0
 
 
 @njit(cache=True)
@@ -480,7 +472,7 @@ def decide(
     wc, wtgt : (N, 2) mutual-pair drift w_c and its relaxation target (updated in place).
     parent : (N,) current formation parent row of each robot (-1: root or unknown), for the
         acyclicity of every following link (S14.5).
-    prm : packed :class:`~ament_formation.core.control.automaton.SwitchingParams`.
+    prm : :data:`~ament_formation.core.control.automaton.Switching` (named floats).
     ev : (E, 6) event buffer (filled from row 0). Returns the event count (may exceed E: the caller
         must then enlarge the buffer; rows beyond E are dropped).
     """
@@ -499,7 +491,7 @@ def decide(
     cur_hl = np.full(n, INF)
     reach2 = np.empty(m)  # culling: outside the circle of radius kappa r1 nothing triggers
     for j in range(m):
-        reach2[j] = (prm[P_KAPPA] * max(oaxes[j, 0], oaxes[j, 1])) ** 2
+        reach2[j] = (prm.protected_scale * max(oaxes[j, 0], oaxes[j, 1])) ** 2
     for i in range(n):
         for j in range(m):
             zx = p[i, 0] - oc[j, 0]
@@ -532,7 +524,7 @@ def decide(
     th_hem = np.full((n, MAX_THREATS), INF)
     th_cnt = np.zeros(n, dtype=np.int64)
     if n > 1:
-        cell = prm[P_KAPPA] * (2.0 * rbody.max() + prm[P_KEEPOUT_MARGIN])
+        cell = prm.protected_scale * (2.0 * rbody.max() + prm.agent_keepout_margin_m)
         pairs = candidate_pairs(p, cell)
         for q in range(pairs.shape[0]):
             i = pairs[q, 0]
@@ -543,7 +535,7 @@ def decide(
             rvx = pd[i, 0] - pd[k, 0]
             rvy = pd[i, 1] - pd[k, 1]
             trig, em, lam, h_em, h_l = threat_test(zx, zy, rvx, rvy, 0.0, r, r, prm)
-            if trig and lam > prm[P_HORIZON]:
+            if trig and lam > prm.agent_horizon_s:
                 trig = False
             if (
                 trig
@@ -551,7 +543,7 @@ def decide(
                 and team[i] == team[k]
                 and mode[i] == MODE_C
                 and mode[k] == MODE_C
-                and math.hypot(rvx, rvy) < prm[P_TEAM_VREL]
+                and math.hypot(rvx, rvy) < prm.teammate_rel_speed_mps
             ):
                 trig = False
             if not (trig or em):
@@ -698,18 +690,18 @@ def decide(
             continue
         k = best
         if mode[i] != MODE_C:
-            if t - t_entry[i] < prm[P_DWELL]:
+            if t - t_entry[i] < prm.dwell_s:
                 continue  # S14.2: no re-target within T_dwell of a switch
             em_cur, hl_cur = _agent_urgency(i, tgt[i], p, pd, rbody, prm)
             if em_cur:
                 continue
-            r = keepout_radius(rbody, i, k, prm)
-            hl_new = h_value(p[i, 0] - p[k, 0], p[i, 1] - p[k, 1], 0.0, prm[P_L] * r, prm[P_L] * r)
+            big_r = prm.limit_cycle_scale * keepout_radius(rbody, i, k, prm)
+            hl_new = h_value(p[i, 0] - p[k, 0], p[i, 1] - p[k, 1], 0.0, big_r, big_r)
             if not (b_em or hl_new < hl_cur - RETARGET_MARGIN):
                 continue
         if reacts_to(k, i, mode, tgt, parent):
             # emergency against a robot that already reacts to i: convert to a mutual pair
-            if t - t_entry[k] < prm[P_DWELL]:
+            if t - t_entry[k] < prm.dwell_s:
                 continue
             nev = _form_mutual(
                 i,
@@ -773,7 +765,7 @@ def decide(
                         k, t, mode, tgt, sdir, since, last_kind, last_tgt, last_exit, ev, nev
                     )
     # ---- 6. drift target of mutual pairs (S14.1)
-    cap = prm[P_DRIFT_CAP]
+    cap = prm.mutual_drift_cap_mps
     for i in range(n):
         if mode[i] == MODE_MUTUAL:
             k = tgt[i]

@@ -27,14 +27,6 @@ import math
 
 from numba import njit
 
-from ament_formation.core.control.automaton import (
-    P_SAFE_ACCEL,
-    P_SAFE_GAP,
-    P_SAFE_LAG,
-    P_SAFE_RANGE,
-    P_VMAX,
-)
-
 
 PASSES = 4  # alternating projections of the barrier (then a stop if a robot's is still violated)
 
@@ -123,7 +115,7 @@ def _robot_barriers(i, x, pd, vdx, vdy, vddx, vddy, rbody, a_brk, prm, brake):
     the other's approach beyond its half, e.g. when an obstacle pushes that robot). Returns
     (vdx, vdy, vddx, vddy, active).
     """
-    g0, reach, lag = prm[P_SAFE_GAP], prm[P_SAFE_RANGE], prm[P_SAFE_LAG]
+    g0, reach, lag = prm.safety_gap_m, prm.safety_range_m, prm.safety_lag_s
     active = False
     for k in range(x.shape[0]):
         dx = x[i, 0] - x[k, 0]
@@ -164,7 +156,7 @@ def _obstacle_barriers(p, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, a_br
     """The barrier against every obstacle boundary P within ``safety_range_m`` (boundary velocity
     included).
     """
-    g0, reach, lag = prm[P_SAFE_GAP], prm[P_SAFE_RANGE], prm[P_SAFE_LAG]
+    g0, reach, lag = prm.safety_gap_m, prm.safety_range_m, prm.safety_lag_s
     px, py, pdx, pdy = p
     for j in range(oc.shape[0]):
         r1 = oaxes[j, 0]
@@ -187,8 +179,8 @@ def safe_field(i, x, pd, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, rbody
 
     Returns (vdx, vdy, vddx, vddy).
     """
-    vdx, vdy = clip_norm(vdx, vdy, prm[P_VMAX])
-    a_brk = prm[P_SAFE_ACCEL] * gain_k  # the S3 loop's deceleration without feed-forward
+    vdx, vdy = clip_norm(vdx, vdy, prm.speed_limit_mps)
+    a_brk = prm.brake_gain_fraction * gain_k  # the S3 loop's deceleration without feed-forward
     p = (x[i, 0], x[i, 1], pd[i, 0], pd[i, 1])
     for _ in range(PASSES):  # alternating projections onto the robots' and obstacles' half-planes
         vdx, vdy, vddx, vddy, _act = _robot_barriers(

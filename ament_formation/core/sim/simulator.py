@@ -33,6 +33,7 @@ from numba import njit
 import numpy as np
 
 from ament_formation.core.control.automaton import (
+    AutomatonArrays,
     MODE_C,
     MODE_MUTUAL,
     MODE_NAMES,
@@ -41,11 +42,11 @@ from ament_formation.core.control.automaton import (
 )
 from ament_formation.core.control.encounters import decide
 from ament_formation.core.control.law import (
-    G_EPS,
-    G_LAMBDA,
     gains_vector,
     goals_and_fields,
+    LawRobots,
     robot_law,
+    Tracking,
 )
 from ament_formation.core.model.disturbance import (
     Disturbance,
@@ -57,9 +58,13 @@ from ament_formation.core.model.dynamics import (
     PlantCoeffs,
     point_velocity_k,
     rk4_step_k,
-    RobotPlant,
+    robot_plant_k,
 )
-from ament_formation.core.model.obstacles import obstacle_arrays, obstacle_states
+from ament_formation.core.model.obstacles import (
+    obstacle_arrays,
+    obstacle_states,
+    ObstacleSnapshot,
+)
 from ament_formation.core.model.paths import quintic_hermite_k
 from ament_formation.core.sim.trajectory import SimResult
 
@@ -156,11 +161,14 @@ def _run_segment(
     ophi = np.empty(m)
     ophid = np.empty(m)
     ophidd = np.empty(m)
-    eps = gains[G_EPS]
+    eps = gains.boundary_layer_mps
     d_sin = np.empty_like(d_amp)
     d_cos = np.empty_like(d_amp)
     g_prev = np.empty((n, 2))
     pos = np.empty((n, 2))  # contiguous positions for decide (one compiled specialisation)
+    obs_now = ObstacleSnapshot(oc, ov, oa, ophi, ophid, ophidd, oaxes, ostatic)
+    law_robots = LawRobots(x, pd, acmd, rbody, coeffs)
+    tracking = Tracking(parent, offset, ref, goal, goal_dot)
     for i in range(n):  # (re-)start the disturbance phasors at t(k0): no drift accumulates
         disturbance_phasor_init_k(k0 * dt, d_freq[i], d_phase[i], d_sin[i], d_cos[i])
         g_prev[i, 0], g_prev[i, 1] = disturbance_k(k0 * dt, d_amp[i], d_freq[i], d_phase[i])
@@ -215,33 +223,7 @@ def _run_segment(
         for q in range(n):
             i = order[q]
             t1, t2, sx, sy, sat, acx, acy, wdx, wdy = robot_law(
-                i,
-                t,
-                x,
-                pd,
-                acmd,
-                parent,
-                offset,
-                ref,
-                goal,
-                goal_dot,
-                mode,
-                tgt,
-                sdir,
-                t_entry,
-                wc,
-                wtgt,
-                oc,
-                ov,
-                oa,
-                ophi,
-                ophid,
-                ophidd,
-                oaxes,
-                rbody,
-                coeffs,
-                gains,
-                prm,
+                i, t, law_robots, tracking, automaton, obs_now, gains, prm
             )
             torque[i, 0] = t1
             torque[i, 1] = t2
@@ -309,14 +291,7 @@ def _run_segment(
                 (gha, ghb),
                 (g1a, g1b),
                 dt,
-                RobotPlant(
-                    coeffs[0, i],
-                    coeffs[1, i],
-                    coeffs[2, i],
-                    coeffs[3, i],
-                    coeffs[4, i],
-                    coeffs[5, i],
-                ),
+                robot_plant_k(coeffs, i),
             )
             for q in range(5):
                 x[i, q] = nx[q]
@@ -344,7 +319,7 @@ class _Setup:
         )
         self.rbody = np.array([r.params.body_radius_m for r in robots], dtype=float)
         self.gains = gains_vector(scenario.control)
-        self.prm = switching.for_avoidance(scenario.avoidance).as_array()
+        self.prm = switching.for_avoidance(scenario.avoidance).compiled()
         bound = np.asarray(scenario.disturbance.accel_bound, dtype=float)
         dist = Disturbance.from_bounds(n, bound, scenario.disturbance.seed)
         self.d_amp, self.d_freq, self.d_phase = dist.amplitude, dist.freq_hz, dist.phase_rad
@@ -465,7 +440,7 @@ def _loop_arrays(setup: _Setup, n_rec: int):
         z2(),
         np.zeros((n, 6)),
     )
-    automaton = (
+    automaton = AutomatonArrays(
         np.zeros(n, dtype=np.int64),  # mode
         np.full(n, -1, dtype=np.int64),  # tgt
         np.ones(n),  # sdir
@@ -540,7 +515,7 @@ def simulate(
     clock = Clock(dt_s, dec_every, rec_every)
     robots, automaton, reach, rec = _loop_arrays(setup, n_rec)
     plant, obstacles = setup.plant_arrays(), setup.obstacle_arrays()
-    mode = automaton[0]
+    mode = automaton.mode
     reach_pending, reach_rec, nreach = reach.pending, reach.records, reach.count
     avoiding: frozenset[int] = frozenset()
     parents = setup.graph.rewire(set())
@@ -622,7 +597,7 @@ def simulate(
 
 def _drain_reaching(setup: _Setup, reach: ReachArrays, reaching: list[dict]) -> None:
     """Move the reaching-phase records the loop wrote (S3.4) to ``reaching`` as dicts."""
-    lam = float(setup.gains[G_LAMBDA])
+    lam = setup.gains.reaching_rate_mps2
     for r in range(int(reach.count[0])):
         i, t0, s0, tr, done = reach.records[r]
         reaching.append(
