@@ -28,11 +28,15 @@ from ament_formation.core.control.automaton import (
     SwitchingParams,
 )
 from ament_formation.core.control.controller import EncounterAssignment
-from ament_formation.core.control.encounters import decide, KIND_OBSTACLE
+from ament_formation.core.control.encounters import decide, DecisionRobots, KIND_OBSTACLE
 from ament_formation.core.control.law import gains_vector, goal_fields
 from ament_formation.core.control.rewiring import FormationGraph
 from ament_formation.core.model.dynamics import PlantCoeffs, point_velocities
-from ament_formation.core.model.obstacles import obstacle_arrays, obstacle_states
+from ament_formation.core.model.obstacles import (
+    obstacle_arrays,
+    obstacle_states,
+    ObstacleSnapshot,
+)
 
 
 class EncounterArbiter:
@@ -201,21 +205,18 @@ class EncounterArbiter:
         ev = np.zeros((8 * n + 16, 6))
         nev = decide(
             t_s,
-            np.ascontiguousarray(x[:, :2]),
-            pd,
-            goal,
-            goal_dot,
-            vc,
-            team,
-            self._rbody[rows],
-            oc,
-            ov,
-            ophi,
-            ophid,
-            self._axes,
-            self._static,
-            *sub.arrays(),
-            self._parent_rows(sub, known, row),
+            DecisionRobots(
+                np.ascontiguousarray(x[:, :2]),
+                pd,
+                goal,
+                goal_dot,
+                vc,
+                team,
+                self._rbody[rows],
+                self._parent_rows(sub, known, row),
+            ),
+            ObstacleSnapshot(oc, ov, oa, ophi, ophid, ophidd, self._axes, self._static),
+            sub.arrays(),
             self._prm,
             ev,
         )

@@ -28,7 +28,7 @@ from ament_formation.core.control.automaton import (
     MODE_YIELD,
     SwitchingParams,
 )
-from ament_formation.core.control.encounters import decide, KIND_AGENT
+from ament_formation.core.control.encounters import decide, DecisionRobots, KIND_AGENT
 from ament_formation.core.control.law import (
     gains_vector,
     goals_and_fields,
@@ -554,21 +554,18 @@ class RobotController:
             ev = scratch.events  # decide() writes the rows it reports
             nev = decide(
                 t_s,
-                np.ascontiguousarray(x[:, :2]),
-                pd,
-                goal,
-                goal_dot,
-                vc,
-                team,
-                rbody,
-                oc,
-                ov,
-                ophi,
-                ophid,
-                oaxes,
-                self._static,
-                *st.arrays(),
-                self._parent_rows(scratch.parent_row, row, me),
+                DecisionRobots(
+                    np.ascontiguousarray(x[:, :2]),
+                    pd,
+                    goal,
+                    goal_dot,
+                    vc,
+                    team,
+                    rbody,
+                    self._parent_rows(scratch.parent_row, row, me),
+                ),
+                ObstacleSnapshot(oc, ov, oa, ophi, ophid, ophidd, oaxes, self._static),
+                st.arrays(),
                 self._prm,
                 ev,
             )

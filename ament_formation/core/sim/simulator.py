@@ -4,11 +4,13 @@ torques) under the bounded smooth disturbance g(t).
 
 Structure (fast path, numba ``cache=True``):
 
-* :func:`robot_law` -- ONE robot's law at one sample: the mode's field (S4 leader/follower with the
-  parent's commanded acceleration as feed-forward; S6.3/S6.4 limit cycle for obstacles, moving and
-  rotating; S7 yield and mutual fields) and the sliding-mode torque (S3.1, S3.2, S3.5, S3.6). The
-  per-robot :class:`~ament_formation.core.control.controller.RobotController` calls this same
-  function.
+* :func:`~ament_formation.core.control.law.robot_law` -- ONE robot's law at one sample: the
+  mode's field (S4 leader/follower with the parent's commanded acceleration as feed-forward;
+  S6.3/S6.4 limit cycle for obstacles, moving and rotating; S7 yield and mutual fields) and the
+  sliding-mode torque (S3.1, S3.2, S3.5, S3.6). The per-robot
+  :class:`~ament_formation.core.control.controller.RobotController` calls it; the loop here calls
+  its kernel :func:`~ament_formation.core.control.law.robot_law_k` with the robot's rows (the same
+  law, fewer arrays handed over per call).
 * :func:`_run_segment` -- the 1 kHz loop over all robots (law in topological order of the current
   forest, so followers get the parent's commanded acceleration of the same sample; RK4 per robot),
   with :func:`ament_formation.core.control.encounters.decide` every ``decision_period_s``. It
@@ -38,15 +40,16 @@ from ament_formation.core.control.automaton import (
     MODE_MUTUAL,
     MODE_NAMES,
     MODE_OBSTACLE,
+    robot_mode_k,
     SwitchingParams,
 )
-from ament_formation.core.control.encounters import decide
+from ament_formation.core.control.encounters import decide, DecisionRobots
 from ament_formation.core.control.law import (
     gains_vector,
     goals_and_fields,
-    LawRobots,
-    robot_law,
+    robot_law_k,
     Tracking,
+    tracking_row_k,
 )
 from ament_formation.core.model.disturbance import (
     Disturbance,
@@ -167,8 +170,8 @@ def _run_segment(
     g_prev = np.empty((n, 2))
     pos = np.empty((n, 2))  # contiguous positions for decide (one compiled specialisation)
     obs_now = ObstacleSnapshot(oc, ov, oa, ophi, ophid, ophidd, oaxes, ostatic)
-    law_robots = LawRobots(x, pd, acmd, rbody, coeffs)
     tracking = Tracking(parent, offset, ref, goal, goal_dot)
+    decision_robots = DecisionRobots(pos, pd, goal, goal_dot, vc, team, rbody, parent)
     for i in range(n):  # (re-)start the disturbance phasors at t(k0): no drift accumulates
         disturbance_phasor_init_k(k0 * dt, d_freq[i], d_phase[i], d_sin[i], d_cos[i])
         g_prev[i, 0], g_prev[i, 1] = disturbance_k(k0 * dt, d_amp[i], d_freq[i], d_phase[i])
@@ -188,42 +191,15 @@ def _run_segment(
             for i in range(n):
                 pos[i, 0] = x[i, 0]
                 pos[i, 1] = x[i, 1]
-            nev = decide(
-                t,
-                pos,
-                pd,
-                goal,
-                goal_dot,
-                vc,
-                team,
-                rbody,
-                oc,
-                ov,
-                ophi,
-                ophid,
-                oaxes,
-                ostatic,
-                mode,
-                tgt,
-                sdir,
-                t_entry,
-                since,
-                last_kind,
-                last_tgt,
-                last_exit,
-                wc,
-                wtgt,
-                parent,
-                prm,
-                ev,
-            )
+            nev = decide(t, decision_robots, obs_now, automaton, prm, ev)
             if nev > 0:
                 return kk, nev
         # ---- law, parents before children (S4 feed-forward of the current a_j)
         for q in range(n):
             i = order[q]
-            t1, t2, sx, sy, sat, acx, acy, wdx, wdy = robot_law(
-                i, t, law_robots, tracking, automaton, obs_now, gains, prm
+            track, state = tracking_row_k(tracking, i), robot_mode_k(automaton, i)
+            t1, t2, sx, sy, sat, acx, acy, wdx, wdy = robot_law_k(
+                i, t, x, pd, acmd, rbody, coeffs, obs_now, track, state, gains, prm
             )
             torque[i, 0] = t1
             torque[i, 1] = t2
