@@ -18,7 +18,6 @@ MAX_JIT_PARAMS = 15
 # 'path:function' -> (lines, parameters) when the check was introduced
 KNOWN = {
     'core/control/controller.py:step': (335, 3),
-    'core/sim/simulator.py:_run_segment': (205, 14),
     'core/control/arbiter.py:decide': (141, 4),
 }
 
