@@ -97,11 +97,11 @@ def scalar_baseline(scenario, n_steps: int) -> float:
     """Robot-steps/s of a per-robot scalar Python loop over the same law (robot_law + RK4
     kernels).
     """
-    from ament_formation.core.control.automaton import SwitchingParams
-    from ament_formation.core.control.law import robot_law
+    from ament_formation.core.control.automaton import AutomatonState, SwitchingParams
+    from ament_formation.core.control.law import LawRobots, robot_law, Tracking
     from ament_formation.core.model.disturbance import disturbance_k
     from ament_formation.core.model.dynamics import rk4_step_k, RobotPlant
-    from ament_formation.core.model.obstacles import obstacle_states
+    from ament_formation.core.model.obstacles import obstacle_states, ObstacleSnapshot
     from ament_formation.core.sim import simulator as S
 
     setup = S._Setup(scenario, 0.001, SwitchingParams(avoidance=scenario.avoidance))
@@ -111,11 +111,6 @@ def scalar_baseline(scenario, n_steps: int) -> float:
     pd = np.zeros((n, 2))
     goal = np.zeros((n, 2))
     goal_dot = np.zeros((n, 2))
-    mode = np.zeros(n, np.int64)
-    tgt = np.full(n, -1, np.int64)
-    sdir = np.ones(n)
-    t_entry = np.zeros(n)
-    wc = np.zeros((n, 2))
     parents = setup.graph.rewire(set())
     parent, offset, order = setup.parents_from(parents)
     tab = setup.reference_table(0, n_steps + 1, 0.001)
@@ -124,6 +119,10 @@ def scalar_baseline(scenario, n_steps: int) -> float:
     oc, ov, oa = np.zeros((m, 2)), np.zeros((m, 2)), np.zeros((m, 2))
     ophi, ophid, ophidd = np.zeros(m), np.zeros(m), np.zeros(m)
     law = robot_law
+    robots = LawRobots(x, pd, acmd, setup.rbody, setup.coeffs)
+    tracking = Tracking(parent, offset, ref, goal, goal_dot)
+    automaton = AutomatonState(n).arrays()
+    obs_now = ObstacleSnapshot(oc, ov, oa, ophi, ophid, ophidd, setup.oaxes, setup.ostatic)
     t0 = time.perf_counter()
     for k in range(n_steps):
         t = k * 0.001
@@ -146,43 +145,13 @@ def scalar_baseline(scenario, n_steps: int) -> float:
         for i in range(n):
             pd[i] = S.point_velocity_k(x[i, 2], x[i, 3], x[i, 4], setup.coeffs[4, i])
         for i in order:
-            out = law(
-                i,
-                t,
-                x,
-                pd,
-                acmd,
-                parent,
-                offset,
-                ref,
-                goal,
-                goal_dot,
-                mode,
-                tgt,
-                sdir,
-                t_entry,
-                wc,
-                wc,
-                oc,
-                ov,
-                oa,
-                ophi,
-                ophid,
-                ophidd,
-                setup.oaxes,
-                setup.rbody,
-                setup.coeffs,
-                setup.gains,
-                setup.prm,
-            )
+            out = law(i, t, robots, tracking, automaton, obs_now, setup.gains, setup.prm)
             acmd[i, 0], acmd[i, 1] = out[5], out[6]
             g0 = disturbance_k(t, setup.d_amp[i], setup.d_freq[i], setup.d_phase[i])
             gh = disturbance_k(t + 0.0005, setup.d_amp[i], setup.d_freq[i], setup.d_phase[i])
             g1 = disturbance_k(t + 0.001, setup.d_amp[i], setup.d_freq[i], setup.d_phase[i])
             c = setup.coeffs[:, i]
-            x[i] = rk4_step_k(
-                tuple(x[i]), (out[0], out[1]), g0, gh, g1, 0.001, RobotPlant(*c[:6])
-            )
+            x[i] = rk4_step_k(tuple(x[i]), (out[0], out[1]), g0, gh, g1, 0.001, RobotPlant(*c[:6]))
     return n * n_steps / (time.perf_counter() - t0)
 
 

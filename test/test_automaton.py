@@ -16,7 +16,7 @@ from ament_formation.core.control.encounters import decide_once, KIND_OBSTACLE
 from ament_formation.core.control.limit_cycle import choose_direction
 from ament_formation.core.model.ellipse import ray_time, segment_hits
 
-PRM = SwitchingParams().as_array()
+PRM = SwitchingParams().compiled()
 AV = SwitchingParams().avoidance
 
 

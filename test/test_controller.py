@@ -308,10 +308,15 @@ def test_a_neighbour_busy_with_a_robot_not_heard_is_never_read_as_an_obstacle(
     (found by `formation sweep --sensing camera`: a ZeroDivisionError in 7 of 300 runs, depending
     on that memory). Here the decision runs as plain Python: it raises IndexError on such a read.
     """
-    from ament_formation.core.control import controller as controller_module
-    from ament_formation.core.control.encounters import decide
+    from numba.core.registry import CPUDispatcher
 
-    monkeypatch.setattr(controller_module, 'decide', decide.py_func)
+    from ament_formation.core.control import controller as controller_module
+    from ament_formation.core.control import encounters
+
+    monkeypatch.setattr(controller_module, 'decide', encounters.decide.py_func)
+    for name, f in vars(encounters).items():  # its stages and helpers too
+        if isinstance(f, CPUDispatcher):
+            monkeypatch.setattr(encounters, name, f.py_func)
     sc = load_scenario(config_file('scenarios/paper.yaml'))
     p = sc.robots[0].params
     obs = () if obstacles == 'none' else sc.obstacles

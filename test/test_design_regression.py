@@ -22,7 +22,7 @@ FILES = sorted((Path(__file__).resolve().parent / 'scenarios_regression').glob('
 CONTACT_M = 0.20  # two robot bodies touch (R_body = 0.1 m)
 PEAK_SPEED_MPS = 0.3  # the sweep's runaway speed (the law's speed limit is 0.25 m/s)
 MAX_EVENTS = 50  # mode events of one robot: more is chattering
-PRM = SwitchingParams().as_array()
+PRM = SwitchingParams().compiled()
 
 
 @pytest.mark.parametrize('path', FILES, ids=[p.stem for p in FILES])
@@ -95,7 +95,7 @@ def _wall_field(px, vd, floor=(0.0, 3.0, 0.0, 2.5)):
     """Robot 0 at (px, 1.0) moving with V_d on a floor with walls (safety filter only)."""
     x = np.array([[px, 1.0, 0.0, vd[0], 0.0]])
     pd = np.array([[vd[0], vd[1]]])
-    prm = SwitchingParams(floor_m=floor).as_array()
+    prm = SwitchingParams(floor_m=floor).compiled()
     none = (np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros((0, 2)))
     return safe_field(0, x, pd, vd[0], vd[1], 0.0, 0.0, *none, np.full(1, 0.1), 0.27, prm)
 
@@ -113,7 +113,7 @@ def test_safety_filter_treats_the_floor_edges_as_walls():
     assert _wall_field(2.88, (0.05, 0.03), floor=None)[:2] == (0.05, 0.03)
     # the x_min and y_min walls alike
     x = np.array([[0.12, 0.12, 0.0, -0.05, 0.0]])
-    prm = SwitchingParams(floor_m=(0.0, 3.0, 0.0, 2.5)).as_array()
+    prm = SwitchingParams(floor_m=(0.0, 3.0, 0.0, 2.5)).compiled()
     none = (np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros((0, 2)))
     vx, vy, _, _ = safe_field(
         0, x, np.array([[-0.05, -0.05]]), -0.05, -0.05, 0.0, 0.0, *none, np.full(1, 0.1), 0.27, prm

@@ -16,21 +16,17 @@ from ament_formation.core.control.automaton import (
     MODE_MUTUAL,
     MODE_OBSTACLE,
     MODE_YIELD,
-    P_BETA0,
-    P_KEEPOUT_MARGIN,
-    P_L,
-    P_TAU_G,
-    P_VTAN_AGENT,
     SwitchingParams,
 )
 from ament_formation.core.control.encounters import decide_once, reacts_to
-from ament_formation.core.control.law import robot_law
+from ament_formation.core.control.law import Gains, LawRobots, robot_law, Tracking
 from ament_formation.core.control.limit_cycle import design_gains, ellipse_field_k, gain_schedule_k
+from ament_formation.core.model.obstacles import ObstacleSnapshot
 from ament_formation.core.scenario.loader import parse_scenario
 from ament_formation.core.sim.metrics import compute_metrics
 from ament_formation.core.sim.simulator import simulate
 
-PRM = SwitchingParams().as_array()
+PRM = SwitchingParams().compiled()
 NO_OBS = (
     np.zeros((0, 2)),
     np.zeros((0, 2)),
@@ -98,47 +94,45 @@ def test_mutual_law_is_reciprocal_relative_motion_follows_f():
             [0.15, 0.15],
         ]
     )
-    gains = np.array([0.27, 0.01, 0.5, 0.05, 0.15])
+    gains = Gains(0.27, 0.01, 0.5, 0.05, 0.15)
+    zeros = np.zeros((0, 2))
     zeros = np.zeros((0, 2))
     args = (
-        x,
-        pd,
-        np.zeros((n, 2)),
-        np.full(n, -1),
-        np.zeros((n, 2)),
-        np.zeros((n, 6)),
-        np.zeros((n, 2)),
-        np.zeros((n, 2)),
-        st_.mode,
-        st_.tgt,
-        st_.sdir,
-        st_.t_entry,
-        st_.wc,
-        st_.wtgt,
-        zeros,
-        zeros,
-        zeros,
-        np.zeros(0),
-        np.zeros(0),
-        np.zeros(0),
-        zeros,
-        np.full(n, 0.1),
-        coeffs,
+        LawRobots(x, pd, np.zeros((n, 2)), np.full(n, 0.1), coeffs),
+        Tracking(
+            np.full(n, -1), np.zeros((n, 2)), np.zeros((n, 6)), np.zeros((n, 2)), np.zeros((n, 2))
+        ),
+        st_.arrays(),
+        ObstacleSnapshot(
+            zeros, zeros, zeros, np.zeros(0), np.zeros(0), np.zeros(0), zeros, np.zeros(0, bool)
+        ),
         gains,
         PRM,
     )
     t = 2.2
     out = [robot_law(i, t, *args) for i in range(n)]
     vd = [pd[i] - np.array(out[i][2:4]) for i in range(n)]  # sigma = p_dot - V_d
-    r = 0.1 + 0.1 + PRM[P_KEEPOUT_MARGIN]
-    psi_max, c_max = design_gains(r, r, PRM[P_VTAN_AGENT], PRM)
+    r = 0.1 + 0.1 + PRM.agent_keepout_margin_m
+    psi_max, c_max = design_gains(r, r, PRM.agent_tangential_speed_mps, PRM)
     psd, psdd, c, cd = gain_schedule_k(
-        t - 1.0, psi_max, c_max, 1.0, 1.0, 0.0, PRM[P_BETA0], PRM[P_TAU_G]
+        t - 1.0, psi_max, c_max, 1.0, 1.0, 0.0, PRM.gain_start_fraction, PRM.gain_time_constant_s
     )
     z = x[0, :2] - x[1, :2]
     zd = pd[0] - pd[1]
     f = ellipse_field_k(
-        z[0], z[1], zd[0], zd[1], 0.0, 0.0, 0.0, PRM[P_L] * r, PRM[P_L] * r, psd, psdd, c, cd
+        z[0],
+        z[1],
+        zd[0],
+        zd[1],
+        0.0,
+        0.0,
+        0.0,
+        PRM.limit_cycle_scale * r,
+        PRM.limit_cycle_scale * r,
+        psd,
+        psdd,
+        c,
+        cd,
     )
     np.testing.assert_allclose(vd[0] - vd[1], f[:2], atol=1e-12)
     np.testing.assert_allclose(vd[0] + vd[1], 2 * st_.wc[0], atol=1e-12)

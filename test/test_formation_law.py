@@ -141,7 +141,9 @@ def test_closed_loop_leader_follower_formation_converges():
         vl = kn.tracking_field_k(
             x[0, 0] - r[0, 0], x[0, 1] - r[0, 1], *rd[0], *rdd[0], *pl, al, vc
         )
-        tl = kn.smc_torque_k(x[0, 2], x[0, 3], x[0, 4], *vl, *co[0], k.tau_max[0], kk, kk, eps)
+        tl = kn.smc_torque_k(
+            x[0, 2], x[0, 3], x[0, 4], *vl, RobotPlant(*co[0]), k.tau_max[0], kk, kk, eps
+        )
         vf = kn.tracking_field_k(
             x[1, 0] - x[0, 0] - delta[0],
             x[1, 1] - x[0, 1] - delta[1],
@@ -152,7 +154,9 @@ def test_closed_loop_leader_follower_formation_converges():
             al,
             vc,
         )
-        tf = kn.smc_torque_k(x[1, 2], x[1, 3], x[1, 4], *vf, *co[1], k.tau_max[1], kk, kk, eps)
+        tf = kn.smc_torque_k(
+            x[1, 2], x[1, 3], x[1, 4], *vf, RobotPlant(*co[1]), k.tau_max[1], kk, kk, eps
+        )
         torque = np.array([[tl[0], tl[1]], [tf[0], tf[1]]])
         if t < 1.0:
             pd = point_velocity(x, k.d)

@@ -430,7 +430,7 @@ def test_compiled_gain_design_and_direction_match_the_oracle(seed):
 
     rng = np.random.default_rng(seed)
     sw = SwitchingParams()
-    av, prm = sw.avoidance, sw.as_array()
+    av, prm = sw.avoidance, sw.compiled()
     n = 40
     phi, r1, r2 = _ellipses(rng, n)
     for i in range(n):

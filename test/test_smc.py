@@ -16,7 +16,7 @@ from oracle_smc import (
 )
 
 from ament_formation.core.model.disturbance import Disturbance
-from ament_formation.core.model.dynamics import PlantCoeffs
+from ament_formation.core.model.dynamics import PlantCoeffs, RobotPlant
 from ament_formation.core.params import ControlGains, RobotParams
 
 GAINS = ControlGains()
@@ -172,12 +172,7 @@ def test_kernel_matches_numpy_law():
                 x[i, 4],
                 *v_d[i],
                 *v_d_dot[i],
-                k.m_tilde[i],
-                k.I_tilde[i],
-                k.r[i],
-                k.a[i],
-                k.d[i],
-                k.m_c[i],
+                RobotPlant(k.m_tilde[i], k.I_tilde[i], k.r[i], k.a[i], k.d[i], k.m_c[i]),
                 k.tau_max[i],
                 0.27,
                 0.27,

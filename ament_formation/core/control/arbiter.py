@@ -28,11 +28,15 @@ from ament_formation.core.control.automaton import (
     SwitchingParams,
 )
 from ament_formation.core.control.controller import EncounterAssignment
-from ament_formation.core.control.encounters import decide, KIND_OBSTACLE
+from ament_formation.core.control.encounters import decide, DecisionRobots, KIND_OBSTACLE
 from ament_formation.core.control.law import gains_vector, goal_fields
 from ament_formation.core.control.rewiring import FormationGraph
 from ament_formation.core.model.dynamics import PlantCoeffs, point_velocities
-from ament_formation.core.model.obstacles import obstacle_arrays, obstacle_states
+from ament_formation.core.model.obstacles import (
+    obstacle_arrays,
+    obstacle_states,
+    ObstacleSnapshot,
+)
 
 
 class EncounterArbiter:
@@ -54,7 +58,7 @@ class EncounterArbiter:
         n = len(robots)
         base = switching or SwitchingParams()
         self.switching = base.for_avoidance(scenario.avoidance).on_floor(scenario.floor)
-        self._prm = self.switching.as_array()
+        self._prm = self.switching.compiled()
         self._gains = gains_vector(scenario.control)
         self._d = PlantCoeffs.from_params([r.params for r in robots]).d
         self._rbody = np.array([r.params.body_radius_m for r in robots], dtype=float)
@@ -245,24 +249,14 @@ class EncounterArbiter:
         """The compiled S7/S8 decision over the known robots (``sub`` updated in place, events
         into ``ev``); returns the event count.
         """
-        oc, ov, _oa, ophi, ophid, _ophidd = obstacles
+        oc, ov, oa, ophi, ophid, ophidd = obstacles
         return decide(
             t_s,
-            np.ascontiguousarray(x[:, :2]),
-            pd,
-            goal,
-            goal_dot,
-            vc,
-            team,
-            rbody,
-            oc,
-            ov,
-            ophi,
-            ophid,
-            self._axes,
-            self._static,
-            *sub.arrays(),
-            parent_rows,
+            DecisionRobots(
+                np.ascontiguousarray(x[:, :2]), pd, goal, goal_dot, vc, team, rbody, parent_rows
+            ),
+            ObstacleSnapshot(oc, ov, oa, ophi, ophid, ophidd, self._axes, self._static),
+            sub.arrays(),
             self._prm,
             ev,
         )

@@ -27,6 +27,7 @@ Departures from the letter of S8, each motivated by S14:
 
 from __future__ import annotations
 
+from collections import namedtuple
 import dataclasses
 from dataclasses import dataclass
 import math
@@ -101,72 +102,41 @@ class SwitchingParams:
         bounds = (*map(float, floor.x_m), *map(float, floor.y_m))
         return dataclasses.replace(self, floor_m=bounds)
 
-    def as_array(self) -> np.ndarray:
-        """Packed (P_LEN,) float vector for the compiled code (see ``P_*`` indices)."""
-        a = self.avoidance
-        out = np.zeros(P_LEN)
-        out[P_EM] = a.emergency_scale
-        out[P_L] = a.limit_cycle_scale
-        out[P_IN] = a.heading_scale
-        out[P_CLR] = a.clearance_scale
-        out[P_KAPPA] = a.protected_scale
-        out[P_VTAN] = a.tangential_speed_mps
-        out[P_VTAN_AGENT] = a.agent_tangential_speed_mps
-        out[P_VRAD] = a.radial_speed_mps
-        out[P_BETA0] = a.gain_start_fraction
-        out[P_TAU_G] = a.gain_time_constant_s
-        out[P_PSI_SLOW] = a.parking_anomaly_rad
-        out[P_DWELL] = a.dwell_s
-        out[P_TMIN] = a.min_avoid_s
-        out[P_COOL] = a.cooldown_s
-        out[P_KEEPOUT_MARGIN] = a.agent_keepout_margin_m
-        out[P_IMMINENT] = self.imminent_s
-        out[P_HORIZON] = self.agent_horizon_s
-        out[P_TEAM_VREL] = self.teammate_rel_speed_mps
-        out[P_DRIFT_TAU] = self.mutual_drift_tau_s
-        out[P_DRIFT_CAP] = self.mutual_drift_cap_mps
-        out[P_VMAX] = self.speed_limit_mps
-        out[P_SAFE_ACCEL] = self.brake_gain_fraction
-        out[P_SAFE_GAP] = self.safety_gap_m
-        out[P_SAFE_RANGE] = self.safety_range_m
-        out[P_SAFE_LAG] = self.safety_lag_s
+    def compiled(self) -> 'Switching':
+        """These parameters as the compiled code reads them (:data:`Switching`)."""
+        values = {**dataclasses.asdict(self.avoidance), **dataclasses.asdict(self)}
         floor = self.floor_m or (-math.inf, math.inf, -math.inf, math.inf)
-        out[P_FLOOR_X0], out[P_FLOOR_X1], out[P_FLOOR_Y0], out[P_FLOOR_Y1] = floor
-        return out
+        values.update(zip(FLOOR_FIELDS, floor))
+        return Switching(**{name: float(values[name]) for name in Switching._fields})
 
 
-(
-    P_EM,
-    P_L,
-    P_IN,
-    P_CLR,
-    P_KAPPA,
-    P_VTAN,
-    P_VTAN_AGENT,
-    P_VRAD,
-    P_BETA0,
-    P_TAU_G,
-    P_PSI_SLOW,
-    P_DWELL,
-    P_TMIN,
-    P_COOL,
-    P_KEEPOUT_MARGIN,
-    P_IMMINENT,
-    P_HORIZON,
-    P_TEAM_VREL,
-    P_DRIFT_TAU,
-    P_DRIFT_CAP,
-    P_VMAX,
-    P_SAFE_ACCEL,
-    P_SAFE_GAP,
-    P_SAFE_RANGE,
-    P_SAFE_LAG,
-    P_FLOOR_X0,
-    P_FLOOR_X1,
-    P_FLOOR_Y0,
-    P_FLOOR_Y1,
-) = range(29)
-P_LEN = 29
+FLOOR_FIELDS = ('floor_x_min_m', 'floor_x_max_m', 'floor_y_min_m', 'floor_y_max_m')
+
+
+Switching = namedtuple(
+    'Switching',
+    [f.name for f in dataclasses.fields(AvoidanceParams)]
+    + [
+        'imminent_s',
+        'agent_horizon_s',
+        'teammate_rel_speed_mps',
+        'mutual_drift_tau_s',
+        'mutual_drift_cap_mps',
+        'speed_limit_mps',
+        'brake_gain_fraction',
+        'safety_gap_m',
+        'safety_range_m',
+        'safety_lag_s',
+        *FLOOR_FIELDS,
+    ],
+)
+Switching.__doc__ = """:class:`SwitchingParams` for the compiled code: a named tuple of floats
+(numba reads a field as fast as an array slot), fields named and in the units of
+:class:`~ament_formation.core.params.AvoidanceParams` and :class:`SwitchingParams` (all but
+``decision_period_s``, which only the Python drivers read; ``floor_m`` is the four
+``floor_*_m`` fields, infinite when no floor is declared). Built by
+:meth:`SwitchingParams.compiled`.
+"""
 
 
 # --------------------------------------------------------------------------- ellipse geometry
@@ -198,18 +168,18 @@ def threat_test(zx, zy, rvx, rvy, phi, r1, r2, prm):
     and approaching with the ray reaching P within ``imminent_s``.
     """
     hdot = h_dot_sign_value(zx, zy, rvx, rvy, phi, r1, r2)
-    h_em = h_value(zx, zy, phi, prm[P_EM] * r1, prm[P_EM] * r2)
-    h_q = h_value(zx, zy, phi, prm[P_KAPPA] * r1, prm[P_KAPPA] * r2)
-    h_l = h_value(zx, zy, phi, prm[P_L] * r1, prm[P_L] * r2)
+    h_em = h_value(zx, zy, phi, prm.emergency_scale * r1, prm.emergency_scale * r2)
+    h_q = h_value(zx, zy, phi, prm.protected_scale * r1, prm.protected_scale * r2)
+    h_l = h_value(zx, zy, phi, prm.limit_cycle_scale * r1, prm.limit_cycle_scale * r2)
     lam_in = INF
     triggered = False
     emergency = h_em < 0.0
     if h_q < 0.0 and hdot < 0.0:
-        lam_in = ray_time(zx, zy, rvx, rvy, phi, prm[P_IN] * r1, prm[P_IN] * r2)
+        lam_in = ray_time(zx, zy, rvx, rvy, phi, prm.heading_scale * r1, prm.heading_scale * r2)
         triggered = lam_in < INF
         if not emergency:
             lam_p = ray_time(zx, zy, rvx, rvy, phi, r1, r2)
-            emergency = lam_p < prm[P_IMMINENT]
+            emergency = lam_p < prm.imminent_s
     return triggered, emergency, lam_in, h_em, h_l
 
 
@@ -223,14 +193,16 @@ def exit_conditions(px, py, gx, gy, vcx, vcy, cx, cy, cvx, cvy, phi, phi_dot, r1
     """
     zx = px - cx
     zy = py - cy
-    if segment_hits(px, py, gx, gy, cx, cy, phi, prm[P_CLR] * r1, prm[P_CLR] * r2):
+    if segment_hits(
+        px, py, gx, gy, cx, cy, phi, prm.clearance_scale * r1, prm.clearance_scale * r2
+    ):
         return False
-    if h_value(zx, zy, phi, prm[P_EM] * r1, prm[P_EM] * r2) < 0.0:
+    if h_value(zx, zy, phi, prm.emergency_scale * r1, prm.emergency_scale * r2) < 0.0:
         return False
     rvx, rvy = relative_velocity(zx, zy, vcx, vcy, cvx, cvy, phi_dot)
     if h_dot_sign_value(zx, zy, rvx, rvy, phi, r1, r2) >= 0.0:
         return True
-    return ray_time(zx, zy, rvx, rvy, phi, prm[P_IN] * r1, prm[P_IN] * r2) == INF
+    return ray_time(zx, zy, rvx, rvy, phi, prm.heading_scale * r1, prm.heading_scale * r2) == INF
 
 
 @njit(cache=True)
@@ -240,14 +212,58 @@ def exit_timer(conditions_hold, t_s, since_s, t_entry_s, prm):
         return False, -1.0
     if since_s < 0.0:
         since_s = t_s
-    ok = (t_s - since_s >= prm[P_DWELL] - 1e-9) and (t_s - t_entry_s >= prm[P_TMIN] - 1e-9)
+    ok = (t_s - since_s >= prm.dwell_s - 1e-9) and (t_s - t_entry_s >= prm.min_avoid_s - 1e-9)
     return ok, since_s
 
 
 @njit(cache=True)
 def in_cooldown(kind, target, t_s, last_kind, last_target, last_exit_s, prm):
     """S8.4: heading-triggered re-entry to the target just left is blocked for T_cool."""
-    return kind == last_kind and target == last_target and t_s - last_exit_s < prm[P_COOL]
+    return kind == last_kind and target == last_target and t_s - last_exit_s < prm.cooldown_s
+
+
+AutomatonArrays = namedtuple(
+    'AutomatonArrays',
+    [
+        'mode',
+        'tgt',
+        'sdir',
+        't_entry',
+        'since',
+        'last_kind',
+        'last_tgt',
+        'last_exit',
+        'wc',
+        'wtgt',
+    ],
+)
+AutomatonArrays.__doc__ = """The automaton state of N robots as the compiled code takes it (the
+arrays of :class:`AutomatonState`, updated in place; see there for their meaning and units).
+"""
+
+
+RobotMode = namedtuple(
+    'RobotMode', ['mode', 'target', 'direction', 't_entry_s', 'drift', 'drift_target']
+)
+RobotMode.__doc__ = """Row i of :data:`AutomatonArrays` as scalars (what the law of robot i reads):
+``mode`` (MODE_*), ``target`` (obstacle index or robot row), ``direction`` (+1 CCW, -1 CW),
+``t_entry_s`` [s], ``drift`` and ``drift_target`` (2-tuples, [m/s]) the mutual-pair w_c and its
+target.
+"""
+
+
+@njit(cache=True)
+def robot_mode_k(auto, i):
+    """:data:`RobotMode` of robot row i of ``auto`` (:data:`AutomatonArrays`)."""
+    wc, wtgt = auto.wc, auto.wtgt
+    return RobotMode(
+        auto.mode[i],
+        auto.tgt[i],
+        auto.sdir[i],
+        auto.t_entry[i],
+        (wc[i, 0], wc[i, 1]),
+        (wtgt[i, 0], wtgt[i, 1]),
+    )
 
 
 class AutomatonState:
@@ -276,9 +292,9 @@ class AutomatonState:
     def n(self) -> int:
         return int(self.mode.shape[0])
 
-    def arrays(self) -> tuple:
-        """(mode, tgt, sdir, t_entry, since, last_kind, last_tgt, last_exit, wc, wtgt)."""
-        return (
+    def arrays(self) -> AutomatonArrays:
+        """The state itself (no copies) as :data:`AutomatonArrays`."""
+        return AutomatonArrays(
             self.mode,
             self.tgt,
             self.sdir,

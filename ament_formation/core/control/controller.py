@@ -26,17 +26,22 @@ from ament_formation.core.control.automaton import (
     MODE_NAMES,
     MODE_OBSTACLE,
     MODE_YIELD,
-    P_EM,
-    P_KEEPOUT_MARGIN,
     SwitchingParams,
 )
-from ament_formation.core.control.encounters import decide, KIND_AGENT
-from ament_formation.core.control.law import gains_vector, goals_and_fields, robot_law
+from ament_formation.core.control.encounters import decide, DecisionRobots, KIND_AGENT
+from ament_formation.core.control.law import (
+    gains_vector,
+    goals_and_fields,
+    LawRobots,
+    robot_law,
+    Tracking,
+)
 from ament_formation.core.errors import ConfigError
 from ament_formation.core.model.dynamics import PlantCoeffs, point_velocities
 from ament_formation.core.model.obstacles import (
     obstacle_arrays,
     obstacle_states,
+    ObstacleSnapshot,
     ObstacleSpec,
     ObstacleStates,
 )
@@ -303,7 +308,7 @@ class RobotController:
         self.team = self.robot_id if team is None else int(team)
         base = switching or SwitchingParams()
         self.switching = base.for_avoidance(avoidance).on_floor(floor)
-        self._prm = self.switching.as_array()
+        self._prm = self.switching.compiled()
         self._gains = gains_vector(control)
         k = PlantCoeffs.from_params([params])
         self._own_coeffs = np.array(
@@ -640,24 +645,21 @@ class RobotController:
         """The compiled S7/S8 decision over every row (automaton state updated in place, events
         into ``sc.events``); returns the event count.
         """
-        oc, ov, _oa, ophi, ophid, _ophidd, oaxes = sc.obs
+        oc, ov, oa, ophi, ophid, ophidd, oaxes = sc.obs
         return decide(
             t_s,
-            np.ascontiguousarray(sc.x[:, :2]),
-            sc.pd,
-            sc.goal,
-            sc.goal_dot,
-            sc.vc,
-            sc.team,
-            sc.rbody,
-            oc,
-            ov,
-            ophi,
-            ophid,
-            oaxes,
-            self._static,
-            *sc.state.arrays(),
-            self._parent_rows(sc.parent_row, sc.row, sc.me),
+            DecisionRobots(
+                np.ascontiguousarray(sc.x[:, :2]),
+                sc.pd,
+                sc.goal,
+                sc.goal_dot,
+                sc.vc,
+                sc.team,
+                sc.rbody,
+                self._parent_rows(sc.parent_row, sc.row, sc.me),
+            ),
+            ObstacleSnapshot(oc, ov, oa, ophi, ophid, ophidd, oaxes, self._static),
+            sc.state.arrays(),
             self._prm,
             sc.events,
         )
@@ -702,7 +704,9 @@ class RobotController:
         k = int(st.tgt[me])
         x, rbody = sc.x, sc.rbody
         # S8.3 item 2: never leave inside the partner's emergency circle E (rho_em R_aa, S7)
-        r_em = self._prm[P_EM] * (rbody[me] + rbody[k] + self._prm[P_KEEPOUT_MARGIN])
+        r_em = self._prm.emergency_scale * (
+            rbody[me] + rbody[k] + self._prm.agent_keepout_margin_m
+        )
         h_em = ((x[me, 0] - x[k, 0]) ** 2 + (x[me, 1] - x[k, 1]) ** 2) / r_em**2 - 1.0
         if h_em < 0.0:
             return
@@ -793,29 +797,10 @@ class RobotController:
         return robot_law(
             sc.me,
             t_s,
-            sc.x,
-            sc.pd,
-            sc.acmd,
-            sc.parent_row,
-            sc.offset,
-            sc.ref,
-            sc.goal,
-            sc.goal_dot,
-            st.mode,
-            st.tgt,
-            st.sdir,
-            st.t_entry,
-            st.wc,
-            st.wtgt,
-            oc,
-            ov,
-            oa,
-            ophi,
-            ophid,
-            ophidd,
-            oaxes,
-            sc.rbody,
-            sc.coeffs,
+            LawRobots(sc.x, sc.pd, sc.acmd, sc.rbody, sc.coeffs),
+            Tracking(sc.parent_row, sc.offset, sc.ref, sc.goal, sc.goal_dot),
+            st.arrays(),
+            ObstacleSnapshot(oc, ov, oa, ophi, ophid, ophidd, oaxes, self._static),
             self._gains,
             self._prm,
         )

@@ -42,6 +42,7 @@ direction]; the call returns the new event count.
 
 from __future__ import annotations
 
+from collections import namedtuple
 import math
 
 from numba import njit
@@ -56,19 +57,12 @@ from ament_formation.core.control.automaton import (
     MODE_MUTUAL,
     MODE_OBSTACLE,
     MODE_YIELD,
-    P_DRIFT_CAP,
-    P_DWELL,
-    P_HORIZON,
-    P_KAPPA,
-    P_KEEPOUT_MARGIN,
-    P_L,
-    P_TEAM_VREL,
-    P_TMIN,
     relative_velocity,
     threat_test,
 )
 from ament_formation.core.control.limit_cycle import choose_direction
 from ament_formation.core.model.ellipse import h_value
+from ament_formation.core.model.obstacles import ObstacleSnapshot
 
 KIND_OBSTACLE = 1  # cool-down bookkeeping: last target was an obstacle
 KIND_AGENT = 2  # ... or a robot
@@ -79,7 +73,7 @@ RETARGET_MARGIN = 0.1  # S8.2 between robots: the new h_L must be lower by this 
 @njit(cache=True)
 def keepout_radius(rbody, i, k, prm):
     """R_aa of the pair (S7): R_body,i + R_body,k + margin (= 2 R_body + 0.05 m by default)."""
-    return rbody[i] + rbody[k] + prm[P_KEEPOUT_MARGIN]
+    return rbody[i] + rbody[k] + prm.agent_keepout_margin_m
 
 
 @njit(cache=True)
@@ -179,6 +173,32 @@ def reacts_to(k, i, mode, tgt, parent):
     return False
 
 
+DecisionRobots = namedtuple(
+    'DecisionRobots', ['p', 'pd', 'goal', 'goal_dot', 'vc', 'team', 'rbody', 'parent']
+)
+DecisionRobots.__doc__ = """Every robot as :func:`decide` reads it (rows in robot-ID order):
+``p``, ``pd`` (N, 2) controlled-point positions [m] (C-contiguous) and velocities [m/s];
+``goal``, ``goal_dot`` (N, 2) formation goal g_i [m] and g_i_dot [m/s] (leader r(t); follower p of
+its *original* parent + delta, S8.3 item 1); ``vc`` (N, 2) coordination field V_c [m/s] (exit
+test); ``team`` (N,) int team-leader row (S14.3); ``rbody`` (N,) body radius [m]; ``parent`` (N,)
+current formation parent row (-1: root or unknown), for the acyclicity of every following link
+(S14.5).
+"""
+
+ObstacleThreats = namedtuple(
+    'ObstacleThreats', ['j', 'em', 'lam', 'h_em', 'h_l', 'cur_em', 'cur_h_l']
+)
+ObstacleThreats.__doc__ = """Stage 1 of :func:`decide`, per robot (N,): the best obstacle entry
+candidate ``j`` (-1: none), its emergency flag ``em``, ray time ``lam`` [s] and levels ``h_em``,
+``h_l``; ``cur_em``, ``cur_h_l``: emergency flag and h_L of the obstacle the robot avoids now.
+"""
+
+RobotThreats = namedtuple('RobotThreats', ['k', 'em', 'lam', 'h_em', 'count'])
+RobotThreats.__doc__ = """Stage 2 of :func:`decide`: the robot threats of each robot, (N,
+MAX_THREATS) rows ``k`` (robot row), ``em``, ``lam`` [s], ``h_em``; ``count`` (N,) used slots.
+"""
+
+
 @njit(cache=True)
 def _event(ev, nev, t, i, enter, mode, target, s):
     if nev < ev.shape[0]:
@@ -192,54 +212,68 @@ def _event(ev, nev, t, i, enter, mode, target, s):
 
 
 @njit(cache=True)
-def _leave(i, t, mode, tgt, sdir, since, last_kind, last_tgt, last_exit, ev, nev):
+def _leave(i, t, auto, ev, nev):
     """Leave the current avoidance target (event 'exit'); the cool-down starts now."""
-    nev = _event(ev, nev, t, i, False, mode[i], tgt[i], sdir[i])
-    last_kind[i] = KIND_OBSTACLE if mode[i] == MODE_OBSTACLE else KIND_AGENT
-    last_tgt[i] = tgt[i]
-    last_exit[i] = t
+    mode, tgt = auto.mode, auto.tgt
+    nev = _event(ev, nev, t, i, False, mode[i], tgt[i], auto.sdir[i])
+    auto.last_kind[i] = KIND_OBSTACLE if mode[i] == MODE_OBSTACLE else KIND_AGENT
+    auto.last_tgt[i] = tgt[i]
+    auto.last_exit[i] = t
     mode[i] = MODE_C
     tgt[i] = -1
-    since[i] = -1.0
+    auto.since[i] = -1.0
     return nev
 
 
 @njit(cache=True)
-def _enter(i, t, kind, target, s, mode, tgt, sdir, t_entry, since, ev, nev):
-    mode[i] = kind
-    tgt[i] = target
-    sdir[i] = s
-    t_entry[i] = t
-    since[i] = -1.0
+def _enter(i, t, kind, target, s, auto, ev, nev):
+    auto.mode[i] = kind
+    auto.tgt[i] = target
+    auto.sdir[i] = s
+    auto.t_entry[i] = t
+    auto.since[i] = -1.0
     return _event(ev, nev, t, i, True, kind, target, s)
 
 
 @njit(cache=True)
-def _release(i, t, mode, tgt, sdir, t_entry, since, last_kind, last_tgt, last_exit, ev, nev):
+def _demote_partner(a, t, auto, ev, nev):
+    """The mutual partner m of robot a becomes a plain yielder to a (events exit, enter)."""
+    m = auto.tgt[a]
+    nev = _event(ev, nev, t, m, False, MODE_MUTUAL, a, auto.sdir[m])
+    auto.mode[m] = MODE_YIELD
+    auto.since[m] = -1.0
+    return _event(ev, nev, t, m, True, MODE_YIELD, a, auto.sdir[m])
+
+
+@njit(cache=True)
+def _release(i, t, auto, ev, nev):
     """Drop i's current target; a mutual partner becomes a plain yielder to i (S8.3)."""
+    mode, tgt = auto.mode, auto.tgt
     if mode[i] == MODE_C:
         return nev
     if mode[i] == MODE_MUTUAL:
         k = tgt[i]
         if mode[k] == MODE_MUTUAL and tgt[k] == i:
-            nev = _event(ev, nev, t, k, False, MODE_MUTUAL, i, sdir[k])
-            mode[k] = MODE_YIELD
-            since[k] = -1.0
-            nev = _event(ev, nev, t, k, True, MODE_YIELD, i, sdir[k])
-    return _leave(i, t, mode, tgt, sdir, since, last_kind, last_tgt, last_exit, ev, nev)
+            nev = _demote_partner(i, t, auto, ev, nev)
+    return _leave(i, t, auto, ev, nev)
 
 
 @njit(cache=True)
-def _obstacle_dir(i, j, p, pd, goal, goal_dot, oc, ov, ophi, ophid, oaxes, mode, tgt, sdir, prm):
+def _obstacle_dir(i, j, robots, obstacles, auto, prm):
     """S6.6 rotation sense of robot i entering obstacle j; one sense per obstacle for everyone on
     it (S14.6): a robot already circling j gives its sense.
     """
+    mode, tgt = auto.mode, auto.tgt
     for q in range(mode.shape[0]):
         if q != i and mode[q] == MODE_OBSTACLE and tgt[q] == j:
-            return sdir[q]
+            return auto.sdir[q]
+    p, pd, goal, goal_dot = robots.p, robots.pd, robots.goal, robots.goal_dot
+    oc, ov, oaxes = obstacles.c, obstacles.v, obstacles.axes
     zx = p[i, 0] - oc[j, 0]
     zy = p[i, 1] - oc[j, 1]
-    rvx, rvy = relative_velocity(zx, zy, pd[i, 0], pd[i, 1], ov[j, 0], ov[j, 1], ophid[j])
+    rvx, rvy = relative_velocity(
+        zx, zy, pd[i, 0], pd[i, 1], ov[j, 0], ov[j, 1], obstacles.phi_dot[j]
+    )
     return choose_direction(
         zx,
         zy,
@@ -249,17 +283,18 @@ def _obstacle_dir(i, j, p, pd, goal, goal_dot, oc, ov, ophi, ophid, oaxes, mode,
         goal[i, 1] - oc[j, 1],
         goal_dot[i, 0] - ov[j, 0],
         goal_dot[i, 1] - ov[j, 1],
-        ophi[j],
-        prm[P_L] * oaxes[j, 0],
-        prm[P_L] * oaxes[j, 1],
-        2.0 * prm[P_KAPPA] * oaxes[j, 0],
+        obstacles.phi[j],
+        prm.limit_cycle_scale * oaxes[j, 0],
+        prm.limit_cycle_scale * oaxes[j, 1],
+        2.0 * prm.protected_scale * oaxes[j, 0],
         True,
     )
 
 
 @njit(cache=True)
-def _agent_dir(i, k, p, pd, goal, goal_dot, rbody, prm):
-    r = keepout_radius(rbody, i, k, prm)
+def _agent_dir(i, k, robots, prm):
+    p, pd, goal, goal_dot = robots.p, robots.pd, robots.goal, robots.goal_dot
+    r = keepout_radius(robots.rbody, i, k, prm)
     return choose_direction(
         p[i, 0] - p[k, 0],
         p[i, 1] - p[k, 1],
@@ -270,9 +305,9 @@ def _agent_dir(i, k, p, pd, goal, goal_dot, rbody, prm):
         goal_dot[i, 0] - pd[k, 0],
         goal_dot[i, 1] - pd[k, 1],
         0.0,
-        prm[P_L] * r,
-        prm[P_L] * r,
-        2.0 * prm[P_KAPPA] * r,
+        prm.limit_cycle_scale * r,
+        prm.limit_cycle_scale * r,
+        2.0 * prm.protected_scale * r,
         False,
     )
 
@@ -295,7 +330,7 @@ def _reason_dwell(t, t_entry, h_stay, prm):
     unless the robot is inside the obstacle's emergency ellipse (``h_stay`` = its h_em < 0); the
     safety barrier of the law covers the wait.
     """
-    return t - t_entry < 2.0 * prm[P_TMIN] and h_stay >= 0.0
+    return t - t_entry < 2.0 * prm.min_avoid_s and h_stay >= 0.0
 
 
 @njit(cache=True)
@@ -315,26 +350,23 @@ def _better(em, key_em, lam, best_set, best_em, best_key_em, best_lam):
 
 
 @njit(cache=True)
-def _form_mutual(
-    i, k, t, pd, mode, tgt, sdir, t_entry, since, last_kind, last_tgt, last_exit, wc, ev, nev
-):
+def _form_mutual(i, k, t, pd, auto, ev, nev):
     """Convert/enter the mutual pair (i, k): s = +1, same t_s, w_c = 1/2 (p_dot_i + p_dot_k)(t_s)
     (S7).
     """
+    mode, tgt = auto.mode, auto.tgt
     for a in (i, k):
         if mode[a] == MODE_MUTUAL:
             m = tgt[a]
             if m != i and m != k and mode[m] == MODE_MUTUAL and tgt[m] == a:
-                nev = _event(ev, nev, t, m, False, MODE_MUTUAL, a, sdir[m])
-                mode[m] = MODE_YIELD
-                since[m] = -1.0
-                nev = _event(ev, nev, t, m, True, MODE_YIELD, a, sdir[m])
+                nev = _demote_partner(a, t, auto, ev, nev)
         if mode[a] != MODE_C:
-            nev = _leave(a, t, mode, tgt, sdir, since, last_kind, last_tgt, last_exit, ev, nev)
+            nev = _leave(a, t, auto, ev, nev)
     wx = 0.5 * (pd[i, 0] + pd[k, 0])
     wy = 0.5 * (pd[i, 1] + pd[k, 1])
-    nev = _enter(i, t, MODE_MUTUAL, k, 1.0, mode, tgt, sdir, t_entry, since, ev, nev)
-    nev = _enter(k, t, MODE_MUTUAL, i, 1.0, mode, tgt, sdir, t_entry, since, ev, nev)
+    nev = _enter(i, t, MODE_MUTUAL, k, 1.0, auto, ev, nev)
+    nev = _enter(k, t, MODE_MUTUAL, i, 1.0, auto, ev, nev)
+    wc = auto.wc
     wc[i, 0] = wx
     wc[i, 1] = wy
     wc[k, 0] = wx
@@ -343,29 +375,9 @@ def _form_mutual(
 
 
 @njit(cache=True)
-def _pair_exit_conditions(i, k, p, pd, goal, vc, rbody, mutual, prm):
-    """S8.3 items 1-3 of robot i avoiding robot k: a yielder against k's velocity; a mutual pair
-    for both robots, each against the other's coordination field (both leave).
-    """
-    r = keepout_radius(rbody, i, k, prm)
-    if not mutual:
-        return exit_conditions(
-            p[i, 0],
-            p[i, 1],
-            goal[i, 0],
-            goal[i, 1],
-            vc[i, 0],
-            vc[i, 1],
-            p[k, 0],
-            p[k, 1],
-            pd[k, 0],
-            pd[k, 1],
-            0.0,
-            0.0,
-            r,
-            r,
-            prm,
-        )
+def _exit_against(i, k, vkx, vky, robots, r, prm):
+    """S8.3 items 1-3 of robot i against the circle of radius r round robot k moving at vk."""
+    p, goal, vc = robots.p, robots.goal, robots.vc
     return exit_conditions(
         p[i, 0],
         p[i, 1],
@@ -375,24 +387,8 @@ def _pair_exit_conditions(i, k, p, pd, goal, vc, rbody, mutual, prm):
         vc[i, 1],
         p[k, 0],
         p[k, 1],
-        vc[k, 0],
-        vc[k, 1],
-        0.0,
-        0.0,
-        r,
-        r,
-        prm,
-    ) and exit_conditions(
-        p[k, 0],
-        p[k, 1],
-        goal[k, 0],
-        goal[k, 1],
-        vc[k, 0],
-        vc[k, 1],
-        p[i, 0],
-        p[i, 1],
-        vc[i, 0],
-        vc[i, 1],
+        vkx,
+        vky,
         0.0,
         0.0,
         r,
@@ -402,104 +398,64 @@ def _pair_exit_conditions(i, k, p, pd, goal, vc, rbody, mutual, prm):
 
 
 @njit(cache=True)
-def _break_cycles(
-    t, pd, mode, tgt, sdir, t_entry, since, last_kind, last_tgt, last_exit, wc, parent, ev
-):
+def _pair_exit_conditions(i, k, robots, mutual, prm):
+    """S8.3 items 1-3 of robot i avoiding robot k: a yielder against k's velocity; a mutual pair
+    for both robots, each against the other's coordination field (both leave).
+    """
+    r = keepout_radius(robots.rbody, i, k, prm)
+    if not mutual:
+        pd = robots.pd
+        return _exit_against(i, k, pd[k, 0], pd[k, 1], robots, r, prm)
+    vc = robots.vc
+    return _exit_against(i, k, vc[k, 0], vc[k, 1], robots, r, prm) and _exit_against(
+        k, i, vc[i, 0], vc[i, 1], robots, r, prm
+    )
+
+
+@njit(cache=True)
+def _break_cycles(t, pd, auto, parent, ev):
     """S14.5: a yield whose target reacts back to the yielder through a chain of following links
     (a re-parenting can close one after the yield was decided) becomes a mutual pair, whose
     reciprocal field has no velocity feed-forward loop. Returns the event count.
     """
     nev = 0
+    mode, tgt = auto.mode, auto.tgt
     for i in range(mode.shape[0]):
         if mode[i] == MODE_YIELD and reacts_to(tgt[i], i, mode, tgt, parent):
-            nev = _form_mutual(
-                i,
-                tgt[i],
-                t,
-                pd,
-                mode,
-                tgt,
-                sdir,
-                t_entry,
-                since,
-                last_kind,
-                last_tgt,
-                last_exit,
-                wc,
-                ev,
-                nev,
-            )
+            nev = _form_mutual(i, tgt[i], t, pd, auto, ev, nev)
     return nev
 
 
-# implements: S7, S8
-@njit(cache=True)
-def decide(
-    t,
-    p,
-    pd,
-    goal,
-    goal_dot,
-    vc,
-    team,
-    rbody,
-    oc,
-    ov,
-    ophi,
-    ophid,
-    oaxes,
-    ostatic,
-    mode,
-    tgt,
-    sdir,
-    t_entry,
-    since,
-    last_kind,
-    last_tgt,
-    last_exit,
-    wc,
-    wtgt,
-    parent,
-    prm,
-    ev,
-):
-    """One decision of every robot's automaton (S8) with robot encounters arbitrated jointly (S7).
-
-    Parameters
-    ----------
-    t : float, time [s].
-    p, pd : (N, 2) controlled-point positions [m] and velocities [m/s]; rows in robot-ID order.
-    goal, goal_dot : (N, 2) formation goal g_i (leader r(t); follower p of its *original* parent +
-        delta) and its velocity (S8.3 item 1, S6.5 parking, S6.6 look-ahead).
-    vc : (N, 2) coordination field the robot would switch to, g_dot - Phi(p - g) (S8.3 item 3).
-    team : (N,) int team index (robots of a team share a leader); rbody : (N,) body radius [m].
-    oc, ov : (M, 2) obstacle centres and velocities; ophi, ophid : (M,) orientation and rate;
-    oaxes : (M, 2) semi-axes of P; ostatic : (M,) bool, neither moving nor rotating (S8.2 keep s).
-    mode, tgt, sdir, t_entry, since, last_kind, last_tgt, last_exit : (N,) automaton state, updated
-        in place (``since`` < 0: exit conditions not holding; ``last_*``: cool-down bookkeeping).
-    wc, wtgt : (N, 2) mutual-pair drift w_c and its relaxation target (updated in place).
-    parent : (N,) current formation parent row of each robot (-1: root or unknown), for the
-        acyclicity of every following link (S14.5).
-    prm : packed :class:`~ament_formation.core.control.automaton.SwitchingParams`.
-    ev : (E, 6) event buffer (filled from row 0). Returns the event count (may exceed E: the caller
-        must then enlarge the buffer; rows beyond E are dropped).
+@njit(cache=True, inline='always')
+def _obstacle_threats(t, robots, obstacles, auto, prm):
+    """Stage 1 of :func:`decide` (S8.1, S14.2): every robot's best obstacle entry candidate and
+    the state of the obstacle it avoids now -> :data:`ObstacleThreats`.
     """
+    p, pd = robots.p, robots.pd
+    oc, ov, ophi, ophid, oaxes = (
+        obstacles.c,
+        obstacles.v,
+        obstacles.phi,
+        obstacles.phi_dot,
+        obstacles.axes,
+    )
+    mode, tgt = auto.mode, auto.tgt
+    last_kind, last_tgt, last_exit = auto.last_kind, auto.last_tgt, auto.last_exit
     n = p.shape[0]
     m = oc.shape[0]
-    nev = _break_cycles(
-        t, pd, mode, tgt, sdir, t_entry, since, last_kind, last_tgt, last_exit, wc, parent, ev
+    out = ObstacleThreats(
+        np.full(n, -1, dtype=np.int64),
+        np.zeros(n, dtype=np.bool_),
+        np.full(n, INF),
+        np.full(n, INF),
+        np.full(n, INF),
+        np.zeros(n, dtype=np.bool_),
+        np.full(n, INF),
     )
-    # ---- 1. obstacle entry candidates (S8.1, S14.2)
-    ob_j = np.full(n, -1, dtype=np.int64)
-    ob_em = np.zeros(n, dtype=np.bool_)
-    ob_lam = np.full(n, INF)
-    ob_hem = np.full(n, INF)
-    ob_hl = np.full(n, INF)
-    cur_em = np.zeros(n, dtype=np.bool_)
-    cur_hl = np.full(n, INF)
+    ob_j, ob_em, ob_lam, ob_hem, ob_hl, cur_em, cur_hl = out
     reach2 = np.empty(m)  # culling: outside the circle of radius kappa r1 nothing triggers
     for j in range(m):
-        reach2[j] = (prm[P_KAPPA] * max(oaxes[j, 0], oaxes[j, 1])) ** 2
+        reach2[j] = (prm.protected_scale * max(oaxes[j, 0], oaxes[j, 1])) ** 2
     for i in range(n):
         for j in range(m):
             zx = p[i, 0] - oc[j, 0]
@@ -525,91 +481,111 @@ def decide(
                 ob_lam[i] = lam
                 ob_hem[i] = h_em
                 ob_hl[i] = h_l
-    # ---- 2. robot threats on culled pairs (S7, S14.3)
-    th_k = np.full((n, MAX_THREATS), -1, dtype=np.int64)
-    th_em = np.zeros((n, MAX_THREATS), dtype=np.bool_)
-    th_lam = np.full((n, MAX_THREATS), INF)
-    th_hem = np.full((n, MAX_THREATS), INF)
-    th_cnt = np.zeros(n, dtype=np.int64)
-    if n > 1:
-        cell = prm[P_KAPPA] * (2.0 * rbody.max() + prm[P_KEEPOUT_MARGIN])
-        pairs = candidate_pairs(p, cell)
-        for q in range(pairs.shape[0]):
-            i = pairs[q, 0]
-            k = pairs[q, 1]
-            r = keepout_radius(rbody, i, k, prm)
-            zx = p[i, 0] - p[k, 0]
-            zy = p[i, 1] - p[k, 1]
-            rvx = pd[i, 0] - pd[k, 0]
-            rvy = pd[i, 1] - pd[k, 1]
-            trig, em, lam, h_em, h_l = threat_test(zx, zy, rvx, rvy, 0.0, r, r, prm)
-            if trig and lam > prm[P_HORIZON]:
-                trig = False
-            if (
-                trig
-                and not em
-                and team[i] == team[k]
-                and mode[i] == MODE_C
-                and mode[k] == MODE_C
-                and math.hypot(rvx, rvy) < prm[P_TEAM_VREL]
+    return out
+
+
+@njit(cache=True)
+def _keep_threat(th, a, b, em, lam, h_em):
+    """Record robot b as a threat of robot a in ``th`` (:data:`RobotThreats`); when a's slots are
+    full, b replaces the least urgent one if it is more urgent (S8.1 ranking).
+    """
+    c = th.count[a]
+    if c < MAX_THREATS:
+        slot = c
+        th.count[a] = c + 1
+    else:  # replace the least urgent
+        th_em, th_hem, th_lam = th.em, th.h_em, th.lam
+        slot = 0
+        for s in range(1, MAX_THREATS):
+            if _better(
+                th_em[a, slot],
+                th_hem[a, slot],
+                th_lam[a, slot],
+                True,
+                th_em[a, s],
+                th_hem[a, s],
+                th_lam[a, s],
             ):
-                trig = False
-            if not (trig or em):
-                continue
-            for a, b in ((i, k), (k, i)):
-                c = th_cnt[a]
-                if c < MAX_THREATS:
-                    slot = c
-                    th_cnt[a] = c + 1
-                else:  # replace the least urgent
-                    slot = 0
-                    for s in range(1, MAX_THREATS):
-                        if _better(
-                            th_em[a, slot],
-                            th_hem[a, slot],
-                            th_lam[a, slot],
-                            True,
-                            th_em[a, s],
-                            th_hem[a, s],
-                            th_lam[a, s],
-                        ):
-                            slot = s
-                    if not _better(
-                        em, h_em, lam, True, th_em[a, slot], th_hem[a, slot], th_lam[a, slot]
-                    ):
-                        continue
-                th_k[a, slot] = b
-                th_em[a, slot] = em
-                th_lam[a, slot] = lam
-                th_hem[a, slot] = h_em
-    # ---- 3. obstacle transitions (S8.1 entry, S8.2 re-targeting, S8.3 exit); a row busy with no
-    for i in range(n):  # known obstacle (tgt -1: a neighbour busy with a robot not heard) has none
+                slot = s
+        if not _better(em, h_em, lam, True, th_em[a, slot], th_hem[a, slot], th_lam[a, slot]):
+            return
+    th.k[a, slot] = b
+    th.em[a, slot] = em
+    th.lam[a, slot] = lam
+    th.h_em[a, slot] = h_em
+
+
+@njit(cache=True, inline='always')
+def _robot_threats(robots, mode, prm):
+    """Stage 2 of :func:`decide` (S7, S14.3): the robot threats of every robot on the pairs
+    culled by :func:`candidate_pairs` -> :data:`RobotThreats`.
+    """
+    p, pd, team, rbody = robots.p, robots.pd, robots.team, robots.rbody
+    n = p.shape[0]
+    th = RobotThreats(
+        np.full((n, MAX_THREATS), -1, dtype=np.int64),
+        np.zeros((n, MAX_THREATS), dtype=np.bool_),
+        np.full((n, MAX_THREATS), INF),
+        np.full((n, MAX_THREATS), INF),
+        np.zeros(n, dtype=np.int64),
+    )
+    if n < 2:
+        return th
+    cell = prm.protected_scale * (2.0 * rbody.max() + prm.agent_keepout_margin_m)
+    pairs = candidate_pairs(p, cell)
+    for q in range(pairs.shape[0]):
+        i = pairs[q, 0]
+        k = pairs[q, 1]
+        r = keepout_radius(rbody, i, k, prm)
+        zx = p[i, 0] - p[k, 0]
+        zy = p[i, 1] - p[k, 1]
+        rvx = pd[i, 0] - pd[k, 0]
+        rvy = pd[i, 1] - pd[k, 1]
+        trig, em, lam, h_em, h_l = threat_test(zx, zy, rvx, rvy, 0.0, r, r, prm)
+        if trig and lam > prm.agent_horizon_s:
+            trig = False
+        if (
+            trig
+            and not em
+            and team[i] == team[k]
+            and mode[i] == MODE_C
+            and mode[k] == MODE_C
+            and math.hypot(rvx, rvy) < prm.teammate_rel_speed_mps
+        ):
+            trig = False
+        if not (trig or em):
+            continue
+        _keep_threat(th, i, k, em, lam, h_em)
+        _keep_threat(th, k, i, em, lam, h_em)
+    return th
+
+
+@njit(cache=True)
+def _obstacle_transitions(t, robots, obstacles, auto, obt, th, prm, ev, nev):
+    """Stage 3 of :func:`decide`: S8.1 entry, S8.2 re-targeting and S8.3 exit of obstacles
+    (``obt``, ``th``: stages 1 and 2). A row busy with no known obstacle (tgt -1: a neighbour
+    busy with a robot not heard) has none. Returns the event count.
+    """
+    mode, tgt, sdir, since, t_entry = auto.mode, auto.tgt, auto.sdir, auto.since, auto.t_entry
+    p, goal, vc = robots.p, robots.goal, robots.vc
+    oc, ov, ophi, ophid, oaxes = (
+        obstacles.c,
+        obstacles.v,
+        obstacles.phi,
+        obstacles.phi_dot,
+        obstacles.axes,
+    )
+    for i in range(mode.shape[0]):
         if mode[i] == MODE_OBSTACLE and tgt[i] >= 0:
             j = tgt[i]
-            jn = ob_j[i]
-            if jn >= 0 and not cur_em[i] and (ob_em[i] or ob_hl[i] < cur_hl[i]):
-                if ostatic[j] and ostatic[jn]:
+            jn = obt.j[i]
+            if jn >= 0 and not obt.cur_em[i] and (obt.em[i] or obt.h_l[i] < obt.cur_h_l[i]):
+                if obstacles.static[j] and obstacles.static[jn]:
                     s = sdir[i]  # S6.6 rule 5: keep the sweep direction
                 else:
-                    s = _obstacle_dir(
-                        i,
-                        jn,
-                        p,
-                        pd,
-                        goal,
-                        goal_dot,
-                        oc,
-                        ov,
-                        ophi,
-                        ophid,
-                        oaxes,
-                        mode,
-                        tgt,
-                        sdir,
-                        prm,
-                    )
-                nev = _leave(i, t, mode, tgt, sdir, since, last_kind, last_tgt, last_exit, ev, nev)
-                nev = _enter(i, t, MODE_OBSTACLE, jn, s, mode, tgt, sdir, t_entry, since, ev, nev)
+                    s = _obstacle_dir(i, jn, robots, obstacles, auto, prm)
+                nev = _leave(i, t, auto, ev, nev)
+                nev = _enter(i, t, MODE_OBSTACLE, jn, s, auto, ev, nev)
                 continue
             cond = exit_conditions(
                 p[i, 0],
@@ -629,152 +605,155 @@ def decide(
                 prm,
             )
             ok, since[i] = exit_timer(cond, t, since[i], t_entry[i], prm)
-            if ok and not th_em[i, :th_cnt[i]].any():  # S14.7: no exit into a robot emergency
-                nev = _leave(i, t, mode, tgt, sdir, since, last_kind, last_tgt, last_exit, ev, nev)
-        elif ob_j[i] >= 0:
+            if ok and not th.em[i, :th.count[i]].any():  # S14.7: no exit into a robot emergency
+                nev = _leave(i, t, auto, ev, nev)
+        elif obt.j[i] >= 0:
             if mode[i] != MODE_C:
                 # static obstacles beat robots (S7), unless the robot is in emergency and the
                 # obstacle is not (S14.2: never swap one emergency for a lesser threat)
-                em_k, hl_k = _agent_urgency(i, tgt[i], p, pd, rbody, prm)
-                if (em_k and not ob_em[i]) or _reason_dwell(t, t_entry[i], ob_hem[i], prm):
+                em_k, hl_k = _agent_urgency(i, tgt[i], p, robots.pd, robots.rbody, prm)
+                if (em_k and not obt.em[i]) or _reason_dwell(t, t_entry[i], obt.h_em[i], prm):
                     continue  # S14.2: no flipping between two emergency reasons
-                nev = _release(
-                    i, t, mode, tgt, sdir, t_entry, since, last_kind, last_tgt, last_exit, ev, nev
-                )
-            jn = ob_j[i]
-            s = _obstacle_dir(
-                i, jn, p, pd, goal, goal_dot, oc, ov, ophi, ophid, oaxes, mode, tgt, sdir, prm
-            )
-            nev = _enter(i, t, MODE_OBSTACLE, jn, s, mode, tgt, sdir, t_entry, since, ev, nev)
-    # ---- 4. robot-robot arbitration over all robots (S7, S14.1)
-    for i in range(n):
-        if th_cnt[i] == 0:
+                nev = _release(i, t, auto, ev, nev)
+            jn = obt.j[i]
+            s = _obstacle_dir(i, jn, robots, obstacles, auto, prm)
+            nev = _enter(i, t, MODE_OBSTACLE, jn, s, auto, ev, nev)
+    return nev
+
+
+@njit(cache=True)
+def _stand_on_yield(i, t, robots, auto, th, prm, ev, nev):
+    """Stage 4 for robot i avoiding an obstacle (stand-on): two stand-on robots, the higher ID
+    yields, in an emergency only; not on the same obstacle (one sense, the safety barrier spaces
+    them: S14.6). Returns the event count.
+    """
+    mode, tgt = auto.mode, auto.tgt
+    kb = -1
+    hb = INF
+    for q in range(th.count[i]):
+        k = th.k[i, q]
+        same = tgt[k] == tgt[i]
+        if th.em[i, q] and mode[k] == MODE_OBSTACLE and k < i and not same and th.h_em[i, q] < hb:
+            kb = k
+            hb = th.h_em[i, q]
+    if kb >= 0 and not reacts_to(kb, i, mode, tgt, robots.parent):
+        s = _agent_dir(i, kb, robots, prm)
+        nev = _leave(i, t, auto, ev, nev)
+        nev = _enter(i, t, MODE_YIELD, kb, s, auto, ev, nev)
+    return nev
+
+
+@njit(cache=True)
+def _most_urgent(i, t, auto, th, parent, prm):
+    """Stage 4: robot i's most urgent admissible robot threat -> (row or -1, emergency)
+    (S8.4 cool-down, S14.2, S7 acyclicity: a robot that reacts to i is responsible).
+    """
+    mode, tgt = auto.mode, auto.tgt
+    best = -1
+    b_em = False
+    b_hem = INF
+    b_lam = INF
+    for q in range(th.count[i]):
+        k = th.k[i, q]
+        em = th.em[i, q]
+        if (mode[i] == MODE_YIELD or mode[i] == MODE_MUTUAL) and tgt[i] == k:
+            continue
+        if (not em or th.h_em[i, q] >= 0.0) and in_cooldown(
+            KIND_AGENT, k, t, auto.last_kind[i], auto.last_tgt[i], auto.last_exit[i], prm
+        ):
+            continue  # S8.4; an imminent contact (not inside E) waits too (S14.2)
+        if not em and reacts_to(k, i, mode, tgt, parent):
+            continue  # k is responsible (S7 acyclicity)
+        if _better(em, th.h_em[i, q], th.lam[i, q], best >= 0, b_em, b_hem, b_lam):
+            best = k
+            b_em = em
+            b_hem = th.h_em[i, q]
+            b_lam = th.lam[i, q]
+    return best, b_em
+
+
+@njit(cache=True)
+def _engage(i, k, b_em, t, robots, auto, prm, ev, nev):
+    """Stage 4: robot i takes robot k as its target: re-targets only past T_dwell and when k is
+    an emergency or clearly closer (S8.2, S14.2); a mutual pair when k reacts to i or both are
+    free (S7), else i yields to k. Returns the event count.
+    """
+    mode, tgt, t_entry = auto.mode, auto.tgt, auto.t_entry
+    p, pd, rbody = robots.p, robots.pd, robots.rbody
+    if mode[i] != MODE_C:
+        if t - t_entry[i] < prm.dwell_s:
+            return nev  # S14.2: no re-target within T_dwell of a switch
+        em_cur, hl_cur = _agent_urgency(i, tgt[i], p, pd, rbody, prm)
+        if em_cur:
+            return nev
+        big_r = prm.limit_cycle_scale * keepout_radius(rbody, i, k, prm)
+        hl_new = h_value(p[i, 0] - p[k, 0], p[i, 1] - p[k, 1], 0.0, big_r, big_r)
+        if not (b_em or hl_new < hl_cur - RETARGET_MARGIN):
+            return nev
+    if reacts_to(k, i, mode, tgt, robots.parent):
+        # emergency against a robot that already reacts to i: convert to a mutual pair
+        if t - t_entry[k] < prm.dwell_s:
+            return nev
+        return _form_mutual(i, k, t, pd, auto, ev, nev)
+    if mode[k] == MODE_C and (mode[i] == MODE_C or mode[i] == MODE_YIELD):
+        # two free robots: reciprocal avoidance (S7 mutual)
+        nev = _release(i, t, auto, ev, nev)
+        return _form_mutual(i, k, t, pd, auto, ev, nev)
+    # k is busy (stand-on, yielding or in a pair): i yields to k
+    s = _agent_dir(i, k, robots, prm)
+    nev = _release(i, t, auto, ev, nev)
+    return _enter(i, t, MODE_YIELD, k, s, auto, ev, nev)
+
+
+@njit(cache=True)
+def _arbitrate_robots(t, robots, auto, obt, th, prm, ev, nev):
+    """Stage 4 of :func:`decide`: robot-robot arbitration over all robots (S7, S14.1). Returns
+    the event count.
+    """
+    mode = auto.mode
+    for i in range(mode.shape[0]):
+        if th.count[i] == 0:
             continue
         if mode[i] == MODE_OBSTACLE:
-            # stand-on; two stand-on robots: the higher ID yields, in an emergency only; not on
-            # the same obstacle (one sense, the safety barrier spaces them: S14.6), nor in dwell
-            if cur_em[i] or _reason_dwell(t, t_entry[i], 0.0, prm):
-                continue
-            kb = -1
-            hb = INF
-            for q in range(th_cnt[i]):
-                k = th_k[i, q]
-                same = tgt[k] == tgt[i]
-                if (
-                    th_em[i, q]
-                    and mode[k] == MODE_OBSTACLE
-                    and k < i
-                    and not same
-                    and th_hem[i, q] < hb
-                ):
-                    kb = k
-                    hb = th_hem[i, q]
-            if kb >= 0 and not reacts_to(kb, i, mode, tgt, parent):
-                s = _agent_dir(i, kb, p, pd, goal, goal_dot, rbody, prm)
-                nev = _leave(i, t, mode, tgt, sdir, since, last_kind, last_tgt, last_exit, ev, nev)
-                nev = _enter(i, t, MODE_YIELD, kb, s, mode, tgt, sdir, t_entry, since, ev, nev)
+            if obt.cur_em[i] or _reason_dwell(t, auto.t_entry[i], 0.0, prm):
+                continue  # in an emergency of its own, or in dwell (S14.2)
+            nev = _stand_on_yield(i, t, robots, auto, th, prm, ev, nev)
             continue
-        best = -1
-        b_em = False
-        b_hem = INF
-        b_lam = INF
-        for q in range(th_cnt[i]):
-            k = th_k[i, q]
-            em = th_em[i, q]
-            if (mode[i] == MODE_YIELD or mode[i] == MODE_MUTUAL) and tgt[i] == k:
-                continue
-            if (not em or th_hem[i, q] >= 0.0) and in_cooldown(
-                KIND_AGENT, k, t, last_kind[i], last_tgt[i], last_exit[i], prm
-            ):
-                continue  # S8.4; an imminent contact (not inside E) waits too (S14.2)
-            if not em and reacts_to(k, i, mode, tgt, parent):
-                continue  # k is responsible (S7 acyclicity)
-            if _better(em, th_hem[i, q], th_lam[i, q], best >= 0, b_em, b_hem, b_lam):
-                best = k
-                b_em = em
-                b_hem = th_hem[i, q]
-                b_lam = th_lam[i, q]
-        if best < 0:
-            continue
-        k = best
-        if mode[i] != MODE_C:
-            if t - t_entry[i] < prm[P_DWELL]:
-                continue  # S14.2: no re-target within T_dwell of a switch
-            em_cur, hl_cur = _agent_urgency(i, tgt[i], p, pd, rbody, prm)
-            if em_cur:
-                continue
-            r = keepout_radius(rbody, i, k, prm)
-            hl_new = h_value(p[i, 0] - p[k, 0], p[i, 1] - p[k, 1], 0.0, prm[P_L] * r, prm[P_L] * r)
-            if not (b_em or hl_new < hl_cur - RETARGET_MARGIN):
-                continue
-        if reacts_to(k, i, mode, tgt, parent):
-            # emergency against a robot that already reacts to i: convert to a mutual pair
-            if t - t_entry[k] < prm[P_DWELL]:
-                continue
-            nev = _form_mutual(
-                i,
-                k,
-                t,
-                pd,
-                mode,
-                tgt,
-                sdir,
-                t_entry,
-                since,
-                last_kind,
-                last_tgt,
-                last_exit,
-                wc,
-                ev,
-                nev,
-            )
-        elif mode[k] == MODE_C and (mode[i] == MODE_C or mode[i] == MODE_YIELD):
-            # two free robots: reciprocal avoidance (S7 mutual)
-            nev = _release(
-                i, t, mode, tgt, sdir, t_entry, since, last_kind, last_tgt, last_exit, ev, nev
-            )
-            nev = _form_mutual(
-                i,
-                k,
-                t,
-                pd,
-                mode,
-                tgt,
-                sdir,
-                t_entry,
-                since,
-                last_kind,
-                last_tgt,
-                last_exit,
-                wc,
-                ev,
-                nev,
-            )
-        else:
-            # k is busy (stand-on, yielding or in a pair): i yields to k
-            s = _agent_dir(i, k, p, pd, goal, goal_dot, rbody, prm)
-            nev = _release(
-                i, t, mode, tgt, sdir, t_entry, since, last_kind, last_tgt, last_exit, ev, nev
-            )
-            nev = _enter(i, t, MODE_YIELD, k, s, mode, tgt, sdir, t_entry, since, ev, nev)
-    # ---- 5. exits of yielding robots and mutual pairs (S8.3)
-    for i in range(n):
+        k, b_em = _most_urgent(i, t, auto, th, robots.parent, prm)
+        if k >= 0:
+            nev = _engage(i, k, b_em, t, robots, auto, prm, ev, nev)
+    return nev
+
+
+@njit(cache=True)
+def _pair_exits(t, robots, auto, prm, ev, nev):
+    """Stage 5 of :func:`decide`: S8.3 exits of yielding robots and the joint exit of mutual
+    pairs. Returns the event count.
+    """
+    mode, tgt, since = auto.mode, auto.tgt, auto.since
+    for i in range(mode.shape[0]):
         if mode[i] == MODE_YIELD or (mode[i] == MODE_MUTUAL and tgt[i] > i):
             k = tgt[i]
             mutual = mode[i] == MODE_MUTUAL
-            cond = _pair_exit_conditions(i, k, p, pd, goal, vc, rbody, mutual, prm)
-            ok, since[i] = exit_timer(cond, t, since[i], t_entry[i], prm)
+            cond = _pair_exit_conditions(i, k, robots, mutual, prm)
+            ok, since[i] = exit_timer(cond, t, since[i], auto.t_entry[i], prm)
             if mutual:
                 since[k] = since[i]
             if ok:  # pairs exit jointly
-                nev = _leave(i, t, mode, tgt, sdir, since, last_kind, last_tgt, last_exit, ev, nev)
+                nev = _leave(i, t, auto, ev, nev)
                 if mutual:
-                    nev = _leave(
-                        k, t, mode, tgt, sdir, since, last_kind, last_tgt, last_exit, ev, nev
-                    )
-    # ---- 6. drift target of mutual pairs (S14.1)
-    cap = prm[P_DRIFT_CAP]
-    for i in range(n):
+                    nev = _leave(k, t, auto, ev, nev)
+    return nev
+
+
+@njit(cache=True)
+def _drift_targets(vc, auto, prm):
+    """Stage 6 of :func:`decide`: the drift target of each mutual pair, the mean of the two
+    coordination fields capped at ``mutual_drift_cap_mps`` (S14.1).
+    """
+    cap = prm.mutual_drift_cap_mps
+    mode, tgt, wtgt = auto.mode, auto.tgt, auto.wtgt
+    for i in range(mode.shape[0]):
         if mode[i] == MODE_MUTUAL:
             k = tgt[i]
             wx = 0.5 * (vc[i, 0] + vc[k, 0])
@@ -785,6 +764,49 @@ def decide(
                 wy *= cap / nrm
             wtgt[i, 0] = wx
             wtgt[i, 1] = wy
+
+
+@njit(cache=True)
+def _any_mode(mode, a, b):
+    """True when some robot is in mode ``a`` or ``b``."""
+    for q in range(mode.shape[0]):
+        if mode[q] == a or mode[q] == b:
+            return True
+    return False
+
+
+# implements: S7, S8
+@njit(cache=True)
+def decide(t, robots, obstacles, auto, prm, ev):
+    """One decision of every robot's automaton (S8) with robot encounters arbitrated jointly (S7).
+
+    Parameters
+    ----------
+    t : float, time [s].
+    robots : :data:`DecisionRobots`.
+    obstacles : :data:`~ament_formation.core.model.obstacles.ObstacleSnapshot` at t (the
+        accelerations are not read).
+    auto : :data:`~ament_formation.core.control.automaton.AutomatonArrays`, updated in place
+        (``since`` < 0: exit conditions not holding; ``last_*``: cool-down bookkeeping; ``wc``,
+        ``wtgt``: mutual-pair drift w_c and its relaxation target).
+    prm : :data:`~ament_formation.core.control.automaton.Switching` (named floats).
+    ev : (E, 6) event buffer (filled from row 0). Returns the event count (may exceed E: the caller
+        must then enlarge the buffer; rows beyond E are dropped).
+    """
+    mode = auto.mode  # (each stage runs only when it has work: fewer arrays to reference-count)
+    nev = 0
+    if _any_mode(mode, MODE_YIELD, MODE_YIELD):
+        nev = _break_cycles(t, robots.pd, auto, robots.parent, ev)
+    obt = _obstacle_threats(t, robots, obstacles, auto, prm)  # 1. S8.1, S14.2
+    th = _robot_threats(robots, mode, prm)  # 2. S7, S14.3
+    if _any_mode(mode, MODE_OBSTACLE, MODE_OBSTACLE) or (obt.j >= 0).any():  # 3. S8.1-S8.3
+        nev = _obstacle_transitions(t, robots, obstacles, auto, obt, th, prm, ev, nev)
+    if (th.count > 0).any():  # 4. S7, S14.1
+        nev = _arbitrate_robots(t, robots, auto, obt, th, prm, ev, nev)
+    if _any_mode(mode, MODE_YIELD, MODE_MUTUAL):  # 5. S8.3
+        nev = _pair_exits(t, robots, auto, prm, ev, nev)
+    if _any_mode(mode, MODE_MUTUAL, MODE_MUTUAL):  # 6. S14.1
+        _drift_targets(robots.vc, auto, prm)
     return nev
 
 
@@ -807,10 +829,9 @@ def decide_once(
     (t_s, robot_row, 'enter'|'exit', mode, target, direction).
 
     ``state`` : :class:`~ament_formation.core.control.automaton.AutomatonState`; ``obstacles`` :
-    tuple
-    (centres (M, 2), velocities (M, 2), phi (M,), phi_dot (M,), semi-axes (M, 2), static (M,)
-    bool); ``parent`` : (N,) current formation parent rows (default: none);
-    other arrays as in :func:`decide`.
+    tuple (centres (M, 2), velocities (M, 2), phi (M,), phi_dot (M,), semi-axes (M, 2), static
+    (M,) bool); ``parent`` : (N,) current formation parent rows (default: none); other arrays as
+    in :class:`DecisionRobots`.
     """
     n = state.n
     ev = np.zeros((ev_capacity or 8 * n + 16, 6))
@@ -819,8 +840,8 @@ def decide_once(
     def f(a):
         return np.ascontiguousarray(a, dtype=float)
 
-    nev = decide(
-        float(t_s),
+    m = f(oc).reshape(-1, 2).shape[0]
+    robots = DecisionRobots(
         f(p),
         f(pd),
         f(goal),
@@ -828,19 +849,21 @@ def decide_once(
         f(vc),
         np.ascontiguousarray(team, dtype=np.int64),
         f(rbody),
-        f(oc).reshape(-1, 2),
-        f(ov).reshape(-1, 2),
-        f(ophi).reshape(-1),
-        f(ophid).reshape(-1),
-        f(oaxes).reshape(-1, 2),
-        np.ascontiguousarray(ostatic, dtype=np.bool_).reshape(-1),
-        *state.arrays(),
         np.full(n, -1, dtype=np.int64)
         if parent is None
         else np.ascontiguousarray(parent, dtype=np.int64),
-        prm,
-        ev,
     )
+    snapshot = ObstacleSnapshot(
+        f(oc).reshape(-1, 2),
+        f(ov).reshape(-1, 2),
+        np.zeros((m, 2)),
+        f(ophi).reshape(-1),
+        f(ophid).reshape(-1),
+        np.zeros(m),
+        f(oaxes).reshape(-1, 2),
+        np.ascontiguousarray(ostatic, dtype=np.bool_).reshape(-1),
+    )
+    nev = decide(float(t_s), robots, snapshot, state.arrays(), prm, ev)
     return [
         (
             float(r[0]),

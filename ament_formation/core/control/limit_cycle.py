@@ -16,7 +16,6 @@ import math
 
 from numba import njit
 
-from ament_formation.core.control.automaton import P_KAPPA, P_L, P_VRAD
 from ament_formation.core.model.ellipse import ellipse_coords
 
 TWO_PI = 2.0 * math.pi
@@ -181,8 +180,8 @@ def choose_direction(
 @njit(cache=True)
 def design_gains(r1, r2, v_tan, prm):
     """S6.5 design: psi_dot_max = v_tan / sqrt(R1 R2), c_max = v_rad / (kappa sqrt(r1 r2) h_Q)."""
-    rho_l = prm[P_L]
-    kappa = prm[P_KAPPA]
+    rho_l = prm.limit_cycle_scale
+    kappa = prm.protected_scale
     big = rho_l * math.sqrt(r1 * r2)
     h_q = (kappa / rho_l) ** 2 - 1.0
-    return v_tan / big, prm[P_VRAD] / (kappa * math.sqrt(r1 * r2) * h_q)
+    return v_tan / big, prm.radial_speed_mps / (kappa * math.sqrt(r1 * r2) * h_q)

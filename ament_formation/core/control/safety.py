@@ -28,15 +28,6 @@ import math
 
 from numba import njit
 
-from ament_formation.core.control.automaton import (
-    P_FLOOR_X0,
-    P_SAFE_ACCEL,
-    P_SAFE_GAP,
-    P_SAFE_LAG,
-    P_SAFE_RANGE,
-    P_VMAX,
-)
-
 
 PASSES = 4  # alternating projections of the barrier (then a stop if a robot's is still violated)
 
@@ -125,7 +116,7 @@ def _robot_barriers(i, x, pd, vdx, vdy, vddx, vddy, rbody, a_brk, prm, brake):
     the other's approach beyond its half, e.g. when an obstacle pushes that robot). Returns
     (vdx, vdy, vddx, vddy, active).
     """
-    g0, reach, lag = prm[P_SAFE_GAP], prm[P_SAFE_RANGE], prm[P_SAFE_LAG]
+    g0, reach, lag = prm.safety_gap_m, prm.safety_range_m, prm.safety_lag_s
     active = False
     for k in range(x.shape[0]):
         dx = x[i, 0] - x[k, 0]
@@ -166,7 +157,7 @@ def _obstacle_barriers(p, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, a_br
     """The barrier against every obstacle boundary P within ``safety_range_m`` (boundary velocity
     included).
     """
-    g0, reach, lag = prm[P_SAFE_GAP], prm[P_SAFE_RANGE], prm[P_SAFE_LAG]
+    g0, reach, lag = prm.safety_gap_m, prm.safety_range_m, prm.safety_lag_s
     px, py, pdx, pdy = p
     for j in range(oc.shape[0]):
         r1 = oaxes[j, 0]
@@ -183,25 +174,47 @@ def _obstacle_barriers(p, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, a_br
 
 
 @njit(cache=True)
+def _wall(vdx, vdy, vddx, vddy, pdx, pdy, gap, nx, ny, a_brk, prm, brake):
+    """The barrier against one floor edge (inward normal n) at ``gap`` from the body."""
+    if gap < prm.safety_range_m:
+        vdx, vdy, vddx, vddy, _a = _barrier(
+            vdx,
+            vdy,
+            vddx,
+            vddy,
+            pdx,
+            pdy,
+            nx,
+            ny,
+            0.0,
+            0.0,
+            gap - prm.safety_gap_m,
+            a_brk,
+            prm.safety_lag_s,
+            brake,
+        )
+    return vdx, vdy, vddx, vddy
+
+
+@njit(cache=True)
 def _floor_barriers(p, vdx, vdy, vddx, vddy, rb, a_brk, prm, brake):
     """The barrier against each edge of a declared floor within ``safety_range_m`` of the body
     (radius ``rb`` about p): the edges are walls that do not move (an undeclared floor has its
     edges at infinity).
     """
-    g0, reach, lag = prm[P_SAFE_GAP], prm[P_SAFE_RANGE], prm[P_SAFE_LAG]
     px, py, pdx, pdy = p
-    for wall in range(4):
-        edge = prm[P_FLOOR_X0 + wall]  # x_min, x_max, y_min, y_max in turn
-        sign = 1.0 if wall % 2 == 0 else -1.0  # inward normal: + from a min edge, - from a max
-        coord = px if wall < 2 else py
-        gap = sign * (coord - edge) - rb
-        if gap < reach:
-            nx = sign if wall < 2 else 0.0
-            ny = sign if wall >= 2 else 0.0
-            vdx, vdy, vddx, vddy, _a = _barrier(
-                vdx, vdy, vddx, vddy, pdx, pdy, nx, ny, 0.0, 0.0, gap - g0, a_brk, lag, brake
-            )
-    return vdx, vdy, vddx, vddy
+    vdx, vdy, vddx, vddy = _wall(
+        vdx, vdy, vddx, vddy, pdx, pdy, px - prm.floor_x_min_m - rb, 1.0, 0.0, a_brk, prm, brake
+    )
+    vdx, vdy, vddx, vddy = _wall(
+        vdx, vdy, vddx, vddy, pdx, pdy, prm.floor_x_max_m - px - rb, -1.0, 0.0, a_brk, prm, brake
+    )
+    vdx, vdy, vddx, vddy = _wall(
+        vdx, vdy, vddx, vddy, pdx, pdy, py - prm.floor_y_min_m - rb, 0.0, 1.0, a_brk, prm, brake
+    )
+    return _wall(
+        vdx, vdy, vddx, vddy, pdx, pdy, prm.floor_y_max_m - py - rb, 0.0, -1.0, a_brk, prm, brake
+    )
 
 
 # implements: S14
@@ -211,11 +224,11 @@ def safe_field(i, x, pd, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, rbody
 
     Returns (vdx, vdy, vddx, vddy).
     """
-    vdx, vdy = clip_norm(vdx, vdy, prm[P_VMAX])
-    a_brk = prm[P_SAFE_ACCEL] * gain_k  # the S3 loop's deceleration without feed-forward
+    vdx, vdy = clip_norm(vdx, vdy, prm.speed_limit_mps)
+    a_brk = prm.brake_gain_fraction * gain_k  # the S3 loop's deceleration without feed-forward
     p = (x[i, 0], x[i, 1], pd[i, 0], pd[i, 1])
     rb = rbody[i]
-    for _ in range(PASSES):  # alternating projections onto the robots' and obstacles' half-planes
+    for _ in range(PASSES):  # alternating projections onto the robots', walls' and obstacles'
         vdx, vdy, vddx, vddy, _act = _robot_barriers(
             i, x, pd, vdx, vdy, vddx, vddy, rbody, a_brk, prm, False
         )
@@ -228,9 +241,7 @@ def safe_field(i, x, pd, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, rbody
     )
     fx, fy, _c, _d = _floor_barriers(p, vdx, vdy, vddx, vddy, rb, a_brk, prm, False)
     squeezed = abs(qx - vdx) + abs(qy - vdy) + abs(fx - vdx) + abs(fy - vdy)
-    if (
-        squeezed > 1e-9
-    ):  # between a robot or wall and an obstacle: stop (the obstacles may move it)
+    if squeezed > 1e-9:  # between a robot or wall and an obstacle: stop (obstacles may move it)
         vdx, vdy, vddx, vddy = 0.0, 0.0, 0.0, 0.0
     # the braking acceleration where the robot's own velocity is beyond the limits
     vdx, vdy, vddx, vddy, _act = _robot_barriers(

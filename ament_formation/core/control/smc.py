@@ -30,12 +30,16 @@ def _switch(sig, gain, eps):
 
 # implements: S3, S5
 @njit(cache=True)
-def smc_torque_k(th, v, w, vdx, vdy, vddx, vddy, mt, It, r, a, d, mc, tau_max, k1, k2, eps):
+def smc_torque_k(th, v, w, vdx, vdy, vddx, vddy, plant, tau_max, k1, k2, eps):
     """S3.1, S3.2 with sat(sigma/eps) (S3.5, eps = 0: sign) and uniform scaling (S3.6).
 
-    (k1, k2) switching gains per component [m/s^2]. Returns
+    State (th [rad], v [m/s], w [rad/s]); V_d (vdx, vdy) [m/s] and V_d_dot (vddx, vddy) [m/s^2];
+    ``plant`` the robot's :data:`~ament_formation.core.model.dynamics.RobotPlant`, ``tau_max``
+    its torque limit [N m]; (k1, k2) switching gains per component [m/s^2]; eps the boundary
+    layer [m/s]. Returns
     (tau_left, tau_right, sigma_x, sigma_y, saturated, accel_cmd_x, accel_cmd_y).
     """
+    mt, It, r, a, d, mc = plant
     c = math.cos(th)
     s = math.sin(th)
     pdx, pdy = point_velocity_k(th, v, w, d)

@@ -147,6 +147,16 @@ the fields of :class:`PlantCoeffs` for one robot without the torque limit)."""
 
 
 @njit(cache=True)
+def robot_plant_k(coeffs, i):
+    """:data:`RobotPlant` of robot column ``i`` of the (7, N) coefficient rows
+    [m~, I~, r, a, d, m_c, tau_max] (the torque limit, row 6, is not part of it).
+    """
+    return RobotPlant(
+        coeffs[0, i], coeffs[1, i], coeffs[2, i], coeffs[3, i], coeffs[4, i], coeffs[5, i]
+    )
+
+
+@njit(cache=True)
 def rk4_step_k(s, tau, g0, gh, g1, dt, p):
     """One RK4 step of one robot with ZOH torque: state ``s`` (x, y, theta, v, omega), torque
     ``tau`` (left, right), the disturbance g (g1, g2) at t (``g0``), t + dt/2 (``gh``) and t + dt

@@ -7,6 +7,7 @@ vectorised field code never loops over obstacles in Python.
 
 from __future__ import annotations
 
+from collections import namedtuple
 from dataclasses import dataclass
 import math
 
@@ -67,6 +68,16 @@ class ObstacleStates:
     phi_dot_radps: np.ndarray  # (M,)
     phi_ddot_radps2: np.ndarray  # (M,)
     semi_axes_m: np.ndarray  # (M, 2) (r1, r2) of P_j
+
+
+ObstacleSnapshot = namedtuple(
+    'ObstacleSnapshot', ['c', 'v', 'a', 'phi', 'phi_dot', 'phi_ddot', 'axes', 'static']
+)
+ObstacleSnapshot.__doc__ = """All M obstacles at one instant as the compiled law and decision read
+them: ``c``, ``v``, ``a`` (M, 2) centre [m], velocity [m/s], acceleration [m/s^2]; ``phi``,
+``phi_dot``, ``phi_ddot`` (M,) orientation [rad] and its rates [rad/s, rad/s^2]; ``axes`` (M, 2)
+semi-axes of P [m]; ``static`` (M,) bool, neither moving nor rotating (S8.2 keeps the sense).
+"""
 
 
 class ObstacleField:

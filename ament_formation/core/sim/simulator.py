@@ -4,11 +4,13 @@ torques) under the bounded smooth disturbance g(t).
 
 Structure (fast path, numba ``cache=True``):
 
-* :func:`robot_law` -- ONE robot's law at one sample: the mode's field (S4 leader/follower with the
-  parent's commanded acceleration as feed-forward; S6.3/S6.4 limit cycle for obstacles, moving and
-  rotating; S7 yield and mutual fields) and the sliding-mode torque (S3.1, S3.2, S3.5, S3.6). The
-  per-robot :class:`~ament_formation.core.control.controller.RobotController` calls this same
-  function.
+* :func:`~ament_formation.core.control.law.robot_law` -- ONE robot's law at one sample: the
+  mode's field (S4 leader/follower with the parent's commanded acceleration as feed-forward;
+  S6.3/S6.4 limit cycle for obstacles, moving and rotating; S7 yield and mutual fields) and the
+  sliding-mode torque (S3.1, S3.2, S3.5, S3.6). The per-robot
+  :class:`~ament_formation.core.control.controller.RobotController` calls it; the loop here calls
+  its kernel :func:`~ament_formation.core.control.law.robot_law_k` with the robot's rows (the same
+  law, fewer arrays handed over per call).
 * :func:`_run_segment` -- the 1 kHz loop over all robots (law in topological order of the current
   forest, so followers get the parent's commanded acceleration of the same sample; RK4 per robot),
   with :func:`ament_formation.core.control.encounters.decide` every ``decision_period_s``. It
@@ -33,19 +35,21 @@ from numba import njit
 import numpy as np
 
 from ament_formation.core.control.automaton import (
+    AutomatonArrays,
     MODE_C,
     MODE_MUTUAL,
     MODE_NAMES,
     MODE_OBSTACLE,
+    robot_mode_k,
     SwitchingParams,
 )
-from ament_formation.core.control.encounters import decide
+from ament_formation.core.control.encounters import decide, DecisionRobots
 from ament_formation.core.control.law import (
-    G_EPS,
-    G_LAMBDA,
     gains_vector,
     goals_and_fields,
-    robot_law,
+    robot_law_k,
+    Tracking,
+    tracking_row_k,
 )
 from ament_formation.core.model.disturbance import (
     Disturbance,
@@ -57,9 +61,13 @@ from ament_formation.core.model.dynamics import (
     PlantCoeffs,
     point_velocity_k,
     rk4_step_k,
-    RobotPlant,
+    robot_plant_k,
 )
-from ament_formation.core.model.obstacles import obstacle_arrays, obstacle_states
+from ament_formation.core.model.obstacles import (
+    obstacle_arrays,
+    obstacle_states,
+    ObstacleSnapshot,
+)
 from ament_formation.core.model.paths import quintic_hermite_k
 from ament_formation.core.sim.trajectory import SimResult
 
@@ -116,6 +124,79 @@ def reference_at(step, sub, dt, tab, ref, rows):
 
 
 @njit(cache=True)
+def _disturbance_start(t0, d_amp, d_freq, d_phase):
+    """The disturbance phasors (sin, cos) of every robot and g (N, 2) at ``t0`` [s]: restarted at
+    every segment, so no drift accumulates.
+    """
+    d_sin = np.empty_like(d_amp)
+    d_cos = np.empty_like(d_amp)
+    g_prev = np.empty((d_amp.shape[0], 2))
+    for i in range(d_amp.shape[0]):
+        disturbance_phasor_init_k(t0, d_freq[i], d_phase[i], d_sin[i], d_cos[i])
+        g_prev[i, 0], g_prev[i, 1] = disturbance_k(t0, d_amp[i], d_freq[i], d_phase[i])
+    return d_sin, d_cos, g_prev
+
+
+@njit(cache=True)
+def _obstacle_buffers(axes, static):
+    """An :data:`ObstacleSnapshot` to fill with :func:`obstacle_states` (semi-axes and static
+    flags are fixed).
+    """
+    m = axes.shape[0]
+    return ObstacleSnapshot(
+        np.empty((m, 2)),
+        np.empty((m, 2)),
+        np.empty((m, 2)),
+        np.empty(m),
+        np.empty(m),
+        np.empty(m),
+        axes,
+        static,
+    )
+
+
+@njit(cache=True)
+def _reach_record(reach, i, t, done):
+    """Append the reaching phase of robot i that ends at t [s] (S3.4) to ``reach``
+    (:class:`ReachArrays`; rows [robot, t0_s, sigma0_inf_mps, duration_s, completed]) while there
+    is room.
+    """
+    r = reach.count[0]
+    if r < reach.records.shape[0]:
+        rows = reach.records
+        rows[r, 0] = i
+        rows[r, 1] = reach.t0[i]
+        rows[r, 2] = reach.sigma0[i]
+        rows[r, 3] = t - reach.t0[i]
+        rows[r, 4] = done
+        reach.count[0] = r + 1
+
+
+@njit(cache=True)
+def _record(rk, x, torque, goal, mode, sat_flag, obstacles, rec):
+    """Sample ``rk`` of the record ``rec`` (:class:`RecordArrays`; nothing past its end): every
+    robot's state, torque, goal, avoiding and saturated flags, every obstacle's centre and
+    orientation.
+    """
+    if rk >= rec.state.shape[0]:
+        return
+    for i in range(x.shape[0]):
+        for q in range(5):
+            rec.state[rk, i, q] = x[i, q]
+        rec.torque[rk, i, 0] = torque[i, 0]
+        rec.torque[rk, i, 1] = torque[i, 1]
+        rec.goal[rk, i, 0] = goal[i, 0]
+        rec.goal[rk, i, 1] = goal[i, 1]
+        rec.avoiding[rk, i] = mode[i] != MODE_C
+        rec.saturated[rk, i] = sat_flag[i]
+    oc, ophi = obstacles.c, obstacles.phi
+    for j in range(oc.shape[0]):
+        rec.ob_center[rk, j, 0] = oc[j, 0]
+        rec.ob_center[rk, j, 1] = oc[j, 1]
+        rec.ob_phi[rk, j] = ophi[j]
+
+
+@njit(cache=True)
 def _run_segment(
     k0,
     k_end,
@@ -145,25 +226,16 @@ def _run_segment(
     parent, offset, order, orig_parent, orig_offset, team = graph
     rbody, coeffs, gains, d_amp, d_freq, d_phase, d_hc, d_hs = plant
     ob_c0, ob_v, ob_amp, ob_w, ob_phi0, ob_phid, oaxes, ostatic = obstacles
-    mode, tgt, sdir, t_entry, since, last_kind, last_tgt, last_exit, wc, wtgt = automaton
-    reach_pending, reach_active, reach_t0, reach_sig0, reach_rec, nreach = reach
-    rec_state, rec_torque, rec_goal, rec_avoid, rec_sat, rec_oc, rec_ophi = rec
+    mode, wc = automaton.mode, automaton.wc
+    reach_pending, reach_active, reach_t0, reach_sig0, _, _ = reach
     n = x.shape[0]
-    m = ob_c0.shape[0]
-    oc = np.empty((m, 2))
-    ov = np.empty((m, 2))
-    oa = np.empty((m, 2))
-    ophi = np.empty(m)
-    ophid = np.empty(m)
-    ophidd = np.empty(m)
-    eps = gains[G_EPS]
-    d_sin = np.empty_like(d_amp)
-    d_cos = np.empty_like(d_amp)
-    g_prev = np.empty((n, 2))
+    eps = gains.boundary_layer_mps
+    d_sin, d_cos, g_prev = _disturbance_start(k0 * dt, d_amp, d_freq, d_phase)
     pos = np.empty((n, 2))  # contiguous positions for decide (one compiled specialisation)
-    for i in range(n):  # (re-)start the disturbance phasors at t(k0): no drift accumulates
-        disturbance_phasor_init_k(k0 * dt, d_freq[i], d_phase[i], d_sin[i], d_cos[i])
-        g_prev[i, 0], g_prev[i, 1] = disturbance_k(k0 * dt, d_amp[i], d_freq[i], d_phase[i])
+    obs_now = _obstacle_buffers(oaxes, ostatic)
+    oc, ov, oa, ophi, ophid, ophidd, _, _ = obs_now
+    tracking = Tracking(parent, offset, ref, goal, goal_dot)
+    decision_robots = DecisionRobots(pos, pd, goal, goal_dot, vc, team, rbody, parent)
     for kk in range(k0, k_end):
         t = kk * dt
         obstacle_states(
@@ -180,68 +252,15 @@ def _run_segment(
             for i in range(n):
                 pos[i, 0] = x[i, 0]
                 pos[i, 1] = x[i, 1]
-            nev = decide(
-                t,
-                pos,
-                pd,
-                goal,
-                goal_dot,
-                vc,
-                team,
-                rbody,
-                oc,
-                ov,
-                ophi,
-                ophid,
-                oaxes,
-                ostatic,
-                mode,
-                tgt,
-                sdir,
-                t_entry,
-                since,
-                last_kind,
-                last_tgt,
-                last_exit,
-                wc,
-                wtgt,
-                parent,
-                prm,
-                ev,
-            )
+            nev = decide(t, decision_robots, obs_now, automaton, prm, ev)
             if nev > 0:
                 return kk, nev
         # ---- law, parents before children (S4 feed-forward of the current a_j)
         for q in range(n):
             i = order[q]
-            t1, t2, sx, sy, sat, acx, acy, wdx, wdy = robot_law(
-                i,
-                t,
-                x,
-                pd,
-                acmd,
-                parent,
-                offset,
-                ref,
-                goal,
-                goal_dot,
-                mode,
-                tgt,
-                sdir,
-                t_entry,
-                wc,
-                wtgt,
-                oc,
-                ov,
-                oa,
-                ophi,
-                ophid,
-                ophidd,
-                oaxes,
-                rbody,
-                coeffs,
-                gains,
-                prm,
+            track, state = tracking_row_k(tracking, i), robot_mode_k(automaton, i)
+            t1, t2, sx, sy, sat, acx, acy, wdx, wdy = robot_law_k(
+                i, t, x, pd, acmd, rbody, coeffs, obs_now, track, state, gains, prm
             )
             torque[i, 0] = t1
             torque[i, 1] = t2
@@ -254,45 +273,17 @@ def _run_segment(
             # ---- reaching phases (S3.4, S8.5)
             sig = max(abs(sx), abs(sy))
             if reach_pending[i]:
-                if reach_active[i] and nreach[0] < reach_rec.shape[0]:
-                    r = nreach[0]
-                    reach_rec[r, 0] = i
-                    reach_rec[r, 1] = reach_t0[i]
-                    reach_rec[r, 2] = reach_sig0[i]
-                    reach_rec[r, 3] = t - reach_t0[i]
-                    reach_rec[r, 4] = 0.0  # interrupted by the next switch
-                    nreach[0] = r + 1
+                if reach_active[i]:
+                    _reach_record(reach, i, t, 0.0)  # interrupted by the next switch
                 reach_pending[i] = False
                 reach_active[i] = True
                 reach_t0[i] = t
                 reach_sig0[i] = sig
             if reach_active[i] and sig <= eps:
-                if nreach[0] < reach_rec.shape[0]:
-                    r = nreach[0]
-                    reach_rec[r, 0] = i
-                    reach_rec[r, 1] = reach_t0[i]
-                    reach_rec[r, 2] = reach_sig0[i]
-                    reach_rec[r, 3] = t - reach_t0[i]
-                    reach_rec[r, 4] = 1.0
-                    nreach[0] = r + 1
+                _reach_record(reach, i, t, 1.0)
                 reach_active[i] = False
-        # ---- record
         if kk % rec_every == 0:
-            rk = kk // rec_every
-            if rk < rec_state.shape[0]:
-                for i in range(n):
-                    for q in range(5):
-                        rec_state[rk, i, q] = x[i, q]
-                    rec_torque[rk, i, 0] = torque[i, 0]
-                    rec_torque[rk, i, 1] = torque[i, 1]
-                    rec_goal[rk, i, 0] = goal[i, 0]
-                    rec_goal[rk, i, 1] = goal[i, 1]
-                    rec_avoid[rk, i] = mode[i] != MODE_C
-                    rec_sat[rk, i] = sat_flag[i]
-                for j in range(m):
-                    rec_oc[rk, j, 0] = oc[j, 0]
-                    rec_oc[rk, j, 1] = oc[j, 1]
-                    rec_ophi[rk, j] = ophi[j]
+            _record(kk // rec_every, x, torque, goal, mode, sat_flag, obs_now, rec)
         # ---- plant: RK4 with ZOH torque and g at t, t + dt/2, t + dt (S2.2)
         for i in range(n):
             # g at t (kept from the previous step), t + dt/2 and t + dt by phasor rotation
@@ -309,14 +300,7 @@ def _run_segment(
                 (gha, ghb),
                 (g1a, g1b),
                 dt,
-                RobotPlant(
-                    coeffs[0, i],
-                    coeffs[1, i],
-                    coeffs[2, i],
-                    coeffs[3, i],
-                    coeffs[4, i],
-                    coeffs[5, i],
-                ),
+                robot_plant_k(coeffs, i),
             )
             for q in range(5):
                 x[i, q] = nx[q]
@@ -344,7 +328,7 @@ class _Setup:
         )
         self.rbody = np.array([r.params.body_radius_m for r in robots], dtype=float)
         self.gains = gains_vector(scenario.control)
-        self.prm = switching.for_avoidance(scenario.avoidance).on_floor(scenario.floor).as_array()
+        self.prm = switching.for_avoidance(scenario.avoidance).on_floor(scenario.floor).compiled()
         bound = np.asarray(scenario.disturbance.accel_bound, dtype=float)
         dist = Disturbance.from_bounds(n, bound, scenario.disturbance.seed)
         self.d_amp, self.d_freq, self.d_phase = dist.amplitude, dist.freq_hz, dist.phase_rad
@@ -465,7 +449,7 @@ def _loop_arrays(setup: _Setup, n_rec: int):
         z2(),
         np.zeros((n, 6)),
     )
-    automaton = (
+    automaton = AutomatonArrays(
         np.zeros(n, dtype=np.int64),  # mode
         np.full(n, -1, dtype=np.int64),  # tgt
         np.ones(n),  # sdir
@@ -540,7 +524,7 @@ def simulate(
     clock = Clock(dt_s, dec_every, rec_every)
     robots, automaton, reach, rec = _loop_arrays(setup, n_rec)
     plant, obstacles = setup.plant_arrays(), setup.obstacle_arrays()
-    mode = automaton[0]
+    mode = automaton.mode
     reach_pending, reach_rec, nreach = reach.pending, reach.records, reach.count
     avoiding: frozenset[int] = frozenset()
     parents = setup.graph.rewire(set())
@@ -622,7 +606,7 @@ def simulate(
 
 def _drain_reaching(setup: _Setup, reach: ReachArrays, reaching: list[dict]) -> None:
     """Move the reaching-phase records the loop wrote (S3.4) to ``reaching`` as dicts."""
-    lam = float(setup.gains[G_LAMBDA])
+    lam = setup.gains.reaching_rate_mps2
     for r in range(int(reach.count[0])):
         i, t0, s0, tr, done = reach.records[r]
         reaching.append(
