@@ -40,6 +40,17 @@ def test_formerly_failing_random_scenario_has_no_hard_failure(path):
         assert m['floor_excursion_m'] <= 0.0, 'a robot body crossed the floor edge'
 
 
+@pytest.mark.parametrize(
+    'name', ['stuck1653', 'stuck346', 'chatter1660'], ids=['wall', 'parked_robot', 'two_obstacles']
+)
+def test_a_robot_held_still_on_its_limit_cycle_finds_its_way_to_a_free_goal(name):
+    # liveness (docs/law-changes.md §8-§10): these robots were held still until the end of the run
+    scenario = load_scenario(FILES[0].parent / f'{name}.yaml')
+    m = compute_metrics(simulate(scenario), scenario)
+    far = {rid: r['final_error_m'] for rid, r in m['robots'].items() if r['final_error_m'] > 0.5}
+    assert not far, f'robots ending more than 0.5 m from their goals: {far}'
+
+
 def _field(x, vd, obstacles=None):
     n = x.shape[0]
     pd = np.zeros((n, 2))  # heading 0, omega 0: p_dot = (v, 0)

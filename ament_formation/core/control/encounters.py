@@ -60,7 +60,7 @@ from ament_formation.core.control.automaton import (
     relative_velocity,
     threat_test,
 )
-from ament_formation.core.control.limit_cycle import choose_direction
+from ament_formation.core.control.limit_cycle import anomaly, choose_direction
 from ament_formation.core.model.ellipse import h_value
 from ament_formation.core.model.obstacles import ObstacleSnapshot
 
@@ -68,6 +68,8 @@ KIND_OBSTACLE = 1  # cool-down bookkeeping: last target was an obstacle
 KIND_AGENT = 2  # ... or a robot
 MAX_THREATS = 8  # robot threats kept per robot and decision
 RETARGET_MARGIN = 0.1  # S8.2 between robots: the new h_L must be lower by this (hysteresis)
+STUCK_S = 5.0  # liveness: a robot held still this long on its limit cycle reverses its sense
+STILL_MPS = 0.005  # ... "still": |p_dot| below this
 
 
 @njit(cache=True)
@@ -259,6 +261,69 @@ def _release(i, t, auto, ev, nev):
 
 
 @njit(cache=True)
+def _arc_leaves_floor(cx, cy, phi, big_r1, big_r2, psi0, dpsi, clear, prm):
+    """Whether the limit cycle's arc from anomaly ``psi0`` over ``dpsi`` (signed) passes closer
+    than ``clear`` to an edge of the declared floor (16 samples per turn, ends included).
+    """
+    c = math.cos(phi)
+    s = math.sin(phi)
+    m = max(2, int(abs(dpsi) / (2.0 * math.pi) * 16.0) + 2)
+    for q in range(m + 1):
+        psi = psi0 + dpsi * q / m
+        u = big_r1 * math.cos(psi)
+        w = big_r2 * math.sin(psi)
+        x = cx + c * u - s * w
+        y = cy + s * u + c * w
+        if (
+            x - clear < prm.floor_x_min_m
+            or x + clear > prm.floor_x_max_m
+            or y - clear < prm.floor_y_min_m
+            or y + clear > prm.floor_y_max_m
+        ):
+            return True
+    return False
+
+
+@njit(cache=True)
+def _floor_side(i, j, sense, robots, obstacles, prm):
+    """The rotation sense that keeps to the floor: ``sense``, unless its limit-cycle arc from robot
+    i to its goal passes closer than R_i + ``safety_gap_m`` to a floor edge while the other
+    side's arc does not (docs/law-changes.md section 9).
+    """
+    big_r1 = prm.limit_cycle_scale * obstacles.axes[j, 0]
+    big_r2 = prm.limit_cycle_scale * obstacles.axes[j, 1]
+    cx, cy, phi = obstacles.c[j, 0], obstacles.c[j, 1], obstacles.phi[j]
+    p, goal = robots.p, robots.goal
+    psi_a = anomaly(p[i, 0] - cx, p[i, 1] - cy, phi, big_r1, big_r2)
+    psi_g = anomaly(goal[i, 0] - cx, goal[i, 1] - cy, phi, big_r1, big_r2)
+    ccw = (psi_g - psi_a) % (2.0 * math.pi)
+    arc = ccw if sense > 0.0 else ccw - 2.0 * math.pi
+    other = arc - 2.0 * math.pi if sense > 0.0 else arc + 2.0 * math.pi
+    clear = robots.rbody[i] + prm.safety_gap_m
+    if _arc_leaves_floor(cx, cy, phi, big_r1, big_r2, psi_a, arc, clear, prm):
+        if not _arc_leaves_floor(cx, cy, phi, big_r1, big_r2, psi_a, other, clear, prm):
+            return -sense
+    return sense
+
+
+@njit(cache=True)
+def _held_still(i, j, t, robots, obstacles, auto, prm):
+    """Liveness (docs/law-changes.md section 8): robot i has been on obstacle j's limit cycle (or
+    in its current sense) for ``STUCK_S``, is still now, and is not parked (its goal's anomaly is
+    more than the parking anomaly away, so its field asks for full tangential speed).
+    """
+    if t - auto.t_entry[i] < STUCK_S or math.hypot(robots.pd[i, 0], robots.pd[i, 1]) > STILL_MPS:
+        return False
+    r1 = prm.limit_cycle_scale * obstacles.axes[j, 0]
+    r2 = prm.limit_cycle_scale * obstacles.axes[j, 1]
+    cx, cy, phi = obstacles.c[j, 0], obstacles.c[j, 1], obstacles.phi[j]
+    psi_a = anomaly(robots.p[i, 0] - cx, robots.p[i, 1] - cy, phi, r1, r2)
+    psi_g = anomaly(robots.goal[i, 0] - cx, robots.goal[i, 1] - cy, phi, r1, r2)
+    dd = (psi_g - psi_a + math.pi) % (2.0 * math.pi) - math.pi
+    return abs(dd) > prm.parking_anomaly_rad
+
+
+@njit(cache=True)
 def _obstacle_dir(i, j, robots, obstacles, auto, prm):
     """S6.6 rotation sense of robot i entering obstacle j; one sense per obstacle for everyone on
     it (S14.6): a robot already circling j gives its sense.
@@ -274,7 +339,7 @@ def _obstacle_dir(i, j, robots, obstacles, auto, prm):
     rvx, rvy = relative_velocity(
         zx, zy, pd[i, 0], pd[i, 1], ov[j, 0], ov[j, 1], obstacles.phi_dot[j]
     )
-    return choose_direction(
+    sense = choose_direction(
         zx,
         zy,
         rvx,
@@ -289,6 +354,7 @@ def _obstacle_dir(i, j, robots, obstacles, auto, prm):
         2.0 * prm.protected_scale * oaxes[j, 0],
         True,
     )
+    return _floor_side(i, j, sense, robots, obstacles, prm)
 
 
 @njit(cache=True)
@@ -578,6 +644,11 @@ def _obstacle_transitions(t, robots, obstacles, auto, obt, th, prm, ev, nev):
     for i in range(mode.shape[0]):
         if mode[i] == MODE_OBSTACLE and tgt[i] >= 0:
             j = tgt[i]
+            if _held_still(i, j, t, robots, obstacles, auto, prm):  # liveness: the other way
+                s = -sdir[i]
+                nev = _leave(i, t, auto, ev, nev)
+                nev = _enter(i, t, MODE_OBSTACLE, j, s, auto, ev, nev)
+                continue
             jn = obt.j[i]
             if jn >= 0 and not obt.cur_em[i] and (obt.em[i] or obt.h_l[i] < obt.cur_h_l[i]):
                 if obstacles.static[j] and obstacles.static[jn]:
@@ -625,7 +696,8 @@ def _obstacle_transitions(t, robots, obstacles, auto, obt, th, prm, ev, nev):
 def _stand_on_yield(i, t, robots, auto, th, prm, ev, nev):
     """Stage 4 for robot i avoiding an obstacle (stand-on): two stand-on robots, the higher ID
     yields, in an emergency only; not on the same obstacle (one sense, the safety barrier spaces
-    them: S14.6). Returns the event count.
+    them: S14.6), nor again to the robot it left for this obstacle (that pair would flip between
+    the two reasons every dwell; the barrier spaces them). Returns the event count.
     """
     mode, tgt = auto.mode, auto.tgt
     kb = -1
@@ -633,7 +705,15 @@ def _stand_on_yield(i, t, robots, auto, th, prm, ev, nev):
     for q in range(th.count[i]):
         k = th.k[i, q]
         same = tgt[k] == tgt[i]
-        if th.em[i, q] and mode[k] == MODE_OBSTACLE and k < i and not same and th.h_em[i, q] < hb:
+        left_k = auto.last_kind[i] == KIND_AGENT and auto.last_tgt[i] == k
+        if (
+            th.em[i, q]
+            and mode[k] == MODE_OBSTACLE
+            and k < i
+            and not same
+            and not left_k
+            and th.h_em[i, q] < hb
+        ):
             kb = k
             hb = th.h_em[i, q]
     if kb >= 0 and not reacts_to(kb, i, mode, tgt, robots.parent):
