@@ -37,7 +37,7 @@ from ament_formation.core.control.law import (
     Tracking,
 )
 from ament_formation.core.errors import ConfigError
-from ament_formation.core.model.dynamics import PlantCoeffs, point_velocities
+from ament_formation.core.model.dynamics import PlantCoeffs, point_velocities, ROW_D
 from ament_formation.core.model.obstacles import (
     obstacle_arrays,
     obstacle_states,
@@ -488,7 +488,7 @@ class RobotController:
             sc.acmd[me] = 0.0
             sc.rbody[me] = self.params.body_radius_m
             sc.team[me] = self.team
-            sc.coeffs[4, me] = self._own_coeffs[4]
+            sc.coeffs[ROW_D, me] = self._own_coeffs[ROW_D]
         return sc
 
     def _pack(self, sc: _Scratch, own: np.ndarray, others: Mapping[int, NeighbourState]) -> list:
@@ -496,7 +496,7 @@ class RobotController:
         mode and target (S7 acyclicity) and, when known, goal (into ``ref``). Returns the rows
         whose goal is not known.
         """
-        x, acmd, rbody, team, d = sc.x, sc.acmd, sc.rbody, sc.team, sc.coeffs[4]
+        x, acmd, rbody, team, d = sc.x, sc.acmd, sc.rbody, sc.team, sc.coeffs[ROW_D]
         mode, tgt, ref, row = sc.state.mode, sc.state.tgt, sc.ref, sc.row
         me = sc.me
         x[me] = own
@@ -567,7 +567,7 @@ class RobotController:
 
     def _point_velocities(self, sc: _Scratch) -> np.ndarray:
         """(N, 2) p_dot = S1(theta) x2 of every row."""
-        return point_velocities(sc.x, np.ascontiguousarray(sc.coeffs[4]))
+        return point_velocities(sc.x, np.ascontiguousarray(sc.coeffs[ROW_D]))
 
     def _obstacles_at(self, t_s: float, obstacles: ObstacleStates | None, sc: _Scratch) -> tuple:
         """(centres, velocities, accelerations, phi, phi_dot, phi_ddot, semi-axes) of the

@@ -33,7 +33,7 @@ from ament_formation.core.control.limit_cycle import (
 )
 from ament_formation.core.control.safety import accel_limit, clip_norm, safe_field
 from ament_formation.core.control.smc import smc_torque_k
-from ament_formation.core.model.dynamics import robot_plant_k
+from ament_formation.core.model.dynamics import robot_plant_k, ROW_TAU_MAX
 
 Gains = namedtuple(
     'Gains',
@@ -271,7 +271,7 @@ def robot_law_k(i, t, x, pd, acmd, rbody, coeffs, obstacles, track, state, gains
         vddx,
         vddy,
         plant,
-        coeffs[6, i],
+        coeffs[ROW_TAU_MAX, i],
         k,
         k,
         gains.boundary_layer_mps,

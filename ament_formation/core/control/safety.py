@@ -28,6 +28,8 @@ import math
 
 from numba import njit
 
+from ament_formation.core.model.dynamics import ROW_M_TILDE, ROW_R, ROW_TAU_MAX
+
 
 PASSES = 4  # alternating projections of the barrier (then a stop if a robot's is still violated)
 
@@ -44,7 +46,7 @@ def clip_norm(vx, vy, cap):
 @njit(cache=True)
 def accel_limit(coeffs, i):
     """Largest point acceleration the torque limit allows, 2 tau_max / (m~ r) [m/s^2] (S2.2)."""
-    return 2.0 * coeffs[6, i] / (coeffs[0, i] * coeffs[2, i])
+    return 2.0 * coeffs[ROW_TAU_MAX, i] / (coeffs[ROW_M_TILDE, i] * coeffs[ROW_R, i])
 
 
 @njit(cache=True)

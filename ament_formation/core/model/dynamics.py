@@ -141,6 +141,9 @@ def state_derivative_k(x, y, th, v, w, t1, t2, g1, g2, mt, It, r, a, d, mc):
     return dx, dy, w, dv, dw
 
 
+# rows of the (7, N) plant coefficient array [m~, I~, r, a, d, m_c, tau_max] (PlantCoeffs stacked)
+ROW_M_TILDE, ROW_I_TILDE, ROW_R, ROW_A, ROW_D, ROW_M_C, ROW_TAU_MAX = range(7)
+
 RobotPlant = namedtuple('RobotPlant', ['m_tilde', 'I_tilde', 'r', 'a', 'd', 'm_c'])
 RobotPlant.__doc__ = """One robot's plant coefficients as :func:`rk4_step_k` takes them (floats,
 the fields of :class:`PlantCoeffs` for one robot without the torque limit)."""
@@ -152,7 +155,12 @@ def robot_plant_k(coeffs, i):
     [m~, I~, r, a, d, m_c, tau_max] (the torque limit, row 6, is not part of it).
     """
     return RobotPlant(
-        coeffs[0, i], coeffs[1, i], coeffs[2, i], coeffs[3, i], coeffs[4, i], coeffs[5, i]
+        coeffs[ROW_M_TILDE, i],
+        coeffs[ROW_I_TILDE, i],
+        coeffs[ROW_R, i],
+        coeffs[ROW_A, i],
+        coeffs[ROW_D, i],
+        coeffs[ROW_M_C, i],
     )
 
 

@@ -62,6 +62,7 @@ from ament_formation.core.model.dynamics import (
     point_velocity_k,
     rk4_step_k,
     robot_plant_k,
+    ROW_D,
 )
 from ament_formation.core.model.obstacles import (
     obstacle_arrays,
@@ -243,7 +244,7 @@ def _run_segment(
         )
         reference_at(kk - ref_k0, ref_sub, dt, ref_tab, ref, leader_rows)
         for i in range(n):
-            pvx, pvy = point_velocity_k(x[i, 2], x[i, 3], x[i, 4], coeffs[4, i])
+            pvx, pvy = point_velocity_k(x[i, 2], x[i, 3], x[i, 4], coeffs[ROW_D, i])
             pd[i, 0] = pvx
             pd[i, 1] = pvy
         decision = kk % dec_every == 0 and not (skip_decide and kk == k0)
