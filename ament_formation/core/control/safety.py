@@ -219,6 +219,18 @@ def _floor_barriers(p, vdx, vdy, vddx, vddy, rb, a_brk, prm, brake):
     )
 
 
+@njit(cache=True)
+def _near_wall(px, py, rb, prm):
+    """Whether the body (radius ``rb`` about p) is within ``safety_range_m`` of a floor edge."""
+    gap = min(
+        px - prm.floor_x_min_m,
+        prm.floor_x_max_m - px,
+        py - prm.floor_y_min_m,
+        prm.floor_y_max_m - py,
+    )
+    return gap - rb < prm.safety_range_m
+
+
 # implements: S14
 @njit(cache=True)
 def safe_field(i, x, pd, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, rbody, gain_k, prm):
@@ -230,26 +242,31 @@ def safe_field(i, x, pd, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, rbody
     a_brk = prm.brake_gain_fraction * gain_k  # the S3 loop's deceleration without feed-forward
     p = (x[i, 0], x[i, 1], pd[i, 0], pd[i, 1])
     rb = rbody[i]
+    walls = _near_wall(x[i, 0], x[i, 1], rb, prm)
     for _ in range(PASSES):  # alternating projections onto the robots', walls' and obstacles'
         vdx, vdy, vddx, vddy, _act = _robot_barriers(
             i, x, pd, vdx, vdy, vddx, vddy, rbody, a_brk, prm, False
         )
-        vdx, vdy, vddx, vddy = _floor_barriers(p, vdx, vdy, vddx, vddy, rb, a_brk, prm, False)
+        if walls:
+            vdx, vdy, vddx, vddy = _floor_barriers(p, vdx, vdy, vddx, vddy, rb, a_brk, prm, False)
         vdx, vdy, vddx, vddy = _obstacle_barriers(
             p, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, a_brk, prm, False
         )
     qx, qy, _a, _b, _act = _robot_barriers(
         i, x, pd, vdx, vdy, vddx, vddy, rbody, a_brk, prm, False
     )
-    fx, fy, _c, _d = _floor_barriers(p, vdx, vdy, vddx, vddy, rb, a_brk, prm, False)
-    squeezed = abs(qx - vdx) + abs(qy - vdy) + abs(fx - vdx) + abs(fy - vdy)
+    squeezed = abs(qx - vdx) + abs(qy - vdy)
+    if walls:
+        fx, fy, _c, _d = _floor_barriers(p, vdx, vdy, vddx, vddy, rb, a_brk, prm, False)
+        squeezed += abs(fx - vdx) + abs(fy - vdy)
     if squeezed > 1e-9:  # between a robot or wall and an obstacle: stop (obstacles may move it)
         vdx, vdy, vddx, vddy = 0.0, 0.0, 0.0, 0.0
     # the braking acceleration where the robot's own velocity is beyond the limits
     vdx, vdy, vddx, vddy, _act = _robot_barriers(
         i, x, pd, vdx, vdy, vddx, vddy, rbody, a_brk, prm, True
     )
-    vdx, vdy, vddx, vddy = _floor_barriers(p, vdx, vdy, vddx, vddy, rb, a_brk, prm, True)
+    if walls:
+        vdx, vdy, vddx, vddy = _floor_barriers(p, vdx, vdy, vddx, vddy, rb, a_brk, prm, True)
     return _obstacle_barriers(
         p, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, a_brk, prm, True
     )
