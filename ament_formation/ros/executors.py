@@ -219,8 +219,36 @@ def run_node(
                     f'publish thread: {sender.sent} sent, {sender.dropped} dropped (queue full), '
                     f'{sender.errors} failed, longest rcl publish {sender.longest_call_s:.3f} s'
                 )
+            if on_exit is not None:
+                _wait_acked(node, LAST_WORD_ACK_S)
             node.destroy_node()
         rclpy.try_shutdown()
+
+
+LAST_WORD_ACK_S = 0.5  # how long a process waits for its last word to be acknowledged
+
+
+def _wait_acked(node, timeout_s: float) -> None:
+    """Wait, up to ``timeout_s`` in all, until the reliable publishers of ``node`` and of the
+    nodes it hosts have their messages acknowledged by every matched subscriber (so the last word
+    of :func:`run_node`'s ``on_exit``, a zero torque, is not lost when the node is destroyed right
+    after it). Best effort: a context already shut down ends the wait.
+    """
+    from rclpy.duration import Duration
+    from rclpy.qos import ReliabilityPolicy
+
+    end = time.monotonic() + timeout_s
+    for n in (node, *getattr(node, 'composed_nodes', ())):
+        for pub in list(n.publishers):
+            left = end - time.monotonic()
+            if left <= 0.0:
+                return
+            if pub.qos_profile.reliability != ReliabilityPolicy.RELIABLE:
+                continue
+            try:
+                pub.wait_for_all_acked(Duration(seconds=left))
+            except Exception:  # noqa: BLE001 - context or publisher already gone
+                return
 
 
 def _publish_thread(name: str, node):
