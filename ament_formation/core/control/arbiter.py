@@ -20,6 +20,7 @@ from typing import Mapping
 import numpy as np
 
 from ament_formation.core.control.automaton import (
+    AutomatonArrays,
     AutomatonState,
     MODE_C,
     MODE_MUTUAL,
@@ -32,11 +33,7 @@ from ament_formation.core.control.encounters import decide, DecisionRobots, KIND
 from ament_formation.core.control.law import gains_vector, goal_fields
 from ament_formation.core.control.rewiring import FormationGraph
 from ament_formation.core.model.dynamics import PlantCoeffs, point_velocities
-from ament_formation.core.model.obstacles import (
-    obstacle_arrays,
-    obstacle_states,
-    ObstacleSnapshot,
-)
+from ament_formation.core.model.obstacles import ObstacleField, ObstacleSnapshot
 
 
 class EncounterArbiter:
@@ -71,19 +68,9 @@ class EncounterArbiter:
         self._team = {rid: scenario.team_leader(rid) for rid in self.ids}
         self._paths = {r.id: (r.path if r.leader else None) for r in robots}
         self.obstacle_names = tuple(o.name for o in scenario.obstacles)
-        (
-            self._c0,
-            self._v,
-            self._amp,
-            self._w,
-            self._phi0,
-            self._phid,
-            self._axes,
-            self._static,
-        ) = obstacle_arrays(scenario.obstacles)
-        m = len(self.obstacle_names)
-        self._obs = (np.empty((m, 2)), np.empty((m, 2)), np.empty((m, 2)))
-        self._obs += (np.empty(m), np.empty(m), np.empty(m))  # written by every decision
+        self._field = ObstacleField(scenario.obstacles)
+        self._axes, self._static = self._field.axes, self._field.static
+        self._obs = self._field.buffers()  # written by every decision
         self._rewired: dict[tuple, dict] = {}  # S9 parents by avoiding set (the graph is fixed)
         self.state = AutomatonState(n)  # all robots, rows in robot-id order
         self.events: list[dict] = []  # robot-robot events decided here (ids, scenario time)
@@ -190,23 +177,7 @@ class EncounterArbiter:
         """(centres, velocities, accelerations, phi, phi_dot, phi_ddot) of the obstacles at
         ``t_s`` (S6.1 motion model).
         """
-        oc, ov, oa, ophi, ophid, ophidd = self._obs
-        obstacle_states(
-            t_s,
-            self._c0,
-            self._v,
-            self._amp,
-            self._w,
-            self._phi0,
-            self._phid,
-            oc,
-            ov,
-            oa,
-            ophi,
-            ophid,
-            ophidd,
-        )
-        return self._obs
+        return self._field.fill(t_s, self._obs)
 
     def _sub_state(self, t_s: float, known: list[int], rows: np.ndarray) -> AutomatonState:
         """The automaton state of the known robots (robot targets as rows of the sub-problem; a
@@ -216,18 +187,7 @@ class EncounterArbiter:
         full = self.state
         n = len(known)
         sub = AutomatonState(n)
-        for name in (
-            'mode',
-            'tgt',
-            'sdir',
-            't_entry',
-            'since',
-            'last_kind',
-            'last_tgt',
-            'last_exit',
-            'wc',
-            'wtgt',
-        ):
+        for name in AutomatonArrays._fields:
             getattr(sub, name)[:] = getattr(full, name)[rows]
         idx_row = {self.index[r]: q for q, r in enumerate(known)}
         for q in np.flatnonzero((sub.mode == MODE_YIELD) | (sub.mode == MODE_MUTUAL)):

@@ -72,19 +72,7 @@ class SwitchingParams:
     floor_m: tuple[float, float, float, float] | None = None
 
     def __post_init__(self) -> None:
-        for name in (
-            'decision_period_s',
-            'imminent_s',
-            'agent_horizon_s',
-            'teammate_rel_speed_mps',
-            'mutual_drift_tau_s',
-            'mutual_drift_cap_mps',
-            'speed_limit_mps',
-            'brake_gain_fraction',
-            'safety_gap_m',
-            'safety_range_m',
-            'safety_lag_s',
-        ):
+        for name in ('decision_period_s', *COMPILED_OWN_FIELDS):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ConfigError(f'must be a finite number > 0 (got {value!r})', name)
@@ -110,25 +98,26 @@ class SwitchingParams:
         return Switching(**{name: float(values[name]) for name in Switching._fields})
 
 
+# SwitchingParams' own numbers that the compiled code reads (each finite and > 0)
+COMPILED_OWN_FIELDS = (
+    'imminent_s',
+    'agent_horizon_s',
+    'teammate_rel_speed_mps',
+    'mutual_drift_tau_s',
+    'mutual_drift_cap_mps',
+    'speed_limit_mps',
+    'brake_gain_fraction',
+    'safety_gap_m',
+    'safety_range_m',
+    'safety_lag_s',
+)
 FLOOR_FIELDS = ('floor_x_min_m', 'floor_x_max_m', 'floor_y_min_m', 'floor_y_max_m')
 
 
 Switching = namedtuple(
     'Switching',
     [f.name for f in dataclasses.fields(AvoidanceParams)]
-    + [
-        'imminent_s',
-        'agent_horizon_s',
-        'teammate_rel_speed_mps',
-        'mutual_drift_tau_s',
-        'mutual_drift_cap_mps',
-        'speed_limit_mps',
-        'brake_gain_fraction',
-        'safety_gap_m',
-        'safety_range_m',
-        'safety_lag_s',
-        *FLOOR_FIELDS,
-    ],
+    + [*COMPILED_OWN_FIELDS, *FLOOR_FIELDS],
 )
 Switching.__doc__ = """:class:`SwitchingParams` for the compiled code: a named tuple of floats
 (numba reads a field as fast as an array slot), fields named and in the units of

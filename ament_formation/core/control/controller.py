@@ -39,8 +39,7 @@ from ament_formation.core.control.law import (
 from ament_formation.core.errors import ConfigError
 from ament_formation.core.model.dynamics import PlantCoeffs, point_velocities, ROW_D
 from ament_formation.core.model.obstacles import (
-    obstacle_arrays,
-    obstacle_states,
+    ObstacleField,
     ObstacleSnapshot,
     ObstacleSpec,
     ObstacleStates,
@@ -187,7 +186,7 @@ class _Scratch:
     arrays.
     """
 
-    def __init__(self, n: int, own_coeffs: np.ndarray, m: int):
+    def __init__(self, n: int, own_coeffs: np.ndarray, obstacle_buffers: tuple):
         self.coeffs = np.repeat(own_coeffs[:, None], n, axis=1)
         fresh = AutomatonState(n)
         self._ints0 = np.stack([fresh.mode, fresh.tgt, fresh.last_kind, fresh.last_tgt])
@@ -210,14 +209,7 @@ class _Scratch:
         )
         self._rows = np.empty((2, n), dtype=np.int64)
         self.orig_parent, self.parent_row = self._rows
-        self.obstacles = (
-            np.empty((m, 2)),
-            np.empty((m, 2)),
-            np.empty((m, 2)),
-            np.empty(m),
-            np.empty(m),
-            np.empty(m),
-        )
+        self.obstacles = obstacle_buffers
         self.events = np.zeros((8 * n + 16, 6))
         self.x = np.zeros((n, 5))
         self.acmd = np.zeros((n, 2))
@@ -318,16 +310,8 @@ class RobotController:
         self._obstacle_index: dict[str, int] = {}  # name -> first index (as tuple.index)
         for j, name in enumerate(self.obstacle_names):
             self._obstacle_index.setdefault(name, j)
-        (
-            self._c0,
-            self._v,
-            self._amp,
-            self._w,
-            self._phi0,
-            self._phid,
-            self._axes,
-            self._static,
-        ) = obstacle_arrays(obstacles)
+        self._field = ObstacleField(obstacles)
+        self._axes, self._static = self._field.axes, self._field.static
         self._state = AutomatonState(1)  # own automaton; target kept as obstacle index / robot id
         self._target_id = -1
         self._parent: int | None = None
@@ -479,7 +463,7 @@ class RobotController:
         n = len(ids)
         sc = self._scratch.get(n)
         if sc is None:
-            sc = self._scratch[n] = _Scratch(n, self._own_coeffs, len(self.obstacle_names))
+            sc = self._scratch[n] = _Scratch(n, self._own_coeffs, self._field.buffers())
         sc.reset()
         if sc.ids != ids:
             sc.ids = ids
@@ -586,27 +570,7 @@ class RobotController:
                     obstacles.semi_axes_m,
                 )
             )
-        return self._obstacle_states(t_s, sc)
-
-    def _obstacle_states(self, t_s: float, sc: _Scratch) -> tuple:
-        """The specs' motion model at ``t_s`` (S6.1) into the scratch's obstacle arrays."""
-        oc, ov, oa, ophi, ophid, ophidd = sc.obstacles  # every entry written below
-        obstacle_states(
-            t_s,
-            self._c0,
-            self._v,
-            self._amp,
-            self._w,
-            self._phi0,
-            self._phid,
-            oc,
-            ov,
-            oa,
-            ophi,
-            ophid,
-            ophidd,
-        )
-        return oc, ov, oa, ophi, ophid, ophidd, self._axes
+        return (*self._field.fill(t_s, sc.obstacles), self._axes)  # the motion model (S6.1)
 
     def _goals(self, t_s: float, sc: _Scratch, blind: list) -> None:
         """References (own: r(t) when leading; others: their goal when known, else their

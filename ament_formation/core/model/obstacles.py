@@ -100,26 +100,37 @@ class ObstacleField:
     def __len__(self) -> int:
         return len(self.specs)
 
+    @property
+    def axes(self) -> np.ndarray:
+        """(M, 2) semi-axes of P [m] (read-only use)."""
+        return self._axes
+
+    @property
+    def static(self) -> np.ndarray:
+        """(M,) bool: neither moving nor rotating."""
+        return self._static
+
+    def buffers(self) -> tuple:
+        """Fresh (centre, velocity, acceleration (M, 2); phi, phi_dot, phi_ddot (M,)) arrays for
+        :meth:`fill`.
+        """
+        m = len(self.specs)
+        return (np.empty((m, 2)), np.empty((m, 2)), np.empty((m, 2))) + (
+            np.empty(m),
+            np.empty(m),
+            np.empty(m),
+        )
+
+    def fill(self, t_s: float, out: tuple) -> tuple:
+        """The motion at ``t_s`` [s] written into ``out`` (from :meth:`buffers`); returns it."""
+        obstacle_states(
+            float(t_s), self._c0, self._v, self._amp, self._w, self._phi0, self._phidot, *out
+        )
+        return out
+
     def at(self, t_s: float) -> ObstacleStates:
         """States of every obstacle at time ``t_s`` [s] (:func:`obstacle_states`)."""
-        m = len(self.specs)
-        oc, ov, oa = np.empty((m, 2)), np.empty((m, 2)), np.empty((m, 2))
-        ophi, ophid, ophidd = np.empty(m), np.empty(m), np.empty(m)
-        obstacle_states(
-            float(t_s),
-            self._c0,
-            self._v,
-            self._amp,
-            self._w,
-            self._phi0,
-            self._phidot,
-            oc,
-            ov,
-            oa,
-            ophi,
-            ophid,
-            ophidd,
-        )
+        oc, ov, oa, ophi, ophid, ophidd = self.fill(t_s, self.buffers())
         return ObstacleStates(
             center_m=oc,
             velocity_mps=ov,
