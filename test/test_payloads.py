@@ -254,13 +254,13 @@ def test_fuzz_into_controller_and_coordinator(ros_context):
             coord._on_mode(k % 4, String(data=text))
         assert ctrl.rejected['graph'] == 1000 and ctrl.rejected['encounters'] == 1000
         assert coord.rejected['mode'] == 1000
-        level, _, values = ctrl._inputs_status()
+        level, _, values = ctrl.rejections.status()
         assert (
             level == diag.WARN
             and values['rejected_graph'] == 1000
             and values['rejected_encounters'] == 1000
         )
-        level, _, values = coord._inputs_status()
+        level, _, values = coord.rejections.status()
         assert level == diag.WARN and values['rejected_mode'] == 1000
         assert ctrl.graph is None and coord.modes == {}  # nothing bad was taken
         # still working: a good graph (robot 2 follows 3) and a good mode are taken
@@ -273,6 +273,50 @@ def test_fuzz_into_controller_and_coordinator(ros_context):
     finally:
         ctrl.destroy_node()
         coord.destroy_node()
+
+
+def test_fuzz_into_world_and_live_view(ros_context, tmp_path):
+    """The other receivers: 1,000 bad /formation/graph payloads through the world's and the live
+    view's callbacks and 1,000 bad robot_<id>/mode payloads through the live view's: nothing
+    raises, every one is counted in their 'inputs' status (WARN), and a good graph still works.
+    """
+    from std_msgs.msg import String
+
+    from ament_formation.nodes.live_view import LiveViewNode, LiveViewParams
+    from ament_formation.nodes.world import WorldNode, WorldParams
+    from ament_formation.ros import diagnostics as diag
+
+    scenario = str(DATA / 'paper_short.yaml')
+    world = WorldNode(
+        context=ros_context,
+        params=WorldParams(
+            scenario=scenario,
+            pty_dir=str(tmp_path / 'pty'),
+            camera_enabled=False,
+            exit_at_end=False,
+        ),
+    )
+    live = LiveViewNode(context=ros_context, params=LiveViewParams(scenario=scenario, port=0))
+    try:
+        for text in bad_payloads(pl.GRAPH_V1, 1000, 31):
+            world._on_graph(String(data=text))
+            live._on_graph(String(data=text))
+        for k, text in enumerate(bad_payloads(pl.MODE_V1, 1000, 32)):
+            live._on_mode(k % 2, String(data=text))
+        assert world.rejections.counts == {'graph': 1000}
+        assert live.rejected['graph'] == 1000 and live.rejected['mode'] == 1000
+        assert live.graph is None and live.modes == {} and world.start_s is None
+        for node, expected in ((world, {'rejected_graph': 1000}), (live, {'rejected_mode': 1000})):
+            statuses = {t.name: (lvl, vals) for t, lvl, _m, vals in node.diag._evaluate()}
+            level, values = statuses[f'{node.get_name()}: inputs']
+            assert level == diag.WARN and expected.items() <= values.items(), values
+        good = m.graph_msg(m.GraphMessage(3, {0: None, 1: 0}, {}, start_s=12.5))
+        world._on_graph(good)
+        live._on_graph(good)
+        assert world.start_s == 12.5 and live.graph.revision == 3 and live.start_s == 12.5
+    finally:
+        live.destroy_node()
+        world.destroy_node()
 
 
 def test_running_controller_process_survives_bad_payloads(tmp_path):

@@ -419,7 +419,10 @@ class ControllerNode(Node):
         self.assigned = AssignedLaw(self.law)  # the coordinator's assignment applied (S7, S8.3)
         self.events: list[dict] = []  # mode events of the law (scenario time)
         self.last_wheel_s = -math.inf
-        self.rejected = {'pose': 0, 'wheel': 0, 'parent': 0, 'graph': 0, 'encounters': 0}
+        self.rejections = diag.Rejections(
+            ('pose', 'wheel', 'parent', 'graph', 'encounters'), lambda: self.now_s()
+        )
+        self.rejected = self.rejections.counts  # kind -> count, reported as 'robot_<id> inputs'
         self.safety = 'waiting'  # waiting | running | stopped_pose | stopped_wheels | hold_parent
         self.mode = {'mode': 'hold', 'target': None, 'direction': None, 'avoiding': False}
         self._mode_sent = None
@@ -482,8 +485,7 @@ class ControllerNode(Node):
         self.control_watch = self.diag.watch(
             f'{robot} control loop', 1.0 / self.prm.control_rate_hz, hardware_id=robot
         )
-        self.diag.add(f'{robot} inputs', self._inputs_status, hardware_id=robot)
-        self._rejected_seen = (0, -math.inf)  # (total, when it last grew [s])
+        self.diag.add(f'{robot} inputs', self.rejections.status, hardware_id=robot)
 
     def _make_stop_lead(self, robot) -> StopLead:
         """The camera-loss stop's :class:`StopLead` for this robot's ``robot`` parameters and the
@@ -855,20 +857,6 @@ class ControllerNode(Node):
             else diag.ERROR
         )
         return level, self.safety, values
-
-    def _inputs_status(self) -> tuple[int, str, dict]:
-        total, since = sum(self.rejected.values()), self._rejected_seen[1]
-        now = self.now_s()
-        if total != self._rejected_seen[0]:
-            self._rejected_seen = (total, since := now)
-        values = {f'rejected_{k}': v for k, v in self.rejected.items()}
-        if total and now - since <= 10.0:  # a stable message: a flood publishes once
-            return diag.WARN, 'inputs rejected in the last 10 s', values
-        return (
-            diag.OK,
-            'inputs valid' if not total else 'no input rejected in the last 10 s',
-            values,
-        )
 
     def _safety(self, status: str) -> None:
         if status != self.safety:

@@ -142,13 +142,13 @@ class CoordinatorNode(Node):
         self._heard_mono: dict[
             int, float
         ] = {}  # when each robot's state last arrived [s, monotonic]
-        self.rejected = {'mode': 0, 'state': 0}
-        self._rejected_seen = (0, -math.inf)  # (total, when it last grew [s])
+        self.rejections = diag.Rejections(('mode', 'state'), lambda: self.now_s())
+        self.rejected = self.rejections.counts  # kind -> count, reported as 'inputs'
         self._marker_keys: frozenset | None = None  # (ns, id) drawn by the last marker array
         self.diag = diag.Diagnostics(self)
         self.diag.add('graph', self._graph_status)
         self.diag.add('robots', self._robots_status)
-        self.diag.add('inputs', self._inputs_status)
+        self.diag.add('inputs', self.rejections.status)
 
         self.pub_graph = self.create_publisher(String, '/formation/graph', QOS_GRAPH)
         self.pub_markers = self.create_publisher(MarkerArray, '/formation/markers', QOS_MARKERS)
@@ -363,20 +363,6 @@ class CoordinatorNode(Node):
         if self.start_s is not None and silent:
             return diag.WARN, 'silent: ' + ', '.join(f'robot_{i}' for i in silent), values
         return diag.OK, f'{len(states) - len(silent)}/{len(self.ids)} robots heard', values
-
-    def _inputs_status(self) -> tuple[int, str, dict]:
-        total, since = sum(self.rejected.values()), self._rejected_seen[1]
-        now = self.now_s()
-        if total != self._rejected_seen[0]:
-            self._rejected_seen = (total, since := now)
-        values = {f'rejected_{k}': v for k, v in self.rejected.items()}
-        if total and now - since <= 10.0:  # a stable message: a flood publishes once
-            return diag.WARN, 'inputs rejected in the last 10 s', values
-        return (
-            diag.OK,
-            'inputs valid' if not total else 'no input rejected in the last 10 s',
-            values,
-        )
 
 
 def main(args: list[str] | None = None) -> int:

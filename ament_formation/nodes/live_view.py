@@ -43,6 +43,11 @@ Parameters
   image_rate_hz   float  camera frames sent [Hz] (0: no image)                 default 5
   jpeg_quality    int    JPEG quality, 1..100                                  default 75
   image_topic     str    the camera topic                         default /camera/image_raw
+
+Diagnostics (/diagnostics, docs/diagnostics.md)
+  "formation_live_view: server"  OK: its URL, what some client shows, messages sent per channel
+  "formation_live_view: inputs"  WARN for 10 s after a rejected input (graph/mode payload, non-
+                                 finite state or torque, unusable image), with the counts
 """
 
 from __future__ import annotations
@@ -70,6 +75,7 @@ from ament_formation.core.sim.scene import (
     scenario_time_s,
     Scene,
 )
+from ament_formation.ros import diagnostics as diag
 from ament_formation.ros import messages as msgs
 from ament_formation.ros.executors import run_node
 from ament_formation.ros.params import declare_dataclass
@@ -626,7 +632,9 @@ class LiveViewNode(Node):
         self.parents: dict = {}
         self.start_s: float | None = None
         self.sent = {'scene': 0, 'image': 0, 'series': 0, 'status': 0}
-        self.rejected = 0
+        kinds = ('graph', 'mode', 'state', 'torque', 'image')
+        self.rejections = diag.Rejections(kinds, time.monotonic)
+        self.rejected = self.rejections.counts  # kind -> count, reported as 'inputs'
         self._last_image_s = -math.inf
         self._groups: dict[str, list] = {'robots': [], 'torques': [], 'image': []}
         self._outline_points: dict = {}  # foxglove points of the obstacle outlines, made once
@@ -685,6 +693,9 @@ class LiveViewNode(Node):
         self.create_timer(1.0 / self.prm.series_rate_hz, self._publish_series)
         self.create_timer(1.0, self._publish_status)
         self.create_timer(0.25, self._update_subscriptions)
+        self.diag = diag.Diagnostics(self)
+        self.diag.add('server', self._server_status)
+        self.diag.add('inputs', self.rejections.status)
         where = (
             'this machine only'
             if is_loopback(self.prm.host)
@@ -770,6 +781,21 @@ class LiveViewNode(Node):
             )
         ]
 
+    # ------------------------------------------------------------------ diagnostics
+    def _reject(self, kind: str) -> None:
+        self.rejections.counts[kind] += 1
+        self.diag.changed()  # the first of a flood is published at once
+
+    def _server_status(self) -> tuple[int, str, dict]:
+        shown = sorted(g for g, subs in self._groups.items() if subs)
+        values = {
+            'url': f'ws://{self.prm.host}:{self.port}',
+            'shown': ' '.join(shown) or 'nothing',
+            **{f'sent_{k}': v for k, v in self.sent.items()},
+        }
+        where = '' if is_loopback(self.prm.host) else ' to the network (no authentication)'
+        return diag.OK, f'serving{where}' + ('' if shown else ', nothing shown'), values
+
     # ------------------------------------------------------------------ inputs
     @property
     def states(self) -> dict[int, np.ndarray]:
@@ -781,7 +807,7 @@ class LiveViewNode(Node):
             if np.all(np.isfinite(state)):
                 self._states[rid] = state
             else:
-                self.rejected += 1
+                self._reject('state')
         self._raw_states.clear()
         return self._states
 
@@ -792,10 +818,12 @@ class LiveViewNode(Node):
             try:
                 tau, _ = msgs.torque_from_msg(deserialize_message(raw, JointState))
             except ValueError:
-                self.rejected += 1
+                self._reject('torque')
                 continue
             if np.all(np.isfinite(tau)):
                 self._torques[rid] = tau
+            else:
+                self._reject('torque')
         self._raw_torques.clear()
         return self._torques
 
@@ -803,7 +831,7 @@ class LiveViewNode(Node):
         try:
             graph = msgs.graph_from_msg(msg)
         except ValueError as err:
-            self.rejected += 1
+            self._reject('graph')
             self.get_logger().warn(f'/formation/graph: {err}', throttle_duration_sec=5.0)
             return
         if self.graph is not None and graph.revision < self.graph.revision:
@@ -824,7 +852,7 @@ class LiveViewNode(Node):
         try:
             self.modes[rid] = msgs.mode_from_msg(msg)
         except ValueError as err:
-            self.rejected += 1
+            self._reject('mode')
             self.get_logger().warn(f'robot_{rid}/mode: {err}', throttle_duration_sec=5.0)
 
     def _on_image(self, raw: bytes) -> None:
@@ -839,7 +867,7 @@ class LiveViewNode(Node):
         try:
             data = jpeg_of(msg, self.prm.jpeg_quality)
         except ValueError as err:
-            self.rejected += 1
+            self._reject('image')
             self.get_logger().warn(f'{self.prm.image_topic}: {err}', throttle_duration_sec=5.0)
             return
         from foxglove.messages import CompressedImage, Timestamp

@@ -11,16 +11,16 @@ a
 Topics (QoS from ros/qos.py)
   pub  /camera/image_raw          sensor_msgs/Image mono8, stamp = capture time     QOS_IMAGE
   pub  /camera/camera_info        sensor_msgs/CameraInfo (camera_config), with each image, same
-  stamp  QOS_IMAGE
+                                  stamp                                            QOS_IMAGE
   pub  /world/truth/robot_<id>    nav_msgs/Odometry, every tick (while subscribed) QOS_CONTROL
   pub  /clock                     rosgraph_msgs/Clock (only when speed_factor != 1)  QOS_CLOCK
   sub  /formation/graph           std_msgs/String JSON graph/v1 (start_s); invalid ones counted
-  QOS_GRAPH
+                                                                                   QOS_GRAPH
   pub  /diagnostics               "formation_world: simulation" (ticks, overruns: WARN for 5 s
-  after
-                                  one, rejected graphs), "formation_world: plant loop" (stalls),
-                                  "formation_world: board robot_<id>" (watchdog trips, STOPs,
-                                  brakes: cause, start and release in world time)
+                                  after one), "formation_world: inputs" (rejected graph payloads:
+                                  WARN for 10 s after one), "formation_world: plant loop"
+                                  (stalls), "formation_world: board robot_<id>" (watchdog trips,
+                                  STOPs, brakes: cause, start and release in world time)
 
 Parameters
   scenario         str    scenario YAML (required)
@@ -127,10 +127,11 @@ class WorldNode(Node):
         self.done = False
         self.overruns = 0
         self.ticks = 0
-        self.rejected_graphs = 0
+        self.rejections = diag.Rejections(('graph',), time.monotonic)
         self._overruns_seen = (0, -math.inf)  # (count, when it last grew [s])
         self.diag = diag.Diagnostics(self)
         self.diag.add('simulation', self._simulation_status, hardware_id='simulation')
+        self.diag.add('inputs', self.rejections.status)
         self.tick_watch = self.diag.watch(
             'plant loop', self.prm.tick_s / self.prm.speed_factor, hardware_id='simulation'
         )
@@ -206,7 +207,8 @@ class WorldNode(Node):
         try:
             graph = msgs.graph_from_msg(msg)
         except ValueError as err:
-            self.rejected_graphs += 1
+            self.rejections.counts['graph'] += 1
+            self.diag.changed()
             self.get_logger().warn(f'/formation/graph: {err}', throttle_duration_sec=5.0)
             return
         if graph.start_s is not None and self.start_s is None:
@@ -237,7 +239,6 @@ class WorldNode(Node):
             'overruns': self.overruns,
             'plant_time_s': self.plant_time_s,
             'scenario_time_s': 'not started' if t is None else t,
-            'rejected_graphs': self.rejected_graphs,
             'speed_factor': self.prm.speed_factor,
         }
         if self.overruns and now - self._overruns_seen[1] <= 5.0:

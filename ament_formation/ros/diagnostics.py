@@ -193,6 +193,39 @@ class _Task:
         self.sent: tuple[int, str] | None = None  # (level, message) last published
 
 
+class Rejections:
+    """Inputs a node rejected, counted by kind and reported as one status: WARN for ``hold_s``
+    after the newest rejection (the message stays the same during a flood, so a flood is published
+    once, not once per payload), then OK with the counts kept.
+
+    ``counts`` is a plain dict (kind -> count) the node increments; :meth:`status` is the status
+    function for :meth:`Diagnostics.add`; ``now_s`` is the node's clock [s].
+    """
+
+    def __init__(self, kinds, now_s: Callable[[], float], hold_s: float = 10.0):
+        self.counts: dict[str, int] = dict.fromkeys(kinds, 0)
+        self.now_s, self.hold_s = now_s, hold_s
+        self._seen = (0, -math.inf)  # (total, when it last grew [s])
+
+    @property
+    def total(self) -> int:
+        return sum(self.counts.values())
+
+    def status(self) -> tuple[int, str, dict]:
+        total, since = self.total, self._seen[1]
+        now = self.now_s()
+        if total != self._seen[0]:
+            self._seen = (total, since := now)
+        values = {f'rejected_{k}': v for k, v in self.counts.items()}
+        if total and now - since <= self.hold_s:
+            return WARN, f'inputs rejected in the last {self.hold_s:g} s', values
+        return (
+            OK,
+            'inputs valid' if not total else f'no input rejected in the last {self.hold_s:g} s',
+            values,
+        )
+
+
 class Diagnostics:
     """A node's /diagnostics: its status tasks, published together every ``period_s`` and at once
     (:meth:`changed`) when any task's level or message differs from what was last published.
