@@ -10,6 +10,7 @@ import pytest
 
 from ament_formation.ros import messages as m
 from ament_formation.ros.executors import spin_until
+from ament_formation.ros.marker_view import MarkerViewer
 from ament_formation.ros.qos import QOS_CONTROL, QOS_GRAPH, QOS_MARKERS
 
 DATA = Path(__file__).resolve().parent / 'data'
@@ -125,39 +126,6 @@ def test_bad_parameters_name_the_field():
         CoordinatorParams()
     with pytest.raises(ConfigError, match='start_delay_s'):
         CoordinatorParams(scenario='x.yaml', start_delay_s=-1.0)
-
-
-class MarkerViewer:
-    """What RViz/Foxglove hold after a sequence of MarkerArrays: ADD replaces (ns, id), DELETE
-    removes it, DELETEALL removes everything; a marker with a lifetime expires that long after it
-    was received (``now_s``: receive time [s]).
-    """
-
-    def __init__(self):
-        self.live: dict[tuple[str, int], float] = {}  # (ns, id) -> expiry [s] (inf: none)
-        self.actions = {'add': 0, 'delete': 0, 'deleteall': 0}
-        self.max_adds_per_array = 0
-
-    def apply(self, arr, now_s: float) -> None:
-        from visualization_msgs.msg import Marker
-
-        adds = 0
-        for mk in arr.markers:
-            if mk.action == Marker.DELETEALL:
-                self.live.clear()
-                self.actions['deleteall'] += 1
-            elif mk.action == Marker.DELETE:
-                self.live.pop((mk.ns, mk.id), None)
-                self.actions['delete'] += 1
-            else:
-                life = mk.lifetime.sec + mk.lifetime.nanosec * 1e-9
-                self.live[(mk.ns, mk.id)] = now_s + life if life > 0 else float('inf')
-                self.actions['add'] += 1
-                adds += 1
-        self.max_adds_per_array = max(self.max_adds_per_array, adds)
-
-    def shown(self, now_s: float) -> set:
-        return {k for k, expiry in self.live.items() if expiry >= now_s}
 
 
 def expected_markers(robots, edge_children, obstacles=1):

@@ -1062,3 +1062,61 @@ def test_status_reports_the_graph_and_start(live_run):
     assert any(s['parents'] == {'0': None, '1': 0} for s in started)
     ts = [s['t_s'] for s in started]
     assert all(b >= a for a, b in zip(ts, ts[1:]))
+
+
+@LIVE
+def test_the_run_folder_is_a_rosbag2_bag_with_bounded_markers(live_run):
+    """The recording of the watched run, read by rosbags (an independent rosbag2 reader) from the
+    run folder: every topic with its offered QoS and type hash, the same counts as the MCAP file;
+    the coordinator's markers replayed into a viewer never show more than the live objects, and
+    the live view's own diagnostics are in the recording.
+    """
+    from rosbags.interfaces import QosDurability, QosReliability
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import get_typestore, Stores
+
+    from ament_formation.ros.marker_view import census
+    from ament_formation.ros.recorder import read_messages, topic_types
+
+    out, sc = live_run['out'], live_run['scenario']
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    with Reader(out) as bag:
+        conns = {c.topic: c for c in bag.connections}
+        counts = {t: c.msgcount for t, c in conns.items()}
+        for c in conns.values():
+            assert c.ext.offered_qos_profiles, c.topic
+            assert c.digest == typestore.hash_rihs01(c.msgtype), c.topic
+        graph_qos = conns['/formation/graph'].ext.offered_qos_profiles[0]
+        assert graph_qos.durability == QosDurability.TRANSIENT_LOCAL
+        assert graph_qos.reliability == QosReliability.RELIABLE
+        assert conns['/camera/camera_info'].msgtype == 'sensor_msgs/msg/CameraInfo'
+        diags = [
+            typestore.deserialize_cdr(raw, c.msgtype)
+            for c, _, raw in bag.messages(connections=[conns['/diagnostics']])
+        ]
+    assert set(topic_types(out / 'run.mcap')) == set(conns)
+    mcap_counts: dict[str, int] = {}
+    for topic, _t, _msg in read_messages(out / 'run.mcap'):
+        mcap_counts[topic] = mcap_counts.get(topic, 0) + 1
+    assert mcap_counts == {t: n for t, n in counts.items() if n}
+    names = {st.name for arr in diags for st in arr.status}
+    assert {'formation_live_view: server', 'formation_live_view: inputs'} <= names
+    for rid in sc.robot_ids:
+        assert f'formation_controller: robot_{rid} control' in names
+
+    # objects: P, L, Q per obstacle, a disc and a heading per robot, at most one edge per follower
+    objects = 3 * len(sc.obstacles) + 2 * len(sc.robot_ids) + len(sc.robot_ids) - 1
+    seen = census(out / 'run.mcap')
+    print(f'markers over the run: {seen}')
+    assert seen['arrays'] > 50
+    assert 0 < seen['max_shown'] <= objects, seen
+    assert seen['max_adds_per_array'] <= objects
+    assert 1 <= seen['actions']['deleteall'] <= seen['arrays'] // 10, seen  # on new layouts only
+    assert seen['namespaces'] == {
+        'ellipse_P': len(sc.obstacles),
+        'ellipse_L': len(sc.obstacles),
+        'ellipse_Q': len(sc.obstacles),
+        'robots': len(sc.robot_ids),
+        'headings': len(sc.robot_ids),
+        'graph_edges': len(sc.robot_ids) - 1,
+    }, seen
