@@ -64,6 +64,9 @@ def test_one_tick_runs_every_hosted_controller_and_peers_read_in_process(ros_con
             c.estimator.camera_update(
                 now - 0.03, np.asarray(sc.robot(c.rid).initial_pose, dtype=float)
             )
+        # the period runs at a fixed time 1 ms after the inputs: a loaded machine's delay between
+        # these lines must not age the pose or wheel data beyond their timeouts
+        team._now_ns = lambda: int((now + 0.001) * 1e9)
         team._control()
         assert (c0.ticks, c1.ticks) == (1, 1)
         seen = c1.neighbours[0]
