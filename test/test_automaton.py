@@ -14,6 +14,7 @@ from ament_formation.core.control.automaton import (
 )
 from ament_formation.core.control.encounters import decide_once, KIND_OBSTACLE
 from ament_formation.core.control.limit_cycle import choose_direction
+from ament_formation.core.errors import ConfigError
 from ament_formation.core.model.ellipse import ray_time, segment_hits
 
 PRM = SwitchingParams().compiled()
@@ -205,3 +206,15 @@ def test_direction_choice_takes_shorter_arc_and_breaks_ties_by_motion():
         choose_direction(-0.6, 0.0, 0.05, 0.02, 0.6, 0.0, 0.0, 0.0, 0.0, 0.44, 0.44, 0.0, False)
         == 1.0
     )
+
+
+def test_switching_params_compile_and_check_the_teammate_hysteresis():
+    # docs/law-changes.md §11: the release threshold reaches the compiled law, and it is a
+    # hysteresis: never below the plain teammate threshold
+    prm = SwitchingParams(teammate_release_speed_mps=0.05).compiled()
+    assert prm.teammate_release_speed_mps == 0.05
+    assert PRM.teammate_release_speed_mps >= PRM.teammate_rel_speed_mps
+    with pytest.raises(ConfigError, match='teammate_release_speed_mps'):
+        SwitchingParams(teammate_release_speed_mps=0.01)
+    with pytest.raises(ConfigError, match='teammate_release_speed_mps'):
+        SwitchingParams(teammate_release_speed_mps=float('nan'))

@@ -51,6 +51,31 @@ def test_a_robot_held_still_on_its_limit_cycle_finds_its_way_to_a_free_goal(name
     assert not far, f'robots ending more than 0.5 m from their goals: {far}'
 
 
+# camera-sensed chattering of teammates (docs/law-changes.md §11): file -> campaign sensing seed
+CAMERA_CHATTER = {
+    'camchatter699': 1000702,
+    'camchatter1098': 1001101,
+    'camchatter1470': 1001473,
+    'camchatter1575': 1001578,
+    'camchatter1619': 1001622,
+}
+
+
+@pytest.mark.parametrize('name', sorted(CAMERA_CHATTER))
+def test_camera_sensed_teammates_do_not_chatter(name):
+    # four wedges and a two-team crossing: a robot with 51-63 mode events before §11
+    from ament_formation.core.sim.sensed import SensingParams, simulate_sensed
+
+    scenario = load_scenario(FILES[0].parent / f'{name}.yaml')
+    sensing = SensingParams.preset('camera', seed=CAMERA_CHATTER[name])
+    result = simulate_sensed(scenario, sensing, dt_s=0.001, record_every_s=0.01)
+    m = compute_metrics(result, scenario)
+    events = Counter(e['robot'] for e in m['mode_events'])
+    assert max(events.values(), default=0) <= MAX_EVENTS, f'chattering: {events}'
+    assert m['min_clearance_m'] > 0.0, 'a robot entered an obstacle region P'
+    assert m['min_inter_robot_distance_m'] >= CONTACT_M, 'robot bodies touched'
+
+
 def _field(x, vd, obstacles=None):
     n = x.shape[0]
     pd = np.zeros((n, 2))  # heading 0, omega 0: p_dot = (v, 0)

@@ -217,6 +217,44 @@ def test_teammates_holding_slots_are_not_threats_but_strangers_are():
     assert len(decide(other, 1.0, p, pd, team=[0, 1])) == 2
 
 
+def test_a_busy_teammate_moving_with_us_is_no_threat_but_an_emergency_still_counts():
+    # S14.3 in every mode (docs/law-changes.md §11): robot 1 yields to robot 2 (another team);
+    # its teammate 0 beside it, closing at 8 mm/s, does not yield to it ...
+    p = [(0.0, 0.0), (0.35, 0.0), (0.35, 0.6)]
+    pd = [(0.05, 0.0), (0.042, 0.0), (0.0, 0.0)]
+    st_ = AutomatonState(3)
+    st_.set_mode(1, MODE_YIELD, 2, 1.0, 0.5)
+    events = decide(st_, 1.0, p, pd, team=[0, 0, 2])
+    assert [e for e in events if e[1] == 0] == []
+    assert st_.mode[0] == MODE_C
+    # ... a stranger in its place would be yielded to, and a teammate inside E is an emergency
+    other = AutomatonState(3)
+    other.set_mode(1, MODE_YIELD, 2, 1.0, 0.5)
+    decide(other, 1.0, p, pd, team=[0, 1, 2])
+    assert other.mode[0] == MODE_YIELD and other.tgt[0] == 1
+    close = AutomatonState(3)
+    close.set_mode(1, MODE_YIELD, 2, 1.0, 0.5)
+    decide(close, 1.0, [(0.095, 0.0), (0.35, 0.0), (0.35, 0.6)], pd, team=[0, 0, 2])
+    assert close.mode[0] == MODE_YIELD and close.tgt[0] == 1
+
+
+def test_teammates_released_from_each_other_stay_exempt_up_to_the_release_speed():
+    # S14.3 hysteresis (§11): closing at 30 mm/s is a threat between teammates (> 20 mm/s) ...
+    p = [(0.0, 0.0), (0.35, 0.0)]
+    pd = [(0.05, 0.0), (0.02, 0.0)]
+    fresh = AutomatonState(2)
+    assert len(decide(fresh, 5.0, p, pd, team=[0, 0])) == 2
+    # ... but not for a pair that left an encounter with each other (up to 40 mm/s) ...
+    released = AutomatonState(2)
+    released.last_kind[:] = 2  # KIND_AGENT
+    released.last_tgt[:] = [1, 0]
+    released.last_exit[:] = 1.0
+    assert decide(released, 5.0, p, pd, team=[0, 0]) == []
+    # ... above which it is one again
+    faster = [(0.05, 0.0), (0.0, 0.0)]
+    assert len(decide(released, 5.0, p, faster, team=[0, 0])) == 2
+
+
 def _check_invariants(state):
     n = state.n
     for i in range(n):

@@ -60,7 +60,9 @@ class SwitchingParams:
     decision_period_s: float = 0.01  # automaton/encounter evaluation period (100 Hz)
     imminent_s: float = 1.5  # S14.2: ray reaches P within this time -> emergency
     agent_horizon_s: float = 12.0  # S14.3: agent threat only if contact with I within this
-    teammate_rel_speed_mps: float = 0.02  # S14.3: teammates holding slots below this are no threat
+    teammate_rel_speed_mps: float = 0.02  # S14.3: teammates moving together below this: no threat
+    # S14.3 hysteresis: ... up to this when the pair was released from an encounter with each other
+    teammate_release_speed_mps: float = 0.04
     mutual_drift_tau_s: float = 2.0  # S14.1: w_c relaxes toward the pair's mean V_c
     mutual_drift_cap_mps: float = 0.05  # |w_c target| cap
     speed_limit_mps: float = 0.25  # below S2.3 v_max (0.3): V_d and velocity feed-forwards clipped
@@ -76,6 +78,12 @@ class SwitchingParams:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ConfigError(f'must be a finite number > 0 (got {value!r})', name)
+        if self.teammate_release_speed_mps < self.teammate_rel_speed_mps:
+            raise ConfigError(
+                f'must be >= teammate_rel_speed_mps ({self.teammate_rel_speed_mps}) '
+                f'(got {self.teammate_release_speed_mps!r})',
+                'teammate_release_speed_mps',
+            )
 
     def for_avoidance(self, avoidance: AvoidanceParams) -> 'SwitchingParams':
         """These timings and thresholds with ``avoidance`` (a scenario's) in place of our own."""
@@ -103,6 +111,7 @@ COMPILED_OWN_FIELDS = (
     'imminent_s',
     'agent_horizon_s',
     'teammate_rel_speed_mps',
+    'teammate_release_speed_mps',
     'mutual_drift_tau_s',
     'mutual_drift_cap_mps',
     'speed_limit_mps',

@@ -32,8 +32,11 @@ the robots it knows about). It
    from the frozen 1/2 (p_dot_i + p_dot_k)(t_s) toward the mean of the two coordination fields, so
    the drift does not outlive its reason (S14.1); the relative motion z_dot = F(z) is unaffected.
 
-S14.3: a pair of teammates that are both in coordination mode and whose relative speed is below
-``teammate_rel_speed_mps`` is not a threat (only an emergency counts), and a robot threat needs a
+S14.3: a pair of teammates whose relative speed is below ``teammate_rel_speed_mps`` is not a
+threat (only an emergency counts), whatever their modes: a teammate busy with an obstacle or
+another robot but moving with us is no reason to leave the slot; a pair released from an
+encounter with each other stays exempt up to ``teammate_release_speed_mps`` (hysteresis against
+the jitter of an estimated relative speed; docs/law-changes.md §11). A robot threat needs a
 contact with I within ``agent_horizon_s``.
 
 Mode events are written to ``ev`` rows [t_s, robot_index, event (1 enter, 0 exit), mode, target,
@@ -581,8 +584,22 @@ def _keep_threat(th, a, b, em, lam, h_em):
     th.h_em[a, slot] = h_em
 
 
+@njit(cache=True)
+def _teammate_threshold(i, k, auto, prm):
+    """S14.3 with hysteresis (docs/law-changes.md §11): the relative speed below which teammates i
+    and k are no (non-emergency) threat: ``teammate_release_speed_mps`` when either one's last
+    robot encounter was with the other (the pair was released: it stays exempt until it really
+    moves apart or together, not at every jitter of the estimated speed), else
+    ``teammate_rel_speed_mps``.
+    """
+    lk, lt = auto.last_kind, auto.last_tgt
+    if (lk[i] == KIND_AGENT and lt[i] == k) or (lk[k] == KIND_AGENT and lt[k] == i):
+        return prm.teammate_release_speed_mps
+    return prm.teammate_rel_speed_mps
+
+
 @njit(cache=True, inline='always')
-def _robot_threats(robots, mode, prm):
+def _robot_threats(robots, auto, prm):
     """Stage 2 of :func:`decide` (S7, S14.3): the robot threats of every robot on the pairs
     culled by :func:`candidate_pairs` -> :data:`RobotThreats`.
     """
@@ -614,11 +631,9 @@ def _robot_threats(robots, mode, prm):
             trig
             and not em
             and team[i] == team[k]
-            and mode[i] == MODE_C
-            and mode[k] == MODE_C
-            and math.hypot(rvx, rvy) < prm.teammate_rel_speed_mps
+            and math.hypot(rvx, rvy) < _teammate_threshold(i, k, auto, prm)
         ):
-            trig = False
+            trig = False  # S14.3: teammates moving together, whatever their modes (§11)
         if not (trig or em):
             continue
         _keep_threat(th, i, k, em, lam, h_em)
@@ -878,7 +893,7 @@ def decide(t, robots, obstacles, auto, prm, ev):
     if _any_mode(mode, MODE_YIELD, MODE_YIELD):
         nev = _break_cycles(t, robots.pd, auto, robots.parent, ev)
     obt = _obstacle_threats(t, robots, obstacles, auto, prm)  # 1. S8.1, S14.2
-    th = _robot_threats(robots, mode, prm)  # 2. S7, S14.3
+    th = _robot_threats(robots, auto, prm)  # 2. S7, S14.3
     if _any_mode(mode, MODE_OBSTACLE, MODE_OBSTACLE) or (obt.j >= 0).any():  # 3. S8.1-S8.3
         nev = _obstacle_transitions(t, robots, obstacles, auto, obt, th, prm, ev, nev)
     if (th.count > 0).any():  # 4. S7, S14.1
