@@ -1111,7 +1111,8 @@ def test_the_run_folder_is_a_rosbag2_bag_with_bounded_markers(live_run):
     assert seen['arrays'] > 50
     assert 0 < seen['max_shown'] <= objects, seen
     assert seen['max_adds_per_array'] <= objects
-    assert 1 <= seen['actions']['deleteall'] <= seen['arrays'] // 10, seen  # on new layouts only
+    # DELETEALL on new layouts only (the recorder may join after the first one: none is needed)
+    assert seen['actions']['deleteall'] <= seen['arrays'] // 10, seen
     assert seen['namespaces'] == {
         'ellipse_P': len(sc.obstacles),
         'ellipse_L': len(sc.obstacles),
