@@ -155,3 +155,36 @@ def test_safety_filter_treats_the_floor_edges_as_walls():
         0, x, np.array([[-0.05, -0.05]]), -0.05, -0.05, 0.0, 0.0, *none, np.full(1, 0.1), 0.27, prm
     )
     assert vx > -0.03 and vy > -0.03
+
+
+def test_safety_filter_escapes_along_the_wall_from_an_obstacle_driving_at_it():
+    """§12: a robot 12 mm from the y_min wall with an obstacle coming down at it from above and to
+    the left (the normals of the wall and of P 137° apart): it slides along the wall out of the
+    obstacle's way, never into the wall or the obstacle, instead of stopping (which let the
+    obstacle's barrier push it past the edge: regressions floor496/1669/1747).
+    """
+    prm = SwitchingParams(floor_m=(0.0, 3.0, 0.0, 2.5)).compiled()
+    x = np.array([[2.355, 0.112, 4.8, 0.0, 0.0]])
+    pd = np.zeros((1, 2))
+    oc, ov = np.array([[2.192, 0.262]]), np.array([[0.0, -0.0186]])
+    phi, phid, axes = np.array([2.614]), np.zeros(1), np.array([[0.226, 0.187]])
+    vx, vy, _, _ = safe_field(
+        0, x, pd, 0.0, -0.02, 0.0, 0.0, oc, ov, phi, phid, axes, np.full(1, 0.1), 0.27, prm
+    )
+    assert vx > 0.01  # along the wall, away from the obstacle (it lies to the left)
+    from ament_formation.core.control.safety import _obstacle_gap, allowed_speed
+
+    a_brk = prm.brake_gain_fraction * 0.27
+    # toward the wall no faster than it still stops before the margin (body 12 mm from the edge)
+    assert vy >= -allowed_speed(0.112 - 0.1 - prm.safety_gap_m, a_brk, prm.safety_lag_s) - 1e-9
+    # P's barrier: the approach toward the boundary no faster than the boundary comes
+
+    gap, nx, ny, bvx, bvy = _obstacle_gap(2.355, 0.112, oc, ov, phi, phid, axes, 0)
+    assert (vx - bvx) * nx + (vy - bvy) * ny >= -1e-6
+    # a robot in the way along the wall: no escape, a stop as before
+    x2 = np.vstack([x, [[2.58, 0.112, 0.0, 0.0, 0.0]]])
+    vx2, vy2, _, _ = safe_field(
+        0, x2, np.zeros((2, 2)), 0.0, -0.02, 0.0, 0.0, oc, ov, phi, phid, axes,
+        np.full(2, 0.1), 0.27, prm,
+    )
+    assert vx2 < vx

@@ -16,7 +16,9 @@ the encounter arbitration decided, the desired point velocity V_d handed to the 
   two robots slide past each other instead of deadlocking, and a robot moving away from a threat
   is never held back (liveness). The constraints are met by alternating projections; a robot
   still squeezed between a robot and an obstacle stops (relative to the obstacles). The edges of a
-  declared floor (``SwitchingParams.floor_m``) are walls of the same barrier.
+  declared floor (``SwitchingParams.floor_m``) are walls of the same barrier; a robot squeezed
+  between a wall and obstacles takes the exact solution of their constraints instead (it slides
+  along the wall out of the way, :func:`_escape`), and stops only when there is none.
 
 Both run inside :func:`ament_formation.core.control.law.robot_law`, so the simulator and the
 robot's controller run them alike. Scalar numba kernels.
@@ -27,6 +29,7 @@ from __future__ import annotations
 import math
 
 from numba import njit
+import numpy as np
 
 from ament_formation.core.model.dynamics import ROW_M_TILDE, ROW_R, ROW_TAU_MAX
 
@@ -231,6 +234,74 @@ def _near_wall(px, py, rb, prm):
     return gap - rb < prm.safety_range_m
 
 
+@njit(cache=True)
+def _feasible(cons, n, vx, vy):
+    """Whether (vx, vy) meets every constraint n . v >= b of ``cons[:n]`` (rows nx, ny, b)."""
+    for q in range(n):
+        if cons[q, 0] * vx + cons[q, 1] * vy < cons[q, 2] - 1e-12:
+            return False
+    return True
+
+
+@njit(cache=True)
+def _escape(vx0, vy0, p, rb, oc, ov, ophi, ophid, oaxes, a_brk, prm):
+    """A robot squeezed between a floor edge and an obstacle (docs/law-changes.md §12): the
+    velocity closest to (vx0, vy0) that meets every wall's and every obstacle's barrier within
+    reach exactly (the alternating projections approach it slowly when the wall and the obstacle
+    face each other at an acute angle, leaving a stop that a moving obstacle then pushes through
+    the wall). Half-planes n . v >= b in 2-D: the closest point is v0, its projection on one line
+    or the vertex of two. Returns (found, vx, vy); not found when they leave nothing within the
+    speed limit.
+    """
+    g0, reach, lag = prm.safety_gap_m, prm.safety_range_m, prm.safety_lag_s
+    px, py = p[0], p[1]
+    m = oc.shape[0]
+    cons = np.empty((4 + m, 3))
+    n = 0
+    edges = (
+        (px - prm.floor_x_min_m - rb, 1.0, 0.0),
+        (prm.floor_x_max_m - px - rb, -1.0, 0.0),
+        (py - prm.floor_y_min_m - rb, 0.0, 1.0),
+        (prm.floor_y_max_m - py - rb, 0.0, -1.0),
+    )
+    for gap, nx, ny in edges:
+        if gap < reach:
+            cons[n, 0], cons[n, 1] = nx, ny
+            cons[n, 2] = -allowed_speed(gap - g0, a_brk, lag)
+            n += 1
+    for j in range(m):
+        if abs(px - oc[j, 0]) > oaxes[j, 0] + reach or abs(py - oc[j, 1]) > oaxes[j, 0] + reach:
+            continue
+        gap, nx, ny, bvx, bvy = _obstacle_gap(px, py, oc, ov, ophi, ophid, oaxes, j)
+        if gap < reach:
+            margin = g0 + lag * (math.hypot(ov[j, 0], ov[j, 1]) + abs(ophid[j]) * oaxes[j, 0])
+            cons[n, 0], cons[n, 1] = nx, ny
+            cons[n, 2] = bvx * nx + bvy * ny - allowed_speed(gap - margin, a_brk, lag)
+            n += 1
+    best, bx, by = math.inf, 0.0, 0.0
+    for a in range(-1, n):
+        for b in range(a, n):
+            if a < 0:  # v0 itself
+                if b >= 0:
+                    continue
+                cx, cy = vx0, vy0
+            elif a == b:  # v0 projected on line a
+                t = cons[a, 2] - (cons[a, 0] * vx0 + cons[a, 1] * vy0)
+                cx, cy = vx0 + t * cons[a, 0], vy0 + t * cons[a, 1]
+            else:  # the vertex of lines a and b
+                det = cons[a, 0] * cons[b, 1] - cons[a, 1] * cons[b, 0]
+                if abs(det) < 1e-9:
+                    continue
+                cx = (cons[a, 2] * cons[b, 1] - cons[a, 1] * cons[b, 2]) / det
+                cy = (cons[a, 0] * cons[b, 2] - cons[a, 2] * cons[b, 0]) / det
+            d = (cx - vx0) ** 2 + (cy - vy0) ** 2
+            if d < best and math.hypot(cx, cy) <= prm.speed_limit_mps and _feasible(
+                cons, n, cx, cy
+            ):
+                best, bx, by = d, cx, cy
+    return best < math.inf, bx, by
+
+
 # implements: S14
 @njit(cache=True)
 def safe_field(i, x, pd, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, rbody, gain_k, prm):
@@ -239,6 +310,7 @@ def safe_field(i, x, pd, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, rbody
     Returns (vdx, vdy, vddx, vddy).
     """
     vdx, vdy = clip_norm(vdx, vdy, prm.speed_limit_mps)
+    vx0, vy0 = vdx, vdy
     a_brk = prm.brake_gain_fraction * gain_k  # the S3 loop's deceleration without feed-forward
     p = (x[i, 0], x[i, 1], pd[i, 0], pd[i, 1])
     rb = rbody[i]
@@ -259,8 +331,19 @@ def safe_field(i, x, pd, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, rbody
     if walls:
         fx, fy, _c, _d = _floor_barriers(p, vdx, vdy, vddx, vddy, rb, a_brk, prm, False)
         squeezed += abs(fx - vdx) + abs(fy - vdy)
-    if squeezed > 1e-9:  # between a robot or wall and an obstacle: stop (obstacles may move it)
-        vdx, vdy, vddx, vddy = 0.0, 0.0, 0.0, 0.0
+    if squeezed > 1e-9:  # between a robot or wall and an obstacle
+        found = False
+        if walls:  # along the wall, out of the obstacle's way (§12)
+            found, ex, ey = _escape(vx0, vy0, p, rb, oc, ov, ophi, ophid, oaxes, a_brk, prm)
+            if found:  # robots in the way: no escape
+                qx, qy, _a, _b, _act = _robot_barriers(
+                    i, x, pd, ex, ey, 0.0, 0.0, rbody, a_brk, prm, False
+                )
+                found = abs(qx - ex) + abs(qy - ey) <= 1e-9
+        if found:
+            vdx, vdy, vddx, vddy = ex, ey, 0.0, 0.0
+        else:  # stop (obstacles may move it)
+            vdx, vdy, vddx, vddy = 0.0, 0.0, 0.0, 0.0
     # the braking acceleration where the robot's own velocity is beyond the limits
     vdx, vdy, vddx, vddy, _act = _robot_barriers(
         i, x, pd, vdx, vdy, vddx, vddy, rbody, a_brk, prm, True
