@@ -276,3 +276,23 @@ def test_a_change_during_shutdown_is_not_an_error():
     assert d.changed() is False
     d.publish()
     node.destroy_node()
+
+
+def test_rejections_warn_for_the_hold_after_the_newest_and_keep_the_counts():
+    now = [100.0]
+    rej = diag.Rejections(('graph', 'mode'), lambda: now[0], hold_s=10.0)
+    assert rej.status() == (diag.OK, 'inputs valid', {'rejected_graph': 0, 'rejected_mode': 0})
+    rej.counts['graph'] += 1
+    level, message, values = rej.status()
+    assert level == diag.WARN and values == {'rejected_graph': 1, 'rejected_mode': 0}
+    now[0] = 108.0
+    rej.counts['mode'] += 2  # a newer one restarts the hold; the message stays (a flood: once)
+    assert rej.status()[:2] == (level, message) and rej.total == 3
+    now[0] = 117.0
+    assert rej.status()[0] == diag.WARN
+    now[0] = 118.5
+    assert rej.status() == (
+        diag.OK,
+        'no input rejected in the last 10 s',
+        {'rejected_graph': 1, 'rejected_mode': 2},
+    )
