@@ -202,24 +202,29 @@ def _wall(vdx, vdy, vddx, vddy, pdx, pdy, gap, nx, ny, a_brk, prm, brake):
 
 
 @njit(cache=True)
+def _floor_edges(px, py, rb, prm):
+    """The four edges of the declared floor seen from a body of radius ``rb`` about p: (gap from
+    the body [m], inward normal x, y) each (an undeclared floor has its edges at infinity).
+    """
+    return (
+        (px - prm.floor_x_min_m - rb, 1.0, 0.0),
+        (prm.floor_x_max_m - px - rb, -1.0, 0.0),
+        (py - prm.floor_y_min_m - rb, 0.0, 1.0),
+        (prm.floor_y_max_m - py - rb, 0.0, -1.0),
+    )
+
+
+@njit(cache=True)
 def _floor_barriers(p, vdx, vdy, vddx, vddy, rb, a_brk, prm, brake):
     """The barrier against each edge of a declared floor within ``safety_range_m`` of the body
-    (radius ``rb`` about p): the edges are walls that do not move (an undeclared floor has its
-    edges at infinity).
+    (radius ``rb`` about p): the edges are walls that do not move.
     """
     px, py, pdx, pdy = p
-    vdx, vdy, vddx, vddy = _wall(
-        vdx, vdy, vddx, vddy, pdx, pdy, px - prm.floor_x_min_m - rb, 1.0, 0.0, a_brk, prm, brake
-    )
-    vdx, vdy, vddx, vddy = _wall(
-        vdx, vdy, vddx, vddy, pdx, pdy, prm.floor_x_max_m - px - rb, -1.0, 0.0, a_brk, prm, brake
-    )
-    vdx, vdy, vddx, vddy = _wall(
-        vdx, vdy, vddx, vddy, pdx, pdy, py - prm.floor_y_min_m - rb, 0.0, 1.0, a_brk, prm, brake
-    )
-    return _wall(
-        vdx, vdy, vddx, vddy, pdx, pdy, prm.floor_y_max_m - py - rb, 0.0, -1.0, a_brk, prm, brake
-    )
+    for gap, nx, ny in _floor_edges(px, py, rb, prm):
+        vdx, vdy, vddx, vddy = _wall(
+            vdx, vdy, vddx, vddy, pdx, pdy, gap, nx, ny, a_brk, prm, brake
+        )
+    return vdx, vdy, vddx, vddy
 
 
 @njit(cache=True)
@@ -258,13 +263,7 @@ def _escape(vx0, vy0, p, rb, oc, ov, ophi, ophid, oaxes, a_brk, prm):
     m = oc.shape[0]
     cons = np.empty((4 + m, 3))
     n = 0
-    edges = (
-        (px - prm.floor_x_min_m - rb, 1.0, 0.0),
-        (prm.floor_x_max_m - px - rb, -1.0, 0.0),
-        (py - prm.floor_y_min_m - rb, 0.0, 1.0),
-        (prm.floor_y_max_m - py - rb, 0.0, -1.0),
-    )
-    for gap, nx, ny in edges:
+    for gap, nx, ny in _floor_edges(px, py, rb, prm):
         if gap < reach:
             cons[n, 0], cons[n, 1] = nx, ny
             cons[n, 2] = -allowed_speed(gap - g0, a_brk, lag)
