@@ -87,7 +87,13 @@ def test_two_robot_hosts_complete_the_mission(tmp_path):
     disc = report['discovery']
     assert disc['all_heard_s'] is not None and disc['all_heard_s'] > 0, disc
     assert disc['all_running_s'] is not None, disc
-    assert disc['mission_start_s'] >= disc['all_heard_s'] - 1e-3, disc
+    # the coordinator decided the start after every robot's process was up (it cannot hear a
+    # robot before); all_heard_s is when the base host's *recorder* first heard each robot, another
+    # participant whose discovery may finish later than the coordinator's (seen: 65 ms after the
+    # start on an idle machine), so it is reported, not ordered against the start
+    up = max(r['node_up_s'] for r in disc['robots'].values())
+    assert disc['mission_start_decided_s'] >= up - 1e-3, disc
+    assert disc['mission_start_s'] > disc['mission_start_decided_s'], disc
     for rid in ('0', '1'):
         robot = disc['robots'][rid]
         assert robot['discovery_s'] is not None, disc
