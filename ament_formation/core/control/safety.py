@@ -158,22 +158,45 @@ def _robot_barriers(i, x, pd, vdx, vdy, vddx, vddy, rbody, a_brk, prm, brake):
 
 
 @njit(cache=True)
+def _obstacle_near(px, py, oc, ov, ophi, ophid, oaxes, j, prm):
+    """Obstacle j's boundary P as the barrier sees it from p: (near, gap, nx, ny, bvx, bvy), near
+    when P is within ``safety_range_m``, gap the distance to P less the margin, scaled to the
+    boundary speed (S14.2: the boundary may move a lag further), n and bv as in
+    :func:`_obstacle_gap`.
+    """
+    reach, lag = prm.safety_range_m, prm.safety_lag_s
+    r1 = oaxes[j, 0]
+    if abs(px - oc[j, 0]) > r1 + reach or abs(py - oc[j, 1]) > r1 + reach:
+        return False, 0.0, 0.0, 0.0, 0.0, 0.0
+    gap, nx, ny, bvx, bvy = _obstacle_gap(px, py, oc, ov, ophi, ophid, oaxes, j)
+    margin = prm.safety_gap_m + lag * (math.hypot(ov[j, 0], ov[j, 1]) + abs(ophid[j]) * r1)
+    return gap < reach, gap - margin, nx, ny, bvx, bvy
+
+
+@njit(cache=True)
 def _obstacle_barriers(p, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, a_brk, prm, brake):
     """The barrier against every obstacle boundary P within ``safety_range_m`` (boundary velocity
     included).
     """
-    g0, reach, lag = prm.safety_gap_m, prm.safety_range_m, prm.safety_lag_s
     px, py, pdx, pdy = p
     for j in range(oc.shape[0]):
-        r1 = oaxes[j, 0]
-        if abs(px - oc[j, 0]) > r1 + reach or abs(py - oc[j, 1]) > r1 + reach:
-            continue
-        gap, nx, ny, bvx, bvy = _obstacle_gap(px, py, oc, ov, ophi, ophid, oaxes, j)
-        # margin scaled to the boundary speed (S14.2): the boundary may move a lag further
-        margin = g0 + lag * (math.hypot(ov[j, 0], ov[j, 1]) + abs(ophid[j]) * r1)
-        if gap < reach:
+        near, gap, nx, ny, bvx, bvy = _obstacle_near(px, py, oc, ov, ophi, ophid, oaxes, j, prm)
+        if near:
             vdx, vdy, vddx, vddy, _a = _barrier(
-                vdx, vdy, vddx, vddy, pdx, pdy, nx, ny, bvx, bvy, gap - margin, a_brk, lag, brake
+                vdx,
+                vdy,
+                vddx,
+                vddy,
+                pdx,
+                pdy,
+                nx,
+                ny,
+                bvx,
+                bvy,
+                gap,
+                a_brk,
+                prm.safety_lag_s,
+                brake,
             )
     return vdx, vdy, vddx, vddy
 
@@ -230,13 +253,7 @@ def _floor_barriers(p, vdx, vdy, vddx, vddy, rb, a_brk, prm, brake):
 @njit(cache=True)
 def _near_wall(px, py, rb, prm):
     """Whether the body (radius ``rb`` about p) is within ``safety_range_m`` of a floor edge."""
-    gap = min(
-        px - prm.floor_x_min_m,
-        prm.floor_x_max_m - px,
-        py - prm.floor_y_min_m,
-        prm.floor_y_max_m - py,
-    )
-    return gap - rb < prm.safety_range_m
+    return min([gap for gap, _nx, _ny in _floor_edges(px, py, rb, prm)]) < prm.safety_range_m
 
 
 @njit(cache=True)
@@ -260,31 +277,24 @@ def _escape(vx0, vy0, p, rb, oc, ov, ophi, ophid, oaxes, a_brk, prm):
     """
     g0, reach, lag = prm.safety_gap_m, prm.safety_range_m, prm.safety_lag_s
     px, py = p[0], p[1]
-    m = oc.shape[0]
-    cons = np.empty((4 + m, 3))
+    cons = np.empty((4 + oc.shape[0], 3))  # rows (nx, ny, b)
     n = 0
     for gap, nx, ny in _floor_edges(px, py, rb, prm):
         if gap < reach:
-            cons[n, 0], cons[n, 1] = nx, ny
-            cons[n, 2] = -allowed_speed(gap - g0, a_brk, lag)
+            cons[n, 0], cons[n, 1], cons[n, 2] = nx, ny, -allowed_speed(gap - g0, a_brk, lag)
             n += 1
-    for j in range(m):
-        if abs(px - oc[j, 0]) > oaxes[j, 0] + reach or abs(py - oc[j, 1]) > oaxes[j, 0] + reach:
-            continue
-        gap, nx, ny, bvx, bvy = _obstacle_gap(px, py, oc, ov, ophi, ophid, oaxes, j)
-        if gap < reach:
-            margin = g0 + lag * (math.hypot(ov[j, 0], ov[j, 1]) + abs(ophid[j]) * oaxes[j, 0])
+    for j in range(oc.shape[0]):
+        near, gap, nx, ny, bvx, bvy = _obstacle_near(px, py, oc, ov, ophi, ophid, oaxes, j, prm)
+        if near:
             cons[n, 0], cons[n, 1] = nx, ny
-            cons[n, 2] = bvx * nx + bvy * ny - allowed_speed(gap - margin, a_brk, lag)
+            cons[n, 2] = bvx * nx + bvy * ny - allowed_speed(gap, a_brk, lag)
             n += 1
     best, bx, by = math.inf, 0.0, 0.0
-    for a in range(-1, n):
+    if math.hypot(vx0, vy0) <= prm.speed_limit_mps and _feasible(cons, n, vx0, vy0):  # V_d
+        best, bx, by = 0.0, vx0, vy0
+    for a in range(n):
         for b in range(a, n):
-            if a < 0:  # v0 itself
-                if b >= 0:
-                    continue
-                cx, cy = vx0, vy0
-            elif a == b:  # v0 projected on line a
+            if a == b:  # V_d projected on line a
                 t = cons[a, 2] - (cons[a, 0] * vx0 + cons[a, 1] * vy0)
                 cx, cy = vx0 + t * cons[a, 0], vy0 + t * cons[a, 1]
             else:  # the vertex of lines a and b
@@ -294,8 +304,10 @@ def _escape(vx0, vy0, p, rb, oc, ov, ophi, ophid, oaxes, a_brk, prm):
                 cx = (cons[a, 2] * cons[b, 1] - cons[a, 1] * cons[b, 2]) / det
                 cy = (cons[a, 0] * cons[b, 2] - cons[a, 2] * cons[b, 0]) / det
             d = (cx - vx0) ** 2 + (cy - vy0) ** 2
-            if d < best and math.hypot(cx, cy) <= prm.speed_limit_mps and _feasible(
-                cons, n, cx, cy
+            if (
+                d < best
+                and math.hypot(cx, cy) <= prm.speed_limit_mps
+                and _feasible(cons, n, cx, cy)
             ):
                 best, bx, by = d, cx, cy
     return best < math.inf, bx, by
