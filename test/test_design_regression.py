@@ -41,10 +41,12 @@ def test_formerly_failing_random_scenario_has_no_hard_failure(path):
 
 
 @pytest.mark.parametrize(
-    'name', ['stuck1653', 'stuck346', 'chatter1660'], ids=['wall', 'parked_robot', 'two_obstacles']
+    'name',
+    ['stuck1653', 'stuck346', 'chatter1660', 'stuck190', 'stuck1801'],
+    ids=['wall', 'parked_robot', 'two_obstacles', 'parked_pair', 'parked_and_yielding'],
 )
 def test_a_robot_held_still_on_its_limit_cycle_finds_its_way_to_a_free_goal(name):
-    # liveness (docs/law-changes.md §8-§10): these robots were held still until the end of the run
+    # liveness (docs/law-changes.md §8-§10, §13): these robots were held still to the run's end
     scenario = load_scenario(FILES[0].parent / f'{name}.yaml')
     m = compute_metrics(simulate(scenario), scenario)
     far = {rid: r['final_error_m'] for rid, r in m['robots'].items() if r['final_error_m'] > 0.5}

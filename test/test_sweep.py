@@ -196,6 +196,16 @@ def test_classify_names_each_failure_class_at_its_limit(kw, classes):
     assert bool(reason) == bool(classes) and '\n' not in reason
 
 
+def test_far_from_goal_says_whether_the_robot_ends_in_avoidance_and_for_how_long():
+    metrics = _metrics(final=(0.0, 0.7))
+    metrics['robots']['1'].update(avoiding_at_end=True, longest_avoidance_s=42.0)
+    found, reason = campaign.classify(metrics, _Result([[0, 0], [5, 5]]), _scenario())
+    assert found == ['far_from_goal']
+    assert reason == (
+        'far_from_goal: R1 ends 0.70 m from its goal (in avoidance; longest avoidance 42.0 s)'
+    )
+
+
 def test_a_goal_inside_an_obstacles_q_is_parked_not_a_failure():
     obstacle = {'name': 'A', 'center_m': [5.0, 5.0], 'semi_axes_m': [0.2, 0.1]}
     result = _Result([[0, 0], [5.1, 5.0]], np.array([[[5.0, 5.0]]]), np.zeros((1, 1)))

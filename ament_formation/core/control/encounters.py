@@ -310,12 +310,19 @@ def _floor_side(i, j, sense, robots, obstacles, prm):
 
 
 @njit(cache=True)
+def _still_for(i, t, robots, auto):
+    """Robot i has been in its mode (or current sense) for ``STUCK_S`` and is still now."""
+    speed = math.hypot(robots.pd[i, 0], robots.pd[i, 1])
+    return t - auto.t_entry[i] >= STUCK_S and speed <= STILL_MPS
+
+
+@njit(cache=True)
 def _held_still(i, j, t, robots, obstacles, auto, prm):
     """Liveness (docs/law-changes.md section 8): robot i has been on obstacle j's limit cycle (or
     in its current sense) for ``STUCK_S``, is still now, and is not parked (its goal's anomaly is
     more than the parking anomaly away, so its field asks for full tangential speed).
     """
-    if t - auto.t_entry[i] < STUCK_S or math.hypot(robots.pd[i, 0], robots.pd[i, 1]) > STILL_MPS:
+    if not _still_for(i, t, robots, auto):
         return False
     r1 = prm.limit_cycle_scale * obstacles.axes[j, 0]
     r2 = prm.limit_cycle_scale * obstacles.axes[j, 1]
@@ -691,7 +698,8 @@ def _obstacle_transitions(t, robots, obstacles, auto, obt, th, prm, ev, nev):
                 prm,
             )
             ok, since[i] = exit_timer(cond, t, since[i], t_entry[i], prm)
-            if ok and not th.em[i, :th.count[i]].any():  # S14.7: no exit into a robot emergency
+            # S14.7: no exit into a robot emergency, unless held still there (liveness, section 13)
+            if ok and (not th.em[i, :th.count[i]].any() or _still_for(i, t, robots, auto)):
                 nev = _leave(i, t, auto, ev, nev)
         elif obt.j[i] >= 0:
             if mode[i] != MODE_C:

@@ -55,6 +55,7 @@ COLUMNS = (
     'peak_speed_mps',
     'final_error_max_m',
     'floor_excursion_m',
+    'longest_avoidance_s',
     'draws',
     'wall_s',
 )
@@ -77,6 +78,12 @@ def _goal_in_q(scenario, result, i: int) -> bool:
         if (u / r1) ** 2 + (w / r2) ** 2 <= 1.0:
             return True
     return False
+
+
+def _last_mode(robot: dict) -> str:
+    """Whether a robot ends in avoidance, and its longest avoidance (metrics.json numbers)."""
+    where = 'in avoidance' if robot.get('avoiding_at_end') else 'in coordination'
+    return f"{where}; longest avoidance {robot.get('longest_avoidance_s', 0.0):.1f} s"
 
 
 def classify(metrics: dict, result, scenario) -> tuple[list[str], str]:
@@ -102,10 +109,11 @@ def classify(metrics: dict, result, scenario) -> tuple[list[str], str]:
     if fast[1] > RUNAWAY_SPEED_MPS:
         found['runaway'] = f'R{fast[0]} at {fast[1]:.2f} m/s'
     for i, rid in enumerate(result.robot_ids):
-        err = metrics['robots'][str(rid)]['final_error_m']
+        robot = metrics['robots'][str(rid)]
+        err = robot['final_error_m']
         if err is not None and err > FAR_FROM_GOAL_M:
             key = 'parked' if _goal_in_q(scenario, result, i) else 'far_from_goal'
-            found.setdefault(key, f'R{rid} ends {err:.2f} m from its goal')
+            found.setdefault(key, f'R{rid} ends {err:.2f} m from its goal ({_last_mode(robot)})')
     events = Counter(e['robot'] for e in metrics.get('mode_events') or [])
     if events and max(events.values()) > CHATTER_EVENTS:
         rid, n = events.most_common(1)[0]
@@ -180,6 +188,9 @@ def run_case(case: dict) -> dict:
             peak_speed_mps=max(metrics['peak_speed_mps'].values(), default=0.0),
             final_error_max_m=max((v for v in finals if v is not None), default=None),
             floor_excursion_m=metrics.get('floor_excursion_m'),
+            longest_avoidance_s=max(
+                (r['longest_avoidance_s'] for r in metrics['robots'].values()), default=0.0
+            ),
         )
     except Exception as exc:  # noqa: BLE001 - a campaign reports every failure as a row
         where = traceback.extract_tb(exc.__traceback__)[-1]
@@ -221,6 +232,7 @@ DISTRIBUTED = (
     'mode_events_max',
     'peak_speed_mps',
     'final_error_max_m',
+    'longest_avoidance_s',
     'wall_s',
 )
 

@@ -233,6 +233,8 @@ def compute_metrics(result: SimResult, scenario) -> dict:
             'min_clearance_m': {name: float(min_dist[i, j]) for j, name in enumerate(names)},
             'avoidance_time_s': float(sum(b - a for a, b in spans)),
             'avoidance_entries': len(spans),
+            'longest_avoidance_s': float(max((b - a for a, b in spans), default=0.0)),
+            'avoiding_at_end': bool(len(t) and result.avoiding[-1, i]),
             'formation_rms_settled_m': rms,
             'settled_from_s': float(start),
             'formation_rms_after_own_exit_m': _rms_from(err[:, i], t, own_start),
