@@ -10,7 +10,7 @@ process of its own, with a 60 s limit. Counted:
   traceback   the command ended with an exception other than a one-line refusal
   slow        over 30 s of wall time (killed at 60 s)
   big         peak RSS over 1 GB
-  long line   a refusal longer than 300 characters or on more than one line
+  long line   a refusal of 300 characters or more, or on more than one line
   refused     exit 2 with one line; ran: exit 0 or 1 (a run that fails its checks is a result)
 
 Exit status 1 when any of the first four is not zero. Timing is wall time on a shared machine:
@@ -122,7 +122,7 @@ def main() -> int:
     long_lines = [
         r
         for r in refused
-        if len(r['stderr'].strip().splitlines()) != 1 or len(r['stderr'].strip()) > 300
+        if len(r['stderr'].strip().splitlines()) != 1 or len(r['stderr'].strip()) >= 300
     ]
     print(
         f'{len(rows)} mutants in {time.monotonic() - wall0:.0f} s: {len(refused)} refused in one '

@@ -1,6 +1,6 @@
-"""S7 robot-robot encounters: mutual pairs (common s = +1, shared w_c, reciprocal field), yielding
-to stand-on robots, the acyclic reacts-to rule, S14.3 teammates, and closed-loop tie cases where
-only safety and settling are checked (S14.4: never which way a robot went round).
+"""S7 robot-robot encounters: mutual pairs (one common sense, shared w_c, reciprocal field),
+yielding to stand-on robots, the acyclic reacts-to rule, S14.3 teammates, and closed-loop tie
+cases where only safety and settling are checked (S14.4: never which way a robot went round).
 """
 
 import math
@@ -62,6 +62,25 @@ def test_head_on_free_robots_form_a_mutual_pair_with_common_sense_and_drift():
     assert list(st_.sdir) == [1.0, 1.0] and st_.t_entry[0] == st_.t_entry[1] == 3.0
     np.testing.assert_allclose(st_.wc[0], st_.wc[1])
     np.testing.assert_allclose(st_.wc[0], 0.5 * (np.array(pd[0]) + np.array(pd[1])))
+
+
+@pytest.mark.parametrize(
+    'goals, sense',
+    [
+        (((0.3, 0.6), (-0.3, -0.6)), -1.0),  # each goes round the other clockwise
+        (((0.3, -0.6), (-0.3, 0.6)), 1.0),  # each goes round the other counter-clockwise
+        (((0.3, 0.6), (-0.3, 0.6)), 1.0),  # they disagree: s = +1 as in S7
+    ],
+    ids=['both_cw', 'both_ccw', 'disagree'],
+)
+def test_a_mutual_pair_turns_the_way_both_robots_goals_agree_on(goals, sense):
+    # docs/law-changes.md section 14: the S6.6 sense of each robot round the other, when they agree
+    st_ = AutomatonState(2)
+    p = [(-0.2, 0.01), (0.2, 0.0)]
+    pd = [(0.05, 0.0), (-0.04, 0.002)]
+    decide(st_, 3.0, p, pd, goal=np.array(goals), goal_dot=np.zeros((2, 2)))
+    assert list(st_.mode) == [MODE_MUTUAL, MODE_MUTUAL]
+    assert list(st_.sdir) == [sense, sense]
 
 
 def test_mutual_law_is_reciprocal_relative_motion_follows_f():
@@ -261,7 +280,7 @@ def _check_invariants(state):
         if state.mode[i] == MODE_MUTUAL:
             k = state.tgt[i]
             assert state.mode[k] == MODE_MUTUAL and state.tgt[k] == i
-            assert state.sdir[i] == state.sdir[k] == 1.0
+            assert state.sdir[i] == state.sdir[k] and abs(state.sdir[i]) == 1.0
             assert state.t_entry[i] == state.t_entry[k]
             np.testing.assert_array_equal(state.wc[i], state.wc[k])
         if state.mode[i] == MODE_YIELD:

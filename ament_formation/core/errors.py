@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 MAX_MAGNITUDE = 1e6  # any number of a user's file (metres, seconds, gains): |x| <= 1e6
-MAX_LINE_CHARS = 300  # an error line never runs longer (a 10 MB value is shown as an excerpt)
+MAX_LINE_CHARS = 299  # an error line stays under 300 characters (a 10 MB value: an excerpt)
 _EXCERPT_CHARS = 60
 
 

@@ -48,7 +48,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except ConfigError as err:
-        print(one_line(f'formation {args.command}: {err}'), file=sys.stderr)  # <= 300 chars
+        print(one_line(f'formation {args.command}: {err}'), file=sys.stderr)  # < 300 chars
         return 2
     except KeyboardInterrupt:
         return 130

@@ -285,7 +285,7 @@ class EncounterArbiter:
                 out[rid] = EncounterAssignment(
                     'yield' if st.mode[i] == MODE_YIELD else 'mutual',
                     self.ids[int(st.tgt[i])],
-                    direction=1.0 if st.mode[i] == MODE_MUTUAL else float(st.sdir[i]),
+                    direction=float(st.sdir[i]),  # a mutual pair's common sense
                     t_entry_s=float(st.t_entry[i]),
                     drift_mps=(float(st.wc[i, 0]), float(st.wc[i, 1]))
                     if st.mode[i] == MODE_MUTUAL

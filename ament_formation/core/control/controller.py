@@ -132,8 +132,9 @@ class NeighbourState:
 @dataclass(frozen=True)
 class EncounterAssignment:
     """A coordinator's S7 decision for this robot: ``mode`` ``yield`` or ``mutual`` toward robot
-    ``partner``; ``direction`` +1 CCW / -1 CW (mutual: +1); ``t_entry_s`` the common entry time;
-    ``drift_mps`` (2,) the shared w_c of a mutual pair (None: 1/2 (p_dot_i + p_dot_k) now).
+    ``partner``; ``direction`` +1 CCW / -1 CW (mutual: the pair's common sense); ``t_entry_s`` the
+    common entry time; ``drift_mps`` (2,) the shared w_c of a mutual pair (None: 1/2 (p_dot_i +
+    p_dot_k) now).
     """
 
     mode: str
@@ -546,7 +547,7 @@ class RobotController:
             k = st.tgt[me]
             st.mode[k] = MODE_MUTUAL
             st.tgt[k] = me
-            st.sdir[k] = 1.0
+            st.sdir[k] = st.sdir[me]  # one sense for the pair (docs/law-changes.md section 14)
             st.t_entry[k] = st.t_entry[me]
 
     def _point_velocities(self, sc: _Scratch) -> np.ndarray:
@@ -713,7 +714,7 @@ class RobotController:
                 me,
                 new_mode,
                 k,
-                1.0 if new_mode == MODE_MUTUAL else float(assignment.direction),
+                float(assignment.direction),
                 t_s if assignment.t_entry_s is None else float(assignment.t_entry_s),
             )
             w = (

@@ -15,8 +15,8 @@ the robots it knows about). It
 4. arbitrates robot-robot encounters over *all* robots together (S7 rules, S14.1):
    * static obstacles beat robots; a robot avoiding an obstacle is stand-on, a free robot yields to
    it;
-   * two free robots that threaten each other form a **mutual pair** (common s = +1, mu = 1, shared
-     w_c);
+   * two free robots that threaten each other form a **mutual pair** (one common sense s: the S6.6
+     sense of each round the other when they agree, else +1; mu = 1, shared w_c);
    * the directed reacts-to graph (i -> k when i uses k's velocity) stays acyclic except for mutual
      pairs: if k already reacts to i, directly or through a chain, i does not react, unless it is
      in
@@ -426,10 +426,15 @@ def _better(em, key_em, lam, best_set, best_em, best_key_em, best_lam):
 
 
 @njit(cache=True)
-def _form_mutual(i, k, t, pd, auto, ev, nev):
-    """Convert/enter the mutual pair (i, k): s = +1, same t_s, w_c = 1/2 (p_dot_i + p_dot_k)(t_s)
-    (S7).
+def _form_mutual(i, k, t, robots, auto, ev, nev, prm):
+    """Convert/enter the mutual pair (i, k): same t_s, w_c = 1/2 (p_dot_i + p_dot_k)(t_s) (S7),
+    and one sense s for both: the S6.6 sense of each round the other when the two agree, else +1
+    (docs/law-changes.md section 14).
     """
+    pd = robots.pd
+    s = _agent_dir(i, k, robots, prm)
+    if _agent_dir(k, i, robots, prm) != s:
+        s = 1.0
     mode, tgt = auto.mode, auto.tgt
     for a in (i, k):
         if mode[a] == MODE_MUTUAL:
@@ -440,8 +445,8 @@ def _form_mutual(i, k, t, pd, auto, ev, nev):
             nev = _leave(a, t, auto, ev, nev)
     wx = 0.5 * (pd[i, 0] + pd[k, 0])
     wy = 0.5 * (pd[i, 1] + pd[k, 1])
-    nev = _enter(i, t, MODE_MUTUAL, k, 1.0, auto, ev, nev)
-    nev = _enter(k, t, MODE_MUTUAL, i, 1.0, auto, ev, nev)
+    nev = _enter(i, t, MODE_MUTUAL, k, s, auto, ev, nev)
+    nev = _enter(k, t, MODE_MUTUAL, i, s, auto, ev, nev)
     wc = auto.wc
     wc[i, 0] = wx
     wc[i, 1] = wy
@@ -489,7 +494,7 @@ def _pair_exit_conditions(i, k, robots, mutual, prm):
 
 
 @njit(cache=True)
-def _break_cycles(t, pd, auto, parent, ev):
+def _break_cycles(t, robots, auto, ev, prm):
     """S14.5: a yield whose target reacts back to the yielder through a chain of following links
     (a re-parenting can close one after the yield was decided) becomes a mutual pair, whose
     reciprocal field has no velocity feed-forward loop. Returns the event count.
@@ -497,8 +502,8 @@ def _break_cycles(t, pd, auto, parent, ev):
     nev = 0
     mode, tgt = auto.mode, auto.tgt
     for i in range(mode.shape[0]):
-        if mode[i] == MODE_YIELD and reacts_to(tgt[i], i, mode, tgt, parent):
-            nev = _form_mutual(i, tgt[i], t, pd, auto, ev, nev)
+        if mode[i] == MODE_YIELD and reacts_to(tgt[i], i, mode, tgt, robots.parent):
+            nev = _form_mutual(i, tgt[i], t, robots, auto, ev, nev, prm)
     return nev
 
 
@@ -797,11 +802,11 @@ def _engage(i, k, b_em, t, robots, auto, prm, ev, nev):
         # emergency against a robot that already reacts to i: convert to a mutual pair
         if t - t_entry[k] < prm.dwell_s:
             return nev
-        return _form_mutual(i, k, t, pd, auto, ev, nev)
+        return _form_mutual(i, k, t, robots, auto, ev, nev, prm)
     if mode[k] == MODE_C and (mode[i] == MODE_C or mode[i] == MODE_YIELD):
         # two free robots: reciprocal avoidance (S7 mutual)
         nev = _release(i, t, auto, ev, nev)
-        return _form_mutual(i, k, t, pd, auto, ev, nev)
+        return _form_mutual(i, k, t, robots, auto, ev, nev, prm)
     # k is busy (stand-on, yielding or in a pair): i yields to k
     s = _agent_dir(i, k, robots, prm)
     nev = _release(i, t, auto, ev, nev)
@@ -899,7 +904,7 @@ def decide(t, robots, obstacles, auto, prm, ev):
     mode = auto.mode  # (each stage runs only when it has work: fewer arrays to reference-count)
     nev = 0
     if _any_mode(mode, MODE_YIELD, MODE_YIELD):
-        nev = _break_cycles(t, robots.pd, auto, robots.parent, ev)
+        nev = _break_cycles(t, robots, auto, ev, prm)
     obt = _obstacle_threats(t, robots, obstacles, auto, prm)  # 1. S8.1, S14.2
     th = _robot_threats(robots, auto, prm)  # 2. S7, S14.3
     if _any_mode(mode, MODE_OBSTACLE, MODE_OBSTACLE) or (obt.j >= 0).any():  # 3. S8.1-S8.3
