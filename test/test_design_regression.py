@@ -53,6 +53,17 @@ def test_a_robot_held_still_on_its_limit_cycle_finds_its_way_to_a_free_goal(name
     assert not far, f'robots ending more than 0.5 m from their goals: {far}'
 
 
+def test_a_mutual_pair_turning_toward_both_goals_lets_two_teams_cross_on_time():
+    # docs/law-changes.md §14: before, R1 ended 0.77 m from its goal (every pair turned ccw)
+    scenario = load_scenario(FILES[0].parent / 'pairsense65.yaml')
+    result = simulate(scenario)
+    m = compute_metrics(result, scenario)
+    far = {rid: r['final_error_m'] for rid, r in m['robots'].items() if r['final_error_m'] > 0.5}
+    assert not far, f'robots ending more than 0.5 m from their goals: {far}'
+    first = next(e for e in result.mode_events if e['robot'] == 1 and e['mode'] == 'mutual')
+    assert (first['target'], first['direction']) == ('robot_3', 'cw')
+
+
 # camera-sensed chattering of teammates (docs/law-changes.md §11): file -> campaign sensing seed
 CAMERA_CHATTER = {
     'camchatter699': 1000702,
