@@ -39,6 +39,8 @@ ROBOT_KEYS = {
     'min_clearance_m',
     'avoidance_time_s',
     'avoidance_entries',
+    'longest_avoidance_s',
+    'avoiding_at_end',
     'formation_rms_settled_m',
     'final_error_m',
     'peak_torque_nm',
@@ -210,6 +212,9 @@ def test_avoidance_time_entries_rms_peaks_and_saturation():
     r0, r1 = m['robots']['0'], m['robots']['1']
     assert r0['avoidance_time_s'] == pytest.approx(3.5, abs=1e-9) and r0['avoidance_entries'] == 2
     assert r1['avoidance_time_s'] == pytest.approx(2.0, abs=1e-9) and r1['avoidance_entries'] == 1
+    assert r0['longest_avoidance_s'] == pytest.approx(3.0, abs=1e-9)
+    assert r1['longest_avoidance_s'] == pytest.approx(2.0, abs=1e-9)
+    assert r0['avoiding_at_end'] is False and r1['avoiding_at_end'] is False
     assert r0['settled_from_s'] == pytest.approx(22.0) and r1['settled_from_s'] == pytest.approx(
         22.0
     )
