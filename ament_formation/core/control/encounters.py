@@ -792,8 +792,8 @@ def _engage(i, k, b_em, t, robots, auto, prm, ev, nev):
         if t - t_entry[i] < prm.dwell_s:
             return nev  # S14.2: no re-target within T_dwell of a switch
         em_cur, hl_cur = _agent_urgency(i, tgt[i], p, pd, rbody, prm)
-        if em_cur:
-            return nev
+        if em_cur or (mode[i] == MODE_MUTUAL and not b_em):
+            return nev  # a mutual pair is left only for an emergency (S14.2)
         big_r = prm.limit_cycle_scale * keepout_radius(rbody, i, k, prm)
         hl_new = h_value(p[i, 0] - p[k, 0], p[i, 1] - p[k, 1], 0.0, big_r, big_r)
         if not (b_em or hl_new < hl_cur - RETARGET_MARGIN):
