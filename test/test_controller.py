@@ -11,6 +11,7 @@ from ament_formation.core.config_files import config_file
 from ament_formation.core.control.controller import (
     EncounterAssignment,
     NeighbourState,
+    PAIR_CONFIRM_S,
     RobotController,
 )
 from ament_formation.core.control.rewiring import FormationGraph
@@ -148,6 +149,49 @@ def test_two_controllers_head_on_form_the_same_mutual_pair():
     assert (oa.mode, oa.target, oa.direction) == ('mutual', 'robot_7', 'ccw')
     assert (ob.mode, ob.target, ob.direction) == ('mutual', 'robot_3', 'ccw')
     np.testing.assert_allclose(a._state.wc[0], b._state.wc[0], atol=1e-12)
+
+
+def test_a_pair_the_partner_does_not_report_is_left_or_becomes_a_yield():
+    """A mutual pair is one both robots report (docs/law-changes.md section 16). Partner 7 left
+    the pair it had reported: robot 3 leaves it too, at once. Partner 7 never reports it:
+    after PAIR_CONFIRM_S robot 3 yields to 7 instead. Partner 7 yields to robot 3: it leaves.
+    """
+    sc = load_scenario(config_file('scenarios/paper.yaml'))
+    p = sc.robots[0].params
+    me = np.array([-0.2, 0.01, 0.0, 0.05, 0.0])
+    xb = np.array([0.2, 0.0, math.pi, 0.05, 0.0])
+
+    def heard(mode='coordination', target=None, state=xb):
+        return {7: NeighbourState(state, team=7, mode=mode, target=target)}
+
+    def pair(t_s=5.0):
+        c = RobotController(3, p, sc.control, sc.avoidance, (), team=3)
+        out = c.step(t_s, me, neighbours=heard())
+        assert (out.mode, out.target) == ('mutual', 'robot_7')
+        return c
+
+    def kinds(out):
+        return [(e['event'], e['mode'], e['target']) for e in out.events]
+
+    left = pair()
+    out = left.step(5.01, me, neighbours=heard('mutual', 'robot_3'))
+    assert (out.mode, out.events) == ('mutual', ())
+    # they have passed each other and 7 left: a head-on approach would be a new encounter
+    away, apart = np.array([-0.2, 0.01, math.pi, 0.05, 0.0]), np.array([0.2, 0, 0, 0.05, 0])
+    out = left.step(5.02, away, neighbours=heard(state=apart))
+    assert out.mode == 'coordination' and kinds(out) == [('exit', 'mutual', 'robot_7')]
+    assert (left._state.last_kind[0], left._state.last_tgt[0]) == (2, 7)  # S8.4 cool-down
+
+    never = pair()
+    out = never.step(5.0 + PAIR_CONFIRM_S / 2, me, neighbours=heard())
+    assert (out.mode, out.events) == ('mutual', ())  # its report may still be on its way
+    out = never.step(5.0 + PAIR_CONFIRM_S, me, neighbours=heard())
+    assert (out.mode, out.target, out.direction) == ('yield', 'robot_7', 'ccw')
+    assert kinds(out) == [('exit', 'mutual', 'robot_7'), ('enter', 'yield', 'robot_7')]
+
+    stand_on = pair()
+    out = stand_on.step(5.0 + PAIR_CONFIRM_S, me, neighbours=heard('yield', 'robot_3'))
+    assert out.mode == 'coordination' and kinds(out) == [('exit', 'mutual', 'robot_7')]
 
 
 def test_assignment_overrides_robot_decision_and_bad_input_is_named():

@@ -48,6 +48,9 @@ from ament_formation.core.model.paths import fast_reference
 from ament_formation.core.params import AvoidanceParams, ControlGains, RobotParams
 
 _MODE_BY_NAME = {name: k for k, name in enumerate(MODE_NAMES)}
+# A mutual pair is one-sided when the partner, heard for this long after the pair's entry, does
+# not report it (it left with its own exit test, or never took it): docs/law-changes.md section 16
+PAIR_CONFIRM_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -321,6 +324,7 @@ class RobotController:
         self._orig_offset = np.zeros(2)
         self._last_decision_s = -math.inf
         self._last_step_s: float | None = None
+        self._confirmed_pair: tuple | None = None  # (partner id, entry time) it reported
         self._scratch: dict[int, _Scratch] = {}  # work arrays of step() per robot count
 
     # ------------------------------------------------------------------ graph
@@ -392,12 +396,12 @@ class RobotController:
         others = self._others(parent, original_parent, neighbours)
         sc = self._layout(others)
         blind = self._pack(sc, own, others)
-        self._load_own_automaton(sc)
         t_s = float(t_s)
+        events: list[dict] = []
+        self._load_own_automaton(sc, t_s, events)
         sc.pd = self._point_velocities(sc)
         sc.obs = self._obstacles_at(t_s, obstacles, sc)
         self._goals(t_s, sc, blind)
-        events: list[dict] = []
         if t_s - self._last_decision_s >= self.switching.decision_period_s - 1e-9:
             self._last_decision_s = t_s
             events.extend(self._decision_events(t_s, sc))
@@ -519,9 +523,10 @@ class RobotController:
             tgt = self._obstacle_index.get(target, -1)
         return mode, tgt
 
-    def _load_own_automaton(self, sc: _Scratch) -> None:
+    def _load_own_automaton(self, sc: _Scratch, t_s: float, events: list) -> None:
         """Own automaton state into row ``me`` (robot targets: ids -> rows); others' entry times
-        are not known here (-1e9); a mutual partner's row is made reciprocal.
+        are not known here (-1e9); a mutual partner's row is made reciprocal, unless the pair is
+        one-sided (:meth:`_leave_one_sided_pair`).
         """
         st, me, row, src = sc.state, sc.me, sc.row, self._state
         st.t_entry.fill(-1e9)
@@ -543,12 +548,46 @@ class RobotController:
             st.last_tgt[me] = row.get(int(src.last_tgt[0]), -1)
         else:
             st.last_tgt[me] = src.last_tgt[0]
-        if st.mode[me] == MODE_MUTUAL:  # the partner's view must be reciprocal
+        if st.mode[me] == MODE_MUTUAL:
             k = st.tgt[me]
+            pair = (self._target_id, float(st.t_entry[me]))
+            if st.mode[k] == MODE_MUTUAL and st.tgt[k] == me:
+                self._confirmed_pair = pair
+            elif self._confirmed_pair == pair or t_s - st.t_entry[me] >= PAIR_CONFIRM_S:
+                self._leave_one_sided_pair(t_s, sc, k, self._confirmed_pair == pair, events)
+                return
+            # the partner's view must be reciprocal
             st.mode[k] = MODE_MUTUAL
             st.tgt[k] = me
             st.sdir[k] = st.sdir[me]  # one sense for the pair (docs/law-changes.md section 14)
             st.t_entry[k] = st.t_entry[me]
+
+    def _leave_one_sided_pair(
+        self, t_s: float, sc: _Scratch, k: int, partner_left: bool, events: list
+    ) -> None:
+        """The partner k does not report the mutual pair (docs/law-changes.md section 16). When
+        it had reported the pair and left it (its side of the joint exit test, S8.3, held), or
+        when it yields to this robot, this robot leaves the encounter too (event ``exit``, S8.4
+        cool-down). When it never took the pair, this robot stays in the encounter as a plain
+        yielder to k, as the coordinator does with a pair one robot left (S8.3), and leaves it
+        with the yielder's exit test.
+        """
+        st, me, ids = sc.state, sc.me, sc.ids
+        direction = 'ccw' if st.sdir[me] > 0 else 'cw'
+        common = {'t_s': t_s, 'robot': self.robot_id, 'target': f'robot_{ids[k]}'}
+        events.append({**common, 'event': 'exit', 'mode': 'mutual', 'direction': direction})
+        if partner_left or (st.mode[k] == MODE_YIELD and st.tgt[k] == me):
+            st.last_kind[me] = KIND_AGENT
+            st.last_tgt[me] = k
+            st.last_exit[me] = t_s
+            st.mode[me] = MODE_C
+            st.tgt[me] = -1
+            st.since[me] = -1.0
+            return
+        st.mode[me] = MODE_YIELD
+        st.t_entry[me] = t_s
+        st.since[me] = -1.0
+        events.append({**common, 'event': 'enter', 'mode': 'yield', 'direction': direction})
 
     def _point_velocities(self, sc: _Scratch) -> np.ndarray:
         """(N, 2) p_dot = S1(theta) x2 of every row."""
