@@ -68,7 +68,7 @@ def dask_embedded(cases, workers):
     t0 = time.monotonic()
     scratch = tempfile.mkdtemp(prefix='af_bench_dask_')
     with LocalCluster(n_workers=workers, threads_per_worker=1, host='127.0.0.1',
-                      dashboard_address=None, local_directory=scratch,
+                      dashboard_address='127.0.0.1:0', local_directory=scratch,
                       silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
         start = time.monotonic() - t0
         rows = client.gather(client.map(run_case, cases, pure=False))

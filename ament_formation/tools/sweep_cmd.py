@@ -155,7 +155,7 @@ def _dask(cases, on_row, args, stop: _Stop):
             threads_per_worker=1,
             processes=True,
             host='127.0.0.1',
-            dashboard_address=None,
+            dashboard_address='127.0.0.1:0',  # its HTTP server: loopback, any free port
             local_directory=scratch,
             silence_logs=logging.ERROR,
         )
