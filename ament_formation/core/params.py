@@ -143,7 +143,7 @@ class ControlGains:
     switching_gain_mps2: float = 0.27  # K = lambda + sup|S1 g| + sup|Delta a| (S3.3)
     boundary_layer_mps: float = 0.01  # epsilon (S3.5); must exceed K * T_s
     formation_gain_per_s: float = 0.5  # alpha (S4)
-    formation_speed_cap_mps: float = 0.05  # v_cap (S4)
+    formation_speed_cap_mps: float = 0.10  # v_cap (S4)
     control_period_s: float = 0.001  # T_s of the sliding-mode loop (ZOH torques)
 
     def __post_init__(self) -> None:
