@@ -83,31 +83,6 @@ def test_a_mutual_pair_turns_the_way_both_robots_goals_agree_on(goals, sense):
     assert list(st_.sdir) == [sense, sense]
 
 
-def test_a_yielder_whose_goal_moved_round_reverses_once():
-    # docs/law-changes.md section 17: robot 0 yields counter-clockwise round still robot 1; its
-    # goal lies 240 degrees ahead that way, 120 degrees back the other way: it reverses, once
-    def goal_at(deg):
-        return np.array([[math.cos(math.radians(deg)), math.sin(math.radians(deg))], [0.0, 0.0]])
-
-    st_ = AutomatonState(2)
-    st_.set_mode(0, MODE_YIELD, 1, 1.0, 1.0)
-    p, pd = [(0.3, 0.0), (0.0, 0.0)], [(0.0, 0.0), (0.0, 0.0)]
-    still = np.zeros((2, 2))
-    events = decide(st_, 1.1, p, pd, goal=goal_at(-120.0), goal_dot=still, vc=still)
-    assert (st_.mode[0], st_.sdir[0], events) == (MODE_YIELD, 1.0, [])  # within T_dwell
-    events = decide(st_, 2.0, p, pd, goal=goal_at(-120.0), goal_dot=still, vc=still)
-    assert (st_.mode[0], st_.tgt[0], st_.sdir[0]) == (MODE_YIELD, 1, -1.0)
-    assert [e[2] for e in events] == ['exit', 'enter']
-    # the goal moves round again: no second reversal in this encounter
-    events = decide(st_, 3.0, p, pd, goal=goal_at(120.0), goal_dot=still, vc=still)
-    assert (st_.sdir[0], events) == (-1.0, [])
-    # a goal 100 degrees ahead is the shorter way: a yielder entered that way keeps it
-    st_ = AutomatonState(2)
-    st_.set_mode(0, MODE_YIELD, 1, 1.0, 1.0)
-    events = decide(st_, 2.0, p, pd, goal=goal_at(100.0), goal_dot=still, vc=still)
-    assert (st_.sdir[0], events) == (1.0, [])
-
-
 def test_mutual_law_is_reciprocal_relative_motion_follows_f():
     """V_d,i - V_d,k = F(z_ik) and V_d,i + V_d,k = 2 w_c (S7), from the law actually used."""
     n = 2

@@ -73,8 +73,6 @@ MAX_THREATS = 8  # robot threats kept per robot and decision
 RETARGET_MARGIN = 0.1  # S8.2 between robots: the new h_L must be lower by this (hysteresis)
 STUCK_S = 5.0  # liveness: a robot held still this long on its limit cycle reverses its sense
 STILL_MPS = 0.005  # ... "still": |p_dot| below this
-YIELD_REVERSE_MARGIN = 0.2  # a yielder reverses when its arc is longer by this share of the circle
-REVERSE_LOOK_SPEED_MPS = 0.05  # ... its look-ahead is full from this goal speed relative to the robot
 
 
 @njit(cache=True)
@@ -836,27 +834,6 @@ def _arbitrate_robots(t, robots, auto, obt, th, prm, ev, nev):
 
 
 @njit(cache=True)
-def _yields_the_long_way(i, k, robots, auto, prm):
-    """Robot i, yielding to robot k, goes round k the long way to its look-ahead goal (S6.6
-    rule 1): the arc left in its sense exceeds the other way's by ``YIELD_REVERSE_MARGIN`` of the
-    circle.
-    """
-    p, pd, goal, goal_dot = robots.p, robots.pd, robots.goal, robots.goal_dot
-    gx, gy = goal[i, 0] - p[k, 0], goal[i, 1] - p[k, 1]
-    gdx, gdy = goal_dot[i, 0] - pd[k, 0], goal_dot[i, 1] - pd[k, 1]
-    n = math.hypot(gdx, gdy)
-    if n > 1e-9:  # S6.6 rule 1's look-ahead, faded out as the goal's relative speed vanishes
-        look = 2.0 * prm.protected_scale * keepout_radius(robots.rbody, i, k, prm)
-        look *= min(1.0, n / REVERSE_LOOK_SPEED_MPS)
-        gx += look * gdx / n
-        gy += look * gdy / n
-    psi_a = math.atan2(p[i, 1] - p[k, 1], p[i, 0] - p[k, 0])
-    frac = ((math.atan2(gy, gx) - psi_a) % (2.0 * math.pi)) / (2.0 * math.pi)  # ccw share
-    left = frac if auto.sdir[i] > 0 else 1.0 - frac
-    return left - (1.0 - left) > YIELD_REVERSE_MARGIN
-
-
-@njit(cache=True)
 def _pair_exits(t, robots, auto, prm, ev, nev):
     """Stage 5 of :func:`decide`: S8.3 exits of yielding robots and the joint exit of mutual
     pairs. Returns the event count.
@@ -866,21 +843,6 @@ def _pair_exits(t, robots, auto, prm, ev, nev):
         if mode[i] == MODE_YIELD or (mode[i] == MODE_MUTUAL and tgt[i] > i):
             k = tgt[i]
             mutual = mode[i] == MODE_MUTUAL
-            reversed_once = (
-                auto.last_kind[i] == KIND_AGENT
-                and auto.last_tgt[i] == k
-                and auto.last_exit[i] == auto.t_entry[i]
-            )
-            if (
-                not mutual
-                and not reversed_once
-                and t - auto.t_entry[i] >= prm.dwell_s
-                and _yields_the_long_way(i, k, robots, auto, prm)
-            ):
-                s = -auto.sdir[i]  # the goal has moved round k: go the other way
-                nev = _leave(i, t, auto, ev, nev)
-                nev = _enter(i, t, MODE_YIELD, k, s, auto, ev, nev)
-                continue
             cond = _pair_exit_conditions(i, k, robots, mutual, prm)
             ok, since[i] = exit_timer(cond, t, since[i], auto.t_entry[i], prm)
             if mutual:
