@@ -12,7 +12,7 @@ import yaml
 
 from ament_formation.core.config_files import config_file
 from ament_formation.core.errors import ConfigError
-from ament_formation.core.scenario.loader import load_scenario
+from ament_formation.core.scenario.loader import load_scenario, parse_scenario
 from ament_formation.core.sim.metrics import check_run, compute_metrics
 from ament_formation.core.sim.sensed import (
     MEASURED_NOISE_M,
@@ -163,6 +163,23 @@ def test_robot_encounter_goes_through_the_coordinator(hear_all):
     assert m['min_inter_robot_distance_m'] > 0.3  # ideal 0.347 m
     kinds = {(e['robot'], e['event'], e['mode']) for e in res.mode_events}
     assert kinds == {(r, ev, 'mutual') for r in (0, 1) for ev in ('enter', 'exit')}
+
+
+@pytest.mark.parametrize('lanes, sense', [((0.70, 0.50), 'cw'), ((0.50, 0.70), 'ccw')])
+def test_a_sensed_pair_turns_the_way_both_goals_agree_on(lanes, sense):
+    # docs/law-changes.md section 14, through the coordinator's arbiter and both controllers:
+    # robot 0 drives east in the northern lane, robot 1 west in the southern one, so both goals
+    # lie clockwise round the other robot (mirrored: counter-clockwise)
+    mapping = yaml.safe_load((DATA / 'head_on.yaml').read_text())
+    for robot, y in zip(mapping['robots'], lanes):
+        robot['path']['start_m'][1] = robot['initial_pose'][1] = y
+    sc = parse_scenario(mapping, 'two_lanes')
+    res = simulate_sensed(sc, SensingParams.preset('camera', seed=3))
+    enters = [
+        (e['robot'], e['mode'], e['direction']) for e in res.mode_events if e['event'] == 'enter'
+    ]
+    assert enters == [(0, 'mutual', sense), (1, 'mutual', sense)]
+    assert compute_metrics(res, sc)['min_inter_robot_distance_m'] > 0.3
 
 
 def test_cli_sensing_option_writes_metrics_and_exit_status_follows_the_checks(tmp_path, capsys):
