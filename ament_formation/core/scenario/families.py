@@ -456,7 +456,8 @@ def perturb(scenario, seed: int, index: int, scale: float = 1.0) -> tuple[dict, 
         for r in mapping['robots']:
             x, y, th = r['initial_pose']
             dx, dy = rng.uniform(-0.05, 0.05, 2) * scale
-            r['initial_pose'] = [x + dx, y + dy, th + rng.uniform(-0.2, 0.2) * scale]
+            pose = (x + dx, y + dy, th + rng.uniform(-0.2, 0.2) * scale)
+            r['initial_pose'] = [float(v) for v in pose]  # plain floats: the mapping is YAML
         for o in mapping['obstacles']:
             o['center_m'] = [
                 float(v) for v in np.asarray(o['center_m']) + rng.uniform(-0.05, 0.05, 2) * scale
@@ -464,7 +465,7 @@ def perturb(scenario, seed: int, index: int, scale: float = 1.0) -> tuple[dict, 
             o['semi_axes_m'] = [
                 float(v * (1.0 + rng.uniform(-0.1, 0.1) * scale)) for v in o['semi_axes_m']
             ]
-            o['orientation_rad'] += rng.uniform(-0.2, 0.2) * scale
+            o['orientation_rad'] = float(o['orientation_rad'] + rng.uniform(-0.2, 0.2) * scale)
         try:
             parse_scenario(mapping)
         except ConfigError:
