@@ -83,6 +83,24 @@ def test_a_mutual_pair_turns_the_way_both_robots_goals_agree_on(goals, sense):
     assert list(st_.sdir) == [sense, sense]
 
 
+@pytest.mark.parametrize('paired', [True, False])
+def test_a_mutual_pair_is_not_left_for_a_merely_closer_robot(paired):
+    # docs/law-changes.md section 15: robot 2 drives at robot 0, closer than robot 1 but outside
+    # robot 0's emergency circle. Paired with robot 1, robot 0 keeps the pair (robot 2 yields
+    # to it); yielding to robot 1, it re-targets to the closer robot 2 (S8.2)
+    st_ = AutomatonState(3)
+    st_.set_mode(0, MODE_MUTUAL if paired else MODE_YIELD, 1, 1.0, 1.0)
+    if paired:
+        st_.set_mode(1, MODE_MUTUAL, 0, 1.0, 1.0)
+    p, pd = [(0.0, 0.0), (0.0, 0.6), (0.38, 0.0)], [(0.0, 0.0), (0.0, 0.0), (-0.06, 0.0)]
+    decide(st_, 2.0, p, pd)
+    if paired:
+        assert list(st_.mode) == [MODE_MUTUAL, MODE_MUTUAL, MODE_YIELD]
+        assert list(st_.tgt) == [1, 0, 0]
+    else:
+        assert (st_.mode[0], st_.tgt[0]) == (MODE_MUTUAL, 2)
+
+
 def test_mutual_law_is_reciprocal_relative_motion_follows_f():
     """V_d,i - V_d,k = F(z_ik) and V_d,i + V_d,k = 2 w_c (S7), from the law actually used."""
     n = 2
