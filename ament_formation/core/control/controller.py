@@ -572,18 +572,13 @@ class RobotController:
         yielder to k, as the coordinator does with a pair one robot left (S8.3), and leaves it
         with the yielder's exit test.
         """
-        st, me, ids = sc.state, sc.me, sc.ids
-        direction = 'ccw' if st.sdir[me] > 0 else 'cw'
-        common = {'t_s': t_s, 'robot': self.robot_id, 'target': f'robot_{ids[k]}'}
-        events.append({**common, 'event': 'exit', 'mode': 'mutual', 'direction': direction})
+        st, me = sc.state, sc.me
         if partner_left or (st.mode[k] == MODE_YIELD and st.tgt[k] == me):
-            st.last_kind[me] = KIND_AGENT
-            st.last_tgt[me] = k
-            st.last_exit[me] = t_s
-            st.mode[me] = MODE_C
-            st.tgt[me] = -1
-            st.since[me] = -1.0
+            self._leave_robot(t_s, sc, events)
             return
+        direction = 'ccw' if st.sdir[me] > 0 else 'cw'
+        common = {'t_s': t_s, 'robot': self.robot_id, 'target': f'robot_{sc.ids[k]}'}
+        events.append({**common, 'event': 'exit', 'mode': 'mutual', 'direction': direction})
         st.mode[me] = MODE_YIELD
         st.t_entry[me] = t_s
         st.since[me] = -1.0
@@ -714,17 +709,25 @@ class RobotController:
         h_em = ((x[me, 0] - x[k, 0]) ** 2 + (x[me, 1] - x[k, 1]) ** 2) / r_em**2 - 1.0
         if h_em < 0.0:
             return
+        self._leave_robot(t_s, sc, events)
+
+    def _leave_robot(self, t_s: float, sc: _Scratch, events: list) -> None:
+        """Leave the current yield or mutual encounter for coordination: event ``exit`` and the
+        S8.4 cool-down record (robot target).
+        """
+        st, me = sc.state, sc.me
+        k = int(st.tgt[me])
         events.append(
             {
                 't_s': t_s,
                 'robot': self.robot_id,
                 'event': 'exit',
                 'mode': MODE_NAMES[int(st.mode[me])],
-                'target': f'robot_{ids[k]}',
+                'target': f'robot_{sc.ids[k]}',
                 'direction': 'ccw' if st.sdir[me] > 0 else 'cw',
             }
         )
-        st.last_kind[me] = KIND_AGENT  # S8.4 cool-down record (robot target)
+        st.last_kind[me] = KIND_AGENT
         st.last_tgt[me] = k
         st.last_exit[me] = t_s
         st.mode[me] = MODE_C
