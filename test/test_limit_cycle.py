@@ -339,13 +339,15 @@ def test_ray_and_segment_tests_agree_with_brute_force(seed):
     assert np.all(np.abs(lam[both] - brute_lam[both]) <= 20.0 / 8000 + 1e-12)
     h_contact = ellipse_h(z[both] + lam[both, None] * zd[both], phi[both], r1[both], r2[both])
     np.testing.assert_allclose(h_contact * (lam[both] > 0), 0.0, atol=1e-9)
-    p0 = rng.uniform(-2, 2, (n, 2))
-    p1 = rng.uniform(-2, 2, (n, 2))
-    center = rng.uniform(-0.5, 0.5, (n, 2))
-    seg = segment_hits_ellipse(p0, p1, center, phi, r1, r2)
+    m = 400  # segments: enough that hits and misses both appear for every seed
+    sphi, sr1, sr2 = _ellipses(rng, m)
+    p0 = rng.uniform(-2, 2, (m, 2))
+    p1 = rng.uniform(-2, 2, (m, 2))
+    center = rng.uniform(-0.5, 0.5, (m, 2))
+    seg = segment_hits_ellipse(p0, p1, center, sphi, sr1, sr2)
     s = np.linspace(0.0, 1.0, 2001)
     pts = p0[:, None, :] + s[None, :, None] * (p1 - p0)[:, None, :] - center[:, None, :]
-    hh = ellipse_h(pts, phi[:, None], r1[:, None], r2[:, None])
+    hh = ellipse_h(pts, sphi[:, None], sr1[:, None], sr2[:, None])
     clear = np.abs(hh.min(axis=1)) > 1e-3
     np.testing.assert_array_equal(seg[clear], (hh.min(axis=1) <= 0)[clear])
     assert 0.1 < seg.mean() < 0.9
@@ -353,7 +355,8 @@ def test_ray_and_segment_tests_agree_with_brute_force(seed):
         rl = kn.ray_time(*z[i], *zd[i], phi[i], r1[i], r2[i])
         assert (rl < np.inf) == hit[i]
         assert rl == lam[i] or abs(rl - lam[i]) <= 1e-9 * max(1.0, lam[i])
-        assert kn.segment_hits(*p0[i], *p1[i], *center[i], phi[i], r1[i], r2[i]) == seg[i]
+        hits = kn.segment_hits(*p0[i], *p1[i], *center[i], sphi[i], sr1[i], sr2[i])
+        assert hits == seg[i]
 
 
 @settings(max_examples=8, deadline=None)
