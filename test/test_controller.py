@@ -193,6 +193,12 @@ def test_a_pair_the_partner_does_not_report_is_left_or_becomes_a_yield():
     out = stand_on.step(5.0 + PAIR_CONFIRM_S, me, neighbours=heard('yield', 'robot_3'))
     assert out.mode == 'coordination' and kinds(out) == [('exit', 'mutual', 'robot_7')]
 
+    # one step reports its net switch (section 19): demoted to a yield, then released by the
+    # coordinator in that same step -- one exit of the pair, not three events
+    released = pair()
+    out = released.step(5.0 + PAIR_CONFIRM_S, me, neighbours=heard(), release=7)
+    assert out.mode == 'coordination' and kinds(out) == [('exit', 'mutual', 'robot_7')]
+
 
 def test_assignment_overrides_robot_decision_and_bad_input_is_named():
     sc = load_scenario(config_file('scenarios/paper.yaml'))

@@ -21,6 +21,7 @@ SPEC_MAP = {
     'S8': 'control.encounters:decide',  # the switching automaton, every decision period
     'S8.3': 'control.law:goals_and_fields',  # formation goal g_i and coordination field V_c
     'S9': 'control.rewiring:FormationGraph.rewire',  # graph rewiring
+    'S13.3': 'model.obstacles:avoided_as_one',  # obstacles too close to pass: avoided as one
     'S14': 'control.safety:safe_field',  # speed limit and braking barrier on V_d (issue 13)
     'S10': 'control.estimator:PoseEstimator',  # odometry + latency-compensated camera fusion
     'S10/neighbours': 'control.neighbours:extrapolate_neighbour',  # heard states, to now

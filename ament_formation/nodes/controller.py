@@ -389,7 +389,7 @@ class ControllerNode(Node):
             spec.params,
             sc.control,
             sc.avoidance,
-            sc.obstacles,
+            sc.avoided_obstacles(),
             leader_path=spec.path if spec.leader else None,
             team=sc.team_leader(self.rid),
             floor=sc.floor,

@@ -67,8 +67,9 @@ class EncounterArbiter:
         }
         self._team = {rid: scenario.team_leader(rid) for rid in self.ids}
         self._paths = {r.id: (r.path if r.leader else None) for r in robots}
-        self.obstacle_names = tuple(o.name for o in scenario.obstacles)
-        self._field = ObstacleField(scenario.obstacles)
+        obstacles = scenario.avoided_obstacles()  # §18
+        self.obstacle_names = tuple(o.name for o in obstacles)
+        self._field = ObstacleField(obstacles)
         self._axes, self._static = self._field.axes, self._field.static
         self._obs = self._field.buffers()  # written by every decision
         self._rewired: dict[tuple, dict] = {}  # S9 parents by avoiding set (the graph is fixed)

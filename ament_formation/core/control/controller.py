@@ -244,9 +244,10 @@ class RobotController:
     team=None, switching=None, floor=None)``
       * ``params`` :class:`RobotParams`; ``control`` :class:`ControlGains` (K, epsilon, alpha,
       v_cap,
-        lambda); ``avoidance`` :class:`AvoidanceParams`; ``obstacles`` the known
-        :class:`ObstacleSpec` (their motion is evaluated at the step time unless ``step`` receives
-        measured :class:`ObstacleStates`);
+        lambda); ``avoidance`` :class:`AvoidanceParams`; ``obstacles`` the
+        :class:`ObstacleSpec` the law avoids (a scenario's ``avoided_obstacles()``: obstacles
+        too close to pass between come as one, docs/law-changes.md §18; their motion is
+        evaluated at the step time unless ``step`` receives measured :class:`ObstacleStates`);
       * ``leader_path``: a path with ``reference(t_s) -> (r, r_dot, r_ddot)`` when this robot leads
         a team (then it tracks r(t), S4), else None;
       * ``team``: id of its team leader (S14.3); ``switching``: :class:`SwitchingParams`
@@ -393,6 +394,7 @@ class RobotController:
     ) -> ControlOutput:
         """One control period: (maybe) decide, then the law. See the class docstring."""
         own = self._checked_own_state(own_state)
+        before = (self.mode, self.target, self.direction)
         others = self._others(parent, original_parent, neighbours)
         sc = self._layout(others)
         blind = self._pack(sc, own, others)
@@ -416,6 +418,8 @@ class RobotController:
             st.wc[me] += (t_s - self._last_step_s) * np.array([wdx, wdy])
         self._last_step_s = t_s
         self._keep_own_automaton(sc)
+        if len(events) > 1:  # one step's net switch (docs/law-changes.md §19)
+            events = self._net_events(events, before)
         return ControlOutput(
             torque_nm=np.array([t1, t2]),
             accel_cmd_mps2=np.array([acx, acy]),
@@ -426,6 +430,32 @@ class RobotController:
             direction=self.direction,
             events=tuple(events),
         )
+
+    def _net_events(self, events: list[dict], before: tuple) -> list[dict]:
+        """The mode events of one step as the robot's net switch: the exit of the mode it
+        ran the step before and the entry of the mode it runs now, or nothing when they are
+        the same. Modes entered and left within the step (the coordinator's assignment over
+        the own decision, a one-sided pair left at once) never ran the law.
+        """
+        after = (self.mode, self.target, self.direction)
+        if before == after:
+            return []
+        t_s = events[0]['t_s']
+        out = []
+        for state, kind in ((before, 'exit'), (after, 'enter')):
+            if state[0] != MODE_NAMES[MODE_C]:
+                mode, target, direction = state
+                out.append(
+                    {
+                        't_s': t_s,
+                        'robot': self.robot_id,
+                        'event': kind,
+                        'mode': mode,
+                        'target': target,
+                        'direction': direction,
+                    }
+                )
+        return out
 
     def _checked_own_state(self, own_state) -> np.ndarray:
         """``own_state`` as a (5,) float array; ValueError unless 5 finite numbers."""
@@ -590,7 +620,8 @@ class RobotController:
 
     def _obstacles_at(self, t_s: float, obstacles: ObstacleStates | None, sc: _Scratch) -> tuple:
         """(centres, velocities, accelerations, phi, phi_dot, phi_ddot, semi-axes) of the
-        obstacles at ``t_s``: the measured ``obstacles``, else the specs' motion model.
+        obstacles at ``t_s``: the measured ``obstacles`` (one row per obstacle the law avoids),
+        else the specs' motion model.
         """
         if obstacles is not None:
             return tuple(

@@ -148,3 +148,76 @@ def ellipse_outline(semi_axes_m, n: int = 64) -> np.ndarray:
     out = np.stack((semi_axes_m[0] * np.cos(t), semi_axes_m[1] * np.sin(t)), axis=1)
     out[-1] = out[0]
     return out
+
+
+BOUNDARY_SAMPLES = 256  # points per ellipse of the sampled region tests below
+
+
+def boundary_points(center, phi, semi_axes, n: int = BOUNDARY_SAMPLES) -> np.ndarray:
+    """(K, n, 2) points on the boundaries of K ellipses: centres (K, 2) [m], orientations (K,)
+    [rad], semi-axes (K, 2) [m].
+    """
+    c, phi, axes = np.atleast_2d(center), np.atleast_1d(phi), np.atleast_2d(semi_axes)
+    ang = np.linspace(0.0, 2 * np.pi, n, endpoint=False)
+    u = axes[:, 0:1] * np.cos(ang)
+    w = axes[:, 1:2] * np.sin(ang)
+    cp, sp = np.cos(phi)[:, None], np.sin(phi)[:, None]
+    return np.stack([c[:, 0:1] + cp * u - sp * w, c[:, 1:2] + sp * u + cp * w], axis=-1)
+
+
+def points_inside(pts, c, phi, axes) -> np.ndarray:
+    """(K, S) bool: which of ``pts`` (K, S, 2) lie in the K ellipses (centres (K, 2), phi (K,),
+    semi-axes (K, 2)).
+    """
+    z = pts - c[:, None, :]
+    cp, sp = np.cos(phi)[:, None], np.sin(phi)[:, None]
+    u = cp * z[..., 0] + sp * z[..., 1]
+    w = -sp * z[..., 0] + cp * z[..., 1]
+    return (u / axes[:, 0:1]) ** 2 + (w / axes[:, 1:2]) ** 2 <= 1.0
+
+
+def ellipses_overlap(c1, phi1, axes1, c2, phi2, axes2) -> np.ndarray:
+    """Whether two ellipses (closed regions) intersect, for K pairs at once.
+
+    Parameters: centres (K, 2) [m], orientations (K,) [rad], semi-axes (K, 2) [m].
+    Exact up to the boundary sampling (:data:`BOUNDARY_SAMPLES` points per ellipse): overlap iff
+    a boundary point of one lies inside the other or one centre lies inside the other.
+    Returns (K,) bool.
+    """
+    c1, c2 = np.atleast_2d(c1), np.atleast_2d(c2)
+    phi1, phi2 = np.atleast_1d(phi1), np.atleast_1d(phi2)
+    axes1, axes2 = np.atleast_2d(axes1), np.atleast_2d(axes2)
+    hit = np.any(points_inside(boundary_points(c1, phi1, axes1), c2, phi2, axes2), axis=1)
+    hit |= np.any(points_inside(boundary_points(c2, phi2, axes2), c1, phi1, axes1), axis=1)
+    hit |= points_inside(c1[:, None, :], c2, phi2, axes2)[:, 0]
+    hit |= points_inside(c2[:, None, :], c1, phi1, axes1)[:, 0]
+    return hit
+
+
+def enclosing_ellipse(points, tol: float = 1e-9, max_iter: int = 10_000):
+    """The minimum-area ellipse enclosing ``points`` (S, 2) [m] (Khachiyan's algorithm), as
+    (centre (2,), orientation [rad], semi-axes (r1 >= r2)), scaled so every point lies inside.
+    """
+    pts = np.asarray(points, dtype=float)
+    q = np.vstack([pts.T, np.ones(len(pts))])  # (3, S) lifted points
+    u = np.full(len(pts), 1.0 / len(pts))
+    for _ in range(max_iter):
+        x = (q * u) @ q.T
+        m = np.einsum('is,is->s', q, np.linalg.solve(x, q))
+        j = int(np.argmax(m))
+        step = (m[j] - 3.0) / (3.0 * (m[j] - 1.0))
+        new_u = (1.0 - step) * u
+        new_u[j] += step
+        done = np.linalg.norm(new_u - u) < tol
+        u = new_u
+        if done:
+            break
+    c = pts.T @ u
+    cov = (pts.T * u) @ pts - np.outer(c, c)
+    a = np.linalg.inv(cov) / 2.0  # {x : (x - c)' A (x - c) <= 1}
+    z = pts - c
+    a /= max(1.0, float(np.max(np.einsum('si,ij,sj->s', z, a, z))))  # every point inside
+    evals, evecs = np.linalg.eigh(a)  # ascending: the first is the major axis
+    r1, r2 = 1.0 / np.sqrt(evals)
+    phi = math.atan2(evecs[1, 0], evecs[0, 0])
+    return c, phi, (float(r1), float(r2))

@@ -15,6 +15,13 @@ from numba import njit
 import numpy as np
 
 from ament_formation.core.errors import ConfigError
+from ament_formation.core.model.ellipse import (
+    boundary_points,
+    BOUNDARY_SAMPLES,
+    ellipses_overlap,
+    enclosing_ellipse,
+    points_inside,
+)
 
 
 @dataclass(frozen=True)
@@ -140,6 +147,120 @@ class ObstacleField:
             phi_ddot_radps2=ophidd,
             semi_axes_m=self._axes.copy(),
         )
+
+
+MERGE_REACH = 2.5  # an enclosing ellipse stays inside 2.5 P of its members (section 18)
+
+
+# implements: S13.3
+def avoided_as_one(
+    specs, heading_scale: float, limit_cycle_scale: float, starts=()
+) -> tuple[tuple[ObstacleSpec, ...], tuple]:
+    """The obstacles the law avoids: S13 #3's design rule applied (docs/law-changes.md §18).
+
+    Two obstacles whose heading-test ellipses I = rho_in P (``heading_scale``) overlap leave no
+    lane a robot could follow: their limit cycles lead into each other's emergency ellipses and
+    a robot between them flips from one to the other. Such obstacles are replaced by one static
+    ellipse enclosing both (the minimum-area one), repeatedly, unless
+
+    * the enclosing ellipse reaches beyond :data:`MERGE_REACH` times a member's P (a merge
+      would close floor the robots need: a T of a long bar and a small disc, a chain of
+      obstacles across the floor), or
+    * a robot's controlled point starts (``starts``, (K, 2) [m]) inside its limit cycle
+      L = rho_L P (``limit_cycle_scale``): the law pushes a point inside L outwards, and
+      between the members that could be through one of them.
+
+    Only obstacles whose region stays in place merge: a static one, or one rotating about a
+    fixed centre (its region over time: the disc of radius r1). Moving obstacles never merge.
+
+    Returns (specs, members): the specs in the order of their first member (an unmerged
+    obstacle is its own spec; a merged one is static and named ``A+B``: a scenario's names
+    never hold a '+'), and for each the indices of the given specs it stands for.
+    """
+    specs = tuple(specs)
+    starts = np.asarray(starts, dtype=float).reshape(-1, 2)
+    regions = []  # [members, centre, phi, semi-axes, member parts] of the ones that may merge
+    region_of = [-1] * len(specs)  # per spec: its region, -1 when it moves
+    for j, o in enumerate(specs):
+        if not o.moves:
+            r1, r2 = o.semi_axes_m
+            axes = (max(r1, r2), max(r1, r2)) if o.rotates else (r1, r2)
+            part = (np.asarray(o.center_m, float), float(o.orientation_rad), axes)
+            region_of[j] = len(regions)
+            regions.append([(j,), *part, [part]])
+    alive = list(range(len(regions)))
+    while True:
+        merged = _first_merge(regions, alive, heading_scale, limit_cycle_scale, starts)
+        if merged is None:
+            break
+        a, b, region = merged
+        regions[a] = region
+        alive.remove(b)
+        region_of = [a if r == b else r for r in region_of]
+    law, members, seen = [], [], set()
+    for j, r in enumerate(region_of):
+        idx = (j,) if r < 0 else tuple(sorted(regions[r][0]))
+        if r >= 0 and r in seen:
+            continue  # a merged obstacle's later member
+        seen.add(r)
+        members.append(idx)
+        if len(idx) == 1:
+            law.append(specs[j])
+            continue
+        _, centre, phi, axes, _ = regions[r]
+        law.append(
+            ObstacleSpec(
+                '+'.join(specs[i].name for i in idx),
+                (float(centre[0]), float(centre[1])),
+                (float(axes[0]), float(axes[1])),
+                float(phi),
+            )
+        )
+    return tuple(law), tuple(members)
+
+
+def _first_merge(regions, alive, heading_scale, limit_cycle_scale, starts):
+    """(a, b, merged region) of the first two ``alive`` regions whose I's overlap and whose
+    enclosing ellipse :func:`avoided_as_one` admits, or None.
+    """
+    if len(alive) < 2:
+        return None
+    live = [regions[r] for r in alive]
+    c = np.array([r[1] for r in live])
+    reach = heading_scale * np.array([max(r[3]) for r in live])
+    qa, qb = np.triu_indices(len(live), 1)
+    near = np.linalg.norm(c[qa] - c[qb], axis=1) <= reach[qa] + reach[qb]  # bounding circles
+    qa, qb = qa[near], qb[near]
+    if not len(qa):
+        return None
+    phi = np.array([r[2] for r in live])
+    axes = heading_scale * np.array([r[3] for r in live])
+    hit = ellipses_overlap(c[qa], phi[qa], axes[qa], c[qb], phi[qb], axes[qb])
+    grow = 1.0 / math.cos(math.pi / BOUNDARY_SAMPLES)  # the true boundary between two samples
+    for p, q in zip(qa[hit], qb[hit]):
+        a, b = alive[p], alive[q]
+        parts = regions[a][4] + regions[b][4]
+        pts = np.concatenate([boundary_points(*part)[0] for part in parts])
+        centre, phi_m, (r1, r2) = enclosing_ellipse(pts)
+        axes_m = (r1 * grow, r2 * grow)
+        if len(starts) and _inside(starts, (centre, phi_m, axes_m), limit_cycle_scale).any():
+            continue
+        outline = boundary_points(centre, phi_m, axes_m)[0]
+        near_members = np.zeros(len(outline), dtype=bool)
+        for part in parts:
+            near_members |= _inside(outline, part, MERGE_REACH)
+        if near_members.all():
+            return a, b, [regions[a][0] + regions[b][0], centre, phi_m, axes_m, parts]
+    return None
+
+
+def _inside(pts, part, scale: float) -> np.ndarray:
+    """(S,) bool: which ``pts`` (S, 2) lie in the ellipse ``part`` (centre, phi, semi-axes)
+    scaled by ``scale``.
+    """
+    centre, phi, axes = part
+    scaled = scale * np.asarray(axes, float)[None]
+    return points_inside(pts[None], np.asarray(centre)[None], np.array([phi]), scaled)[0]
 
 
 def obstacle_arrays(obs) -> tuple:

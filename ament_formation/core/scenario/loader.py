@@ -36,13 +36,13 @@ import numpy as np
 import yaml
 
 from ament_formation.core.errors import ConfigError, excerpt, MAX_MAGNITUDE
-from ament_formation.core.model.obstacles import ObstacleField, ObstacleSpec
+from ament_formation.core.model.ellipse import ellipses_overlap
+from ament_formation.core.model.obstacles import avoided_as_one, ObstacleField, ObstacleSpec
 from ament_formation.core.model.paths import Path, path_from_config
 from ament_formation.core.params import AvoidanceParams, ControlGains, RobotParams
 
 _OVERLAP_STEP_S = 0.25
 _NAME_RE = re.compile(r'[A-Za-z0-9_.\-]+')
-_BOUNDARY_SAMPLES = 256
 
 # Bounded input (docs/scenarios.md "Limits"): what a scenario may ask of the machine. A file over
 # these limits is refused in one line before any large allocation.
@@ -183,6 +183,20 @@ class Scenario:
     def team_leader(self, robot_id: int) -> int:
         """Id of the leader whose team the robot belongs to (the leader of its graph component)."""
         return self._team_leader[robot_id]
+
+    def avoided_obstacles(self) -> tuple[ObstacleSpec, ...]:
+        """The obstacles the law avoids: :attr:`obstacles`, with those too close to pass
+        between replaced by one enclosing ellipse (spec S13 #3, docs/law-changes.md §18;
+        :func:`avoided_as_one`). The simulators, the robot's controller and the coordinator
+        all avoid these; metrics, records and views keep :attr:`obstacles`.
+        """
+        return self._avoided[0]
+
+    @cached_property
+    def _avoided(self) -> tuple:
+        av = self.avoidance
+        starts = [r.initial_pose[:2] for r in self.robots]
+        return avoided_as_one(self.obstacles, av.heading_scale, av.limit_cycle_scale, starts)
 
     @cached_property
     def _by_id(self) -> dict[int, RobotSpec]:
@@ -488,6 +502,15 @@ def _parse(data, source) -> Scenario:
     if floor is not None:
         _check_start_on_floor(robots, floor)
     _check_limit_cycles(obstacles, avoidance, duration)
+    starts = [r.initial_pose[:2] for r in robots]
+    avoided, members = avoided_as_one(
+        obstacles, avoidance.heading_scale, avoidance.limit_cycle_scale, starts
+    )
+    if len(avoided) < len(obstacles):  # S13 #3 again for an enclosing ellipse (§18)
+        order = sorted(range(len(avoided)), key=lambda j: len(members[j]) == 1)  # merged first
+        _check_limit_cycles(
+            [avoided[j] for j in order], avoidance, duration, [members[j][-1] for j in order]
+        )
     expect = _parse_expect(data.get('expect', {}), ids)
 
     return Scenario(
@@ -866,41 +889,12 @@ def _check_start_geometry(robots, obstacles, avoidance: AvoidanceParams) -> None
                 )
 
 
-def ellipses_overlap(c1, phi1, axes1, c2, phi2, axes2) -> np.ndarray:
-    """Whether two ellipses (closed regions) intersect, for K pairs at once.
-
-    Parameters: centres (K, 2) [m], orientations (K,) [rad], semi-axes (K, 2) [m].
-    Exact up to the boundary sampling (``_BOUNDARY_SAMPLES`` points per ellipse): overlap iff a
-    boundary point of one lies inside the other or one centre lies inside the other.
-    Returns (K,) bool.
+def _check_limit_cycles(
+    obstacles, avoidance: AvoidanceParams, duration_s: float, index_of=None
+) -> None:
+    """S13 #3: the limit cycles L_j = rho_L P_j of different obstacles must never overlap.
+    ``index_of``: the scenario's obstacle index of each given one (default: its position).
     """
-    c1, c2 = np.atleast_2d(c1), np.atleast_2d(c2)
-    phi1, phi2 = np.atleast_1d(phi1), np.atleast_1d(phi2)
-    axes1, axes2 = np.atleast_2d(axes1), np.atleast_2d(axes2)
-
-    def boundary(c, phi, axes):
-        ang = np.linspace(0.0, 2 * np.pi, _BOUNDARY_SAMPLES, endpoint=False)
-        u = axes[:, 0:1] * np.cos(ang)
-        w = axes[:, 1:2] * np.sin(ang)
-        cp, sp = np.cos(phi)[:, None], np.sin(phi)[:, None]
-        return np.stack([c[:, 0:1] + cp * u - sp * w, c[:, 1:2] + sp * u + cp * w], axis=-1)
-
-    def inside(pts, c, phi, axes):  # pts (K, S, 2)
-        z = pts - c[:, None, :]
-        cp, sp = np.cos(phi)[:, None], np.sin(phi)[:, None]
-        u = cp * z[..., 0] + sp * z[..., 1]
-        w = -sp * z[..., 0] + cp * z[..., 1]
-        return (u / axes[:, 0:1]) ** 2 + (w / axes[:, 1:2]) ** 2 <= 1.0
-
-    hit = np.any(inside(boundary(c1, phi1, axes1), c2, phi2, axes2), axis=1)
-    hit |= np.any(inside(boundary(c2, phi2, axes2), c1, phi1, axes1), axis=1)
-    hit |= inside(c1[:, None, :], c2, phi2, axes2)[:, 0]
-    hit |= inside(c2[:, None, :], c1, phi1, axes1)[:, 0]
-    return hit
-
-
-def _check_limit_cycles(obstacles, avoidance: AvoidanceParams, duration_s: float) -> None:
-    """S13 #3: the limit cycles L_j = rho_L P_j of different obstacles must never overlap."""
     if len(obstacles) < 2:
         return
     fld = ObstacleField(obstacles)
@@ -931,7 +925,7 @@ def _check_limit_cycles(obstacles, avoidance: AvoidanceParams, duration_s: float
                     f'overlap{kind}; '
                     'move them apart or '
                     'merge them into one enclosing ellipse (S13 #3)',
-                    f'obstacles[{b}]',
+                    f'obstacles[{b if index_of is None else index_of[b]}]',
                 )
 
 

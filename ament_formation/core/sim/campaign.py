@@ -62,15 +62,22 @@ COLUMNS = (
 
 
 def _goal_in_q(scenario, result, i: int) -> bool:
-    """Whether robot i's final goal lies inside the protected region Q of an obstacle (there it
-    cannot settle: it is parked on the limit cycle or beside it).
+    """Whether robot i's final goal lies inside the protected region Q of an obstacle the law
+    avoids (there it cannot settle: it is parked on the limit cycle or beside it). Obstacles
+    avoided as one (docs/law-changes.md §18) count as their enclosing ellipse (static).
     """
-    if not len(result.obstacle_names):
+    law = scenario.avoided_obstacles()
+    if not law:
         return False
     g = result.goal_m[-1, i]
     kappa = scenario.avoidance.protected_scale
-    for j, obs in enumerate(scenario.obstacles):
-        c, phi = result.obstacle_center_m[-1, j], result.obstacle_phi_rad[-1, j]
+    rows = {name: j for j, name in enumerate(result.obstacle_names)}
+    for obs in law:
+        j = rows.get(obs.name)
+        if j is None:  # an enclosing ellipse: it stands still
+            c, phi = np.asarray(obs.center_m), obs.orientation_rad
+        else:
+            c, phi = result.obstacle_center_m[-1, j], result.obstacle_phi_rad[-1, j]
         z = g - c
         u = math.cos(phi) * z[0] + math.sin(phi) * z[1]
         w = -math.sin(phi) * z[0] + math.cos(phi) * z[1]

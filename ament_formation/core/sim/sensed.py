@@ -245,7 +245,7 @@ class _RobotNode:
             spec.params,
             scenario.control,
             scenario.avoidance,
-            scenario.obstacles,
+            scenario.avoided_obstacles(),
             leader_path=spec.path if spec.leader else None,
             team=scenario.team_leader(self.rid),
             floor=scenario.floor,

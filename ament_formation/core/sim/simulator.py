@@ -67,6 +67,7 @@ from ament_formation.core.model.dynamics import (
 from ament_formation.core.model.obstacles import (
     obstacle_arrays,
     obstacle_states,
+    ObstacleField,
     ObstacleSnapshot,
 )
 from ament_formation.core.model.paths import quintic_hermite_k
@@ -335,6 +336,9 @@ class _Setup:
         self.d_amp, self.d_freq, self.d_phase = dist.amplitude, dist.freq_hz, dist.phase_rad
         self.d_hc, self.d_hs = dist.step_rotation(0.5 * dt_s)  # half-step phasor rotation
         self.obstacle_names = tuple(o.name for o in scenario.obstacles)
+        law_obstacles = scenario.avoided_obstacles()  # §18 (the record keeps the scenario's)
+        self.merged = law_obstacles != scenario.obstacles
+        self.law_names = tuple(o.name for o in law_obstacles)
         (
             self.ob_c0,
             self.ob_v,
@@ -344,7 +348,7 @@ class _Setup:
             self.ob_phid,
             self.oaxes,
             self.ostatic,
-        ) = obstacle_arrays(scenario.obstacles)
+        ) = obstacle_arrays(law_obstacles)
         slots = {r.id: np.asarray(r.slot_m, dtype=float) for r in robots}
         self.slots = np.array([slots[rid] for rid in self.ids], dtype=float).reshape(n, 2)
         self.graph = FormationGraph.from_scenario(scenario)
@@ -437,7 +441,7 @@ def _loop_arrays(setup: _Setup, n_rec: int):
     """The closed loop's arrays as a run starts: (RobotArrays, the automaton arrays in
     AutomatonState order, ReachArrays, RecordArrays of ``n_rec`` samples).
     """
-    n, m = setup.n, len(setup.obstacle_names)
+    n, m = setup.n, len(setup.law_names)
     z2 = lambda: np.zeros((n, 2))  # noqa: E731 - a fresh (n, 2) array each call
     robots = RobotArrays(
         setup.state.copy(),
@@ -484,7 +488,7 @@ def _loop_arrays(setup: _Setup, n_rec: int):
 
 def _target_name(setup: _Setup, mode: int, target: int) -> str:
     if mode == MODE_OBSTACLE:
-        return setup.obstacle_names[target]
+        return setup.law_names[target]
     return f'robot_{setup.ids[target]}'
 
 
@@ -585,11 +589,14 @@ def simulate(
         if progress is not None:
             progress(k * dt_s, scenario.duration_s)
     _drain_reaching(setup, reach, reaching)
+    t_rec = np.arange(n_rec) * rec_every * dt_s
+    if setup.merged:
+        rec = _record_scenario_obstacles(scenario, t_rec, rec)
     return SimResult(
         scenario_name=scenario.name,
         robot_ids=setup.ids,
         obstacle_names=setup.obstacle_names,
-        t_s=np.arange(n_rec) * rec_every * dt_s,
+        t_s=t_rec,
         state=rec.state,
         torque_nm=rec.torque,
         goal_m=rec.goal,
@@ -621,6 +628,18 @@ def _drain_reaching(setup: _Setup, reach: ReachArrays, reaching: list[dict]) -> 
             }
         )
     reach.count[0] = 0
+
+
+def _record_scenario_obstacles(scenario, t_rec: np.ndarray, rec: RecordArrays) -> RecordArrays:
+    """``rec`` with the scenario's obstacles at the record times ``t_rec`` (the loop recorded
+    the ones the law avoids, where some are merged: docs/law-changes.md §18).
+    """
+    field = ObstacleField(scenario.obstacles)
+    states = [field.at(float(t)) for t in t_rec]
+    return rec._replace(
+        ob_center=np.stack([st.center_m for st in states]),
+        ob_phi=np.stack([st.phi_rad for st in states]),
+    )
 
 
 def _mode_events(setup: _Setup, rows: np.ndarray, mode_events: list[dict]) -> set[int]:
