@@ -194,28 +194,103 @@ def ellipses_overlap(c1, phi1, axes1, c2, phi2, axes2) -> np.ndarray:
     return hit
 
 
-def enclosing_ellipse(points, tol: float = 1e-9, max_iter: int = 10_000):
-    """The minimum-area ellipse enclosing ``points`` (S, 2) [m] (Khachiyan's algorithm), as
-    (centre (2,), orientation [rad], semi-axes (r1 >= r2)), scaled so every point lies inside.
+@njit(cache=True)
+def _inverse3(x):
+    """The inverse of a 3 x 3 matrix (cofactors)."""
+    out = np.empty((3, 3))
+    for r in range(3):
+        for c in range(3):
+            r1, r2 = (c + 1) % 3, (c + 2) % 3
+            c1, c2 = (r + 1) % 3, (r + 2) % 3
+            out[r, c] = x[r1, c1] * x[r2, c2] - x[r1, c2] * x[r2, c1]
+    det = x[0, 0] * out[0, 0] + x[0, 1] * out[1, 0] + x[0, 2] * out[2, 0]
+    return out / det
+
+
+@njit(cache=True)
+def _mvee_weights(pts, tol, max_iter):
+    """The weights u (S,) of Khachiyan's algorithm with Todd-Yildirim away steps for the
+    minimum-volume ellipse of ``pts`` (S, 2): stops when every lifted point's m is within a
+    factor 1 +- ``tol`` of 3 on the support.
+    """
+    s = pts.shape[0]
+    q = np.ones((3, s))
+    q[0, :] = pts[:, 0]
+    q[1, :] = pts[:, 1]
+    u = np.full(s, 1.0 / s)
+    m = np.empty(s)
+    for _ in range(max_iter):
+        x = np.zeros((3, 3))  # sum of u q q' (no BLAS in the kernels)
+        for i in range(s):
+            for r in range(3):
+                for c in range(3):
+                    x[r, c] += u[i] * q[r, i] * q[c, i]
+        xi = _inverse3(x)
+        for i in range(s):
+            acc = 0.0
+            for r in range(3):
+                for c in range(3):
+                    acc += q[r, i] * xi[r, c] * q[c, i]
+            m[i] = acc
+        up, down = 0, -1
+        for i in range(s):
+            if m[i] > m[up]:
+                up = i
+            if u[i] > 0.0 and (down < 0 or m[i] < m[down]):
+                down = i
+        grow, shrink = m[up] / 3.0 - 1.0, 1.0 - m[down] / 3.0
+        if max(grow, shrink) <= tol:
+            break
+        if grow >= shrink:  # towards the farthest point
+            j, step = up, (m[up] - 3.0) / (3.0 * (m[up] - 1.0))
+        else:  # away from the nearest supporting point
+            j = down
+            step = max((m[down] - 3.0) / (3.0 * (m[down] - 1.0)), -u[j] / (1.0 - u[j]))
+        u *= 1.0 - step
+        u[j] += step
+        for i in range(s):
+            if u[i] < 0.0:
+                u[i] = 0.0
+    return u
+
+
+def convex_hull(points) -> np.ndarray:
+    """The vertices of the convex hull of ``points`` (S, 2), counter-clockwise (Andrew's
+    monotone chain).
+    """
+    pts = np.unique(np.asarray(points, dtype=float), axis=0)  # sorted by x, then y
+    if len(pts) < 3:
+        return pts
+
+    def chain(seq):
+        out = []
+        for p in seq:
+            while len(out) >= 2:
+                (ax, ay), (bx, by) = out[-2], out[-1]
+                if (bx - ax) * (p[1] - ay) - (by - ay) * (p[0] - ax) > 0.0:
+                    break
+                out.pop()
+            out.append((p[0], p[1]))
+        return out[:-1]
+
+    rows = pts.tolist()
+    return np.array(chain(rows) + chain(rows[::-1]))
+
+
+def enclosing_ellipse(points, tol: float = 1e-5, max_iter: int = 100_000, contain=None):
+    """The minimum-area ellipse enclosing ``points`` (S, 2) [m] (Khachiyan's algorithm with the
+    Todd-Yildirim away steps, to relative accuracy ``tol``), as (centre (2,), orientation [rad],
+    semi-axes (r1 >= r2)), scaled so every point, and every point of ``contain`` (K, 2) when
+    given, lies inside.
     """
     pts = np.asarray(points, dtype=float)
-    q = np.vstack([pts.T, np.ones(len(pts))])  # (3, S) lifted points
-    u = np.full(len(pts), 1.0 / len(pts))
-    for _ in range(max_iter):
-        x = (q * u) @ q.T
-        m = np.einsum('is,is->s', q, np.linalg.solve(x, q))
-        j = int(np.argmax(m))
-        step = (m[j] - 3.0) / (3.0 * (m[j] - 1.0))
-        new_u = (1.0 - step) * u
-        new_u[j] += step
-        done = np.linalg.norm(new_u - u) < tol
-        u = new_u
-        if done:
-            break
+    if len(pts) > 8:
+        pts = convex_hull(pts)  # the same ellipse; interior points only slow the iteration
+    u = _mvee_weights(pts, tol, max_iter)
     c = pts.T @ u
     cov = (pts.T * u) @ pts - np.outer(c, c)
     a = np.linalg.inv(cov) / 2.0  # {x : (x - c)' A (x - c) <= 1}
-    z = pts - c
+    z = (pts if contain is None else np.concatenate([pts, contain])) - c
     a /= max(1.0, float(np.max(np.einsum('si,ij,sj->s', z, a, z))))  # every point inside
     evals, evecs = np.linalg.eigh(a)  # ascending: the first is the major axis
     r1, r2 = 1.0 / np.sqrt(evals)

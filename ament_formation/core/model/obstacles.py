@@ -18,6 +18,7 @@ from ament_formation.core.errors import ConfigError
 from ament_formation.core.model.ellipse import (
     boundary_points,
     BOUNDARY_SAMPLES,
+    convex_hull,
     ellipses_overlap,
     enclosing_ellipse,
     points_inside,
@@ -179,7 +180,7 @@ def avoided_as_one(
     """
     specs = tuple(specs)
     starts = np.asarray(starts, dtype=float).reshape(-1, 2)
-    regions = []  # [members, centre, phi, semi-axes, member parts] of the ones that may merge
+    regions = []  # [members, centre, phi, semi-axes, parts, hulls] of those that may merge
     region_of = [-1] * len(specs)  # per spec: its region, -1 when it moves
     for j, o in enumerate(specs):
         if not o.moves:
@@ -187,16 +188,20 @@ def avoided_as_one(
             axes = (max(r1, r2), max(r1, r2)) if o.rotates else (r1, r2)
             part = (np.asarray(o.center_m, float), float(o.orientation_rad), axes)
             region_of[j] = len(regions)
-            regions.append([(j,), *part, [part]])
-    alive = list(range(len(regions)))
-    while True:
-        merged = _first_merge(regions, alive, heading_scale, limit_cycle_scale, starts)
-        if merged is None:
-            break
-        a, b, region = merged
+            regions.append([(j,), *part, [part], _outline([part])])
+    alive = set(range(len(regions)))
+    pairs = _overlapping(regions, sorted(alive), sorted(alive), heading_scale)
+    while pairs:
+        a, b = min(pairs)
+        pairs.discard((a, b))
+        region = _merged(regions[a], regions[b], limit_cycle_scale, starts)
+        if region is None:
+            continue  # refused; it stays refused while neither changes
         regions[a] = region
-        alive.remove(b)
+        alive.discard(b)
         region_of = [a if r == b else r for r in region_of]
+        pairs = {q for q in pairs if a not in q and b not in q}
+        pairs |= _overlapping(regions, [a], sorted(alive - {a}), heading_scale)
     law, members, seen = [], [], set()
     for j, r in enumerate(region_of):
         idx = (j,) if r < 0 else tuple(sorted(regions[r][0]))
@@ -207,7 +212,7 @@ def avoided_as_one(
         if len(idx) == 1:
             law.append(specs[j])
             continue
-        _, centre, phi, axes, _ = regions[r]
+        _, centre, phi, axes = regions[r][:4]
         law.append(
             ObstacleSpec(
                 '+'.join(specs[i].name for i in idx),
@@ -219,39 +224,62 @@ def avoided_as_one(
     return tuple(law), tuple(members)
 
 
-def _first_merge(regions, alive, heading_scale, limit_cycle_scale, starts):
-    """(a, b, merged region) of the first two ``alive`` regions whose I's overlap and whose
-    enclosing ellipse :func:`avoided_as_one` admits, or None.
+def _overlapping(regions, rows_a, rows_b, heading_scale: float) -> set:
+    """{(a, b) with a < b}: the regions of ``rows_a`` and ``rows_b`` whose I's overlap
+    (bounding circles cull the pairs first).
     """
-    if len(alive) < 2:
-        return None
-    live = [regions[r] for r in alive]
-    c = np.array([r[1] for r in live])
-    reach = heading_scale * np.array([max(r[3]) for r in live])
-    qa, qb = np.triu_indices(len(live), 1)
-    near = np.linalg.norm(c[qa] - c[qb], axis=1) <= reach[qa] + reach[qb]  # bounding circles
+    qa, qb = np.meshgrid(np.asarray(rows_a, int), np.asarray(rows_b, int), indexing='ij')
+    qa, qb = qa.ravel(), qb.ravel()
+    keep = qa != qb
+    qa, qb = np.minimum(qa, qb)[keep], np.maximum(qa, qb)[keep]
+    if not len(qa):
+        return set()
+    c = np.array([r[1] for r in regions])
+    reach = heading_scale * np.array([max(r[3]) for r in regions])
+    near = np.linalg.norm(c[qa] - c[qb], axis=1) <= reach[qa] + reach[qb]
     qa, qb = qa[near], qb[near]
     if not len(qa):
-        return None
-    phi = np.array([r[2] for r in live])
-    axes = heading_scale * np.array([r[3] for r in live])
+        return set()
+    phi = np.array([r[2] for r in regions])
+    axes = heading_scale * np.array([r[3] for r in regions])
     hit = ellipses_overlap(c[qa], phi[qa], axes[qa], c[qb], phi[qb], axes[qb])
+    return {(int(x), int(y)) for x, y in zip(qa[hit], qb[hit])}
+
+
+def _merged(first, second, limit_cycle_scale: float, starts):
+    """The region ([members, centre, phi, semi-axes, member parts, outline]) enclosing two
+    regions, or None when :func:`avoided_as_one` does not admit it.
+    """
+    parts = first[4] + second[4]
+    (coarse, dense) = hulls = _outline([first[5], second[5]])
+    centre, phi, (r1, r2) = enclosing_ellipse(coarse, contain=dense)
     grow = 1.0 / math.cos(math.pi / BOUNDARY_SAMPLES)  # the true boundary between two samples
-    for p, q in zip(qa[hit], qb[hit]):
-        a, b = alive[p], alive[q]
-        parts = regions[a][4] + regions[b][4]
-        pts = np.concatenate([boundary_points(*part)[0] for part in parts])
-        centre, phi_m, (r1, r2) = enclosing_ellipse(pts)
-        axes_m = (r1 * grow, r2 * grow)
-        if len(starts) and _inside(starts, (centre, phi_m, axes_m), limit_cycle_scale).any():
-            continue
-        outline = boundary_points(centre, phi_m, axes_m)[0]
-        near_members = np.zeros(len(outline), dtype=bool)
-        for part in parts:
-            near_members |= _inside(outline, part, MERGE_REACH)
-        if near_members.all():
-            return a, b, [regions[a][0] + regions[b][0], centre, phi_m, axes_m, parts]
-    return None
+    axes = (r1 * grow, r2 * grow)
+    if len(starts) and _inside(starts, (centre, phi, axes), limit_cycle_scale).any():
+        return None
+    outline = boundary_points(centre, phi, axes)[0]
+    near_members = np.zeros(len(outline), dtype=bool)
+    for part in parts:
+        near_members |= _inside(outline, part, MERGE_REACH)
+    if not near_members.all():
+        return None
+    return [first[0] + second[0], centre, phi, axes, parts, hulls]
+
+
+def _outline(pieces) -> tuple:
+    """(coarse, dense): the convex hulls of 32 and of BOUNDARY_SAMPLES boundary points of
+    ``pieces``, each a part (centre, phi, semi-axes) or the outline of a region: what an
+    enclosing ellipse must hold, without the interior points that only slow it down.
+    """
+    coarse, dense = [], []
+    for piece in pieces:
+        if len(piece) == 2:
+            coarse.append(piece[0])
+            dense.append(piece[1])
+        else:
+            coarse.append(boundary_points(*piece, n=32)[0])
+            dense.append(boundary_points(*piece)[0])
+    return convex_hull(np.concatenate(coarse)), convex_hull(np.concatenate(dense))
 
 
 def _inside(pts, part, scale: float) -> np.ndarray:
