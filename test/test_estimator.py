@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 import numpy as np
 import pytest
@@ -31,13 +31,13 @@ R, A, D = 0.035, 0.20, 0.05
     k=st.integers(1, 50),
     t=st.floats(0.05, 3.0),
 )
+@example(v=0.25, w=1.629478018614031e-09, th0=1.0, k=1, t=1.0)  # v/w (sin - sin) lost 2e-8
 def test_fold_steps_is_exact_for_constant_rates(v, w, th0, k, t):
     axle, th = fold_steps([0.3, -0.2], th0, np.full(k, v * t / k), np.full(k, w * t / k))
-    if abs(w) > 1e-9:
-        ex = 0.3 + v / w * (math.sin(th0 + w * t) - math.sin(th0))
-        ey = -0.2 - v / w * (math.cos(th0 + w * t) - math.cos(th0))
-    else:
-        ex, ey = 0.3 + v * t * math.cos(th0), -0.2 + v * t * math.sin(th0)
+    # the arc's chord: length v t sinc(w t / 2) along the mean heading (no cancellation as w -> 0)
+    half = w * t / 2.0
+    chord = v * t * (math.sin(half) / half if half != 0.0 else 1.0)
+    ex, ey = 0.3 + chord * math.cos(th0 + half), -0.2 + chord * math.sin(th0 + half)
     assert axle[-1] == pytest.approx([ex, ey], abs=1e-9)
     assert th[-1] == pytest.approx(th0 + w * t, abs=1e-12)
 
