@@ -14,9 +14,9 @@ import yaml
 
 from ament_formation.core.errors import ConfigError
 from ament_formation.core.model.paths import LinePath, SinusoidPath
+from ament_formation.core.model.ellipse import ellipses_overlap
 from ament_formation.core.scenario.loader import (
     dump_scenario,
-    ellipses_overlap,
     load_scenario,
     parse_scenario,
 )

@@ -181,17 +181,107 @@ def ellipses_overlap(c1, phi1, axes1, c2, phi2, axes2) -> np.ndarray:
 
     Parameters: centres (K, 2) [m], orientations (K,) [rad], semi-axes (K, 2) [m].
     Exact up to the boundary sampling (:data:`BOUNDARY_SAMPLES` points per ellipse): overlap iff
-    a boundary point of one lies inside the other or one centre lies inside the other.
+    a boundary point of one lies inside the other or one centre lies inside the other (the
+    points and tests of :func:`boundary_points` and :func:`points_inside`, in a kernel that
+    stops at the first point inside).
     Returns (K,) bool.
     """
-    c1, c2 = np.atleast_2d(c1), np.atleast_2d(c2)
-    phi1, phi2 = np.atleast_1d(phi1), np.atleast_1d(phi2)
-    axes1, axes2 = np.atleast_2d(axes1), np.atleast_2d(axes2)
-    hit = np.any(points_inside(boundary_points(c1, phi1, axes1), c2, phi2, axes2), axis=1)
-    hit |= np.any(points_inside(boundary_points(c2, phi2, axes2), c1, phi1, axes1), axis=1)
-    hit |= points_inside(c1[:, None, :], c2, phi2, axes2)[:, 0]
-    hit |= points_inside(c2[:, None, :], c1, phi1, axes1)[:, 0]
-    return hit
+    c1, c2 = np.atleast_2d(np.asarray(c1, float)), np.atleast_2d(np.asarray(c2, float))
+    phi1, phi2 = np.atleast_1d(np.asarray(phi1, float)), np.atleast_1d(np.asarray(phi2, float))
+    axes1 = np.atleast_2d(np.asarray(axes1, float))
+    axes2 = np.atleast_2d(np.asarray(axes2, float))
+    k = max(len(c1), len(c2), len(phi1), len(phi2), len(axes1), len(axes2))
+    c1, c2 = np.broadcast_to(c1, (k, 2)), np.broadcast_to(c2, (k, 2))
+    phi1, phi2 = np.broadcast_to(phi1, (k,)), np.broadcast_to(phi2, (k,))
+    axes1, axes2 = np.broadcast_to(axes1, (k, 2)), np.broadcast_to(axes2, (k, 2))
+    out = np.empty(k, dtype=np.bool_)
+    _overlap_kernel(
+        c1, np.cos(phi1), np.sin(phi1), axes1, c2, np.cos(phi2), np.sin(phi2), axes2,
+        *UNIT_CIRCLE, out,
+    )  # fmt: skip
+    return out
+
+
+_ANGLES = np.linspace(0.0, 2 * np.pi, BOUNDARY_SAMPLES, endpoint=False)
+UNIT_CIRCLE = (np.cos(_ANGLES), np.sin(_ANGLES))  # as boundary_points computes them
+
+
+@njit(cache=True)
+def _inside_one(x, y, c, cp, sp, axes) -> bool:
+    """Whether (x, y) lies in the ellipse (centre c, cos/sin of its orientation, semi-axes)."""
+    z0, z1 = x - c[0], y - c[1]
+    u = cp * z0 + sp * z1
+    w = -sp * z0 + cp * z1
+    return (u / axes[0]) ** 2 + (w / axes[1]) ** 2 <= 1.0
+
+
+@njit(cache=True)
+def _boundary_inside(c1, cp1, sp1, axes1, c2, cp2, sp2, axes2, cos_t, sin_t) -> bool:
+    """Whether a boundary sample of ellipse 1 lies in ellipse 2."""
+    for i in range(cos_t.shape[0]):
+        u = axes1[0] * cos_t[i]
+        w = axes1[1] * sin_t[i]
+        if _inside_one(c1[0] + cp1 * u - sp1 * w, c1[1] + sp1 * u + cp1 * w, c2, cp2, sp2, axes2):
+            return True
+    return False
+
+
+@njit(cache=True)
+def _half_width(nx, ny, cp, sp, axes) -> float:
+    """The support of an ellipse (orientation cos/sin, semi-axes) along the unit (nx, ny),
+    about its centre: sqrt(n' A n), A = R diag(r1^2, r2^2) R'.
+    """
+    u = cp * nx + sp * ny
+    w = -sp * nx + cp * ny
+    return math.sqrt((axes[0] * u) ** 2 + (axes[1] * w) ** 2)
+
+
+@njit(cache=True)
+def _separated(c1, cp1, sp1, axes1, c2, cp2, sp2, axes2) -> bool:
+    """Whether a line separates the two ellipses, tried along the line of centres and each
+    one's axes: then no point of one lies in the other (a proof, never a guess; False only
+    means not shown).
+    """
+    dx, dy = c2[0] - c1[0], c2[1] - c1[1]
+    d = math.hypot(dx, dy)
+    gap = 1e-12 * (1.0 + d)  # rounding of the sums below
+    if d > 0.0:
+        nx, ny = dx / d, dy / d
+        if d > _half_width(nx, ny, cp1, sp1, axes1) + _half_width(nx, ny, cp2, sp2, axes2) + gap:
+            return True
+    for nx, ny in ((cp1, sp1), (-sp1, cp1), (cp2, sp2), (-sp2, cp2)):
+        along = abs(nx * dx + ny * dy)
+        if along > _half_width(nx, ny, cp1, sp1, axes1) + _half_width(
+            nx, ny, cp2, sp2, axes2
+        ) + gap:
+            return True
+    return False
+
+
+@njit(cache=True)
+def _overlap_kernel(c1, cp1, sp1, axes1, c2, cp2, sp2, axes2, cos_t, sin_t, out):
+    """:func:`ellipses_overlap`'s test for each of K pairs, into ``out`` (K,). Pairs a line
+    separates are not sampled.
+    """
+    for k in range(out.shape[0]):
+        out[k] = overlap_one(
+            c1[k], cp1[k], sp1[k], axes1[k], c2[k], cp2[k], sp2[k], axes2[k], cos_t, sin_t
+        )
+
+
+@njit(cache=True)
+def overlap_one(c1, cp1, sp1, axes1, c2, cp2, sp2, axes2, cos_t, sin_t) -> bool:
+    """:func:`ellipses_overlap` for one pair in a kernel: centres (2,), cos and sin of the
+    orientations, semi-axes (2,), the unit circle's samples (``UNIT_CIRCLE``).
+    """
+    if _separated(c1, cp1, sp1, axes1, c2, cp2, sp2, axes2):
+        return False
+    return (
+        _inside_one(c1[0], c1[1], c2, cp2, sp2, axes2)
+        or _inside_one(c2[0], c2[1], c1, cp1, sp1, axes1)
+        or _boundary_inside(c1, cp1, sp1, axes1, c2, cp2, sp2, axes2, cos_t, sin_t)
+        or _boundary_inside(c2, cp2, sp2, axes2, c1, cp1, sp1, axes1, cos_t, sin_t)
+    )
 
 
 @njit(cache=True)
@@ -254,27 +344,44 @@ def _mvee_weights(pts, tol, max_iter):
     return u
 
 
+@njit(cache=True)
+def _hull_chain(pts, out):
+    """Andrew's monotone chain over ``pts`` (S, 2) sorted by x, then y: the hull's vertices,
+    counter-clockwise, written to ``out`` (2 S, 2); returns how many. Duplicate and collinear
+    points are dropped.
+    """
+    s = pts.shape[0]
+    k = 0
+    for half in range(2):
+        first = k
+        for n in range(s):
+            i = n if half == 0 else s - 1 - n
+            px, py = pts[i, 0], pts[i, 1]
+            while k - first >= 2:
+                ax, ay = out[k - 2, 0], out[k - 2, 1]
+                bx, by = out[k - 1, 0], out[k - 1, 1]
+                if (bx - ax) * (py - ay) - (by - ay) * (px - ax) > 0.0:
+                    break
+                k -= 1
+            out[k, 0], out[k, 1] = px, py
+            k += 1
+        k -= 1  # each half's last point is the other's first
+    return k
+
+
 def convex_hull(points) -> np.ndarray:
     """The vertices of the convex hull of ``points`` (S, 2), counter-clockwise (Andrew's
     monotone chain).
     """
-    pts = np.unique(np.asarray(points, dtype=float), axis=0)  # sorted by x, then y
-    if len(pts) < 3:
-        return pts
-
-    def chain(seq):
-        out = []
-        for p in seq:
-            while len(out) >= 2:
-                (ax, ay), (bx, by) = out[-2], out[-1]
-                if (bx - ax) * (p[1] - ay) - (by - ay) * (p[0] - ax) > 0.0:
-                    break
-                out.pop()
-            out.append((p[0], p[1]))
-        return out[:-1]
-
-    rows = pts.tolist()
-    return np.array(chain(rows) + chain(rows[::-1]))
+    pts = np.asarray(points, dtype=float).reshape(-1, 2)
+    pts = pts[np.lexsort((pts[:, 1], pts[:, 0]))]  # by x, then y
+    if len(pts) >= 3:
+        out = np.empty((2 * len(pts), 2))
+        k = _hull_chain(pts, out)
+        if k >= 3:
+            return out[:k].copy()
+        pts = out[:k]  # the two ends of a line (twice the same point when all are)
+    return np.unique(pts, axis=0)
 
 
 def enclosing_ellipse(points, tol: float = 1e-5, max_iter: int = 100_000, contain=None):

@@ -21,7 +21,9 @@ from ament_formation.core.model.ellipse import (
     convex_hull,
     ellipses_overlap,
     enclosing_ellipse,
+    overlap_one,
     points_inside,
+    UNIT_CIRCLE,
 )
 
 
@@ -258,10 +260,7 @@ def _merged(first, second, limit_cycle_scale: float, starts):
     if len(starts) and _inside(starts, (centre, phi, axes), limit_cycle_scale).any():
         return None
     outline = boundary_points(centre, phi, axes)[0]
-    near_members = np.zeros(len(outline), dtype=bool)
-    for part in parts:
-        near_members |= _inside(outline, part, MERGE_REACH)
-    if not near_members.all():
+    if not _near_any(outline, parts, MERGE_REACH).all():
         return None
     return [first[0] + second[0], centre, phi, axes, parts, hulls]
 
@@ -280,6 +279,17 @@ def _outline(pieces) -> tuple:
             coarse.append(boundary_points(*piece, n=32)[0])
             dense.append(boundary_points(*piece)[0])
     return convex_hull(np.concatenate(coarse)), convex_hull(np.concatenate(dense))
+
+
+def _near_any(pts, parts, scale: float) -> np.ndarray:
+    """(S,) bool: which ``pts`` (S, 2) lie in any of the ellipses ``parts`` (centre, phi,
+    semi-axes) scaled by ``scale``.
+    """
+    centres = np.array([p[0] for p in parts], float)
+    phis = np.array([p[1] for p in parts], float)
+    axes = scale * np.array([p[2] for p in parts], float)
+    hit = points_inside(np.broadcast_to(pts, (len(parts), *pts.shape)), centres, phis, axes)
+    return hit.any(axis=0)
 
 
 def _inside(pts, part, scale: float) -> np.ndarray:
@@ -331,3 +341,41 @@ def obstacle_states(t, c0, vel, amp, omega, phi0, phid, oc, ov, oa, ophi, ophid,
         ophi[j] = phi0[j] + phid[j] * t
         ophid[j] = phid[j]
         ophidd[j] = 0.0
+
+
+def first_overlaps(times, c0, vel, amp, omega, phi0, phid, axes, pairs) -> np.ndarray:
+    """For each pair (a, b) of ``pairs`` (P, 2) of obstacles (motion of :func:`obstacle_arrays`,
+    region semi-axes ``axes`` (M, 2)): the index of the first of ``times`` (T,) [s] at which
+    their regions overlap (:func:`~ament_formation.core.model.ellipse.ellipses_overlap`), -1
+    if never. The instants where their bounding circles are apart are not sampled.
+    """
+    out = np.full(len(pairs), -1, dtype=np.int64)
+    if len(pairs):
+        _first_overlaps(
+            np.asarray(times, float), c0, vel, amp, omega, phi0, phid, np.asarray(axes, float),
+            np.asarray(pairs, np.int64), *UNIT_CIRCLE, out,
+        )  # fmt: skip
+    return out
+
+
+@njit(cache=True)
+def _first_overlaps(times, c0, vel, amp, omega, phi0, phid, axes, pairs, cos_t, sin_t, out):
+    ca, cb = np.empty(2), np.empty(2)
+    for p in range(pairs.shape[0]):
+        a, b = pairs[p, 0], pairs[p, 1]
+        reach = max(axes[a, 0], axes[a, 1]) + max(axes[b, 0], axes[b, 1])
+        for k in range(times.shape[0]):
+            t = times[k]
+            sa, sb = math.sin(omega[a] * t), math.sin(omega[b] * t)
+            for q in range(2):
+                ca[q] = c0[a, q] + vel[a, q] * t + amp[a, q] * sa
+                cb[q] = c0[b, q] + vel[b, q] * t + amp[b, q] * sb
+            if math.hypot(ca[0] - cb[0], ca[1] - cb[1]) > reach:
+                continue
+            pa, pb = phi0[a] + phid[a] * t, phi0[b] + phid[b] * t
+            if overlap_one(
+                ca, math.cos(pa), math.sin(pa), axes[a], cb, math.cos(pb), math.sin(pb),
+                axes[b], cos_t, sin_t,
+            ):  # fmt: skip
+                out[p] = k
+                break

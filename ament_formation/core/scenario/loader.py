@@ -36,8 +36,13 @@ import numpy as np
 import yaml
 
 from ament_formation.core.errors import ConfigError, excerpt, MAX_MAGNITUDE
-from ament_formation.core.model.ellipse import ellipses_overlap
-from ament_formation.core.model.obstacles import avoided_as_one, ObstacleField, ObstacleSpec
+from ament_formation.core.model.obstacles import (
+    avoided_as_one,
+    first_overlaps,
+    obstacle_arrays,
+    ObstacleField,
+    ObstacleSpec,
+)
 from ament_formation.core.model.paths import Path, path_from_config
 from ament_formation.core.params import AvoidanceParams, ControlGains, RobotParams
 
@@ -51,6 +56,8 @@ MAX_NESTING = 32  # YAML collections inside collections
 MAX_YAML_NODES = 100_000  # scalars and collections once aliases are expanded (alias bombs)
 MAX_ROBOTS = 1024
 MAX_OBSTACLES = 256  # the limit-cycle overlap check is pairwise
+# the limit-cycle check of obstacles that move: pairs that may meet x instants (a few s)
+MAX_OBSTACLE_PAIR_SAMPLES = 1e7
 MAX_DURATION_S = 86_400.0
 MAX_INTEGER = 2**31 - 1
 MAX_IMAGE_PX = 8192
@@ -892,41 +899,56 @@ def _check_start_geometry(robots, obstacles, avoidance: AvoidanceParams) -> None
 def _check_limit_cycles(
     obstacles, avoidance: AvoidanceParams, duration_s: float, index_of=None
 ) -> None:
-    """S13 #3: the limit cycles L_j = rho_L P_j of different obstacles must never overlap.
+    """S13 #3: the limit cycles L_j = rho_L P_j of different obstacles must never overlap
+    (checked every :data:`_OVERLAP_STEP_S` of the scenario when one of a pair moves or turns).
     ``index_of``: the scenario's obstacle index of each given one (default: its position).
+
+    Pairs whose L's cannot meet (the boxes their swept bounding circles stay in, then the
+    circles at each instant) are not tested further; the first overlapping pair in index order
+    is named, at its first instant. More than :data:`MAX_OBSTACLE_PAIR_SAMPLES` instants of
+    pairs that may meet is refused (docs/scenarios.md "Limits").
     """
-    if len(obstacles) < 2:
+    m = len(obstacles)
+    if m < 2:
         return
-    fld = ObstacleField(obstacles)
-    dynamic = [o.moves or o.rotates for o in obstacles]
+    c0, vel, amp, omega, phi0, phid, axes, static = obstacle_arrays(obstacles)
+    axes = axes * avoidance.limit_cycle_scale
+    reach = axes.max(axis=1)  # L's bounding circle
+    end = c0 + vel * duration_s  # centre = c0 + v t + A sin(w t) stays in a box
+    lo = np.minimum(c0, end) - np.abs(amp) - reach[:, None]
+    hi = np.maximum(c0, end) + np.abs(amp) + reach[:, None]
+    a, b = np.triu_indices(m, 1)
+    near = np.all((lo[a] <= hi[b]) & (lo[b] <= hi[a]), axis=1)
+    a, b = a[near], b[near]
+    moving = ~(static[a] & static[b])
     times = np.arange(0.0, duration_s + _OVERLAP_STEP_S, _OVERLAP_STEP_S)
     times[-1] = min(times[-1], duration_s)
-    states = [fld.at(float(t)) for t in times] if any(dynamic) else [fld.at(0.0)]
-    centers = np.stack([s.center_m for s in states])  # (T, M, 2)
-    phis = np.stack([s.phi_rad for s in states])
-    axes = np.asarray([o.semi_axes_m for o in obstacles]) * avoidance.limit_cycle_scale
-    for a in range(len(obstacles)):
-        for b in range(a + 1, len(obstacles)):
-            n_t = len(states) if (dynamic[a] or dynamic[b]) else 1
-            hit = ellipses_overlap(
-                centers[:n_t, a],
-                phis[:n_t, a],
-                np.repeat(axes[a:a + 1], n_t, 0),
-                centers[:n_t, b],
-                phis[:n_t, b],
-                np.repeat(axes[b:b + 1], n_t, 0),
-            )
-            if np.any(hit):
-                t_hit = float(times[int(np.argmax(hit))]) if n_t > 1 else 0.0
-                kind = '' if n_t == 1 else f' at t = {t_hit:.2f} s'
-                raise ConfigError(
-                    f'the limit cycles (L = {avoidance.limit_cycle_scale} P) of obstacles '
-                    f'{excerpt(obstacles[a].name)} and {excerpt(obstacles[b].name)} '
-                    f'overlap{kind}; '
-                    'move them apart or '
-                    'merge them into one enclosing ellipse (S13 #3)',
-                    f'obstacles[{b if index_of is None else index_of[b]}]',
-                )
+    if moving.sum() * len(times) > MAX_OBSTACLE_PAIR_SAMPLES:
+        raise ConfigError(
+            f'{moving.sum()} pairs of obstacles that move near each other for {duration_s:g} s '
+            f'need {moving.sum() * len(times):.3g} pair-samples of the limit-cycle check, over '
+            f'the budget of {MAX_OBSTACLE_PAIR_SAMPLES:.3g} (docs/scenarios.md "Limits"): '
+            'shorten duration_s or use fewer moving obstacles',
+            'obstacles',
+        )
+    first = {}  # (a, b) -> the first time [s] its L's overlap
+    for pick, when in ((~moving, times[:1]), (moving, times)):  # at rest: one instant
+        pairs = np.stack([a, b], 1)[pick]
+        hit = first_overlaps(when, c0, vel, amp, omega, phi0, phid, axes, pairs)
+        first.update(
+            ((int(x), int(y)), float(when[k])) for x, y, k in zip(a[pick], b[pick], hit) if k >= 0
+        )
+    if first:
+        (x, y), when = min(first.items())
+        kind = '' if static[x] and static[y] else f' at t = {when:.2f} s'
+        raise ConfigError(
+            f'the limit cycles (L = {avoidance.limit_cycle_scale} P) of obstacles '
+            f'{excerpt(obstacles[x].name)} and {excerpt(obstacles[y].name)} '
+            f'overlap{kind}; '
+            'move them apart or '
+            'merge them into one enclosing ellipse (S13 #3)',
+            f'obstacles[{y if index_of is None else index_of[y]}]',
+        )
 
 
 def check_sim_budget(scenario: Scenario, dt_s: float, record_every_s: float, budget=None) -> None:

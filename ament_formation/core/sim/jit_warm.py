@@ -34,6 +34,7 @@ def warm() -> None:
     from ament_formation.core.vision import corner_refinement
 
     corner_refinement.warm_up()
+    _warm_geometry()
     scenarios = sorted((config_dir() / 'scenarios').glob('*.yaml'))
     for path in scenarios:
         sc = load_scenario(path)
@@ -59,6 +60,23 @@ def warm() -> None:
             offset = np.zeros(2) if p0 is None else np.asarray(graph.offset(r.id, p0), dtype=float)
             law.set_graph(p0, offset, p0, offset)
             law.warm_up()
+
+
+def _warm_geometry() -> None:
+    """The validator's and the obstacle merge's kernels (the shipped scenarios may not reach
+    them: no pair of their obstacles is near, none merges).
+    """
+    import numpy as np
+
+    from ament_formation.core.model.ellipse import ellipses_overlap, enclosing_ellipse
+    from ament_formation.core.model.obstacles import first_overlaps, obstacle_arrays, ObstacleSpec
+
+    ellipses_overlap([[0.0, 0.0]], [0.0], [[1.0, 0.5]], [[1.2, 0.0]], [0.5], [[0.5, 0.2]])
+    enclosing_ellipse(np.random.default_rng(0).normal(size=(12, 2)))
+    c0, vel, amp, omega, phi0, phid, axes, _ = obstacle_arrays(
+        [ObstacleSpec('a', (0.0, 0.0), (0.3, 0.1)), ObstacleSpec('b', (0.5, 0.0), (0.3, 0.1))]
+    )
+    first_overlaps(np.zeros(1), c0, vel, amp, omega, phi0, phid, axes, np.array([[0, 1]]))
 
 
 def main(argv: list[str] | None = None) -> int:
