@@ -329,8 +329,13 @@ class WorldNode(Node):
         return super().destroy_node()
 
 
+# how long the world, when it ends, waits for its last ground truth to be acknowledged by every
+# subscriber (the recorder of `formation run` is judged by it; on a loaded machine it lags behind)
+TRUTH_ACK_S = 3.0
+
+
 def main(args: list[str] | None = None) -> int:
-    return run_node('formation_world', WorldNode, args)
+    return run_node('formation_world', WorldNode, args, ack_s=TRUTH_ACK_S)
 
 
 if __name__ == '__main__':

@@ -168,12 +168,17 @@ def _stop_on_signals(get_node: Callable) -> None:
 
 
 def run_node(
-    name: str, make_node: Callable, args: list[str] | None = None, on_exit: Callable | None = None
+    name: str,
+    make_node: Callable,
+    args: list[str] | None = None,
+    on_exit: Callable | None = None,
+    ack_s: float | None = None,
 ) -> int:
     """The ``main()`` of every node process: init rclpy, build the node, spin it
     (:func:`spin_node`) and shut down cleanly. Bad configuration (ConfigError) prints one line
     naming it and returns 2; SIGINT/SIGTERM return 0. ``on_exit(node)`` runs last, best effort
-    (e.g. a zero-torque command).
+    (e.g. a zero-torque command). Before the node is destroyed, its reliable messages get up to
+    ``ack_s`` to be acknowledged (default: :data:`LAST_WORD_ACK_S` with ``on_exit``, else no wait).
     """
     import rclpy
     from rclpy.signals import SignalHandlerOptions
@@ -219,8 +224,10 @@ def run_node(
                     f'publish thread: {sender.sent} sent, {sender.dropped} dropped (queue full), '
                     f'{sender.errors} failed, longest rcl publish {sender.longest_call_s:.3f} s'
                 )
-            if on_exit is not None:
-                _wait_acked(node, LAST_WORD_ACK_S)
+            if ack_s is None and on_exit is not None:
+                ack_s = LAST_WORD_ACK_S
+            if ack_s:
+                _wait_acked(node, ack_s)
             node.destroy_node()
         rclpy.try_shutdown()
 

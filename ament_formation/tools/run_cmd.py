@@ -352,23 +352,38 @@ def _spin_slice(executor, slice_s: float) -> None:
         executor.spin_once(timeout_sec=slice_s)
 
 
-def _drain(executor, recorder, quiet_s: float = 0.3, max_s: float = 5.0) -> None:
+def _drain(executor, recorder, complete=None, quiet_s: float = 0.3, max_s: float = 5.0) -> None:
     """After the system stopped: record what is still queued until nothing came for ``quiet_s``
-    (at most ``max_s``), so a recorder a little behind keeps the run's last seconds.
+    (at most ``max_s``), so a recorder a little behind keeps the run's last seconds. While
+    ``complete()`` is False (the ground truth has not reached the scenario's end yet), a quiet
+    spell does not end it: a process starved of CPU can be silent for longer than ``quiet_s``
+    with the world's last messages still to take.
     """
     t0 = last_change = time.monotonic()
     count = recorder.writer.message_count
-    while time.monotonic() - t0 < max_s and time.monotonic() - last_change < quiet_s:
+    while time.monotonic() - t0 < max_s and (
+        time.monotonic() - last_change < quiet_s or (complete is not None and not complete())
+    ):
         _spin_slice(executor, 0.05)
         if recorder.writer.message_count != count:
             count, last_change = recorder.writer.message_count, time.monotonic()
 
 
 def _stop_system(
-    launch, progress, recorder, executor, node, ctx, shm_before, previous, drain: bool = True
+    launch,
+    progress,
+    recorder,
+    executor,
+    node,
+    ctx,
+    shm_before,
+    previous,
+    drain: bool = True,
+    complete=None,
 ) -> None:
     """Stop the launch (and so every process it started), close the recording, shut ROS down,
-    remove what the run left in /dev/shm, restore the signal handlers.
+    remove what the run left in /dev/shm, restore the signal handlers. ``complete()``: whether the
+    recording has the scenario's end yet (:func:`_drain`).
     """
     import rclpy
 
@@ -385,7 +400,7 @@ def _stop_system(
         progress.finish()
     if drain:  # not after SIGINT/SIGTERM: the user asked to stop now
         try:
-            _drain(executor, recorder)
+            _drain(executor, recorder, complete)
         except (KeyboardInterrupt, RuntimeError):  # a signal while draining: stop now
             pass
     recorder.close()
@@ -456,6 +471,7 @@ def run_system(args: argparse.Namespace) -> int:
             shm_before,
             previous,
             drain=terminated['signal'] is None,
+            complete=lambda: _truth_complete(start, latest, scenario),
         )
     wall_s = time.monotonic() - wall0
     if status:
@@ -466,6 +482,17 @@ def run_system(args: argparse.Namespace) -> int:
         else [_process_check(out / 'launch.log', launch_rc, proc_dir)]
     )
     return _evaluate(mcap_path, scenario, out, wall_s, args, extra)
+
+
+def _truth_complete(start: dict, latest: dict, scenario) -> bool:
+    """Whether the leader's recorded ground truth has reached the scenario's end (as the
+    ``completed`` check counts it).
+    """
+    from ament_formation.core.sim.metrics import COMPLETE_TOLERANCE_S
+
+    if start['s'] is None or latest['s'] is None:
+        return False
+    return latest['s'] - start['s'] >= scenario.duration_s - COMPLETE_TOLERANCE_S
 
 
 _EXIT_RE = re.compile(r'^(\S+) exited with status (-?\d+)$', re.M)
