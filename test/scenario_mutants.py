@@ -75,8 +75,10 @@ def _mutate_mapping(rng: random.Random, data: dict) -> tuple[str, dict]:
     data = copy.deepcopy(data)
     paths = [p for p, _ in _leaves(data) if p]
     path = rng.choice(paths)
-    kind = rng.randrange(9)
+    kind = rng.randrange(10)
     where = '.'.join(map(str, path))
+    if kind == 9 and data.get('obstacles'):  # many valid obstacles, moving, for a long time
+        return _spread_obstacles(rng, data)
     if kind <= 3:
         value = rng.choice(_VALUES)
         _set(data, path, value)
@@ -116,6 +118,27 @@ def _mutate_mapping(rng: random.Random, data: dict) -> tuple[str, dict]:
         return f'{where} x {scale:g}', data
     _set(data, path, rng.choice(_VALUES))
     return f'{where} replaced', data
+
+
+def _spread_obstacles(rng: random.Random, data: dict) -> tuple[str, dict]:
+    """Copies of the first obstacle on a grid (apart or close enough that only the check's
+    sampling tells), oscillating or not, for up to a day: valid files whose limit-cycle check
+    (S13 #3) is work in proportion to pairs x instants.
+    """
+    n, spacing = rng.choice((64, 256)), rng.choice((0.5, 1.0, 2.0))
+    duration = rng.choice((600.0, 3600.0, 86_400.0))
+    first = data['obstacles'][0]
+    x0, y0 = first.get('center_m', [0.0, 0.0])
+    copies = []
+    for i in range(n):
+        o = copy.deepcopy(first)
+        o['name'] = f'g{i}'
+        o['center_m'] = [x0 + 20.0 + spacing * (i % 16), y0 + 20.0 + spacing * (i // 16)]
+        if rng.random() < 0.5:
+            o['oscillation'] = {'amplitude_m': [0.0, 0.2], 'period_s': 7.0}
+        copies.append(o)
+    data['obstacles'], data['duration_s'] = copies, duration
+    return f'{n} obstacles {spacing:g} m apart for {duration:g} s', data
 
 
 def _mutate_text(rng: random.Random, text: str) -> tuple[str, str]:

@@ -42,6 +42,10 @@ def _refused(text: str) -> str:
     return line
 
 
+def _one_line(line: str) -> None:
+    assert '\n' not in line and len(line) <= MAX_LINE_CHARS, line
+
+
 def test_an_alias_bomb_is_refused_without_expanding_it():
     t0 = time.process_time()
     line = _refused(_alias_bomb(levels=12, width=10) + '\n' + PAPER.read_text())
@@ -124,6 +128,49 @@ def test_formation_sim_refuses_an_over_budget_scenario_in_one_line(tmp_path):
     assert res.returncode == 2, res.stderr
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and 'over the budget' in lines[0] and len(lines[0]) <= MAX_LINE_CHARS
+
+
+def _spread(n: int, spacing_m: float, duration_s: float, oscillate: bool = False) -> dict:
+    """paper.yaml with ``n`` copies of its first obstacle on a grid ``spacing_m`` apart, away
+    from the robots: valid, and work for the validator and the simulator in proportion to it.
+    """
+    data = _paper()
+    first = data['obstacles'][0]
+    data['obstacles'] = [
+        {
+            **first,
+            'name': f'g{i}',
+            'center_m': [20.0 + spacing_m * (i % 16), 20.0 + spacing_m * (i // 16)],
+            **({'oscillation': {'amplitude_m': [0.0, 0.2], 'period_s': 7.0}} if oscillate else {}),
+        }
+        for i in range(n)
+    ]
+    data['duration_s'] = duration_s
+    data.pop('expect')
+    return data
+
+
+def test_many_obstacles_are_in_the_simulation_budget():
+    """256 valid obstacles for 600 s took `formation sim` 2 minutes and 2.4 GB (the law
+    evaluates every obstacle every step; every obstacle is recorded and written at every
+    sample): the budget counts them.
+    """
+    scenario = parse_scenario_text(yaml.safe_dump(_spread(256, 2.0, 600.0, oscillate=True)))
+    with pytest.raises(ConfigError, match='256 obstacles .* robot-obstacle-steps') as info:
+        check_sim_budget(scenario, 0.001, 0.1)
+    _one_line(str(info.value))
+    with pytest.raises(ConfigError, match='obstacle-samples, over the budget') as info:
+        check_sim_budget(scenario, 0.05, 0.05)
+    _one_line(str(info.value))
+    short = parse_scenario_text(yaml.safe_dump(_spread(256, 2.0, 30.0, oscillate=True)))
+    check_sim_budget(short, 0.001, 0.01)  # 30 s of them fit
+
+
+def test_moving_obstacles_beyond_the_limit_cycle_check_budget_are_refused_in_one_line():
+    with pytest.raises(ConfigError, match='pair-samples of the limit-cycle check') as info:
+        parse_scenario_text(yaml.safe_dump(_spread(256, 0.5, 3600.0, oscillate=True)))
+    _one_line(str(info.value))
+    parse_scenario_text(yaml.safe_dump(_spread(256, 2.0, 3600.0, oscillate=True)))  # apart
 
 
 def _cli_refusal(path, tmp_path) -> str:

@@ -66,6 +66,10 @@ SIM_BUDGET = {
     'robot_steps': 1e7,  # duration / dt x robots (the compiled loop: about 1e6 robot-steps/s)
     'robot_samples': 1e6,  # duration / record period x robots (about 0.6 kB each in memory)
     'pair_samples': 2e8,  # robot pairs x record samples (the metrics' pairwise distances)
+    # obstacles: each robot's law evaluates every obstacle every step (about 3e6/s); every
+    # obstacle is recorded (memory) and written to obstacles.csv at every record sample
+    'robot_obstacle_steps': 3e7,
+    'obstacle_samples': 1e6,
 }
 
 
@@ -963,21 +967,25 @@ def check_sim_budget(scenario: Scenario, dt_s: float, record_every_s: float, bud
             f'({max(dt_s, record_every_s):g} s): nothing would be simulated',
             'duration_s',
         )
-    n = len(scenario.robots)
+    n, m = len(scenario.robots), len(scenario.obstacles)
     steps = scenario.duration_s / dt_s
     samples = scenario.duration_s / max(record_every_s, dt_s)
     need = {
         'robot_steps': steps * n,
         'robot_samples': samples * n,
         'pair_samples': samples * n * (n - 1) / 2,
+        'robot_obstacle_steps': steps * n * m,
+        'obstacle_samples': samples * m,
     }
     for key, value in need.items():
         if value > budget[key]:
             what = key.replace('_', '-')
+            who = f'{n} robots' + (f' and {m} obstacles' if 'obstacle' in key else '')
+            fewer = 'robots or obstacles' if 'obstacle' in key else 'robots'
             raise ConfigError(
-                f'{n} robots for {scenario.duration_s:g} s need {value:.3g} {what}'
+                f'{who} for {scenario.duration_s:g} s need {value:.3g} {what}'
                 f', over the budget of {budget[key]:.3g} (docs/scenarios.md "Limits"): shorten '
-                'duration_s, use fewer robots or a longer record period',
+                f'duration_s, use fewer {fewer} or a longer record period',
                 'duration_s',
             )
 

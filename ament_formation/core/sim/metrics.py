@@ -52,23 +52,6 @@ def count_entries(flag: np.ndarray) -> int:
     return int(flag[0]) + int(np.count_nonzero(flag[1:] & ~flag[:-1]))
 
 
-def obstacle_distances(result: SimResult, scenario) -> np.ndarray:
-    """(T, N, M) signed distance [m] of every robot's p to every obstacle's P_j (< 0 inside)."""
-    n_t, n = result.state.shape[:2]
-    m = len(result.obstacle_names)
-    if m == 0:
-        return np.zeros((n_t, n, 0))
-    axes = _obstacle_axes(result, scenario)
-    pts = np.broadcast_to(result.state[:, :, None, :2], (n_t, n, m, 2)).reshape(-1, 2)
-    centers = np.broadcast_to(result.obstacle_center_m[:, None, :, :], (n_t, n, m, 2)).reshape(
-        -1, 2
-    )
-    phis = np.broadcast_to(result.obstacle_phi_rad[:, None, :], (n_t, n, m)).reshape(-1)
-    r1 = np.broadcast_to(axes[None, None, :, 0], (n_t, n, m)).reshape(-1)
-    r2 = np.broadcast_to(axes[None, None, :, 1], (n_t, n, m)).reshape(-1)
-    return signed_distance_to_ellipse(pts, centers, phis, r1, r2).reshape(n_t, n, m)
-
-
 def min_signed_distance(points, centers, phi, r1: float, r2: float) -> tuple[float, np.ndarray]:
     """Minimum over samples of the exact signed distance of ``points`` (T, 2) to one moving ellipse
     (centres (T, 2), orientation (T,), semi-axes r1, r2 [m]), and the inside flags (T,) bool.
