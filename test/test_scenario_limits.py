@@ -166,6 +166,34 @@ def test_many_obstacles_are_in_the_simulation_budget():
     check_sim_budget(short, 0.001, 0.01)  # 30 s of them fit
 
 
+def test_many_robots_are_in_the_simulation_budget_by_pairs():
+    """1,024 robots for 1 s took `formation sim` 43 s and 5.1 GB (the metrics' pairwise
+    distances; the budget allowed 2e8 robot-pair samples): now 5e6, and the law's pair-steps.
+    """
+    data = _paper()
+    data['robots'] = [
+        {
+            'id': i,
+            'leader': True,
+            'path': {'type': 'line', 'start_m': [i % 32, i // 32], 'heading_rad': 0.0,
+                     'speed_mps': 0.05},
+            'slot_m': [0.0, 0.0],
+            'initial_pose': [i % 32, i // 32, 0.0],
+            'marker_id': i,
+        }
+        for i in range(1024)
+    ]  # fmt: skip
+    data.update(graph={'edges': []}, obstacles=[], duration_s=1.0)
+    data.pop('expect')
+    scenario = parse_scenario_text(yaml.safe_dump(data, sort_keys=False))
+    with pytest.raises(ConfigError, match='1024 robots for 1 s need .* pair-samples') as info:
+        check_sim_budget(scenario, 0.001, 0.01)
+    _one_line(str(info.value))
+    with pytest.raises(ConfigError, match='robot-pair-steps, over the budget') as info:
+        check_sim_budget(scenario, 0.001, 1.0)
+    _one_line(str(info.value))
+
+
 def test_moving_obstacles_beyond_the_limit_cycle_check_budget_are_refused_in_one_line():
     with pytest.raises(ConfigError, match='pair-samples of the limit-cycle check') as info:
         parse_scenario_text(yaml.safe_dump(_spread(256, 0.5, 3600.0, oscillate=True)))

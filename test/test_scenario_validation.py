@@ -13,8 +13,8 @@ import pytest
 import yaml
 
 from ament_formation.core.errors import ConfigError
-from ament_formation.core.model.paths import LinePath, SinusoidPath
 from ament_formation.core.model.ellipse import ellipses_overlap
+from ament_formation.core.model.paths import LinePath, SinusoidPath
 from ament_formation.core.scenario.loader import (
     dump_scenario,
     load_scenario,

@@ -65,7 +65,8 @@ MAX_IMAGE_PX = 8192
 SIM_BUDGET = {
     'robot_steps': 1e7,  # duration / dt x robots (the compiled loop: about 1e6 robot-steps/s)
     'robot_samples': 1e6,  # duration / record period x robots (about 0.6 kB each in memory)
-    'pair_samples': 2e8,  # robot pairs x record samples (the metrics' pairwise distances)
+    'pair_samples': 5e6,  # robot pairs x record samples (the metrics' pairwise distances)
+    'robot_pair_steps': 5e7,  # robot pairs x steps (each robot's law looks at every other)
     # obstacles: each robot's law evaluates every obstacle every step (about 3e6/s); every
     # obstacle is recorded (memory) and written to obstacles.csv at every record sample
     'robot_obstacle_steps': 3e7,
@@ -974,6 +975,7 @@ def check_sim_budget(scenario: Scenario, dt_s: float, record_every_s: float, bud
         'robot_steps': steps * n,
         'robot_samples': samples * n,
         'pair_samples': samples * n * (n - 1) / 2,
+        'robot_pair_steps': steps * n * (n - 1) / 2,
         'robot_obstacle_steps': steps * n * m,
         'obstacle_samples': samples * m,
     }

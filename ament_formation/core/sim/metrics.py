@@ -97,13 +97,10 @@ def _obstacle_axes(result: SimResult, scenario) -> np.ndarray:
     ).reshape(-1, 2)
 
 
-def robot_distances(result: SimResult) -> np.ndarray:
-    """(T, N, N) distances |p_i - p_k| [m] (inf on the diagonal)."""
+def pair_distances(result: SimResult, a, b) -> np.ndarray:
+    """(T, P) distances |p_a - p_b| [m] of the robot pairs (``a``, ``b``) (P,) (indices)."""
     p = result.state[:, :, :2]
-    d = np.linalg.norm(p[:, :, None, :] - p[:, None, :, :], axis=-1)
-    n = p.shape[1]
-    d[:, np.arange(n), np.arange(n)] = np.inf
-    return d
+    return np.hypot(p[:, a, 0] - p[:, b, 0], p[:, a, 1] - p[:, b, 1])
 
 
 def json_ready(value):
@@ -182,20 +179,23 @@ def compute_metrics(result: SimResult, scenario) -> dict:
                 entry_events.append({'t_s': t0, 'robot': rid, 'target': name})
             entries += count_entries(inside)
 
-    # robot pairs: distances and entries into the robot prohibited circle (S7)
-    rdist = robot_distances(result) if n > 1 else np.zeros((len(t), n, n))
-    pair_min: dict[str, float] = {}
+    # robot pairs: distances and entries into the robot prohibited circle (S7), all pairs at once
+    a_of, b_of = np.triu_indices(n, 1)
+    pdist = pair_distances(result, a_of, b_of)  # (T, P)
+    radius = np.array([by_id[rid].params.body_radius_m for rid in ids])
     margin = scenario.avoidance.agent_keepout_margin_m
-    for a in range(n):
-        for b in range(a + 1, n):
-            keepout = (
-                by_id[ids[a]].params.body_radius_m + by_id[ids[b]].params.body_radius_m + margin
-            )
-            inside = rdist[:, a, b] < keepout
-            for t0, _t1 in intervals(inside, t):
-                entry_events.append({'t_s': t0, 'robot': ids[a], 'target': f'robot_{ids[b]}'})
-            entries += count_entries(inside)
-            pair_min[f'{ids[a]}-{ids[b]}'] = float(rdist[:, a, b].min()) if len(t) else None
+    inside = pdist < (radius[a_of] + radius[b_of] + margin)
+    if len(t):
+        entries += int(np.count_nonzero(inside[0]) + np.count_nonzero(inside[1:] & ~inside[:-1]))
+    for p in np.flatnonzero(inside.any(axis=0)):  # the pairs that entered
+        for t0, _t1 in intervals(inside[:, p], t):
+            target = f'robot_{ids[b_of[p]]}'
+            entry_events.append({'t_s': t0, 'robot': ids[a_of[p]], 'target': target})
+    lowest = pdist.min(axis=0) if len(t) else [None] * len(a_of)
+    pair_min: dict[str, float] = {
+        f'{ids[a]}-{ids[b]}': None if d is None else float(d)
+        for a, b, d in zip(a_of, b_of, lowest)
+    }
     entry_events.sort(key=lambda e: (e['t_s'], e['robot']))
 
     err = result.formation_error_m  # (T, N)
