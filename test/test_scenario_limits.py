@@ -194,6 +194,26 @@ def test_many_robots_are_in_the_simulation_budget_by_pairs():
     _one_line(str(info.value))
 
 
+def test_camera_sensing_has_a_budget_of_its_own(tmp_path):
+    """paper.yaml for 1,000 s took `formation sim --sensing camera` 84 s (ideal: 9 s): with
+    camera sensing, robot-seconds are counted; the ideal run of the same file is allowed.
+    """
+    data = _paper()
+    data['duration_s'] = 1000.0
+    data.pop('expect')
+    path = tmp_path / 'long.yaml'
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    scenario = load_scenario(path)
+    check_sim_budget(scenario, 0.001, 0.01)
+    with pytest.raises(ConfigError, match=r'2e\+03 sensed-robot-seconds') as info:
+        check_sim_budget(scenario, 0.001, 0.01, sensed=True)
+    _one_line(str(info.value))
+    assert 'ideal sensing' in str(info.value)
+    line = _cli_refusal_args(['sim', str(path), '--sensing', 'camera'], tmp_path)
+    assert 'sensed-robot-seconds' in line
+    check_sim_budget(load_scenario(PAPER), 0.001, 0.01, sensed=True)  # the shipped one fits
+
+
 def test_moving_obstacles_beyond_the_limit_cycle_check_budget_are_refused_in_one_line():
     with pytest.raises(ConfigError, match='pair-samples of the limit-cycle check') as info:
         parse_scenario_text(yaml.safe_dump(_spread(256, 0.5, 3600.0, oscillate=True)))
@@ -202,11 +222,16 @@ def test_moving_obstacles_beyond_the_limit_cycle_check_budget_are_refused_in_one
 
 
 def _cli_refusal(path, tmp_path) -> str:
+    return _cli_refusal_args(['sim', str(path)], tmp_path)
+
+
+def _cli_refusal_args(args: list[str], tmp_path) -> str:
+    """The one line `formation ARGS --out ... --quiet` refuses with (exit status 2)."""
     from ament_formation.tools import cli
 
     err = io.StringIO()
     with contextlib.redirect_stderr(err):
-        rc = cli.main(['sim', str(path), '--out', str(tmp_path / 'out'), '--quiet'])
+        rc = cli.main([*args, '--out', str(tmp_path / 'out'), '--quiet'])
     lines = err.getvalue().strip().splitlines()
     assert rc == 2 and len(lines) == 1 and len(lines[0]) <= MAX_LINE_CHARS, lines
     return lines[0]

@@ -183,7 +183,7 @@ def run_sim(args: argparse.Namespace) -> int:
     if out.exists() and not out.is_dir():
         raise ConfigError('exists and is not a directory', '--out', str(out))
     scenario = load_scenario(args.scenario)
-    check_sim_budget(scenario, dt_s, record_s)
+    check_sim_budget(scenario, dt_s, record_s, sensed=sensing is not None)
 
     from ament_formation.core.sim.simulator import simulate
 

@@ -71,6 +71,9 @@ SIM_BUDGET = {
     # obstacle is recorded (memory) and written to obstacles.csv at every record sample
     'robot_obstacle_steps': 3e7,
     'obstacle_samples': 1e6,
+    # camera sensing (--sensing): each robot's controller, estimator and camera model run at
+    # their real rates in Python, about 0.03 s of CPU per robot-second
+    'sensed_robot_seconds': 1000.0,
 }
 
 
@@ -956,10 +959,12 @@ def _check_limit_cycles(
         )
 
 
-def check_sim_budget(scenario: Scenario, dt_s: float, record_every_s: float, budget=None) -> None:
+def check_sim_budget(
+    scenario: Scenario, dt_s: float, record_every_s: float, budget=None, sensed: bool = False
+) -> None:
     """Raise ConfigError (one line) when simulating ``scenario`` at ``dt_s`` with a record every
-    ``record_every_s`` would exceed :data:`SIM_BUDGET` (or ``budget``): the work and memory a run
-    of `formation sim` may take on this class of machine.
+    ``record_every_s`` (``sensed``: with camera sensing) would exceed :data:`SIM_BUDGET` (or
+    ``budget``): the work and memory a run of `formation sim` may take on this class of machine.
     """
     budget = {**SIM_BUDGET, **(budget or {})}
     if scenario.duration_s < max(dt_s, record_every_s):
@@ -978,16 +983,18 @@ def check_sim_budget(scenario: Scenario, dt_s: float, record_every_s: float, bud
         'robot_pair_steps': steps * n * (n - 1) / 2,
         'robot_obstacle_steps': steps * n * m,
         'obstacle_samples': samples * m,
+        'sensed_robot_seconds': scenario.duration_s * n if sensed else 0.0,
     }
     for key, value in need.items():
         if value > budget[key]:
             what = key.replace('_', '-')
             who = f'{n} robots' + (f' and {m} obstacles' if 'obstacle' in key else '')
             fewer = 'robots or obstacles' if 'obstacle' in key else 'robots'
+            other = 'ideal sensing' if key == 'sensed_robot_seconds' else 'a longer record period'
             raise ConfigError(
                 f'{who} for {scenario.duration_s:g} s need {value:.3g} {what}'
                 f', over the budget of {budget[key]:.3g} (docs/scenarios.md "Limits"): shorten '
-                f'duration_s, use fewer {fewer} or a longer record period',
+                f'duration_s, use fewer {fewer} or {other}',
                 'duration_s',
             )
 
