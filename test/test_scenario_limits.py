@@ -150,18 +150,22 @@ def _spread(n: int, spacing_m: float, duration_s: float, oscillate: bool = False
     return data
 
 
+def _over_budget(match: str, scenario, *args, **kw) -> str:
+    """check_sim_budget's refusal: one short line matching ``match``."""
+    with pytest.raises(ConfigError, match=match) as info:
+        check_sim_budget(scenario, *args, **kw)
+    _one_line(str(info.value))
+    return str(info.value)
+
+
 def test_many_obstacles_are_in_the_simulation_budget():
     """256 valid obstacles for 600 s took `formation sim` 2 minutes and 2.4 GB (the law
     evaluates every obstacle every step; every obstacle is recorded and written at every
     sample): the budget counts them.
     """
     scenario = parse_scenario_text(yaml.safe_dump(_spread(256, 2.0, 600.0, oscillate=True)))
-    with pytest.raises(ConfigError, match='256 obstacles .* robot-obstacle-steps') as info:
-        check_sim_budget(scenario, 0.001, 0.1)
-    _one_line(str(info.value))
-    with pytest.raises(ConfigError, match='obstacle-samples, over the budget') as info:
-        check_sim_budget(scenario, 0.05, 0.05)
-    _one_line(str(info.value))
+    _over_budget('256 obstacles .* robot-obstacle-steps', scenario, 0.001, 0.1)
+    _over_budget('obstacle-samples, over the budget', scenario, 0.05, 0.05)
     short = parse_scenario_text(yaml.safe_dump(_spread(256, 2.0, 30.0, oscillate=True)))
     check_sim_budget(short, 0.001, 0.01)  # 30 s of them fit
 
@@ -186,12 +190,8 @@ def test_many_robots_are_in_the_simulation_budget_by_pairs():
     data.update(graph={'edges': []}, obstacles=[], duration_s=1.0)
     data.pop('expect')
     scenario = parse_scenario_text(yaml.safe_dump(data, sort_keys=False))
-    with pytest.raises(ConfigError, match='1024 robots for 1 s need .* pair-samples') as info:
-        check_sim_budget(scenario, 0.001, 0.01)
-    _one_line(str(info.value))
-    with pytest.raises(ConfigError, match='robot-pair-steps, over the budget') as info:
-        check_sim_budget(scenario, 0.001, 1.0)
-    _one_line(str(info.value))
+    _over_budget('1024 robots for 1 s need .* pair-samples', scenario, 0.001, 0.01)
+    _over_budget('robot-pair-steps, over the budget', scenario, 0.001, 1.0)
 
 
 def test_camera_sensing_has_a_budget_of_its_own(tmp_path):
@@ -205,10 +205,8 @@ def test_camera_sensing_has_a_budget_of_its_own(tmp_path):
     path.write_text(yaml.safe_dump(data, sort_keys=False))
     scenario = load_scenario(path)
     check_sim_budget(scenario, 0.001, 0.01)
-    with pytest.raises(ConfigError, match=r'2e\+03 sensed-robot-seconds') as info:
-        check_sim_budget(scenario, 0.001, 0.01, sensed=True)
-    _one_line(str(info.value))
-    assert 'ideal sensing' in str(info.value)
+    line = _over_budget(r'2e\+03 sensed-robot-seconds', scenario, 0.001, 0.01, sensed=True)
+    assert 'ideal sensing' in line
     line = _cli_refusal_args(['sim', str(path), '--sensing', 'camera'], tmp_path)
     assert 'sensed-robot-seconds' in line
     check_sim_budget(load_scenario(PAPER), 0.001, 0.01, sensed=True)  # the shipped one fits
