@@ -194,6 +194,20 @@ def test_many_robots_are_in_the_simulation_budget_by_pairs():
     _over_budget('robot-pair-steps, over the budget', scenario, 0.001, 1.0)
 
 
+@pytest.mark.parametrize('where', ['name', 'obstacle'])
+def test_a_long_name_is_refused_in_one_line(where):
+    """An obstacle named with 900,000 characters passed the validator, and drawing the figure's
+    legend ended in std::bad_alloc after 21 s (found by bench_scenario_fuzz.py).
+    """
+    data = _paper()
+    if where == 'name':
+        data['name'] = 'v' * 900_000
+    else:
+        data['obstacles'][0]['name'] = 'v' * 900_000
+    line = _refused(yaml.safe_dump(data, sort_keys=False, width=1 << 30))
+    assert 'at most 100 characters' in line and '(900000 chars)' in line
+
+
 def test_camera_sensing_has_a_budget_of_its_own(tmp_path):
     """paper.yaml for 1,000 s took `formation sim --sensing camera` 84 s (ideal: 9 s): with
     camera sensing, robot-seconds are counted; the ideal run of the same file is allowed.

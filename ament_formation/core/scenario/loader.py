@@ -48,6 +48,7 @@ from ament_formation.core.params import AvoidanceParams, ControlGains, RobotPara
 
 _OVERLAP_STEP_S = 0.25
 _NAME_RE = re.compile(r'[A-Za-z0-9_.\-]+')
+MAX_NAME_CHARS = 100  # a scenario's or an obstacle's name (titles, legends, CSV columns)
 
 # Bounded input (docs/scenarios.md "Limits"): what a scenario may ask of the machine. A file over
 # these limits is refused in one line before any large allocation.
@@ -489,6 +490,7 @@ def _parse(data, source) -> Scenario:
     name = data['name']
     if not isinstance(name, str) or not name.strip():
         raise ConfigError(f'must be a non-empty string (got {excerpt(name)})', 'name')
+    _check_name_length(name, 'name')
     duration = _number(data['duration_s'], 'duration_s', positive=True)
     if duration > MAX_DURATION_S:
         raise ConfigError(
@@ -760,6 +762,7 @@ def _parse_obstacles(items) -> list[ObstacleSpec]:
         name = item['name']
         if not isinstance(name, str) or not name.strip():
             raise ConfigError(f'must be a non-empty string (got {excerpt(name)})', f'{where}.name')
+        _check_name_length(name, f'{where}.name')
         if not _NAME_RE.fullmatch(name):
             raise ConfigError(
                 f"must use only letters, digits, '_', '-' and '.' (got {excerpt(name)})",
@@ -902,6 +905,13 @@ def _check_start_geometry(robots, obstacles, avoidance: AvoidanceParams) -> None
                     f'circle {keepout:.3f} m (S7)',
                     f'robots[{b}].initial_pose',
                 )
+
+
+def _check_name_length(name: str, where: str) -> None:
+    if len(name) > MAX_NAME_CHARS:
+        raise ConfigError(
+            f'at most {MAX_NAME_CHARS} characters (got {excerpt(name)})', where
+        )
 
 
 def _check_limit_cycles(
