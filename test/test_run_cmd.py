@@ -24,12 +24,6 @@ from ament_formation.ros import shm
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIO = ROOT / 'test' / 'data' / 'head_on.yaml'
 FORMATION = str(ROOT / '.venv' / 'bin' / 'formation')
-# The whole system at real time (the demo's default) has 8 processes on 2 cores; with the rest of
-# the suite beside it, a late camera frame now and then made the robots' safety stop (camera loss)
-# fire and the run fail, rightly. The recording and its evaluation are what these tests check: the
-# twin runs at half speed (/clock and use_sim_time, as test_system does), which leaves them twice
-# the time per frame.
-SPEED = '0.5'
 # whole-system runs: minutes on a busy machine (start-up, numba kernels, evaluation)
 pytestmark = pytest.mark.timeout(1500)
 
@@ -50,8 +44,6 @@ def passing_run(tmp_path_factory):
             '--quiet',
             '--startup-timeout',
             '400',
-            '--speed',
-            SPEED,
         ],
         capture_output=True,
         text=True,
