@@ -12,7 +12,13 @@ import numpy as np
 import pytest
 
 from ament_formation.core.errors import ConfigError
-from ament_formation.core.model.paths import LinePath, path_from_config, SinusoidPath, WaypointPath
+from ament_formation.core.model.paths import (
+    HeldPath,
+    LinePath,
+    path_from_config,
+    SinusoidPath,
+    WaypointPath,
+)
 
 
 def _fd(path, t, h=1e-4):
@@ -109,6 +115,41 @@ def test_waypoints_bounded_acceleration_c1_and_stop_at_the_end():
     radius = 0.05**2 / 0.02
     d_corner = np.linalg.norm(r - [1.0, 0.0], axis=1).min()
     assert d_corner == pytest.approx(radius * (math.sqrt(2) - 1), rel=1e-3)
+
+
+def test_a_held_path_stops_at_its_end_time_and_rests_there():
+    base = SinusoidPath((0.0, 0.0), 0.1, 3.0, 0.05)
+    held = HeldPath(base, 10.0)
+    t = np.array([-1.0, 3.0, 10.0, 10.001, 25.0])
+    r, rd, rdd = held.reference(t)
+    r0, rd0, rdd0 = base.reference(t[:3])
+    np.testing.assert_array_equal(r[:3], r0)  # the path itself up to its end time
+    np.testing.assert_array_equal(rd[:3], rd0)
+    np.testing.assert_array_equal(rdd[:3], rdd0)
+    end, _, _ = base.reference(10.0)
+    np.testing.assert_allclose(r[3:], [end, end], atol=1e-15)  # then at rest at r(t_end)
+    np.testing.assert_array_equal(rd[3:], 0.0)
+    np.testing.assert_array_equal(rdd[3:], 0.0)
+    for k, tk in enumerate(t):  # scalar times agree with the rows
+        rs, rds, rdds = held.reference(float(tk))
+        assert rs.shape == rds.shape == rdds.shape == (2,)
+        np.testing.assert_allclose(rs, r[k], atol=1e-12)
+        np.testing.assert_allclose(rds, rd[k], atol=1e-12)
+        np.testing.assert_allclose(rdds, rdd[k], atol=1e-12)
+
+
+def test_a_path_with_stop_s_is_held_and_written_back_with_it():
+    from ament_formation.core.scenario.loader import _path_to_mapping
+
+    cfg = {'type': 'line', 'start_m': [0, 0], 'heading_rad': 0.0, 'speed_mps': 0.05, 'stop_s': 8}
+    p = path_from_config(cfg)
+    assert isinstance(p, HeldPath) and isinstance(p.path, LinePath) and p.t_end_s == 8.0
+    np.testing.assert_allclose(p.reference(20.0)[0], [0.4, 0.0], atol=1e-12)
+    assert path_from_config(_path_to_mapping(p)) == p
+    refused = ((-1, 'must be >= 0'), ('soon', 'must be a number'), (math.nan, 'must be finite'))
+    for bad, what in refused:
+        with pytest.raises(ConfigError, match=f'stop_s: {what}'):
+            path_from_config({**cfg, 'stop_s': bad})
 
 
 def test_path_from_config_and_errors():

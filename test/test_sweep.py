@@ -217,6 +217,63 @@ def test_a_goal_inside_an_obstacles_q_is_parked_not_a_failure():
     ]
 
 
+def _late_start() -> dict:
+    """head_on.yaml with robot 1 starting 2.2 m behind its goal: 1.14 m from it at the end."""
+    import yaml
+
+    mapping = yaml.safe_load(
+        (Path(__file__).resolve().parent / 'data' / 'head_on.yaml').read_text()
+    )
+    mapping['robots'][1]['initial_pose'][0] += 2.2
+    return mapping
+
+
+def test_a_robot_that_catches_up_once_the_paths_stop_is_far_but_not_stuck():
+    row = campaign.run_case({'mapping': _late_start(), 'hold_s': 30.0})
+    assert row['classes'] == 'far_from_goal' and row['status'] == 'fail'
+    assert 0.0 < row['hold_catch_up_s'] < 30.0
+
+
+def test_a_robot_still_far_when_the_hold_ends_is_stuck():
+    row = campaign.run_case({'mapping': _late_start(), 'hold_s': 0.5})
+    assert row['classes'] == 'far_from_goal stuck' and row['hold_catch_up_s'] is None
+    assert 'stuck: R1 still 1.1' in row['reason']
+    assert 'm from its goal 0.5 s after the paths stop' in row['reason']
+
+
+def test_a_stuck_run_replays_with_formation_sim_hold(tmp_path):
+    import yaml
+
+    row = campaign.run_case({'mapping': _late_start(), 'hold_s': 0.5})
+    assert row['replay'] == '--hold 0.5'
+    scen = tmp_path / 'late.yaml'
+    scen.write_text(yaml.safe_dump(row['mapping']))
+    out = tmp_path / 'run'
+    rc = cli.main(['sim', str(scen), '--hold', '0.5', '--out', str(out), '--quiet', '--no-figure'])
+    ran = yaml.safe_load((out / 'scenario.yaml').read_text())
+    assert ran['duration_s'] == pytest.approx(row['mapping']['duration_s'] + 0.5)
+    assert ran['robots'][0]['path']['stop_s'] == pytest.approx(row['mapping']['duration_s'])
+    metrics = json.loads((out / 'metrics.json').read_text())
+    assert rc == 0  # (formation sim checks contacts and entries, not the goal)
+    assert metrics['robots']['1']['final_error_m'] > 1.0  # still far: stuck
+    assert cli.main(['sim', str(scen), '--hold', 'nan', '--out', str(out), '--quiet']) == 2
+
+
+def test_no_hold_no_stuck_class():
+    row = campaign.run_case({'mapping': _late_start(), 'hold_s': 0.0})
+    assert row['classes'] == 'far_from_goal' and row['hold_catch_up_s'] is None
+
+
+def test_the_held_scenario_keeps_everything_but_the_paths_and_duration():
+    scenario = _scenario()
+    held = campaign.held_scenario(scenario, 30.0)
+    assert held.duration_s == scenario.duration_s + 30.0
+    assert held.robots[1] == scenario.robots[1] and held.obstacles == scenario.obstacles
+    r, rd, _ = held.robots[0].path.reference(5.0)
+    np.testing.assert_allclose(r, scenario.robots[0].path.reference(1.0)[0])
+    np.testing.assert_array_equal(rd, 0.0)
+
+
 def _rows(path: Path) -> list[dict]:
     with open(path / 'runs.csv') as f:
         return [{k: v for k, v in row.items() if k != 'wall_s'} for row in csv.DictReader(f)]
@@ -316,6 +373,8 @@ def test_perturbed_campaign_of_a_shipped_scenario(tmp_path):
         (['--count', '0'], '--count'),
         (['--families', 'formation,blob'], '--families'),
         (['--scale', 'nan'], '--scale'),
+        (['--hold', '-1'], '--hold'),
+        (['--hold', 'inf'], '--hold'),
         (['--workers', '-1'], '--workers'),
         (['--perturb', '/nonexistent.yaml'], 'nonexistent'),
     ],

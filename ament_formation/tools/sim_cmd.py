@@ -56,6 +56,14 @@ def register(subparsers) -> None:
         metavar='S',
         help='recording interval of the trajectories [s] (default 0.01)',
     )
+    sim.add_argument(
+        '--hold',
+        type=float,
+        default=0.0,
+        metavar='S',
+        help="run S s past the scenario's duration with every leader's path held at its end "
+        '(stop_s; how formation sweep tells a stuck robot from a late one; default 0)',
+    )
     sim.add_argument('--no-figure', action='store_true', help='skip figure.png')
     sim.add_argument('--quiet', action='store_true', help='no progress and no summary')
     add_sensing_arguments(sim)
@@ -182,7 +190,13 @@ def run_sim(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise ConfigError('exists and is not a directory', '--out', str(out))
+    if not (math.isfinite(args.hold) and 0.0 <= args.hold <= 600.0):
+        raise ConfigError(f'must be in [0, 600] (got {args.hold})', '--hold')
     scenario = load_scenario(args.scenario)
+    if args.hold > 0.0:
+        from ament_formation.core.sim.campaign import held_scenario
+
+        scenario = held_scenario(scenario, args.hold)
     check_sim_budget(scenario, dt_s, record_s, sensed=sensing is not None)
 
     from ament_formation.core.sim.simulator import simulate

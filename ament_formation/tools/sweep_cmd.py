@@ -31,6 +31,7 @@ import time
 
 from ament_formation.core.errors import ConfigError
 
+from ament_formation.core.sim.campaign import HOLD_S
 from ament_formation.tools.sensing_args import SENSING_CHOICES as SENSING
 
 
@@ -56,6 +57,14 @@ def register(subparsers) -> None:
     )
     p.add_argument('--scale', type=float, default=1.0, help='perturbation size (default 1)')
     p.add_argument('--sensing', choices=SENSING, default='ideal', help='default ideal')
+    p.add_argument(
+        '--hold',
+        type=float,
+        default=HOLD_S,
+        metavar='S',
+        help='run a far_from_goal run again S s longer with the paths held at their end, to tell '
+        f'a robot catching up from a stuck one (default {HOLD_S:g}; 0: off)',
+    )
     p.add_argument(
         '--workers',
         type=int,
@@ -83,7 +92,9 @@ def _cases(args) -> list[dict]:
         raise ConfigError(f'must be in [1, 1000000] (got {args.count})', '--count')
     if not (math.isfinite(args.scale) and 0.0 < args.scale <= 10.0):
         raise ConfigError(f'must be in (0, 10] (got {args.scale})', '--scale')
-    common = {'seed': args.seed, 'sensing': args.sensing}
+    if not (math.isfinite(args.hold) and 0.0 <= args.hold <= 600.0):
+        raise ConfigError(f'must be in [0, 600] (got {args.hold})', '--hold')
+    common = {'seed': args.seed, 'sensing': args.sensing, 'hold_s': args.hold}
     if args.perturb:
         base = scenario_to_mapping(load_scenario(args.perturb))
         return [
@@ -223,7 +234,8 @@ def _write_failure(out: Path, row: dict) -> str | None:
     name = f'{row["index"]:05d}-{row["name"]}.yaml'
     text = (
         f'# formation sweep ({row["sensing"]} sensing): {row["reason"]}\n'
-        f'# replay: formation sim failures/{name} --out RUN_DIR\n'
+        f'# replay: formation sim failures/{name} {row.get("replay") or ""}'.rstrip()
+        + ' --out RUN_DIR\n'
         + yaml.safe_dump(row['mapping'], sort_keys=False, default_flow_style=None)
     )
     (out / 'failures').mkdir(exist_ok=True)

@@ -347,14 +347,55 @@ class WaypointPath:
 
 Path = Union[SinusoidPath, LinePath, WaypointPath]
 
+
+@dataclass(frozen=True)
+class HeldPath:
+    """A leader path that stops at ``t_end_s``: r(t) of ``path`` up to t_end_s, then r(t_end_s)
+    with zero velocity and acceleration (the reference steps to rest; the S4 feedback brings the
+    robot there). ``formation sweep`` holds every path at the scenario's end to tell a robot still
+    catching up from one that never reaches its goal (core/sim/campaign.py ``stuck``).
+    """
+
+    path: object
+    t_end_s: float
+
+    def reference(self, t_s):
+        """(r, r_dot, r_ddot) at ``t_s`` [s]: each (2,) for a scalar time, (T, 2) for an array."""
+        t, scalar = _as_time(t_s)
+        if scalar:
+            if float(t) <= self.t_end_s:
+                return self.path.reference(float(t))
+            r, r_dot, r_ddot = self.path.reference(self.t_end_s)
+            return np.asarray(r, dtype=float), np.zeros_like(r_dot), np.zeros_like(r_ddot)
+        t = np.atleast_1d(t)
+        r, r_dot, r_ddot = (
+            np.array(v, dtype=float).reshape(-1, 2)
+            for v in self.path.reference(np.minimum(t, self.t_end_s))
+        )
+        late = t > self.t_end_s
+        r_dot[late] = 0.0
+        r_ddot[late] = 0.0
+        return r, r_dot, r_ddot
+
+
 _PATH_KEYS = {
-    'sinusoid': ({'start_m', 'amplitude_m', 'wavenumber_radpm', 'speed_mps'}, {'heading_rad'}),
-    'line': ({'start_m', 'heading_rad', 'speed_mps'}, set()),
-    'waypoints': ({'points_m', 'speed_mps'}, {'accel_mps2'}),
+    'sinusoid': (
+        {'start_m', 'amplitude_m', 'wavenumber_radpm', 'speed_mps'},
+        {'heading_rad', 'stop_s'},
+    ),
+    'line': ({'start_m', 'heading_rad', 'speed_mps'}, {'stop_s'}),
+    'waypoints': ({'points_m', 'speed_mps'}, {'accel_mps2', 'stop_s'}),
 }
 
 
-_SCALAR_KEYS = {'amplitude_m', 'wavenumber_radpm', 'speed_mps', 'heading_rad', 'accel_mps2'}
+_SCALAR_KEYS = {
+    'amplitude_m',
+    'wavenumber_radpm',
+    'speed_mps',
+    'heading_rad',
+    'accel_mps2',
+    'stop_s',
+}
 
 
 class TabulatedReference:
@@ -465,6 +506,8 @@ def fast_reference(path):
     """``path`` itself when its reference is cheap (line, waypoints: closed form), else a
     :class:`TabulatedReference` of it (the sinusoid). None stays None.
     """
+    if isinstance(path, HeldPath):
+        return HeldPath(fast_reference(path.path), path.t_end_s)
     if not isinstance(path, SinusoidPath):
         return path
     return TabulatedReference(path)
@@ -472,8 +515,18 @@ def fast_reference(path):
 
 def path_from_config(cfg) -> Path:
     """Build a path from its scenario mapping (DESIGN §5), e.g. ``{type: line, start_m: [0, 0],
-    heading_rad: 0, speed_mps: 0.05}``. Raises ConfigError naming the key (relative to the path).
+    heading_rad: 0, speed_mps: 0.05}``; with ``stop_s`` (any type) the path stops there and rests
+    (:class:`HeldPath`). Raises ConfigError naming the key (relative to the path).
     """
+    path = _path_from_config(cfg)
+    stop = cfg.get('stop_s')
+    if stop is None:
+        return path
+    _check_number(stop, 'stop_s', minimum=0.0)
+    return HeldPath(path, float(stop))
+
+
+def _path_from_config(cfg) -> Path:
     if not isinstance(cfg, dict):
         raise ConfigError(f"must be a mapping with a 'type' key (got {type(cfg).__name__})")
     if 'type' not in cfg:
@@ -492,7 +545,7 @@ def path_from_config(cfg) -> Path:
     for key in sorted(required - keys):
         raise ConfigError(f'missing required key of a {kind} path', key)
     args = {k: cfg[k] for k in keys}
-    for key in sorted(keys & _SCALAR_KEYS):
+    for key in sorted(keys & _SCALAR_KEYS - {'stop_s'}):
         _check_number(args[key], key)
     if kind == 'sinusoid':
         return SinusoidPath(

@@ -1015,8 +1015,10 @@ def check_sim_budget(
 
 
 def _path_to_mapping(path) -> dict:
-    from ament_formation.core.model.paths import LinePath, SinusoidPath, WaypointPath
+    from ament_formation.core.model.paths import HeldPath, LinePath, SinusoidPath, WaypointPath
 
+    if isinstance(path, HeldPath):
+        return {**_path_to_mapping(path.path), 'stop_s': path.t_end_s}
     if isinstance(path, SinusoidPath):
         return {
             'type': 'sinusoid',

@@ -15,11 +15,19 @@ contact       yes   two robot bodies closer than the sum of their radii (0.20 m)
 keepout       no    no contact, but closer than the keep-out circle R_a + R_b + margin (0.25 m)
 runaway       yes   a robot faster than :data:`RUNAWAY_SPEED_MPS` (the paths run at <= 0.065 m/s)
 far_from_goal yes   a robot ends more than :data:`FAR_FROM_GOAL_M` from its goal, the goal free
+stuck         yes   as far_from_goal, and still so when the run goes on :data:`HOLD_S` with every
+                    leader's path held at its end (a robot that never reaches its goal, not one
+                    still catching up when the clock stops)
 parked        no    as far_from_goal, but the goal lies inside an obstacle's Q at the end
 chattering    yes   more than :data:`CHATTER_EVENTS` mode events for one robot
 off_floor     yes   a robot's body crossed the edge of the scenario's floor
 error         yes   the run raised (the row's reason names the exception)
 ============  ====  =========================================================================
+
+A run with ``far_from_goal`` is run again with every leader's path held at its end point for
+:data:`HOLD_S` (:func:`held_scenario`): ``hold_catch_up_s`` is how long after the paths stop every
+robot is within :data:`FAR_FROM_GOAL_M` of its goal (empty when never: ``stuck``); a hard class
+the longer run shows and the first did not is added, its reason marked "held".
 """
 
 from __future__ import annotations
@@ -33,8 +41,18 @@ import numpy as np
 
 RUNAWAY_SPEED_MPS = 0.3
 FAR_FROM_GOAL_M = 0.5
+HOLD_S = 30.0
 CHATTER_EVENTS = 50
-HARD = ('inside_p', 'contact', 'runaway', 'far_from_goal', 'chattering', 'off_floor', 'error')
+HARD = (
+    'inside_p',
+    'contact',
+    'runaway',
+    'far_from_goal',
+    'stuck',
+    'chattering',
+    'off_floor',
+    'error',
+)
 SOFT = ('keepout', 'parked')
 CLASSES = HARD + SOFT
 
@@ -56,6 +74,7 @@ COLUMNS = (
     'final_error_max_m',
     'floor_excursion_m',
     'longest_avoidance_s',
+    'hold_catch_up_s',
     'draws',
     'wall_s',
 )
@@ -95,6 +114,16 @@ def _last_mode(robot: dict) -> str:
 
 def classify(metrics: dict, result, scenario) -> tuple[list[str], str]:
     """(classes, one-line reason) of a finished run from its metrics (core/sim/metrics.py)."""
+    return _listed(findings(metrics, result, scenario))
+
+
+def _listed(found: dict[str, str]) -> tuple[list[str], str]:
+    classes = [c for c in CLASSES if c in found]
+    return classes, '; '.join(f'{c}: {found[c]}' for c in classes)
+
+
+def findings(metrics: dict, result, scenario) -> dict[str, str]:
+    """{class: reason} of a finished run (``stuck`` needs the held run: :func:`run_case`)."""
     found: dict[str, str] = {}
     clearance = metrics.get('min_clearance_m')
     if clearance is not None and clearance < 0.0:
@@ -128,8 +157,56 @@ def classify(metrics: dict, result, scenario) -> tuple[list[str], str]:
     excursion = metrics.get('floor_excursion_m')
     if excursion is not None and excursion > 0.0:
         found['off_floor'] = f'{excursion * 1e3:.0f} mm past the floor edge'
-    classes = [c for c in CLASSES if c in found]
-    return classes, '; '.join(f'{c}: {found[c]}' for c in classes)
+    return found
+
+
+def held_scenario(scenario, hold_s: float):
+    """The scenario run ``hold_s`` longer with every leader's path held at its end point
+    (:class:`~ament_formation.core.model.paths.HeldPath`): the goals come to rest at
+    t = duration_s.
+    """
+    from dataclasses import replace
+
+    from ament_formation.core.model.paths import HeldPath
+
+    end = scenario.duration_s
+
+    def held(path):
+        if isinstance(path, HeldPath) and path.t_end_s <= end:
+            return path  # it stops before the end already
+        return HeldPath(path.path if isinstance(path, HeldPath) else path, end)
+
+    robots = tuple(
+        replace(r, path=held(r.path)) if r.path is not None else r for r in scenario.robots
+    )
+    return replace(scenario, robots=robots, duration_s=end + float(hold_s))
+
+
+def _catch_up_s(result, scenario, t_end: float) -> float | None:
+    """Seconds after ``t_end`` until every robot whose goal is free (not in an obstacle's Q) is
+    within :data:`FAR_FROM_GOAL_M` of its goal at the same sample; None when never.
+    """
+    t = np.asarray(result.t_s, dtype=float)
+    k0 = int(np.searchsorted(t, t_end - 1e-9))
+    free = [i for i in range(len(result.robot_ids)) if not _goal_in_q(scenario, result, i)]
+    if not free or k0 >= t.size:
+        return 0.0
+    err = np.linalg.norm(result.state[k0:, free, :2] - result.goal_m[k0:, free], axis=2)
+    near = np.flatnonzero((err <= FAR_FROM_GOAL_M).all(axis=1))
+    return float(t[k0 + near[0]] - t_end) if near.size else None
+
+
+def _stuck(metrics: dict, result, scenario, hold_s: float) -> str | None:
+    """The ``stuck`` reason of a held run: its first robot still far from a free goal."""
+    for i, rid in enumerate(result.robot_ids):
+        robot = metrics['robots'][str(rid)]
+        err = robot['final_error_m']
+        if err is not None and err > FAR_FROM_GOAL_M and not _goal_in_q(scenario, result, i):
+            return (
+                f'R{rid} still {err:.2f} m from its goal {hold_s:g} s after the paths stop '
+                f'({_last_mode(robot)})'
+            )
+    return None
 
 
 def build_scenario(case: dict):
@@ -165,6 +242,28 @@ def _simulate(scenario, sensing: str, dt_s: float, seed: int):
     return simulate_sensed(scenario, params, dt_s=dt_s, record_every_s=0.01)
 
 
+def _held(scenario, sensing, case, seed: int, hold_s: float, found: dict, row: dict) -> dict:
+    """Run the scenario again with its paths held at their end for ``hold_s``
+    (:func:`held_scenario`): sets ``row['hold_catch_up_s']``; returns the classes to add
+    (``stuck``, and any other hard class the longer run shows, marked "held").
+    """
+    from ament_formation.core.sim.metrics import compute_metrics
+
+    held = held_scenario(scenario, hold_s)
+    result = _simulate(held, sensing, case.get('dt_s', 0.001), seed)
+    metrics = compute_metrics(result, held)
+    row['hold_catch_up_s'] = _catch_up_s(result, held, scenario.duration_s)
+    more = {
+        c: f'held {hold_s:g} s: {why}'
+        for c, why in findings(metrics, result, held).items()
+        if c in HARD and c != 'far_from_goal' and c not in found
+    }
+    stuck = _stuck(metrics, result, held, hold_s)
+    if stuck is not None:
+        more['stuck'] = stuck
+    return more
+
+
 def run_case(case: dict) -> dict:
     """Build, simulate and classify one case; a row of :data:`COLUMNS` plus ``mapping`` (the
     scenario that ran, replayable). Never raises: an exception becomes the class ``error``.
@@ -176,14 +275,18 @@ def run_case(case: dict) -> dict:
     row = dict.fromkeys(COLUMNS)
     row.update(index=case.get('index'), family=case.get('family', 'given'), sensing=sensing)
     mapping = None
+    sensing_seed = (case.get('seed', 0) * 1_000_003 + (case.get('index') or 0)) % 2**31
+    hold_s = float(case.get('hold_s', HOLD_S))
     try:
         scenario, mapping, draws = build_scenario(case)
         row.update(name=scenario.name, robots=len(scenario.robots), draws=draws)
         row['obstacles'] = len(scenario.obstacles)
-        sensing_seed = (case.get('seed', 0) * 1_000_003 + (case.get('index') or 0)) % 2**31
         result = _simulate(scenario, sensing, case.get('dt_s', 0.001), sensing_seed)
         metrics = compute_metrics(result, scenario)
-        classes, reason = classify(metrics, result, scenario)
+        found = findings(metrics, result, scenario)
+        if 'far_from_goal' in found and hold_s > 0.0:
+            found.update(_held(scenario, sensing, case, sensing_seed, hold_s, found, row))
+        classes, reason = _listed(found)
         rms = [r['formation_rms_settled_m'] for r in metrics['robots'].values()]
         finals = [r['final_error_m'] for r in metrics['robots'].values()]
         events = Counter(e['robot'] for e in metrics['mode_events'])
@@ -208,6 +311,11 @@ def run_case(case: dict) -> dict:
     row['reason'] = reason
     row['wall_s'] = time.monotonic() - t0
     row['mapping'] = mapping
+    # the `formation sim` options that replay the row (campaign.py: the sensing seed, the hold)
+    replay = [] if sensing == 'ideal' else [f'--sensing {sensing} --sensing-seed {sensing_seed}']
+    if 'stuck' in classes:
+        replay.append(f'--hold {hold_s:g}')
+    row['replay'] = ' '.join(replay)
     return row
 
 
