@@ -200,6 +200,22 @@ def test_a_pair_the_partner_does_not_report_is_left_or_becomes_a_yield():
     assert out.mode == 'coordination' and kinds(out) == [('exit', 'mutual', 'robot_7')]
 
 
+def test_an_assignment_that_replaces_a_mode_reports_its_exit():
+    sc = load_scenario(config_file('scenarios/paper.yaml'))
+    p = sc.robots[0].params
+    c = RobotController(1, p, sc.control, sc.avoidance, (), team=1)
+    far = {q: NeighbourState(np.array([3.0, 3.0 + q, 0.0, 0.0, 0.0]), team=q) for q in (2, 4)}
+    out = c.step(1.0, np.zeros(5), neighbours=far, assignment=EncounterAssignment('yield', 2))
+    assert [(e['event'], e['mode'], e['target']) for e in out.events] == [
+        ('enter', 'yield', 'robot_2')
+    ]
+    out = c.step(1.01, np.zeros(5), neighbours=far, assignment=EncounterAssignment('mutual', 4))
+    assert [(e['event'], e['mode'], e['target']) for e in out.events] == [
+        ('exit', 'yield', 'robot_2'),
+        ('enter', 'mutual', 'robot_4'),
+    ]
+
+
 def test_assignment_overrides_robot_decision_and_bad_input_is_named():
     sc = load_scenario(config_file('scenarios/paper.yaml'))
     p = sc.robots[0].params

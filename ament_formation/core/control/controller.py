@@ -418,8 +418,8 @@ class RobotController:
             st.wc[me] += (t_s - self._last_step_s) * np.array([wdx, wdy])
         self._last_step_s = t_s
         self._keep_own_automaton(sc)
-        if len(events) > 1:  # one step's net switch (docs/law-changes.md §19)
-            events = self._net_events(events, before)
+        if events:  # one step's net switch (docs/law-changes.md §19; an assignment that
+            events = self._net_events(events, before)  # replaces a mode exits it too)
         return ControlOutput(
             torque_nm=np.array([t1, t2]),
             accel_cmd_mps2=np.array([acx, acy]),
