@@ -344,6 +344,36 @@ def test_a_failing_scenario_replays_with_formation_sim(failing_sweep, tmp_path):
     assert final == pytest.approx(float(row['final_error_max_m']), rel=1e-12) and final > 0.5
 
 
+def test_replay_runs_a_campaigns_failures_again_with_the_same_results(failing_sweep, tmp_path):
+    rc, out = failing_sweep
+    before = {r['index']: r for r in _rows(out) if r['status'] == 'fail'}
+    again = tmp_path / 'again'
+    args = ['sweep', '--out', str(again), '--replay', str(out), '--workers', '0']
+    assert cli.main([*args, '--quiet', '--no-plot']) == 1
+    rows = {r['index']: r for r in _rows(again)}
+    assert sorted(rows) == sorted(before) and len(rows) == 2
+    for index, row in rows.items():
+        old = before[index]
+        assert row['family'] == old['family'] == 'perturbed' and row['name'] == old['name']
+        for key in ('classes', 'reason', 'min_robot_distance_m', 'final_error_max_m'):
+            assert row[key] == old[key], key
+    summary = json.loads((again / 'summary.json').read_text())
+    assert summary['seed'] == 0 and summary['sensing'] == 'ideal' and summary['runs'] == 2
+
+
+def test_replay_refuses_what_is_not_a_campaign(failing_sweep, tmp_path, capsys):
+    _rc, out = failing_sweep
+    for argv, field in (
+        (['--replay', str(tmp_path)], '--replay'),  # no summary.json
+        (['--replay', str(out), '--perturb', str(out / 'x.yaml')], '--replay'),
+    ):
+        rc = cli.main(['sweep', '--out', str(tmp_path / 'o'), '--quiet', *argv])
+        err = capsys.readouterr().err.strip()
+        assert rc == 2 and field in err and '\n' not in err
+    assert cli.main(['sweep', '--out', str(out), '--replay', str(out), '--quiet']) == 2
+    assert (out / 'failures').is_dir()  # the campaign replayed is left as it was
+
+
 def test_perturbed_campaign_of_a_shipped_scenario(tmp_path):
     scen = Path(__file__).resolve().parents[1] / 'config' / 'scenarios' / 'paper.yaml'
     rc = cli.main(

@@ -56,6 +56,12 @@ def register(subparsers) -> None:
         '--perturb', metavar='SCENARIO.yaml', help='perturb this scenario instead of generating'
     )
     p.add_argument('--scale', type=float, default=1.0, help='perturbation size (default 1)')
+    p.add_argument(
+        '--replay',
+        metavar='CAMPAIGN',
+        help="run again the failing runs of an earlier campaign's directory (its failures/, its "
+        'seed and sensing): after a change of the law, what is fixed and what is not',
+    )
     p.add_argument('--sensing', choices=SENSING, default='ideal', help='default ideal')
     p.add_argument(
         '--hold',
@@ -94,6 +100,10 @@ def _cases(args) -> list[dict]:
         raise ConfigError(f'must be in (0, 10] (got {args.scale})', '--scale')
     if not (math.isfinite(args.hold) and 0.0 <= args.hold <= 600.0):
         raise ConfigError(f'must be in [0, 600] (got {args.hold})', '--hold')
+    if args.replay:
+        if args.perturb:
+            raise ConfigError('give --replay or --perturb, not both', '--replay')
+        return _replayed(args)
     common = {'seed': args.seed, 'sensing': args.sensing, 'hold_s': args.hold}
     if args.perturb:
         base = scenario_to_mapping(load_scenario(args.perturb))
@@ -111,6 +121,48 @@ def _cases(args) -> list[dict]:
     if not names:
         raise ConfigError('names no family', '--families')
     return [{**common, 'index': i, 'family': names[i % len(names)]} for i in range(args.count)]
+
+
+def _replayed(args) -> list[dict]:
+    """The cases of ``--replay CAMPAIGN``: each ``failures/NNNNN-NAME.yaml`` of that campaign as
+    given, with the campaign's seed, sensing and the run's index and family (so a camera run sees
+    the same camera noise); ``args.seed`` and ``args.sensing`` become the campaign's.
+    """
+    from ament_formation.core.scenario.loader import load_scenario, scenario_to_mapping
+
+    src = Path(args.replay)
+    if Path(args.out).resolve() == src.resolve():
+        raise ConfigError('must not be the campaign replayed', '--out', str(args.out))
+    try:
+        summary = json.loads((src / 'summary.json').read_text())
+        args.seed, args.sensing = int(summary['seed']), str(summary['sensing'])
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        raise ConfigError(
+            f'not a campaign directory ({type(err).__name__} reading summary.json)', '--replay'
+        ) from None
+    if args.sensing not in SENSING:
+        raise ConfigError(f'unknown sensing {args.sensing[:40]!r} in summary.json', '--replay')
+    families = {}
+    if (src / 'runs.csv').is_file():
+        with open(src / 'runs.csv', newline='') as f:
+            families = {row.get('index'): row.get('family') for row in csv.DictReader(f)}
+    cases = []
+    for path in sorted((src / 'failures').glob('[0-9][0-9][0-9][0-9][0-9]-*.yaml')):
+        index = int(path.name[:5])
+        mapping = scenario_to_mapping(load_scenario(path))
+        cases.append(
+            {
+                'mapping': mapping,
+                'seed': args.seed,
+                'index': index,
+                'family': families.get(str(index)) or 'given',
+                'sensing': args.sensing,
+                'hold_s': args.hold,
+            }
+        )
+    if not cases:
+        raise ConfigError('has no failures/NNNNN-NAME.yaml to replay', '--replay', str(src))
+    return cases
 
 
 class _Stop:
