@@ -360,6 +360,15 @@ def _stamp_s(stamp) -> float:
     return stamp.sec + 1e-9 * stamp.nanosec
 
 
+def _poses_in_truth_span(seen, rid: int) -> list:
+    """The poses of robot ``rid`` whose capture time lies within the ground truth heard so far."""
+    truth = [_stamp_s(t.header.stamp) for _, t in seen[f'm_truth_{rid}']]
+    if not truth:
+        return []
+    poses = [p for _, p in seen[f'm_pose_{rid}']]
+    return [p for p in poses if truth[0] <= _stamp_s(p.header.stamp) <= truth[-1]]
+
+
 def _graph_started(store) -> bool:
     from ament_formation.ros import messages as msgs
 
@@ -375,13 +384,16 @@ def test_mission_through_the_programs(sets):
     mission = [progs[k] for k in ('m_world', 'm_tracker', 'm_coordinator', 'm_team')]
     ok = spin_until(
         obs,
-        lambda: _graph_started(seen['m_graph']) and all(seen[f'm_state_{i}'] for i in (0, 1)),
+        lambda: _graph_started(seen['m_graph'])
+        and all(seen[f'm_state_{i}'] and _poses_in_truth_span(seen, i) for i in (0, 1)),
         START_TIMEOUT_S,
         mission,
     )
     assert ok, (
         f'graph {len(seen["m_graph"])}, '
-        f'states {[len(seen[f"m_state_{i}"]) for i in (0, 1)]}; {_dead(mission)}'
+        f'states {[len(seen[f"m_state_{i}"]) for i in (0, 1)]}, '
+        f'poses in the truth span {[len(_poses_in_truth_span(seen, i)) for i in (0, 1)]}; '
+        f'{_dead(mission)}'
     )
     # images: mono8 frames of the camera in config/camera.yaml, not blank
     _, img = seen['m_image'][-1]
@@ -395,11 +407,7 @@ def test_mission_through_the_programs(sets):
         truth = [
             (_stamp_s(t.header.stamp), t.pose.pose.position) for _, t in seen[f'm_truth_{rid}']
         ]
-        poses = [
-            p
-            for _, p in seen[f'm_pose_{rid}']
-            if truth[0][0] <= _stamp_s(p.header.stamp) <= truth[-1][0]
-        ]
+        poses = _poses_in_truth_span(seen, rid)
         assert poses, f"robot {rid}: no pose inside the truth's time span"
         # the newest pose whose capture time the truth brackets within 0.1 s (this test's own
         # subscriber can miss truth samples while the machine is busy: seen once, a 2.6 s gap)
