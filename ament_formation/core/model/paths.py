@@ -388,14 +388,7 @@ _PATH_KEYS = {
 }
 
 
-_SCALAR_KEYS = {
-    'amplitude_m',
-    'wavenumber_radpm',
-    'speed_mps',
-    'heading_rad',
-    'accel_mps2',
-    'stop_s',
-}
+_SCALAR_KEYS = {'amplitude_m', 'wavenumber_radpm', 'speed_mps', 'heading_rad', 'accel_mps2'}
 
 
 class TabulatedReference:
@@ -545,7 +538,7 @@ def _path_from_config(cfg) -> Path:
     for key in sorted(required - keys):
         raise ConfigError(f'missing required key of a {kind} path', key)
     args = {k: cfg[k] for k in keys}
-    for key in sorted(keys & _SCALAR_KEYS - {'stop_s'}):
+    for key in sorted(keys & _SCALAR_KEYS):
         _check_number(args[key], key)
     if kind == 'sinusoid':
         return SinusoidPath(

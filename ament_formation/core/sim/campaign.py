@@ -196,19 +196,6 @@ def _catch_up_s(result, scenario, t_end: float) -> float | None:
     return float(t[k0 + near[0]] - t_end) if near.size else None
 
 
-def _stuck(metrics: dict, result, scenario, hold_s: float) -> str | None:
-    """The ``stuck`` reason of a held run: its first robot still far from a free goal."""
-    for i, rid in enumerate(result.robot_ids):
-        robot = metrics['robots'][str(rid)]
-        err = robot['final_error_m']
-        if err is not None and err > FAR_FROM_GOAL_M and not _goal_in_q(scenario, result, i):
-            return (
-                f'R{rid} still {err:.2f} m from its goal {hold_s:g} s after the paths stop '
-                f'({_last_mode(robot)})'
-            )
-    return None
-
-
 def build_scenario(case: dict):
     """(Scenario, mapping, draws) of a case: ``{'family', 'seed', 'index'}`` (generated),
     ``{'base': mapping, 'seed', 'index', 'scale'}`` (perturbed) or ``{'mapping': ...}`` (as is).
@@ -253,14 +240,17 @@ def _held(scenario, sensing, case, seed: int, hold_s: float, found: dict, row: d
     result = _simulate(held, sensing, case.get('dt_s', 0.001), seed)
     metrics = compute_metrics(result, held)
     row['hold_catch_up_s'] = _catch_up_s(result, held, scenario.duration_s)
+    held_found = findings(metrics, result, held)
     more = {
         c: f'held {hold_s:g} s: {why}'
-        for c, why in findings(metrics, result, held).items()
+        for c, why in held_found.items()
         if c in HARD and c != 'far_from_goal' and c not in found
     }
-    stuck = _stuck(metrics, result, held, hold_s)
-    if stuck is not None:
-        more['stuck'] = stuck
+    far = held_found.get('far_from_goal')  # 'R1 ends 1.12 m from its goal (...)'
+    if far is not None:
+        more['stuck'] = far.replace(' ends ', ' still ', 1).replace(
+            ' from its goal', f' from its goal {hold_s:g} s after the paths stop', 1
+        )
     return more
 
 
