@@ -386,3 +386,53 @@ def test_grid_culling_finds_exactly_the_close_pairs(seed, n, size):
     d = np.linalg.norm(q[:, None] - q[None], axis=2)
     want = {(i, k) for i in range(n) for k in range(i + 1, n) if d[i, k] < 0.45}
     assert got == want
+
+
+def test_a_mutual_pair_at_a_floor_edge_drifts_away_from_it():
+    # docs/law-changes.md §20: both coordination fields lean into the wall at x = 0; the pair's
+    # circle (R_aa / 2 + R_body + gap = 0.235 m round its centre at x = 0.15) needs room, so the
+    # shared drift target points away from the wall (and, without a floor, into it as before)
+    p = [(0.15, 1.0), (0.15, 1.36)]
+    pd = [(0.0, 0.05), (0.0, -0.05)]
+    vc = [(-0.02, 0.05), (-0.02, -0.05)]
+    walled = SwitchingParams(floor_m=(0.0, 3.0, 0.0, 2.5)).compiled()
+    for prm, away in ((walled, True), (PRM, False)):
+        st_ = AutomatonState(2)
+        n = len(p)
+        decide_once(1.0, st_, p, pd, p, np.zeros((2, 2)), vc, [0, 1], np.full(n, 0.1), NO_OBS, prm)
+        assert list(st_.mode) == [MODE_MUTUAL, MODE_MUTUAL]
+        np.testing.assert_array_equal(st_.wtgt[0], st_.wtgt[1])
+        assert (st_.wtgt[0, 0] > 0.0) == away, st_.wtgt[0]
+        assert math.hypot(*st_.wtgt[0]) <= SwitchingParams().mutual_drift_cap_mps + 1e-12
+    # away from the edge the floor changes nothing
+    mid = [(1.5, 1.0), (1.5, 1.36)]
+    a, b = AutomatonState(2), AutomatonState(2)
+    for st_, prm in ((a, walled), (b, PRM)):
+        z = np.zeros((2, 2))
+        decide_once(1.0, st_, mid, pd, mid, z, vc, [0, 1], np.full(2, 0.1), NO_OBS, prm)
+    np.testing.assert_array_equal(a.wtgt, b.wtgt)
+
+
+def test_a_yielder_held_still_turns_the_other_way_round_its_robot():
+    # docs/law-changes.md §21 (as §8 on an obstacle): robot 0 has yielded to robot 1 since t = 0
+    # and is still; its goal is on the far side of robot 1
+    p = [(0.0, 0.0), (0.3, 0.0)]
+    still = np.zeros((2, 2))
+    far_side = [(0.6, 0.0), (0.3, 0.0)]
+
+    def run(t, goal):
+        st_ = AutomatonState(2)
+        st_.set_mode(0, MODE_YIELD, 1, 1.0, 0.0)
+        return st_, decide(st_, t, p, still, goal=goal, goal_dot=still, vc=still)
+
+    early, events = run(4.9, far_side)  # not yet STUCK_S (5 s)
+    assert events == [] and early.sdir[0] == 1.0
+    held, events = run(5.0, far_side)
+    assert [(e[1], e[2], e[3], e[4], e[5]) for e in events] == [
+        (0, 'exit', MODE_YIELD, 1, 1.0),
+        (0, 'enter', MODE_YIELD, 1, -1.0),
+    ]
+    assert held.mode[0] == MODE_YIELD and held.tgt[0] == 1 and held.t_entry[0] == 5.0
+    # parked: its goal, seen from robot 1, is where it is (the field asks for no tangential motion)
+    parked, events = run(5.0, [(-0.2, 0.01), (0.3, 0.0)])
+    assert events == [] and parked.sdir[0] == 1.0

@@ -334,6 +334,21 @@ def _held_still(i, j, t, robots, obstacles, auto, prm):
 
 
 @njit(cache=True)
+def _held_by_robot(i, k, t, robots, auto, prm):
+    """Liveness (docs/law-changes.md §21): robot i has been yielding to robot k (or in its
+    current sense) for ``STUCK_S``, is still now, and is not parked (its goal, seen from k, is more
+    than the parking anomaly away from it).
+    """
+    if not _still_for(i, t, robots, auto):
+        return False
+    p, goal = robots.p, robots.goal
+    psi_a = math.atan2(p[i, 1] - p[k, 1], p[i, 0] - p[k, 0])
+    psi_g = math.atan2(goal[i, 1] - p[k, 1], goal[i, 0] - p[k, 0])
+    dd = (psi_g - psi_a + math.pi) % (2.0 * math.pi) - math.pi
+    return abs(dd) > prm.parking_anomaly_rad
+
+
+@njit(cache=True)
 def _obstacle_dir(i, j, robots, obstacles, auto, prm):
     """S6.6 rotation sense of robot i entering obstacle j; one sense per obstacle for everyone on
     it (S14.6): a robot already circling j gives its sense.
@@ -836,10 +851,16 @@ def _arbitrate_robots(t, robots, auto, obt, th, prm, ev, nev):
 @njit(cache=True)
 def _pair_exits(t, robots, auto, prm, ev, nev):
     """Stage 5 of :func:`decide`: S8.3 exits of yielding robots and the joint exit of mutual
-    pairs. Returns the event count.
+    pairs; a yielder held still on its limit cycle for ``STUCK_S`` turns the other way round its
+    robot (liveness, docs/law-changes.md §21, as §8 on an obstacle). Returns the event count.
     """
     mode, tgt, since = auto.mode, auto.tgt, auto.since
     for i in range(mode.shape[0]):
+        if mode[i] == MODE_YIELD and _held_by_robot(i, tgt[i], t, robots, auto, prm):
+            k, s = tgt[i], -auto.sdir[i]
+            nev = _leave(i, t, auto, ev, nev)
+            nev = _enter(i, t, MODE_YIELD, k, s, auto, ev, nev)
+            continue
         if mode[i] == MODE_YIELD or (mode[i] == MODE_MUTUAL and tgt[i] > i):
             k = tgt[i]
             mutual = mode[i] == MODE_MUTUAL
@@ -855,11 +876,14 @@ def _pair_exits(t, robots, auto, prm, ev, nev):
 
 
 @njit(cache=True)
-def _drift_targets(vc, auto, prm):
+def _drift_targets(robots, auto, prm):
     """Stage 6 of :func:`decide`: the drift target of each mutual pair, the mean of the two
-    coordination fields capped at ``mutual_drift_cap_mps`` (S14.1).
+    coordination fields capped at ``mutual_drift_cap_mps`` (S14.1); near a floor edge, the pair's
+    centre is also driven away from it until the circle the two turn on (diameter R_aa, plus a body
+    radius and the safety gap) fits on the floor, and never toward it (docs/law-changes.md §20).
     """
     cap = prm.mutual_drift_cap_mps
+    p, vc, rb = robots.p, robots.vc, robots.rbody
     mode, tgt, wtgt = auto.mode, auto.tgt, auto.wtgt
     for i in range(mode.shape[0]):
         if mode[i] == MODE_MUTUAL:
@@ -870,8 +894,26 @@ def _drift_targets(vc, auto, prm):
             if nrm > cap:
                 wx *= cap / nrm
                 wy *= cap / nrm
+            room = 0.5 * keepout_radius(rb, i, k, prm) + max(rb[i], rb[k]) + prm.safety_gap_m
+            mx = 0.5 * (p[i, 0] + p[k, 0])
+            my = 0.5 * (p[i, 1] + p[k, 1])
+            wx = _off_edges(wx, mx - room - prm.floor_x_min_m, prm.floor_x_max_m - room - mx, cap)
+            wy = _off_edges(wy, my - room - prm.floor_y_min_m, prm.floor_y_max_m - room - my, cap)
             wtgt[i, 0] = wx
             wtgt[i, 1] = wy
+
+
+@njit(cache=True, inline='always')
+def _off_edges(w, lo, hi, cap):
+    """A drift component ``w`` with the room ``lo`` toward the lower edge and ``hi`` toward the
+    upper one (< 0: the pair's circle crosses that edge): away from a crossed edge at
+    ``cap`` x deficit / 0.05 m (at most ``cap``), never toward it.
+    """
+    if lo < 0.0 and hi >= 0.0:
+        return max(w, 0.0, min(cap, -lo * cap / 0.05))
+    if hi < 0.0 and lo >= 0.0:
+        return min(w, 0.0, -min(cap, -hi * cap / 0.05))
+    return w
 
 
 @njit(cache=True)
@@ -914,7 +956,7 @@ def decide(t, robots, obstacles, auto, prm, ev):
     if _any_mode(mode, MODE_YIELD, MODE_MUTUAL):  # 5. S8.3
         nev = _pair_exits(t, robots, auto, prm, ev, nev)
     if _any_mode(mode, MODE_MUTUAL, MODE_MUTUAL):  # 6. S14.1
-        _drift_targets(robots.vc, auto, prm)
+        _drift_targets(robots, auto, prm)
     return nev
 
 
