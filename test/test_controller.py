@@ -15,6 +15,7 @@ from ament_formation.core.control.controller import (
     RobotController,
 )
 from ament_formation.core.control.rewiring import FormationGraph
+from ament_formation.core.errors import ConfigError
 from ament_formation.core.model.disturbance import Disturbance
 from ament_formation.core.model.dynamics import rk4_step_k, RobotPlant
 from ament_formation.core.scenario.loader import load_scenario
@@ -149,6 +150,25 @@ def test_two_controllers_head_on_form_the_same_mutual_pair():
     assert (oa.mode, oa.target, oa.direction) == ('mutual', 'robot_7', 'ccw')
     assert (ob.mode, ob.target, ob.direction) == ('mutual', 'robot_3', 'ccw')
     np.testing.assert_allclose(a._state.wc[0], b._state.wc[0], atol=1e-12)
+
+
+def test_a_teammate_closing_on_its_slot_inside_q_is_no_threat_when_the_slots_are_known():
+    # docs/law-changes.md §22 through the robot's own controller: teammate 7 stands 0.40 m ahead,
+    # robot 3 closes at 50 mm/s (above the S14.3 teammate threshold); their slots lie 0.36 m apart
+    sc = load_scenario(config_file('scenarios/paper.yaml'))
+    p = sc.robots[0].params
+    x3 = np.array([0.0, 0.0, 0.0, 0.05, 0.0])
+    x7 = np.array([0.40, 0.0, math.pi, 0.0, 0.0])
+
+    def mode(slot3, slot7):
+        c = RobotController(3, p, sc.control, sc.avoidance, (), team=3, slot_m=slot3)
+        return c.step(5.0, x3, neighbours={7: NeighbourState(x7, team=3, slot_m=slot7)}).mode
+
+    assert mode((0.0, 0.0), (0.0, 0.36)) == 'coordination'
+    assert mode(None, (0.0, 0.36)) != 'coordination'  # a slot not known: the full Q
+    assert mode((0.0, 0.0), (0.0, 0.60)) != 'coordination'  # slots as far apart as Q
+    with pytest.raises(ConfigError, match='slot_m'):
+        RobotController(3, p, sc.control, sc.avoidance, (), team=3, slot_m=(0.0, math.nan))
 
 
 def test_a_pair_the_partner_does_not_report_is_left_or_becomes_a_yield():

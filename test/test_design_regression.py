@@ -54,11 +54,12 @@ def test_a_robot_held_still_on_its_limit_cycle_finds_its_way_to_a_free_goal(name
     assert not far, f'robots ending more than 0.5 m from their goals: {far}'
 
 
-@pytest.mark.parametrize('name', ['wallpair217', 'gridlock1507', 'gridlock1837'])
+@pytest.mark.parametrize('name', ['wallpair217', 'gridlock1507', 'gridlock1837', 'crowd1251'])
 def test_stuck_robots_reach_their_goals_once_the_paths_stop(name):
-    # docs/law-changes.md §20 (a mutual pair against a wall drifts off it) and §21 (a yielder held
-    # still turns the other way): the paths stop at the first run's end and 30 s follow; before,
-    # a robot was still more than 0.5 m from its goal at the end (`stuck`)
+    # docs/law-changes.md §20 (a mutual pair against a wall drifts off it), §21 (a yielder held
+    # still turns the other way) and §22 (teammates' slots inside each other's Q): the paths stop
+    # at the first run's end and 30 s follow; before, a robot was still more than 0.5 m from its
+    # goal at the end (`stuck`)
     scenario = load_scenario(FILES[0].parent / f'{name}.yaml')
     m = compute_metrics(simulate(scenario), scenario)
     far = {rid: r['final_error_m'] for rid, r in m['robots'].items() if r['final_error_m'] > 0.5}

@@ -38,7 +38,9 @@ NO_OBS = (
 R_AA = 0.25
 
 
-def decide(state, t, p, pd, team=None, goal=None, goal_dot=None, vc=None, obs=NO_OBS):
+def decide(
+    state, t, p, pd, team=None, goal=None, goal_dot=None, vc=None, obs=NO_OBS, slot=None
+):
     p = np.asarray(p, float)
     pd = np.asarray(pd, float)
     n = len(p)
@@ -46,7 +48,9 @@ def decide(state, t, p, pd, team=None, goal=None, goal_dot=None, vc=None, obs=NO
     goal_dot = pd if goal_dot is None else goal_dot
     vc = pd if vc is None else vc
     team = np.arange(n) if team is None else np.asarray(team)
-    return decide_once(t, state, p, pd, goal, goal_dot, vc, team, np.full(n, 0.1), obs, PRM)
+    return decide_once(
+        t, state, p, pd, goal, goal_dot, vc, team, np.full(n, 0.1), obs, PRM, slot=slot
+    )
 
 
 def test_head_on_free_robots_form_a_mutual_pair_with_common_sense_and_drift():
@@ -290,6 +294,25 @@ def test_teammates_released_from_each_other_stay_exempt_up_to_the_release_speed(
     # ... above which it is one again
     faster = [(0.05, 0.0), (0.0, 0.0)]
     assert len(decide(released, 5.0, p, faster, team=[0, 0])) == 2
+
+
+def test_teammates_whose_slots_lie_inside_q_meet_only_inside_the_slot_distance():
+    # docs/law-changes.md §22: slots 0.36 m apart, so a teammate's Q shrinks from 0.45 m to
+    # 0.36 - 0.05 = 0.31 m (still outside I, 0.2875 m); closing at 50 mm/s, above every teammate
+    # threshold, 0.40 m apart (ray to P in 3 s: no emergency) ...
+    pd = [(0.05, 0.0), (0.0, 0.0)]
+    slot = [(0.0, 0.0), (0.0, 0.36)]
+    at = [(0.0, 0.0), (0.40, 0.0)]
+    assert decide(AutomatonState(2), 5.0, at, pd, team=[0, 0], slot=slot) == []
+    # ... is an encounter with the slots unknown, with another team, or with slots as far apart
+    # as Q ...
+    assert len(decide(AutomatonState(2), 5.0, at, pd, team=[0, 0])) == 2
+    assert len(decide(AutomatonState(2), 5.0, at, pd, team=[0, 1], slot=slot)) == 2
+    apart = [(0.0, 0.0), (-0.3, 0.5)]
+    assert len(decide(AutomatonState(2), 5.0, at, pd, team=[0, 0], slot=apart)) == 2
+    # ... and inside the shrunk Q, 0.30 m apart, it is one again
+    near = [(0.0, 0.0), (0.30, 0.0)]
+    assert len(decide(AutomatonState(2), 5.0, near, pd, team=[0, 0], slot=slot)) == 2
 
 
 def _check_invariants(state):

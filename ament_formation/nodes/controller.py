@@ -226,7 +226,7 @@ class ControllerParams:
 def _robot_tables(sc, fgraph: FormationGraph) -> tuple[dict, dict]:
     """(goal_source, robot_info) of every robot of scenario ``sc``, by id: its S8.3 goal source
     (leader: (path, None, None, 0.0); follower: (None, original parent, delta, parent's d),
-    S8.3 item 1) and what the S7 tests need of it (body radius, team, d).
+    S8.3 item 1) and what the S7 tests need of it (body radius, team, d, slot c_k: §22).
     """
     goal_source, robot_info = {}, {}
     for r in sc.robots:
@@ -241,7 +241,12 @@ def _robot_tables(sc, fgraph: FormationGraph) -> tuple[dict, dict]:
                 sc.robot(p0).params.com_offset_m,
             )
         )
-        robot_info[r.id] = (r.params.body_radius_m, sc.team_leader(r.id), r.params.com_offset_m)
+        robot_info[r.id] = (
+            r.params.body_radius_m,
+            sc.team_leader(r.id),
+            r.params.com_offset_m,
+            sc.slot(r.id),
+        )
     return goal_source, robot_info
 
 
@@ -392,6 +397,7 @@ class ControllerNode(Node):
             sc.avoided_obstacles(),
             leader_path=spec.path if spec.leader else None,
             team=sc.team_leader(self.rid),
+            slot_m=sc.slot(self.rid),
             floor=sc.floor,
         )
         fgraph = FormationGraph.from_scenario(sc)
@@ -775,10 +781,10 @@ class ControllerNode(Node):
             if k == self.rid:
                 continue
             nb = self.neighbours[k]
-            radius, team, d = self.robot_info[k]
+            radius, team, d, slot = self.robot_info[k]
             goal, goal_dot = self._goal_of(k, t, known)
             heard[k] = NeighbourState.trusted(
-                xk, nb.accel, radius, team, nb.mode, nb.target, d, goal, goal_dot
+                xk, nb.accel, radius, team, nb.mode, nb.target, d, goal, goal_dot, slot
             )
         parent = None if self.parent is None else self.parent.rid
         orig_state = original_parent_state(heard, self.orig_parent_id, self.orig_offset, state)

@@ -66,6 +66,7 @@ class EncounterArbiter:
             for rid, p in self._orig.items()
         }
         self._team = {rid: scenario.team_leader(rid) for rid in self.ids}
+        self._slot = np.array([scenario.slot(rid) for rid in self.ids], dtype=float).reshape(n, 2)
         self._paths = {r.id: (r.path if r.leader else None) for r in robots}
         obstacles = scenario.avoided_obstacles()  # §18
         self.obstacle_names = tuple(o.name for o in obstacles)
@@ -144,6 +145,7 @@ class EncounterArbiter:
             self._obstacles_at(t_s),
             sub,
             self._parent_rows(sub, known, row),
+            np.ascontiguousarray(self._slot[rows]),
             ev,
         )
         self._record_events(ev, nev, known)
@@ -205,7 +207,7 @@ class EncounterArbiter:
         return sub
 
     def _decide(
-        self, t_s, x, pd, goal, goal_dot, vc, team, rbody, obstacles, sub, parent_rows, ev
+        self, t_s, x, pd, goal, goal_dot, vc, team, rbody, obstacles, sub, parent_rows, slot, ev
     ) -> int:
         """The compiled S7/S8 decision over the known robots (``sub`` updated in place, events
         into ``ev``); returns the event count.
@@ -214,7 +216,15 @@ class EncounterArbiter:
         return decide(
             t_s,
             DecisionRobots(
-                np.ascontiguousarray(x[:, :2]), pd, goal, goal_dot, vc, team, rbody, parent_rows
+                np.ascontiguousarray(x[:, :2]),
+                pd,
+                goal,
+                goal_dot,
+                vc,
+                team,
+                rbody,
+                parent_rows,
+                slot,
             ),
             ObstacleSnapshot(oc, ov, oa, ophi, ophid, ophidd, self._axes, self._static),
             sub.arrays(),

@@ -165,9 +165,15 @@ def threat_test(zx, zy, rvx, rvy, phi, r1, r2, prm):
     dh/dt < 0 (cool-down is the caller's business); ``emergency`` = inside E, or (S14.2) inside Q
     and approaching with the ray reaching P within ``imminent_s``.
     """
+    return threat_test_q(zx, zy, rvx, rvy, phi, r1, r2, prm.protected_scale, prm)
+
+
+@njit(cache=True)
+def threat_test_q(zx, zy, rvx, rvy, phi, r1, r2, q_scale, prm):
+    """:func:`threat_test` with the protected region Q = ``q_scale`` P (a teammate's, §22)."""
     hdot = h_dot_sign_value(zx, zy, rvx, rvy, phi, r1, r2)
     h_em = h_value(zx, zy, phi, prm.emergency_scale * r1, prm.emergency_scale * r2)
-    h_q = h_value(zx, zy, phi, prm.protected_scale * r1, prm.protected_scale * r2)
+    h_q = h_value(zx, zy, phi, q_scale * r1, q_scale * r2)
     h_l = h_value(zx, zy, phi, prm.limit_cycle_scale * r1, prm.limit_cycle_scale * r2)
     lam_in = INF
     triggered = False

@@ -65,6 +65,8 @@ class NeighbourState:
     ``goal_m`` (2,) / ``goal_dot_mps`` (2,): its S8.3 goal g_k and g_k_dot when known (leader:
     r(t), r_dot(t); follower: p of its original parent + delta), used for its side of the joint
     exit test of a mutual pair and for its V_c; None: unknown, taken as its position and velocity.
+    ``slot_m`` (2,): its formation slot c_k relative to its team leader (the scenario's, S1), for
+    the teammates' protected region (docs/law-changes.md §22); None: unknown (the full Q).
     """
 
     state_m: np.ndarray
@@ -76,9 +78,10 @@ class NeighbourState:
     com_offset_m: float = 0.05
     goal_m: np.ndarray | None = None
     goal_dot_mps: np.ndarray | None = None
+    slot_m: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        for name in ('goal_m', 'goal_dot_mps'):
+        for name in ('goal_m', 'goal_dot_mps', 'slot_m'):
             val = getattr(self, name)
             if val is None:
                 continue
@@ -111,6 +114,7 @@ class NeighbourState:
         com_offset_m: float,
         goal_m: np.ndarray | None,
         goal_dot_mps: np.ndarray | None,
+        slot_m: np.ndarray | None = None,
     ) -> 'NeighbourState':
         """Build from values the caller has already checked (float arrays of the right shapes,
         finite; a known mode): the controller node checks every message on arrival, and builds
@@ -127,6 +131,7 @@ class NeighbourState:
             ('com_offset_m', com_offset_m),
             ('goal_m', goal_m),
             ('goal_dot_mps', goal_dot_mps),
+            ('slot_m', slot_m),
         ):
             object.__setattr__(obj, name, value)
         return obj
@@ -219,6 +224,7 @@ class _Scratch:
         self.acmd = np.zeros((n, 2))
         self.rbody = np.zeros(n)
         self.team = np.zeros(n, dtype=np.int64)
+        self.slot = np.full((n, 2), np.nan)
         self.ids: list[int] | None = None
         self.row: dict[int, int] = {}
         self.me = -1
@@ -241,7 +247,7 @@ class RobotController:
     Construction
     ------------
     ``RobotController(robot_id, params, control, avoidance, obstacles, *, leader_path=None,
-    team=None, switching=None, floor=None)``
+    team=None, slot_m=None, switching=None, floor=None)``
       * ``params`` :class:`RobotParams`; ``control`` :class:`ControlGains` (K, epsilon, alpha,
       v_cap,
         lambda); ``avoidance`` :class:`AvoidanceParams`; ``obstacles`` the
@@ -250,7 +256,9 @@ class RobotController:
         evaluated at the step time unless ``step`` receives measured :class:`ObstacleStates`);
       * ``leader_path``: a path with ``reference(t_s) -> (r, r_dot, r_ddot)`` when this robot leads
         a team (then it tracks r(t), S4), else None;
-      * ``team``: id of its team leader (S14.3); ``switching``: :class:`SwitchingParams`
+      * ``team``: id of its team leader (S14.3); ``slot_m``: its formation slot c_i relative to
+        the team leader (S1; teammates' protected region, docs/law-changes.md §22; None:
+        unknown); ``switching``: :class:`SwitchingParams`
         (decision period, default 0.01 s = 100 Hz); ``floor``: the scenario's
         :class:`FloorSpec` (its edges are walls of the safety barrier) or None.
 
@@ -296,6 +304,7 @@ class RobotController:
         *,
         leader_path=None,
         team: int | None = None,
+        slot_m=None,
         switching: SwitchingParams | None = None,
         floor=None,
     ):
@@ -303,6 +312,12 @@ class RobotController:
         self.params = params
         self.leader_path = fast_reference(leader_path)
         self.team = self.robot_id if team is None else int(team)
+        self._slot = np.full(2, np.nan)
+        if slot_m is not None:
+            slot = np.asarray(slot_m, dtype=float).reshape(-1)
+            if slot.shape != (2,) or not np.all(np.isfinite(slot)):
+                raise ConfigError(f'must be 2 finite numbers (got {slot_m!r})', 'slot_m')
+            self._slot = slot
         base = switching or SwitchingParams()
         self.switching = base.for_avoidance(avoidance).on_floor(floor)
         self._prm = self.switching.compiled()
@@ -507,6 +522,7 @@ class RobotController:
             sc.acmd[me] = 0.0
             sc.rbody[me] = self.params.body_radius_m
             sc.team[me] = self.team
+            sc.slot[me] = self._slot
             sc.coeffs[ROW_D, me] = self._own_coeffs[ROW_D]
         return sc
 
@@ -528,6 +544,7 @@ class RobotController:
             acmd[q] = nb.accel_mps2
             rbody[q] = nb.body_radius_m
             team[q] = nb.team if nb.team is not None else -1 - rid
+            sc.slot[q] = nb.slot_m if nb.slot_m is not None else np.nan
             d[q] = nb.com_offset_m
             if nb.mode != 'coordination':
                 mode[q], tgt[q] = self._reported_mode(nb.mode, nb.target, row)
@@ -687,6 +704,7 @@ class RobotController:
                 sc.team,
                 sc.rbody,
                 self._parent_rows(sc.parent_row, sc.row, sc.me),
+                sc.slot,
             ),
             ObstacleSnapshot(oc, ov, oa, ophi, ophid, ophidd, oaxes, self._static),
             sc.state.arrays(),

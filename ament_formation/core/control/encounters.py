@@ -62,6 +62,7 @@ from ament_formation.core.control.automaton import (
     MODE_YIELD,
     relative_velocity,
     threat_test,
+    threat_test_q,
 )
 from ament_formation.core.control.limit_cycle import anomaly, choose_direction
 from ament_formation.core.model.ellipse import h_value
@@ -179,7 +180,7 @@ def reacts_to(k, i, mode, tgt, parent):
 
 
 DecisionRobots = namedtuple(
-    'DecisionRobots', ['p', 'pd', 'goal', 'goal_dot', 'vc', 'team', 'rbody', 'parent']
+    'DecisionRobots', ['p', 'pd', 'goal', 'goal_dot', 'vc', 'team', 'rbody', 'parent', 'slot']
 )
 DecisionRobots.__doc__ = """Every robot as :func:`decide` reads it (rows in robot-ID order):
 ``p``, ``pd`` (N, 2) controlled-point positions [m] (C-contiguous) and velocities [m/s];
@@ -187,7 +188,8 @@ DecisionRobots.__doc__ = """Every robot as :func:`decide` reads it (rows in robo
 its *original* parent + delta, S8.3 item 1); ``vc`` (N, 2) coordination field V_c [m/s] (exit
 test); ``team`` (N,) int team-leader row (S14.3); ``rbody`` (N,) body radius [m]; ``parent`` (N,)
 current formation parent row (-1: root or unknown), for the acyclicity of every following link
-(S14.5).
+(S14.5); ``slot`` (N, 2) formation slot c_i relative to the team leader [m] (S1; NaN: unknown),
+for a teammate's protected region (§22).
 """
 
 ObstacleThreats = namedtuple(
@@ -625,6 +627,23 @@ def _teammate_threshold(i, k, auto, prm):
     return prm.teammate_rel_speed_mps
 
 
+@njit(cache=True)
+def _teammate_q_scale(i, k, r, robots, prm):
+    """§22: the protected scale of robot k's region as robot i sees it. Teammates whose slots
+    lie closer than Q's radius would stand inside each other's Q at their goals: their Q shrinks
+    to the slot distance less the keep-out margin, never inside the heading region I.
+    """
+    kappa = prm.protected_scale
+    if robots.team[i] != robots.team[k]:
+        return kappa
+    sx = robots.slot[i, 0] - robots.slot[k, 0]
+    sy = robots.slot[i, 1] - robots.slot[k, 1]
+    s = math.hypot(sx, sy)
+    if not s < INF:  # NaN: a slot not known here
+        return kappa
+    return min(kappa, max(prm.heading_scale, (s - prm.agent_keepout_margin_m) / r))
+
+
 @njit(cache=True, inline='always')
 def _robot_threats(robots, auto, prm):
     """Stage 2 of :func:`decide` (S7, S14.3): the robot threats of every robot on the pairs
@@ -651,7 +670,8 @@ def _robot_threats(robots, auto, prm):
         zy = p[i, 1] - p[k, 1]
         rvx = pd[i, 0] - pd[k, 0]
         rvy = pd[i, 1] - pd[k, 1]
-        trig, em, lam, h_em, h_l = threat_test(zx, zy, rvx, rvy, 0.0, r, r, prm)
+        q_scale = _teammate_q_scale(i, k, r, robots, prm)
+        trig, em, lam, h_em, h_l = threat_test_q(zx, zy, rvx, rvy, 0.0, r, r, q_scale, prm)
         if trig and lam > prm.agent_horizon_s:
             trig = False
         if (
@@ -974,6 +994,7 @@ def decide_once(
     prm,
     ev_capacity: int | None = None,
     parent=None,
+    slot=None,
 ) -> list[tuple]:
     """Python convenience around :func:`decide` (tests, controller): returns the events as tuples
     (t_s, robot_row, 'enter'|'exit', mode, target, direction).
@@ -1002,6 +1023,7 @@ def decide_once(
         np.full(n, -1, dtype=np.int64)
         if parent is None
         else np.ascontiguousarray(parent, dtype=np.int64),
+        np.full((n, 2), np.nan) if slot is None else f(slot).reshape(n, 2),
     )
     snapshot = ObstacleSnapshot(
         f(oc).reshape(-1, 2),

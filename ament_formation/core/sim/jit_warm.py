@@ -55,6 +55,7 @@ def warm() -> None:
                 sc.obstacles,
                 leader_path=r.path if r.leader else None,
                 team=sc.team_leader(r.id),
+                slot_m=sc.slot(r.id),
             )
             p0 = graph.original_parent.get(r.id)
             offset = np.zeros(2) if p0 is None else np.asarray(graph.offset(r.id, p0), dtype=float)

@@ -248,6 +248,7 @@ class _RobotNode:
             scenario.avoided_obstacles(),
             leader_path=spec.path if spec.leader else None,
             team=scenario.team_leader(self.rid),
+            slot_m=scenario.slot(self.rid),
             floor=scenario.floor,
         )
         self.orig_parent_id, self.orig_offset = original_parent_link(fgraph, self.rid)
@@ -326,9 +327,15 @@ class _Loop:
         self.nodes = [_RobotNode(scenario, r, fgraph, sensing) for r in robots]
         self.coord = _Coordinator(scenario, sensing)
         self.camera = _Camera(len(robots), sensing, dt_s)
-        # per robot: (body radius, team, d) and its S8.3 goal source (nodes/controller.py tables)
+        # per robot: (body radius, team, d, slot) and its S8.3 goal source (nodes/controller.py
+        # tables)
         self.info = {
-            r.id: (r.params.body_radius_m, scenario.team_leader(r.id), r.params.com_offset_m)
+            r.id: (
+                r.params.body_radius_m,
+                scenario.team_leader(r.id),
+                r.params.com_offset_m,
+                scenario.slot(r.id),
+            )
             for r in robots
         }
         self.goal_source = {}
@@ -401,9 +408,9 @@ class _Loop:
             path, p0, offset = self.goal_source[rid]
             d0 = 0.0 if p0 is None else self.info[p0][2]
             goal, goal_dot = neighbour_goal(t_s, path, known.get(p0), offset, d0)
-            radius, team, d = self.info[rid]
+            radius, team, d, slot = self.info[rid]
             heard[rid] = NeighbourState.trusted(
-                known[rid], accel, radius, team, mode, target, d, goal, goal_dot
+                known[rid], accel, radius, team, mode, target, d, goal, goal_dot, slot
             )
         return heard
 

@@ -82,7 +82,7 @@ RobotArrays = namedtuple(
     'RobotArrays', ['x', 'acmd', 'torque', 'sat_flag', 'pd', 'goal', 'goal_dot', 'vc', 'ref']
 )
 GraphArrays = namedtuple(
-    'GraphArrays', ['parent', 'offset', 'order', 'orig_parent', 'orig_offset', 'team']
+    'GraphArrays', ['parent', 'offset', 'order', 'orig_parent', 'orig_offset', 'team', 'slot']
 )
 PlantArrays = namedtuple(
     'PlantArrays', ['rbody', 'coeffs', 'gains', 'd_amp', 'd_freq', 'd_phase', 'd_hc', 'd_hs']
@@ -225,7 +225,7 @@ def _run_segment(
     dt, dec_every, rec_every = clock
     ref_k0, ref_sub, ref_tab, leader_rows = reference
     x, acmd, torque, sat_flag, pd, goal, goal_dot, vc, ref = robots
-    parent, offset, order, orig_parent, orig_offset, team = graph
+    parent, offset, order, orig_parent, orig_offset, team, slot = graph
     rbody, coeffs, gains, d_amp, d_freq, d_phase, d_hc, d_hs = plant
     ob_c0, ob_v, ob_amp, ob_w, ob_phi0, ob_phid, oaxes, ostatic = obstacles
     mode, wc = automaton.mode, automaton.wc
@@ -237,7 +237,7 @@ def _run_segment(
     obs_now = _obstacle_buffers(oaxes, ostatic)
     oc, ov, oa, ophi, ophid, ophidd, _, _ = obs_now
     tracking = Tracking(parent, offset, ref, goal, goal_dot)
-    decision_robots = DecisionRobots(pos, pd, goal, goal_dot, vc, team, rbody, parent)
+    decision_robots = DecisionRobots(pos, pd, goal, goal_dot, vc, team, rbody, parent, slot)
     for kk in range(k0, k_end):
         t = kk * dt
         obstacle_states(
@@ -552,7 +552,13 @@ def simulate(
                 Reference(ref_k0, REF_SUB, ref_tab, setup.leader_rows),
                 robots,
                 GraphArrays(
-                    parent, offset, order, setup.orig_parent, setup.orig_offset, setup.team
+                    parent,
+                    offset,
+                    order,
+                    setup.orig_parent,
+                    setup.orig_offset,
+                    setup.team,
+                    setup.slots,
                 ),
                 plant,
                 obstacles,
