@@ -369,6 +369,14 @@ class _Setup:
         for i, r in enumerate(robots):
             self.state[i, :3] = r.initial_pose
 
+    def graph_arrays(self, parent, offset, order) -> GraphArrays:
+        """The formation graph now (current ``parent``, ``offset``, ``order``) with the fixed
+        original links, teams and slots.
+        """
+        return GraphArrays(
+            parent, offset, order, self.orig_parent, self.orig_offset, self.team, self.slots
+        )
+
     def plant_arrays(self) -> PlantArrays:
         """Bodies, plant coefficients, gains and disturbance terms (fixed for the run)."""
         return PlantArrays(
@@ -551,15 +559,7 @@ def simulate(
                 clock,
                 Reference(ref_k0, REF_SUB, ref_tab, setup.leader_rows),
                 robots,
-                GraphArrays(
-                    parent,
-                    offset,
-                    order,
-                    setup.orig_parent,
-                    setup.orig_offset,
-                    setup.team,
-                    setup.slots,
-                ),
+                setup.graph_arrays(parent, offset, order),
                 plant,
                 obstacles,
                 automaton,
