@@ -213,19 +213,10 @@ class EncounterArbiter:
         into ``ev``); returns the event count.
         """
         oc, ov, oa, ophi, ophid, ophidd = obstacles
+        p = np.ascontiguousarray(x[:, :2])
         return decide(
             t_s,
-            DecisionRobots(
-                np.ascontiguousarray(x[:, :2]),
-                pd,
-                goal,
-                goal_dot,
-                vc,
-                team,
-                rbody,
-                parent_rows,
-                slot,
-            ),
+            DecisionRobots(p, pd, goal, goal_dot, vc, team, rbody, parent_rows, slot),
             ObstacleSnapshot(oc, ov, oa, ophi, ophid, ophidd, self._axes, self._static),
             sub.arrays(),
             self._prm,
