@@ -15,7 +15,9 @@ the coordinator withdraws it (the coordinator's joint exit decision, S8.3: mutua
 together; RobotController ``release``, never inside the partner's emergency circle). Every other
 robot's S8.3 goal is derived from the scenario (leader: r(t); follower: its original parent's
 point + slot offset), so the robot's own exit test sees the partner's goal too.
-Without the coordinator the controller arbitrates robot encounters itself with the same rules.
+While the coordinator is heard (``coordinator_timeout_s``) the robot enters a robot encounter by
+its own decision only in an emergency (docs/law-changes.md §23); without the coordinator it
+arbitrates robot encounters itself with the same rules.
 Safety (DESIGN §7): no pose for ``pose_timeout_s`` -> at rest by then (+ one control period): the
 controlled stop begins when the camera age exceeds ``pose_timeout_s`` minus the time to rest from
 the current speed under the stop law plus ``stop_margin_s`` (StopLead, docs/safety.md §7); no
@@ -179,6 +181,13 @@ class ControllerParams:
         'from a robot whose camera pose is closer than kappa R_aa + this [m]',
         range=(0.0, 100.0),
     )
+    coordinator_timeout_s: float = param(
+        2.5,
+        'encounter assignments heard within this -> the robot enters robot encounters by itself '
+        "in emergencies only (docs/law-changes.md section 23); above the coordinator's "
+        'republish_s [s]',
+        range=(0.0, 60.0),
+    )
     realtime_priority: int = param(
         0,
         'SCHED_FIFO priority of the control loop (1..98; 0: normal '
@@ -202,6 +211,7 @@ class ControllerParams:
             ('stop_turn_rate_max_radps', 0.001, 100.0),
             ('stop_decel_mps2', 0.0, 10.0),
             ('stop_margin_s', 0.0, 1.0),
+            ('coordinator_timeout_s', 0.0, 60.0),
         ):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and lo <= v <= hi):
@@ -422,6 +432,7 @@ class ControllerNode(Node):
     def _init_state(self, peers: PeerTable | None) -> None:
         """Assignment, mode, safety state, counters and clock of the control periods."""
         self.encounter_revision = -1
+        self.encounters_at = -math.inf  # when /formation/encounters was last heard [s, ROS time]
         self.assigned = AssignedLaw(self.law)  # the coordinator's assignment applied (S7, S8.3)
         self.events: list[dict] = []  # mode events of the law (scenario time)
         self.last_wheel_s = -math.inf
@@ -594,6 +605,7 @@ class ControllerNode(Node):
             return
         with self.lock:
             self.encounter_revision = revision
+            self.encounters_at = self.now_s()
             self.assigned.assignment = assignments.get(self.rid)
         self._update_hearing()
 
@@ -788,7 +800,8 @@ class ControllerNode(Node):
             )
         parent = None if self.parent is None else self.parent.rid
         orig_state = original_parent_state(heard, self.orig_parent_id, self.orig_offset, state)
-        out = self.assigned.step(t, state, parent, orig_state, heard)
+        coordinated = now - self.encounters_at <= self.prm.coordinator_timeout_s
+        out = self.assigned.step(t, state, parent, orig_state, heard, coordinated)
         self.events.extend(out.events)
         self.mode = {
             'mode': out.mode,

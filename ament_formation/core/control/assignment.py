@@ -53,10 +53,13 @@ class AssignedLaw:
     def _in_force(self, mode: str, target) -> bool:
         return (mode, target) == (self._applied[0], f'robot_{self._applied[1]}')
 
-    def step(self, t_s: float, state, parent_id, original_parent, heard: dict):
+    def step(
+        self, t_s: float, state, parent_id, original_parent, heard: dict, coordinated=False
+    ):
         """One control period (RobotController.step) on the own ``state`` (5,), the parent's id
         (or None), pi0's state (:func:`original_parent_state`) and the heard neighbours
-        {id: NeighbourState}; returns the law's ControlOutput.
+        {id: NeighbourState}; ``coordinated``: the coordinator is heard (its assignments are the
+        robot's encounters but emergencies, docs/law-changes.md §23). Returns the ControlOutput.
         """
         assignment, key = self.assignment, None
         if assignment is not None:
@@ -72,6 +75,7 @@ class AssignedLaw:
             neighbours=heard,
             assignment=assignment,
             release=self._applied[1] if withdrawn else None,
+            coordinated=coordinated,
         )
         if withdrawn and not self._in_force(out.mode, out.target):
             self._done.add(self._applied)  # left on the coordinator's release

@@ -103,6 +103,7 @@ class SwitchingParams:
         values = {**dataclasses.asdict(self.avoidance), **dataclasses.asdict(self)}
         floor = self.floor_m or (-math.inf, math.inf, -math.inf, math.inf)
         values.update(zip(FLOOR_FIELDS, floor))
+        values['deferring_row'] = -1.0  # set per decision by RobotController (section 23)
         return Switching(**{name: float(values[name]) for name in Switching._fields})
 
 
@@ -126,14 +127,15 @@ FLOOR_FIELDS = ('floor_x_min_m', 'floor_x_max_m', 'floor_y_min_m', 'floor_y_max_
 Switching = namedtuple(
     'Switching',
     [f.name for f in dataclasses.fields(AvoidanceParams)]
-    + [*COMPILED_OWN_FIELDS, *FLOOR_FIELDS],
+    + [*COMPILED_OWN_FIELDS, *FLOOR_FIELDS, 'deferring_row'],
 )
 Switching.__doc__ = """:class:`SwitchingParams` for the compiled code: a named tuple of floats
 (numba reads a field as fast as an array slot), fields named and in the units of
 :class:`~ament_formation.core.params.AvoidanceParams` and :class:`SwitchingParams` (all but
 ``decision_period_s``, which only the Python drivers read; ``floor_m`` is the four
-``floor_*_m`` fields, infinite when no floor is declared). Built by
-:meth:`SwitchingParams.compiled`.
+``floor_*_m`` fields, infinite when no floor is declared; ``deferring_row``: the row of a robot
+that takes robot encounters other than emergencies only from the coordinator, -1 none,
+docs/law-changes.md §23). Built by :meth:`SwitchingParams.compiled`.
 """
 
 

@@ -290,6 +290,10 @@ class RobotController:
         robot leaves that encounter now (event ``exit``, cool-down S8.4) -- unless it is inside
         the partner's emergency circle (h_em < 0, S8.3 item 2): then it stays and the caller
         repeats the release at the next step. Ignored when the robot is not in that encounter.
+      * ``coordinated``: the coordinator is heard (its assignments arrive): the robot then enters
+        a robot encounter by its own decision only in an emergency (inside E, or contact within
+        ``imminent_s``), and takes every other from ``assignment`` (docs/law-changes.md §23: two
+        deciders that disagree for a few decisions switch the robot twice).
       The automaton decides every ``switching.decision_period_s``; the law runs at every call.
     ``mode`` / ``target`` / ``direction`` properties: the current mode (names as in ControlOutput).
     """
@@ -406,6 +410,7 @@ class RobotController:
         obstacles: ObstacleStates | None = None,
         assignment: EncounterAssignment | None = None,
         release: int | None = None,
+        coordinated: bool = False,
     ) -> ControlOutput:
         """One control period: (maybe) decide, then the law. See the class docstring."""
         own = self._checked_own_state(own_state)
@@ -421,7 +426,7 @@ class RobotController:
         self._goals(t_s, sc, blind)
         if t_s - self._last_decision_s >= self.switching.decision_period_s - 1e-9:
             self._last_decision_s = t_s
-            events.extend(self._decision_events(t_s, sc))
+            events.extend(self._decision_events(t_s, sc, coordinated))
         if release is not None:
             self._release(t_s, sc, release, events)
         if assignment is not None:
@@ -688,9 +693,10 @@ class RobotController:
             True,
         )
 
-    def _decide(self, t_s: float, sc: _Scratch) -> int:
+    def _decide(self, t_s: float, sc: _Scratch, coordinated: bool) -> int:
         """The compiled S7/S8 decision over every row (automaton state updated in place, events
-        into ``sc.events``); returns the event count.
+        into ``sc.events``); returns the event count. ``coordinated``: the own row enters robot
+        encounters in emergencies only (docs/law-changes.md §23).
         """
         oc, ov, oa, ophi, ophid, ophidd, oaxes = sc.obs
         return decide(
@@ -708,7 +714,7 @@ class RobotController:
             ),
             ObstacleSnapshot(oc, ov, oa, ophi, ophid, ophidd, oaxes, self._static),
             sc.state.arrays(),
-            self._prm,
+            self._prm._replace(deferring_row=float(sc.me)) if coordinated else self._prm,
             sc.events,
         )
 
@@ -720,11 +726,11 @@ class RobotController:
             parent_row[me] = row[self._parent]
         return parent_row
 
-    def _decision_events(self, t_s: float, sc: _Scratch) -> list[dict]:
+    def _decision_events(self, t_s: float, sc: _Scratch, coordinated: bool) -> list[dict]:
         """Decide; the own mode events of the decision ({t_s, robot, event, mode, target,
         direction}).
         """
-        nev = self._decide(t_s, sc)
+        nev = self._decide(t_s, sc, coordinated)
         events = []
         for r_ in sc.events[:nev]:
             if int(r_[1]) == sc.me:

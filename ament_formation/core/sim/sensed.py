@@ -83,7 +83,9 @@ class SensingParams:
     config/params: ``control_rate_hz`` (formation_controller, 100 Hz), ``camera_gain`` (its S10
     gain, 0.5), ``hear_all`` and ``hear_margin_m`` (its hearing range: parents, the assignment's
     partner and the robots whose camera pose is within kappa R_aa + 0.6 m, 0.3 m hysteresis),
-    ``encounter_rate_hz`` and ``republish_s`` (formation_coordinator, 50 Hz, 1 s).
+    ``encounter_rate_hz`` and ``republish_s`` (formation_coordinator, 50 Hz, 1 s),
+    ``coordinator_timeout_s`` (formation_controller, 2.5 s: assignments heard within it, the
+    robot's own robot encounters are emergencies only, docs/law-changes.md §23).
     """
 
     fps: float | None = None
@@ -96,6 +98,7 @@ class SensingParams:
     camera_gain: float = 0.5
     encounter_rate_hz: float = 50.0
     republish_s: float = 1.0
+    coordinator_timeout_s: float = 2.5
     hear_all: bool = False
     hear_margin_m: float = 0.6
 
@@ -120,6 +123,7 @@ class SensingParams:
             ('control_rate_hz', 1.0, 1000.0),
             ('encounter_rate_hz', 0.0, 1000.0),
             ('republish_s', 1e-3, 60.0),
+            ('coordinator_timeout_s', 0.0, 60.0),
         ):
             v = getattr(self, name)
             if not (number(v) and lo <= v <= hi):
@@ -257,6 +261,8 @@ class _RobotNode:
         )
         self.parent: int | None = None
         self.assigned = AssignedLaw(self.law)  # the coordinator's assignment applied (S7, S8.3)
+        self.encounters_at = -math.inf  # when the coordinator's assignments last arrived [s]
+        self.coordinator_timeout_s = sensing.coordinator_timeout_s
 
     def apply_graph(self, parent: int | None, offset_m) -> None:
         """A /formation/graph message (ControllerNode._apply_graph)."""
@@ -268,7 +274,8 @@ class _RobotNode:
         {id: NeighbourState} (ControllerNode._control from the parent lookup on).
         """
         orig_state = original_parent_state(heard, self.orig_parent_id, self.orig_offset, state)
-        return self.assigned.step(t_s, state, self.parent, orig_state, heard)
+        coordinated = t_s - self.encounters_at <= self.coordinator_timeout_s
+        return self.assigned.step(t_s, state, self.parent, orig_state, heard, coordinated)
 
 
 class _Coordinator:
@@ -466,6 +473,7 @@ class _Loop:
             if published is not None:
                 for node in self.nodes:
                     node.assigned.assignment = published.get(node.rid)
+                    node.encounters_at = t_s
 
     def _update_hearing(self, frames: list) -> None:
         """The range gate of every controller on the camera poses just delivered."""
