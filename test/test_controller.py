@@ -171,6 +171,27 @@ def test_a_teammate_closing_on_its_slot_inside_q_is_no_threat_when_the_slots_are
         RobotController(3, p, sc.control, sc.avoidance, (), team=3, slot_m=(0.0, math.nan))
 
 
+def test_a_coordinated_robot_enters_robot_encounters_by_itself_only_in_emergencies():
+    # docs/law-changes.md §23: robot 7 (another team) stands 0.40 m ahead of robot 3, which closes
+    # at 50 mm/s: a threat (inside Q, approaching) but no emergency (contact in 3 s, not 1.5 s)
+    sc = load_scenario(config_file('scenarios/paper.yaml'))
+    p = sc.robots[0].params
+    x3 = np.array([0.0, 0.0, 0.0, 0.05, 0.0])
+
+    def step(x7, coordinated, assignment=None):
+        c = RobotController(3, p, sc.control, sc.avoidance, (), team=3)
+        nb = {7: NeighbourState(x7, team=7)}
+        return c.step(5.0, x3, neighbours=nb, coordinated=coordinated, assignment=assignment)
+
+    ahead = np.array([0.40, 0.0, math.pi, 0.0, 0.0])
+    assert (step(ahead, False).mode, step(ahead, False).target) == ('mutual', 'robot_7')
+    assert (step(ahead, True).mode, step(ahead, True).events) == ('coordination', ())
+    told = step(ahead, True, EncounterAssignment('yield', 7, direction=1.0))
+    assert (told.mode, told.target) == ('yield', 'robot_7')  # the coordinator's decision
+    close = np.array([0.30, 0.0, math.pi, 0.0, 0.0])  # inside E: the robot does not wait
+    assert (step(close, True).mode, step(close, True).target) == ('mutual', 'robot_7')
+
+
 def test_a_pair_the_partner_does_not_report_is_left_or_becomes_a_yield():
     """A mutual pair is one both robots report (docs/law-changes.md section 16). Partner 7 left
     the pair it had reported: robot 3 leaves it too, at once. Partner 7 never reports it:

@@ -790,7 +790,7 @@ def _stand_on_yield(i, t, robots, auto, th, prm, ev, nev):
 def _most_urgent(i, t, auto, th, parent, prm):
     """Stage 4: robot i's most urgent admissible robot threat -> (row or -1, emergency)
     (S8.4 cool-down, S14.2, S7 acyclicity: a robot that reacts to i is responsible; only
-    emergencies for the ``prm.deferring_row``, whose encounters the coordinator decides).
+    emergencies with the ``prm.deferring_row``, whose encounters the coordinator decides).
     """
     mode, tgt = auto.mode, auto.tgt
     best = -1
@@ -808,8 +808,8 @@ def _most_urgent(i, t, auto, th, parent, prm):
             continue  # S8.4; an imminent contact (not inside E) waits too (S14.2)
         if not em and reacts_to(k, i, mode, tgt, parent):
             continue  # k is responsible (S7 acyclicity)
-        if not em and i == prm.deferring_row:
-            continue  # its robot encounters come from the coordinator (docs/law-changes.md §23)
+        if not em and (i == prm.deferring_row or k == prm.deferring_row):
+            continue  # that robot's encounters come from the coordinator (law-changes §23)
         if _better(em, th.h_em[i, q], th.lam[i, q], best >= 0, b_em, b_hem, b_lam):
             best = k
             b_em = em
