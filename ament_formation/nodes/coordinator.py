@@ -12,7 +12,8 @@ arbitrates robot-robot encounters over all robots together (core/control/arbiter
 simulator's
 ``decide`` on every robot's broadcast state, the robots' reported obstacle modes taken as given)
 and publishes the yield/mutual assignments on ``/formation/encounters`` (on change with a new
-revision, and every ``republish_s``); each controller applies its own as an override of its local
+revision; when a mutual pair's drift w_c moved by more than 5 mm/s; and every ``republish_s``,
+always the newest); each controller applies its own as an override of its local
 decision. It also publishes markers for RViz/Foxglove.
 
 Topics (QoS from ros/qos.py)
@@ -61,7 +62,7 @@ from rclpy.serialization import deserialize_message
 from std_msgs.msg import String
 from visualization_msgs.msg import MarkerArray
 
-from ament_formation.core.control.arbiter import EncounterArbiter
+from ament_formation.core.control.arbiter import AssignmentSender, EncounterArbiter
 from ament_formation.core.control.rewiring import FormationGraph
 from ament_formation.core.errors import ConfigError
 from ament_formation.core.model.obstacles import ObstacleField
@@ -137,7 +138,7 @@ class CoordinatorNode(Node):
         self.start_s: float | None = None
         self.history: list[msgs.GraphMessage] = []
         self.arbiter = EncounterArbiter(self.scenario)
-        self.assignments: dict = {}
+        self.sender = AssignmentSender()  # when the assignments are sent (new decision, w_c)
         self.encounter_revision = 0
         self._heard_mono: dict[
             int, float
@@ -245,6 +246,7 @@ class CoordinatorNode(Node):
     def _republish(self) -> None:
         """Same revision again (a controller that missed it catches up)."""
         self.pub_graph.publish(msgs.graph_msg(self.current_graph()))
+        self.sender.republish()
         self._publish_encounters(new_revision=False)
 
     def _arbitrate(self) -> None:
@@ -253,20 +255,15 @@ class CoordinatorNode(Node):
         self.arbitration_watch.tick(int(now * 1e9))
         if self.start_s is None or now < self.start_s:
             return
-        assignments = self.arbiter.decide(now - self.start_s, self.states, self.modes)
-
-        def key(d):
-            return {k: (a.mode, a.partner, a.direction, a.t_entry_s) for k, a in d.items()}
-
-        if key(assignments) != key(self.assignments):  # a new decision (not a w_c update)
-            self.assignments = assignments
-            self._publish_encounters(new_revision=True)
+        what = self.sender.update(self.arbiter.decide(now - self.start_s, self.states, self.modes))
+        if what is not None:  # a new decision (new revision), or a pair's w_c moved
+            self._publish_encounters(new_revision=what == 'revision')
 
     def _publish_encounters(self, new_revision: bool) -> None:
         if new_revision:
             self.encounter_revision += 1
         self.pub_encounters.publish(
-            msgs.encounters_msg(self.encounter_revision, self.assignments, self.now_s())
+            msgs.encounters_msg(self.encounter_revision, self.sender.current, self.now_s())
         )
 
     def live_robots(self) -> list[int]:
@@ -335,7 +332,7 @@ class CoordinatorNode(Node):
             'avoiding': sorted(self.avoiding),
             'parents': dict(sorted(self.parents.items())),
             'encounter_revision': self.encounter_revision,
-            'assignments': len(self.assignments),
+            'assignments': len(self.sender.current),
             'start_s': 'none' if self.start_s is None else self.start_s,
         }
         if self.start_s is None:

@@ -294,3 +294,48 @@ class EncounterArbiter:
                     else None,
                 )
         return out
+
+
+DRIFT_RESEND_MPS = 0.005  # a pair's w_c moved this much since it was sent: send it again [m/s]
+
+
+def _decisions(assignments: Mapping[int, EncounterAssignment]) -> dict:
+    return {k: (a.mode, a.partner, a.direction, a.t_entry_s) for k, a in assignments.items()}
+
+
+def _drift_moved(new: EncounterAssignment, sent: EncounterAssignment | None) -> bool:
+    if new.drift_mps is None or sent is None or sent.drift_mps is None:
+        return False
+    dx, dy = (a - b for a, b in zip(new.drift_mps, sent.drift_mps))
+    return dx * dx + dy * dy > DRIFT_RESEND_MPS**2
+
+
+class AssignmentSender:
+    """When the coordinator sends its assignments (nodes/coordinator.py and the sensed simulator
+    alike): ``update(new)`` with every decision's assignments returns ``'revision'`` for a new
+    decision (a mode, partner, sense or entry time changed), ``'drift'`` when a mutual pair's
+    w_c moved more than :data:`DRIFT_RESEND_MPS` since it was sent (the robots take the pair's
+    w_c from the assignment, docs/law-changes.md §23: one frozen at the pair's entry drove pairs
+    into walls), else None; :attr:`current` is the newest, :meth:`republish` marks it sent.
+    """
+
+    def __init__(self):
+        self.current: dict[int, EncounterAssignment] = {}
+        self._sent: dict[int, EncounterAssignment] = {}
+
+    def update(self, new: Mapping[int, EncounterAssignment]) -> str | None:
+        self.current = dict(new)
+        if _decisions(self.current) != _decisions(self._sent):
+            what = 'revision'
+        elif any(_drift_moved(a, self._sent.get(k)) for k, a in self.current.items()):
+            what = 'drift'
+        else:
+            return None
+        self._sent = self.current
+        return what
+
+    def republish(self) -> dict[int, EncounterAssignment]:
+        """The newest assignments, as sent again now."""
+        self._sent = self.current
+        return self.current
+

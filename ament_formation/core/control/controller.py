@@ -793,7 +793,9 @@ class RobotController:
         self, t_s: float, sc: _Scratch, assignment: EncounterAssignment, events: list
     ) -> None:
         """Apply the coordinator's assignment (not over an obstacle avoidance, S7; an encounter
-        left at this very decision is not re-entered, S8.3): enter it, or take its w_c.
+        left at this very decision is not re-entered, S8.3): enter it, or take its w_c; a mutual
+        pair the robot is in with another sense (each robot's own decision on its own estimates)
+        turns the coordinator's way, the pair's one sense (docs/law-changes.md §23).
         """
         st, me = sc.state, sc.me
         left_now = {(e['mode'], e['target']) for e in events if e['event'] == 'exit'}
@@ -806,7 +808,11 @@ class RobotController:
         if k is None:
             raise ValueError(f'assignment: partner {assignment.partner} is not a known robot')
         new_mode = MODE_YIELD if assignment.mode == 'yield' else MODE_MUTUAL
-        if st.mode[me] != new_mode or st.tgt[me] != k:
+        if (
+            st.mode[me] != new_mode
+            or st.tgt[me] != k
+            or (new_mode == MODE_MUTUAL and st.sdir[me] != float(assignment.direction))
+        ):  # a pair entered by the robot's own decision takes the pair's one sense (§14, §23)
             st.set_mode(
                 me,
                 new_mode,

@@ -20,7 +20,8 @@ objects the nodes hold:
   :class:`~ament_formation.core.control.rewiring.FormationGraph` whenever the set of avoiding
   robots changes, S7 arbitration with
   :class:`~ament_formation.core.control.arbiter.EncounterArbiter` at ``encounter_rate_hz``, its
-  assignments delivered on change and every ``republish_s``;
+  assignments delivered at the start, on change (a new decision, or a mutual pair's w_c moved,
+  :class:`~ament_formation.core.control.arbiter.AssignmentSender`) and every ``republish_s``;
 * the plant: :class:`~ament_formation.core.sim.twin.PlantTwin` (RK4 at ``dt_s``, wheel encoders,
   disturbance, obstacle motion).
 
@@ -44,7 +45,7 @@ from typing import Callable
 
 import numpy as np
 
-from ament_formation.core.control.arbiter import EncounterArbiter
+from ament_formation.core.control.arbiter import AssignmentSender, EncounterArbiter
 from ament_formation.core.control.assignment import (
     AssignedLaw,
     original_parent_link,
@@ -280,7 +281,7 @@ class _RobotNode:
 
 class _Coordinator:
     """nodes/coordinator.py without ROS: S9 rewiring on a change of the avoiding set, S7
-    arbitration at its rate, assignments published on change and every ``republish_s``.
+    arbitration at its rate, assignments sent at the start, on change and every ``republish_s``.
     """
 
     def __init__(self, scenario, sensing: SensingParams):
@@ -288,9 +289,9 @@ class _Coordinator:
         self.arbiter = EncounterArbiter(scenario)
         self.avoiding: set[int] = set()
         self.parents = self.graph.rewire(())
-        self.assignments: dict = {}
+        self.sender = AssignmentSender()  # new decisions, a pair's w_c moved (§23)
         self.republish_s = sensing.republish_s
-        self._next_republish = sensing.republish_s
+        self._next_republish = 0.0  # as the node: sent once at the start
 
     def on_modes(self, modes: dict) -> dict | None:
         """{id: mode dict}; the new parents when the avoiding set changed (a graph is sent)."""
@@ -303,18 +304,11 @@ class _Coordinator:
 
     def arbitrate(self, t_s: float, states: dict, modes: dict) -> dict | None:
         """S7 over all robots; the assignments when they are published (else None)."""
-        new = self.arbiter.decide(t_s, states, modes)
-
-        def key(d):
-            return {k: (a.mode, a.partner, a.direction, a.t_entry_s) for k, a in d.items()}
-
-        republish = t_s >= self._next_republish - 1e-9
-        if republish:
+        sent = self.sender.update(self.arbiter.decide(t_s, states, modes))
+        if t_s >= self._next_republish - 1e-9:
             self._next_republish += self.republish_s
-        if key(new) != key(self.assignments):
-            self.assignments = new
-            return new
-        return self.assignments if republish else None
+            return self.sender.republish()
+        return self.sender.current if sent is not None else None
 
 
 class _Loop:
