@@ -8,7 +8,12 @@ import numpy as np
 import pytest
 import yaml
 
-from ament_formation.core.control.arbiter import EncounterArbiter
+from ament_formation.core.control.arbiter import (
+    AssignmentSender,
+    DRIFT_RESEND_MPS,
+    EncounterArbiter,
+)
+from ament_formation.core.control.controller import EncounterAssignment
 from ament_formation.core.scenario.loader import parse_scenario
 from ament_formation.core.sim.simulator import simulate
 
@@ -105,3 +110,27 @@ def test_arbiter_leaves_out_robots_without_a_state(three_robots):
     out = arb.decide(float(res.t_s[k]) + 0.02, states, {})
     assert set(out) == {0, 1} and out[0].partner == 1 and out[1].partner == 0
     assert out[0].t_entry_s == pytest.approx(float(res.t_s[k]) + 0.02)
+
+
+def test_the_sender_resends_a_pair_whose_drift_moved_and_republishes_the_newest():
+    # docs/law-changes.md §23: the robots take a pair's w_c from its assignment; sent only on a
+    # new decision, a w_c frozen at the pair's entry drove pairs into the floor's edge
+    def pair(wx, direction=1.0):
+        a = [EncounterAssignment('mutual', 1 - rid, direction, 3.0, (wx, 0.0)) for rid in (0, 1)]
+        return dict(enumerate(a))
+
+    sender = AssignmentSender()
+    assert sender.update({}) is None and sender.current == {}
+    assert sender.update(pair(-0.05)) == 'revision'  # a new decision
+    step = 0.4 * DRIFT_RESEND_MPS
+    assert sender.update(pair(-0.05 + step)) is None  # moved less than the threshold
+    assert sender.current[0].drift_mps == (-0.05 + step, 0.0)  # ... but the newest is kept
+    assert sender.update(pair(-0.05 + 2 * step)) is None
+    assert sender.update(pair(-0.05 + 3 * step)) == 'drift'  # 1.2 x the threshold since sent
+    assert sender.update(pair(-0.05 + 4 * step)) is None  # measured from what was sent
+    assert sender.republish()[1].drift_mps == (-0.05 + 4 * step, 0.0)  # the newest, as sent
+    assert sender.update(pair(-0.05 + 5 * step)) is None
+    assert sender.update(pair(-0.05 + 5 * step, direction=-1.0)) == 'revision'  # another sense
+    assert sender.update({}) == 'revision'  # released
+    yields = {0: EncounterAssignment('yield', 1, 1.0, 3.0)}
+    assert sender.update(yields) == 'revision' and sender.update(yields) is None

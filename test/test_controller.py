@@ -257,6 +257,27 @@ def test_an_assignment_that_replaces_a_mode_reports_its_exit():
     ]
 
 
+def test_a_pair_entered_by_the_robots_own_decision_turns_the_coordinators_way():
+    # docs/law-changes.md §23: each robot of a pair may pick the pair's sense on its own
+    # estimates; opposite senses push the two the same way (crossing-s1-511, camera: slid along
+    # the wall for 50 s). The coordinator's assignment carries the pair's one sense.
+    sc = load_scenario(config_file('scenarios/paper.yaml'))
+    p = sc.robots[0].params
+    me = np.array([-0.13, 0.01, 0.0, 0.05, 0.0])  # inside E of robot 7: an emergency
+    x7 = {7: NeighbourState(np.array([0.13, 0.0, math.pi, 0.05, 0.0]), team=7)}
+    c = RobotController(3, p, sc.control, sc.avoidance, (), team=3)
+    out = c.step(5.0, me, neighbours=x7, coordinated=True)
+    assert (out.mode, out.target) == ('mutual', 'robot_7')
+    other = -1.0 if out.direction == 'ccw' else 1.0
+    told = EncounterAssignment('mutual', 7, other, t_entry_s=5.0, drift_mps=(0.01, 0.0))
+    out = c.step(5.01, me, neighbours=x7, coordinated=True, assignment=told)
+    assert (out.mode, out.direction) == ('mutual', 'ccw' if other > 0 else 'cw')
+    kinds = [(e['event'], e['mode']) for e in out.events]
+    assert kinds == [('exit', 'mutual'), ('enter', 'mutual')]
+    out = c.step(5.02, me, neighbours=x7, coordinated=True, assignment=told)
+    assert out.events == () and tuple(c._state.wc[0]) == (0.01, 0.0)  # the pair's w_c, as sent
+
+
 def test_assignment_overrides_robot_decision_and_bad_input_is_named():
     sc = load_scenario(config_file('scenarios/paper.yaml'))
     p = sc.robots[0].params

@@ -338,4 +338,3 @@ class AssignmentSender:
         """The newest assignments, as sent again now."""
         self._sent = self.current
         return self.current
-
