@@ -304,10 +304,12 @@ def test_head_on_encounter_through_the_nodes(ros_context, executor, tmp_path, te
     )
     executor.add_node(probe)
     samples = []
+    heard = []  # whether each controller hears the coordinator (docs/law-changes.md §23)
 
     def finished():
         w = system.world
         samples.append((w.plant_time_s, w.twin.state[:, :2].copy()))
+        heard.append([c.coordinated() for c in system.controllers.values()])
         return w.done
 
     try:
@@ -323,6 +325,7 @@ def test_head_on_encounter_through_the_nodes(ros_context, executor, tmp_path, te
     print(f'head-on: min distance {dist.min():.3f} m, end distance {dist[-1]:.3f} m')
     assert dist.min() > 0.25
     assert x[-1, 0, 0] > x[-1, 1, 0] + 0.2  # they passed: robot 0 ended up east of robot 1
+    assert heard[-1] == [True, True], heard[-1]
     pairs = [a for _, a in encounters if a]
     assert pairs, 'the coordinator never assigned an encounter'
     a0, a1 = pairs[0][0], pairs[0][1]

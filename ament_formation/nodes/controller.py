@@ -800,8 +800,7 @@ class ControllerNode(Node):
             )
         parent = None if self.parent is None else self.parent.rid
         orig_state = original_parent_state(heard, self.orig_parent_id, self.orig_offset, state)
-        coordinated = now - self.encounters_at <= self.prm.coordinator_timeout_s
-        out = self.assigned.step(t, state, parent, orig_state, heard, coordinated)
+        out = self.assigned.step(t, state, parent, orig_state, heard, self.coordinated(now))
         self.events.extend(out.events)
         self.mode = {
             'mode': out.mode,
@@ -858,6 +857,13 @@ class ControllerNode(Node):
             return True
         return False
 
+    def coordinated(self, now_s: float | None = None) -> bool:
+        """The coordinator is heard: its assignments arrived within ``coordinator_timeout_s``
+        (then the robot's own robot encounters are emergencies only, docs/law-changes.md §23).
+        """
+        now = self.now_s() if now_s is None else now_s
+        return now - self.encounters_at <= self.prm.coordinator_timeout_s
+
     def _control_status(self) -> tuple[int, str, dict]:
         values = {
             'ticks': self.ticks,
@@ -865,6 +871,7 @@ class ControllerNode(Node):
             'over_stop_speed': self.over_stop_speed,
             'safety': self.safety,
             'mode': self.mode['mode'],
+            'coordinator_heard': self.coordinated(),
             **{f'rejected_{k}': v for k, v in self.rejected.items()},
             **self.estimator.counters.as_dict(),
         }
