@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from ament_formation.core.config_files import config_file
+from ament_formation.core.control.assignment import AssignedLaw
 from ament_formation.core.control.controller import (
     EncounterAssignment,
     NeighbourState,
@@ -276,6 +277,27 @@ def test_a_pair_entered_by_the_robots_own_decision_turns_the_coordinators_way():
     assert kinds == [('exit', 'mutual'), ('enter', 'mutual')]
     out = c.step(5.02, me, neighbours=x7, coordinated=True, assignment=told)
     assert out.events == () and tuple(c._state.wc[0]) == (0.01, 0.0)  # the pair's w_c, as sent
+
+
+def test_an_assignment_that_turns_a_yield_into_a_pair_with_the_same_robot_is_not_lost():
+    # docs/law-changes.md §23 (crossing-s1-454, camera): robot 3 yields to 7 as assigned; in an
+    # emergency its own decision turns that into a mutual pair with 7 at the very step the
+    # coordinator assigns the same pair. Releasing the withdrawn yield there ended the pair, and
+    # the new assignment, "left at this decision", was never applied.
+    sc = load_scenario(config_file('scenarios/paper.yaml'))
+    p = sc.robots[0].params
+    # outside E of robot 7 (a release would end the pair), closing at 0.2 m/s: contact in 0.65 s
+    me = np.array([-0.165, 0.01, 0.0, 0.1, 0.0])
+    x7 = {7: NeighbourState(np.array([0.165, 0.0, math.pi, 0.1, 0.0]), team=7)}
+    robot = AssignedLaw(RobotController(3, p, sc.control, sc.avoidance, (), team=3))
+    robot.assignment = EncounterAssignment('yield', 7, 1.0, t_entry_s=1.0)
+    out = robot.step(5.0, me, None, None, x7, coordinated=True)
+    assert (out.mode, out.target) == ('yield', 'robot_7')
+    robot.assignment = EncounterAssignment('mutual', 7, 1.0, t_entry_s=5.01, drift_mps=(0, 0))
+    out = robot.step(5.01, me, None, None, x7, coordinated=True)
+    assert (out.mode, out.target, out.direction) == ('mutual', 'robot_7', 'ccw')
+    out = robot.step(5.02, me, None, None, x7, coordinated=True)
+    assert (out.mode, out.target, out.events) == ('mutual', 'robot_7', ())
 
 
 def test_assignment_overrides_robot_decision_and_bad_input_is_named():

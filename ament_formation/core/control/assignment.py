@@ -67,6 +67,12 @@ class AssignedLaw:
             if key in self._done or assignment.partner not in heard:
                 assignment = None
         withdrawn = self._applied is not None and key != self._applied
+        # a new assignment with the same partner replaces the old one: no release (the robot's
+        # own decision may already have turned the yield into the pair the coordinator now
+        # assigns; a release would end it and the assignment would be lost, §23)
+        release = None
+        if withdrawn and (assignment is None or assignment.partner != self._applied[1]):
+            release = self._applied[1]
         out = self.law.step(
             t_s,
             state,
@@ -74,7 +80,7 @@ class AssignedLaw:
             original_parent=original_parent,
             neighbours=heard,
             assignment=assignment,
-            release=self._applied[1] if withdrawn else None,
+            release=release,
             coordinated=coordinated,
         )
         if withdrawn and not self._in_force(out.mode, out.target):
