@@ -2,6 +2,7 @@
 and law functions, driven robot by robot from Python.
 """
 
+import dataclasses
 import math
 
 import numpy as np
@@ -298,6 +299,35 @@ def test_an_assignment_that_turns_a_yield_into_a_pair_with_the_same_robot_is_not
     assert (out.mode, out.target, out.direction) == ('mutual', 'robot_7', 'ccw')
     out = robot.step(5.02, me, None, None, x7, coordinated=True)
     assert (out.mode, out.target, out.events) == ('mutual', 'robot_7', ())
+
+
+def test_without_the_coordinator_a_pair_takes_the_lower_ids_sense():
+    # docs/law-changes.md §23: both robots formed the pair by their own decisions, each with its
+    # sense; the robot with the higher id turns the other's way (with the coordinator heard, its
+    # assignment gives the sense)
+    sc = load_scenario(config_file('scenarios/paper.yaml'))
+    p = sc.robots[0].params
+    me = np.array([-0.165, 0.01, 0.0, 0.1, 0.0])
+    there = np.array([0.165, 0.0, math.pi, 0.1, 0.0])
+
+    def paired(rid, other, coordinated=False):
+        c = RobotController(rid, p, sc.control, sc.avoidance, (), team=rid)
+        out = c.step(5.0, me, neighbours={other: NeighbourState(there, team=other)})
+        assert (out.mode, out.target) == ('mutual', f'robot_{other}')
+        flipped = 'cw' if out.direction == 'ccw' else 'ccw'
+        nb = NeighbourState(there, team=other, mode='mutual', target=f'robot_{rid}')
+        nb = {other: dataclasses.replace(nb, direction=flipped)}
+        return flipped, c.step(5.01, me, neighbours=nb, coordinated=coordinated)
+
+    flipped, out = paired(3, 1)
+    kinds = [(e['event'], e['mode']) for e in out.events]
+    assert out.direction == flipped and kinds == [('exit', 'mutual'), ('enter', 'mutual')]
+    flipped, out = paired(1, 3)  # the lower id keeps its sense
+    assert out.direction != flipped and out.events == ()
+    flipped, out = paired(3, 1, coordinated=True)  # the coordinator's assignment decides
+    assert out.direction != flipped
+    with pytest.raises(ConfigError, match='direction'):
+        NeighbourState(there, direction='left')
 
 
 def test_assignment_overrides_robot_decision_and_bad_input_is_named():

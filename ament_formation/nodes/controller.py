@@ -291,6 +291,13 @@ def threat_mode(mode: dict) -> tuple[str, str | None]:
     return 'coordination', None
 
 
+def pair_sense(mode: dict) -> str | None:
+    """The sense (``ccw``/``cw``) of a robot in a mutual pair, else None (its ``mode`` dict)."""
+    if mode.get('mode') == 'mutual' and mode.get('direction') in ('ccw', 'cw'):
+        return mode['direction']
+    return None
+
+
 class _Neighbour:
     """Latest state/accel/mode of a robot: heard on its topics, or (PeerTable) written by its
     controller in the same process as it publishes them.
@@ -303,6 +310,7 @@ class _Neighbour:
         self.stamp_s = -math.inf
         self.mode = 'coordination'
         self.target: str | None = None
+        self.direction: str | None = None  # its sense while in a mutual pair (§23)
         self.subs: list = []  # full-rate state + accel subscriptions (while heard)
         self.low_subs: list = []  # mode and (range gate) camera pose subscriptions
         self.in_range = False  # its camera pose is within hearing range (hysteresis)
@@ -633,6 +641,7 @@ class ControllerNode(Node):
                 self.rejected['parent'] += 1
                 return
             nb.mode, nb.target = threat_mode(mode)
+            nb.direction = pair_sense(mode)
 
         def on_camera(msg, nb=nb):
             pose, _ = cdr.pose_from_msg(msg)
@@ -796,7 +805,17 @@ class ControllerNode(Node):
             radius, team, d, slot = self.robot_info[k]
             goal, goal_dot = self._goal_of(k, t, known)
             heard[k] = NeighbourState.trusted(
-                xk, nb.accel, radius, team, nb.mode, nb.target, d, goal, goal_dot, slot
+                xk,
+                nb.accel,
+                radius,
+                team,
+                nb.mode,
+                nb.target,
+                d,
+                goal,
+                goal_dot,
+                slot,
+                nb.direction,
             )
         parent = None if self.parent is None else self.parent.rid
         orig_state = original_parent_state(heard, self.orig_parent_id, self.orig_offset, state)
@@ -917,6 +936,7 @@ class ControllerNode(Node):
         if self.record is not None:
             self.record.accel = accel
             self.record.mode, self.record.target = threat_mode(self.mode)
+            self.record.direction = pair_sense(self.mode)
         if self._accel_heard():  # (in a team, often nobody outside)
             stamp = msgs.stamp_from_s(now) if stamp is None else stamp
             self._msg_accel = msgs.accel_stamped(accel, stamp, out=self._msg_accel)

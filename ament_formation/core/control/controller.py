@@ -48,6 +48,7 @@ from ament_formation.core.model.paths import fast_reference
 from ament_formation.core.params import AvoidanceParams, ControlGains, RobotParams
 
 _MODE_BY_NAME = {name: k for k, name in enumerate(MODE_NAMES)}
+_SENSE_BY_NAME = {'ccw': 1.0, 'cw': -1.0}
 # A mutual pair is one-sided when the partner, heard for this long after the pair's entry, does
 # not report it (it left with its own exit test, or never took it): docs/law-changes.md section 16
 PAIR_CONFIRM_S = 1.0
@@ -67,6 +68,9 @@ class NeighbourState:
     exit test of a mutual pair and for its V_c; None: unknown, taken as its position and velocity.
     ``slot_m`` (2,): its formation slot c_k relative to its team leader (the scenario's, S1), for
     the teammates' protected region (docs/law-changes.md §22); None: unknown (the full Q).
+    ``direction``: its reported sense (``ccw``/``cw``) while in a mutual pair, else None: a pair
+    both robots formed by their own decisions, without the coordinator, takes the sense of the
+    robot with the lower id (one sense per pair, S7 and docs/law-changes.md §14, §23).
     """
 
     state_m: np.ndarray
@@ -79,6 +83,7 @@ class NeighbourState:
     goal_m: np.ndarray | None = None
     goal_dot_mps: np.ndarray | None = None
     slot_m: np.ndarray | None = None
+    direction: str | None = None
 
     def __post_init__(self) -> None:
         for name in ('goal_m', 'goal_dot_mps', 'slot_m'):
@@ -99,6 +104,8 @@ class NeighbourState:
             raise ConfigError(f'must be 2 finite numbers (got {self.accel_mps2!r})', 'accel_mps2')
         if self.mode not in _MODE_BY_NAME:
             raise ConfigError(f'must be one of {list(_MODE_BY_NAME)} (got {self.mode!r})', 'mode')
+        if self.direction not in (None, 'ccw', 'cw'):
+            raise ConfigError(f"must be 'ccw', 'cw' or None (got {self.direction!r})", 'direction')
         object.__setattr__(self, 'state_m', st)
         object.__setattr__(self, 'accel_mps2', acc)
 
@@ -115,6 +122,7 @@ class NeighbourState:
         goal_m: np.ndarray | None,
         goal_dot_mps: np.ndarray | None,
         slot_m: np.ndarray | None = None,
+        direction: str | None = None,
     ) -> 'NeighbourState':
         """Build from values the caller has already checked (float arrays of the right shapes,
         finite; a known mode): the controller node checks every message on arrival, and builds
@@ -132,6 +140,7 @@ class NeighbourState:
             ('goal_m', goal_m),
             ('goal_dot_mps', goal_dot_mps),
             ('slot_m', slot_m),
+            ('direction', direction),
         ):
             object.__setattr__(obj, name, value)
         return obj
@@ -421,6 +430,8 @@ class RobotController:
         t_s = float(t_s)
         events: list[dict] = []
         self._load_own_automaton(sc, t_s, events)
+        if not coordinated:
+            self._one_sense_with(t_s, sc, others, events)
         sc.pd = self._point_velocities(sc)
         sc.obs = self._obstacles_at(t_s, obstacles, sc)
         self._goals(t_s, sc, blind)
@@ -613,6 +624,33 @@ class RobotController:
             st.tgt[k] = me
             st.sdir[k] = st.sdir[me]  # one sense for the pair (docs/law-changes.md section 14)
             st.t_entry[k] = st.t_entry[me]
+
+    def _one_sense_with(self, t_s: float, sc: _Scratch, others, events: list) -> None:
+        """A mutual pair both robots report, each with its own sense (each formed it by its own
+        decision on its own estimates; opposite senses push the two the same way): the robot with
+        the higher id turns the other's way (docs/law-changes.md §23; with the coordinator its
+        assignment carries the pair's sense).
+        """
+        st, me = sc.state, sc.me
+        if st.mode[me] != MODE_MUTUAL or self._target_id > self.robot_id:
+            return
+        k = st.tgt[me]
+        if not (st.mode[k] == MODE_MUTUAL and st.tgt[k] == me):
+            return
+        sense = _SENSE_BY_NAME.get(others[self._target_id].direction)
+        if sense is not None and sense != st.sdir[me]:
+            st.sdir[me] = sense
+            st.sdir[k] = sense
+            events.append(
+                {
+                    't_s': t_s,
+                    'robot': self.robot_id,
+                    'event': 'enter',
+                    'mode': 'mutual',
+                    'target': f'robot_{self._target_id}',
+                    'direction': others[self._target_id].direction,
+                }
+            )
 
     def _leave_one_sided_pair(
         self, t_s: float, sc: _Scratch, k: int, partner_left: bool, events: list

@@ -353,7 +353,8 @@ class _Loop:
             rid: {'mode': 'coordination', 'target': None, 'direction': None, 'avoiding': False}
             for rid in self.ids
         }
-        self.pub: dict = {}  # id -> (state, accel, stamp_s, threat mode, threat target)
+        # id -> (state, accel, stamp_s, threat mode, threat target, sense in a mutual pair)
+        self.pub: dict = {}
         self.mode_events: list[dict] = []
         self.graph_events: list[dict] = [
             {'t_s': 0.0, 'parents': _parents_json(self.coord.parents)}
@@ -394,24 +395,24 @@ class _Loop:
             self.camera.deliver(math.inf, [n.est for n in self.nodes])
         self.camera.frames = self.camera.sent = self.camera.dropped = 0  # mission frames only
         for node in self.nodes:
-            self.pub[node.rid] = (node.est.state(), np.zeros(2), 0.0, 'coordination', None)
+            self.pub[node.rid] = (node.est.state(), np.zeros(2), 0.0, 'coordination', None, None)
 
     def heard(self, t_s: float) -> dict:
         """{id: NeighbourState} of every robot's last broadcast, as a controller reads it."""
         known = {}
-        for rid, (state, accel, stamp, _m, _t) in self.pub.items():
+        for rid, (state, accel, stamp, *_mode) in self.pub.items():
             d = self.info[rid][2]
             known[rid] = extrapolate_neighbour(
                 state, accel, t_s - stamp, d, PARENT_TIMEOUT_S, PARENT_HOLD_S
             )
         heard = {}
-        for rid, (_s, accel, _st, mode, target) in self.pub.items():
+        for rid, (_s, accel, _st, mode, target, sense) in self.pub.items():
             path, p0, offset = self.goal_source[rid]
             d0 = 0.0 if p0 is None else self.info[p0][2]
             goal, goal_dot = neighbour_goal(t_s, path, known.get(p0), offset, d0)
             radius, team, d, slot = self.info[rid]
             heard[rid] = NeighbourState.trusted(
-                known[rid], accel, radius, team, mode, target, d, goal, goal_dot, slot
+                known[rid], accel, radius, team, mode, target, d, goal, goal_dot, slot, sense
             )
         return heard
 
@@ -444,7 +445,8 @@ class _Loop:
             self.saturated[i] = out.saturated
             self.mode_events.extend(out.events)
             mode, target = _threat_mode(out.mode, out.target)
-            pub[node.rid] = (state, out.accel_cmd_mps2, t_s, mode, target)
+            sense = out.direction if mode == 'mutual' else None
+            pub[node.rid] = (state, out.accel_cmd_mps2, t_s, mode, target, sense)
             self.modes[node.rid] = {
                 'mode': out.mode,
                 'target': out.target,
