@@ -68,6 +68,8 @@ def test_generated_scenarios_are_valid_feasible_and_reproducible(family):
             )
             gaps = np.linalg.norm(slots[:, None] - slots[None], axis=2) + 9 * np.eye(len(slots))
             assert gaps.min() >= RULES.spacing_m[0] * 0.99
+        # robots of different teams come to rest as far apart as slots (0.35 m)
+        assert families.resting_gap_m(scenario) >= RULES.spacing_m[0]
         field = ObstacleField(scenario.obstacles).at(0.0) if scenario.obstacles else None
         for j, o in enumerate(scenario.obstacles):
             osc = (
