@@ -968,9 +968,7 @@ def decide(t, robots, obstacles, auto, prm, ev):
     """
     mode = auto.mode  # (each stage runs only when it has work: fewer arrays to reference-count)
     nev = 0
-    # S14.5 here unless the coordinator decides the robot encounters: a robot's own decision
-    # sees the others' modes one period late (docs/law-changes.md §23)
-    if _any_mode(mode, MODE_YIELD, MODE_YIELD) and prm.deferring_row < 0.0:
+    if _any_mode(mode, MODE_YIELD, MODE_YIELD):
         nev = _break_cycles(t, robots, auto, ev, prm)
     obt = _obstacle_threats(t, robots, obstacles, auto, prm)  # 1. S8.1, S14.2
     th = _robot_threats(robots, auto, prm)  # 2. S7, S14.3
