@@ -150,6 +150,22 @@ def test_a_pair_at_the_floor_edge_gets_the_coordinators_current_drift(name):
     _camera_run_reaches_every_goal(name, CAMERA_PAIR_DRIFT[name])
 
 
+def test_a_yield_loop_of_the_coordinator_and_a_robot_is_broken_with_camera_sensing():
+    # docs/law-changes.md "Not changed (yet)": the coordinator's yield and a robot's own
+    # emergency yield formed a loop R2 -> R7 -> R2; without the robots' own S14.5 check R2 ran
+    # to 0.315 m/s 8.4 s after the paths ended
+    from ament_formation.core.sim.campaign import held_scenario
+    from ament_formation.core.sim.sensed import SensingParams, simulate_sensed
+
+    scenario = held_scenario(load_scenario(FILES[0].parent / 'camrunaway197.yaml'), 10.0)
+    sensing = SensingParams.preset('camera', seed=1000200)
+    result = simulate_sensed(scenario, sensing, dt_s=0.001, record_every_s=0.01)
+    vel = np.diff(result.state[:, :, :2], axis=0) / np.diff(result.t_s)[:, None, None]
+    assert np.linalg.norm(vel, axis=2).max() <= PEAK_SPEED_MPS, 'runaway'
+    m = compute_metrics(result, scenario)
+    assert m['min_inter_robot_distance_m'] >= CONTACT_M, 'robot bodies touched'
+
+
 def _field(x, vd, obstacles=None):
     n = x.shape[0]
     pd = np.zeros((n, 2))  # heading 0, omega 0: p_dot = (v, 0)
