@@ -641,16 +641,18 @@ class RobotController:
         if sense is not None and sense != st.sdir[me]:
             st.sdir[me] = sense
             st.sdir[k] = sense
-            events.append(
-                {
-                    't_s': t_s,
-                    'robot': self.robot_id,
-                    'event': 'enter',
-                    'mode': 'mutual',
-                    'target': f'robot_{self._target_id}',
-                    'direction': others[self._target_id].direction,
-                }
-            )
+            events.append(self._entered(t_s, MODE_MUTUAL, self._target_id, sense))
+
+    def _entered(self, t_s: float, mode: int, partner: int, sense: float) -> dict:
+        """The mode event of entering a robot encounter ``mode`` with robot ``partner``."""
+        return {
+            't_s': t_s,
+            'robot': self.robot_id,
+            'event': 'enter',
+            'mode': MODE_NAMES[mode],
+            'target': f'robot_{partner}',
+            'direction': 'ccw' if sense > 0 else 'cw',
+        }
 
     def _leave_one_sided_pair(
         self, t_s: float, sc: _Scratch, k: int, partner_left: bool, events: list
@@ -865,16 +867,7 @@ class RobotController:
             )
             st.wc[me] = w
             st.wtgt[me] = w
-            events.append(
-                {
-                    't_s': t_s,
-                    'robot': self.robot_id,
-                    'event': 'enter',
-                    'mode': MODE_NAMES[new_mode],
-                    'target': f'robot_{assignment.partner}',
-                    'direction': 'ccw' if st.sdir[me] > 0 else 'cw',
-                }
-            )
+            events.append(self._entered(t_s, new_mode, assignment.partner, st.sdir[me]))
         elif new_mode == MODE_MUTUAL and assignment.drift_mps is not None:
             # the pair's w_c is the coordinator's (it knows both goals): common to both robots,
             # so z_dot = F(z) holds exactly (S7); the own relaxation would use a guessed goal
