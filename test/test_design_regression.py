@@ -109,6 +109,8 @@ def test_camera_sensed_teammates_do_not_chatter(name):
 
 # a robot's own decision against the coordinator's (docs/law-changes.md §23): file -> sensing seed
 CAMERA_COORDINATED = {'camchatter542': 1000545, 'camchatter1637': 1001640}
+# and its assigned yield against its partner's late report (docs/law-changes.md §24)
+CAMERA_ASSIGNED_YIELD = {'camchatter323': 1000326, 'camchatter463': 1000466}
 
 
 @pytest.mark.parametrize('name', sorted(CAMERA_COORDINATED))
@@ -116,6 +118,13 @@ def test_a_robot_that_hears_the_coordinator_does_not_chatter(name):
     # two-team crossings: R1 with 59 and 63 mode events before §23, the coordinator's mutual pair
     # replacing a yield of the robot's own decision 10-20 ms after it, encounter after encounter
     _camera_run_neither_chatters_nor_touches(name, CAMERA_COORDINATED[name])
+
+
+@pytest.mark.parametrize('name', sorted(CAMERA_ASSIGNED_YIELD))
+def test_a_robot_keeps_the_coordinators_yield_against_a_late_report(name):
+    # a two-team and a four-robot crossing: R1 64 and R0 54 mode events before §24, the assigned
+    # yield turned into a mutual pair by the robot's own loop check, assigned again, ...
+    _camera_run_neither_chatters_nor_touches(name, CAMERA_ASSIGNED_YIELD[name])
 
 
 # camera-sensed one-sided mutual pairs (docs/law-changes.md §16): file -> campaign sensing seed

@@ -520,7 +520,12 @@ def _break_cycles(t, robots, auto, ev, prm):
     mode, tgt = auto.mode, auto.tgt
     for i in range(mode.shape[0]):
         if mode[i] == MODE_YIELD and reacts_to(tgt[i], i, mode, tgt, robots.parent):
-            nev = _form_mutual(i, tgt[i], t, robots, auto, ev, nev, prm)
+            k = tgt[i]
+            if (i == prm.deferring_row or k == prm.deferring_row) and not _agent_urgency(
+                i, k, robots.p, robots.pd, robots.rbody, prm
+            )[0]:
+                continue  # the coordinator's yield stands but in an emergency (law-changes §24)
+            nev = _form_mutual(i, k, t, robots, auto, ev, nev, prm)
     return nev
 
 
@@ -714,7 +719,11 @@ def _obstacle_transitions(t, robots, obstacles, auto, obt, th, prm, ev, nev):
             jn = obt.j[i]
             if jn >= 0 and not obt.cur_em[i] and (obt.em[i] or obt.h_l[i] < obt.cur_h_l[i]):
                 if obstacles.static[j] and obstacles.static[jn]:
-                    s = sdir[i]  # S6.6 rule 5: keep the sweep direction
+                    # S6.6 rule 5: keep the sweep direction, the sense whose motion round jn
+                    # continues the robot's round j: between the two, the other sense (§24)
+                    zjx, zjy = p[i, 0] - oc[j, 0], p[i, 1] - oc[j, 1]
+                    znx, zny = p[i, 0] - oc[jn, 0], p[i, 1] - oc[jn, 1]
+                    s = sdir[i] if zjx * znx + zjy * zny >= 0.0 else -sdir[i]
                 else:
                     s = _obstacle_dir(i, jn, robots, obstacles, auto, prm)
                 nev = _leave(i, t, auto, ev, nev)
