@@ -33,6 +33,18 @@ def obstacle(axes=(0.4, 0.15), phi=0.0, phi_dot=0.0, center=(0.0, 0.0), vel=(0.0
     )
 
 
+def two_static(second, axes):
+    """Two static obstacles of semi-axes ``axes``, at the origin and at ``second``."""
+    return (
+        np.array([[0.0, 0.0], second], float),
+        np.zeros((2, 2)),
+        np.zeros(2),
+        np.zeros(2),
+        np.array([axes, axes], float),
+        np.array([True, True]),
+    )
+
+
 def step(state, t, p, pd, goal=(2.0, 0.0), goal_dot=(0.05, 0.0), vc=None, obs=None):
     vc = pd if vc is None else vc
     return decide_once(
@@ -155,15 +167,7 @@ def test_rotating_bar_sweeping_toward_a_standing_robot_triggers_entry():
 
 
 def test_emergency_does_not_replace_a_target_that_is_itself_an_emergency():
-    c = np.array([[0.0, 0.0], [0.0, 0.44]])
-    obs = (
-        c,
-        np.zeros((2, 2)),
-        np.zeros(2),
-        np.zeros(2),
-        np.array([[0.4, 0.1], [0.4, 0.1]]),
-        np.array([True, True]),
-    )
+    obs = two_static((0.0, 0.44), (0.4, 0.1))
     st = AutomatonState(1)
     st.set_mode(0, MODE_OBSTACLE, 0, 1.0, 0.0)
     # p is inside E of both bars: keep the current target (no flip every decision)
@@ -226,15 +230,7 @@ def test_from_one_static_obstacle_to_the_next_the_robot_keeps_its_direction_of_t
     sense (the same one sent it back the way it came, every T_min: crossing-s1-1660); beside
     them it is the same sense.
     """
-    c = np.array([[0.0, 0.0], [0.0, 0.6]])  # discs of radius 0.2 m, 0.2 m apart
-    obs = (
-        c,
-        np.zeros((2, 2)),
-        np.zeros(2),
-        np.zeros(2),
-        np.array([[0.2, 0.2], [0.2, 0.2]]),
-        np.array([True, True]),
-    )
+    obs = two_static((0.0, 0.6), (0.2, 0.2))  # discs of radius 0.2 m, 0.2 m apart
 
     def retarget(p, pd, sense):
         st = AutomatonState(1)
