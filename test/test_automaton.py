@@ -223,25 +223,3 @@ def test_switching_params_compile_and_check_the_teammate_hysteresis():
     with pytest.raises(ConfigError, match='teammate_release_speed_mps'):
         SwitchingParams(teammate_release_speed_mps=float('nan'))
 
-
-def test_from_one_static_obstacle_to_the_next_the_robot_keeps_its_direction_of_travel():
-    """S6.6 rule 5 as docs/law-changes.md §24 reads it: the sense kept between adjacent static
-    obstacles is the sweep direction, the robot's motion. Between the two that is the other
-    sense (the same one sent it back the way it came, every T_min: crossing-s1-1660); beside
-    them it is the same sense.
-    """
-    obs = two_static((0.0, 0.6), (0.2, 0.2))  # discs of radius 0.2 m, 0.2 m apart
-
-    def retarget(p, pd, sense):
-        st = AutomatonState(1)
-        st.set_mode(0, MODE_OBSTACLE, 0, sense, 0.0)
-        events = step(st, 5.0, p, pd, goal=(2.0, 0.3), goal_dot=(0.0, 0.0), obs=obs)
-        assert [(e[2], e[3], e[4]) for e in events] == [
-            ('exit', MODE_OBSTACLE, 0),
-            ('enter', MODE_OBSTACLE, 1),
-        ]
-        return st.sdir[0]
-
-    for sense in (1.0, -1.0):
-        assert retarget((0.05, 0.32), (0.0, 0.05), sense) == -sense  # in the gap
-        assert retarget((0.32, 0.48), (-0.05, 0.0), sense) == sense  # beside both

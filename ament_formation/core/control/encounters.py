@@ -719,11 +719,7 @@ def _obstacle_transitions(t, robots, obstacles, auto, obt, th, prm, ev, nev):
             jn = obt.j[i]
             if jn >= 0 and not obt.cur_em[i] and (obt.em[i] or obt.h_l[i] < obt.cur_h_l[i]):
                 if obstacles.static[j] and obstacles.static[jn]:
-                    # S6.6 rule 5: keep the sweep direction, the sense whose motion round jn
-                    # continues the robot's round j: between the two, the other sense (§24)
-                    zjx, zjy = p[i, 0] - oc[j, 0], p[i, 1] - oc[j, 1]
-                    znx, zny = p[i, 0] - oc[jn, 0], p[i, 1] - oc[jn, 1]
-                    s = sdir[i] if zjx * znx + zjy * zny >= 0.0 else -sdir[i]
+                    s = sdir[i]  # S6.6 rule 5: keep the sweep direction
                 else:
                     s = _obstacle_dir(i, jn, robots, obstacles, auto, prm)
                 nev = _leave(i, t, auto, ev, nev)
