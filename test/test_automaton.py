@@ -222,4 +222,3 @@ def test_switching_params_compile_and_check_the_teammate_hysteresis():
         SwitchingParams(teammate_release_speed_mps=0.01)
     with pytest.raises(ConfigError, match='teammate_release_speed_mps'):
         SwitchingParams(teammate_release_speed_mps=float('nan'))
-
