@@ -194,35 +194,6 @@ def test_a_coordinated_robot_enters_robot_encounters_by_itself_only_in_emergenci
     assert (step(close, True).mode, step(close, True).target) == ('mutual', 'robot_7')
 
 
-def test_a_coordinated_robot_keeps_its_assigned_yield_against_a_loop_but_in_an_emergency():
-    # docs/law-changes.md §24: robot 3 yields to 7 as the coordinator assigned; 7 still reports
-    # its own yield to 3 (one period late, or a yield of its own the coordinator will end). The
-    # S14.5 conversion into a mutual pair waits for an emergency while the coordinator is heard:
-    # otherwise each side's conversion and the coordinator's re-assignment alternate
-    # (two_teams-s1-323, camera: 64 events of R1; 32 with this rule)
-    sc = load_scenario(config_file('scenarios/paper.yaml'))
-    p = sc.robots[0].params
-    x3 = np.array([0.0, 0.0, 0.0, 0.05, 0.0])
-
-    def second_step(x7, coordinated):
-        c = RobotController(3, p, sc.control, sc.avoidance, (), team=3)
-        told = EncounterAssignment('yield', 7, direction=1.0, t_entry_s=5.0)
-        nb = {7: NeighbourState(x7, team=7)}
-        out = c.step(5.0, x3, neighbours=nb, coordinated=coordinated, assignment=told)
-        assert (out.mode, out.target) == ('yield', 'robot_7')
-        nb = {7: NeighbourState(x7, team=7, mode='yield', target='robot_3')}
-        return c.step(5.5, x3, neighbours=nb, coordinated=coordinated)
-
-    ahead = np.array([0.40, 0.0, math.pi, 0.0, 0.0])  # inside Q, no emergency
-    out = second_step(ahead, True)
-    assert (out.mode, out.target, out.events) == ('yield', 'robot_7', ())
-    out = second_step(ahead, False)  # without the coordinator: S14.5 at once
-    assert (out.mode, out.target) == ('mutual', 'robot_7')
-    close = np.array([0.30, 0.0, math.pi, 0.0, 0.0])  # inside E: S14.5 at once
-    out = second_step(close, True)
-    assert (out.mode, out.target) == ('mutual', 'robot_7')
-
-
 def test_a_pair_the_partner_does_not_report_is_left_or_becomes_a_yield():
     """A mutual pair is one both robots report (docs/law-changes.md section 16). Partner 7 left
     the pair it had reported: robot 3 leaves it too, at once. Partner 7 never reports it:

@@ -109,7 +109,8 @@ def test_camera_sensed_teammates_do_not_chatter(name):
 
 # a robot's own decision against the coordinator's (docs/law-changes.md §23): file -> sensing seed
 CAMERA_COORDINATED = {'camchatter542': 1000545, 'camchatter1637': 1001640}
-# and its assigned yield against its partner's late report (docs/law-changes.md §24)
+# still chattering: the coordinator's yield turned into a pair by the robot's own S14.5 check on
+# its partner's late report (docs/law-changes.md "Not changed (yet)"): file -> sensing seed
 CAMERA_ASSIGNED_YIELD = {'camchatter323': 1000326, 'camchatter463': 1000466}
 
 
@@ -120,10 +121,15 @@ def test_a_robot_that_hears_the_coordinator_does_not_chatter(name):
     _camera_run_neither_chatters_nor_touches(name, CAMERA_COORDINATED[name])
 
 
+@pytest.mark.xfail(
+    strict=True,
+    reason='known: R1 64 / R0 54 mode events with camera sensing (the fix tried on 2026-12-04 '
+    'ran away in camrunaway1229); docs/law-changes.md "Not changed (yet)"',
+)
 @pytest.mark.parametrize('name', sorted(CAMERA_ASSIGNED_YIELD))
 def test_a_robot_keeps_the_coordinators_yield_against_a_late_report(name):
-    # a two-team and a four-robot crossing: R1 64 and R0 54 mode events before §24, the assigned
-    # yield turned into a mutual pair by the robot's own loop check, assigned again, ...
+    # a two-team and a four-robot crossing: the assigned yield turned into a mutual pair by the
+    # robot's own loop check, assigned again, ... (no contact either way)
     _camera_run_neither_chatters_nor_touches(name, CAMERA_ASSIGNED_YIELD[name])
 
 
@@ -159,15 +165,22 @@ def test_a_pair_at_the_floor_edge_gets_the_coordinators_current_drift(name):
     _camera_run_reaches_every_goal(name, CAMERA_PAIR_DRIFT[name])
 
 
-def test_a_yield_loop_of_the_coordinator_and_a_robot_is_broken_with_camera_sensing():
+# the coordinator's yield and a robot's own yield in a loop: file -> (sensing seed, hold [s])
+CAMERA_YIELD_LOOP = {'camrunaway197': (1000200, 10.0), 'camrunaway1229': (1001232, 30.0)}
+
+
+@pytest.mark.parametrize('name', sorted(CAMERA_YIELD_LOOP))
+def test_a_yield_loop_of_the_coordinator_and_a_robot_is_broken_with_camera_sensing(name):
     # docs/law-changes.md "Not changed (yet)": the coordinator's yield and a robot's own
-    # emergency yield formed a loop R2 -> R7 -> R2; without the robots' own S14.5 check R2 ran
-    # to 0.315 m/s 8.4 s after the paths ended
+    # emergency yield formed a loop; without the robots' own S14.5 check (camrunaway197: R2 ran
+    # to 0.315 m/s 8.4 s after the paths ended), or with it in emergencies only (the change
+    # tried on 2026-12-04, camrunaway1229: R4 0.32 m/s in the held run), a robot ran away
     from ament_formation.core.sim.campaign import held_scenario
     from ament_formation.core.sim.sensed import SensingParams, simulate_sensed
 
-    scenario = held_scenario(load_scenario(FILES[0].parent / 'camrunaway197.yaml'), 10.0)
-    sensing = SensingParams.preset('camera', seed=1000200)
+    seed, hold_s = CAMERA_YIELD_LOOP[name]
+    scenario = held_scenario(load_scenario(FILES[0].parent / f'{name}.yaml'), hold_s)
+    sensing = SensingParams.preset('camera', seed=seed)
     result = simulate_sensed(scenario, sensing, dt_s=0.001, record_every_s=0.01)
     vel = np.diff(result.state[:, :, :2], axis=0) / np.diff(result.t_s)[:, None, None]
     assert np.linalg.norm(vel, axis=2).max() <= PEAK_SPEED_MPS, 'runaway'

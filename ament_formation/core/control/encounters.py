@@ -520,12 +520,7 @@ def _break_cycles(t, robots, auto, ev, prm):
     mode, tgt = auto.mode, auto.tgt
     for i in range(mode.shape[0]):
         if mode[i] == MODE_YIELD and reacts_to(tgt[i], i, mode, tgt, robots.parent):
-            k = tgt[i]
-            if (i == prm.deferring_row or k == prm.deferring_row) and not _agent_urgency(
-                i, k, robots.p, robots.pd, robots.rbody, prm
-            )[0]:
-                continue  # the coordinator's yield stands but in an emergency (law-changes §24)
-            nev = _form_mutual(i, k, t, robots, auto, ev, nev, prm)
+            nev = _form_mutual(i, tgt[i], t, robots, auto, ev, nev, prm)
     return nev
 
 
