@@ -12,6 +12,7 @@ from ament_formation.core.control.arbiter import (
     AssignmentSender,
     DRIFT_RESEND_MPS,
     EncounterArbiter,
+    REPORT_LAG_S,
 )
 from ament_formation.core.control.controller import EncounterAssignment
 from ament_formation.core.scenario.loader import parse_scenario
@@ -110,6 +111,51 @@ def test_arbiter_leaves_out_robots_without_a_state(three_robots):
     out = arb.decide(float(res.t_s[k]) + 0.02, states, {})
     assert set(out) == {0, 1} and out[0].partner == 1 and out[1].partner == 0
     assert out[0].t_entry_s == pytest.approx(float(res.t_s[k]) + 0.02)
+
+
+def test_a_robots_own_encounter_is_taken_and_a_loop_it_closes_is_a_pair_for_both(three_robots):
+    # docs/law-changes.md §24: the arbiter did not know the robots' own (emergency) encounters;
+    # a robot's own yield to the robot the coordinator made yield to it closed a loop that each
+    # robot broke against the other's late report, and the coordinator assigned it again
+    sc, _ = three_robots
+    arb = EncounterArbiter(sc)
+    states = {rid: np.array([0.0, y, 0.0, 0.0, 0.0]) for rid, y in ((0, 0.6), (1, 2.0), (2, 5.6))}
+    free = {rid: {'mode': 'coordination', 'target': None, 'direction': None} for rid in states}
+    assert arb.decide(0.0, states, free) == {}  # 1.4 m apart at rest: no encounter of its own
+    # robot 1 reports a yield to robot 0 of its own: the arbiter takes it as it is
+    modes = {**free, 1: {'mode': 'yield', 'target': 'robot_0', 'direction': 'cw'}}
+    out = arb.decide(1.0, states, modes)
+    assert set(out) == {1}
+    assert (out[1].mode, out[1].partner, out[1].direction, out[1].t_entry_s) == (
+        'yield', 0, -1.0, 1.0
+    )
+    # robot 0 reports a yield to robot 1: the loop becomes one mutual pair of both (S14.5)
+    modes[0] = {'mode': 'yield', 'target': 'robot_1', 'direction': 'ccw'}
+    out = arb.decide(1.5, states, modes)
+    assert set(out) == {0, 1}
+    assert (out[0].mode, out[0].partner, out[1].mode, out[1].partner) == (
+        'mutual', 1, 'mutual', 0
+    )
+    assert out[0].t_entry_s == out[1].t_entry_s == 1.5 and out[0].direction == out[1].direction
+    # the pair ends here (joint exit, S8.3) while both robots still report it: their reports are
+    # late echoes for REPORT_LAG_S, then a robot still in the pair is in it by its own decision
+    modes = {rid: {'mode': 'mutual', 'target': f'robot_{1 - rid}', 'direction': 'ccw'}
+             for rid in (0, 1)}  # fmt: skip
+    modes[2] = free[2]
+    t, out = 1.5, {0: None}
+    while out:
+        t = round(t + 0.02, 9)
+        assert t < 10.0, 'the pair never ended'
+        out = arb.decide(t, states, modes)
+    t_exit = t
+    while t < t_exit + REPORT_LAG_S - 0.03:
+        t = round(t + 0.02, 9)
+        assert arb.decide(t, states, modes) == {}, t
+    out = arb.decide(t_exit + REPORT_LAG_S + 0.01, states, modes)
+    assert {rid: (a.mode, a.partner) for rid, a in out.items()} == {
+        0: ('mutual', 1),
+        1: ('mutual', 0),
+    }
 
 
 def test_the_sender_resends_a_pair_whose_drift_moved_and_republishes_the_newest():

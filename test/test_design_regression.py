@@ -109,8 +109,8 @@ def test_camera_sensed_teammates_do_not_chatter(name):
 
 # a robot's own decision against the coordinator's (docs/law-changes.md §23): file -> sensing seed
 CAMERA_COORDINATED = {'camchatter542': 1000545, 'camchatter1637': 1001640}
-# still chattering: the coordinator's yield turned into a pair by the robot's own S14.5 check on
-# its partner's late report (docs/law-changes.md "Not changed (yet)"): file -> sensing seed
+# the coordinator's yield turned into a pair by the robot's own S14.5 check on its partner's late
+# report, again and again (docs/law-changes.md §24): file -> sensing seed
 CAMERA_ASSIGNED_YIELD = {'camchatter323': 1000326, 'camchatter463': 1000466}
 
 
@@ -121,15 +121,10 @@ def test_a_robot_that_hears_the_coordinator_does_not_chatter(name):
     _camera_run_neither_chatters_nor_touches(name, CAMERA_COORDINATED[name])
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason='known: R1 64 / R0 54 mode events with camera sensing (the fix tried on 2026-12-04 '
-    'ran away in camrunaway1229); docs/law-changes.md "Not changed (yet)"',
-)
 @pytest.mark.parametrize('name', sorted(CAMERA_ASSIGNED_YIELD))
-def test_a_robot_keeps_the_coordinators_yield_against_a_late_report(name):
+def test_a_yield_loop_a_robots_own_yield_closes_is_broken_for_both_robots(name):
     # a two-team and a four-robot crossing: the assigned yield turned into a mutual pair by the
-    # robot's own loop check, assigned again, ... (no contact either way)
+    # robot's own loop check, assigned again, ...: R1 64 and R0 54 mode events before §24
     _camera_run_neither_chatters_nor_touches(name, CAMERA_ASSIGNED_YIELD[name])
 
 

@@ -36,6 +36,17 @@ from ament_formation.core.model.dynamics import PlantCoeffs, point_velocities
 from ament_formation.core.model.obstacles import ObstacleField, ObstacleSnapshot
 
 
+# a robot's mode report shows an encounter the arbiter ended up to this long ago (the release's
+# way to the robot, the robot's next period, its report's way back) [s]
+REPORT_LAG_S = 0.2
+
+
+def _robot_id(target: str) -> int:
+    """The id of a ``robot_<id>`` target, else -1."""
+    head, _, tail = target.partition('_')
+    return int(tail) if head == 'robot' and tail.isdigit() else -1
+
+
 class EncounterArbiter:
     """S7 arbitration of a scenario's robots (see the module docstring).
 
@@ -101,6 +112,50 @@ class EncounterArbiter:
                 st.tgt[q] = -1
                 st.since[q] = -1.0
 
+    def _adopt_reported(
+        self, t_s: float, modes: Mapping[int, dict], pd: Mapping[int, np.ndarray]
+    ) -> None:
+        """A robot encounter a robot reports with another robot than the arbiter has it with,
+        later than :data:`REPORT_LAG_S` after the arbiter's last change for it, is the robot's own
+        (an emergency it decided itself, docs/law-changes.md §23 and §24): it replaces the
+        arbiter's, so that the arbiter decides on what the robots do, and a yield loop such a
+        robot closes with an assigned yield is broken here for both robots at once (S14.5), not
+        by each robot against the other's late report. A reported pair becomes the arbiter's
+        pair when the partner is free or yields to the robot (as S7 forms one), else the robot
+        yields to it. Yield or pair with the same robot stays the arbiter's decision (a robot
+        turns its pair into a yield on its partner's expected move, and its yield into a pair
+        on its partner's late report). ``pd``: {robot id: p_dot (2,)} of the robots with a known
+        state.
+        """
+        st = self.state
+        for rid, md in modes.items():
+            q = self.index.get(int(rid))
+            if q is None or not isinstance(md, dict) or rid not in pd:
+                continue
+            name, target = md.get('mode'), md.get('target')
+            if name not in ('yield', 'mutual') or not isinstance(target, str):
+                continue
+            k = self.index.get(_robot_id(target), -1)
+            if k < 0 or k == q or self.ids[k] not in pd or st.mode[q] == MODE_OBSTACLE:
+                continue
+            if st.mode[q] in (MODE_YIELD, MODE_MUTUAL) and st.tgt[q] == k:
+                continue  # yield or pair with that robot: the arbiter's to decide
+            changed = st.last_exit[q] if st.mode[q] == MODE_C else st.t_entry[q]
+            if t_s - changed < REPORT_LAG_S:
+                continue  # the robot has not had the arbiter's last change yet
+            sense = -1.0 if md.get('direction') == 'cw' else 1.0
+            pair = name == 'mutual' and (
+                st.mode[k] == MODE_C or (st.mode[k] == MODE_YIELD and st.tgt[k] == q)
+            )
+            self._drop_partner(q)
+            st.set_mode(q, MODE_MUTUAL if pair else MODE_YIELD, k, sense, t_s)
+            if pair:
+                st.set_mode(k, MODE_MUTUAL, q, sense, t_s)
+                w = 0.5 * (np.asarray(pd[rid]) + np.asarray(pd[self.ids[k]]))
+                for a in (q, k):
+                    st.wc[a] = w
+                    st.wtgt[a] = w
+
     def _drop_partner(self, q: int) -> None:
         """Q leaves a mutual pair: its partner becomes a plain yielder (S8.3)."""
         st = self.state
@@ -127,6 +182,7 @@ class EncounterArbiter:
             np.stack([np.asarray(states[r], dtype=float).reshape(5) for r in known])
         )
         pd = point_velocities(x, np.ascontiguousarray(self._d[rows]))
+        self._adopt_reported(t_s, modes, {rid: pd[q] for q, rid in enumerate(known)})
         goal, goal_dot, vc = self._goals(t_s, known, row, x, pd)
         team = np.array(
             [row.get(self._team[r], -1 - self.index[r]) for r in known], dtype=np.int64
