@@ -53,6 +53,16 @@ class AssignedLaw:
     def _in_force(self, mode: str, target) -> bool:
         return (mode, target) == (self._applied[0], f'robot_{self._applied[1]}')
 
+    def _is_in(self, assignment) -> bool:
+        """The robot is in ``assignment``'s encounter now by its own decision (re-entered after
+        leaving it): the assignment, not re-entered, still gives the pair's one sense and w_c
+        (docs/law-changes.md §25).
+        """
+        return (self.law.mode, self.law.target) == (
+            assignment.mode,
+            f'robot_{assignment.partner}',
+        )
+
     def step(
         self, t_s: float, state, parent_id, original_parent, heard: dict, coordinated=False
     ):
@@ -64,7 +74,9 @@ class AssignedLaw:
         assignment, key = self.assignment, None
         if assignment is not None:
             key = (assignment.mode, assignment.partner, assignment.t_entry_s)
-            if key in self._done or assignment.partner not in heard:
+            if assignment.partner not in heard or (
+                key in self._done and not self._is_in(assignment)
+            ):
                 assignment = None
         withdrawn = self._applied is not None and key != self._applied
         # a new assignment with the same partner replaces the old one: no release (the robot's

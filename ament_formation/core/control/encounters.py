@@ -713,12 +713,16 @@ def _obstacle_transitions(t, robots, obstacles, auto, obt, th, prm, ev, nev):
                 continue
             jn = obt.j[i]
             if jn >= 0 and not obt.cur_em[i] and (obt.em[i] or obt.h_l[i] < obt.cur_h_l[i]):
-                if obstacles.static[j] and obstacles.static[jn]:
+                sweep = obstacles.static[j] and obstacles.static[jn]
+                held = t_entry[i]
+                if sweep:
                     s = sdir[i]  # S6.6 rule 5: keep the sweep direction
                 else:
                     s = _obstacle_dir(i, jn, robots, obstacles, auto, prm)
                 nev = _leave(i, t, auto, ev, nev)
                 nev = _enter(i, t, MODE_OBSTACLE, jn, s, auto, ev, nev)
+                if sweep:  # one sweep round static obstacles: its time, held still (§26)
+                    t_entry[i] = held
                 continue
             cond = exit_conditions(
                 p[i, 0],
