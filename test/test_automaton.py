@@ -222,3 +222,26 @@ def test_switching_params_compile_and_check_the_teammate_hysteresis():
         SwitchingParams(teammate_release_speed_mps=0.01)
     with pytest.raises(ConfigError, match='teammate_release_speed_mps'):
         SwitchingParams(teammate_release_speed_mps=float('nan'))
+
+
+def test_one_sweep_round_static_obstacles_keeps_its_time_so_a_robot_held_still_turns():
+    # docs/law-changes.md §26 (crossing-s1-1660, camera and ideal): two robots met in the gap
+    # between two static obstacles and re-targeted between them every second (S8.2, then the
+    # S8.4 cool-down); each re-targeting restarted the time in avoidance, so the liveness rule
+    # (§8, STUCK_S = 5 s) never turned them, and they stayed there to the end
+    bars = two_static((0.0, 0.44), (0.4, 0.1))
+    up = {'goal': (0.0, 2.0), 'goal_dot': (0.0, 0.0), 'vc': (0.0, 0.05)}
+    st = AutomatonState(1)
+    st.set_mode(0, MODE_OBSTACLE, 0, 1.0, 0.0)
+    events = step(st, 3.0, (0.0, 0.28), (0.0, 0.05), obs=bars, **up)
+    assert [(e[2], e[4], e[5]) for e in events] == [('exit', 0, 1.0), ('enter', 1, 1.0)]
+    assert st.t_entry[0] == 0.0  # one sweep (S6.6 rule 5): timed from its first obstacle
+    events = step(st, 5.0, (0.0, 0.28), (0.0, 0.0), obs=bars, **up)  # held still since 0.0
+    assert [(e[2], e[4], e[5]) for e in events] == [('exit', 1, 1.0), ('enter', 1, -1.0)]
+    # a rotating second obstacle is a new avoidance, timed from its entry
+    c, v, phi, phi_dot, axes, _static = bars
+    turning = (c, v, phi, np.array([0.0, 0.2]), axes, np.array([True, False]))
+    st = AutomatonState(1)
+    st.set_mode(0, MODE_OBSTACLE, 0, 1.0, 0.0)
+    step(st, 3.0, (0.0, 0.28), (0.0, 0.05), obs=turning, **up)
+    assert st.tgt[0] == 1 and st.t_entry[0] == 3.0

@@ -301,6 +301,48 @@ def test_an_assignment_that_turns_a_yield_into_a_pair_with_the_same_robot_is_not
     assert (out.mode, out.target, out.events) == ('mutual', 'robot_7', ())
 
 
+def test_a_pair_left_and_re_entered_by_the_robots_own_decision_takes_the_assigned_sense():
+    # docs/law-changes.md §25 (two_teams-s1-119, camera): robot 3 left the assigned pair with 2 by
+    # its own exit test, then re-entered it in an emergency with the other sense; the assignment,
+    # "already left", was never applied again, and the two turned opposite ways for 40 s
+    sc = load_scenario(config_file('scenarios/paper.yaml'))
+    p = sc.robots[0].params
+    me = np.array([-0.13, 0.01, 0.0, 0.05, 0.0])  # inside E of robot 7: an emergency
+    near = {7: NeighbourState(np.array([0.13, 0.0, math.pi, 0.05, 0.0]), team=7)}
+    own = RobotController(3, p, sc.control, sc.avoidance, (), team=3)
+    own_sense = own.step(5.0, me, neighbours=near, coordinated=True).direction
+    told_sense = 'ccw' if own_sense == 'cw' else 'cw'
+    told = EncounterAssignment(
+        'mutual', 7, 1.0 if told_sense == 'ccw' else -1.0, t_entry_s=1.0, drift_mps=(0.0, 0.0)
+    )
+    far = {  # the partner, far away, in the assigned pair
+        7: NeighbourState(
+            np.array([3.0, 3.0, 0.0, 0.0, 0.0]),
+            team=7,
+            mode='mutual',
+            target='robot_3',
+            direction=told_sense,
+        )
+    }
+    robot = AssignedLaw(RobotController(3, p, sc.control, sc.avoidance, (), team=3))
+    robot.assignment = told
+    t, out = 2.0, robot.step(2.0, np.zeros(5), None, None, far, coordinated=True)
+    assert (out.mode, out.target) == ('mutual', 'robot_7')
+    while out.mode == 'mutual' and t < 10.0:  # far apart: its own exit test holds
+        t = round(t + 0.01, 2)
+        out = robot.step(t, np.zeros(5), None, None, far, coordinated=True)
+    assert out.mode == 'coordination'
+    t = round(t + 0.01, 2)
+    near = {7: dataclasses.replace(far[7], state_m=near[7].state_m)}  # 7 turns in the pair as told
+    out = robot.step(t, me, None, None, near, coordinated=True)  # the same assignment, still sent
+    assert (out.mode, out.target, out.direction) == ('mutual', 'robot_7', own_sense)
+    out = robot.step(round(t + 0.01, 2), me, None, None, near, coordinated=True)
+    assert (out.mode, out.target) == ('mutual', 'robot_7')
+    assert out.direction == told_sense, "the pair must turn the coordinator's way"
+    out = robot.step(round(t + 0.02, 2), me, None, None, near, coordinated=True)
+    assert out.direction == told_sense and out.events == ()
+
+
 def test_without_the_coordinator_a_pair_takes_the_lower_ids_sense():
     # docs/law-changes.md §23: both robots formed the pair by their own decisions, each with its
     # sense; the robot with the higher id turns the other's way (with the coordinator heard, its

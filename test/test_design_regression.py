@@ -160,21 +160,27 @@ def test_a_pair_at_the_floor_edge_gets_the_coordinators_current_drift(name):
     _camera_run_reaches_every_goal(name, CAMERA_PAIR_DRIFT[name])
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason='known: a leader and its follower in a mutual pair rest in a floor corner; the '
-    "follower's goal lies off the floor (docs/law-changes.md §24)",
-)
-def test_a_leader_and_its_follower_in_a_pair_leave_the_floor_corner():
-    # two_teams-s1-119, camera, held 30 s: R2 still 0.90 m from its goal (new with §24)
+# held 30 s after the paths end, camera (docs/law-changes.md §25, §26): file -> sensing seed
+CAMERA_HELD = {'camstuck119': 1000122, 'camstuck1660': 1001663}
+
+
+@pytest.mark.parametrize('name', sorted(CAMERA_HELD))
+def test_robots_stuck_with_camera_sensing_reach_their_goals_once_the_paths_stop(name):
+    # camstuck119: a leader and its follower in a pair, each turning its own way, slid into a
+    # floor corner (R2 0.90 m from its goal, §25); camstuck1660: two robots in the gap between two
+    # static obstacles re-targeted between them every second and were never turned (R1 1.18 m,
+    # R2 99 mode events, §26)
     from ament_formation.core.sim.campaign import held_scenario
     from ament_formation.core.sim.sensed import SensingParams, simulate_sensed
 
-    scenario = held_scenario(load_scenario(FILES[0].parent / 'camstuck119.yaml'), 30.0)
-    sensing = SensingParams.preset('camera', seed=1000122)
+    scenario = held_scenario(load_scenario(FILES[0].parent / f'{name}.yaml'), 30.0)
+    sensing = SensingParams.preset('camera', seed=CAMERA_HELD[name])
     m = compute_metrics(simulate_sensed(scenario, sensing), scenario)
     far = {rid: r['final_error_m'] for rid, r in m['robots'].items() if r['final_error_m'] > 0.5}
     assert not far, f'robots ending more than 0.5 m from their goals: {far}'
+    assert m['min_inter_robot_distance_m'] >= CONTACT_M, 'robot bodies touched'
+    events = Counter(e['robot'] for e in m['mode_events'])
+    assert max(events.values(), default=0) <= MAX_EVENTS, f'chattering: {events}'
 
 
 # the coordinator's yield and a robot's own yield in a loop: file -> (sensing seed, hold [s])
