@@ -245,3 +245,37 @@ def test_one_sweep_round_static_obstacles_keeps_its_time_so_a_robot_held_still_t
     st.set_mode(0, MODE_OBSTACLE, 0, 1.0, 0.0)
     step(st, 3.0, (0.0, 0.28), (0.0, 0.05), obs=turning, **up)
     assert st.tgt[0] == 1 and st.t_entry[0] == 3.0
+
+
+def test_a_robot_held_still_does_not_turn_into_a_pass_the_floor_closes():
+    # docs/law-changes.md §27 (crossing-s1-1258, ideal): held still on top of an obstacle whose
+    # limit cycle runs off the floor at its bottom, a robot reversed (§8) into the closed pass
+    # and then reversed every 5 s there, 0.88 m from its goal, to the end of the run
+    import dataclasses
+
+    bar = obstacle(axes=(0.3, 0.15), center=(1.5, 0.25))
+    top, goal = (1.5, 0.415), (2.2, 0.3)  # its way, clockwise, stays on the floor
+
+    def held(prm):
+        st = AutomatonState(1)
+        st.set_mode(0, MODE_OBSTACLE, 0, -1.0, 0.0)
+        events = decide_once(
+            5.0,
+            st,
+            np.array([top]),
+            np.zeros((1, 2)),
+            np.array([goal]),
+            np.zeros((1, 2)),
+            np.array([(0.05, 0.0)]),
+            np.zeros(1, np.int64),
+            np.array([0.1]),
+            bar,
+            prm,
+        )
+        return [(e[2], e[5]) for e in events], st.sdir[0]
+
+    floor = dataclasses.replace(SwitchingParams(), floor_m=(0.0, 3.0, 0.0, 2.5)).compiled()
+    assert held(floor) == ([], -1.0)  # it waits on its open side
+    assert held(PRM) == ([('exit', -1.0), ('enter', 1.0)], 1.0)  # no floor: §8 as before
+    low_floor = dataclasses.replace(SwitchingParams(), floor_m=(0.0, 3.0, -1.0, 2.5)).compiled()
+    assert held(low_floor) == ([('exit', -1.0), ('enter', 1.0)], 1.0)  # the pass is open

@@ -66,6 +66,20 @@ def test_stuck_robots_reach_their_goals_once_the_paths_stop(name):
     assert not far, f'robots ending more than 0.5 m from their goals: {far}'
 
 
+def test_a_robot_held_still_waits_on_the_open_side_of_an_obstacle_by_the_floor():
+    # docs/law-changes.md §27: R3 turned (§8) into a pass the floor closes and stayed there,
+    # 0.88 m from its goal, however long the paths were held
+    from ament_formation.core.sim.campaign import held_scenario
+
+    scenario = held_scenario(load_scenario(FILES[0].parent / 'floorpass1258.yaml'), 30.0)
+    result = simulate(scenario)
+    m = compute_metrics(result, scenario)
+    far = {rid: r['final_error_m'] for rid, r in m['robots'].items() if r['final_error_m'] > 0.5}
+    assert not far, f'robots ending more than 0.5 m from their goals: {far}'
+    turns = [e for e in result.mode_events if e['robot'] == 3 and e['mode'] == 'obstacle']
+    assert len(turns) <= 4, f'R3 turned on its obstacle: {turns}'
+
+
 def test_a_mutual_pair_turning_toward_both_goals_lets_two_teams_cross_on_time():
     # docs/law-changes.md §14: before, R1 ended 0.77 m from its goal (every pair turned ccw)
     scenario = load_scenario(FILES[0].parent / 'pairsense65.yaml')

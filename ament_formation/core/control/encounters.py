@@ -706,8 +706,10 @@ def _obstacle_transitions(t, robots, obstacles, auto, obt, th, prm, ev, nev):
     for i in range(mode.shape[0]):
         if mode[i] == MODE_OBSTACLE and tgt[i] >= 0:
             j = tgt[i]
-            if _held_still(i, j, t, robots, obstacles, auto, prm):  # liveness: the other way
-                s = -sdir[i]
+            s = -sdir[i]
+            if _held_still(i, j, t, robots, obstacles, auto, prm) and (
+                _floor_side(i, j, s, robots, obstacles, prm) == s
+            ):  # liveness: the other way, unless the floor closes it (§27)
                 nev = _leave(i, t, auto, ev, nev)
                 nev = _enter(i, t, MODE_OBSTACLE, j, s, auto, ev, nev)
                 continue
