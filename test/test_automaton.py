@@ -235,7 +235,9 @@ def test_one_sweep_round_static_obstacles_keeps_its_time_so_a_robot_held_still_t
     st.set_mode(0, MODE_OBSTACLE, 0, 1.0, 0.0)
     events = step(st, 3.0, (0.0, 0.28), (0.0, 0.05), obs=bars, **up)
     assert [(e[2], e[4], e[5]) for e in events] == [('exit', 0, 1.0), ('enter', 1, 1.0)]
-    assert st.t_entry[0] == 0.0  # one sweep (S6.6 rule 5): timed from its first obstacle
+    # one sweep (S6.6 rule 5): for liveness, timed from its first obstacle; its entry time (S8.3
+    # T_min, the gain schedule) is the new obstacle's
+    assert (st.t_entry[0], st.sweep_s[0]) == (3.0, 3.0)
     events = step(st, 5.0, (0.0, 0.28), (0.0, 0.0), obs=bars, **up)  # held still since 0.0
     assert [(e[2], e[4], e[5]) for e in events] == [('exit', 1, 1.0), ('enter', 1, -1.0)]
     # a rotating second obstacle is a new avoidance, timed from its entry
@@ -244,7 +246,7 @@ def test_one_sweep_round_static_obstacles_keeps_its_time_so_a_robot_held_still_t
     st = AutomatonState(1)
     st.set_mode(0, MODE_OBSTACLE, 0, 1.0, 0.0)
     step(st, 3.0, (0.0, 0.28), (0.0, 0.05), obs=turning, **up)
-    assert st.tgt[0] == 1 and st.t_entry[0] == 3.0
+    assert st.tgt[0] == 1 and (st.t_entry[0], st.sweep_s[0]) == (3.0, 0.0)
 
 
 def test_a_robot_held_still_does_not_turn_into_a_pass_the_floor_closes():

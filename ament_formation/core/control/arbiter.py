@@ -309,7 +309,8 @@ class EncounterArbiter:
             (sub.mode == MODE_OBSTACLE) & ~reported_obstacle & (full.mode[rows] != MODE_OBSTACLE)
         )  # the arbiter does not decide obstacle entries
         i, q = rows[keep], np.flatnonzero(keep)
-        for name in ('mode', 'sdir', 't_entry', 'since', 'last_kind', 'last_exit', 'wc', 'wtgt'):
+        for name in ('mode', 'sdir', 't_entry', 'since', 'last_kind', 'last_exit', 'wc', 'wtgt',
+                     'sweep_s'):
             getattr(full, name)[i] = getattr(sub, name)[q]
         tgt, lt = sub.tgt[q], sub.last_tgt[q]
         robot = (sub.mode[q] == MODE_YIELD) | (sub.mode[q] == MODE_MUTUAL)

@@ -241,6 +241,7 @@ AutomatonArrays = namedtuple(
         'last_exit',
         'wc',
         'wtgt',
+        'sweep_s',
     ],
 )
 AutomatonArrays.__doc__ = """The automaton state of N robots as the compiled code takes it (the
@@ -279,7 +280,9 @@ class AutomatonState:
     robot row, -1 in coordination), ``sdir`` float (+1 CCW, -1 CW), ``t_entry`` [s], ``since`` [s]
     (start of the S8.3 dwell window, < 0 when the exit conditions do not hold), ``last_kind`` /
     ``last_tgt`` / ``last_exit`` (the cool-down record: 1 obstacle, 2 robot), ``wc`` and ``wtgt``
-    (N, 2) [m/s] mutual-pair drift and its target.
+    (N, 2) [m/s] mutual-pair drift and its target, ``sweep_s`` [s] the time a sweep round static
+    obstacles had spent on the obstacles before the current one (0 otherwise: liveness only,
+    docs/law-changes.md §26).
     """
 
     def __init__(self, n: int):
@@ -293,6 +296,7 @@ class AutomatonState:
         self.last_exit = np.full(n, -1e9)
         self.wc = np.zeros((n, 2))
         self.wtgt = np.zeros((n, 2))
+        self.sweep_s = np.zeros(n)
 
     @property
     def n(self) -> int:
@@ -311,6 +315,7 @@ class AutomatonState:
             self.last_exit,
             self.wc,
             self.wtgt,
+            self.sweep_s,
         )
 
     def set_mode(self, i: int, mode: int, target: int, direction: float, t_entry_s: float) -> None:
@@ -322,3 +327,4 @@ class AutomatonState:
         self.sdir[i] = direction
         self.t_entry[i] = t_entry_s
         self.since[i] = -1.0
+        self.sweep_s[i] = 0.0

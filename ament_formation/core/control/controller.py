@@ -210,7 +210,7 @@ class _Scratch:
         self._ints0 = np.stack([fresh.mode, fresh.tgt, fresh.last_kind, fresh.last_tgt])
         self._floats0 = np.concatenate(
             [fresh.sdir, fresh.t_entry, fresh.since, fresh.last_exit, fresh.wc.ravel(),
-             fresh.wtgt.ravel()]
+             fresh.wtgt.ravel(), fresh.sweep_s]
         )
         self._ints = self._ints0.copy()
         self._floats = self._floats0.copy()
@@ -219,6 +219,7 @@ class _Scratch:
         f = self._floats
         st.sdir, st.t_entry, st.since, st.last_exit = (f[k * n:(k + 1) * n] for k in range(4))
         st.wc, st.wtgt = f[4 * n:6 * n].reshape(n, 2), f[6 * n:8 * n].reshape(n, 2)
+        st.sweep_s = f[8 * n:9 * n]
         self._work = np.zeros(16 * n)  # ref (n, 6), then five (n, 2): offsets and goals
         w = self._work
         self.ref = w[:6 * n].reshape(n, 6)
@@ -596,6 +597,7 @@ class RobotController:
         st.mode[me] = src.mode[0]
         st.sdir[me] = src.sdir[0]
         st.t_entry[me] = src.t_entry[0]
+        st.sweep_s[me] = src.sweep_s[0]
         st.since[me] = src.since[0]
         st.last_kind[me] = src.last_kind[0]
         st.last_exit[me] = src.last_exit[0]
@@ -910,6 +912,7 @@ class RobotController:
         src.mode[0] = st.mode[me]
         src.sdir[0] = st.sdir[me]
         src.t_entry[0] = st.t_entry[me]
+        src.sweep_s[0] = st.sweep_s[me]
         src.since[0] = st.since[me]
         src.last_kind[0] = st.last_kind[me]
         src.last_exit[0] = st.last_exit[me]

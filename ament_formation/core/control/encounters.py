@@ -239,6 +239,7 @@ def _enter(i, t, kind, target, s, auto, ev, nev):
     auto.sdir[i] = s
     auto.t_entry[i] = t
     auto.since[i] = -1.0
+    auto.sweep_s[i] = 0.0
     return _event(ev, nev, t, i, True, kind, target, s)
 
 
@@ -313,9 +314,11 @@ def _floor_side(i, j, sense, robots, obstacles, prm):
 
 @njit(cache=True)
 def _still_for(i, t, robots, auto):
-    """Robot i has been in its mode (or current sense) for ``STUCK_S`` and is still now."""
+    """Robot i has been in its mode (or current sense, or sweep round static obstacles, §26) for
+    ``STUCK_S`` and is still now.
+    """
     speed = math.hypot(robots.pd[i, 0], robots.pd[i, 1])
-    return t - auto.t_entry[i] >= STUCK_S and speed <= STILL_MPS
+    return t - auto.t_entry[i] + auto.sweep_s[i] >= STUCK_S and speed <= STILL_MPS
 
 
 @njit(cache=True)
@@ -716,15 +719,15 @@ def _obstacle_transitions(t, robots, obstacles, auto, obt, th, prm, ev, nev):
             jn = obt.j[i]
             if jn >= 0 and not obt.cur_em[i] and (obt.em[i] or obt.h_l[i] < obt.cur_h_l[i]):
                 sweep = obstacles.static[j] and obstacles.static[jn]
-                held = t_entry[i]
+                swept = auto.sweep_s[i] + t - t_entry[i]
                 if sweep:
                     s = sdir[i]  # S6.6 rule 5: keep the sweep direction
                 else:
                     s = _obstacle_dir(i, jn, robots, obstacles, auto, prm)
                 nev = _leave(i, t, auto, ev, nev)
                 nev = _enter(i, t, MODE_OBSTACLE, jn, s, auto, ev, nev)
-                if sweep:  # one sweep round static obstacles: its time, held still (§26)
-                    t_entry[i] = held
+                if sweep:  # one sweep round static obstacles: its time, for liveness (§26)
+                    auto.sweep_s[i] = swept
                 continue
             cond = exit_conditions(
                 p[i, 0],

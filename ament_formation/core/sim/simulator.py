@@ -473,6 +473,7 @@ def _loop_arrays(setup: _Setup, n_rec: int):
         np.full(n, -1e9),  # last_exit
         z2(),  # wc
         z2(),  # wtgt
+        np.zeros(n),  # sweep_s
     )
     reach = ReachArrays(
         np.ones(n, dtype=np.bool_),
