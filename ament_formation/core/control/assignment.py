@@ -3,9 +3,11 @@ the controller node (nodes/controller.py) and the camera-sensing simulator (core
 
 The coordinator publishes, per robot, at most one :class:`EncounterAssignment` (yield or mutual,
 its partner and entry time). A robot applies it while the partner is heard; an assignment it has
-left (by its own exit test, or on the coordinator's release) is never applied again; when the
-coordinator withdraws or replaces the assignment in force, the law gets ``release`` = the former
-partner (the coordinator's joint exit decision, S8.3).
+left (by its own exit test, or on the coordinator's release) is never applied again, unless the
+robot's own decision has put it back into that very encounter: then it gives the pair its sense
+and w_c (docs/law-changes.md §25); when the coordinator withdraws or replaces the assignment in
+force, the law gets ``release`` = the former partner (the coordinator's joint exit decision,
+S8.3).
 """
 
 from __future__ import annotations
