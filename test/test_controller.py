@@ -259,14 +259,19 @@ def test_an_assignment_that_replaces_a_mode_reports_its_exit():
     ]
 
 
+def _robot_3_in_an_emergency_with_robot_7():
+    """(scenario, robot parameters, robot 3's state inside E of robot 7, {7: robot 7})."""
+    sc = load_scenario(config_file('scenarios/paper.yaml'))
+    me = np.array([-0.13, 0.01, 0.0, 0.05, 0.0])
+    x7 = {7: NeighbourState(np.array([0.13, 0.0, math.pi, 0.05, 0.0]), team=7)}
+    return sc, sc.robots[0].params, me, x7
+
+
 def test_a_pair_entered_by_the_robots_own_decision_turns_the_coordinators_way():
     # docs/law-changes.md §23: each robot of a pair may pick the pair's sense on its own
     # estimates; opposite senses push the two the same way (crossing-s1-511, camera: slid along
     # the wall for 50 s). The coordinator's assignment carries the pair's one sense.
-    sc = load_scenario(config_file('scenarios/paper.yaml'))
-    p = sc.robots[0].params
-    me = np.array([-0.13, 0.01, 0.0, 0.05, 0.0])  # inside E of robot 7: an emergency
-    x7 = {7: NeighbourState(np.array([0.13, 0.0, math.pi, 0.05, 0.0]), team=7)}
+    sc, p, me, x7 = _robot_3_in_an_emergency_with_robot_7()
     c = RobotController(3, p, sc.control, sc.avoidance, (), team=3)
     out = c.step(5.0, me, neighbours=x7, coordinated=True)
     assert (out.mode, out.target) == ('mutual', 'robot_7')
@@ -302,13 +307,10 @@ def test_an_assignment_that_turns_a_yield_into_a_pair_with_the_same_robot_is_not
 
 
 def test_a_pair_left_and_re_entered_by_the_robots_own_decision_takes_the_assigned_sense():
-    # docs/law-changes.md §25 (two_teams-s1-119, camera): robot 3 left the assigned pair with 2 by
-    # its own exit test, then re-entered it in an emergency with the other sense; the assignment,
-    # "already left", was never applied again, and the two turned opposite ways for 40 s
-    sc = load_scenario(config_file('scenarios/paper.yaml'))
-    p = sc.robots[0].params
-    me = np.array([-0.13, 0.01, 0.0, 0.05, 0.0])  # inside E of robot 7: an emergency
-    near = {7: NeighbourState(np.array([0.13, 0.0, math.pi, 0.05, 0.0]), team=7)}
+    # docs/law-changes.md §25 (two_teams-s1-119, camera): R3 left the assigned pair with its
+    # leader R2 by its own exit test, then re-entered it in an emergency with the other sense; the
+    # assignment, "already left", was never applied again, and the two turned opposite ways
+    sc, p, me, near = _robot_3_in_an_emergency_with_robot_7()
     own = RobotController(3, p, sc.control, sc.avoidance, (), team=3)
     own_sense = own.step(5.0, me, neighbours=near, coordinated=True).direction
     told_sense = 'ccw' if own_sense == 'cw' else 'cw'
