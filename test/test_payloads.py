@@ -382,20 +382,41 @@ def test_running_controller_process_survives_bad_payloads(tmp_path):
             ),
             60.0,
         ), (tmp_path / 'controller.log').read_text()
+        # The controller's subscriptions keep the newest sample only, so on a loaded machine a
+        # payload sent while the last one waits is replaced, never read. Send in paced rounds and
+        # top up with fresh bad payloads until the controller has rejected n of each; it must
+        # never count more than were sent, and must still be running.
         n = 60
-        for g, e in zip(bad_payloads(pl.GRAPH_V1, n, 21), bad_payloads(pl.ENCOUNTERS_V1, n, 22)):
-            graph_pub.publish(String(data=g))
-            enc_pub.publish(String(data=e))
-            spin_until(ex, lambda: False, 0.04)  # pace: the subscriptions keep the newest only
+        graphs = iter(bad_payloads(pl.GRAPH_V1, 4 * n, 21))
+        encounters = iter(bad_payloads(pl.ENCOUNTERS_V1, 4 * n, 22))
+        sent = {'graph': 0, 'encounters': 0}
 
-        def counted():
-            return (
-                bool(inputs)
-                and inputs[-1]['rejected_graph'] == str(n)
-                and inputs[-1]['rejected_encounters'] == str(n)
+        def rejected(k: int = -1) -> dict:
+            return {kind: int(inputs[k][f'rejected_{kind}']) for kind in sent}
+
+        def settled() -> bool:  # two new reports since the last send, the last two alike
+            seen = len(inputs)
+            return spin_until(
+                ex,
+                lambda: len(inputs) >= seen + 2 and rejected(-1) == rejected(-2),
+                30.0,
             )
 
-        assert spin_until(ex, counted, 15.0), inputs[-1:]
+        for _round in range(6):
+            missing = {k: n - v for k, v in rejected().items()}
+            if max(missing.values()) <= 0:
+                break
+            for i in range(max(missing.values())):
+                if i < missing['graph']:
+                    graph_pub.publish(String(data=next(graphs)))
+                    sent['graph'] += 1
+                if i < missing['encounters']:
+                    enc_pub.publish(String(data=next(encounters)))
+                    sent['encounters'] += 1
+                spin_until(ex, lambda: False, 0.04)
+            assert settled(), inputs[-3:]
+        counts = rejected()
+        assert all(n <= counts[k] <= sent[k] for k in sent), (counts, sent)
         assert proc.poll() is None, (tmp_path / 'controller.log').read_text()
     finally:
         node.destroy_node()
