@@ -568,3 +568,25 @@ def test_sigint_stops_a_dask_campaign_and_keeps_what_is_done(tmp_path):
     assert 'stopped by signal 2' in err
     assert 1 <= summary['runs'] < 400 and summary['interrupted_by_signal'] == 2
     assert len(_rows(out)) == summary['runs']
+
+
+def test_progress_in_a_log_file_is_a_line_per_tenth_and_at_least_one_a_minute(monkeypatch, capsys):
+    """Not on a tty: a line per 10 % of the runs, and one whenever a minute passed without one
+    (a camera campaign's 10 % of 2,000 runs takes about six minutes), and the last run's line.
+    """
+    from ament_formation.tools import sweep_cmd
+
+    clock = [1000.0]
+    monkeypatch.setattr(sweep_cmd.time, 'monotonic', lambda: clock[0])
+    progress = sweep_cmd._Progress(total=100, quiet=False)
+    assert not progress.tty  # pytest captures stderr
+    for k in range(1, 101):
+        clock[0] += 1.0 if k <= 50 else 7.0  # 7 s a run from the 51st on
+        progress({'status': 'fail' if k % 25 == 0 else 'ok'})
+    lines = capsys.readouterr().err.splitlines()
+    done = [int(line.split()[1].split('/')[0]) for line in lines]
+    # 1, 11, ..., 51 by the tenth; then a minute is 9 runs of 7 s (before the next tenth): 60,
+    # 69, ...; and the 100th
+    assert done[:6] == [1, 11, 21, 31, 41, 51], done
+    assert done[6:] == [60, 69, 78, 87, 96, 100], done
+    assert lines[-1].startswith('sweep: 100/100 runs, 4 failed,')

@@ -244,23 +244,30 @@ def _dask(cases, on_row, args, stop: _Stop):
 
 
 class _Progress:
-    """Runs done, failed and the rate, on stderr (a tty line rewritten, else a line per 10 %)."""
+    """Runs done, failed and the rate, on stderr: a tty line rewritten; else (a log file) a line
+    per 10 % of the runs, and at least one every ``every_s`` seconds (a camera campaign's 10 %
+    can take six minutes).
+    """
 
-    def __init__(self, total: int, quiet: bool):
-        self.total, self.quiet = total, quiet
+    def __init__(self, total: int, quiet: bool, every_s: float = 60.0):
+        self.total, self.quiet, self.every_s = total, quiet, every_s
         self.done = self.failed = 0
         self.t0 = time.monotonic()
         self.tty = sys.stderr.isatty()
         self._next_line = 0
+        self._next_s = self.t0
 
     def __call__(self, row: dict) -> None:
         self.done += 1
         self.failed += row['status'] == 'fail'
         if self.quiet:
             return
-        if not self.tty and self.done < self._next_line and self.done != self.total:
+        now = time.monotonic()
+        due = self.done >= self._next_line or now >= self._next_s or self.done == self.total
+        if not self.tty and not due:
             return
         self._next_line = self.done + max(self.total // 10, 1)
+        self._next_s = now + self.every_s
         rate = self.done / max(time.monotonic() - self.t0, 1e-9)
         eta = (self.total - self.done) / rate
         line = (
