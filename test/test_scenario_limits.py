@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import math
 from pathlib import Path
 import subprocess
 import time
@@ -289,3 +290,21 @@ def test_seeded_mutants_of_the_shipped_files_never_crash_the_validator():
             pytest.fail(f'{label}: {type(err).__name__}: {str(err)[:200]}')
         assert time.process_time() - t0 < 10.0, label
     assert refused > 50 and accepted > 5  # the mutants exercise both outcomes
+
+
+def test_a_sinusoid_no_robot_can_follow_is_refused_in_one_line():
+    """Found by the mutant campaign of seed 2: paper.yaml's amplitude x 1000 (200 m) asks the
+    leader's point for 4.9 m/s^2 at the crests (v0^2 A k^2), more than its torque limit gives
+    (3.06 m/s^2), and its arc-length integral took 16 s of `formation sim`'s set-up.
+    """
+    data = _paper()
+    data['robots'][0]['path']['amplitude_m'] = 200.0
+    t0 = time.process_time()
+    line = _refused(yaml.safe_dump(data, sort_keys=False))
+    assert time.process_time() - t0 < 5.0
+    assert line.startswith('mutant.yaml: robots[0].path: the sinusoid asks for 4.93 m/s^2'), line
+    assert 'more than the robot can give (3.06 m/s^2' in line
+    # the shipped amplitude, and one just within the torque limit, are accepted
+    for amplitude in (0.2, 0.99 * 3.06 / (0.05**2 * math.pi**2)):
+        data['robots'][0]['path']['amplitude_m'] = amplitude
+        parse_scenario_text(yaml.safe_dump(data, sort_keys=False), 'ok.yaml')

@@ -43,7 +43,7 @@ from ament_formation.core.model.obstacles import (
     ObstacleField,
     ObstacleSpec,
 )
-from ament_formation.core.model.paths import Path, path_from_config
+from ament_formation.core.model.paths import Path, path_from_config, SinusoidPath
 from ament_formation.core.params import AvoidanceParams, ControlGains, RobotParams
 
 _OVERLAP_STEP_S = 0.25
@@ -708,6 +708,8 @@ def _parse_robots(items, base: dict) -> list[RobotSpec]:
         seen_markers[marker] = i
         overrides = {k: v for k, v in item.items() if k in _PARAM_KEYS}
         params = _params_from(overrides, where, RobotParams, base)
+        if path is not None:
+            _check_path_feasible(path, params, f'{where}.path')
         robots.append(
             RobotSpec(
                 id=rid,
@@ -1012,6 +1014,26 @@ def check_sim_budget(
 # ------------------------------------------------------------------------------------------------
 # Writing a scenario back (run directories keep the exact scenario they ran)
 # ------------------------------------------------------------------------------------------------
+
+
+def _check_path_feasible(path, params: RobotParams, where: str) -> None:
+    """A sinusoid travelled at constant speed v0 asks its robot's point for v0^2 A k^2 at its
+    crests (the curvature A k^2 times v0^2); refuse one that asks for more than the torque limit
+    gives the point, 2 tau_max / (m~ r) (S2.2): no robot can follow it, and its arc-length
+    integral needs A k panels per time (a 200 m amplitude took 16 s of a run's set-up).
+    """
+    curve = getattr(path, 'path', path)  # a HeldPath wraps the path it stops
+    if not isinstance(curve, SinusoidPath):
+        return
+    need = curve.speed_mps**2 * curve.amplitude_m * curve.wavenumber_radpm**2
+    can = 2.0 * params.torque_limit_nm / (params.mass_tilde_kg * params.wheel_radius_m)
+    if need > can:
+        raise ConfigError(
+            f'the sinusoid asks for {need:.3g} m/s^2 at its crests (speed^2 amplitude '
+            f'wavenumber^2), more than the robot can give ({can:.3g} m/s^2 at its torque limit): '
+            'lower amplitude_m, wavenumber_radpm or speed_mps',
+            where,
+        )
 
 
 def _path_to_mapping(path) -> dict:
