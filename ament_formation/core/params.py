@@ -118,6 +118,13 @@ class RobotParams:
         return self.platform_mass_kg + 2 * self.wheel_mass_kg + 2 * self.wheel_spin_inertia / r**2
 
     @property
+    def accel_limit_mps2(self) -> float:
+        """Largest point acceleration the torque limit allows, 2 tau_max / (m~ r) [m/s^2] (S2.2;
+        the compiled law's own copy is ``core.control.safety.accel_limit``).
+        """
+        return 2.0 * self.torque_limit_nm / (self.mass_tilde_kg * self.wheel_radius_m)
+
+    @property
     def inertia_tilde_kgm2(self) -> float:
         """I~ = I_c + m_c d^2 + 2 m_w L^2 + 2 I_m + 2 L^2 I_w / r^2 (S2.2)."""
         half_axle = 0.5 * self.axle_length_m

@@ -268,7 +268,7 @@ class _Progress:
             return
         self._next_line = self.done + max(self.total // 10, 1)
         self._next_s = now + self.every_s
-        rate = self.done / max(time.monotonic() - self.t0, 1e-9)
+        rate = self.done / max(now - self.t0, 1e-9)
         eta = (self.total - self.done) / rate
         line = (
             f'sweep: {self.done}/{self.total} runs, {self.failed} failed, '

@@ -1026,7 +1026,7 @@ def _check_path_feasible(path, params: RobotParams, where: str) -> None:
     if not isinstance(curve, SinusoidPath):
         return
     need = curve.speed_mps**2 * curve.amplitude_m * curve.wavenumber_radpm**2
-    can = 2.0 * params.torque_limit_nm / (params.mass_tilde_kg * params.wheel_radius_m)
+    can = params.accel_limit_mps2
     if need > can:
         raise ConfigError(
             f'the sinusoid asks for {need:.3g} m/s^2 at its crests (speed^2 amplitude '
