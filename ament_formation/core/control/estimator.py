@@ -1,39 +1,60 @@
-"""Pose estimate of one robot's controlled point from wheel odometry and delayed camera poses
-(S10).
+"""Pose estimate of a robot's controlled point from wheel odometry and delayed camera poses
+(docs/control-law.md S10.1), compiled for one robot or many in one call.
 
-Between camera frames the pose is propagated with the wheel encoders (exact arc per step, S2.2
-kinematics (16)-(18) for constant v, omega over the step). Each camera pose carries its capture
-stamp; it is compared with the estimate *at that stamp* (kept in a short history of odometry
-steps), the innovation is applied there with a complementary gain, and the steps recorded since are
-re-applied, so a frame that arrives 100 ms late corrects the pose it saw, not the current one.
-Non-finite inputs are rejected and counted; camera poses far from the prediction are gated out,
-unless several in a row disagree (then the estimator re-locks onto the camera).
+Between camera frames the pose is propagated with the wheel encoders (an exact arc per step,
+S2.2 kinematics (16)-(18) for constant v, omega over the step). Each camera pose carries its
+capture stamp; it is compared with the estimate *at that stamp* (odometry steps are kept for
+``history_s`` in a ring), the innovation is applied there with a complementary gain, and the
+steps recorded since are re-applied, so a frame that arrives 100 ms late corrects the pose it
+saw, not the current one. Non-finite inputs are rejected and counted; camera poses far from the
+prediction are gated out, unless several in a row disagree (then the estimator re-locks onto
+the camera).
 
-Conventions: pose (3,) [x_m, y_m, theta_rad] of the controlled point p (distance d ahead of the
-axle midpoint); state (5,) [x_m, y_m, theta_rad, v_mps, omega_radps]; wheel arrays (2,)
-[left, right]; times [s] on one clock (the node's).
+Conventions: pose (3,) [x_m, y_m, theta_rad] of p (distance d ahead of the axle midpoint);
+state (5,) [x_m, y_m, theta_rad, v_mps, omega_radps]; wheel pairs [left, right]; times [s] on
+the robot's clock. The state of R robots lives in :data:`EstimatorArrays`; the kernels take a
+row. :class:`PoseEstimator` is one robot's, with a Python API.
 """
 
 from __future__ import annotations
 
-from collections import deque
+from collections import namedtuple
 from dataclasses import dataclass
 import math
 
+from numba import njit
 import numpy as np
 
 from ament_formation.core.errors import ConfigError
 from ament_formation.core.params import RobotParams
 
+HISTORY = 256  # odometry steps kept per robot (more than history_s at the wheel rate)
+# float slots of a robot's row
+(F_ANCHOR_T, F_ANCHOR_X, F_ANCHOR_Y, F_ANCHOR_TH, F_AXLE_X, F_AXLE_Y, F_TH, F_QL, F_QR, F_Q_T,
+ F_V, F_W, F_ODOM_T, F_CAMERA_T) = range(14)
+N_F = 14
+# int slots: initialised, has a wheel sample, gated frames in a row, ring head, ring count
+I_INIT, I_HAS_Q, I_GATED, I_HEAD, I_COUNT = range(5)
+N_I = 5
+COUNTERS = ('odometry', 'camera_accepted', 'rejected_nonfinite', 'rejected_outlier',
+            'rejected_stale', 'rejected_glitch', 'relocks')
+(C_ODOM, C_CAM, C_NONFINITE, C_OUTLIER, C_STALE, C_GLITCH, C_RELOCK) = range(7)
+# outcomes of camera_update_k
+CAMERA_OUTCOMES = ('initialized', 'accepted', 'relocked', 'rejected_nonfinite',
+                   'rejected_stale', 'rejected_outlier')
 
-def wrap_angle(a):
-    """Angle(s) wrapped to [-pi, pi)."""
-    return (np.asarray(a) + np.pi) % (2.0 * np.pi) - np.pi
+EstimatorArrays = namedtuple('EstimatorArrays', ['f', 'i', 'steps', 'counters'])
+EstimatorArrays.__doc__ = """The estimates of R robots: ``f`` (R, 14) float slots (F_*),
+``i`` (R, 5) int slots (I_*), ``steps`` (R, HISTORY, 3) the odometry ring [t_s, ds_m, dth_rad],
+``counters`` (R, 7) int (:data:`COUNTERS`)."""
+
+EstimatorK = namedtuple('EstimatorK', ['r', 'a', 'd', 'gain', 'gate_m', 'gate_rad', 'relock',
+                                       'history_s', 'max_rate', 'max_extrapolation_s'])
 
 
 @dataclass(frozen=True)
 class EstimatorParams:
-    """Geometry and tuning of the S10 fusion."""
+    """Geometry and tuning of the S10.1 fusion."""
 
     wheel_radius_m: float = 0.035
     axle_length_m: float = 0.20
@@ -47,15 +68,8 @@ class EstimatorParams:
     max_extrapolation_s: float = 0.05  # state_at() extrapolates at most this far past odometry
 
     def __post_init__(self) -> None:
-        for name in (
-            'wheel_radius_m',
-            'axle_length_m',
-            'com_offset_m',
-            'gate_position_m',
-            'gate_heading_rad',
-            'history_s',
-            'max_wheel_speed_radps',
-        ):
+        for name in ('wheel_radius_m', 'axle_length_m', 'com_offset_m', 'gate_position_m',
+                     'gate_heading_rad', 'history_s', 'max_wheel_speed_radps'):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ConfigError(f'must be a finite number > 0 (got {v!r})', name)
@@ -73,118 +87,227 @@ class EstimatorParams:
     @classmethod
     def from_robot(cls, robot: RobotParams, **tuning) -> 'EstimatorParams':
         """Geometry from a robot's parameters (S2.3) plus any tuning fields."""
-        return cls(
-            wheel_radius_m=robot.wheel_radius_m,
-            axle_length_m=robot.axle_length_m,
-            com_offset_m=robot.com_offset_m,
-            **tuning,
-        )
+        return cls(wheel_radius_m=robot.wheel_radius_m, axle_length_m=robot.axle_length_m,
+                   com_offset_m=robot.com_offset_m, **tuning)
+
+    def compiled(self) -> EstimatorK:
+        return EstimatorK(self.wheel_radius_m, self.axle_length_m, self.com_offset_m,
+                          self.camera_gain, self.gate_position_m, self.gate_heading_rad,
+                          float(self.relock_after), self.history_s, self.max_wheel_speed_radps,
+                          self.max_extrapolation_s)
 
 
-def wheel_to_body(dq_rad, r_m: float, a_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """Wheel increments (or rates) (..., 2) [left, right] -> (forward (...), yaw (...)).
-
-    forward = r (q_R + q_L) / 2, yaw = r (q_R - q_L) / a (S2.2 wheel-centre speeds v -+ L omega).
-    """
-    dq = np.asarray(dq_rad, dtype=float)
-    return r_m * 0.5 * (dq[..., 1] + dq[..., 0]), r_m * (dq[..., 1] - dq[..., 0]) / a_m
-
-
-def fold_steps(axle_xy, theta: float, ds, dth) -> tuple[np.ndarray, np.ndarray]:
-    """Apply K body-frame steps (ds (K,) [m], dth (K,) [rad]) to an axle-midpoint pose.
-
-    Exact arcs (constant curvature per step): chord = ds sinc(dth / 2) along theta + dth / 2.
-    Returns (axle positions (K, 2), headings (K,)) after each step.
-    """
-    ds = np.asarray(ds, dtype=float)
-    dth = np.asarray(dth, dtype=float)
-    th_end = theta + np.cumsum(dth)
-    th_mid = th_end - 0.5 * dth
-    chord = ds * np.sinc(dth / (2.0 * np.pi))  # np.sinc(x) = sin(pi x) / (pi x)
-    steps = np.stack([chord * np.cos(th_mid), chord * np.sin(th_mid)], axis=-1)
-    return np.asarray(axle_xy, dtype=float) + np.cumsum(steps, axis=0), th_end
+def new_estimates(n: int) -> EstimatorArrays:
+    """:data:`EstimatorArrays` of n robots, none initialised."""
+    f = np.zeros((n, N_F))
+    f[:, F_CAMERA_T] = -np.inf
+    f[:, F_ODOM_T] = np.nan
+    return EstimatorArrays(f, np.zeros((n, N_I), dtype=np.int64), np.zeros((n, HISTORY, 3)),
+                           np.zeros((n, len(COUNTERS)), dtype=np.int64))
 
 
-def arc_step(
-    x: float, y: float, theta: float, ds: float, dth: float
-) -> tuple[float, float, float]:
-    """One step of :func:`fold_steps` in scalars (the per-sample path: no array overhead)."""
+@njit(cache=True)
+def wrap(a):
+    """Angle wrapped to [-pi, pi)."""
+    return (a + math.pi) % (2.0 * math.pi) - math.pi
+
+
+@njit(cache=True)
+def arc_step(x, y, theta, ds, dth):
+    """One odometry step of an axle pose: an exact arc, chord = ds sinc(dth/2) along
+    theta + dth/2."""
     h = 0.5 * dth
     chord = ds * (math.sin(h) / h if abs(h) > 1e-9 else 1.0 - h * h / 6.0)
-    th_mid = theta + h
-    return x + chord * math.cos(th_mid), y + chord * math.sin(th_mid), theta + dth
+    return x + chord * math.cos(theta + h), y + chord * math.sin(theta + h), theta + dth
 
 
-def fold_to_end(axle_xy, theta: float, steps) -> tuple[np.ndarray, float]:
-    """The end pose of :func:`fold_steps` for a few ``_Step`` (a scalar loop: the estimator folds
-    the handful of odometry steps between camera frames, where arrays cost more than they save).
-    Returns (axle position (2,), heading [rad]).
-    """
-    x, y, th = float(axle_xy[0]), float(axle_xy[1]), float(theta)
-    for step in steps:
-        x, y, th = arc_step(x, y, th, step.ds_m, step.dth_rad)
-    return np.array([x, y]), th
+@njit(cache=True)
+def _fold(e, row, upto):
+    """The axle pose after the anchor and the first ``upto`` steps of the ring."""
+    f = e.f[row]
+    x, y, th = f[F_ANCHOR_X], f[F_ANCHOR_Y], f[F_ANCHOR_TH]
+    head = e.i[row, I_HEAD]
+    for q in range(upto):
+        st = e.steps[row, (head + q) % HISTORY]
+        x, y, th = arc_step(x, y, th, st[1], st[2])
+    return x, y, th
 
 
-@dataclass
-class EstimatorCounters:
-    """What the estimator accepted and rejected (for diagnostics)."""
-
-    odometry: int = 0
-    camera_accepted: int = 0
-    rejected_nonfinite: int = 0
-    rejected_outlier: int = 0
-    rejected_stale: int = 0
-    rejected_glitch: int = 0
-    relocks: int = 0
-
-    def as_dict(self) -> dict:
-        return dict(self.__dict__)
+@njit(cache=True)
+def _drop(e, row, n, fold):
+    """Remove the n oldest steps (folded into the anchor when ``fold``)."""
+    if n <= 0:
+        return
+    if fold:
+        x, y, th = _fold(e, row, n)
+        f = e.f[row]
+        f[F_ANCHOR_X], f[F_ANCHOR_Y], f[F_ANCHOR_TH] = x, y, th
+        f[F_ANCHOR_T] = e.steps[row, (e.i[row, I_HEAD] + n - 1) % HISTORY, 0]
+    e.i[row, I_HEAD] = (e.i[row, I_HEAD] + n) % HISTORY
+    e.i[row, I_COUNT] -= n
 
 
-@dataclass
-class _Step:
-    t_s: float  # end time of the step
-    ds_m: float
-    dth_rad: float
+@njit(cache=True)
+def _refold(e, row):
+    x, y, th = _fold(e, row, e.i[row, I_COUNT])
+    e.f[row, F_AXLE_X], e.f[row, F_AXLE_Y], e.f[row, F_TH] = x, y, th
 
 
-# implements: S10
+# implements: S10, S10.1
+@njit(cache=True)
+def wheel_update_k(e, row, t, ql, qr, wl, wr, k):
+    """One encoder sample (absolute wheel angles [rad], rates [rad/s]) taken at ``t`` [s].
+    Returns False (counted) when rejected."""
+    f, ints, cnt = e.f[row], e.i[row], e.counters[row]
+    if not (math.isfinite(ql) and math.isfinite(qr) and math.isfinite(wl)
+            and math.isfinite(wr) and math.isfinite(t)):
+        cnt[C_NONFINITE] += 1
+        return False
+    v, w = k.r * 0.5 * (wr + wl), k.r * (wr - wl) / k.a
+    if ints[I_HAS_Q] == 0:
+        ints[I_HAS_Q] = 1
+        f[F_QL], f[F_QR], f[F_Q_T], f[F_V], f[F_W], f[F_ODOM_T] = ql, qr, t, v, w, t
+        cnt[C_ODOM] += 1
+        return True
+    dt = t - f[F_Q_T]
+    if dt < 0.0:
+        cnt[C_STALE] += 1
+        return False
+    dql, dqr = ql - f[F_QL], qr - f[F_QR]
+    f[F_QL], f[F_QR], f[F_Q_T] = ql, qr, t
+    if max(abs(dql), abs(dqr)) > k.max_rate * max(dt, 0.01) or max(abs(wl), abs(wr)) > k.max_rate:
+        cnt[C_GLITCH] += 1  # resynchronised on this sample, the jump dropped
+        return False
+    f[F_V], f[F_W], f[F_ODOM_T] = v, w, t
+    cnt[C_ODOM] += 1
+    if ints[I_COUNT] == HISTORY:
+        _drop(e, row, 1, ints[I_INIT] == 1)
+    slot = e.steps[row, (ints[I_HEAD] + ints[I_COUNT]) % HISTORY]
+    slot[0], slot[1], slot[2] = t, k.r * 0.5 * (dqr + dql), k.r * (dqr - dql) / k.a
+    ints[I_COUNT] += 1
+    if ints[I_INIT] == 0:  # before the first frame: keep history_s of steps for its replay
+        old = 0
+        while old < ints[I_COUNT] and e.steps[row, (ints[I_HEAD] + old) % HISTORY, 0] < (
+                t - k.history_s):
+            old += 1
+        _drop(e, row, old, False)
+        return True
+    f[F_AXLE_X], f[F_AXLE_Y], f[F_TH] = arc_step(f[F_AXLE_X], f[F_AXLE_Y], f[F_TH], slot[1],
+                                                 slot[2])
+    old = 0
+    while old < ints[I_COUNT] and e.steps[row, (ints[I_HEAD] + old) % HISTORY, 0] < (
+            t - k.history_s):
+        old += 1
+    _drop(e, row, old, True)
+    return True
+
+
+@njit(cache=True)
+def _initialize(e, row, t, x, y, th, k):
+    """The first camera pose: anchor at its stamp, the steps recorded after it replayed."""
+    f = e.f[row]
+    old = 0
+    while old < e.i[row, I_COUNT] and e.steps[row, (e.i[row, I_HEAD] + old) % HISTORY, 0] <= t:
+        old += 1
+    _drop(e, row, old, False)
+    f[F_ANCHOR_T] = t
+    f[F_ANCHOR_X], f[F_ANCHOR_Y], f[F_ANCHOR_TH] = x - k.d * math.cos(th), y - k.d * math.sin(
+        th), th
+    e.i[row, I_INIT] = 1
+    f[F_CAMERA_T] = t
+    _refold(e, row)
+    e.counters[row, C_CAM] += 1
+
+
+@njit(cache=True)
+def camera_update_k(e, row, t, x, y, th, k):
+    """Fuse a camera pose of p captured at ``t`` [s]; returns the index of its outcome in
+    :data:`CAMERA_OUTCOMES`."""
+    f, ints, cnt = e.f[row], e.i[row], e.counters[row]
+    if not (math.isfinite(t) and math.isfinite(x) and math.isfinite(y) and math.isfinite(th)):
+        cnt[C_NONFINITE] += 1
+        return 3
+    if ints[I_INIT] == 0:
+        _initialize(e, row, t, x, y, th, k)
+        return 0
+    if t < f[F_ANCHOR_T] or t <= f[F_CAMERA_T]:
+        cnt[C_STALE] += 1
+        return 4
+    before = 0  # steps wholly before t; the one spanning t is split
+    while before < ints[I_COUNT] and e.steps[row, (ints[I_HEAD] + before) % HISTORY, 0] <= t:
+        before += 1
+    px, py, pth = _fold(e, row, before)
+    split = False
+    if before < ints[I_COUNT]:
+        st = e.steps[row, (ints[I_HEAD] + before) % HISTORY]
+        t0 = f[F_ANCHOR_T] if before == 0 else e.steps[row, (ints[I_HEAD] + before - 1) %
+                                                          HISTORY, 0]
+        if t0 < t:
+            frac = (t - t0) / (st[0] - t0)
+            px, py, pth = arc_step(px, py, pth, frac * st[1], frac * st[2])
+            split = True
+    ex = x - (px + k.d * math.cos(pth))
+    ey = y - (py + k.d * math.sin(pth))
+    eth = wrap(th - wrap(pth))
+    outcome = 1
+    gain = k.gain
+    if math.hypot(ex, ey) > k.gate_m or abs(eth) > k.gate_rad:
+        ints[I_GATED] += 1
+        if ints[I_GATED] < k.relock:
+            cnt[C_OUTLIER] += 1
+            return 5
+        outcome, gain = 2, 1.0
+        cnt[C_RELOCK] += 1
+    ints[I_GATED] = 0
+    if split:
+        st = e.steps[row, (ints[I_HEAD] + before) % HISTORY]
+        t0 = f[F_ANCHOR_T] if before == 0 else e.steps[row, (ints[I_HEAD] + before - 1) %
+                                                          HISTORY, 0]
+        frac = (t - t0) / (st[0] - t0)
+        st[1] *= 1.0 - frac
+        st[2] *= 1.0 - frac
+    _drop(e, row, before, False)
+    cx = px + k.d * math.cos(pth) + gain * ex
+    cy = py + k.d * math.sin(pth) + gain * ey
+    cth = wrap(pth) + gain * eth
+    f[F_ANCHOR_T] = t
+    f[F_ANCHOR_X], f[F_ANCHOR_Y], f[F_ANCHOR_TH] = cx - k.d * math.cos(cth), cy - k.d * math.sin(
+        cth), cth
+    _refold(e, row)
+    f[F_CAMERA_T] = t
+    cnt[C_CAM] += 1
+    return outcome
+
+
+@njit(cache=True)
+def state_at_k(e, row, t, k, out):
+    """State (5,) of p -> ``out``, extrapolated with the latest (v, omega) to ``t`` (at most
+    ``max_extrapolation_s`` past the newest odometry sample; never backwards)."""
+    f = e.f[row]
+    v, w = f[F_V], f[F_W]
+    dt = 0.0
+    if math.isfinite(f[F_ODOM_T]):
+        dt = min(max(0.0, t - f[F_ODOM_T]), k.max_extrapolation_s)
+    x, y, th = arc_step(f[F_AXLE_X], f[F_AXLE_Y], f[F_TH], v * dt, w * dt)
+    out[0] = x + k.d * math.cos(th)
+    out[1] = y + k.d * math.sin(th)
+    out[2] = wrap(th)
+    out[3] = v
+    out[4] = w
+
+
 class PoseEstimator:
-    """S10 fusion for one robot (see module docstring)."""
+    """One robot's S10.1 fusion with a Python API (tests, tools); the robot agent calls the
+    kernels on its rows directly."""
 
     def __init__(self, params: EstimatorParams):
         self.p = params
-        self.counters = EstimatorCounters()
-        self._anchor_t: float | None = None  # time of the anchor pose
-        self._anchor_axle = np.zeros(2)
-        self._anchor_th = 0.0
-        self._steps: deque[_Step] = deque()
-        self._axle = np.zeros(2)  # current (end of odometry) axle pose
-        self._th = 0.0
-        self._last_q: tuple[float, float] | None = None  # wheel angles [left, right]
-        self._last_q_t: float | None = None
-        self._rates = np.zeros(2)  # [v_mps, omega_radps] from the wheel rates
-        self._odom_t: float | None = None  # time of the newest odometry sample
-        self.last_camera_s: float | None = None  # capture stamp of the newest accepted frame
-        self._rejected_in_row = 0
-        self._pending: list[_Step] = []  # steps before the first camera pose
-
-    # ---------------------------------------------------------------- geometry
-    def _to_axle(self, pose) -> np.ndarray:
-        d = self.p.com_offset_m
-        return np.array([pose[0] - d * math.cos(pose[2]), pose[1] - d * math.sin(pose[2])])
-
-    def _to_point(self, axle, th) -> np.ndarray:
-        d = self.p.com_offset_m
-        return np.array(
-            [axle[0] + d * math.cos(th), axle[1] + d * math.sin(th), float(wrap_angle(th))]
-        )
+        self._k = params.compiled()
+        self._e = new_estimates(1)
 
     @property
     def initialized(self) -> bool:
-        """True once a pose is known (first camera frame or initialize())."""
-        return self._anchor_t is not None
+        return bool(self._e.i[0, I_INIT])
 
     def initialize(self, pose_xyt, t_s: float) -> None:
         """Set the pose of p at ``t_s`` (drops the odometry history)."""
@@ -193,194 +316,56 @@ class PoseEstimator:
             raise ValueError(
                 f'pose_xyt: expected 3 finite values and a finite time (got {pose}, {t_s})'
             )
-        self._anchor_t = float(t_s)
-        self._anchor_axle = self._to_axle(pose)
-        self._anchor_th = float(pose[2])
-        self._steps.clear()
-        self._axle, self._th = self._anchor_axle.copy(), self._anchor_th
-        self.last_camera_s = float(t_s)
+        self._e.i[0, I_COUNT] = 0
+        _initialize(self._e, 0, float(t_s), *map(float, pose), self._k)
+        self._e.counters[0, C_CAM] -= 1
 
-    # ---------------------------------------------------------------- odometry
     def wheel_update(self, t_s: float, wheel_angle_rad, wheel_rate_radps) -> bool:
-        """Add one encoder sample (absolute wheel angles [rad], rates [rad/s]) taken at ``t_s``.
-
-        Returns False (and counts why) when the sample was rejected.
-        """
-        if (
-            type(wheel_angle_rad) is tuple
-            and type(wheel_rate_radps) is tuple
-            and len(wheel_angle_rad) == 2
-            and len(wheel_rate_radps) == 2
-        ):  # two pairs of numbers (the bridge's samples): no arrays
-            ql, qr = float(wheel_angle_rad[0]), float(wheel_angle_rad[1])
-            wl, wr = float(wheel_rate_radps[0]), float(wheel_rate_radps[1])
-        else:
-            q = np.asarray(wheel_angle_rad, dtype=float)
-            w = np.asarray(wheel_rate_radps, dtype=float)
-            if q.shape != (2,) or w.shape != (2,):
-                self.counters.rejected_nonfinite += 1
-                return False
-            ql, qr = q.tolist()
-            wl, wr = w.tolist()
-        if not all(map(math.isfinite, (ql, qr, wl, wr, t_s))):
-            self.counters.rejected_nonfinite += 1
+        """Add one encoder sample taken at ``t_s``; False (counted) when rejected."""
+        try:
+            ql, qr = (float(v) for v in wheel_angle_rad)
+            wl, wr = (float(v) for v in wheel_rate_radps)
+        except (TypeError, ValueError):
+            self._e.counters[0, C_NONFINITE] += 1
             return False
-        r, a = self.p.wheel_radius_m, self.p.axle_length_m
-        t_s = float(t_s)
-        if self._last_q is None:
-            self._last_q, self._last_q_t = (ql, qr), t_s
-            self._rates = np.array([r * 0.5 * (wr + wl), r * (wr - wl) / a])
-            self._odom_t = t_s
-            self.counters.odometry += 1
-            return True
-        dt = t_s - self._last_q_t
-        if dt < 0.0:
-            self.counters.rejected_stale += 1
-            return False
-        dql, dqr = ql - self._last_q[0], qr - self._last_q[1]
-        # samples batched under one stamp (dt = 0) are fine; the jump test allows >= 10 ms of
-        # motion
-        wmax = self.p.max_wheel_speed_radps
-        if max(abs(dql), abs(dqr)) > wmax * max(dt, 0.01) or max(abs(wl), abs(wr)) > wmax:
-            self.counters.rejected_glitch += 1
-            self._last_q, self._last_q_t = (ql, qr), t_s  # resynchronise, drop the jump
-            return False
-        self._last_q, self._last_q_t = (ql, qr), t_s
-        step = _Step(t_s, r * 0.5 * (dqr + dql), r * (dqr - dql) / a)  # wheel_to_body, scalars
-        self._rates = np.array([r * 0.5 * (wr + wl), r * (wr - wl) / a])
-        self._odom_t = t_s
-        self.counters.odometry += 1
-        if self._anchor_t is None:
-            self._pending.append(step)
-            cutoff = t_s - self.p.history_s
-            while self._pending and self._pending[0].t_s < cutoff:
-                self._pending.pop(0)
-            return True
-        self._steps.append(step)
-        x, y, self._th = arc_step(
-            float(self._axle[0]), float(self._axle[1]), self._th, step.ds_m, step.dth_rad
-        )
-        self._axle = np.array([x, y])
-        self._trim(t_s)
-        return True
-
-    def _trim(self, now_s: float) -> None:
-        """Fold steps older than the history window into the anchor."""
-        cutoff = now_s - self.p.history_s
-        old = []
-        while self._steps and self._steps[0].t_s < cutoff:
-            old.append(self._steps.popleft())
-        if old:
-            self._anchor_axle, self._anchor_th = fold_to_end(
-                self._anchor_axle, self._anchor_th, old
-            )
-            self._anchor_t = old[-1].t_s
-
-    # ---------------------------------------------------------------- camera
-    def _split_at(self, t_s: float) -> tuple[list[_Step], list[_Step]]:
-        """Steps up to ``t_s`` and after it; the step spanning t_s is split proportionally."""
-        before, after = [], []
-        prev_t = self._anchor_t
-        for s in self._steps:
-            if s.t_s <= t_s:
-                before.append(s)
-            elif prev_t < t_s:
-                f = (t_s - prev_t) / (s.t_s - prev_t)
-                before.append(_Step(t_s, f * s.ds_m, f * s.dth_rad))
-                after.append(_Step(s.t_s, (1 - f) * s.ds_m, (1 - f) * s.dth_rad))
-            else:
-                after.append(s)
-            prev_t = s.t_s
-        return before, after
+        return bool(wheel_update_k(self._e, 0, float(t_s), ql, qr, wl, wr, self._k))
 
     def camera_update(self, t_s: float, pose_xyt) -> str:
-        """Fuse a camera pose of p captured at ``t_s``.
-
-        Returns one of "initialized", "accepted", "relocked", "rejected_nonfinite",
-        "rejected_stale", "rejected_outlier".
-        """
-        pose = np.asarray(pose_xyt, dtype=float)
-        if pose.shape != (3,) or not np.all(np.isfinite(pose)) or not math.isfinite(t_s):
-            self.counters.rejected_nonfinite += 1
+        """Fuse a camera pose of p captured at ``t_s``; returns its outcome (a name of
+        :data:`CAMERA_OUTCOMES`)."""
+        pose = np.asarray(pose_xyt, dtype=float).reshape(-1)
+        if pose.shape != (3,):
+            self._e.counters[0, C_NONFINITE] += 1
             return 'rejected_nonfinite'
-        if self._anchor_t is None:
-            self._initialize_from_camera(t_s, pose)
-            return 'initialized'
-        if t_s < self._anchor_t or (self.last_camera_s is not None and t_s <= self.last_camera_s):
-            self.counters.rejected_stale += 1
-            return 'rejected_stale'
-        before, after = self._split_at(t_s)
-        axle_c, th_c = fold_to_end(self._anchor_axle, self._anchor_th, before)
-        predicted = self._to_point(axle_c, th_c)
-        innov = pose - predicted
-        innov[2] = float(wrap_angle(innov[2]))
-        outcome = 'accepted'
-        gain = self.p.camera_gain
-        if (
-            np.hypot(innov[0], innov[1]) > self.p.gate_position_m
-            or abs(innov[2]) > self.p.gate_heading_rad
-        ):
-            self._rejected_in_row += 1
-            if self._rejected_in_row < self.p.relock_after:
-                self.counters.rejected_outlier += 1
-                return 'rejected_outlier'
-            outcome, gain = 'relocked', 1.0
-            self.counters.relocks += 1
-        self._rejected_in_row = 0
-        corrected = predicted + gain * innov
-        self._anchor_t = float(t_s)
-        self._anchor_axle = self._to_axle(corrected)
-        self._anchor_th = float(corrected[2])
-        self._steps = deque(after)
-        self._refold()
-        self.last_camera_s = float(t_s)
-        self.counters.camera_accepted += 1
-        return outcome
-
-    def _initialize_from_camera(self, t_s: float, pose: np.ndarray) -> None:
-        pending = [s for s in self._pending if s.t_s > t_s]
-        self._pending = []
-        self.initialize(pose, t_s)
-        self._steps = deque(pending)
-        self._refold()
-        self.counters.camera_accepted += 1
-
-    def _refold(self) -> None:
-        self._axle, self._th = fold_to_end(self._anchor_axle, self._anchor_th, self._steps)
-
-    # ---------------------------------------------------------------- output
-    def pose(self) -> np.ndarray:
-        """(3,) pose of p at the newest odometry sample."""
-        return self._to_point(self._axle, self._th)
-
-    def state(self) -> np.ndarray:
-        """(5,) [x_m, y_m, theta_rad, v_mps, omega_radps] at the newest odometry sample."""
-        return np.concatenate([self.pose(), self._rates])
+        return CAMERA_OUTCOMES[camera_update_k(self._e, 0, float(t_s), *map(float, pose),
+                                               self._k)]
 
     def state_at(self, t_s: float) -> np.ndarray:
-        """(5,) state extrapolated with the latest (v, omega) to ``t_s`` (at most
-        ``max_extrapolation_s`` past the newest odometry sample; never backwards).
-        """
-        if self._odom_t is None:
-            return self.state()
-        dt = min(max(0.0, t_s - self._odom_t), self.p.max_extrapolation_s)
-        v, w = self._rates.tolist()
-        x, y, th = arc_step(float(self._axle[0]), float(self._axle[1]), self._th, v * dt, w * dt)
-        d = self.p.com_offset_m
-        return np.array(
-            [
-                x + d * math.cos(th),
-                y + d * math.sin(th),
-                (th + math.pi) % (2.0 * math.pi) - math.pi,
-                v,
-                w,
-            ]
-        )
+        out = np.empty(5)
+        state_at_k(self._e, 0, float(t_s), self._k, out)
+        return out
+
+    def state(self) -> np.ndarray:
+        """(5,) at the newest odometry sample."""
+        t = self._e.f[0, F_ODOM_T]
+        return self.state_at(float(t) if math.isfinite(t) else 0.0)
+
+    def pose(self) -> np.ndarray:
+        return self.state()[:3]
 
     def camera_age_s(self, now_s: float) -> float:
-        """Time since the capture stamp of the newest accepted camera pose (inf if none)."""
-        return math.inf if self.last_camera_s is None else now_s - self.last_camera_s
+        return float(now_s - self._e.f[0, F_CAMERA_T])
+
+    @property
+    def last_camera_s(self) -> float | None:
+        t = self._e.f[0, F_CAMERA_T]
+        return None if t == -np.inf else float(t)
 
     @property
     def odometry_time_s(self) -> float | None:
-        return self._odom_t
+        t = self._e.f[0, F_ODOM_T]
+        return None if not math.isfinite(t) else float(t)
+
+    @property
+    def counters(self) -> dict:
+        return {name: int(v) for name, v in zip(COUNTERS, self._e.counters[0])}

@@ -1,6 +1,7 @@
-"""The last line of defence of the law (docs/law-changes.md, issue 13): whatever the automaton and
-the encounter arbitration decided, the desired point velocity V_d handed to the sliding-mode law
-(S3.2) is filtered so that a robot can always stop before contact.
+"""The last line of defence of the law (docs/control-law.md S15): whatever the switching and the
+coordinator decided, the desired point velocity V_d handed to the sliding-mode law (S3.2) is
+filtered so that a robot can always stop before an obstacle's P, another robot's keep-out circle
+or the floor's edge.
 
 * **Bounded feed-forward** (S14.5): a parent's velocity and acceleration, a yield target's velocity
   and the mode's V_d itself are clipped to what a robot can do (``speed_limit_mps``; the
@@ -8,7 +9,8 @@ the encounter arbitration decided, the desired point velocity V_d handed to the 
   robot beyond the speed limit.
 * **Braking barrier**: every control period, against every obstacle boundary (P, whose boundary
   velocity includes the obstacle's rotation, S14.2) and every robot (contact circle R_i + R_k)
-  within ``safety_range_m``, the speed of approach of V_d relative to the boundary is limited to
+  (keep-out circle R_aa = R_i + R_k + margin, S15.3) within ``safety_range_m``, the speed of
+  approach of V_d relative to the boundary is limited to
   the speed from which the robot still stops before ``safety_gap_m`` after a reaction time
   ``safety_lag_s`` at the deceleration a_brk (a fraction of the switching gain K: what the S3
   loop realises without a feed-forward); a robot pair shares that budget (half each). Only the
@@ -16,12 +18,14 @@ the encounter arbitration decided, the desired point velocity V_d handed to the 
   two robots slide past each other instead of deadlocking, and a robot moving away from a threat
   is never held back (liveness). The constraints are met by alternating projections; a robot
   still squeezed between a robot and an obstacle stops (relative to the obstacles). The edges of a
-  declared floor (``SwitchingParams.floor_m``) are walls of the same barrier; a robot squeezed
+  declared floor (S16.1) are walls of the same barrier; a robot squeezed
   between a wall and obstacles takes the exact solution of their constraints instead (it slides
   along the wall out of the way, :func:`_escape`), and stops only when there is none.
 
-Both run inside :func:`ament_formation.core.control.law.robot_law`, so the simulator and the
-robot's controller run them alike. Scalar numba kernels.
+Both run inside :func:`ament_formation.core.control.law.robot_law_k`, so the simulator and the
+robot agent run them alike. The robots checked are the rows of a neighbour list (the robots a
+robot hears, or a grid's candidates in the simulator): the cost grows with the neighbours, not
+with the team. Scalar numba kernels.
 """
 
 from __future__ import annotations
@@ -31,6 +35,7 @@ import math
 from numba import njit
 import numpy as np
 
+from ament_formation.core.control.floor import floor_edges, near_floor
 from ament_formation.core.model.dynamics import ROW_M_TILDE, ROW_R, ROW_TAU_MAX
 
 
@@ -115,22 +120,24 @@ def _obstacle_gap(px, py, oc, ov, ophi, ophid, oaxes, j):
 
 
 @njit(cache=True)
-def _robot_barriers(i, x, pd, vdx, vdy, vddx, vddy, rbody, a_brk, prm, brake):
-    """The barrier against every other robot whose contact circle R_i + R_k is within ``reach``
-    (reciprocal: each robot of a pair takes half of the approach speed budget, and makes way for
-    the other's approach beyond its half, e.g. when an obstacle pushes that robot). Returns
-    (vdx, vdy, vddx, vddy, active).
+def _robot_barriers(i, x, pd, nbrs, vdx, vdy, vddx, vddy, rbody, a_brk, prm, brake):
+    """The barrier against every robot k of ``nbrs`` whose keep-out circle R_aa (S15.3) is within
+    ``safety_range_m`` (reciprocal: each robot of a pair takes half of the approach speed budget,
+    and makes way for the other's approach beyond its half, e.g. when an obstacle pushes that
+    robot). Returns (vdx, vdy, vddx, vddy, active).
     """
     g0, reach, lag = prm.safety_gap_m, prm.safety_range_m, prm.safety_lag_s
     active = False
-    for k in range(x.shape[0]):
+    for q in range(nbrs.shape[0]):
+        k = nbrs[q]
         dx = x[i, 0] - x[k, 0]
         dy = x[i, 1] - x[k, 1]
-        lim = rbody[i] + rbody[k] + reach
+        keep = rbody[i] + rbody[k] + prm.agent_keepout_margin_m
+        lim = keep + reach
         if k == i or abs(dx) > lim or abs(dy) > lim:
             continue
         dist = math.hypot(dx, dy)
-        gap = dist - rbody[i] - rbody[k]
+        gap = dist - keep
         if gap < reach and dist > 1e-9:
             nx = dx / dist
             ny = dy / dist
@@ -138,20 +145,8 @@ def _robot_barriers(i, x, pd, vdx, vdy, vddx, vddy, rbody, a_brk, prm, brake):
             share = max(0.0, allowed_speed(gap - g0, 0.25 * a_brk, lag))
             push = max(0.0, pd[k, 0] * nx + pd[k, 1] * ny - share)
             vdx, vdy, vddx, vddy, act = _barrier(
-                vdx,
-                vdy,
-                vddx,
-                vddy,
-                pd[i, 0],
-                pd[i, 1],
-                nx,
-                ny,
-                push * nx,
-                push * ny,
-                gap - g0,
-                0.25 * a_brk,
-                lag,
-                brake,
+                vdx, vdy, vddx, vddy, pd[i, 0], pd[i, 1], nx, ny, push * nx, push * ny,
+                gap - g0, 0.25 * a_brk, lag, brake,
             )
             active = active or act
     return vdx, vdy, vddx, vddy, active
@@ -225,35 +220,16 @@ def _wall(vdx, vdy, vddx, vddy, pdx, pdy, gap, nx, ny, a_brk, prm, brake):
 
 
 @njit(cache=True)
-def _floor_edges(px, py, rb, prm):
-    """The four edges of the declared floor seen from a body of radius ``rb`` about p: (gap from
-    the body [m], inward normal x, y) each (an undeclared floor has its edges at infinity).
-    """
-    return (
-        (px - prm.floor_x_min_m - rb, 1.0, 0.0),
-        (prm.floor_x_max_m - px - rb, -1.0, 0.0),
-        (py - prm.floor_y_min_m - rb, 0.0, 1.0),
-        (prm.floor_y_max_m - py - rb, 0.0, -1.0),
-    )
-
-
-@njit(cache=True)
 def _floor_barriers(p, vdx, vdy, vddx, vddy, rb, a_brk, prm, brake):
     """The barrier against each edge of a declared floor within ``safety_range_m`` of the body
     (radius ``rb`` about p): the edges are walls that do not move.
     """
     px, py, pdx, pdy = p
-    for gap, nx, ny in _floor_edges(px, py, rb, prm):
+    for gap, nx, ny in floor_edges(px, py, rb, prm):
         vdx, vdy, vddx, vddy = _wall(
             vdx, vdy, vddx, vddy, pdx, pdy, gap, nx, ny, a_brk, prm, brake
         )
     return vdx, vdy, vddx, vddy
-
-
-@njit(cache=True)
-def _near_wall(px, py, rb, prm):
-    """Whether the body (radius ``rb`` about p) is within ``safety_range_m`` of a floor edge."""
-    return min([gap for gap, _nx, _ny in _floor_edges(px, py, rb, prm)]) < prm.safety_range_m
 
 
 @njit(cache=True)
@@ -279,7 +255,7 @@ def _escape(vx0, vy0, p, rb, oc, ov, ophi, ophid, oaxes, a_brk, prm):
     px, py = p[0], p[1]
     cons = np.empty((4 + oc.shape[0], 3))  # rows (nx, ny, b)
     n = 0
-    for gap, nx, ny in _floor_edges(px, py, rb, prm):
+    for gap, nx, ny in floor_edges(px, py, rb, prm):
         if gap < reach:
             cons[n, 0], cons[n, 1], cons[n, 2] = nx, ny, -allowed_speed(gap - g0, a_brk, lag)
             n += 1
@@ -313,22 +289,23 @@ def _escape(vx0, vy0, p, rb, oc, ov, ophi, ophid, oaxes, a_brk, prm):
     return best < math.inf, bx, by
 
 
-# implements: S14
+# implements: S15
 @njit(cache=True)
-def safe_field(i, x, pd, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, rbody, gain_k, prm):
-    """V_d, V_d_dot of robot i after the speed limit and the braking barrier (module docstring).
-
-    Returns (vdx, vdy, vddx, vddy).
+def safe_field(i, x, pd, nbrs, vdx, vdy, vddx, vddy, ob, rbody, prm):
+    """V_d, V_d_dot of robot i after the speed limit and the braking barrier (module docstring)
+    against the obstacles ``ob`` (ObstacleSnapshot), the robots of ``nbrs`` (rows of x, pd) and
+    the floor. Returns (vdx, vdy, vddx, vddy).
     """
+    oc, ov, ophi, ophid, oaxes = ob.c, ob.v, ob.phi, ob.phi_dot, ob.axes
     vdx, vdy = clip_norm(vdx, vdy, prm.speed_limit_mps)
     vx0, vy0 = vdx, vdy
-    a_brk = prm.brake_gain_fraction * gain_k  # the S3 loop's deceleration without feed-forward
+    a_brk = prm.brake_gain_fraction * prm.switching_gain_mps2  # the S3 loop without feed-forward
     p = (x[i, 0], x[i, 1], pd[i, 0], pd[i, 1])
     rb = rbody[i]
-    walls = _near_wall(x[i, 0], x[i, 1], rb, prm)
+    walls = near_floor(x[i, 0], x[i, 1], rb, prm)
     for _ in range(PASSES):  # alternating projections onto the robots', walls' and obstacles'
         vdx, vdy, vddx, vddy, _act = _robot_barriers(
-            i, x, pd, vdx, vdy, vddx, vddy, rbody, a_brk, prm, False
+            i, x, pd, nbrs, vdx, vdy, vddx, vddy, rbody, a_brk, prm, False
         )
         if walls:
             vdx, vdy, vddx, vddy = _floor_barriers(p, vdx, vdy, vddx, vddy, rb, a_brk, prm, False)
@@ -336,7 +313,7 @@ def safe_field(i, x, pd, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, rbody
             p, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, a_brk, prm, False
         )
     qx, qy, _a, _b, _act = _robot_barriers(
-        i, x, pd, vdx, vdy, vddx, vddy, rbody, a_brk, prm, False
+        i, x, pd, nbrs, vdx, vdy, vddx, vddy, rbody, a_brk, prm, False
     )
     squeezed = abs(qx - vdx) + abs(qy - vdy)
     if walls:
@@ -344,11 +321,11 @@ def safe_field(i, x, pd, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, rbody
         squeezed += abs(fx - vdx) + abs(fy - vdy)
     if squeezed > 1e-9:  # between a robot or wall and an obstacle
         found = False
-        if walls:  # along the wall, out of the obstacle's way (§12)
+        if walls:  # along the wall, out of the obstacle's way (S16.1)
             found, ex, ey = _escape(vx0, vy0, p, rb, oc, ov, ophi, ophid, oaxes, a_brk, prm)
             if found:  # robots in the way: no escape
                 qx, qy, _a, _b, _act = _robot_barriers(
-                    i, x, pd, ex, ey, 0.0, 0.0, rbody, a_brk, prm, False
+                    i, x, pd, nbrs, ex, ey, 0.0, 0.0, rbody, a_brk, prm, False
                 )
                 found = abs(qx - ex) + abs(qy - ey) <= 1e-9
         if found:
@@ -357,7 +334,7 @@ def safe_field(i, x, pd, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, rbody
             vdx, vdy, vddx, vddy = 0.0, 0.0, 0.0, 0.0
     # the braking acceleration where the robot's own velocity is beyond the limits
     vdx, vdy, vddx, vddy, _act = _robot_barriers(
-        i, x, pd, vdx, vdy, vddx, vddy, rbody, a_brk, prm, True
+        i, x, pd, nbrs, vdx, vdy, vddx, vddy, rbody, a_brk, prm, True
     )
     if walls:
         vdx, vdy, vddx, vddy = _floor_barriers(p, vdx, vdy, vddx, vddy, rb, a_brk, prm, True)

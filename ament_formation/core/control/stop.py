@@ -6,8 +6,10 @@ when the camera-loss stop must begin so that the robot is at rest by ``pose_time
 
 from __future__ import annotations
 
+from collections import namedtuple
 import math
 
+from numba import njit
 import numpy as np
 
 from ament_formation.core.errors import ConfigError
@@ -81,6 +83,53 @@ def _stop_law(
     eps = np.stack((np.full_like(k.d, eps_v), eps_w / k.d), axis=-1)
     x2dot = -x2 / stop_time_s - gain * np.clip(x2 / eps, -1.0, 1.0) - f2(state, k)
     return np.einsum('nij,nj->ni', b2_inv(k), x2dot)
+
+
+StopK = namedtuple('StopK', ['stop_time_s', 'gain_v', 'eps_v', 'g_v', 'rest_v', 'gain_w', 'eps_w',
+                             'g_w', 'rest_w', 'margin_s', 'max_s', 'speed_max_mps',
+                             'turn_rate_max_radps', 'hold_gain_v', 'hold_eps_v'])
+StopK.__doc__ = """A :class:`StopLead` for the compiled code: the camera-loss stop law's gains
+on v [m/s^2, m/s] and omega [rad/s^2, rad/s] (``gain_*``, ``eps_*``, the disturbance bound
+``g_*`` and rest band ``rest_*``), its margin and cap [s], the speed bounds, and the v pair of
+the hold-parent stop (the formation law's K and boundary layer, ``hold_*``; omega as above)."""
+
+
+@njit(cache=True)
+def stop_torque_k(v, w, plant, tau_max, stop_time_s, gain_v, eps_v, gain_w, eps_w):
+    """:func:`stop_torque` of one robot (its (v, omega), plant and gains per unit of its own
+    components) -> (tau_left, tau_right)."""
+    mt, it, r, a, d, mc = plant
+    vdot = -v / stop_time_s - gain_v * min(1.0, max(-1.0, v / eps_v)) - mc * d / mt * w * w
+    wdot = -w / stop_time_s - gain_w * min(1.0, max(-1.0, w / eps_w)) + mc * d / it * w * v
+    lin = 0.5 * r * mt * vdot
+    ang = 0.5 * r * 2.0 * it / a * wdot
+    t1, t2 = lin - ang, lin + ang
+    scale = max(1.0, max(abs(t1), abs(t2)) / tau_max)
+    return t1 / scale, t2 / scale
+
+
+@njit(cache=True)
+def band_time_k(y0, stop_time_s, gain, eps, g_bar, y_rest):
+    """:func:`time_to_band` in the compiled code."""
+    y = abs(y0)
+    t = 0.0
+    b = gain - g_bar
+    if y > eps:
+        t = stop_time_s * math.log((y + b * stop_time_s) / (eps + b * stop_time_s))
+        y = eps
+    rate = 1.0 / stop_time_s + gain / eps
+    residual = g_bar / rate
+    if y > y_rest:
+        t += math.log((y - residual) / (y_rest - residual)) / rate
+    return t
+
+
+@njit(cache=True)
+def lead_k(v, w, sk):
+    """:meth:`StopLead.lead_s` in the compiled code (``sk`` :data:`StopK`)."""
+    rest = max(band_time_k(v, sk.stop_time_s, sk.gain_v, sk.eps_v, sk.g_v, sk.rest_v),
+               band_time_k(w, sk.stop_time_s, sk.gain_w, sk.eps_w, sk.g_w, sk.rest_w))
+    return min(rest + sk.margin_s, sk.max_s)
 
 
 REST_SPEED_MPS = 0.005  # at rest: both wheels' rim speeds |v -+ (a/2) omega| below this
@@ -228,6 +277,13 @@ class StopLead:
     def over_bound(self, v: float, omega: float) -> bool:
         """Faster than the speed bounds: the guarantee does not cover (v, omega)."""
         return abs(v) > self.speed_max_mps or abs(omega) > self.turn_rate_max_radps
+
+    def compiled(self, gains: ControlGains) -> StopK:
+        """:data:`StopK` of this lead, with the hold-parent stop's v gains (the formation law's,
+        :func:`stop_gains` without the camera-loss deceleration)."""
+        (k_v, e_v), _w = stop_gains(gains, 0.0, self.period_s)
+        return StopK(self.stop_time_s, *self._v, *self._w, self.margin_s, self.max_s,
+                     self.speed_max_mps, self.turn_rate_max_radps, k_v, e_v)
 
     def check(self, pose_timeout_s: float) -> None:
         """Raise ConfigError unless the worst-case lead fits in ``pose_timeout_s``."""

@@ -14,20 +14,25 @@ inside_p      yes   a robot's p entered an obstacle's prohibited region P (clear
 contact       yes   two robot bodies closer than the sum of their radii (0.20 m)
 keepout       no    no contact, but closer than the keep-out circle R_a + R_b + margin (0.25 m)
 runaway       yes   a robot faster than :data:`RUNAWAY_SPEED_MPS` (the paths run at <= 0.065 m/s)
-far_from_goal yes   a robot ends more than :data:`FAR_FROM_GOAL_M` from its goal, the goal free
+far_from_goal yes   when the mission ends (every leader's reference at its end, S17.3), a robot is
+                    more than :data:`FAR_FROM_GOAL_M` from its goal, the goal free
 stuck         yes   as far_from_goal, and still so when the run goes on :data:`HOLD_S` with every
-                    leader's path held at its end (a robot that never reaches its goal, not one
-                    still catching up when the clock stops)
+                    reference at rest at its end (a robot that never reaches its goal, not one
+                    still catching up when the mission ends); or the mission did not end within
+                    the simulator's time cap
 parked        no    as far_from_goal, but the goal lies inside an obstacle's Q at the end
 chattering    yes   more than :data:`CHATTER_EVENTS` mode events for one robot
 off_floor     yes   a robot's body crossed the edge of the scenario's floor
 error         yes   the run raised (the row's reason names the exception)
 ============  ====  =========================================================================
 
-A run with ``far_from_goal`` is run again with every leader's path held at its end point for
-:data:`HOLD_S` (:func:`held_scenario`): ``hold_catch_up_s`` is how long after the paths stop every
-robot is within :data:`FAR_FROM_GOAL_M` of its goal (empty when never: ``stuck``); a hard class
-the longer run shows and the first did not is added, its reason marked "held".
+A run with ``far_from_goal`` is run again :data:`HOLD_S` past its mission's end (the references at
+rest): ``hold_catch_up_s`` is how long after the mission's end every robot is within
+:data:`FAR_FROM_GOAL_M` of its goal (empty when never: ``stuck``); a hard class the longer run
+shows and the first did not is added, its reason marked "held". Each row also has
+``mission_ratio`` (the mission's time over its free traversal, ``duration_s``) and
+``reform_s`` (how long after its last robot encounter or obstacle exit every team is back in
+formation: every robot within :data:`REFORMED_M` of its goal).
 """
 
 from __future__ import annotations
@@ -41,6 +46,7 @@ import numpy as np
 
 RUNAWAY_SPEED_MPS = 0.3
 FAR_FROM_GOAL_M = 0.5
+REFORMED_M = 0.05
 HOLD_S = 30.0
 CHATTER_EVENTS = 50
 HARD = (
@@ -74,6 +80,8 @@ COLUMNS = (
     'final_error_max_m',
     'floor_excursion_m',
     'longest_avoidance_s',
+    'mission_ratio',
+    'reform_s',
     'hold_catch_up_s',
     'draws',
     'wall_s',
@@ -160,40 +168,31 @@ def findings(metrics: dict, result, scenario) -> dict[str, str]:
     return found
 
 
-def held_scenario(scenario, hold_s: float):
-    """The scenario run ``hold_s`` longer with every leader's path held at its end point
-    (:class:`~ament_formation.core.model.paths.HeldPath`): the goals come to rest at
-    t = duration_s.
-    """
-    from dataclasses import replace
-
-    from ament_formation.core.model.paths import HeldPath
-
-    end = scenario.duration_s
-
-    def held(path):
-        if isinstance(path, HeldPath) and path.t_end_s <= end:
-            return path  # it stops before the end already
-        return HeldPath(path.path if isinstance(path, HeldPath) else path, end)
-
-    robots = tuple(
-        replace(r, path=held(r.path)) if r.path is not None else r for r in scenario.robots
-    )
-    return replace(scenario, robots=robots, duration_s=end + float(hold_s))
-
-
 def _catch_up_s(result, scenario, t_end: float) -> float | None:
     """Seconds after ``t_end`` until every robot whose goal is free (not in an obstacle's Q) is
     within :data:`FAR_FROM_GOAL_M` of its goal at the same sample; None when never.
     """
+    return _within_after(result, scenario, t_end, FAR_FROM_GOAL_M)
+
+
+def _within_after(result, scenario, t_end: float, limit_m: float) -> float | None:
     t = np.asarray(result.t_s, dtype=float)
     k0 = int(np.searchsorted(t, t_end - 1e-9))
     free = [i for i in range(len(result.robot_ids)) if not _goal_in_q(scenario, result, i)]
     if not free or k0 >= t.size:
         return 0.0
     err = np.linalg.norm(result.state[k0:, free, :2] - result.goal_m[k0:, free], axis=2)
-    near = np.flatnonzero((err <= FAR_FROM_GOAL_M).all(axis=1))
+    near = np.flatnonzero((err <= limit_m).all(axis=1))
     return float(t[k0 + near[0]] - t_end) if near.size else None
+
+
+def reform_time_s(result, scenario) -> float | None:
+    """Seconds from the last exit from any avoidance mode until every robot with a free goal is
+    within :data:`REFORMED_M` of its goal (0 without avoidance; None: not within the run)."""
+    exits = [e['t_s'] for e in result.mode_events if e['event'] == 'exit']
+    if not exits:
+        return 0.0
+    return _within_after(result, scenario, max(exits), REFORMED_M)
 
 
 def build_scenario(case: dict):
@@ -215,32 +214,33 @@ def build_scenario(case: dict):
     return parse_scenario(mapping), mapping, draws
 
 
-def _simulate(scenario, sensing: str, dt_s: float, seed: int):
-    """The run: ideal sensing, or a camera preset (core/sim/sensed.py) whose noise and drops are
-    seeded by the case (``seed``), so each run of a campaign sees its own camera.
+def _simulate(scenario, sensing: str, dt_s: float, seed: int, hold_s: float = 0.0):
+    """The run until its mission ends (and ``hold_s`` longer): ideal sensing, or a camera preset
+    (core/sim/sensed.py) whose noise and drops are seeded by the case (``seed``), so each run of
+    a campaign sees its own camera.
     """
     if sensing == 'ideal':
         from ament_formation.core.sim.simulator import simulate
 
-        return simulate(scenario, dt_s=dt_s, record_every_s=0.01)
+        return simulate(scenario, dt_s=dt_s, record_every_s=0.01, hold_s=hold_s)
     from ament_formation.core.sim.sensed import SensingParams, simulate_sensed
 
     params = SensingParams.preset(sensing, seed=seed)
-    return simulate_sensed(scenario, params, dt_s=dt_s, record_every_s=0.01)
+    return simulate_sensed(scenario, params, dt_s=dt_s, record_every_s=0.01, hold_s=hold_s)
 
 
 def _held(scenario, sensing, case, seed: int, hold_s: float, found: dict, row: dict) -> dict:
-    """Run the scenario again with its paths held at their end for ``hold_s``
-    (:func:`held_scenario`): sets ``row['hold_catch_up_s']``; returns the classes to add
-    (``stuck``, and any other hard class the longer run shows, marked "held").
+    """Run the scenario again ``hold_s`` past its mission's end, the references at rest: sets
+    ``row['hold_catch_up_s']``; returns the classes to add (``stuck``, and any other hard class
+    the longer run shows, marked "held").
     """
     from ament_formation.core.sim.metrics import compute_metrics
 
-    held = held_scenario(scenario, hold_s)
-    result = _simulate(held, sensing, case.get('dt_s', 0.001), seed)
-    metrics = compute_metrics(result, held)
-    row['hold_catch_up_s'] = _catch_up_s(result, held, scenario.duration_s)
-    held_found = findings(metrics, result, held)
+    result = _simulate(scenario, sensing, case.get('dt_s', 0.001), seed, hold_s)
+    metrics = compute_metrics(result, scenario)
+    end = result.mission_end_s if result.mission_end_s is not None else float(result.t_s[-1])
+    row['hold_catch_up_s'] = _catch_up_s(result, scenario, end)
+    held_found = findings(metrics, result, scenario)
     more = {
         c: f'held {hold_s:g} s: {why}'
         for c, why in held_found.items()
@@ -249,7 +249,7 @@ def _held(scenario, sensing, case, seed: int, hold_s: float, found: dict, row: d
     far = held_found.get('far_from_goal')  # 'R1 ends 1.12 m from its goal (...)'
     if far is not None:
         more['stuck'] = far.replace(' ends ', ' still ', 1).replace(
-            ' from its goal', f' from its goal {hold_s:g} s after the paths stop', 1
+            ' from its goal', f' from its goal {hold_s:g} s after the mission ended', 1
         )
     return more
 
@@ -274,6 +274,11 @@ def run_case(case: dict) -> dict:
         result = _simulate(scenario, sensing, case.get('dt_s', 0.001), sensing_seed)
         metrics = compute_metrics(result, scenario)
         found = findings(metrics, result, scenario)
+        if result.mission_end_s is None:
+            found['stuck'] = (
+                f'the mission did not end within {result.t_s[-1]:.0f} s '
+                f'(free traversal {scenario.duration_s:g} s)'
+            )
         if 'far_from_goal' in found and hold_s > 0.0:
             found.update(_held(scenario, sensing, case, sensing_seed, hold_s, found, row))
         classes, reason = _listed(found)
@@ -291,6 +296,10 @@ def run_case(case: dict) -> dict:
             longest_avoidance_s=max(
                 (r['longest_avoidance_s'] for r in metrics['robots'].values()), default=0.0
             ),
+            mission_ratio=None
+            if result.mission_end_s is None
+            else result.mission_end_s / scenario.duration_s,
+            reform_s=reform_time_s(result, scenario),
         )
     except Exception as exc:  # noqa: BLE001 - a campaign reports every failure as a row
         where = traceback.extract_tb(exc.__traceback__)[-1]
@@ -338,6 +347,8 @@ DISTRIBUTED = (
     'peak_speed_mps',
     'final_error_max_m',
     'longest_avoidance_s',
+    'mission_ratio',
+    'reform_s',
     'wall_s',
 )
 

@@ -8,26 +8,19 @@ objects the nodes hold:
   Gaussian noise (``noise_m`` per axis, ``noise_rad`` on the heading), lost with probability
   ``drop_prob`` per robot and frame, delivered ``latency_s`` after capture with its capture stamp
   (the tracker's PoseStamped, DESIGN §6);
-* each robot's S10 estimator (:class:`~ament_formation.core.control.estimator.PoseEstimator`, as in
-  nodes/controller.py): wheel encoder samples at every control period, camera poses on arrival;
-* each robot's :class:`~ament_formation.core.control.controller.RobotController` at
-  ``control_rate_hz`` on its estimate and on the other robots' broadcasts of the previous period
-  (state, commanded acceleration, mode; extrapolated with
-  :func:`~ament_formation.core.control.neighbours.extrapolate_neighbour`, goals with
-  :func:`~ament_formation.core.control.neighbours.neighbour_goal`), torque held (ZOH) until the
-  next period;
-* the coordinator (nodes/coordinator.py): S9 rewiring with
-  :class:`~ament_formation.core.control.rewiring.FormationGraph` whenever the set of avoiding
-  robots changes, S7 arbitration with
-  :class:`~ament_formation.core.control.arbiter.EncounterArbiter` at ``encounter_rate_hz``, its
-  assignments delivered at the start, on change (a new decision, or a mutual pair's w_c moved,
-  :class:`~ament_formation.core.control.arbiter.AssignmentSender`) and every ``republish_s``;
+* each robot's agent (core/control/agent.py, what nodes/controller.py runs: the S10.1
+  estimator, the stops, the robots it hears, its own switching and the law) at
+  ``control_rate_hz``, on the wheel samples of the period, the camera poses arrived by then and
+  the other robots' broadcasts of the previous period (state, commanded acceleration, mode
+  report), torque held (ZOH) until the next period; all robots in one compiled call;
+* the coordinator (core/control/coordinator.py, what nodes/coordinator.py runs): S9 rewiring
+  whenever the set of avoiding robots changes, the robot encounters, right of way and the
+  references' progress at ``encounter_rate_hz``, published on change and every ``republish_s``;
 * the plant: :class:`~ament_formation.core.sim.twin.PlantTwin` (RK4 at ``dt_s``, wheel encoders,
   disturbance, obstacle motion).
 
-Not modelled: the controller's safety stops (camera loss after ``pose_timeout_s``, wheel timeout,
-parent hold: a run never starves them at drop rates below about 0.5), encoder quantisation and
-DDS delays (a broadcast reaches the robots that hear it by their next period; a robot coming into
+The agents' stops run as on the robots (a run never starves them at drop rates below about
+0.5). Not modelled: encoder quantisation, clock offsets and DDS delays (a broadcast reaches the robots that hear it by their next period; a robot coming into
 hearing range is heard at once).
 
 The record is the TRUE state (the same :class:`~ament_formation.core.sim.trajectory.SimResult` as
@@ -45,18 +38,18 @@ from typing import Callable
 
 import numpy as np
 
-from ament_formation.core.control.arbiter import AssignmentSender, EncounterArbiter
-from ament_formation.core.control.assignment import (
-    AssignedLaw,
-    original_parent_link,
-    original_parent_state,
+from ament_formation.core.control.agent import (
+    AgentBatch,
+    AgentParams,
+    broadcast_k,
+    frame_k,
+    RUNNING,
+    wheels_k,
 )
-from ament_formation.core.control.controller import NeighbourState, RobotController
-from ament_formation.core.control.estimator import EstimatorParams, PoseEstimator
-from ament_formation.core.control.neighbours import extrapolate_neighbour, neighbour_goal
-from ament_formation.core.control.rewiring import FormationGraph
+from ament_formation.core.control.coordinator import Coordinator, Publisher
+from ament_formation.core.control.progress import leader_reference
 from ament_formation.core.errors import ConfigError, excerpt
-from ament_formation.core.model.paths import fast_reference
+from ament_formation.core.sim.simulator import max_time_s
 from ament_formation.core.sim.trajectory import SimResult
 from ament_formation.core.sim.twin import PlantTwin
 
@@ -181,13 +174,6 @@ class SensedResult(SimResult):
     sensing: dict = field(default_factory=dict)
 
 
-def _threat_mode(mode: str, target: str | None) -> tuple[str, str | None]:
-    """A robot's mode as the others read it (nodes/controller.py threat_mode)."""
-    if mode in ('obstacle', 'yield', 'mutual') and isinstance(target, str):
-        return mode, target
-    return 'coordination', None
-
-
 class _Camera:
     """Captures, noise, drops and delivery of the tracker's poses (seeded)."""
 
@@ -214,295 +200,114 @@ class _Camera:
         self.dropped += self.n - int(kept.sum())
         self.queue.append((stamp_s + self.lat_s, stamp_s, pose, kept))
 
-    def deliver(self, now_s: float, estimators: list) -> list:
-        """Every frame arrived by ``now_s`` into the robots' estimators (capture stamps);
-        returns those frames [(poses (N, 3), kept (N,))].
-        """
+    def deliver(self, now_s: float) -> list:
+        """Every frame arrived by ``now_s``: [(poses (N, 3), kept (N,), capture stamp)]."""
         q = self.queue
         out = []
         while q and q[0][0] <= now_s + 1e-12:
             _arr, stamp, pose, kept = q.popleft()
-            for i in np.flatnonzero(kept):
-                estimators[i].camera_update(stamp, pose[i])
-            out.append((pose, kept))
+            out.append((pose, kept, stamp))
         return out
 
 
-# the controller node's defaults (config/params/formation_controller.yaml)
-PARENT_TIMEOUT_S = 0.1  # an older broadcast is extrapolated ...
-PARENT_HOLD_S = 1.0  # ... up to this age
 PRESTART_FRAMES = 10  # frames the estimators fuse before the mission starts (robots at rest)
-HEAR_HYSTERESIS_M = 0.3  # nodes/controller.py: heard until this much beyond the hearing range
-
-
-class _RobotNode:
-    """What nodes/controller.py ControllerNode does around its core objects at one control period
-    (estimator, RobotController, the coordinator's graph and assignment), without ROS.
-    """
-
-    def __init__(self, scenario, spec, fgraph: FormationGraph, sensing: SensingParams):
-        self.rid = int(spec.id)
-        self.est = PoseEstimator(
-            EstimatorParams.from_robot(spec.params, camera_gain=sensing.camera_gain)
-        )
-        self.law = RobotController(
-            self.rid,
-            spec.params,
-            scenario.control,
-            scenario.avoidance,
-            scenario.avoided_obstacles(),
-            leader_path=spec.path if spec.leader else None,
-            team=scenario.team_leader(self.rid),
-            slot_m=scenario.slot(self.rid),
-            floor=scenario.floor,
-        )
-        self.orig_parent_id, self.orig_offset = original_parent_link(fgraph, self.rid)
-        self.law.set_graph(
-            self.orig_parent_id, self.orig_offset, self.orig_parent_id, self.orig_offset
-        )
-        self.parent: int | None = None
-        self.assigned = AssignedLaw(self.law)  # the coordinator's assignment applied (S7, S8.3)
-        self.encounters_at = -math.inf  # when the coordinator's assignments last arrived [s]
-        self.coordinator_timeout_s = sensing.coordinator_timeout_s
-
-    def apply_graph(self, parent: int | None, offset_m) -> None:
-        """A /formation/graph message (ControllerNode._apply_graph)."""
-        self.parent = parent
-        self.law.set_graph(parent, offset_m, self.orig_parent_id, self.orig_offset)
-
-    def step(self, t_s: float, state: np.ndarray, heard: dict):
-        """One control period on the own estimate ``state`` (5,) and the broadcasts ``heard``
-        {id: NeighbourState} (ControllerNode._control from the parent lookup on).
-        """
-        orig_state = original_parent_state(heard, self.orig_parent_id, self.orig_offset, state)
-        coordinated = t_s - self.encounters_at <= self.coordinator_timeout_s
-        return self.assigned.step(t_s, state, self.parent, orig_state, heard, coordinated)
-
-
-class _Coordinator:
-    """nodes/coordinator.py without ROS: S9 rewiring on a change of the avoiding set, S7
-    arbitration at its rate, assignments sent at the start, on change and every ``republish_s``.
-    """
-
-    def __init__(self, scenario, sensing: SensingParams):
-        self.graph = FormationGraph.from_scenario(scenario)
-        self.arbiter = EncounterArbiter(scenario)
-        self.avoiding: set[int] = set()
-        self.parents = self.graph.rewire(())
-        self.sender = AssignmentSender()  # new decisions, a pair's w_c moved (§23)
-        self.republish_s = sensing.republish_s
-        self._next_republish = 0.0  # as the node: sent once at the start
-
-    def on_modes(self, modes: dict) -> dict | None:
-        """{id: mode dict}; the new parents when the avoiding set changed (a graph is sent)."""
-        avoiding = {rid for rid, m in modes.items() if m['avoiding']}
-        if avoiding == self.avoiding:
-            return None
-        self.avoiding = avoiding
-        self.parents = self.graph.rewire(sorted(avoiding))  # S9 steps 1-6
-        return self.parents
-
-    def arbitrate(self, t_s: float, states: dict, modes: dict) -> dict | None:
-        """S7 over all robots; the assignments when they are published (else None)."""
-        sent = self.sender.update(self.arbiter.decide(t_s, states, modes))
-        if t_s >= self._next_republish - 1e-9:
-            self._next_republish += self.republish_s
-            return self.sender.republish()
-        return self.sender.current if sent is not None else None
 
 
 class _Loop:
-    """The state of one sensed run (see :func:`simulate_sensed`)."""
+    """The state of one sensed run (see :func:`simulate_sensed`): the twin, the camera, every
+    robot's agent (one :class:`AgentBatch`: what each robot's computer runs) and the
+    coordinator."""
 
     def __init__(self, scenario, sensing: SensingParams, dt_s: float):
         self.sc = scenario
-        self.dt = dt_s
-        robots = sorted(scenario.robots, key=lambda r: r.id)
-        self.ids = tuple(int(r.id) for r in robots)
-        self.row = {rid: i for i, rid in enumerate(self.ids)}
         self.twin = PlantTwin(scenario, dt_s)
+        self.ids = tuple(sorted(int(r.id) for r in scenario.robots))
         twin_row = {int(rid): q for q, rid in enumerate(self.twin.ids)}
         self.rows = np.array([twin_row[rid] for rid in self.ids], dtype=np.int64)
-        self.tau_max = [float(r.params.torque_limit_nm) for r in robots]
-        fgraph = FormationGraph.from_scenario(scenario)
-        self.nodes = [_RobotNode(scenario, r, fgraph, sensing) for r in robots]
-        self.coord = _Coordinator(scenario, sensing)
-        self.camera = _Camera(len(robots), sensing, dt_s)
-        # per robot: (body radius, team, d, slot) and its S8.3 goal source (nodes/controller.py
-        # tables)
-        self.info = {
-            r.id: (
-                r.params.body_radius_m,
-                scenario.team_leader(r.id),
-                r.params.com_offset_m,
-                scenario.slot(r.id),
-            )
-            for r in robots
-        }
-        self.goal_source = {}
-        for r in robots:
-            p0 = fgraph.original_parent.get(r.id)
-            self.goal_source[r.id] = (
-                (fast_reference(r.path), None, None)
-                if p0 is None
-                else (None, p0, tuple(float(v) for v in fgraph.offset(r.id, p0)))
-            )
-        self.torque = np.zeros((len(robots), 2))  # sorted-id rows, held between periods
-        self.saturated = np.zeros(len(robots), dtype=bool)
-        self.modes = {
-            rid: {'mode': 'coordination', 'target': None, 'direction': None, 'avoiding': False}
-            for rid in self.ids
-        }
-        # id -> (state, accel, stamp_s, threat mode, threat target, sense in a mutual pair)
-        self.pub: dict = {}
+        self.params = AgentParams(control_rate_hz=sensing.control_rate_hz,
+                                  camera_gain=sensing.camera_gain, hear_all=sensing.hear_all,
+                                  hear_margin_m=sensing.hear_margin_m,
+                                  coordinator_timeout_s=sensing.coordinator_timeout_s)
+        self.agents = AgentBatch(scenario, self.ids, self.params)
+        self.coord = Coordinator(scenario)
+        self.publisher = Publisher(sensing.republish_s)
+        self.camera = _Camera(len(self.ids), sensing, dt_s)
+        n = len(self.ids)
+        self.sent = np.zeros(n, dtype=np.bool_)  # the previous period's broadcasts
+        self.bx, self.ba, self.bmode = np.zeros((n, 5)), np.zeros((n, 2)), np.zeros((n, 3))
+        self.b_t = 0.0
+        self.reports: list = [None] * n
         self.mode_events: list[dict] = []
-        self.graph_events: list[dict] = [
-            {'t_s': 0.0, 'parents': _parents_json(self.coord.parents)}
-        ]
-        self.err_sq = 0.0
-        self.err_max = 0.0
+        self.graph_events = [{'t_s': 0.0, 'parents': _parents_json(self.coord.parents)}]
+        self.err_sq = self.err_max = 0.0
         self.err_n = 0
-        self._apply_parents(self.coord.parents)
-        # hearing (ControllerNode._needed): range [m] of robot k seen by robot i, who is in range
-        av = scenario.avoidance
-        rb = np.array([r.params.body_radius_m for r in robots])
-        self.hear_all = sensing.hear_all
-        self.reach = (
-            av.protected_scale * (rb[:, None] + rb[None, :] + av.agent_keepout_margin_m)
-            + sensing.hear_margin_m
-        )
-        self.in_range = np.zeros((len(robots), len(robots)), dtype=bool)
-        self.own_xy: np.ndarray | None = None  # own positions of the last period [m]
-
-    def _apply_parents(self, parents: dict) -> None:
-        offsets = self.coord.graph.offsets(parents)
-        for node in self.nodes:
-            node.apply_graph(parents.get(node.rid), offsets.get(node.rid, (0.0, 0.0)))
 
     def true_pose(self) -> np.ndarray:
         return self.twin.state[self.rows, :3]
 
     def prestart(self, fps: float) -> None:
-        """The estimators fuse frames of the robots at rest before the mission starts (the
-        coordinator starts it ``start_delay_s`` after every controller is up).
-        """
+        """The estimators fuse frames of the robots at rest before the mission starts; the
+        coordinator's graph (mission start at t = 0) and first message reach every robot."""
         pose = self.true_pose()
+        st, sc = self.agents.state, self.agents.static
+        zeros = np.zeros((len(self.ids), 2))
         for j in range(PRESTART_FRAMES):
             stamp = (j - PRESTART_FRAMES) / fps
-            for node in self.nodes:
-                node.est.wheel_update(stamp, (0.0, 0.0), (0.0, 0.0))
+            wheels_k(stamp, zeros, zeros, st, sc)
             self.camera.capture(stamp, pose)
-            self.camera.deliver(math.inf, [n.est for n in self.nodes])
+            self.agents.tick(stamp)
+            for _pose, _kept, _stamp in self.camera.deliver(math.inf):
+                frame_k(_stamp, _pose, _kept, st, sc, self.params.hear_all,
+                        self.params.hear_hysteresis_m)
+        self.agents.tick(-1e-3)
         self.camera.frames = self.camera.sent = self.camera.dropped = 0  # mission frames only
-        for node in self.nodes:
-            self.pub[node.rid] = (node.est.state(), np.zeros(2), 0.0, 'coordination', None, None)
-
-    def heard(self, t_s: float) -> dict:
-        """{id: NeighbourState} of every robot's last broadcast, as a controller reads it."""
-        known = {}
-        for rid, (state, accel, stamp, *_mode) in self.pub.items():
-            d = self.info[rid][2]
-            known[rid] = extrapolate_neighbour(
-                state, accel, t_s - stamp, d, PARENT_TIMEOUT_S, PARENT_HOLD_S
-            )
-        heard = {}
-        for rid, (_s, accel, _st, mode, target, sense) in self.pub.items():
-            path, p0, offset = self.goal_source[rid]
-            d0 = 0.0 if p0 is None else self.info[p0][2]
-            goal, goal_dot = neighbour_goal(t_s, path, known.get(p0), offset, d0)
-            radius, team, d, slot = self.info[rid]
-            heard[rid] = NeighbourState.trusted(
-                known[rid], accel, radius, team, mode, target, d, goal, goal_dot, slot, sense
-            )
-        return heard
+        self.agents.set_graph(self.coord.parents, 0.0)
+        self.agents.assign(0.0, {}, None)
+        self.sent[:] = True
+        self.bx[:] = self.agents.out.state
+        self.b_t = 0.0
 
     def tick(self, t_s: float, arbitrate: bool) -> None:
         """One control period of every robot, then the coordinator."""
-        tw = self.twin
-        q = tw.wheel_angle_rad[self.rows].tolist()
-        w = tw.wheel_rate_radps[self.rows].tolist()
-        for i, node in enumerate(self.nodes):  # the encoder sample of this period, then ...
-            node.est.wheel_update(t_s, tuple(q[i]), tuple(w[i]))
-        frames = self.camera.deliver(t_s, [n.est for n in self.nodes])  # ... the frames by now
-        self._update_hearing(frames)
-        truth = tw.state[self.rows, :2].tolist()
-        heard = self.heard(t_s)
-        pub = {}
-        own_xy = np.zeros((len(self.nodes), 2))
-        for i, node in enumerate(self.nodes):
-            state = node.est.state_at(t_s)
-            own_xy[i] = state[:2]
-            e = math.hypot(state[0] - truth[i][0], state[1] - truth[i][1])
-            self.err_sq += e * e
-            self.err_max = max(self.err_max, e)
-            self.err_n += 1
-            out = node.step(t_s, state, self._heard_by(i, heard))
-            lim = self.tau_max[i]  # DESIGN §7: clamped in the controller (non-finite -> 0)
-            left, right = out.torque_nm.tolist()
-            left = min(max(left if math.isfinite(left) else 0.0, -lim), lim)
-            right = min(max(right if math.isfinite(right) else 0.0, -lim), lim)
-            self.torque[i] = (left, right)
-            self.saturated[i] = out.saturated
-            self.mode_events.extend(out.events)
-            mode, target = _threat_mode(out.mode, out.target)
-            sense = out.direction if mode == 'mutual' else None
-            pub[node.rid] = (state, out.accel_cmd_mps2, t_s, mode, target, sense)
-            self.modes[node.rid] = {
-                'mode': out.mode,
-                'target': out.target,
-                'direction': out.direction,
-                'avoiding': out.mode != 'coordination',
-            }
-        self.pub = pub
-        self.own_xy = own_xy
-        parents_before = self.coord.parents
-        new_parents = self.coord.on_modes(self.modes)
-        if new_parents is not None:
-            self._apply_parents(new_parents)
-            if new_parents != parents_before:
-                self.graph_events.append(
-                    {'t_s': round(t_s, 9), 'parents': _parents_json(new_parents)}
-                )
+        tw, ag = self.twin, self.agents
+        st, sc = ag.state, ag.static
+        wheels_k(t_s, tw.wheel_angle_rad[self.rows], tw.wheel_rate_radps[self.rows], st, sc)
+        for pose, kept, stamp in self.camera.deliver(t_s):  # the frames arrived by now
+            frame_k(stamp, pose, kept, st, sc, self.params.hear_all,
+                    self.params.hear_hysteresis_m)
+        broadcast_k(self.b_t, self.bx, self.ba, self.bmode, self.sent, st, sc,
+                    self.params.hear_all)
+        ag.tick(t_s)
+        out = ag.out
+        truth = tw.state[self.rows, :2]
+        e = np.hypot(out.state[:, 0] - truth[:, 0], out.state[:, 1] - truth[:, 1])
+        self.err_sq += float(e @ e)
+        self.err_max = max(self.err_max, float(e.max()))
+        self.err_n += len(e)
+        self.mode_events.extend(ag.events)
+        self.bx[:], self.ba[:], self.bmode[:] = out.state, out.accel, out.mode
+        self.b_t = t_s
+        running = st.status == RUNNING
+        self.bmode[~running] = (0.0, -1.0, 1.0)
+        for r, rid in enumerate(self.ids):
+            self.coord.state(rid, out.state[r], t_s)
+            key = (int(st.status[r]), *out.mode[r].tolist())
+            if key != self.reports[r]:
+                self.reports[r] = key
+                self.coord.report(rid, ag.mode_dict(r))
+        parents = self.coord.reported_avoiding()
+        if parents is not None:
+            ag.set_graph(parents, 0.0)
+            self.graph_events.append({'t_s': round(t_s, 9), 'parents': _parents_json(parents)})
         if arbitrate:
-            states = {rid: p[0] for rid, p in pub.items()}
-            published = self.coord.arbitrate(t_s, states, self.modes)
-            if published is not None:
-                for node in self.nodes:
-                    node.assigned.assignment = published.get(node.rid)
-                    node.encounters_at = t_s
-
-    def _update_hearing(self, frames: list) -> None:
-        """The range gate of every controller on the camera poses just delivered."""
-        if self.hear_all or self.own_xy is None:
-            return
-        for pose, kept in frames:
-            d = np.hypot(
-                pose[None, :, 0] - self.own_xy[:, 0:1], pose[None, :, 1] - self.own_xy[:, 1:2]
-            )
-            near = (d < self.reach) | (self.in_range & (d < self.reach + HEAR_HYSTERESIS_M))
-            self.in_range = np.where(kept[None, :], near, self.in_range)
-
-    def _heard_by(self, i: int, heard: dict) -> dict:
-        """The broadcasts robot row ``i`` hears: every robot with ``hear_all``, else its parents,
-        its assignment's partner and the robots in range (ControllerNode._needed).
-        """
-        if self.hear_all:
-            return heard
-        node = self.nodes[i]
-        partner = None if node.assigned.assignment is None else node.assigned.assignment.partner
-        keep = {node.parent, node.orig_parent_id, partner}
-        in_range = self.in_range[i]
-        row = self.row
-        return {
-            rid: nb
-            for rid, nb in heard.items()
-            if rid in keep or (rid != node.rid and in_range[row[rid]])
-        }
+            assignments, rates = self.coord.decide(t_s)
+            if self.publisher.due(t_s, assignments, rates):
+                ag.assign(t_s, assignments, rates)
 
     def estimator_counters(self) -> dict:
         total: dict = {}
-        for node in self.nodes:
-            for k, v in node.est.counters.as_dict().items():
+        for r in range(len(self.ids)):
+            for k, v in self.agents.counters(r).items():
                 total[k] = total.get(k, 0) + v
         return total
 
@@ -511,53 +316,23 @@ def _parents_json(parents: dict) -> dict:
     return {str(c): (None if p is None else int(p)) for c, p in sorted(parents.items())}
 
 
-def _schedule(duration_s: float, dt_s: float, ctrl_every: int, rec_every: int, fps: float):
-    """(n_steps, event steps (sorted), capture steps (set)) of a run."""
-    n_steps = int(round(duration_s / dt_s))
-    n_frames = int(math.ceil(duration_s * fps - 1e-9))
-    cap = np.unique(np.round(np.arange(n_frames) / fps / dt_s).astype(np.int64))
-    cap = cap[cap < n_steps]
-    steps = np.unique(
-        np.concatenate([np.arange(0, n_steps, ctrl_every), np.arange(0, n_steps, rec_every), cap])
-    )
-    return n_steps, steps.tolist(), set(cap.tolist())
-
-
-def _true_goals(scenario, ids: tuple, t_s: np.ndarray, state: np.ndarray) -> np.ndarray:
-    """(T, N, 2) formation goals g_i of the TRUE states (leader: r(t); follower: p of its
-    original parent + delta), as ``simulate`` records them.
-    """
-    graph = FormationGraph.from_scenario(scenario)
-    row = {rid: i for i, rid in enumerate(ids)}
-    goal = np.zeros((len(t_s), len(ids), 2))
-    for i, rid in enumerate(ids):
-        spec = scenario.robot(rid)
-        p0 = graph.original_parent.get(rid)
-        if p0 is None:
-            goal[:, i] = np.asarray(spec.path.reference(t_s)[0], dtype=float).reshape(-1, 2)
-        else:
-            goal[:, i] = state[:, row[p0], :2] + graph.offset(rid, p0)
-    return goal
-
-
 def simulate_sensed(
     scenario,
     sensing: SensingParams,
     dt_s: float = 0.001,
     record_every_s: float = 0.01,
     progress: Callable[[float, float], None] | None = None,
+    hold_s: float = 0.0,
 ) -> SensedResult:
-    """Run ``scenario`` with camera sensing, the S10 estimators, the law at its control period
-    and the coordinator (module docstring); return the TRUE record.
+    """Run ``scenario`` with camera sensing, every robot's agent at its control period and the
+    coordinator (module docstring) until the mission ends (the coordinator's references at
+    their ends, S17.3) and ``hold_s`` [s] longer, or until :func:`max_time_s`; return the TRUE
+    record.
 
-    Parameters
-    ----------
-    scenario : :class:`ament_formation.core.scenario.loader.Scenario`.
-    sensing : :class:`SensingParams` (e.g. ``SensingParams.preset('camera')``).
-    dt_s : plant integration step [s] (RK4, torque held between control periods); the control
-        period 1 / ``sensing.control_rate_hz`` is rounded to a whole number of steps.
-    record_every_s : sampling period of the record [s] (rounded to a multiple of ``dt_s``).
-    progress : callable(t_s, duration_s) called about every 5 s of simulated time, or None.
+    ``sensing``: :class:`SensingParams` (e.g. ``SensingParams.preset('camera')``); ``dt_s``:
+    plant integration step [s] (RK4, torque held between control periods; the control period
+    1 / ``sensing.control_rate_hz`` is a whole number of steps); ``record_every_s``: the
+    record's period; ``progress``: callable(t_s, duration_s) about every 5 s of simulated time.
     """
     wall0 = time.perf_counter()
     if not (isinstance(dt_s, (int, float)) and math.isfinite(dt_s) and 0 < dt_s <= 0.01):
@@ -565,82 +340,105 @@ def simulate_sensed(
     fps = sensing.frame_rate_hz(scenario)
     ctrl_every = max(1, int(round(1.0 / (sensing.control_rate_hz * dt_s))))
     rec_every = max(1, int(round(record_every_s / dt_s)))
-    arb_every = (
-        0
-        if sensing.encounter_rate_hz <= 0
-        else max(1, int(round(1.0 / (sensing.encounter_rate_hz * dt_s))))
-    )
-    n_steps, steps, captures = _schedule(scenario.duration_s, dt_s, ctrl_every, rec_every, fps)
+    arb_every = (0 if sensing.encounter_rate_hz <= 0
+                 else max(1, int(round(1.0 / (sensing.encounter_rate_hz * dt_s)))))
+    cap_every = 1.0 / (fps * dt_s)
     loop = _Loop(scenario, sensing, dt_s)
     loop.prestart(fps)
     loop.twin.start()
     n, m = len(loop.ids), len(scenario.obstacles)
-    n_rec = (n_steps - 1) // rec_every + 1
-    rec_state = np.zeros((n_rec, n, 5))
-    rec_torque = np.zeros((n_rec, n, 2))
-    rec_avoid = np.zeros((n_rec, n), dtype=bool)
-    rec_sat = np.zeros((n_rec, n), dtype=bool)
-    rec_oc = np.zeros((n_rec, m, 2))
-    rec_ophi = np.zeros((n_rec, m))
+    rec = _Record(n, m, int((scenario.duration_s + 10.0) / record_every_s))
     tw, rows = loop.twin, loop.rows
     inv = np.argsort(rows)  # twin rows -> sorted-id rows
-    cur = 0
-    next_progress = 5.0
-    for s in steps:
-        if s > cur:
-            tw.advance((s - cur) * dt_s, loop.torque[inv])
-            cur = s
-        t = s * dt_s
-        if s in captures:
+    k_cap = int(round(max_time_s(scenario.duration_s) / dt_s))
+    k_end, k, next_frame, next_progress = k_cap, 0, 0, 5.0
+    step = math.gcd(ctrl_every, rec_every)
+    while k < k_end:
+        t = k * dt_s
+        if k >= next_frame * cap_every - 1e-9:
             loop.camera.capture(t, loop.true_pose())
-        if s % ctrl_every == 0:
-            loop.tick(t, arb_every > 0 and s % arb_every == 0)
-        if s % rec_every == 0:
-            r = s // rec_every
-            rec_state[r] = tw.state[rows]
-            rec_torque[r] = loop.torque
-            rec_avoid[r] = [md['avoiding'] for md in loop.modes.values()]
-            rec_sat[r] = loop.saturated
-            if m:
-                obs = tw.obstacle_states()
-                rec_oc[r] = obs.center_m
-                rec_ophi[r] = obs.phi_rad
+            next_frame += 1
+        if k % ctrl_every == 0:
+            loop.tick(t, arb_every > 0 and k % arb_every == 0)
+            end = loop.coord.mission_end_s
+            if end is not None and k_end == k_cap:
+                k_end = min(k_cap, k + int(round(hold_s / dt_s)) + 1)
+        if k % rec_every == 0:
+            rec.add(tw, rows, loop)
+        nxt = min(k_end, (k // step + 1) * step, int(math.ceil(next_frame * cap_every - 1e-9)))
+        tw.advance((nxt - k) * dt_s, loop.agents.out.torque[inv])
+        k = nxt
         if progress is not None and t >= next_progress:
             progress(t, scenario.duration_s)
             next_progress += 5.0
-    if n_steps > cur:
-        tw.advance((n_steps - cur) * dt_s, loop.torque[inv])
     if progress is not None:
-        progress(n_steps * dt_s, scenario.duration_s)
-    t_rec = np.arange(n_rec) * rec_every * dt_s
+        progress(k * dt_s, scenario.duration_s)
     cam = loop.camera
+    t_rec = np.arange(rec.n) * rec_every * dt_s
     return SensedResult(
-        scenario_name=scenario.name,
-        robot_ids=loop.ids,
-        obstacle_names=tuple(o.name for o in scenario.obstacles),
-        t_s=t_rec,
-        state=rec_state,
-        torque_nm=rec_torque,
-        goal_m=_true_goals(scenario, loop.ids, t_rec, rec_state),
-        avoiding=rec_avoid,
-        saturated=rec_sat,
-        obstacle_center_m=rec_oc,
-        obstacle_phi_rad=rec_ophi,
-        mode_events=loop.mode_events,
-        graph_events=loop.graph_events,
-        reaching=[],
-        dt_s=dt_s,
-        wall_time_s=time.perf_counter() - wall0,
+        scenario_name=scenario.name, robot_ids=loop.ids,
+        obstacle_names=tuple(o.name for o in scenario.obstacles), t_s=t_rec,
+        state=rec.state[:rec.n], torque_nm=rec.torque[:rec.n],
+        goal_m=_true_goals(scenario, loop, t_rec, rec), avoiding=rec.avoid[:rec.n],
+        saturated=rec.sat[:rec.n], obstacle_center_m=rec.oc[:rec.n],
+        obstacle_phi_rad=rec.ophi[:rec.n], mode_events=loop.mode_events,
+        graph_events=loop.graph_events, reaching=[], dt_s=dt_s,
+        wall_time_s=time.perf_counter() - wall0, mission_end_s=loop.coord.mission_end_s,
+        nominal_duration_s=float(scenario.duration_s), progress_s=rec.progress[:rec.n],
         sensing={
-            'params': sensing.as_dict(scenario),
-            'prestart_frames': PRESTART_FRAMES,
-            'frames': cam.frames,
-            'poses_sent': cam.sent,
-            'poses_dropped': cam.dropped,
+            'params': sensing.as_dict(scenario), 'prestart_frames': PRESTART_FRAMES,
+            'frames': cam.frames, 'poses_sent': cam.sent, 'poses_dropped': cam.dropped,
             'estimator': loop.estimator_counters(),
-            'estimate_error_m': {
-                'rms': math.sqrt(loop.err_sq / max(1, loop.err_n)),
-                'max': loop.err_max,
-            },
+            'estimate_error_m': {'rms': math.sqrt(loop.err_sq / max(1, loop.err_n)),
+                                 'max': loop.err_max},
         },
     )
+
+
+class _Record:
+    """The TRUE record of a sensed run, grown as it goes."""
+
+    def __init__(self, n: int, m: int, rows: int):
+        self.n = 0
+        self.state, self.torque = np.zeros((rows, n, 5)), np.zeros((rows, n, 2))
+        self.avoid, self.sat = np.zeros((rows, n), bool), np.zeros((rows, n), bool)
+        self.oc, self.ophi = np.zeros((rows, m, 2)), np.zeros((rows, m))
+        self.progress = np.zeros((rows, n))
+        self.s = np.zeros((rows, n))
+
+    def add(self, tw, rows, loop) -> None:
+        if self.n == self.state.shape[0]:
+            for name in ('state', 'torque', 'avoid', 'sat', 'oc', 'ophi', 'progress'):
+                a = getattr(self, name)
+                setattr(self, name, np.concatenate([a, np.zeros_like(a)]))
+        q = self.n
+        self.state[q] = tw.state[rows]
+        self.torque[q] = loop.agents.out.torque
+        self.avoid[q] = loop.agents.out.mode[:, 0] != 0
+        self.sat[q] = loop.agents.out.saturated
+        if self.oc.shape[1]:
+            obs = tw.obstacle_states()
+            self.oc[q] = obs.center_m
+            self.ophi[q] = obs.phi_rad
+        c = loop.coord
+        self.progress[q] = np.where(c.refs.row >= 0, c.progress.s, 0.0)
+        self.n += 1
+
+
+def _true_goals(scenario, loop, t_s: np.ndarray, rec: _Record) -> np.ndarray:
+    """(T, N, 2) formation goals of the TRUE states: a leader's r(s) at the coordinator's
+    progress, a follower's original parent + delta."""
+    ids, state = loop.ids, rec.state[:rec.n]
+    coord = loop.coord
+    row = {rid: i for i, rid in enumerate(ids)}
+    goal = np.zeros((len(t_s), len(ids), 2))
+    out = np.zeros(6)
+    for i, rid in enumerate(ids):
+        p0 = coord.graph.original_parent.get(rid)
+        if p0 is None:
+            for q in range(len(t_s)):
+                leader_reference(coord.refs, i, rec.progress[q, i], 0.0, 0.0, out)
+                goal[q, i] = out[:2]
+        else:
+            goal[:, i] = state[:, row[p0], :2] + coord.graph.offset(rid, p0)
+    return goal

@@ -27,6 +27,10 @@ class SimResult:
     mode_events : [{t_s, robot, event: enter|exit, target, direction: cw|ccw}]
     graph_events : [{t_s, parents: {"<child>": parent-or-null}}]
     reaching : [{robot, t_s, sigma0_inf_mps, t_reach_s, bound_s}] one per reaching phase (S3.4)
+    mission_end_s : when every leader's reference reached its end (S17.3); None: it did not
+    nominal_duration_s : the scenario's duration_s, the mission's free traversal [s]
+    progress_s : (T, N) progress s of each leader's reference [s of path time] (S17; 0 for
+    followers), or None
     """
 
     scenario_name: str
@@ -45,6 +49,9 @@ class SimResult:
     reaching: list[dict] = field(default_factory=list)
     dt_s: float = 0.001
     wall_time_s: float = 0.0
+    mission_end_s: float | None = None
+    nominal_duration_s: float | None = None
+    progress_s: np.ndarray | None = None
 
     @property
     def formation_error_m(self) -> np.ndarray:

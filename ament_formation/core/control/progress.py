@@ -1,0 +1,155 @@
+"""Formations that re-form: the leader's reference waits for its team (docs/control-law.md S17).
+
+A leader tracks r(s) of its path at a progress s [s of path time] instead of r(t):
+r_dot = r'(s) s_dot and r_ddot = r''(s) s_dot^2 + r'(s) s_ddot. The progress rate follows a
+target with a first-order lag (``progress_tau_s``), so s_ddot stays bounded (S17.2):
+
+* the team's error E = max over its robots of |p_i - g_i| (goals inside an obstacle's Q left
+  out: such a robot is parked, S6.5) slows the target from 1 at ``reform_start_m`` to 0 at
+  ``reform_stop_m`` (S17.1): a team that fell apart waits for its robots instead of leaving them
+  behind;
+* a team that gives way to another (S7.5) waits: target 0 while one of its robots yields to a
+  robot of a team that ranks before it;
+* the reference ends at s = s_end (the scenario's ``duration_s``): there it rests.
+
+The mission ends when every leader's reference has reached its end (S17.3); a reference within
+``FINISH_S`` of its end waits while any team is not re-formed, so that the mission ends with every
+team in formation (a team already at its end may have been pushed out of formation since).
+"""
+
+from __future__ import annotations
+
+from collections import namedtuple
+import math
+
+from numba import njit
+import numpy as np
+
+from ament_formation.core.model.ellipse import h_value
+from ament_formation.core.model.paths import tabulated_reference_k
+
+REFERENCE_STEP_S = 0.01  # grid of the tabulated references in progress s [s]
+
+References = namedtuple('References', ['table', 'row', 'step_s', 's_end'])
+References.__doc__ = """The leaders' paths tabulated in progress s: ``table`` (L, G, 6) rows
+[x, y, x', y', x'', y''] (derivatives in s) every ``step_s`` from s = 0 to ``s_end``; ``row``
+(N,) the table of each robot row (-1: not a leader); ``step_s`` [s]; ``s_end`` [s].
+"""
+
+Progress = namedtuple('Progress', ['s', 'sd', 'sdd', 'target'])
+Progress.__doc__ = """The progress of every team's reference, rows by robot row (a team is its
+leader's row): ``s`` (N,) [s], ``sd`` (N,) rate [1], ``sdd`` (N,) [1/s], ``target`` (N,) the
+rate it follows [1].
+"""
+
+
+def tabulate(paths, s_end: float, step_s: float = REFERENCE_STEP_S) -> References:
+    """:data:`References` of ``paths`` (one per robot row, None for a follower) over
+    [0, ``s_end``]."""
+    grid = np.arange(int(math.ceil(s_end / step_s)) + 2) * step_s
+    rows = np.full(len(paths), -1, dtype=np.int64)
+    tabs = []
+    for i, path in enumerate(paths):
+        if path is None:
+            continue
+        r, rd, rdd = (np.asarray(v, dtype=float).reshape(-1, 2) for v in path.reference(grid))
+        rows[i] = len(tabs)
+        tabs.append(np.concatenate([r, rd, rdd], axis=1))
+    table = np.stack(tabs) if tabs else np.zeros((0, grid.size, 6))
+    return References(np.ascontiguousarray(table), rows, float(step_s), float(s_end))
+
+
+def new_progress(n: int) -> Progress:
+    """:data:`Progress` of n rows at the start: s = 0, at the nominal rate."""
+    return Progress(np.zeros(n), np.ones(n), np.zeros(n), np.ones(n))
+
+
+# implements: S17
+@njit(cache=True)
+def leader_reference(refs, i, s, sd, sdd, out):
+    """r, r_dot, r_ddot of leader row i at progress (s, s_dot, s_ddot) -> ``out`` (6,)."""
+    h = refs.step_s
+    table = refs.table[refs.row[i]]
+    s = min(max(s, 0.0), refs.s_end)
+    u = s / h
+    j = min(int(u), table.shape[0] - 2)
+    tabulated_reference_k(table, j, u - j, h, out)
+    rpx, rpy = out[2], out[3]
+    out[2] = rpx * sd
+    out[3] = rpy * sd
+    out[4] = out[4] * sd * sd + rpx * sdd
+    out[5] = out[5] * sd * sd + rpy * sdd
+
+
+@njit(cache=True)
+def goal_free(gx, gy, ob, prm):
+    """The goal lies outside every obstacle's protected region Q (else the robot is parked on a
+    limit cycle by design and does not count in its team's error, S17.1)."""
+    for j in range(ob.c.shape[0]):
+        kap = prm.protected_scale
+        if h_value(gx - ob.c[j, 0], gy - ob.c[j, 1], ob.phi[j], kap * ob.axes[j, 0],
+                   kap * ob.axes[j, 1]) < 0.0:
+            return False
+    return True
+
+
+@njit(cache=True)
+def team_errors(p, goal, team, known, ob, prm, out):
+    """S17.1: E of every team -> ``out`` (N,) at the leader rows: the largest |p_i - g_i| of its
+    known robots with a free goal."""
+    out[:] = 0.0
+    for i in range(p.shape[0]):
+        if not known[i] or not goal_free(goal[i, 0], goal[i, 1], ob, prm):
+            continue
+        e = math.hypot(p[i, 0] - goal[i, 0], p[i, 1] - goal[i, 1])
+        if e > out[team[i]]:
+            out[team[i]] = e
+
+
+@njit(cache=True)
+def rate_target(e_team, giving_way, prm):
+    """S17.1, S17.2: the progress rate a team's reference follows, in [0, 1]."""
+    if giving_way:
+        return 0.0
+    span = prm.reform_stop_m - prm.reform_start_m
+    return min(1.0, max(0.0, (prm.reform_stop_m - e_team) / span))
+
+
+FINISH_S = 2.0  # S17.3: a reference this close to its end [s of path] waits for every team
+
+
+# implements: S17.1
+@njit(cache=True)
+def rate_targets(e_team, giving_way, pr, leaders, s_end, prm, out):
+    """S17.1-S17.3: the rate target of every leader row -> ``out``: :func:`rate_target` of its
+    team, and 0 within ``FINISH_S`` of its end while some team is not re-formed (E above
+    ``reform_stop_m``): the mission ends with every team in formation."""
+    worst = 0.0
+    for i in leaders:
+        worst = max(worst, e_team[i])
+    for i in leaders:
+        out[i] = rate_target(e_team[i], giving_way[i], prm)
+        if worst > prm.reform_stop_m and pr.s[i] >= s_end - FINISH_S:
+            out[i] = 0.0
+
+
+@njit(cache=True)
+def at(pr, i, tau, s_end):
+    """(s, s_dot, s_ddot) of row i ``tau`` [s] into its current interval (s_ddot constant over
+    it); at s_end the reference rests."""
+    sdd = pr.sdd[i]
+    s = pr.s[i] + pr.sd[i] * tau + 0.5 * sdd * tau * tau
+    if s >= s_end:
+        return s_end, 0.0, 0.0
+    return s, max(0.0, pr.sd[i] + sdd * tau), sdd
+
+
+@njit(cache=True)
+def step(pr, i, dt, target, s_end, prm):
+    """Row i to the end of its interval of ``dt`` [s], then toward ``target`` for the next one:
+    s_ddot = (target - s_dot) / ``progress_tau_s`` (S17.2)."""
+    s, sd, _ = at(pr, i, dt, s_end)
+    pr.s[i] = s
+    pr.sd[i] = sd
+    pr.target[i] = target
+    pr.sdd[i] = 0.0 if s >= s_end else (target - sd) / prm.progress_tau_s
