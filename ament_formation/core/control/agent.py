@@ -156,7 +156,8 @@ clock], reported ``rep_mode``/``rep_tgt``/``rep_sdir``, ``in_range`` (R, N)); th
 (``x``, ``pd``, ``acmd``, ``known``, ``goal``, ``goal_dot``, ``vc``, ``ref``); the switching
 state ``modes`` (Modes of (R, N) arrays); the graph (``parent`` (R, N): the current parent row
 of the robot itself in its own row, -1 elsewhere; ``offset`` (R, 2), ``start_s`` (R,));
-the assignment (``assigned`` (R, 5) [mode, row, sense, t_entry, park], ``assigned_w`` (R, 2)),
+the assignment (``assigned`` (R, 5) [mode, row, sense, t_entry, park_at], ``assigned_w``
+(R, 2)),
 ``coord_s`` when the coordinator was last heard, ``rate_target`` (R,) its progress rate for a
 leader; ``progress`` (Progress of R rows) and ``t_ref`` (R,) when it last advanced; ``stop`` (R, 2) [latched, camera stamp];
 ``status`` (R,); ``t_dec`` (R,) the last decision [s]; events ``ev`` (R, E, 6), ``nev`` (R,);
@@ -180,7 +181,7 @@ def _modes(n_hosted: int, n: int) -> Modes:
 def _modes_of(ms, r):
     return Modes(ms.mode[r], ms.tgt[r], ms.sdir[r], ms.t_entry[r], ms.since[r], ms.last_kind[r],
                  ms.last_tgt[r], ms.last_exit[r], ms.wc[r], ms.wtgt[r], ms.anchor[r],
-                 ms.t_anchor[r], ms.park[r])
+                 ms.t_anchor[r], ms.park_at[r])
 
 
 @njit(cache=True)
@@ -280,7 +281,7 @@ def _decide(r, i, t, st, sc, ob, prm):
     if am != MODE_C and (arow < 0 or not st.known[r, arow]):
         am, arow = MODE_C, -1  # the partner is not heard: no encounter with it
     nev = apply_assignment(i, t, am, arow, a[2], a[3], st.assigned_w[r, 0],
-                           st.assigned_w[r, 1], a[4] > 0.5, m, ev, nev)
+                           st.assigned_w[r, 1], a[4], m, ev, nev)
     st.nev[r] = nev
 
 
@@ -625,18 +626,19 @@ class AgentBatch:
 
     def assign(self, now_s: float, assignments: dict, rates: dict | None = None) -> None:
         """The coordinator's message at ``now_s``: {robot id: {mode, partner, direction,
-        t_entry_s, drift_mps, park}} (robots without one: none) and {team leader id: progress
-        rate target} (S7.1, S17)."""
+        t_entry_s, drift_mps, park_at_s}} or {mode: make_way, park_at_s} (robots without one:
+        none) and {team leader id: progress rate target} (S7.1, S8.9, S17)."""
         st = self.state
         for r, rid in enumerate(self.hosted):
             a = assignments.get(rid, assignments.get(str(rid)))
             st.coord_s[r] = now_s
-            if a is None or int(a['partner']) not in self.row:
-                st.assigned[r] = (MODE_C, -1, 1.0, 0.0, 1.0)
+            park_at = -np.inf if a is None else float(a.get('park_at_s', -np.inf))
+            if a is None or a['mode'] == 'make_way' or int(a['partner']) not in self.row:
+                st.assigned[r] = (MODE_C, -1, 1.0, 0.0, park_at)
             else:
                 st.assigned[r] = (MODE_YIELD if a['mode'] == 'yield' else MODE_MUTUAL,
                                   self.row[int(a['partner'])], float(a['direction']),
-                                  float(a['t_entry_s']), float(a.get('park', True)))
+                                  float(a['t_entry_s']), park_at)
                 w = a.get('drift_mps')
                 st.assigned_w[r] = (0.0, 0.0) if w is None else w
             if rates is not None:

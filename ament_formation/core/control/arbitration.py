@@ -13,7 +13,8 @@ C2    A(k,y)  ``closes_loop``: k reacts to the robot         A(k, mutual) (S7.4,
 C3    A(k,y)  ``stalled``, not ``parked``                    A(k, yield), the other sense
 C4    A(k,m)  ``stalled``                                    the lower-ranked robot yields, the
                                                              other to C (S7.5 ranks)
-C5    C       ``stalled``, not ``at_goal``, ``blocked_by``   A(k, yield)
+C5    C       ``stalled``, not ``at_goal``, ``blocked_by``   A(k, yield); a blocker that yields
+                                                             to the robot stops parking (C9)
 C6    C, A(.) ``robot_threat(k)``, admissible, most urgent   A(k, mutual) or A(k, yield)
                                                              (``pairing``, S7.3, S7.5)
 C7    A(k,y)  ``cleared(k)`` held T_dwell, T_min             C
@@ -411,21 +412,23 @@ def _round_parked(i, k, robots, prm):
 
 @njit(cache=True)
 def _make_way(i, t, robots, m, prm, ev, nev):
-    """Row C9: the robots at rest beside robot i (stalled on its obstacle, both ways, S8.9)
-    yield to it without parking (they circle it until S8.3 lets them go back), so that it can
-    pass. Returns the event count."""
+    """Row C9: the robots at rest beside robot i (stalled on its obstacle, S8.9) make way: one
+    in C or yielding yields to i without parking (it circles i until S8.3 lets it go back); one
+    parked on an obstacle of its own stops parking for 2 ``stall_time_s`` (it goes round).
+    Returns the event count."""
     p, pd = robots.p, robots.pd
     for k in range(p.shape[0]):
-        if k == i or not robots.known[k] or m.mode[k] == MODE_OBSTACLE or m.mode[k] == MODE_MUTUAL:
-            continue
-        if m.mode[k] == MODE_YIELD and m.tgt[k] == i and not m.park[k]:
+        if k == i or not robots.known[k] or m.mode[k] == MODE_MUTUAL:
             continue
         d = math.hypot(p[k, 0] - p[i, 0], p[k, 1] - p[i, 1])
         if d > keepout_radius(robots.rbody, i, k, prm) + prm.safety_range_m or math.hypot(
                 pd[k, 0], pd[k, 1]) > prm.teammate_speed_mps:
             continue
-        nev = _yield_to(k, i, t, robots, m, prm, ev, nev)
-        m.park[k] = False
+        if m.mode[k] == MODE_OBSTACLE:
+            m.park_at[k] = max(m.park_at[k], t + 2.0 * prm.stall_time_s)
+        elif not (m.mode[k] == MODE_YIELD and m.tgt[k] == i and m.park_at[k] == INF):
+            nev = _yield_to(k, i, t, robots, m, prm, ev, nev)
+            m.park_at[k] = INF
     return nev
 
 
@@ -447,11 +450,11 @@ def _stalls(t, robots, m, teams, prm, ev, nev):
         if not progress(i, t, p, m, prm):
             continue
         k = m.tgt[i]
-        if md == MODE_YIELD and not (m.park[i] and _round_parked(i, k, robots, prm)):  # C3
-            s, park = -m.sdir[i], m.park[i]
+        if md == MODE_YIELD and not (t >= m.park_at[i] and _round_parked(i, k, robots, prm)):
+            s, park_at = -m.sdir[i], m.park_at[i]  # C3
             nev = leave(i, t, m, ev, nev)
             nev = enter(i, t, MODE_YIELD, k, s, m, ev, nev)
-            m.park[i] = park
+            m.park_at[i] = park_at
             reanchor(i, t, p, m)
         elif md == MODE_MUTUAL and k > i:  # C4: the robot of the later team (or id) yields
             a, b = (k, i) if not _rank_first(k, i, robots, teams) else (i, k)
@@ -463,7 +466,9 @@ def _stalls(t, robots, m, teams, prm, ev, nev):
         elif md == MODE_C:  # C5
             e = math.hypot(p[i, 0] - robots.goal[i, 0], p[i, 1] - robots.goal[i, 1])
             b = _blocker(i, robots, m, prm) if e > prm.at_goal_m else -1
-            if b >= 0 and not reacts_to(b, i, m, robots.parent):
+            if b >= 0 and m.mode[b] == MODE_YIELD and m.tgt[b] == i:
+                m.park_at[b] = INF  # it yields to i but waits at its goal, in i's way: make way
+            elif b >= 0 and not reacts_to(b, i, m, robots.parent):
                 nev = _yield_to(i, b, t, robots, m, prm, ev, nev)
             reanchor(i, t, p, m)
     return nev

@@ -178,9 +178,13 @@ class Coordinator:
         return out
 
     def assignments(self) -> dict:
-        """{robot id: assignment dict} of the robots in a robot encounter now."""
+        """{robot id: assignment dict} of the robots in a robot encounter now, and of the robots
+        on an obstacle asked to make way ({mode: make_way, park_at_s})."""
         m, out = self.modes, {}
         for q, rid in enumerate(self.ids):
+            if m.mode[q] == MODE_OBSTACLE and math.isfinite(m.park_at[q]) and m.park_at[q] > 0:
+                out[rid] = {'mode': 'make_way', 'partner': -1, 'direction': 1.0, 't_entry_s': 0.0,
+                            'drift_mps': None, 'park_at_s': float(m.park_at[q])}
             if m.mode[q] in (MODE_YIELD, MODE_MUTUAL):
                 out[rid] = {
                     'mode': 'yield' if m.mode[q] == MODE_YIELD else 'mutual',
@@ -189,7 +193,7 @@ class Coordinator:
                     't_entry_s': float(m.t_entry[q]),
                     'drift_mps': [float(m.wc[q, 0]), float(m.wc[q, 1])]
                     if m.mode[q] == MODE_MUTUAL else None,
-                    'park': bool(m.park[q]),
+                    'park_at_s': float(m.park_at[q]),
                 }
         return out
 
@@ -224,7 +228,7 @@ class Publisher:
         sent_a, sent_r = self._sent
 
         def key(a):
-            return {k: (v['mode'], v['partner'], v['direction'], v['t_entry_s'], v['park'])
+            return {k: (v['mode'], v['partner'], v['direction'], v['t_entry_s'], v['park_at_s'])
                     for k, v in a.items()}
 
         if key(assignments) != key(sent_a):

@@ -35,12 +35,12 @@ its formation goal [m] and its velocity [m/s] (S6.5 parking factor).
 """
 
 RobotMode = namedtuple(
-    'RobotMode', ['mode', 'target', 'direction', 't_entry_s', 'drift', 'drift_target', 'park']
+    'RobotMode', ['mode', 'target', 'direction', 't_entry_s', 'drift', 'drift_target', 'park_at']
 )
 RobotMode.__doc__ = """Row i of :data:`~ament_formation.core.control.switching.Modes` as
 scalars: ``mode`` (MODE_*), ``target`` (obstacle index or robot row), ``direction`` (+1 CCW,
 -1 CW), ``t_entry_s`` [s], ``drift`` and ``drift_target`` (2-tuples [m/s]) a pair's w_c and its
-target, ``park`` whether the S6.5 parking factor applies.
+target, ``park_at`` [s] when the S6.5 parking factor applies from.
 """
 
 
@@ -48,7 +48,7 @@ target, ``park`` whether the S6.5 parking factor applies.
 def mode_row(m, i):
     """:data:`RobotMode` of row i of ``m`` (:data:`Modes`)."""
     return RobotMode(m.mode[i], m.tgt[i], m.sdir[i], m.t_entry[i], (m.wc[i, 0], m.wc[i, 1]),
-                     (m.wtgt[i, 0], m.wtgt[i, 1]), m.park[i])
+                     (m.wtgt[i, 0], m.wtgt[i, 1]), m.park_at[i])
 
 
 @njit(cache=True)
@@ -100,7 +100,7 @@ def _avoidance_field(t, p, target, track, state, prm, vmax, amax):
     zdx, zdy = p[2] - cvx, p[3] - cvy
     s = state.direction
     mu, mud = 1.0, 0.0
-    if md != MODE_MUTUAL and state.park:
+    if md != MODE_MUTUAL and t >= state.park_at:
         goal, goal_dot = track.goal, track.goal_dot
         mu, mud = parking_factor_k(zx, zy, zdx, zdy, goal[0] - cx, goal[1] - cy,
                                    goal_dot[0] - cvx, goal_dot[1] - cvy, phi, phd, big1, big2, s,

@@ -5,7 +5,8 @@ r_dot = r'(s) s_dot and r_ddot = r''(s) s_dot^2 + r'(s) s_ddot. The progress rat
 target with a first-order lag (``progress_tau_s``), so s_ddot stays bounded (S17.2):
 
 * the team's error E = max over its robots of |p_i - g_i| (goals inside an obstacle's Q left
-  out: such a robot is parked, S6.5) slows the target from 1 at ``reform_start_m`` to 0 at
+  out: such a robot is parked, S6.5; none while the leader's goal is inside one) slows the
+  target from 1 at ``reform_start_m`` to 0 at
   ``reform_stop_m`` (S17.1): a team that fell apart waits for its robots instead of leaving them
   behind;
 * a team that gives way to another (S7.5) waits: target 0 while one of its robots yields to a
@@ -96,7 +97,8 @@ def goal_free(gx, gy, ob, prm):
 @njit(cache=True)
 def team_errors(p, goal, team, known, ob, prm, out):
     """S17.1: E of every team -> ``out`` (N,) at the leader rows: the largest |p_i - g_i| of its
-    known robots with a free goal."""
+    known robots with a free goal; 0 while the leader's own goal is not free (the reference
+    must carry it out of the obstacle's Q: the followers' goals hang on the parked leader)."""
     out[:] = 0.0
     for i in range(p.shape[0]):
         if not known[i] or not goal_free(goal[i, 0], goal[i, 1], ob, prm):
@@ -104,6 +106,9 @@ def team_errors(p, goal, team, known, ob, prm, out):
         e = math.hypot(p[i, 0] - goal[i, 0], p[i, 1] - goal[i, 1])
         if e > out[team[i]]:
             out[team[i]] = e
+    for i in range(p.shape[0]):
+        if team[i] == i and not goal_free(goal[i, 0], goal[i, 1], ob, prm):
+            out[i] = 0.0
 
 
 @njit(cache=True)

@@ -52,15 +52,16 @@ INF = math.inf
 Modes = namedtuple(
     'Modes',
     ['mode', 'tgt', 'sdir', 't_entry', 'since', 'last_kind', 'last_tgt', 'last_exit', 'wc',
-     'wtgt', 'anchor', 't_anchor', 'park'],
+     'wtgt', 'anchor', 't_anchor', 'park_at'],
 )
 Modes.__doc__ = """The switching state of N robots (rows), updated in place by the compiled code:
 ``mode`` (N,) int MODE_*; ``tgt`` (N,) int obstacle index or robot row (-1 in C); ``sdir`` (N,)
 +1 CCW / -1 CW; ``t_entry`` (N,) [s]; ``since`` (N,) [s] start of the S8.3 dwell window (< 0: not
 holding); ``last_kind``, ``last_tgt``, ``last_exit`` [s] the S8.4 cool-down record;
 ``wc``, ``wtgt`` (N, 2) [m/s] a mutual pair's drift w_c and its target (S7.3); ``anchor`` (N, 2)
-[m] and ``t_anchor`` (N,) [s] the progress monitor's last anchor (S8.9); ``park`` (N,) bool: the
-S6.5 parking factor applies (False while making way for a stalled robot, S8.9).
+[m] and ``t_anchor`` (N,) [s] the progress monitor's last anchor (S8.9); ``park_at`` (N,) [s]:
+the S6.5 parking factor applies from then on (later while making way for a stalled robot,
+S8.9).
 """
 
 
@@ -79,7 +80,7 @@ def new_modes(n: int) -> Modes:
         np.zeros((n, 2)),
         np.full((n, 2), np.nan),
         np.zeros(n),
-        np.ones(n, dtype=np.bool_),
+        np.full(n, -np.inf),
     )
 
 
@@ -132,7 +133,7 @@ def enter(i, t, mode, target, s, m, ev, nev):
     m.sdir[i] = s
     m.t_entry[i] = t
     m.since[i] = -1.0
-    m.park[i] = True
+    m.park_at[i] = -INF
     return event(ev, nev, t, i, True, mode, target, s)
 
 
@@ -415,14 +416,17 @@ def robot_transitions(i, t, robots, ob, m, prm, ev, nev):
 
 
 @njit(cache=True)
-def apply_assignment(i, t, a_mode, a_row, a_sense, a_t_entry, a_wx, a_wy, a_park, m, ev, nev):
+def apply_assignment(i, t, a_mode, a_row, a_sense, a_t_entry, a_wx, a_wy, a_park_at, m, ev,
+                     nev):
     """The coordinator's robot encounter for robot i (S7.1): ``a_mode`` MODE_YIELD/MODE_MUTUAL
     toward row ``a_row`` (MODE_C / -1: none) with its sense, entry time, a pair's drift w_c and
-    whether the parking factor applies (``a_park``).
-    Ignored on an obstacle (static obstacles beat robots; the robot's report tells the
-    coordinator). A different or withdrawn assignment ends the encounter in force."""
+    when its parking factor applies (``a_park_at`` [s]). On an obstacle the robot keeps its own
+    mode (static obstacles beat robots; its report tells the coordinator) and takes only a
+    request to make way (``a_park_at``: no parking until then, S8.9). A different or withdrawn
+    assignment ends the encounter in force."""
     md = m.mode[i]
     if md == MODE_OBSTACLE:
+        m.park_at[i] = max(m.park_at[i], a_park_at)
         return nev
     if a_mode == MODE_C or a_row < 0:
         if md != MODE_C:
@@ -434,7 +438,7 @@ def apply_assignment(i, t, a_mode, a_row, a_sense, a_t_entry, a_wx, a_wy, a_park
             nev = leave(i, t, m, ev, nev)
         nev = enter(i, t, a_mode, a_row, a_sense, m, ev, nev)
     m.t_entry[i] = a_t_entry
-    m.park[i] = a_park
+    m.park_at[i] = a_park_at
     m.wc[i, 0] = a_wx
     m.wc[i, 1] = a_wy
     m.wtgt[i, 0] = a_wx
