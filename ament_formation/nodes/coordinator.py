@@ -1,20 +1,18 @@
-"""formation_coordinator: owns the communication graph (spec S9), arbitrates robot-robot encounters
-(spec S7) and starts the mission.
+"""formation_coordinator: the graph (spec S9), the one authority for robot-robot encounters
+(docs/control-law.md S7.1), the teams' right of way (S7.5) and the progress of their references
+(S17); it starts the mission.
 
 It watches every robot's ``state`` and ``mode``. When the set of robots in any avoidance mode
-changes, it recomputes the parents with core/control/rewiring.py (S9 rewiring; restoration =
-rewiring with
-fewer avoiders) and publishes ``/formation/graph`` with a new revision (transient local, so late
+changes, it rewires the graph (core/control/rewiring.py; restoration = rewiring with fewer
+avoiders) and publishes ``/formation/graph`` with a new revision (transient local, so late
 controllers get the current graph). Once every robot's controller publishes its state (or at once
 with ``wait_for_robots`` false) it fixes the mission start ``start_s = now + start_delay_s`` in
 the same message: scenario time is ``now - start_s`` for every node. At ``encounter_rate_hz`` it
-arbitrates robot-robot encounters over all robots together (core/control/arbiter.py: the
-simulator's
-``decide`` on every robot's broadcast state, the robots' reported obstacle modes taken as given)
-and publishes the yield/mutual assignments on ``/formation/encounters`` (on change with a new
-revision; when a mutual pair's drift w_c moved by more than 5 mm/s; and every ``republish_s``,
-always the newest); each controller applies its own as an override of its local
-decision. It also publishes markers for RViz/Foxglove.
+decides (core/control/coordinator.py: the compiled decision the ideal simulator runs, on every
+robot's broadcast state, the robots' own obstacle modes taken as given) and publishes its
+decisions on ``/formation/encounters`` (encounters/v2: the assignments and every team's progress
+rate) on change and every ``republish_s``; a robot that hears nothing from it for its
+``coordinator_timeout_s`` stops. It also publishes markers for RViz/Foxglove.
 
 Topics (QoS from ros/qos.py)
   sub  robot_<id>/state     nav_msgs/Odometry (taken serialized at 100 Hz; only the newest of each
@@ -25,10 +23,10 @@ Topics (QoS from ros/qos.py)
   pub  /formation/graph     std_msgs/String JSON ament_formation/graph/v1 {schema, revision,
   parents,
                             offsets_m, avoiding, stamp_s, start_s}           QOS_GRAPH
-  pub  /formation/encounters  std_msgs/String JSON ament_formation/encounters/v1 {schema, revision,
-                            stamp_s, assignments: {"<id>": {mode: yield|mutual, partner, direction
-                            (+1 CCW, -1 CW), t_entry_s (scenario time), drift_mps [wx, wy] or
-                            null}}}  (docs/schemas/)                         QOS_GRAPH
+  pub  /formation/encounters  std_msgs/String JSON ament_formation/encounters/v2 {schema, revision,
+                            stamp_s, assignments: {"<id>": {mode: yield|mutual|make_way, partner,
+                            direction, t_entry_s, drift_mps, park_at_s}}, rates: {"<leader>":
+                            rate}}  (docs/schemas/)                          QOS_GRAPH
   pub  /formation/markers   visualization_msgs/MarkerArray at markers_rate_hz: P/L/Q ellipses (ns
                             ellipse_P|L|Q, id = obstacle index), robots (ns robots, headings; id =
                             robot id) and graph edges (ns graph_edges, ARROW parent -> child, id =
@@ -46,7 +44,7 @@ Parameters
   wait_for_robots   bool   wait for every robot's state before starting       default true
   markers_rate_hz   float  marker publication rate [Hz] (0: none)             default 5.0
   republish_s       float  graph re-publication period [s]                    default 1.0
-  encounter_rate_hz float  S7 arbitration rate [Hz] (0: no arbitration)       default 50.0
+  encounter_rate_hz float  decision rate (S7.1, S17) [Hz], >= 1              default 50.0
 """
 
 from __future__ import annotations
@@ -62,8 +60,7 @@ from rclpy.serialization import deserialize_message
 from std_msgs.msg import String
 from visualization_msgs.msg import MarkerArray
 
-from ament_formation.core.control.arbiter import AssignmentSender, EncounterArbiter
-from ament_formation.core.control.rewiring import FormationGraph
+from ament_formation.core.control.coordinator import Coordinator, Publisher
 from ament_formation.core.errors import ConfigError
 from ament_formation.core.model.obstacles import ObstacleField
 from ament_formation.core.params import param
@@ -87,7 +84,8 @@ class CoordinatorParams:
     )
     republish_s: float = param(1.0, '/formation/graph re-publication period [s], > 0')
     encounter_rate_hz: float = param(
-        50.0, 'S7 arbitration rate [Hz] (0: no arbitration)', range=(0.0, 1000.0)
+        50.0, 'decision rate: encounters, right of way, progress (S7.1, S17) [Hz]',
+        range=(1.0, 1000.0)
     )
 
     def __post_init__(self) -> None:
@@ -103,9 +101,9 @@ class CoordinatorParams:
             )
         if not (math.isfinite(self.republish_s) and self.republish_s > 0):
             raise ConfigError(f'must be > 0 s (got {self.republish_s!r})', 'republish_s')
-        if not (math.isfinite(self.encounter_rate_hz) and 0.0 <= self.encounter_rate_hz <= 1000.0):
+        if not (math.isfinite(self.encounter_rate_hz) and 1.0 <= self.encounter_rate_hz <= 1000.0):
             raise ConfigError(
-                f'must be in [0, 1000] Hz (got {self.encounter_rate_hz!r})', 'encounter_rate_hz'
+                f'must be in [1, 1000] Hz (got {self.encounter_rate_hz!r})', 'encounter_rate_hz'
             )
 
 
@@ -126,7 +124,8 @@ class CoordinatorNode(Node):
         super().__init__('formation_coordinator', context=context, **node_kw)
         self.prm = params if params is not None else declare_dataclass(self, CoordinatorParams)
         self.scenario = load_scenario(self.prm.scenario)
-        self.graph = FormationGraph.from_scenario(self.scenario)
+        self.core = Coordinator(self.scenario)  # graph, encounters, right of way, progress
+        self.graph = self.core.graph
         self.ids = self.scenario.robot_ids
         self.obstacles = ObstacleField(self.scenario.obstacles)
         self._raw_states: dict[int, bytes] = {}  # newest serialized state of each robot
@@ -137,12 +136,12 @@ class CoordinatorNode(Node):
         self.parents = self.graph.rewire(())
         self.start_s: float | None = None
         self.history: list[msgs.GraphMessage] = []
-        self.arbiter = EncounterArbiter(self.scenario)
-        self.sender = AssignmentSender()  # when the assignments are sent (new decision, w_c)
+        self.publisher = Publisher(self.prm.republish_s)  # when its decisions are sent
+        self.decision: tuple[dict, dict] = ({}, {})  # the newest (assignments, rates)
         self.encounter_revision = 0
-        self._heard_mono: dict[
-            int, float
-        ] = {}  # when each robot's state last arrived [s, monotonic]
+        self._end_sent = False  # the mission's end was published
+        self._heard_mono: dict[int, float] = {}  # when each state last arrived [s, monotonic]
+        self._heard_at: dict[int, float] = {}  # ... [s, ROS time]
         self.rejections = diag.Rejections(('mode', 'state'), lambda: self.now_s())
         self.rejected = self.rejections.counts  # kind -> count, reported as 'inputs'
         self._marker_keys: frozenset | None = None  # (ns, id) drawn by the last marker array
@@ -169,13 +168,11 @@ class CoordinatorNode(Node):
             self.start_s = self.now_s() + self.prm.start_delay_s
         self._publish_graph()
         self.create_timer(self.prm.republish_s, self._republish)
-        self._publish_encounters(new_revision=True)
-        self.arbitration_watch = self.markers_watch = None
-        if self.prm.encounter_rate_hz > 0:
-            self.arbitration_watch = self.diag.watch(
-                'arbitration loop', 1.0 / self.prm.encounter_rate_hz
-            )
-            self.create_timer(1.0 / self.prm.encounter_rate_hz, self._arbitrate)
+        self._publish_encounters()
+        self.arbitration_watch = self.diag.watch(
+            'arbitration loop', 1.0 / self.prm.encounter_rate_hz)
+        self.create_timer(1.0 / self.prm.encounter_rate_hz, self._arbitrate)
+        self.markers_watch = None
         if self.prm.markers_rate_hz > 0:
             self.markers_watch = self.diag.watch('markers loop', 1.0 / self.prm.markers_rate_hz)
             self.create_timer(1.0 / self.prm.markers_rate_hz, self._publish_markers)
@@ -199,6 +196,7 @@ class CoordinatorNode(Node):
     def _on_state(self, rid: int, raw: bytes) -> None:
         self._raw_states[rid] = raw
         self._heard_mono[rid] = time.monotonic()  # receive time: no clock skew between hosts
+        self._heard_at[rid] = self.now_s()
         if self.start_s is None and len(self.states) == len(self.ids):
             self.start_s = self.now_s() + self.prm.start_delay_s
             self.get_logger().info(
@@ -215,11 +213,10 @@ class CoordinatorNode(Node):
             self.get_logger().warn(f'robot_{rid}/mode: {err}', throttle_duration_sec=5.0)
             return
         self.modes[rid] = mode
-        avoiding = set(self.avoiding)
-        (avoiding.add if is_avoiding(mode) else avoiding.discard)(rid)
-        if avoiding != self.avoiding:
-            self.avoiding = avoiding
-            self.parents = self.graph.rewire(sorted(avoiding))  # S9 steps 1-6
+        self.core.report(rid, {**mode, 'avoiding': is_avoiding(mode)})
+        parents = self.core.reported_avoiding()
+        if parents is not None:  # S9 steps 1-6
+            self.avoiding, self.parents = set(self.core.avoiding), parents
             self._publish_graph()
 
     # ------------------------------------------------------------------ output
@@ -244,27 +241,29 @@ class CoordinatorNode(Node):
         self.diag.changed()  # a new graph (start, rewiring) is published when it happens
 
     def _republish(self) -> None:
-        """Same revision again (a controller that missed it catches up)."""
+        """Same graph revision again (a controller that missed it catches up)."""
         self.pub_graph.publish(msgs.graph_msg(self.current_graph()))
-        self.sender.republish()
-        self._publish_encounters(new_revision=False)
 
     def _arbitrate(self) -> None:
-        """S7 over all robots (core/control/arbiter.py); publish the assignments on change."""
+        """The coordinator's decision (core/control/coordinator.py) at its rate; published on
+        change and every republish_s (before the start: the empty decision, so the robots hear
+        the coordinator)."""
         now = self.now_s()
         self.arbitration_watch.tick(int(now * 1e9))
-        if self.start_s is None or now < self.start_s:
-            return
-        what = self.sender.update(self.arbiter.decide(now - self.start_s, self.states, self.modes))
-        if what is not None:  # a new decision (new revision), or a pair's w_c moved
-            self._publish_encounters(new_revision=what == 'revision')
+        if self.start_s is not None and now >= self.start_s:
+            t = now - self.start_s
+            for rid, state in self.states.items():  # stamped on arrival: no clock skew
+                self.core.state(rid, state, self._heard_at.get(rid, -math.inf) - self.start_s)
+            self.decision = self.core.decide(t)
+        ended = self.core.mission_end_s is not None and not self._end_sent
+        if self.publisher.due(now, *self.decision) or ended:
+            self._end_sent = self.core.mission_end_s is not None
+            self._publish_encounters()
 
-    def _publish_encounters(self, new_revision: bool) -> None:
-        if new_revision:
-            self.encounter_revision += 1
-        self.pub_encounters.publish(
-            msgs.encounters_msg(self.encounter_revision, self.sender.current, self.now_s())
-        )
+    def _publish_encounters(self) -> None:
+        self.encounter_revision += 1
+        self.pub_encounters.publish(msgs.encounters_msg(msgs.EncountersMessage(
+            self.encounter_revision, *self.decision, self.now_s(), self.core.mission_end_s)))
 
     def live_robots(self) -> list[int]:
         """Robots with a valid state received in the last ROBOT_SILENT_S [s, wall time]."""
@@ -332,7 +331,9 @@ class CoordinatorNode(Node):
             'avoiding': sorted(self.avoiding),
             'parents': dict(sorted(self.parents.items())),
             'encounter_revision': self.encounter_revision,
-            'assignments': len(self.sender.current),
+            'assignments': len(self.decision[0]),
+            'mission_end_s': 'none' if self.core.mission_end_s is None else
+            self.core.mission_end_s,
             'start_s': 'none' if self.start_s is None else self.start_s,
         }
         if self.start_s is None:

@@ -5,11 +5,12 @@ What an rclcpp component container gives, for Python nodes: every hosted robot k
 parameters, QoS and safety as when they run as separate processes), but they share one process
 and one executor, and
 
-* one timer runs every hosted controller's control period back to back (one wake-up of the
-  process per period instead of one per robot), and one timer polls every hosted bridge;
-* the hosted controllers read each other's latest state, accel and mode in process
-  (nodes/controller.py PeerTable) instead of through N^2 DDS subscriptions, and each controller
-  hands its torques to its robot's bridge and takes the wheel samples from it directly. State,
+* the hosted robots' agents are one :class:`~ament_formation.core.control.agent.AgentBatch`:
+  one compiled call runs every hosted robot's control period (one wake-up of the process per
+  period instead of one per robot), and one timer polls every hosted bridge;
+* the hosted robots hear each other in process (``AgentBatch.share``) instead of through N^2 DDS
+  subscriptions, and each controller hands its torques to its robot's bridge and takes the wheel
+  samples from it directly. State,
   accel and mode are still published on DDS for the coordinator, the recorder, the tools and the
   robots in other processes; wheel_torque and wheel_state are published while anyone subscribes
   (a hosted bridge takes its commands only from its hosted controller).
@@ -55,12 +56,13 @@ from typing import Sequence
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
+from ament_formation.core.control.agent import AgentBatch, AgentParams
 from ament_formation.core.errors import ConfigError
 from ament_formation.core.params import param
 from ament_formation.core.scenario.loader import load_scenario
 from ament_formation.nodes.bridge import BridgeNode
 from ament_formation.nodes.controller import _send_zero_torque as _controller_zero_torque
-from ament_formation.nodes.controller import ControllerNode, PeerTable, set_realtime
+from ament_formation.nodes.controller import ControllerNode, set_realtime
 from ament_formation.ros import diagnostics as diag
 from ament_formation.ros.executors import run_node
 from ament_formation.ros.params import declare_dataclass
@@ -132,7 +134,8 @@ class TeamNode(Node):
         self.lock = threading.Lock() if threaded else None
         self.loop: ControlLoop | None = None
         self.poll_watch = None  # stalls of the bridges' poll timer (diagnostics "serial poll")
-        self.peers = PeerTable(ids)
+        # the hosted controllers' parameters reach this node too (-p NAME:=VALUE of the process)
+        self.batch = AgentBatch(scenario, ids, declare_dataclass(self, AgentParams))
         self.controllers: dict[int, ControllerNode] = {}
         self.bridges: dict[int, BridgeNode] = {}
         try:
@@ -159,7 +162,7 @@ class TeamNode(Node):
                     context=context,
                     namespace=ns,
                     tick_timer=False,
-                    peers=self.peers,
+                    batch=self.batch,
                     bridge=self.bridges.get(rid),
                     lock=self.lock,
                     tick_inputs=threaded,  # the heard robots' state/accel: taken at each period
@@ -204,7 +207,11 @@ class TeamNode(Node):
                 controller.take_inputs()
         now_s = self._now_ns() * 1e-9  # one time for the whole period
         for controller in self.controllers.values():
-            controller.control_tick(now_s)
+            controller._check_clocks()
+        self.batch.tick(now_s)
+        self.batch.share(now_s)
+        for controller in self.controllers.values():
+            controller.publish(now_s)
 
     def destroy_node(self):
         if self.loop is not None:

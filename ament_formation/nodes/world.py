@@ -31,7 +31,9 @@ Parameters
   physics_dt_s     float  RK4 step [s]                                         default 0.001
   camera_enabled   bool   render and publish frames                            default true
   camera_noise     float  sensor noise [grey levels]                           default 2.0
-  exit_at_end      bool   shut down when scenario time passes duration_s      default true
+  exit_at_end      bool   shut down when the mission ends (the coordinator's mission_end_s, S17.3)
+                          plus hold_s, or at the run's time cap             default true
+  hold_s           float  run on this long after the mission ends [s]      default 0
 """
 
 from __future__ import annotations
@@ -51,6 +53,7 @@ from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import String
 
 from ament_formation.core.config_files import config_file
+from ament_formation.core.control.progress import max_time_s
 from ament_formation.core.errors import ConfigError
 from ament_formation.core.params import param
 from ament_formation.core.scenario.loader import load_scenario
@@ -91,7 +94,10 @@ class WorldParams:
     physics_dt_s: float = param(0.001, 'RK4 step [s], <= tick_s', range=(0.0, 0.05))
     camera_enabled: bool = param(True, 'render and publish camera frames')
     camera_noise: float = param(2.0, 'sensor noise std [grey levels]')
-    exit_at_end: bool = param(True, 'shut down when scenario time passes duration_s')
+    exit_at_end: bool = param(
+        True, "shut down when the mission ends (the coordinator's mission_end_s) plus hold_s, or "
+        "at the run's time cap (three times duration_s, at least 30 s more)")
+    hold_s: float = param(0.0, 'run on this long after the mission ends [s]', range=(0.0, 3600.0))
 
     def __post_init__(self) -> None:
         if not self.scenario:
@@ -127,7 +133,7 @@ class WorldNode(Node):
         self.done = False
         self.overruns = 0
         self.ticks = 0
-        self.rejections = diag.Rejections(('graph',), time.monotonic)
+        self.rejections = diag.Rejections(('graph', 'encounters'), time.monotonic)
         self._overruns_seen = (0, -math.inf)  # (count, when it last grew [s])
         self.diag = diag.Diagnostics(self)
         self.diag.add('simulation', self._simulation_status, hardware_id='simulation')
@@ -181,6 +187,8 @@ class WorldNode(Node):
             self.create_publisher(Clock, '/clock', QOS_CLOCK) if self.sim_clock else None
         )
         self.create_subscription(String, '/formation/graph', self._on_graph, QOS_GRAPH)
+        self.create_subscription(String, '/formation/encounters', self._on_encounters, QOS_GRAPH)
+        self.mission_end_s: float | None = None
         self._publish_clock()
         self.timer = self.create_timer(self.prm.tick_s / self.prm.speed_factor, self._tick)
         self.get_logger().info(
@@ -214,6 +222,17 @@ class WorldNode(Node):
         if graph.start_s is not None and self.start_s is None:
             self.start_s = graph.start_s
             self.get_logger().info(f'mission start at {graph.start_s:.3f} s')
+
+    def _on_encounters(self, msg: String) -> None:
+        try:
+            m = msgs.encounters_from_msg(msg)
+        except ValueError:
+            self.rejections.counts['encounters'] += 1
+            self.diag.changed()
+            return
+        if m.mission_end_s is not None and self.mission_end_s is None:
+            self.mission_end_s = m.mission_end_s
+            self.get_logger().info(f'mission ended at t = {m.mission_end_s:.2f} s')
 
     def _tick(self) -> None:
         """Advance the plant to the world clock in tick_s steps (at most 5 per call)."""
@@ -296,7 +315,10 @@ class WorldNode(Node):
             if self.next_frame_s < self.plant_time_s:
                 self.next_frame_s = self.plant_time_s + self.frame_period_s
         t = self.scenario_time_s()
-        if self.prm.exit_at_end and t is not None and t >= self.scenario.duration_s:
+        end = max_time_s(self.scenario.duration_s)
+        if self.mission_end_s is not None:
+            end = min(end, self.mission_end_s + self.prm.hold_s)
+        if self.prm.exit_at_end and t is not None and t >= end:
             self.done = True
             self.get_logger().info(f'scenario {self.scenario.name} finished at t = {t:.2f} s')
 

@@ -13,7 +13,7 @@ Topics (type): helpers
   wheel_state_from_msg
 - robot_<id>/mode (std_msgs/String (JSON mode/v1)): mode_msg, mode_from_msg
 - /formation/graph (std_msgs/String (JSON graph/v1)): graph_msg, graph_from_msg (GraphMessage)
-- /formation/encounters (std_msgs/String (JSON encounters/v1)): encounters_msg,
+- /formation/encounters (std_msgs/String (JSON encounters/v2)): encounters_msg,
   encounters_from_msg
 - /formation/markers (visualization_msgs/MarkerArray): robot_markers, ellipse_markers,
   edge_markers, delete_all_marker, marker_array
@@ -303,58 +303,55 @@ def graph_from_msg(msg: String) -> GraphMessage:
     )
 
 
-def encounters_msg(revision: int, assignments: dict, stamp_s: float) -> String:
-    """std_msgs/String JSON ament_formation/encounters/v1 of /formation/encounters: {schema,
-    revision, stamp_s, assignments: {id: {mode, partner, direction, t_entry_s, drift_mps}}} from
-    {robot id: EncounterAssignment} (S7).
-    """
-    return String(
-        data=payloads.encode(
-            {
-                'schema': payloads.ENCOUNTERS_V1,
-                'revision': int(revision),
-                'stamp_s': float(stamp_s),
-                'assignments': {
-                    str(k): {
-                        'mode': a.mode,
-                        'partner': int(a.partner),
-                        'direction': float(a.direction),
-                        't_entry_s': None if a.t_entry_s is None else float(a.t_entry_s),
-                        'drift_mps': None
-                        if a.drift_mps is None
-                        else [float(v) for v in a.drift_mps],
-                    }
-                    for k, a in sorted(assignments.items())
-                },
-            }
-        )
-    )
+@dataclass(frozen=True)
+class EncountersMessage:
+    """Decoded /formation/encounters (encounters/v2): revision, {robot id: assignment dict},
+    {leader id: progress rate target}, ``stamp_s`` [s, the coordinator's ROS time] and
+    ``mission_end_s`` [s, scenario time] (None before the mission ends)."""
+
+    revision: int
+    assignments: dict
+    rates: dict
+    stamp_s: float
+    mission_end_s: float | None = None
 
 
-def encounters_from_msg(msg: String) -> tuple[int, dict]:
-    """(revision, {robot id: EncounterAssignment}); ValueError naming the problem unless it
-    follows ament_formation/encounters/v1.
-    """
-    from ament_formation.core.control.controller import EncounterAssignment
-    from ament_formation.core.errors import ConfigError
-
-    data = payloads.decode(msg.data, payloads.ENCOUNTERS_V1)
-    try:
-        out = {
-            int(k): EncounterAssignment(
-                a['mode'],
-                a['partner'],
-                float(a['direction']),
-                None if a['t_entry_s'] is None else float(a['t_entry_s']),
-                None
-                if a['drift_mps'] is None
-                else (float(a['drift_mps'][0]), float(a['drift_mps'][1])),
-            )
-            for k, a in data['assignments'].items()
+def encounters_msg(m: EncountersMessage) -> String:
+    """std_msgs/String JSON ament_formation/encounters/v2 of the coordinator's decision
+    (assignment dicts as core/control/coordinator.py makes them)."""
+    def one(a: dict) -> dict:
+        park = a.get('park_at_s')
+        return {
+            'mode': a['mode'],
+            'partner': int(a['partner']),
+            'direction': float(a['direction']),
+            't_entry_s': float(a['t_entry_s']),
+            'drift_mps': None if a['drift_mps'] is None else [float(v) for v in a['drift_mps']],
+            'park_at_s': None if park is None or not math.isfinite(park) else float(park),
         }
-    except ConfigError as err:
-        raise ValueError(f'{payloads.ENCOUNTERS_V1}: {err}') from None
-    return data['revision'], out
+
+    return String(data=payloads.encode({
+        'schema': payloads.ENCOUNTERS_V2,
+        'revision': int(m.revision),
+        'stamp_s': float(m.stamp_s),
+        'assignments': {str(k): one(a) for k, a in sorted(m.assignments.items())},
+        'rates': {str(k): float(v) for k, v in sorted(m.rates.items())},
+        'mission_end_s': None if m.mission_end_s is None else float(m.mission_end_s),
+    }))
+
+
+def encounters_from_msg(msg: String) -> EncountersMessage:
+    """An :class:`EncountersMessage`; ValueError naming the problem unless it follows
+    ament_formation/encounters/v2."""
+    data = payloads.decode(msg.data, payloads.ENCOUNTERS_V2)
+    assignments = {}
+    for k, a in data['assignments'].items():
+        park = a['park_at_s']
+        assignments[int(k)] = {**a, 'park_at_s': -math.inf if park is None else float(park)}
+    rates = {int(k): float(v) for k, v in data['rates'].items()}
+    end = data['mission_end_s']
+    return EncountersMessage(data['revision'], assignments, rates, float(data['stamp_s']),
+                             None if end is None else float(end))
 
 
 # --------------------------------------------------------------------------- image

@@ -5,7 +5,7 @@ Three topics carry JSON because no standard message holds what they say (docs/sc
 | topic | schema id | made by | read by |
 |---|---|---|---|
 | /formation/graph | ament_formation/graph/v1 | coordinator | controllers, world, recorder |
-| /formation/encounters | ament_formation/encounters/v1 | coordinator | controllers |
+| /formation/encounters | ament_formation/encounters/v2 | coordinator | controllers |
 | robot_<id>/mode | ament_formation/mode/v1 | controller | coordinator, other controllers |
 
 Every payload names its schema in a ``"schema"`` field. A receiver decodes with :func:`decode`,
@@ -30,7 +30,7 @@ import re
 import sys
 
 GRAPH_V1 = 'ament_formation/graph/v1'
-ENCOUNTERS_V1 = 'ament_formation/encounters/v1'
+ENCOUNTERS_V2 = 'ament_formation/encounters/v2'
 MODE_V1 = 'ament_formation/mode/v1'
 
 MAX_PAYLOAD_BYTES = 256 * 1024  # a graph of 1000 robots is ~60 kB
@@ -90,17 +90,21 @@ SCHEMAS: dict[str, dict] = {
             'start_s': {'type': ['number', 'null'], 'minimum': 0},
         },
     },
-    ENCOUNTERS_V1: {
-        'title': 'robot-robot encounter assignments (/formation/encounters)',
-        'description': "The coordinator's S7 decisions: for each robot told to yield or to avoid "
-        'mutually, its partner, direction (+1 CCW, -1 CW), common entry time t_entry_s '
-        '(scenario time [s]) and the shared drift w_c [m/s, world] of a mutual pair '
-        '(null: computed by the robot). A robot not listed has no assignment.',
+    ENCOUNTERS_V2: {
+        'title': "the coordinator's decisions (/formation/encounters)",
+        'description': "The coordinator's robot-robot encounters (docs/control-law.md S7.1): for "
+        'each robot told to yield or to avoid mutually, its partner, direction (+1 CCW, -1 CW), '
+        'common entry time t_entry_s (scenario time [s]), the shared drift w_c [m/s, world] of '
+        'a mutual pair (null otherwise) and from when its parking factor applies (park_at_s, '
+        'scenario time; null: at once); a robot on an obstacle asked to make way for a stalled '
+        'robot (mode make_way, partner that robot, S8.9). A robot not listed has no '
+        "assignment. rates: each team leader's progress rate target in [0, 1] (S17); "
+        'mission_end_s: when every reference reached its end (scenario time [s]; null before).',
         'type': 'object',
-        'required': ['schema', 'revision', 'stamp_s', 'assignments'],
+        'required': ['schema', 'revision', 'stamp_s', 'assignments', 'rates', 'mission_end_s'],
         'additionalProperties': False,
         'properties': {
-            'schema': {'const': ENCOUNTERS_V1},
+            'schema': {'const': ENCOUNTERS_V2},
             'revision': {'type': 'integer', 'minimum': 0},
             'stamp_s': {'type': 'number', 'minimum': 0},
             'assignments': {
@@ -109,22 +113,31 @@ SCHEMAS: dict[str, dict] = {
                 'maxProperties': MAX_ROBOTS,
                 'additionalProperties': {
                     'type': 'object',
-                    'required': ['mode', 'partner', 'direction', 't_entry_s', 'drift_mps'],
+                    'required': ['mode', 'partner', 'direction', 't_entry_s', 'drift_mps',
+                                 'park_at_s'],
                     'additionalProperties': False,
                     'properties': {
-                        'mode': {'enum': ['yield', 'mutual']},
+                        'mode': {'enum': ['yield', 'mutual', 'make_way']},
                         'partner': _ROBOT_ID,
                         'direction': {'enum': [1.0, -1.0]},
-                        't_entry_s': {'type': ['number', 'null']},
+                        't_entry_s': {'type': 'number'},
                         'drift_mps': {
                             'type': ['array', 'null'],
                             'items': _NUMBER,
                             'minItems': 2,
                             'maxItems': 2,
                         },
+                        'park_at_s': {'type': ['number', 'null']},
                     },
                 },
             },
+            'rates': {
+                'type': 'object',
+                'propertyNames': _ROBOT_KEY,
+                'maxProperties': MAX_ROBOTS,
+                'additionalProperties': {'type': 'number', 'minimum': 0, 'maximum': 1},
+            },
+            'mission_end_s': {'type': ['number', 'null'], 'minimum': 0},
         },
     },
     MODE_V1: {
@@ -311,7 +324,7 @@ def schema_document(schema_id: str) -> dict:
 
 _FILES = {
     GRAPH_V1: 'formation_graph.v1.json',
-    ENCOUNTERS_V1: 'formation_encounters.v1.json',
+    ENCOUNTERS_V2: 'formation_encounters.v2.json',
     MODE_V1: 'robot_mode.v1.json',
 }
 

@@ -3,6 +3,8 @@ are computed exactly as for `formation sim` (DESIGN §4), from the *ground truth
 
 Sources in the recording:
   /formation/graph          start_s (scenario time t = ROS time - start_s), graph events
+  /formation/encounters     the teams' progress rates (a leader's goal is r(s), S17) and the
+                            mission's end (the record ends there, or at the last truth sample)
   /world/truth/robot_<id>   states (nav_msgs/Odometry, stamped with the plant time)
   robot_<id>/wheel_torque   commanded torques (zero-order hold between commands)
   robot_<id>/mode           avoidance flags and mode events (log time of reception)
@@ -15,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ament_formation.core.control.law_params import LawParams
+from ament_formation.core.control.progress import new_progress, step
 from ament_formation.core.control.rewiring import FormationGraph
 from ament_formation.core.model.obstacles import ObstacleField
 from ament_formation.core.sim.trajectory import SimResult
@@ -30,19 +34,22 @@ def _zoh_index(sample_t: np.ndarray, grid: np.ndarray) -> np.ndarray:
 
 
 def _read_topics(path, ids):
-    """The recording's messages by kind: (truth, torque, modes, graphs).
+    """The recording's messages by kind: (truth, torque, modes, graphs, decisions).
 
     truth {id: [(stamp, state)]}, torque {id: [(log time, tau)]}, modes {id: [(log time, mode)]},
-    graphs [(log time, GraphMessage)]; messages that fail to parse are skipped (not the truth).
+    graphs [(log time, GraphMessage)], decisions [(log time, EncountersMessage)]; messages that
+    fail to parse are skipped (not the truth).
     """
     truth: dict[int, list] = {rid: [] for rid in ids}
     torque: dict[int, list] = {rid: [] for rid in ids}
     modes: dict[int, list] = {rid: [] for rid in ids}
     graphs: list[tuple[float, msgs.GraphMessage]] = []
+    decisions: list[tuple[float, msgs.EncountersMessage]] = []
     truth_topics = {f'/world/truth/robot_{rid}': rid for rid in ids}
     torque_topics = {f'/robot_{rid}/wheel_torque': rid for rid in ids}
     mode_topics = {f'/robot_{rid}/mode': rid for rid in ids}
-    wanted = ['/formation/graph', *truth_topics, *torque_topics, *mode_topics]
+    wanted = ['/formation/graph', '/formation/encounters', *truth_topics, *torque_topics,
+              *mode_topics]
     for topic, log_ns, msg in read_messages(path, wanted):
         if topic in truth_topics:
             state, stamp = msgs.state_from_odometry(msg)
@@ -58,12 +65,17 @@ def _read_topics(path, ids):
                 modes[mode_topics[topic]].append((log_ns * 1e-9, msgs.mode_from_msg(msg)))
             except ValueError:
                 continue
+        elif topic == '/formation/encounters':
+            try:
+                decisions.append((log_ns * 1e-9, msgs.encounters_from_msg(msg)))
+            except ValueError:
+                continue
         else:
             try:
                 graphs.append((log_ns * 1e-9, msgs.graph_from_msg(msg)))
             except ValueError:
                 continue
-    return truth, torque, modes, graphs
+    return truth, torque, modes, graphs, decisions
 
 
 def _mission_start(path, graphs, truth: dict, ids) -> float:
@@ -155,14 +167,36 @@ def _robot_modes(rid: int, modes_rid: list, start_s: float):
     return mode_events, stops, flags_t, flags_v
 
 
-def _goals(scenario, index: dict, grid: np.ndarray, state: np.ndarray) -> np.ndarray:
-    """Goals: leader r(t); follower p of its original parent + delta (S1)."""
+def _progress(scenario, index: dict, grid: np.ndarray, decisions: list, start_s: float):
+    """(T, N) the progress s of each leader's reference on the grid (0 for followers): the rate
+    targets the coordinator published (S17.2), followed as a leader's agent follows them."""
+    law = LawParams.for_scenario(scenario).compiled()
+    n = len(index)
+    pr = new_progress(n)
+    out = np.zeros((len(grid), n))
+    times = np.array([s - start_s for s, _ in decisions])
+    leaders = [index[r.id] for r in scenario.robots if r.leader]
+    rows = {index[r.id]: r.id for r in scenario.robots if r.leader}
+    for q, t in enumerate(grid):
+        j = int(np.searchsorted(times, t, side='right')) - 1
+        for i in leaders:
+            target = decisions[j][1].rates.get(rows[i], 1.0) if j >= 0 else 1.0
+            step(pr, i, 0.0 if q == 0 else grid[q] - grid[q - 1], target, scenario.duration_s,
+                 law)
+            out[q, i] = pr.s[i]
+    return out
+
+
+def _goals(scenario, index: dict, grid: np.ndarray, state: np.ndarray,
+           progress: np.ndarray) -> np.ndarray:
+    """Goals: leader r(s) at its progress (S17); follower p of its original parent + delta
+    (S1)."""
     graph = FormationGraph.from_scenario(scenario)
     goal = np.zeros((len(grid), len(index), 2))
     for r in scenario.robots:
         k = index[r.id]
         if r.leader and r.path is not None:
-            goal[:, k] = np.array([r.path.reference(float(t))[0] for t in grid])
+            goal[:, k] = np.asarray(r.path.reference(progress[:, k])[0]).reshape(-1, 2)
         else:
             parent = graph.original_parent[r.id]
             goal[:, k] = state[:, index[parent], :2] + graph.offset(r.id, parent)
@@ -202,10 +236,12 @@ def _graph_events(graphs: list, start_s: float) -> list[dict]:
 
 
 def load_run(
-    path: str | Path, scenario, record_every_s: float = 0.01, stats: dict | None = None
+    path: str | Path, scenario, record_every_s: float = 0.01, stats: dict | None = None,
+    hold_s: float = 0.0,
 ) -> SimResult:
-    """Read ``path`` (run.mcap) into a SimResult on scenario time; ValueError when the recording
-    lacks the mission start or the ground truth.
+    """Read ``path`` (run.mcap) into a SimResult on scenario time, up to the mission's end plus
+    ``hold_s`` (or the last ground truth); ValueError when the recording lacks the mission start
+    or the ground truth.
 
     ``stats`` (a dict, filled when given): ``truth_max_gap_s`` the longest pause [s, scenario time]
     between consecutive ground-truth samples of any robot from t = 0 to the end of the recording
@@ -221,8 +257,10 @@ def load_run(
     """
     ids = tuple(r.id for r in scenario.robots)
     index = {rid: k for k, rid in enumerate(ids)}
-    truth, torque, modes, graphs = _read_topics(path, ids)
+    truth, torque, modes, graphs, decisions = _read_topics(path, ids)
     start_s = _mission_start(path, graphs, truth, ids)
+    ends = [m.mission_end_s for _, m in decisions if m.mission_end_s is not None]
+    mission_end = ends[0] if ends else None
 
     t_end = min(max(s for s, _ in truth[rid]) for rid in ids) - start_s
     if stats is not None:
@@ -230,7 +268,8 @@ def load_run(
         stats['torque_max_gap_s'] = {
             rid: _max_gap([s - start_s for s, _ in torque[rid]], t_end) for rid in ids
         }
-    t_end = min(t_end, scenario.duration_s)
+    if mission_end is not None:
+        t_end = min(t_end, mission_end + hold_s)
     grid = np.arange(0.0, max(t_end, 0.0) + 1e-9, record_every_s)
     n, big_t = len(ids), len(grid)
     state = np.zeros((big_t, n, 5))
@@ -259,7 +298,8 @@ def load_run(
 
     tau_max = np.array([r.params.torque_limit_nm for r in scenario.robots])
     saturated = np.max(np.abs(tau), axis=2) >= tau_max[None, :] * (1.0 - 1e-6)
-    goal = _goals(scenario, index, grid, state)
+    progress = _progress(scenario, index, grid, decisions, start_s)
+    goal = _goals(scenario, index, grid, state, progress)
     field, oc, ophi = _obstacle_samples(scenario, grid)
     graph_events = _graph_events(graphs, start_s)
 
@@ -278,6 +318,9 @@ def load_run(
         mode_events=mode_events,
         graph_events=graph_events,
         dt_s=record_every_s,
+        mission_end_s=mission_end,
+        nominal_duration_s=float(scenario.duration_s),
+        progress_s=progress,
     )
 
 

@@ -233,7 +233,16 @@ def _recording_node(ctx, args: argparse.Namespace, scenario, mcap_path: Path):
         if g.start_s is not None:
             start['s'] = g.start_s
 
+    def on_decision(msg):
+        try:
+            m = msgs.encounters_from_msg(msg)
+        except ValueError:
+            return
+        if m.mission_end_s is not None and start['s'] is not None:
+            latest['mission_end_s'] = m.mission_end_s + start['s']
+
     node.create_subscription(String, '/formation/graph', on_graph, QOS_GRAPH)
+    node.create_subscription(String, '/formation/encounters', on_decision, QOS_GRAPH)
     leader = scenario.robots[0].id
     node.create_subscription(
         msgs.Odometry,
@@ -485,14 +494,16 @@ def run_system(args: argparse.Namespace) -> int:
 
 
 def _truth_complete(start: dict, latest: dict, scenario) -> bool:
-    """Whether the leader's recorded ground truth has reached the scenario's end (as the
-    ``completed`` check counts it).
-    """
-    from ament_formation.core.sim.metrics import COMPLETE_TOLERANCE_S
+    """Whether the recorded ground truth has reached the mission's end (the coordinator's
+    ``mission_end_s``, as the ``completed`` check counts it) or the run's time cap."""
+    from ament_formation.core.control.progress import max_time_s
 
     if start['s'] is None or latest['s'] is None:
         return False
-    return latest['s'] - start['s'] >= scenario.duration_s - COMPLETE_TOLERANCE_S
+    end = latest.get('mission_end_s')  # [s, ROS time]
+    if end is not None:
+        return latest['s'] >= end - 0.05
+    return latest['s'] - start['s'] >= max_time_s(scenario.duration_s) - 0.05
 
 
 _EXIT_RE = re.compile(r'^(\S+) exited with status (-?\d+)$', re.M)

@@ -66,8 +66,9 @@ from ament_formation.core.model.obstacles import obstacle_arrays, obstacle_state
 from ament_formation.core.params import param
 
 STATUS = ('waiting', 'running', 'hold_parent', 'stopped_wheels', 'stopped_pose',
-          'stopped_coordinator')
-WAITING, RUNNING, HOLD_PARENT, STOPPED_WHEELS, STOPPED_POSE, STOPPED_COORDINATOR = range(6)
+          'stopped_coordinator', 'stopped_clock')
+(WAITING, RUNNING, HOLD_PARENT, STOPPED_WHEELS, STOPPED_POSE, STOPPED_COORDINATOR,
+ STOPPED_CLOCK) = range(7)
 WHEEL_QUEUE = 16  # wheel samples and camera poses kept between two periods (newest win)
 CAMERA_QUEUE = 8
 
@@ -149,7 +150,7 @@ State = namedtuple('State', ['est', 'heard_x', 'heard_a', 'stamp', 'rep_mode', '
                              'goal_dot', 'vc', 'ref', 'modes', 'parent', 'offset', 'start_s',
                              'assigned', 'assigned_w', 'coord_s', 'rate_target', 'progress',
                              't_ref', 'stop', 'status', 't_dec', 'ev', 'nev', 'camq', 'ncam',
-                             'wheelq', 'nwheel', 'counters'])
+                             'wheelq', 'nwheel', 'counters', 'halt'])
 State.__doc__ = """The agents' state, hosted robot r first axis (R): the estimator; what each
 hears of the N robots (``heard_x`` (R, N, 5), ``heard_a`` (R, N, 2), ``stamp`` (R, N) [s, own
 clock], reported ``rep_mode``/``rep_tgt``/``rep_sdir``, ``in_range`` (R, N)); the period's view
@@ -162,7 +163,8 @@ the assignment (``assigned`` (R, 5) [mode, row, sense, t_entry, park_at], ``assi
 leader; ``progress`` (Progress of R rows) and ``t_ref`` (R,) when it last advanced; ``stop`` (R, 2) [latched, camera stamp];
 ``status`` (R,); ``t_dec`` (R,) the last decision [s]; events ``ev`` (R, E, 6), ``nev`` (R,);
 queues ``camq`` (R, Q, 4), ``wheelq`` (R, Q, 5) and their counts; ``counters`` (R, 2) [late
-decisions (unused), over the stop bounds]."""
+decisions (unused), over the stop bounds]; ``halt`` (R,) a status the caller stops the robot
+with (0: none; STOPPED_CLOCK: a remote clock beyond the bound, core/clock.py)."""
 
 Out = namedtuple('Out', ['torque', 'accel', 'state', 'mode', 'sigma', 'saturated'])
 Out.__doc__ = """The period's results per hosted robot: ``torque`` (R, 2) [N m] clamped;
@@ -174,7 +176,7 @@ sense]; ``sigma`` (R, 2) [m/s]; ``saturated`` (R,)."""
 def _modes(n_hosted: int, n: int) -> Modes:
     """Modes whose arrays are (R, N)."""
     one = new_modes(n)
-    return Modes(*(np.ascontiguousarray(np.broadcast_to(a, (n_hosted, *a.shape))) for a in one))
+    return Modes(*(np.array(np.broadcast_to(a, (n_hosted, *a.shape))) for a in one))
 
 
 @njit(cache=True)
@@ -367,8 +369,8 @@ def agent_tick_k(now, st, sc, out):
         if not t >= 0.0:  # NaN: no graph yet
             st.status[r] = WAITING
             continue
-        if not now - st.coord_s[r] <= sc.ak.coordinator_timeout_s:
-            st.status[r] = STOPPED_COORDINATOR
+        if not now - st.coord_s[r] <= sc.ak.coordinator_timeout_s or st.halt[r] > 0:
+            st.status[r] = st.halt[r] if st.halt[r] > 0 else STOPPED_COORDINATOR
             _brake(r, i, v, w, st, sc, False, out)
             continue
         _view(r, now, st, sc, plant_d)
@@ -551,7 +553,7 @@ class AgentBatch:
                      np.zeros(nr, np.int64), np.full(nr, -1.0), z(nr, 32, 6),
                      np.zeros(nr, np.int64), z(nr, CAMERA_QUEUE, 4), np.zeros(nr, np.int64),
                      z(nr, WHEEL_QUEUE, 5), np.zeros(nr, np.int64),
-                     np.zeros((nr, 2), np.int64))
+                     np.zeros((nr, 2), np.int64), np.zeros(nr, np.int64))
 
     # ------------------------------------------------------------------ inputs
     def _r(self, rid: int) -> int:
@@ -645,6 +647,19 @@ class AgentBatch:
                 rate = rates.get(rid, rates.get(str(rid)))
                 if rate is not None:
                     st.rate_target[r] = min(1.0, max(0.0, float(rate)))
+
+    def share(self, now_s: float) -> None:
+        """The hosted robots' broadcasts of this period reach each other in the process (a
+        team: no DDS between the robots it hosts)."""
+        n = len(self.ids)
+        x, a, modes = np.zeros((n, 5)), np.zeros((n, 2)), np.zeros((n, 3))
+        sent = np.zeros(n, dtype=np.bool_)
+        rows = self.static.rows
+        running = self.state.status == RUNNING
+        x[rows], a[rows] = self.out.state, self.out.accel
+        modes[rows] = np.where(running[:, None], self.out.mode, (0.0, -1.0, 1.0))
+        sent[rows] = [self.initialized(r) for r in range(len(rows))]
+        broadcast_k(now_s, x, a, modes, sent, self.state, self.static, self.params.hear_all)
 
     # ------------------------------------------------------------------ the period
     def tick(self, now_s: float) -> None:

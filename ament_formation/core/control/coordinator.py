@@ -183,7 +183,7 @@ class Coordinator:
         m, out = self.modes, {}
         for q, rid in enumerate(self.ids):
             if m.mode[q] == MODE_OBSTACLE and math.isfinite(m.park_at[q]) and m.park_at[q] > 0:
-                out[rid] = {'mode': 'make_way', 'partner': -1, 'direction': 1.0, 't_entry_s': 0.0,
+                out[rid] = {'mode': 'make_way', 'partner': rid, 'direction': 1.0, 't_entry_s': 0.0,
                             'drift_mps': None, 'park_at_s': float(m.park_at[q])}
             if m.mode[q] in (MODE_YIELD, MODE_MUTUAL):
                 out[rid] = {

@@ -147,7 +147,7 @@ def robot_law_k(i, t, x, pd, acmd, rbody, coeffs, ob, nbrs, track, state, prm):
     return t1, t2, sx, sy, sat, acx, acy, wdx, wdy
 
 
-# implements: S8.3
+# implements: S8.3/goal
 @njit(cache=True)
 def goal_k(i, x, pd, ref, orig_parent, orig_offset, prm):
     """S8.3 item 1: the formation goal of robot i and the coordination field V_c = g_dot -

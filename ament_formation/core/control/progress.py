@@ -44,6 +44,12 @@ rate it follows [1].
 """
 
 
+def max_time_s(duration_s: float) -> float:
+    """S17.3: how long a mission may take before a run gives up on it: three times its free
+    traversal, at least 30 s more [s]."""
+    return duration_s + max(30.0, 2.0 * duration_s)
+
+
 def tabulate(paths, s_end: float, step_s: float = REFERENCE_STEP_S) -> References:
     """:data:`References` of ``paths`` (one per robot row, None for a follower) over
     [0, ``s_end``]."""

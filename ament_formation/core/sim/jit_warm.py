@@ -15,19 +15,18 @@ from ament_formation.core.jit_cache import _warm_stamp, is_warm
 
 def warm() -> None:
     """Compile (or load) every numba kernel the programs and ``formation sim`` use, by building
-    what they build: the simulator on a short run of each shipped scenario, each robot's
-    RobotController of the paper scenario (a leader and a follower), the coordinator's arbiter, the
-    world's plant twin and the tracker's corner refinement. numba compiles a kernel's whole call
-    tree on its first call, so one call of each entry point covers the branches not taken.
+    what they build: the simulator on a short run of each shipped scenario, the robot agents and
+    the coordinator of each (as the nodes and the camera-sensing simulator run them), the world's
+    plant twin and the tracker's corner refinement. numba compiles a kernel's whole call tree on
+    its first call, so one call of each entry point covers the branches not taken.
     """
     import dataclasses
 
     import numpy as np
 
     from ament_formation.core.config_files import config_dir
-    from ament_formation.core.control.arbiter import EncounterArbiter
-    from ament_formation.core.control.controller import RobotController
-    from ament_formation.core.control.rewiring import FormationGraph
+    from ament_formation.core.control.agent import AgentBatch
+    from ament_formation.core.control.coordinator import Coordinator
     from ament_formation.core.scenario.loader import load_scenario
     from ament_formation.core.sim.simulator import simulate
     from ament_formation.core.sim.twin import PlantTwin
@@ -42,25 +41,18 @@ def warm() -> None:
         twin = PlantTwin(sc)
         twin.pose_rates()
         twin.obstacle_states()
-        arbiter = EncounterArbiter(sc)
-        states = {r.id: np.array([*r.initial_pose, 0.0, 0.0]) for r in sc.robots}
-        arbiter.decide(0.0, states, {r.id: {'mode': 'coordination'} for r in sc.robots})
-        graph = FormationGraph.from_scenario(sc)
+        coord = Coordinator(sc)
         for r in sc.robots:
-            law = RobotController(
-                r.id,
-                r.params,
-                sc.control,
-                sc.avoidance,
-                sc.obstacles,
-                leader_path=r.path if r.leader else None,
-                team=sc.team_leader(r.id),
-                slot_m=sc.slot(r.id),
-            )
-            p0 = graph.original_parent.get(r.id)
-            offset = np.zeros(2) if p0 is None else np.asarray(graph.offset(r.id, p0), dtype=float)
-            law.set_graph(p0, offset, p0, offset)
-            law.warm_up()
+            coord.state(r.id, np.array([*r.initial_pose, 0.0, 0.0]), 0.0)
+        coord.decide(0.0)
+        agents = AgentBatch(sc, sc.robot_ids)
+        agents.set_graph(coord.parents, 0.0)
+        agents.assign(0.0, {}, coord.rates())
+        for q, r in enumerate(sorted(sc.robots, key=lambda r: r.id)):
+            agents.wheel(r.id, 0.0, (0.0, 0.0), (0.0, 0.0))
+            agents.camera(r.id, 0.0, np.asarray(r.initial_pose, dtype=float))
+        agents.tick(0.01)
+        agents.share(0.01)
 
 
 def _warm_geometry() -> None:

@@ -247,6 +247,10 @@ def compute_metrics(result: SimResult, scenario) -> dict:
         'prohibited_entry_events': entry_events,
         'robot_pair_min_distance_m': pair_min,
         'reaching_ratio_max': max(ratios) if ratios else None,
+        'mission_end_s': getattr(result, 'mission_end_s', None),
+        'mission_ratio': None
+        if getattr(result, 'mission_end_s', None) is None
+        else result.mission_end_s / scenario.duration_s,
     }
     return json_ready({**metrics, **motion_metrics(result, scenario)})
 
@@ -281,7 +285,7 @@ def motion_metrics(result: SimResult, scenario) -> dict:
 # (core/scenario/loader.py)
 # ------------------------------------------------------------------------------------------------
 
-COMPLETE_TOLERANCE_S = 0.05  # a run is complete when sim_time_s >= duration_s - this
+COMPLETE_TOLERANCE_S = 0.05  # a run is complete when its mission ended (S17.3)
 
 
 def check(name: str, ok: bool, value, limit, op: str, detail: str | None = None) -> dict:
@@ -321,7 +325,8 @@ def check_run(
     ``extra`` are checks only the caller can make (a process that died, a gap in the recording),
     listed first.
 
-    Every run: ``completed`` (sim_time_s reaches duration_s), ``prohibited_entries`` (0),
+    Every run: ``completed`` (the mission ended: every reference reached its end, S17.3,
+    ``mission_end_s`` against its free traversal ``duration_s``), ``prohibited_entries`` (0),
     ``contact``
     (no two robot footprints overlap: |p_a - p_b| >= R_a + R_b for every pair). Then the scenario's
     ``expect:`` block (:class:`~ament_formation.core.scenario.loader.ExpectSpec`). ``failure`` is
@@ -330,10 +335,10 @@ def check_run(
     ``extra`` and ``completed``.
     """
     checks = list(extra or [])
-    checks.append(
-        _ge('completed', metrics.get('sim_time_s'), scenario.duration_s - COMPLETE_TOLERANCE_S)
-    )
-    checks[-1]['limit'] = float(scenario.duration_s)
+    end = metrics.get('mission_end_s')
+    checks.append(check('completed', end is not None, end, float(scenario.duration_s), '>=',
+                        None if end is not None else 'the mission did not end (no team back '
+                        'in formation at the end of its reference)'))
     if not measured:
         return _verdict(metrics, checks)
     checks.append(_le('prohibited_entries', metrics.get('prohibited_entries'), 0))

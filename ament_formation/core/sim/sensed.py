@@ -47,9 +47,8 @@ from ament_formation.core.control.agent import (
     wheels_k,
 )
 from ament_formation.core.control.coordinator import Coordinator, Publisher
-from ament_formation.core.control.progress import leader_reference
+from ament_formation.core.control.progress import leader_reference, max_time_s
 from ament_formation.core.errors import ConfigError, excerpt
-from ament_formation.core.sim.simulator import max_time_s
 from ament_formation.core.sim.trajectory import SimResult
 from ament_formation.core.sim.twin import PlantTwin
 

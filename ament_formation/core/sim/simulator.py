@@ -31,7 +31,13 @@ import numpy as np
 from ament_formation.core.control.arbitration import candidate_pairs, coordinate, new_teams
 from ament_formation.core.control.law import goals_and_fields, mode_row, robot_law_k, RobotTracking
 from ament_formation.core.control.law_params import LawParams
-from ament_formation.core.control.progress import at, leader_reference, new_progress, tabulate
+from ament_formation.core.control.progress import (
+    at,
+    leader_reference,
+    max_time_s,
+    new_progress,
+    tabulate,
+)
 from ament_formation.core.control.switching import (
     MODE_C,
     MODE_MUTUAL,
@@ -375,12 +381,6 @@ def _grown(rec: RecordArrays, rows: int) -> RecordArrays:
     """``rec`` with room for ``rows`` samples (its samples kept)."""
     return RecordArrays(*(np.concatenate([a, np.zeros((rows - a.shape[0], *a.shape[1:]),
                                                       dtype=a.dtype)]) for a in rec))
-
-
-def max_time_s(duration_s: float) -> float:
-    """How long a mission may take before the run gives up on it (S17.3): three times its free
-    traversal, at least 30 s more."""
-    return duration_s + max(30.0, 2.0 * duration_s)
 
 
 def simulate(
