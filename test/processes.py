@@ -100,8 +100,8 @@ DOMAIN_LOCKS = Path(os.environ.get('TMPDIR', '/tmp')) / 'ament_formation_domains
 
 
 def take_free_domain(avoid=()) -> tuple[int, int] | None:
-    """A DDS domain id in 1..101 (ROS's safe range on Linux) that no other run on this machine holds and not in ``avoid``:
-    (id, fd of its lock; close it to release the id), or None.
+    """A DDS domain id in 1..101 (ROS's safe range on Linux) that no other run on this machine
+    holds and not in ``avoid``: (id, fd of its lock; close it to release the id), or None.
 
     The lock files of scripts/ros_env.sh (flock on ``<id>.lock``, released when the fd closes):
     concurrent runs in one domain see each other's nodes and topics.
