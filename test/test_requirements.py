@@ -84,7 +84,7 @@ def test_this_environment_meets_every_requirement():
 
 
 def test_package_xml_declares_the_same_minimums():
-    """rosdep's view (package.xml version_gte) and the programs' check agree."""
+    """Package.xml's version_gte (rosdep's view) and the programs' check agree."""
     deps = {
         e.text.strip(): e.get('version_gte')
         for e in ET.parse(ROOT / 'package.xml').getroot()

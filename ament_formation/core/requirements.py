@@ -75,7 +75,10 @@ def problem(req: Requirement, importer: Callable = importlib.import_module) -> s
     except Exception as err:  # noqa: BLE001 - any failure to import is this line, not a traceback
         missing = isinstance(err, ModuleNotFoundError) and err.name == req.module
         if missing:
-            return f'needs {req.label} >= {req.minimum_text}, not installed: {req.how_to_install()}'
+            return (
+                f'needs {req.label} >= {req.minimum_text}, not installed: '
+                f'{req.how_to_install()}'
+            )
         reason = ' '.join(str(err).split())
         return (
             f'needs {req.label} >= {req.minimum_text}, which fails to import ({reason}): '
