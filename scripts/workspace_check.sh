@@ -111,9 +111,14 @@ rm -rf "$work/src" "$work/build" "$work/install" "$work/log"
 mkdir -p "$work/src"
 if [ "$from_worktree" = 1 ]; then
   mkdir -p "$src"
-  (cd "$here" && git ls-files -z --cached --others --exclude-standard \
-    | while IFS= read -r -d '' f; do [ -e "$f" ] && printf '%s\0' "$f"; done \
-    | xargs -0 cp --parents -t "$src")
+  if git -C "$here" rev-parse --is-inside-work-tree >/dev/null 2>&1; then
+    (cd "$here" && git ls-files -z --cached --others --exclude-standard \
+      | while IFS= read -r -d '' f; do [ -e "$f" ] && printf '%s\0' "$f"; done \
+      | xargs -0 cp -p --parents -t "$src")
+  else   # a source tree without git (an archive): everything but environments and outputs
+    tar -C "$here" --exclude=./.venv --exclude=./build --exclude=./install --exclude=./log \
+      --exclude=./out --exclude='*.egg-info' --exclude=__pycache__ -cf - . | tar -C "$src" -xf -
+  fi
   echo "workspace_check: workspace $work (the working tree of $here)" >&2
 else
   git clone --quiet "$here" "$src"
@@ -131,7 +136,13 @@ clean_env=(env -i HOME="$HOME" USER="${USER:-$(id -un)}" LANG=C.UTF-8 TERM="${TE
   && clean_env+=(AMENT_FORMATION_NO_FIRMWARE_TOOLCHAIN="$AMENT_FORMATION_NO_FIRMWARE_TOOLCHAIN")
 build_cmd='source "$SYSTEM_ROS/setup.bash" && cd "$WS" && colcon build --event-handlers console_direct-'
 "${clean_env[@]}" SYSTEM_ROS="$system_ros" WS="$work" bash -c "$build_cmd"
-echo "workspace_check: colcon build done" >&2
+# WORK/env.bash: the environment of a lab's shell after the build (test/test_workspace.py uses it)
+cat >"$work/env.bash" <<EOF
+source "$system_ros/setup.bash"
+source "$work/install/setup.bash"
+export AMENT_FORMATION_CACHE_DIR="$work/numba_cache"
+EOF
+echo "workspace_check: colcon build done; source $work/env.bash for its environment" >&2
 if [ "$build_only" = 1 ]; then
   exit 0
 fi
