@@ -51,7 +51,7 @@ def test_versions_are_parsed_by_their_release_numbers(text, version):
 def test_met_requirements_give_no_line():
     load = _importer(numpy='1.26.4', numba='0.68.1', yaml='6.0.1', cv2='4.6.0', serial='3.5')
     assert req.problems(req.REQUIRED + (req.OPENCV, req.SERIAL), load) == []
-    assert req.problems(req.REQUIRED, _importer(numpy='2.4.6', numba='0.59.0', yaml='6.0')) == []
+    assert req.problems(req.REQUIRED, _importer(numpy='2.4.6', numba='0.68.0', yaml='6.0')) == []
 
 
 def test_too_old_names_found_version_and_what_to_install():
@@ -67,7 +67,7 @@ def test_too_old_names_found_version_and_what_to_install():
 
 def test_missing_and_broken_imports_are_one_line():
     (missing,) = req.problems((req.NUMBA,), _importer())
-    assert missing.startswith('needs numba >= 0.59, not installed: install python3-numba')
+    assert missing.startswith('needs numba >= 0.68, not installed: install python3-numba')
     broken = ImportError('Numba needs NumPy 1.22 or greater.\n  Got NumPy 1.21.')
     (line,) = req.problems((req.NUMBA,), _importer(numba=broken))
     assert 'fails to import (Numba needs NumPy 1.22 or greater. Got NumPy 1.21.)' in line

@@ -46,7 +46,7 @@ class Requirement:
 
 
 NUMPY = Requirement('NumPy', 'numpy', (1, 26), 'python3-numpy', 'numpy')
-NUMBA = Requirement('numba', 'numba', (0, 59), 'python3-numba', 'numba')
+NUMBA = Requirement('numba', 'numba', (0, 68), 'python3-numba', 'numba')
 OPENCV = Requirement('OpenCV', 'cv2', (4, 6), 'python3-opencv', 'opencv-python-headless')
 YAML = Requirement('PyYAML', 'yaml', (6, 0), 'python3-yaml', 'PyYAML')
 SERIAL = Requirement('pyserial', 'serial', (3, 5), 'python3-serial', 'pyserial')
