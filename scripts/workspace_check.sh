@@ -151,10 +151,17 @@ test_args=(--event-handlers console_direct+ --return-code-on-test-failure
 if [ "$subset" = 1 ]; then
   for f in "${SLOW_TESTS[@]}"; do test_args+=(" --ignore=test/$f"); done
 fi
-# DDS stays on loopback (the installed scripts/ros_env.sh; test/conftest.py sets the same)
+# DDS stays on loopback (the installed scripts/ros_env.sh; test/conftest.py sets the same).
+# Numba's kernels are compiled first, as scripts/setup.sh does, for both copies the tests run (the
+# source tree's, which pytest imports, and the installed one, which the programs run; from log/,
+# a folder without the package, python imports the installed copy): outside pytest's 300 s
+# per-test timeout, which the test session's own warm-up counts against its first test.
 test_cmd='source "$SYSTEM_ROS/setup.bash" && cd "$WS" && source install/setup.bash &&
   source install/ament_formation/share/ament_formation/scripts/ros_env.sh "$WS/ros_log" >/dev/null &&
   af_shm_snapshot && trap af_shm_cleanup EXIT &&
+  warm="import sys; from ament_formation.core.sim.jit_warm import main; sys.exit(main())" &&
+  { (cd src/ament_formation && python3 -c "$warm") && (cd log && python3 -c "$warm") ||
+    echo "workspace_check: warning: compiling the numba kernels failed" >&2; } &&
   status=0 && { colcon test "$@" || status=$?; } &&
   echo "workspace_check: colcon test exited $status" >&2 &&
   colcon test-result --verbose'
