@@ -74,6 +74,7 @@ from sensor_msgs.msg import CameraInfo, Image
 from ament_formation.core.config_files import config_file
 from ament_formation.core.errors import ConfigError
 from ament_formation.core.params import param
+from ament_formation.core.vision import aruco_compat
 from ament_formation.core.vision.camera_model import load_camera_yaml
 from ament_formation.core.vision.marker_tracking import MarkerTracker, TrackerConfig
 from ament_formation.core.vision.robot_marker import MarkerLayout
@@ -370,7 +371,7 @@ class TrackerNode(Node):
     def _annotate(self, frame: np.ndarray, acc) -> np.ndarray:
         img = cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR)
         if len(acc):
-            cv2.aruco.drawDetectedMarkers(
+            aruco_compat.draw_detected_markers(
                 img,
                 [c.reshape(1, 4, 2).astype(np.float32) for c in acc.corners_px],
                 acc.ids.reshape(-1, 1).astype(np.int32),
