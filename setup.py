@@ -54,16 +54,17 @@ setup(
         'Sliding-mode formation control with elliptical limit-cycle avoidance (ROS 2 Jazzy).'
     ),
     license='Apache-2.0',
+    # every console script checks its libraries first (tools/entry.py, core/requirements.py)
     entry_points={
         'console_scripts': [
-            'formation = ament_formation.tools.cli:main',
-            'formation_world = ament_formation.nodes.world:main',
-            'formation_tracker = ament_formation.nodes.tracker:main',
-            'formation_controller = ament_formation.nodes.controller:main',
-            'formation_bridge = ament_formation.nodes.bridge:main',
-            'formation_coordinator = ament_formation.nodes.coordinator:main',
-            'formation_team = ament_formation.nodes.team:main',
-            'formation_live_view = ament_formation.nodes.live_view:main',
+            'formation = ament_formation.tools.entry:formation',
+            'formation_world = ament_formation.tools.entry:formation_world',
+            'formation_tracker = ament_formation.tools.entry:formation_tracker',
+            'formation_controller = ament_formation.tools.entry:formation_controller',
+            'formation_bridge = ament_formation.tools.entry:formation_bridge',
+            'formation_coordinator = ament_formation.tools.entry:formation_coordinator',
+            'formation_team = ament_formation.tools.entry:formation_team',
+            'formation_live_view = ament_formation.tools.entry:formation_live_view',
         ],
     },
 )

@@ -14,24 +14,45 @@
 # launching (e.g. to pin DDS to the robot network's interface); a file that does not exist is bad
 # input (exit code 2). docs/deployment.md.
 AF_ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
-# The programs: the checkout's .venv (scripts/setup.sh); for the launchers colcon build installs
-# (<prefix>/share/ament_formation/scripts, what `formation run` of an installed package starts),
-# the installed console scripts in <prefix>/lib/ament_formation. AF_PYTHON runs launch_info.py: the
-# venv's python, or the installed programs' interpreter (their #! line).
-if [ ! -x "$AF_ROOT/.venv/bin/formation_world" ] \
-    && [ -x "$AF_ROOT/../../lib/ament_formation/formation_world" ]; then
-  AF_BIN="$(cd "$AF_ROOT/../../lib/ament_formation" && pwd)"
-  read -r _af_shebang <"$AF_BIN/formation_world" || true
-  read -r -a AF_PYTHON <<<"${_af_shebang#\#!}"
+# The programs (af_find_programs): $AF_BIN when the caller sets it; for the launchers colcon build
+# installs (<prefix>/share/ament_formation/scripts, what `formation run` of an installed package
+# starts) the console scripts of that install, <prefix>/lib/ament_formation; else formation_world
+# on PATH; else <prefix>/lib/ament_formation of a prefix in AMENT_PREFIX_PATH (a sourced
+# install/setup.bash: ros2 run's place); else the checkout's own environment (scripts/setup.sh's
+# .venv, the project's own set-up). AF_PYTHON runs launch_info.py: the interpreter of the programs
+# (their #! line), which imports the same package.
+af_find_programs() {
+  local d prefix
+  if [ -n "${AF_BIN:-}" ]; then
+    d="$AF_BIN"
+  elif [ -x "$AF_ROOT/../../lib/ament_formation/formation_world" ]; then
+    d="$AF_ROOT/../../lib/ament_formation"
+  elif command -v formation_world >/dev/null 2>&1; then
+    d="$(dirname "$(command -v formation_world)")"
+  else
+    d=""
+    while IFS= read -r prefix; do
+      if [ -n "$prefix" ] && [ -x "$prefix/lib/ament_formation/formation_world" ]; then
+        d="$prefix/lib/ament_formation"; break
+      fi
+    done < <(tr ':' '\n' <<<"${AMENT_PREFIX_PATH:-}")
+    [ -n "$d" ] || { [ -x "$AF_ROOT/.venv/bin/formation_world" ] && d="$AF_ROOT/.venv/bin"; }
+  fi
+  if [ -z "$d" ] || [ ! -x "$d/formation_world" ]; then
+    echo "$(basename "$0"): the ament_formation programs (formation_world, ...) are not installed:" \
+      "run scripts/setup.sh in a checkout, or colcon build and source install/setup.bash" >&2
+    exit 2
+  fi
+  AF_BIN="$(cd "$d" && pwd)"
+  local shebang=""
+  read -r shebang <"$AF_BIN/formation_world" || true
+  read -r -a AF_PYTHON <<<"${shebang#\#!}"
   case "$(basename "${AF_PYTHON[0]:-sh}")" in
     python*|env) ;;
     *) AF_PYTHON=(python3) ;;   # e.g. setuptools' /bin/sh wrapper for a very long interpreter path
   esac
-  unset _af_shebang
-else
-  AF_BIN="$AF_ROOT/.venv/bin"
-  AF_PYTHON=("$AF_BIN/python")
-fi
+}
+af_find_programs
 # every node's params file (every parameter with its default; installed by colcon build to
 # share/ament_formation/config/params): launchers pass it first, then their -p overrides
 AF_PARAMS_DIR="$AF_ROOT/config/params"

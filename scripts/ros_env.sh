@@ -15,18 +15,20 @@ fi
 export ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}"
 export FASTRTPS_DEFAULT_PROFILES_FILE="${FASTRTPS_DEFAULT_PROFILES_FILE:-$_af_root/config/fastdds_localhost.xml}"
 export RMW_IMPLEMENTATION="${RMW_IMPLEMENTATION:-rmw_fastrtps_cpp}"
-# A run-unique domain (1..200) unless the caller chose one (e.g. a multi-machine deployment).
+# A run-unique domain unless the caller chose one (e.g. a multi-machine deployment): 1..101, ROS's
+# safe range on Linux (0..101; a higher id's participant ports can fall in the kernel's ephemeral
+# range; 0 is every ROS install's default domain, left to it).
 # Unique on this machine, not just random: concurrent runs in one domain see each other's nodes
 # and topics (another run's world, graph or start), and share Fast DDS's shared-memory ports.
 # The shell holds an exclusive lock on $AF_DOMAIN_LOCK_DIR/<id>.lock (flock, on an inherited file
 # descriptor: held while this shell or any process it started is alive, released by the kernel
 # when the last of them exits, even on SIGKILL); the next shell takes the next free id.
 if [ -z "${ROS_DOMAIN_ID:-}" ]; then
-  _af_first=$(( ( $$ + $(date +%N | sed 's/^0*//;s/^$/0/') ) % 200 ))
+  _af_first=$(( ( $$ + $(date +%N | sed 's/^0*//;s/^$/0/') ) % 101 ))
   if command -v flock >/dev/null 2>&1 \
       && mkdir -p "${AF_DOMAIN_LOCK_DIR:=${TMPDIR:-/tmp}/ament_formation_domains}" 2>/dev/null; then
-    for _af_i in $(seq 0 199); do
-      _af_d=$(( (_af_first + _af_i) % 200 + 1 ))
+    for _af_i in $(seq 0 100); do
+      _af_d=$(( (_af_first + _af_i) % 101 + 1 ))
       exec {AF_DOMAIN_LOCK_FD}>>"$AF_DOMAIN_LOCK_DIR/$_af_d.lock" || continue
       if flock -n "$AF_DOMAIN_LOCK_FD"; then
         export ROS_DOMAIN_ID=$_af_d
@@ -36,7 +38,7 @@ if [ -z "${ROS_DOMAIN_ID:-}" ]; then
     done
     unset _af_i _af_d
   fi
-  # no flock, or all 200 ids taken: a random one, as before
+  # no flock, or all 101 ids taken: a random one, as before
   [ -n "${ROS_DOMAIN_ID:-}" ] || export ROS_DOMAIN_ID=$(( _af_first + 1 ))
   unset _af_first
 fi

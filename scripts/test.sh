@@ -10,6 +10,9 @@ source "$here/scripts/ros_env.sh" "$logdir/ros_log"
 af_shm_snapshot
 trap 'af_shm_cleanup; rm -rf "$logdir"' EXIT
 cd "$here"
+# the tests find the programs on PATH (test/processes.py program()); in a ROS 2 workspace they are
+# found in the sourced install prefix instead
+export PATH="$here/.venv/bin:$PATH"
 status=0
 "$here/.venv/bin/python" -m pytest -p no:cacheprovider "$@" || status=$?
 exit "$status"

@@ -21,7 +21,7 @@ os.environ.setdefault(
     'FASTRTPS_DEFAULT_PROFILES_FILE', str(_ROOT / 'config' / 'fastdds_localhost.xml')
 )
 os.environ.setdefault('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp')
-os.environ.setdefault('ROS_DOMAIN_ID', str(os.getpid() % 200 + 1))
+os.environ.setdefault('ROS_DOMAIN_ID', str(os.getpid() % 101 + 1))  # ROS's safe range: 0..101
 if 'ROS_LOG_DIR' not in os.environ:  # pytest run directly: a log folder removed at exit
     os.environ['ROS_LOG_DIR'] = tempfile.mkdtemp(prefix='ament_formation_ros_log_')
     atexit.register(shutil.rmtree, os.environ['ROS_LOG_DIR'], ignore_errors=True)

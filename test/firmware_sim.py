@@ -87,6 +87,7 @@ class Harness:
         *,
         freeze_wheels: bool = False,
         start_timeout_s: float = 10.0,
+        extra_args: tuple[str, ...] = (),
     ) -> None:
         self.status_path = work_dir / 'fw_status.jsonl'
         self.control_path = work_dir / 'fw_control'
@@ -104,6 +105,7 @@ class Harness:
         ]
         if freeze_wheels:
             cmd.append('--freeze-wheels')
+        cmd += list(extra_args)  # e.g. --reverse-motor left, --kt-scale 1.3,1 (wiring faults)
         self.stderr_path = work_dir / 'fw_sim.stderr'
         with open(self.stderr_path, 'wb') as err:
             self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=err)

@@ -14,7 +14,7 @@ import subprocess
 import time
 
 import numpy as np
-from processes import alive
+from processes import alive, program
 import pytest
 
 from ament_formation.ros.executors import spin_until
@@ -275,7 +275,7 @@ def test_launcher_bad_input(args, option, tmp_path):
 def test_formation_run_rejects_bad_launch_options(tmp_path, option, value):
     proc = subprocess.run(
         [
-            str(ROOT / '.venv' / 'bin' / 'formation'),
+            program('formation'),
             'run',
             str(SCENARIO),
             '--out',

@@ -24,6 +24,7 @@ import subprocess
 import time
 
 import numpy as np
+from processes import program
 import pytest
 import yaml
 
@@ -42,7 +43,6 @@ from ament_formation.core.sim.scene import (
 ROOT = Path(__file__).resolve().parents[1]
 JS = ROOT / 'test' / 'js'
 PAPER_SHORT = ROOT / 'test' / 'data' / 'paper_short.yaml'
-BIN = ROOT / '.venv' / 'bin'
 
 
 def _moving_scenario_mapping() -> dict:
@@ -324,7 +324,7 @@ def test_bad_port_is_one_line_and_exit_2(tmp_path, case):
     try:
         res = subprocess.run(
             [
-                str(BIN / 'formation_live_view'),
+                program('formation_live_view'),
                 '--ros-args',
                 '-p',
                 f'scenario:={PAPER_SHORT}',
@@ -360,7 +360,7 @@ def test_launchers_refuse_a_bad_live_port():
         assert res.returncode == 2 and '--live' in res.stderr, res.stderr
     res = subprocess.run(
         [
-            str(BIN / 'formation'),
+            program('formation'),
             'run',
             str(PAPER_SHORT),
             '--out',
@@ -507,7 +507,7 @@ def test_console_script_serves_what_is_published_only_while_watched(
     with open(log, 'w') as out:
         proc = subprocess.Popen(
             [
-                str(BIN / 'formation_live_view'),
+                program('formation_live_view'),
                 '--ros-args',
                 '-p',
                 f'scenario:={scenario_path}',
@@ -683,7 +683,7 @@ def live_run(tmp_path_factory, node_client):
     out = tmp / 'run'
     run = subprocess.Popen(
         [
-            str(BIN / 'formation'),
+            program('formation'),
             'run',
             str(scenario_path),
             '--out',

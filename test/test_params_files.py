@@ -1,9 +1,9 @@
 """Parameters of every node: the installed params files (config/params/<node>.yaml), their
 descriptors, and what a wrong value does at start and at run time.
 
-The process tests start the real console scripts (``.venv/bin/formation_*``) with the installed
-params file and talk to them with a small rclpy client (rcl_interfaces GetParameters,
-DescribeParameters, SetParameters), as ``ros2 param`` would.
+The process tests start the real console scripts (``formation_*``, found on PATH or in the install
+prefix by processes.program) with the installed params file and talk to them with a small rclpy
+client (rcl_interfaces GetParameters, DescribeParameters, SetParameters), as ``ros2 param`` would.
 """
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ from pathlib import Path
 import signal
 import subprocess
 
+from processes import program
 import pytest
 import yaml
 
@@ -23,7 +24,6 @@ from ament_formation.core.errors import ConfigError
 from ament_formation.core.params import param
 
 ROOT = Path(__file__).resolve().parents[1]
-BIN = ROOT / '.venv' / 'bin'
 SCENARIO = ROOT / 'test' / 'data' / 'paper_short.yaml'
 
 # node name -> (module, parameter dataclass)
@@ -287,7 +287,7 @@ def node_processes(tmp_path_factory):
             copy = tmp / f'{node}.yaml'
             copy.write_text(yaml.safe_dump(changed))
             cmd = [
-                str(BIN / node),
+                program(node),
                 '--ros-args',
                 '--params-file',
                 str(config_file(f'params/{node}.yaml')),
@@ -460,7 +460,7 @@ def test_wrong_type_at_start_is_one_line_and_exit_2(exe, args, parameter, expect
     node = exe
     proc = subprocess.run(
         [
-            str(BIN / exe),
+            program(exe),
             '--ros-args',
             '--params-file',
             str(config_file(f'params/{node}.yaml')),

@@ -12,9 +12,9 @@ import os
 from pathlib import Path
 import signal
 import subprocess
-import sys
 
 import numpy as np
+from processes import program
 import pytest
 
 from ament_formation.ros import messages as m
@@ -333,12 +333,9 @@ def test_running_controller_process_survives_bad_payloads(tmp_path):
     from ament_formation.ros.executors import spin_until
     from ament_formation.ros.qos import QOS_DIAGNOSTICS, QOS_GRAPH
 
-    exe = ROOT / '.venv' / 'bin' / 'formation_controller'
-    if not exe.exists():
-        exe = Path(sys.executable).parent / 'formation_controller'
     proc = subprocess.Popen(
         [
-            str(exe),
+            program('formation_controller'),
             '--ros-args',
             '-r',
             '__ns:=/robot_1',

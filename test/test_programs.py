@@ -1,6 +1,7 @@
-"""The programs users start: every node's console script (``.venv/bin/formation_*``) as a
-subprocess with its installed params file (config/params/<node>.yaml), watched from this test's
-own rclpy context (a private Context per ROS domain).
+"""The programs users start: every node's console script (``formation_*``, found on PATH or in the
+install prefix by processes.program) as a subprocess with its installed params file
+(config/params/<node>.yaml), watched from this test's own rclpy context (a private Context per
+ROS domain).
 
 Three sets of processes start together at module set-up, each on its own ROS domain:
 
@@ -28,13 +29,12 @@ import subprocess
 import time
 
 import numpy as np
-from processes import take_free_domain, warm_numba_kernels
+from processes import program, take_free_domain, warm_numba_kernels
 import pytest
 
 from ament_formation.core.config_files import config_file
 
 ROOT = Path(__file__).resolve().parents[1]
-BIN = ROOT / '.venv' / 'bin'
 SCENARIO = ROOT / 'test' / 'data' / 'paper_short.yaml'
 START_TIMEOUT_S = 90.0  # process start-up on a loaded 2-core machine (imports, numba cache load)
 LIMIT_E4NM = 1500  # 0.15 N m on the wire (1e-4 N m units)
@@ -57,7 +57,7 @@ class Program:
         self.log = log_dir / f'{name}.log'
         files = [str(config_file(f'params/{p}.yaml')) for p in (params or (exe,))]
         cmd = [
-            str(BIN / exe),
+            program(exe),
             '--ros-args',
             *[a for f in files for a in ('--params-file', f)],
             *args,
@@ -560,7 +560,7 @@ def test_a_port_that_cannot_be_opened_is_one_line_and_exit_2(tmp_path):
     env = dict(os.environ, ROS_DOMAIN_ID=str((int(os.environ['ROS_DOMAIN_ID']) + 101) % 200 + 1))
     runs = {
         'formation_bridge': [
-            str(BIN / 'formation_bridge'),
+            program('formation_bridge'),
             '--ros-args',
             '--params-file',
             str(config_file('params/formation_bridge.yaml')),
@@ -570,7 +570,7 @@ def test_a_port_that_cannot_be_opened_is_one_line_and_exit_2(tmp_path):
             f'port:={port}',
         ],
         'formation_team': [
-            str(BIN / 'formation_team'),
+            program('formation_team'),
             '--ros-args',
             '--params-file',
             str(config_file('params/formation_team.yaml')),

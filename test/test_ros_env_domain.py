@@ -7,6 +7,7 @@ import fcntl
 import os
 from pathlib import Path
 import subprocess
+import sys
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / 'scripts' / 'ros_env.sh'
@@ -35,9 +36,9 @@ def _stop(p):
 def test_concurrent_shells_get_free_domains_and_release_them(tmp_path):
     lock_dir = tmp_path / 'locks'
     lock_dir.mkdir()
-    free = {17, 141}
+    free = {17, 101}
     held = []
-    for d in range(1, 201):  # everything but two ids is taken by "other runs"
+    for d in range(1, 102):  # everything but two ids is taken by "other runs"
         if d in free:
             continue
         f = open(lock_dir / f'{d}.lock', 'a')
@@ -56,6 +57,36 @@ def test_concurrent_shells_get_free_domains_and_release_them(tmp_path):
     finally:
         for f in held:
             f.close()
+
+
+def test_domains_stay_in_ros_safe_range_on_linux(tmp_path):
+    """Every id ros_env.sh draws is in 1..101 (ROS's safe range on Linux is 0..101), also when
+    every id is held (its fallback) and from the test harness's own helpers.
+    """
+    from processes import take_free_domain
+
+    lock_dir = tmp_path / 'locks'
+    lock_dir.mkdir()
+    env = _env(tmp_path, lock_dir)
+    drawn = []
+    shells = []
+    try:
+        for _ in range(101):  # takes every id in turn: each shell holds its own until stopped
+            p, d = _shell(env)
+            shells.append(p)
+            drawn.append(d)
+        assert sorted(drawn) == list(range(1, 102))
+        for _ in range(5):  # all held: the random fallback
+            p, d = _shell(env)
+            _stop(p)
+            assert 1 <= d <= 101
+    finally:
+        for p in shells:
+            _stop(p)
+    taken = take_free_domain()
+    assert taken is not None and 1 <= taken[0] <= 101
+    os.close(taken[1])
+    assert 1 <= int(os.environ['ROS_DOMAIN_ID']) <= 101  # test/conftest.py's choice
 
 
 def test_a_chosen_domain_is_kept(tmp_path):
@@ -77,7 +108,7 @@ def test_formation_run_takes_a_free_domain_too(tmp_path):
     lock_dir = tmp_path / 'locks'
     lock_dir.mkdir()
     held = []
-    for d in range(1, 201):
+    for d in range(1, 102):
         if d != 77:
             f = open(lock_dir / f'{d}.lock', 'a')
             fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -89,7 +120,7 @@ def test_formation_run_takes_a_free_domain_too(tmp_path):
     )
     try:
         out = subprocess.run(
-            [str(ROOT / '.venv' / 'bin' / 'python'), '-c', code],
+            [sys.executable, '-c', code],
             env=env,
             cwd=tmp_path,
             capture_output=True,

@@ -15,7 +15,7 @@ import subprocess
 import threading
 import time
 
-from processes import alive
+from processes import alive, program
 import pytest
 import yaml
 
@@ -23,7 +23,6 @@ from ament_formation.ros import shm
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIO = ROOT / 'test' / 'data' / 'head_on.yaml'
-FORMATION = str(ROOT / '.venv' / 'bin' / 'formation')
 # whole-system runs: minutes on a busy machine (start-up, numba kernels, evaluation)
 pytestmark = pytest.mark.timeout(1500)
 
@@ -36,7 +35,7 @@ def passing_run(tmp_path_factory):
     run_segments = _RunSegments(out)
     res = subprocess.run(
         [
-            FORMATION,
+            program('formation'),
             'run',
             str(SCENARIO),
             '--out',
@@ -231,7 +230,7 @@ def test_a_process_killed_mid_run_fails_the_run_naming_it(tmp_path):
     out = tmp_path / 'run'
     run = subprocess.Popen(
         [
-            FORMATION,
+            program('formation'),
             'run',
             str(SCENARIO),
             '--out',
@@ -296,7 +295,7 @@ def test_sigterm_to_formation_run_stops_the_launch_and_every_process(tmp_path):
     out = tmp_path / 'run'
     run = subprocess.Popen(
         [
-            FORMATION,
+            program('formation'),
             'run',
             str(SCENARIO),
             '--out',
@@ -345,7 +344,7 @@ def test_formation_run_refuses_a_bad_scenario_in_one_line(tmp_path):
     bad = tmp_path / 'bad.yaml'
     bad.write_text(SCENARIO.read_text().replace('duration_s: 12.5', 'duration_s: -1'))
     res = subprocess.run(
-        [FORMATION, 'run', str(bad), '--out', str(tmp_path / 'o')],
+        [program('formation'), 'run', str(bad), '--out', str(tmp_path / 'o')],
         capture_output=True,
         text=True,
         timeout=60,

@@ -11,6 +11,7 @@ from pathlib import Path
 import subprocess
 import time
 
+from processes import program
 import pytest
 from scenario_mutants import _alias_bomb, _deep_list, mutants
 import yaml
@@ -27,7 +28,6 @@ from ament_formation.core.scenario.loader import (
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = ROOT / 'config' / 'scenarios' / 'paper.yaml'
-FORMATION = str(ROOT / '.venv' / 'bin' / 'formation')
 
 
 def _paper() -> dict:
@@ -121,7 +121,7 @@ def test_formation_sim_refuses_an_over_budget_scenario_in_one_line(tmp_path):
     path = tmp_path / 'long.yaml'
     path.write_text(yaml.safe_dump(data, sort_keys=False))
     res = subprocess.run(
-        [FORMATION, 'sim', str(path), '--out', str(tmp_path / 'out'), '--quiet'],
+        [program('formation'), 'sim', str(path), '--out', str(tmp_path / 'out'), '--quiet'],
         capture_output=True,
         text=True,
         timeout=300,

@@ -11,6 +11,7 @@ import signal
 import subprocess
 
 import numpy as np
+from processes import program as find_program
 import pytest
 
 from ament_formation.ros.executors import spin_until
@@ -64,7 +65,7 @@ def test_sigterm_stops_cleanly_and_the_board_brakes(ros_context, executor, tmp_p
     scenario, pty, world, nodes = _system(ros_context, executor, tmp_path, with_bridge=not team)
     if team:  # the team hosts robot 0's controller and bridge in one process
         cmd = [
-            str(ROOT / '.venv' / 'bin' / program),
+            find_program(program),
             '--ros-args',
             '-p',
             f'scenario:={scenario}',
@@ -75,7 +76,7 @@ def test_sigterm_stops_cleanly_and_the_board_brakes(ros_context, executor, tmp_p
         ]
     else:
         cmd = [
-            str(ROOT / '.venv' / 'bin' / program),
+            find_program(program),
             '--ros-args',
             '-r',
             '__ns:=/robot_0',

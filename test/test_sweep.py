@@ -13,10 +13,10 @@ import os
 from pathlib import Path
 import signal
 import subprocess
-import sys
 import time
 
 import numpy as np
+from processes import program
 import pytest
 
 from ament_formation.core.model.obstacles import ObstacleField
@@ -26,7 +26,6 @@ from ament_formation.core.scenario.loader import parse_scenario
 from ament_formation.core.sim import campaign
 from ament_formation.tools import cli
 
-BIN = Path(sys.executable).parent
 RULES = families.Rules()
 SEEDS = range(25)
 
@@ -440,7 +439,7 @@ def test_dask_scheduler_with_two_worker_processes_on_loopback_gives_the_same_row
     procs = [
         subprocess.Popen(
             [
-                str(BIN / 'dask'),
+                program('dask'),
                 'scheduler',
                 '--host',
                 '127.0.0.1',
@@ -461,7 +460,7 @@ def test_dask_scheduler_with_two_worker_processes_on_loopback_gives_the_same_row
         procs.append(
             subprocess.Popen(
                 [
-                    str(BIN / 'dask'),
+                    program('dask'),
                     'worker',
                     '--scheduler-file',
                     str(sched_file),
@@ -490,7 +489,7 @@ def test_dask_scheduler_with_two_worker_processes_on_loopback_gives_the_same_row
         out = tmp_path / 'out'
         run = subprocess.run(
             [
-                str(BIN / 'formation'),
+                program('formation'),
                 'sweep',
                 '--out',
                 str(out),
@@ -546,7 +545,7 @@ def test_sigint_stops_a_dask_campaign_and_keeps_what_is_done(tmp_path):
     """
     out = tmp_path / 'out'
     proc = subprocess.Popen(
-        [str(BIN / 'formation'), 'sweep', '--out', str(out), '--count', '400', '--seed', '5',
+        [program('formation'), 'sweep', '--out', str(out), '--count', '400', '--seed', '5',
          '--workers', '2', '--no-plot'],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )

@@ -9,6 +9,7 @@ import signal
 import subprocess
 
 import numpy as np
+from processes import program
 import pytest
 
 from ament_formation.ros import messages as m
@@ -183,7 +184,7 @@ def test_killing_the_controller_process_zeroes_the_board(ros_context, executor, 
     # executor (world, camera, tracker, bridge) runs late on a busy machine
     proc = subprocess.Popen(
         [
-            str(ROOT / '.venv' / 'bin' / 'formation_controller'),
+            program('formation_controller'),
             '--ros-args',
             '-r',
             '__ns:=/robot_0',

@@ -8,6 +8,7 @@ from pathlib import Path
 import subprocess
 
 import numpy as np
+from processes import program
 import pytest
 
 from ament_formation.core.errors import ConfigError
@@ -89,7 +90,7 @@ def test_one_tick_runs_every_hosted_controller_and_peers_read_in_process(ros_con
 
 
 def test_process_exits_2_on_bad_parameters(tmp_path):
-    exe = ROOT / '.venv' / 'bin' / 'formation_team'
+    exe = program('formation_team')
     proc = subprocess.run(
         [str(exe), '--ros-args', '-p', f'scenario:={SCENARIO}', '-p', 'robot_ids:=[0, 9]'],
         capture_output=True,

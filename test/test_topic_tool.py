@@ -7,6 +7,7 @@ import os
 from pathlib import Path
 import subprocess
 
+from processes import program
 import pytest
 import yaml
 
@@ -152,7 +153,7 @@ def test_cli_echo_once_and_topics_across_processes(ros_context, executor):
     pub = talker.create_publisher(String, '/robot_0/mode', QOS_CONTROL)
     talker.create_timer(0.05, lambda: pub.publish(m.mode_msg('coordination')))
     executor.add_node(talker)
-    cli = [str(ROOT / '.venv' / 'bin' / 'formation')]
+    cli = [program('formation')]
     env = dict(os.environ)
     echo = subprocess.Popen(
         cli + ['echo', 'robot_0/mode', '--once', '--timeout', '20'],
@@ -189,7 +190,7 @@ def test_cli_echo_once_and_topics_across_processes(ros_context, executor):
 
 def test_cli_echo_unknown_topic_is_a_one_line_error():
     proc = subprocess.run(
-        [str(ROOT / '.venv' / 'bin' / 'formation'), 'echo', '/nobody/here', '--timeout', '0.5'],
+        [program('formation'), 'echo', '/nobody/here', '--timeout', '0.5'],
         capture_output=True,
         text=True,
         timeout=60,

@@ -18,6 +18,7 @@ import cv2
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 import numpy as np
+from processes import program
 import pytest
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
@@ -31,7 +32,6 @@ from ament_formation.ros.messages import pose_from_msg, stamp_to_ns
 from ament_formation.ros.qos import QOS_CONTROL, QOS_DIAGNOSTICS, QOS_IMAGE
 
 ROOT = Path(__file__).resolve().parents[1]
-TRACKER = ROOT / '.venv' / 'bin' / 'formation_tracker'
 MARKERS, ROBOTS = (3, 7), (60, 61)  # robot ids no simulation uses: a run that happens to share
 # our DDS domain on a busy machine does not feed our topics
 N_FRAMES = 90
@@ -77,7 +77,7 @@ def params_file(tmp_path: Path, **params) -> Path:
 
 def start_tracker(tmp_path: Path, *ros_args: str, **params) -> subprocess.Popen:
     args = [
-        str(TRACKER),
+        program('formation_tracker'),
         '--ros-args',
         '--params-file',
         str(params_file(tmp_path, **params)),

@@ -41,7 +41,11 @@ import numpy as np  # noqa: E402
 from ament_formation.core.errors import ConfigError  # noqa: E402
 
 if 'OPENCV_LOG_LEVEL' not in os.environ:
-    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
+    _cv_logging = getattr(getattr(cv2, 'utils', None), 'logging', None)  # OpenCV 4.6: none
+    if _cv_logging is not None:
+        _cv_logging.setLogLevel(_cv_logging.LOG_LEVEL_SILENT)
+    else:
+        cv2.setLogLevel(0)  # 0: silent (the OpenCV 4.6 Python API)
 
 DEVICE, FILE, STREAM = 'device', 'file', 'stream'
 _SCHEME = re.compile(r'^[A-Za-z][A-Za-z0-9+.-]*://')

@@ -8,7 +8,8 @@ Topics (type; QoS; direction):
   QOS_IMAGE; subscribed when ``source`` is empty; with ``source``, published (mono8, capture
   stamp) while anyone subscribes and ``publish_image``
 - /camera/camera_info (next to ``image_topic``): sensor_msgs/CameraInfo (camera_config), same
-  stamp as the frame; QOS_IMAGE; published per captured frame when ``source`` is set
+  stamp as the frame; QOS_IMAGE; published per captured frame when ``source`` is set; subscribed
+  instead (the camera driver's calibration) when ``intrinsics_source`` is ``camera_info``
 - robot_<id>/pose: geometry_msgs/PoseStamped, frame ``world``, stamp = capture time; QOS_CONTROL;
   published per frame the robot's marker is seen
 - robot_<id>/pose_cov: geometry_msgs/PoseWithCovarianceStamped (same pose, σ² of x, y, yaw);
@@ -31,7 +32,13 @@ Parameters (TrackerNodeParams; name, type, default: meaning)
   capture_poll_s       float   0.01      period of the timer that takes the newest frame [s]
   publish_image        bool    true      with source: publish the captured frames on image_topic
   image_topic          str     /camera/image_raw   topic of frames
-  camera_config        str     camera.yaml         camera calibration (config/ name or path)
+  camera_config        str     camera.yaml         camera calibration (config/ name or path):
+                                                   the mounting, and the intrinsics unless
+                                                   intrinsics_source says otherwise
+  intrinsics_source    str     camera_config       camera_config | calibration_file (a ROS
+                                                   camera_calibration YAML) | camera_info (the
+                                                   topic beside image_topic; without source)
+  calibration_file     str     ""        the ROS camera_calibration YAML (calibration_file)
   marker_ids           int[]   [0, 1]    marker id per robot
   robot_ids            int[]   [0, 1]    robot id for each entry of marker_ids
   dictionary           str     DICT_4X4_50         ArUco dictionary
@@ -74,9 +81,16 @@ from sensor_msgs.msg import CameraInfo, Image
 from ament_formation.core.config_files import config_file
 from ament_formation.core.errors import ConfigError
 from ament_formation.core.params import param
+from ament_formation.core.vision import aruco_compat
 from ament_formation.core.vision.camera_model import load_camera_yaml
 from ament_formation.core.vision.marker_tracking import MarkerTracker, TrackerConfig
 from ament_formation.core.vision.robot_marker import MarkerLayout
+from ament_formation.core.vision.ros_calibration import (
+    apply_intrinsics,
+    Intrinsics,
+    intrinsics_from_fields,
+    load_ros_calibration,
+)
 from ament_formation.hw.video_source import FrameGrabber, open_problem, parse_source, SourceSpec
 from ament_formation.ros import diagnostics as diag
 from ament_formation.ros.executors import run_node
@@ -112,6 +126,14 @@ class TrackerNodeParams:
     )
     image_topic: str = param('/camera/image_raw', 'topic of frames when source is empty')
     camera_config: str = param('camera.yaml', 'camera calibration: a config/ file name or a path')
+    intrinsics_source: str = param(
+        'camera_config',
+        'intrinsics from: camera_config, calibration_file (a ROS camera_calibration YAML) or '
+        'camera_info (the topic beside image_topic, without source)',
+    )
+    calibration_file: str = param(
+        '', 'ROS camera_calibration YAML (with intrinsics_source calibration_file)'
+    )
     marker_ids: tuple[int, ...] = param((0, 1), 'ArUco marker id of each robot')
     robot_ids: tuple[int, ...] = param((0, 1), 'robot id for each entry of marker_ids')
     dictionary: str = param('DICT_4X4_50', 'ArUco dictionary')
@@ -137,6 +159,21 @@ class TrackerNodeParams:
             if len(set(v)) != len(v) or any(not isinstance(i, int) or i < 0 for i in v):
                 raise ConfigError(f'must be distinct integers >= 0 (got {list(v)})', name)
         parse_source(self.source)  # ConfigError naming source for a float, a list, -1, …
+        if self.intrinsics_source not in INTRINSICS_SOURCES:
+            raise ConfigError(
+                f'must be one of {", ".join(INTRINSICS_SOURCES)} (got {self.intrinsics_source!r})',
+                'intrinsics_source',
+            )
+        if (self.intrinsics_source == 'calibration_file') != bool(self.calibration_file):
+            raise ConfigError(
+                'is needed with intrinsics_source calibration_file, and only with it',
+                'calibration_file',
+            )
+        if self.intrinsics_source == 'camera_info' and self.source_spec is not None:
+            raise ConfigError(
+                'camera_info comes from a camera driver publishing image_topic: not with source',
+                'intrinsics_source',
+            )
         if self.source_spec is None and not self.image_topic:
             raise ConfigError('is empty and no source is set', 'image_topic')
         if math.isnan(self.source_wait_s) or self.source_wait_s < 0:
@@ -163,6 +200,9 @@ class TrackerNodeParams:
         )
 
 
+INTRINSICS_SOURCES = ('camera_config', 'calibration_file', 'camera_info')
+
+
 def _camera_path(name: str) -> Path:
     p = Path(name)
     return p if p.is_file() else config_file(name)
@@ -180,14 +220,21 @@ class TrackerNode(Node):
     ) -> None:
         super().__init__('formation_tracker', context=context, **node_kw)
         self.prm = params if params is not None else declare_dataclass(self, TrackerNodeParams)
+        aruco_compat.require_aruco()  # an OpenCV without cv2.aruco: one line, exit code 2
         setup = load_camera_yaml(_camera_path(self.prm.camera_config))
+        self._base_camera = setup.camera  # the mounting (and intrinsics of camera_config)
+        self.intrinsics: Intrinsics | None = None
+        self.info_errors = 0
+        self.last_info_error = ''
+        self.frames_waiting_info = 0
+        self.tracker: MarkerTracker | None = None
         self.camera = setup.camera
-        self.tracker = MarkerTracker(
-            self.camera,
-            self.prm.layout(),
-            TrackerConfig(max_speed_mps=self.prm.max_speed_mps, use_roi=self.prm.use_roi),
-            expected_ids=tuple(self.prm.marker_ids),
-        )
+        if self.prm.intrinsics_source == 'calibration_file':
+            path = Path(self.prm.calibration_file)
+            self.intrinsics = load_ros_calibration(path)
+            self._build_tracker(apply_intrinsics(self._base_camera, self.intrinsics, str(path)))
+        elif self.prm.intrinsics_source == 'camera_config':
+            self._build_tracker(self._base_camera)
         self.robot_of = dict(zip(self.prm.marker_ids, self.prm.robot_ids))
         self.pub_pose = {
             m: self.create_publisher(PoseStamped, f'robot_{r}/pose', QOS_CONTROL)
@@ -219,7 +266,51 @@ class TrackerNode(Node):
             self._start_capture(spec)
         else:
             self.create_subscription(Image, self.prm.image_topic, self._on_image, QOS_IMAGE)
+        self.info_topic = self.prm.image_topic.rsplit('/', 1)[0] + '/camera_info'
+        if self.prm.intrinsics_source == 'camera_info':
+            self.create_subscription(CameraInfo, self.info_topic, self._on_camera_info, QOS_IMAGE)
         self.create_timer(self.prm.diagnostics_period_s, self._publish_diagnostics)
+
+    def _build_tracker(self, camera) -> None:
+        """(Re)build the marker tracker for ``camera`` (tracks start over)."""
+        self.camera = camera
+        self.tracker = MarkerTracker(
+            camera,
+            self.prm.layout(),
+            TrackerConfig(max_speed_mps=self.prm.max_speed_mps, use_roi=self.prm.use_roi),
+            expected_ids=tuple(self.prm.marker_ids),
+        )
+
+    def _on_camera_info(self, msg: CameraInfo) -> None:
+        """The camera driver's calibration: new intrinsics rebuild the tracker; a message that
+        is no usable calibration is counted and reported, the last good one is kept.
+        """
+        try:
+            if not any(msg.k):
+                raise ConfigError(
+                    'K is zero: the camera driver publishes no calibration (calibrate it with '
+                    'camera_calibration, or set intrinsics_source: camera_config)',
+                    'camera_matrix',
+                    self.info_topic,
+                )
+            intr = intrinsics_from_fields(
+                msg.width, msg.height, msg.distortion_model, list(msg.d), list(msg.k),
+                list(msg.r), list(msg.p), source=self.info_topic,
+            )
+            if self.intrinsics is not None and intr.close_to(self.intrinsics):
+                return
+            camera = apply_intrinsics(self._base_camera, intr, self.info_topic)
+        except ConfigError as err:
+            self.info_errors += 1
+            self.last_info_error = str(err)
+            self.get_logger().error(str(err), throttle_duration_sec=5.0)
+            return
+        self.intrinsics = intr
+        self._build_tracker(camera)
+        self.get_logger().info(
+            f'intrinsics from {self.info_topic}: {intr.width_px}x{intr.height_px} px, fx '
+            f'{intr.fx_px:.2f} fy {intr.fy_px:.2f} cx {intr.cx_px:.2f} cy {intr.cy_px:.2f}'
+        )
 
     def _start_capture(self, spec: SourceSpec) -> None:
         """Open ``spec`` (one attempt now; more in the grabber thread within ``source_wait_s``),
@@ -333,6 +424,9 @@ class TrackerNode(Node):
 
     def process(self, frame: np.ndarray, stamp) -> None:
         """One frame (mono8) captured at ``stamp`` → pose messages."""
+        if self.tracker is None:  # intrinsics_source camera_info: none received yet
+            self.frames_waiting_info += 1
+            return
         t0 = time.perf_counter()
         try:
             result = self.tracker.step(frame, stamp_to_s(stamp))
@@ -370,7 +464,7 @@ class TrackerNode(Node):
     def _annotate(self, frame: np.ndarray, acc) -> np.ndarray:
         img = cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR)
         if len(acc):
-            cv2.aruco.drawDetectedMarkers(
+            aruco_compat.draw_detected_markers(
                 img,
                 [c.reshape(1, 4, 2).astype(np.float32) for c in acc.corners_px],
                 acc.ids.reshape(-1, 1).astype(np.int32),
@@ -446,9 +540,15 @@ class TrackerNode(Node):
             'full_frame_fraction': self.full_frames / self.frames if self.frames else 0.0,
             'rejected_jumps': self.rejected,
             'bad_frames': self.bad_frames,
-            'tracked_markers': len(self.tracker.tracked_ids),
+            'tracked_markers': len(self.tracker.tracked_ids) if self.tracker else 0,
             'frames_total': self.frames_total,
+            'intrinsics_source': self.prm.intrinsics_source,
         }
+        if self.prm.intrinsics_source == 'camera_info':
+            values.update(
+                {'camera_info_errors': self.info_errors,
+                 'frames_waiting_camera_info': self.frames_waiting_info}
+            )
         g = self.grabber
         if g is not None:
             delay = np.array(self.capture_delay_s) if self.capture_delay_s else np.zeros(1)
@@ -465,6 +565,11 @@ class TrackerNode(Node):
         source = self._source_status()
         if source is not None:
             level, text = source
+        elif self.tracker is None:
+            level = diag.ERROR
+            text = f'waiting for camera_info on {self.info_topic} (intrinsics_source camera_info)'
+            if self.last_info_error:
+                text = f'no usable camera_info: {self.last_info_error}'
         elif self.frames == 0 and self.bad_frames:
             level, text = diag.ERROR, f'unusable frames: {self.last_bad_frame}'
         elif self.frames == 0:

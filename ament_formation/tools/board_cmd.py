@@ -3,6 +3,11 @@ bridge can be tried without the rest of the system::
 
     formation board --pty --link /tmp/robot_0.tty [--corrupt 0.01] [--drop 0] [--delay 0]
     formation_bridge --ros-args -r __ns:=/robot_0 -p port:=/tmp/robot_0.tty
+
+A robot on blocks for `formation board-check`: ``--motor`` drives each wheel through the
+firmware's DC-motor model (firmware/src/config.h constants; wheel J 1.6e-3 kg·m², b 2e-3 N·m·s/rad,
+as the simavr harness), ``--motor-kt-scale L,R`` gives the real motors other torque constants,
+``--reverse-motor`` / ``--reverse-encoder left|right`` wire a wheel's motor or encoder reversed.
 """
 
 from __future__ import annotations
@@ -19,7 +24,10 @@ import numpy as np
 
 from ament_formation.core.errors import ConfigError
 from ament_formation.core.serial.byte_faults import FaultSpec
-from ament_formation.core.serial.motor_board import BoardConfig, MotorBoard
+from ament_formation.core.serial.motor_board import BoardConfig, MotorBoard, Wiring
+from ament_formation.core.serial.motor_constants import MotorConstants
+
+WHEELS = ('left', 'right')
 
 
 def register(subparsers) -> None:
@@ -50,6 +58,18 @@ def register(subparsers) -> None:
     p.add_argument('--delay-s', type=float, default=0.02)
     p.add_argument('--seed', type=int, default=0)
     p.add_argument(
+        '--motor', action='store_true',
+        help="wheels driven through the firmware's DC-motor model (a robot on blocks)",
+    )
+    p.add_argument(
+        '--motor-kt-scale', default='1,1', metavar='L,R',
+        help="real motors' torque constants over the firmware's, left,right (with --motor)",
+    )
+    p.add_argument('--reverse-motor', action='append', default=[], choices=WHEELS,
+                   help="wire this wheel's motor reversed (repeatable)")
+    p.add_argument('--reverse-encoder', action='append', default=[], choices=WHEELS,
+                   help="wire this wheel's encoder reversed (repeatable)")
+    p.add_argument(
         '--duration',
         type=float,
         default=0.0,
@@ -62,7 +82,27 @@ def run(args: argparse.Namespace) -> int:
     from ament_formation.hw.pty_board import PtyBoard
 
     try:
-        cfg = BoardConfig(ticks_per_rev=args.ticks_per_rev, hard_torque_limit_nm=args.torque_limit)
+        scale = tuple(float(v) for v in args.motor_kt_scale.split(','))
+        if len(scale) == 1:
+            scale = scale * 2
+        wiring = Wiring(
+            tuple(w in args.reverse_motor for w in WHEELS),
+            tuple(w in args.reverse_encoder for w in WHEELS),
+        )
+        extra = {}
+        if args.motor:
+            extra = {
+                'motor': MotorConstants(ticks_per_rev=args.ticks_per_rev),
+                'wheel_inertia_kgm2': 1.6e-3,
+                'wheel_damping_nms': 2e-3,
+            }
+        cfg = BoardConfig(
+            ticks_per_rev=args.ticks_per_rev,
+            hard_torque_limit_nm=args.torque_limit,
+            plant_kt_scale=scale,
+            wiring=wiring,
+            **extra,
+        )
         faults = FaultSpec(
             drop_prob=args.drop,
             corrupt_prob=args.corrupt,

@@ -1,13 +1,17 @@
-"""`formation calibrate intrinsics|floor`: write the camera's calibration into a camera.yaml.
+"""`formation calibrate intrinsics|floor|from-ros|to-ros`: the camera's calibration in camera.yaml.
 
     formation calibrate intrinsics IMAGES... --board 7x5,0.04,0.03[,DICT_4X4_50] [--out FILE]
     formation calibrate floor IMAGE --markers FILE [--camera FILE] [--out FILE]
+    formation calibrate from-ros ROS.yaml [--out FILE]      # intrinsics of a ROS calibration
+    formation calibrate to-ros [--camera FILE] --out ROS.yaml [--name NAME]
 
-``intrinsics`` keeps the mounting already in ``--out`` (if the file exists) and replaces the image
-size, camera matrix and distortion. ``floor`` takes the intrinsics from ``--camera`` (default: the
-``--out`` file, else the built-in default) and replaces the mounting. Degenerate input (too few
-usable views, fewer than 3 reference markers or markers on one line, unreadable images) is
-refused with one line naming it (exit code 2).
+``intrinsics`` (and ``from-ros``, which takes them from a ROS ``camera_calibration`` YAML) keeps
+the mounting already in ``--out`` (if the file exists) and replaces the image size, camera matrix
+and distortion; ``to-ros`` writes the intrinsics as a ROS ``camera_calibration`` YAML (for a
+camera driver's ``camera_info_url``). ``floor`` takes the intrinsics from ``--camera``
+(default: the ``--out`` file, else the built-in default) and replaces the mounting. Degenerate
+input (too few usable views, fewer than 3 reference markers or markers on one line, unreadable
+images, a malformed ROS file) is refused with one line naming it (exit code 2).
 """
 
 from __future__ import annotations
@@ -17,6 +21,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import cv2
+import yaml
 
 from ament_formation.core.config_files import config_dir
 from ament_formation.core.errors import ConfigError
@@ -30,6 +35,11 @@ from ament_formation.core.vision.camera_model import (
     CameraSetup,
     load_camera_yaml,
     save_camera_yaml,
+)
+from ament_formation.core.vision.ros_calibration import (
+    apply_intrinsics,
+    load_ros_calibration,
+    ros_calibration_dict,
 )
 
 
@@ -117,6 +127,38 @@ def _floor(args: argparse.Namespace) -> int:
     return 0
 
 
+def _from_ros(args: argparse.Namespace) -> int:
+    intr = load_ros_calibration(args.file)
+    out = Path(args.out)
+    setup = _existing_setup(out)
+    camera = apply_intrinsics(setup.camera, intr, args.file)
+    calib = dict(setup.calibration)
+    calib.update({'intrinsics_from': str(args.file)})
+    save_camera_yaml(replace(setup, camera=camera, calibration=calib), out)
+    print(
+        f'intrinsics of {args.file} ({intr.camera_name or "unnamed"}): {intr.width_px}x'
+        f'{intr.height_px} px, fx {intr.fx_px:.2f} fy {intr.fy_px:.2f} cx {intr.cx_px:.2f} '
+        f'cy {intr.cy_px:.2f} -> {out} (mounting kept)'
+    )
+    return 0
+
+
+def _to_ros(args: argparse.Namespace) -> int:
+    source = Path(args.camera) if args.camera else Path(_default_out())
+    if not source.exists():
+        raise ConfigError('no such camera file', '--camera', str(source))
+    camera = load_camera_yaml(source).camera
+    out = Path(args.out)
+    if not out.parent.is_dir():
+        raise ConfigError('no such folder', '--out', str(out.parent))
+    out.write_text(
+        yaml.safe_dump(ros_calibration_dict(camera, args.name), sort_keys=False,
+                       default_flow_style=None, width=100)
+    )
+    print(f'intrinsics of {source} -> {out} (ROS camera_calibration, camera_name {args.name})')
+    return 0
+
+
 def register(subparsers) -> None:
     """Add ``calibrate intrinsics`` and ``calibrate floor``."""
     cal = subparsers.add_parser(
@@ -157,3 +199,18 @@ def register(subparsers) -> None:
         '--out', default=default_out, help=f'camera.yaml to write (default {default_out})'
     )
     p.set_defaults(func=_floor)
+
+    p = sub.add_parser(
+        'from-ros', help='intrinsics from a ROS camera_calibration YAML (mounting kept)'
+    )
+    p.add_argument('file', metavar='ROS.yaml', help='file of ros2 run camera_calibration ...')
+    p.add_argument(
+        '--out', default=default_out, help=f'camera.yaml to write (default {default_out})'
+    )
+    p.set_defaults(func=_from_ros)
+
+    p = sub.add_parser('to-ros', help='write the intrinsics as a ROS camera_calibration YAML')
+    p.add_argument('--camera', default=None, help=f'camera.yaml to read (default {default_out})')
+    p.add_argument('--out', required=True, metavar='ROS.yaml')
+    p.add_argument('--name', default='camera', help='camera_name (default camera)')
+    p.set_defaults(func=_to_ros)

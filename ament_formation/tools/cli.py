@@ -17,8 +17,10 @@ _COMMAND_MODULES = (
     'ament_formation.tools.sim_cmd',  # sim, plot
     'ament_formation.tools.run_cmd',  # run
     'ament_formation.tools.calibrate_cmd',  # calibrate intrinsics|floor
+    'ament_formation.tools.markers_cmd',  # markers (printable markers and ChArUco board)
     'ament_formation.tools.topic_cmd',  # topics, nodes, echo, hz
     'ament_formation.tools.board_cmd',  # board --pty (emulated motor board)
+    'ament_formation.tools.board_check_cmd',  # board-check (wheel direction, encoder, motor)
     'ament_formation.tools.multihost_cmd',  # multihost (hosts in network namespaces)
     'ament_formation.tools.sweep_cmd',  # sweep (Monte Carlo campaigns, Dask)
 )

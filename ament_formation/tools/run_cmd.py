@@ -119,15 +119,15 @@ def _free_domain_id() -> str:
     global _DOMAIN_LOCK
     import fcntl
 
-    first = (os.getpid() + time.time_ns() // 1000) % 200
+    first = (os.getpid() + time.time_ns() // 1000) % 101  # ids 1..101: ROS's safe range on Linux
     lock_dir = Path(
         os.environ.get('AF_DOMAIN_LOCK_DIR')
         or Path(os.environ.get('TMPDIR') or '/tmp') / 'ament_formation_domains'
     )
     try:
         lock_dir.mkdir(parents=True, exist_ok=True)
-        for i in range(200):
-            d = (first + i) % 200 + 1
+        for i in range(101):
+            d = (first + i) % 101 + 1
             f = open(lock_dir / f'{d}.lock', 'a')
             try:
                 fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)

@@ -4,6 +4,8 @@
  *
  * Usage: formation_fw_sim FIRMWARE.elf [--status FILE] [--link PATH] [--duration-s S]
  *                                      [--no-realtime] [--freeze-wheels] [--control FILE]
+ *                                      [--reverse-motor left|right] [--reverse-encoder left|right]
+ *                                      [--kt-scale L,R]
  *
  *   stdout, first line:  "PTY /dev/pts/N"  (the slave side: open it like a serial port)
  *   --status FILE        one JSON object per line every 10 ms of emulated time (see emit_status)
@@ -14,6 +16,10 @@
  *   --control FILE       fault injection on the host -> board line, read every 10 ms of emulated
  *                        time: "pass" (default), "cut" (every byte dropped: a cut cable) or
  *                        "corrupt" (one bit flipped in the first data byte of every frame)
+ *   --reverse-motor W    wheel W's motor wired reversed: a positive duty turns it backward
+ *   --reverse-encoder W  wheel W's encoder wired reversed (A and B swapped): counts down forward
+ *   --kt-scale L,R       the real motors' torque constants over config.h's (a wrong motor):
+ *                        what `formation board-check` finds (repeatable --reverse-* options)
  *
  * Measurements (cycles of the emulated 16 MHz CPU):
  *   isr: per vector, count and worst case from vector entry to RETI (the simavr "interrupt
@@ -28,7 +34,7 @@
  *        counted with their emulated time (rate in emulated time), the last TELEMETRY and STATUS
  *        fields are reported (error counters, flags, applied torque).
  *
- * Wheel model (per wheel, both identical): J domega/dt = tau(duty, omega) - b omega, with
+ * Wheel model (per wheel, identical unless wired otherwise): J domega/dt = tau(duty, omega) - b omega, with
  * tau from the same DC-motor model and constants as the firmware (src/motor_model.c,
  * src/config.h), integrated every 100 us of emulated time; encoder A/B edges are emitted one
  * quadrature step at a time (at most one per wheel per 100 us step: up to 43 rad/s, twice the motor's no-load speed).
@@ -91,6 +97,9 @@ typedef struct {
     double angle_rad;
     double speed_radps;
     int64_t emitted_ticks;     /* quadrature steps already put on the pins */
+    double motor_sign;         /* -1: motor wired reversed */
+    double encoder_sign;       /* -1: encoder wired reversed */
+    motor_model_t motor;       /* the real motor (config.h's, torque constant scaled) */
     avr_irq_t *pin_a;
     avr_irq_t *pin_b;
 } wheel_t;
@@ -375,7 +384,8 @@ static void read_pwm(harness_t *h)
 
 static void emit_encoder_step(harness_t *h, wheel_t *w)
 {
-    const double ticks = w->angle_rad / (2.0 * M_PI) * (double)ENCODER_TICKS_PER_REV;
+    const double ticks =
+        w->encoder_sign * w->angle_rad / (2.0 * M_PI) * (double)ENCODER_TICKS_PER_REV;
     const int64_t target = (int64_t)floor(ticks);
     if (target == w->emitted_ticks) {
         return;
@@ -397,7 +407,9 @@ static void step_wheels(harness_t *h)
     for (int i = 0; i < 2; i++) {
         wheel_t *w = &h->wheel[i];
         if (!h->freeze_wheels) {
-            const double tau = motor_torque_from_duty(&h->motor, (float)h->duty[i], (float)w->speed_radps);
+            /* a reversed motor: its shaft turns -G omega, its torque acts on the wheel reversed */
+            const double tau = w->motor_sign * motor_torque_from_duty(&w->motor, (float)h->duty[i],
+                                                                      (float)(w->motor_sign * w->speed_radps));
             w->speed_radps += dt * (tau - h->viscous_nms * w->speed_radps) / h->inertia_kgm2;
             w->angle_rad += dt * w->speed_radps;
         }
@@ -519,15 +531,22 @@ static void no_sleep(avr_t *avr, avr_cycle_count_t how_long)
 static void usage(void)
 {
     fprintf(stderr, "usage: formation_fw_sim FIRMWARE.elf [--status FILE] [--link PATH] "
-                    "[--duration-s S] [--no-realtime] [--freeze-wheels] [--control FILE]\n");
+                    "[--duration-s S] [--no-realtime] [--freeze-wheels] [--control FILE]\n"
+                    "       [--reverse-motor left|right] [--reverse-encoder left|right] "
+                    "[--kt-scale L,R]\n");
 }
 
 int main(int argc, char **argv)
 {
     const char *elf = NULL, *status_path = NULL, *link_path = NULL;
     double duration_s = 0.0;
+    double kt_scale[2] = {1.0, 1.0};
     static harness_t h;
     h.realtime = 1;
+    for (int i = 0; i < 2; i++) {
+        h.wheel[i].motor_sign = 1.0;
+        h.wheel[i].encoder_sign = 1.0;
+    }
     for (int i = 1; i < argc; i++) {
         if (!strcmp(argv[i], "--status") && i + 1 < argc) {
             status_path = argv[++i];
@@ -546,6 +565,29 @@ int main(int argc, char **argv)
             h.realtime = 0;
         } else if (!strcmp(argv[i], "--freeze-wheels")) {
             h.freeze_wheels = 1;
+        } else if ((!strcmp(argv[i], "--reverse-motor") || !strcmp(argv[i], "--reverse-encoder")) &&
+                   i + 1 < argc) {
+            const int motor = !strcmp(argv[i], "--reverse-motor");
+            const char *w = argv[++i];
+            const int idx = !strcmp(w, "left") ? 0 : !strcmp(w, "right") ? 1 : -1;
+            if (idx < 0) {
+                fprintf(stderr, "formation_fw_sim: %s: expected left or right\n", argv[i - 1]);
+                return 2;
+            }
+            if (motor) {
+                h.wheel[idx].motor_sign = -1.0;
+            } else {
+                h.wheel[idx].encoder_sign = -1.0;
+            }
+        } else if (!strcmp(argv[i], "--kt-scale") && i + 1 < argc) {
+            char *end = NULL;
+            kt_scale[0] = strtod(argv[++i], &end);
+            kt_scale[1] = (end && *end == ',') ? strtod(end + 1, &end) : kt_scale[0];
+            if (!end || *end || !(kt_scale[0] >= 0.1 && kt_scale[0] <= 10.0) ||
+                !(kt_scale[1] >= 0.1 && kt_scale[1] <= 10.0)) {
+                fprintf(stderr, "formation_fw_sim: --kt-scale: expected L,R in [0.1, 10]\n");
+                return 2;
+            }
         } else if (argv[i][0] != '-' && !elf) {
             elf = argv[i];
         } else {
@@ -632,6 +674,10 @@ int main(int argc, char **argv)
     /* plant: the firmware's motor constants; wheel + reflected half robot (2.5 kg, r = 35 mm) */
     h.motor = (motor_model_t){MOTOR_SUPPLY_V, MOTOR_TORQUE_CONSTANT_NM_PER_A, MOTOR_RESISTANCE_OHM,
                               MOTOR_GEAR_RATIO, MOTOR_GEAR_EFFICIENCY};
+    for (int i = 0; i < 2; i++) {
+        h.wheel[i].motor = h.motor;
+        h.wheel[i].motor.torque_constant = (float)(MOTOR_TORQUE_CONSTANT_NM_PER_A * kt_scale[i]);
+    }
     h.inertia_kgm2 = 1.6e-3;
     h.viscous_nms = 2e-3;
 

@@ -5,7 +5,12 @@ idle), STATUS every 200 ms.
 
 No I/O and no clock: bytes and the time ``now_s`` [s] are passed in, bytes to send come out.
 In the simulated twin the plant feeds wheel angles/velocities (``set_wheel_state``) and reads
-``applied_torque_nm``; standalone, the board integrates a first-order wheel model itself.
+``applied_torque_nm``; standalone, the board integrates a first-order wheel model itself: an
+ideal torque source (J dω/dt = τ − b ω), or, with ``BoardConfig.motor``, the firmware's DC-motor
+drive (core/serial/motor_constants.py: duty from the configured constants and the speed measured
+from the encoder each 10 ms control period, as firmware/src/board.c does) driving motors whose
+torque constant may differ (``plant_kt_scale``) and which may be wired reversed (``wiring``):
+what `formation board-check` identifies.
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ import math
 import numpy as np
 
 from ament_formation.core.serial import serial_protocol as sp
+from ament_formation.core.serial.motor_constants import MotorConstants
 
 TWO_PI = 2.0 * math.pi
 
@@ -43,6 +49,25 @@ def brake_torque_e4nm(speed_radps: float, limit_e4nm: int) -> int:
 
 
 @dataclass(frozen=True)
+class Wiring:
+    """How a standalone emulated board's wheels are wired, per wheel (left, right): a reversed
+    motor turns its wheel backward for a positive duty, a reversed encoder counts down while its
+    wheel turns forward (the faults a new robot has and `formation board-check` finds).
+    """
+
+    motor_reversed: tuple[bool, bool] = (False, False)
+    encoder_reversed: tuple[bool, bool] = (False, False)
+
+    @property
+    def motor_sign(self) -> np.ndarray:
+        return np.where(np.array(self.motor_reversed, bool), -1.0, 1.0)
+
+    @property
+    def encoder_sign(self) -> np.ndarray:
+        return np.where(np.array(self.encoder_reversed, bool), -1.0, 1.0)
+
+
+@dataclass(frozen=True)
 class BoardConfig:
     """Compiled-in settings of a board; the host may lower the limit and change periods
     (CONFIG).
@@ -58,6 +83,11 @@ class BoardConfig:
     protocol_version: int = sp.PROTOCOL_VERSION
     wheel_inertia_kgm2: float = 5e-4  # standalone wheel model: J dω/dt = τ − b ω
     wheel_damping_nms: float = 1e-2
+    # standalone only: the firmware's DC-motor drive (None: an ideal torque source), the real
+    # motors' torque constants relative to it (left, right), and the wiring
+    motor: MotorConstants | None = None
+    plant_kt_scale: tuple[float, float] = (1.0, 1.0)
+    wiring: Wiring = Wiring()
 
     def __post_init__(self) -> None:
         if not 1 <= self.ticks_per_rev <= 0xFFFF:
@@ -80,6 +110,12 @@ class BoardConfig:
         if self.wheel_inertia_kgm2 <= 0 or self.wheel_damping_nms < 0:
             raise ValueError(
                 'BoardConfig.wheel_inertia_kgm2 must be > 0 and wheel_damping_nms >= 0'
+            )
+        if len(self.plant_kt_scale) != 2 or not all(
+            math.isfinite(v) and 0.1 <= v <= 10.0 for v in self.plant_kt_scale
+        ):
+            raise ValueError(
+                f'BoardConfig.plant_kt_scale: {self.plant_kt_scale} not two values in [0.1, 10]'
             )
 
 
@@ -150,6 +186,11 @@ class MotorBoard:
             self.wheel_pos_rad = np.zeros(2)
             self.wheel_vel_radps = np.zeros(2)
         self._last_step_s = now_s
+        # the firmware's own speed measurement and duty (standalone with a motor model)
+        self._fw_speed_radps = np.zeros(2)
+        self._fw_ticks = self.encoder_ticks.astype(float)
+        self._plant_s = now_s
+        self._next_control_s = now_s + CONTROL_PERIOD_S
 
     # -- plant interface -----------------------------------------------------------------------
     def set_wheel_state(self, pos_rad, vel_radps) -> None:
@@ -169,8 +210,22 @@ class MotorBoard:
 
     @property
     def encoder_ticks(self) -> np.ndarray:
-        """Quantised encoder counts (int64, not wrapped), shape (2,)."""
-        return np.floor(self.wheel_pos_rad * (self.config.ticks_per_rev / TWO_PI)).astype(np.int64)
+        """Quantised encoder counts (int64, not wrapped), shape (2,) (standalone: as wired)."""
+        counts = self.wheel_pos_rad * (self.config.ticks_per_rev / TWO_PI)
+        if self.standalone:
+            counts = counts * self.config.wiring.encoder_sign
+        return np.floor(counts).astype(np.int64)
+
+    @property
+    def reported_velocity_radps(self) -> np.ndarray:
+        """Wheel speeds the board reports [rad/s], shape (2,): the plant's (twin), the wheel's
+        as its encoder is wired (standalone), the encoder-measured speed (with a motor model).
+        """
+        if not self.standalone:
+            return self.wheel_vel_radps
+        if self.config.motor is not None:
+            return self._fw_speed_radps
+        return self.wheel_vel_radps * self.config.wiring.encoder_sign
 
     # -- byte interface ------------------------------------------------------------------------
     def receive(self, data: bytes, now_s: float) -> None:
@@ -204,7 +259,8 @@ class MotorBoard:
             self._brake_step(now_s)
             self._next_brake_step_s = max(self._next_brake_step_s + CONTROL_PERIOD_S, now_s)
         if self.standalone and dt > 0:
-            self._integrate_wheels(min(dt, 0.05))
+            # the motor model steps itself in 1 ms steps: it keeps the board's time over a stall
+            self._integrate_wheels(min(dt, 1.0 if self.config.motor is not None else 0.05))
         period_s = self.telemetry_period_ms / 1000.0
         idle = self._last_cmd_s is None or now_s - self._last_cmd_s >= 2.0 * period_s
         if idle and now_s - self._last_telemetry_s >= period_s:
@@ -220,12 +276,15 @@ class MotorBoard:
         last control period (the quantised angle now minus the quantised angle one period ago,
         at the present speed) over the period; a count is 2 pi / ticks_per_rev.
         """
+        if self.standalone and self.config.motor is not None:
+            return self._fw_speed_radps.copy()
         counts_per_rad = self.config.ticks_per_rev / TWO_PI
         now = np.floor(self.wheel_pos_rad * counts_per_rad)
         before = np.floor(
             (self.wheel_pos_rad - self.wheel_vel_radps * CONTROL_PERIOD_S) * counts_per_rad
         )
-        return (now - before) / (counts_per_rad * CONTROL_PERIOD_S)
+        speed = (now - before) / (counts_per_rad * CONTROL_PERIOD_S)
+        return speed * self.config.wiring.encoder_sign if self.standalone else speed
 
     def _stop(self, now_s: float) -> None:
         """STOP: acknowledged and feeding the watchdog like a command; brakes once per stop."""
@@ -306,8 +365,8 @@ class MotorBoard:
         return sp.Telemetry(
             left_ticks=sp.wrap_int16(int(ticks[0])),
             right_ticks=sp.wrap_int16(int(ticks[1])),
-            left_vel_mradps=sp.velocity_to_wire(float(self.wheel_vel_radps[0])),
-            right_vel_mradps=sp.velocity_to_wire(float(self.wheel_vel_radps[1])),
+            left_vel_mradps=sp.velocity_to_wire(float(self.reported_velocity_radps[0])),
+            right_vel_mradps=sp.velocity_to_wire(float(self.reported_velocity_radps[1])),
             cmd_seq=self.cmd_seq,
             flags=self._flags_now(),
         )
@@ -398,10 +457,50 @@ class MotorBoard:
         self._send_telemetry(now_s)  # the acknowledgement: TELEMETRY echoing this command
 
     def _integrate_wheels(self, dt_s: float) -> None:
-        """Standalone wheel model J dω/dt = τ − b ω, semi-implicit Euler."""
+        """Standalone wheel model J dω/dt = τ − b ω, semi-implicit Euler (τ: the applied torque,
+        or the DC-motor drive's, :meth:`_integrate_motor`).
+        """
         cfg = self.config
-        tau = self.applied_torque_nm
+        if cfg.motor is not None:
+            self._integrate_motor(dt_s)
+            return
+        tau = self.applied_torque_nm * cfg.wiring.motor_sign
         self.wheel_vel_radps = (self.wheel_vel_radps + dt_s * tau / cfg.wheel_inertia_kgm2) / (
             1.0 + dt_s * cfg.wheel_damping_nms / cfg.wheel_inertia_kgm2
         )
         self.wheel_pos_rad = self.wheel_pos_rad + dt_s * self.wheel_vel_radps
+
+    def _integrate_motor(self, dt_s: float) -> None:
+        """The firmware's DC-motor drive on motors of torque constant ``plant_kt_scale`` times
+        the configured one, wired as ``wiring`` says, in steps of at most 1 ms: each 10 ms control
+        period the speed is measured from the encoder counts of the period; the duty follows the
+        applied torque and that speed (firmware/src/motor_model.c); the wheel obeys
+        J dω/dt = s (d V − k' G s ω) k' G η / R − b ω (s: motor wiring sign; duty 0 shorts the
+        winding, as the simavr harness models a bridge at duty 0), implicit in ω.
+        """
+        cfg, fw = self.config, self.config.motor
+        end = self._plant_s + dt_s
+        sign = cfg.wiring.motor_sign
+        kg = fw.torque_constant_nm_per_a * fw.gear_ratio * np.asarray(cfg.plant_kt_scale)
+        gain = kg * fw.gear_efficiency / fw.resistance_ohm  # torque per volt [N·m/V]
+        damping = gain * kg + cfg.wheel_damping_nms  # [N·m·s/rad]
+        j = cfg.wheel_inertia_kgm2
+        while self._plant_s < end - 1e-12:
+            if self._plant_s >= self._next_control_s - 1e-12:  # firmware control step
+                ticks = self.encoder_ticks.astype(float)
+                self._fw_speed_radps = (ticks - self._fw_ticks) * (
+                    TWO_PI / cfg.ticks_per_rev / CONTROL_PERIOD_S
+                )
+                self._fw_ticks = ticks
+                self._next_control_s += CONTROL_PERIOD_S
+            h = min(end - self._plant_s, 1e-3, self._next_control_s - self._plant_s)
+            applied = self.applied_torque_nm
+            duty = np.array(
+                [0.0 if a == 0.0 else fw.duty(a, w) for a, w in zip(applied, self._fw_speed_radps)]
+            )
+            drive = sign * duty * fw.supply_v * gain
+            self.wheel_vel_radps = (self.wheel_vel_radps + h * drive / j) / (1.0 + h * damping / j)
+            self.wheel_pos_rad = self.wheel_pos_rad + h * self.wheel_vel_radps
+            self._plant_s += h
+        if self._next_control_s < self._plant_s - CONTROL_PERIOD_S:  # a long stall: catch up
+            self._next_control_s = self._plant_s

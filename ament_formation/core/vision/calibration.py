@@ -21,6 +21,7 @@ import numpy as np
 import yaml
 
 from ament_formation.core.errors import ConfigError
+from ament_formation.core.vision import aruco_compat
 from ament_formation.core.vision.camera_model import CameraModel
 from ament_formation.core.vision.marker_tracking import detect, make_detector, refine_corners
 from ament_formation.core.vision.robot_marker import (
@@ -100,8 +101,9 @@ class CharucoSpec:
         except ConfigError as err:
             raise err.under('--board') from None
 
-    def board(self) -> cv2.aruco.CharucoBoard:
-        return cv2.aruco.CharucoBoard(
+    def board(self):
+        """The ChArUco board object of the installed OpenCV (4.6 and later, aruco_compat)."""
+        return aruco_compat.charuco_board(
             (self.squares_x, self.squares_y),
             self.square_m,
             self.marker_m,
@@ -115,7 +117,7 @@ class CharucoSpec:
     def image(self, px_per_square: int = 40) -> np.ndarray:
         """(H, W) uint8 picture of the board, exactly covering it (no margin)."""
         size = (self.squares_x * px_per_square, self.squares_y * px_per_square)
-        return self.board().generateImage(size, marginSize=0, borderBits=1)
+        return aruco_compat.board_image(self.board(), size, margin_px=0, border_bits=1)
 
 
 @dataclass(frozen=True)
@@ -139,7 +141,7 @@ def calibrate_intrinsics(
     if not images:
         raise ConfigError('no images given', 'IMAGES')
     board = spec.board()
-    detector = cv2.aruco.CharucoDetector(board)
+    detector = aruco_compat.CharucoDetector(board)
     size = images[0][1].shape[1], images[0][1].shape[0]
     obj_pts, img_pts, skipped = [], [], []
     for name, img in images:
@@ -148,16 +150,16 @@ def calibrate_intrinsics(
                 f'is {img.shape[1]}x{img.shape[0]} px, the first image is {size[0]}x{size[1]}',
                 name,
             )
-        ch_corners, ch_ids, _, _ = detector.detectBoard(img)
+        ch_corners, ch_ids = detector.detect(img)
         if ch_ids is None or len(ch_ids) < MIN_CORNERS_PER_VIEW:
             skipped.append(name)
             continue
-        if board.checkCharucoCornersCollinear(ch_ids):
+        if aruco_compat.charuco_collinear(board, ch_ids):
             skipped.append(name)
             continue
-        obj, imgp = board.matchImagePoints(ch_corners, ch_ids)
+        obj = aruco_compat.charuco_object_points(board, ch_ids)
         obj_pts.append(obj.reshape(-1, 1, 3).astype(np.float32))
-        img_pts.append(imgp.reshape(-1, 1, 2).astype(np.float32))
+        img_pts.append(np.asarray(ch_corners).reshape(-1, 1, 2).astype(np.float32))
     if len(obj_pts) < min_views:
         raise ConfigError(
             f'only {len(obj_pts)} usable view(s) of the {spec.squares_x}x{spec.squares_y} '

@@ -5,7 +5,7 @@ Pipeline for one frame (:class:`MarkerTracker.step`):
 1. **Find** the markers. A tracked marker is first looked for where its track predicts it: the
    predicted corners are refined (step 2) and accepted when the edge fits are clean, land within
    a few pixels of the prediction and the code cells read the marker's id (no detector at all).
-   Markers that fail are searched with ``cv2.aruco.ArucoDetector`` (OpenCV 4.7+ and 5.x) in
+   Markers that fail are searched with the ArUco detector (:mod:`aruco_compat`: OpenCV 4.6+) in
    regions of interest around their predictions, packed side by side into one small mosaic image
    (one detector call). Markers still missing trigger a full-frame search (rate-limited while
    they stay lost); without a list of expected markers, a full-frame search also runs every
@@ -36,7 +36,7 @@ import cv2
 import numpy as np
 
 from ament_formation.core.errors import ConfigError
-from ament_formation.core.vision import corner_refinement
+from ament_formation.core.vision import aruco_compat, corner_refinement
 from ament_formation.core.vision.camera_model import CameraModel, undistort_normalized
 from ament_formation.core.vision.robot_marker import aruco_dictionary, MarkerLayout
 
@@ -150,15 +150,16 @@ def make_detector(
     camera: CameraModel | None = None,
     subpix: bool = True,
     single_scale: bool = False,
-) -> cv2.aruco.ArucoDetector:
-    """An ArucoDetector tuned for markers of ``layout`` seen by ``camera``.
+) -> aruco_compat.MarkerDetector:
+    """An ArUco detector tuned for markers of ``layout`` seen by ``camera``.
 
     The smallest marker perimeter accepted is 60 % of the smallest the camera can see on the floor
     (relative to ``image_size_px``, the size of the image the detector will be given).
     Adaptive thresholding uses windows of 5 and 15 px, or (``single_scale``, for ROIs where the
     marker size is known) one window of about two code cells: half the cost per marker.
     """
-    p = cv2.aruco.DetectorParameters()
+    dictionary = aruco_dictionary(layout.dictionary)  # refuses an OpenCV without cv2.aruco
+    p = aruco_compat.detector_parameters()
     min_perimeter_px = 40.0
     if camera is not None:
         gsd_max = float(
@@ -185,12 +186,14 @@ def make_detector(
         p.cornerRefinementWinSize = 2
         p.cornerRefinementMaxIterations = 20
         p.cornerRefinementMinAccuracy = 0.02
-    return cv2.aruco.ArucoDetector(aruco_dictionary(layout.dictionary), p)
+    return aruco_compat.MarkerDetector(dictionary, p)
 
 
-def detect(detector: cv2.aruco.ArucoDetector, image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def detect(
+    detector: aruco_compat.MarkerDetector, image: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Markers in a mono8 image → corners (K, 4, 2) [px] and ids (K,)."""
-    corners, ids, _ = detector.detectMarkers(image)
+    corners, ids = detector.detect(image)
     if ids is None or len(ids) == 0:
         return np.zeros((0, 4, 2)), np.zeros(0, np.int64)
     return np.array(corners, dtype=np.float64).reshape(-1, 4, 2), ids.reshape(-1).astype(np.int64)
@@ -265,7 +268,7 @@ def poses_from_corners(
 
 def measure(
     image: np.ndarray,
-    detector: cv2.aruco.ArucoDetector,
+    detector: aruco_compat.MarkerDetector,
     camera: CameraModel,
     layout: MarkerLayout,
     config: TrackerConfig = TrackerConfig(),
@@ -358,13 +361,13 @@ class MarkerTracker:
         self._undistort = UndistortLookup(self.camera)
         self._dictionary = aruco_dictionary(self.layout.dictionary)
         self._codes: dict[int, np.ndarray] = {}
-        self._roi_detectors: dict[tuple[int, int], cv2.aruco.ArucoDetector] = {}
+        self._roi_detectors: dict[tuple[int, int], aruco_compat.MarkerDetector] = {}
         self._tracks: dict[int, _Track] = {}
         self._frame = 0
         self._last_full = -(10**9)
 
     # ------------------------------------------------------------------ ROI mosaic
-    def _roi_detector(self, size: tuple[int, int]) -> cv2.aruco.ArucoDetector:
+    def _roi_detector(self, size: tuple[int, int]) -> aruco_compat.MarkerDetector:
         key = (size[0] // 64, size[1] // 64)
         det = self._roi_detectors.get(key)
         if det is None:
@@ -545,9 +548,9 @@ class MarkerTracker:
         """
         cells = self._codes.get(mid)
         if cells is None:
-            n = self.layout.bits + 2
-            img = cv2.aruco.generateImageMarker(self._dictionary, int(mid), n, borderBits=1)
-            cells = np.pad(img > 127, 1, constant_values=True)
+            cells = np.pad(
+                aruco_compat.marker_cells(self._dictionary, int(mid)), 1, constant_values=True
+            )
             self._codes[mid] = cells
         return cells
 

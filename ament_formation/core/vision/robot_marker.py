@@ -22,24 +22,24 @@ from __future__ import annotations
 from dataclasses import dataclass
 import math
 
-import cv2
 import numpy as np
 
 from ament_formation.core.errors import ConfigError
+from ament_formation.core.vision import aruco_compat
 
-#: ArUco dictionaries by name (the cv2.aruco constant names).
-DICTIONARIES = {
-    name: getattr(cv2.aruco, name)
-    for name in dir(cv2.aruco)
-    if name.startswith('DICT_') and isinstance(getattr(cv2.aruco, name), int)
-}
+#: ArUco dictionaries by name (the cv2.aruco constant names; empty without cv2.aruco).
+DICTIONARIES = aruco_compat.dictionary_ids()
 
 
 def aruco_dictionary(name: str):
-    """The cv2.aruco.Dictionary called ``name`` (e.g. "DICT_4X4_50"); ConfigError if unknown."""
+    """The cv2.aruco.Dictionary called ``name`` (e.g. "DICT_4X4_50"); ConfigError if unknown,
+    :class:`~ament_formation.core.vision.aruco_compat.OpenCVUnsupported` without a usable
+    cv2.aruco.
+    """
+    aruco_compat.require_aruco()
     if name not in DICTIONARIES:
         raise ConfigError(f'unknown ArUco dictionary {name!r} (e.g. DICT_4X4_50)', 'dictionary')
-    return cv2.aruco.getPredefinedDictionary(DICTIONARIES[name])
+    return aruco_compat.dictionary(DICTIONARIES[name])
 
 
 def dictionary_size(name: str) -> int:

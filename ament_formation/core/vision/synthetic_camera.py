@@ -25,6 +25,7 @@ import cv2
 import numpy as np
 
 from ament_formation.core.errors import ConfigError
+from ament_formation.core.vision import aruco_compat
 from ament_formation.core.vision.camera_model import CameraModel, FloorArea, undistort_normalized
 from ament_formation.core.vision.robot_marker import aruco_dictionary, MarkerLayout
 
@@ -195,9 +196,7 @@ class SyntheticCamera:
                 )
             o = self.options
             inner = (self.layout.bits + 2) * _TEXEL_PER_CELL
-            img = cv2.aruco.generateImageMarker(
-                self._dictionary, int(marker_id), inner, borderBits=1
-            )
+            img = aruco_compat.marker_image(self._dictionary, int(marker_id), inner, border_bits=1)
             pad = o.quiet_zone_cells * _TEXEL_PER_CELL
             img = cv2.copyMakeBorder(img, pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=255)
             tex = np.where(img > 127, o.white_level, o.black_level).astype(np.uint8)
