@@ -5,12 +5,13 @@ r_dot = r'(s) s_dot and r_ddot = r''(s) s_dot^2 + r'(s) s_ddot. The progress rat
 target with a first-order lag (``progress_tau_s``), so s_ddot stays bounded (S17.2):
 
 * the team's error E = max over its robots of |p_i - g_i| (goals inside an obstacle's Q left
-  out: such a robot is parked, S6.5; none while the leader's goal is inside one) slows the
-  target from 1 at ``reform_start_m`` to 0 at
+  out: such a robot is parked, S6.5) slows the target from 1 at ``reform_start_m`` to 0 at
   ``reform_stop_m`` (S17.1): a team that fell apart waits for its robots instead of leaving them
   behind;
 * a team that gives way to another (S7.5) waits: target 0 while one of its robots yields to a
   robot of a team that ranks before it;
+* a team whose leader's goal lies inside an obstacle's Q moves on (target 1): waiting would
+  keep the leader parked, and its followers' goals with it;
 * the reference ends at s = s_end (the scenario's ``duration_s``): there it rests.
 
 The mission ends when every leader's reference has reached its end (S17.3); a reference within
@@ -103,8 +104,8 @@ def goal_free(gx, gy, ob, prm):
 @njit(cache=True)
 def team_errors(p, goal, team, known, ob, prm, out):
     """S17.1: E of every team -> ``out`` (N,) at the leader rows: the largest |p_i - g_i| of its
-    known robots with a free goal; 0 while the leader's own goal is not free (the reference
-    must carry it out of the obstacle's Q: the followers' goals hang on the parked leader)."""
+    known robots with a free goal; -E when the leader's own goal is not free (the reference must
+    carry it out of the obstacle's Q, the followers' goals hang on the parked leader)."""
     out[:] = 0.0
     for i in range(p.shape[0]):
         if not known[i] or not goal_free(goal[i, 0], goal[i, 1], ob, prm):
@@ -114,7 +115,7 @@ def team_errors(p, goal, team, known, ob, prm, out):
             out[team[i]] = e
     for i in range(p.shape[0]):
         if team[i] == i and not goal_free(goal[i, 0], goal[i, 1], ob, prm):
-            out[i] = 0.0
+            out[i] = -out[i]
 
 
 @njit(cache=True)
@@ -137,9 +138,11 @@ def rate_targets(e_team, giving_way, pr, leaders, s_end, prm, out):
     ``reform_stop_m``): the mission ends with every team in formation."""
     worst = 0.0
     for i in leaders:
-        worst = max(worst, e_team[i])
+        worst = max(worst, abs(e_team[i]))
     for i in leaders:
-        out[i] = rate_target(e_team[i], giving_way[i], prm)
+        # a parked leader (E < 0) moves on: its goal must come out of the obstacle's Q
+        out[i] = 0.0 if giving_way[i] else 1.0 if e_team[i] < 0.0 else rate_target(
+            e_team[i], False, prm)
         if worst > prm.reform_stop_m and pr.s[i] >= s_end - FINISH_S:
             out[i] = 0.0
 
