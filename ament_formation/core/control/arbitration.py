@@ -418,7 +418,7 @@ def _round_parked(i, k, robots, prm):
 def _make_way(i, t, robots, m, prm, ev, nev):
     """Row C9: the robots at rest beside robot i (stalled on its obstacle, S8.9) make way: one
     in C or yielding yields to i without parking (it circles i until S8.3 lets it go back); one
-    parked on an obstacle of its own stops parking for 2 ``stall_time_s`` (it goes round).
+    parked on an obstacle of its own stops parking for ``make_way_s`` (it goes round).
     Returns the event count."""
     p, pd = robots.p, robots.pd
     for k in range(p.shape[0]):
@@ -429,7 +429,7 @@ def _make_way(i, t, robots, m, prm, ev, nev):
                 pd[k, 0], pd[k, 1]) > prm.teammate_speed_mps:
             continue
         if m.mode[k] == MODE_OBSTACLE:
-            m.park_at[k] = max(m.park_at[k], t + 2.0 * prm.stall_time_s)
+            m.park_at[k] = max(m.park_at[k], t + prm.make_way_s)
         elif not (m.mode[k] == MODE_YIELD and m.tgt[k] == i and m.park_at[k] == INF):
             nev = _yield_to(k, i, t, robots, m, prm, ev, nev)
             m.park_at[k] = INF

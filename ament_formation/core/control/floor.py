@@ -21,7 +21,6 @@ from numba import njit
 from ament_formation.core.control.limit_cycle import anomaly
 
 TWO_PI = 2.0 * math.pi
-EDGE_PUSH_M = 0.05  # S16.3: a pair's drift pushes off an edge at cap x deficit / this
 
 
 @njit(cache=True)
@@ -94,14 +93,14 @@ def floor_side(sense, px, py, gx, gy, cx, cy, phi, big_r1, big_r2, clear, prm):
 
 
 @njit(cache=True, inline='always')
-def _off(w, lo, hi, cap):
+def _off(w, lo, hi, cap, push_m):
     """A drift component ``w`` with room ``lo`` toward the lower edge and ``hi`` toward the upper
     one (< 0: the circle crosses that edge): away from a crossed edge, never toward it.
     """
     if lo < 0.0 and hi >= 0.0:
-        return max(w, 0.0, min(cap, -lo * cap / EDGE_PUSH_M))
+        return max(w, 0.0, min(cap, -lo * cap / push_m))
     if hi < 0.0 and lo >= 0.0:
-        return min(w, 0.0, -min(cap, -hi * cap / EDGE_PUSH_M))
+        return min(w, 0.0, -min(cap, -hi * cap / push_m))
     return w
 
 
@@ -109,8 +108,10 @@ def _off(w, lo, hi, cap):
 def drift_off_edges(wx, wy, mx, my, room, cap, prm):
     """S16.3: a pair's drift target (wx, wy) [m/s] with the pair's centre (mx, my) needing
     ``room`` [m] to each edge: a component toward a crossed edge is dropped and one away from it
-    added (cap x deficit / 5 cm, at most ``cap``).
+    added (cap x deficit / ``floor_push_m``, at most ``cap``).
     """
-    wx = _off(wx, mx - room - prm.floor_x_min_m, prm.floor_x_max_m - room - mx, cap)
-    wy = _off(wy, my - room - prm.floor_y_min_m, prm.floor_y_max_m - room - my, cap)
+    wx = _off(wx, mx - room - prm.floor_x_min_m, prm.floor_x_max_m - room - mx, cap,
+              prm.floor_push_m)
+    wy = _off(wy, my - room - prm.floor_y_min_m, prm.floor_y_max_m - room - my, cap,
+              prm.floor_push_m)
     return wx, wy

@@ -103,6 +103,18 @@ class LawParams:
         1.0, 's', "the reference's progress rate follows its target with this time constant: "
         "the reference's acceleration stays bounded (S17)"
     )
+    finish_s: float = threshold(
+        2.0, 's', 'a reference this close to its end (in path time) waits while any team is not '
+        're-formed: the mission ends with every team in formation (S17.3)'
+    )
+    make_way_s: float = threshold(
+        10.0, 's', 'a robot parked on an obstacle beside a stalled robot stops parking for this '
+        'long (it goes round, S8.9)'
+    )
+    floor_push_m: float = threshold(
+        0.05, 'm', "a pair's drift pushes off a floor edge at its cap times the deficit over "
+        'this (S16.3)'
+    )
     right_of_way_release_m: float = threshold(
         0.9, 'm', 'two teams keep their right of way until no robots of theirs are closer '
         'than this (S7.5)'

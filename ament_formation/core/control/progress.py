@@ -15,7 +15,7 @@ target with a first-order lag (``progress_tau_s``), so s_ddot stays bounded (S17
 * the reference ends at s = s_end (the scenario's ``duration_s``): there it rests.
 
 The mission ends when every leader's reference has reached its end (S17.3); a reference within
-``FINISH_S`` of its end waits while any team is not re-formed, so that the mission ends with every
+``finish_s`` of its end waits while any team is not re-formed, so that the mission ends with every
 team in formation (a team already at its end may have been pushed out of formation since).
 """
 
@@ -127,9 +127,6 @@ def rate_target(e_team, giving_way, prm):
     return min(1.0, max(0.0, (prm.reform_stop_m - e_team) / span))
 
 
-FINISH_S = 2.0  # S17.3: a reference this close to its end [s of path] waits for every team
-
-
 # implements: S17.1
 @njit(cache=True)
 def rate_targets(e_team, giving_way, pr, leaders, s_end, prm, out):
@@ -143,7 +140,7 @@ def rate_targets(e_team, giving_way, pr, leaders, s_end, prm, out):
         # a parked leader (E < 0) moves on: its goal must come out of the obstacle's Q
         out[i] = 0.0 if giving_way[i] else 1.0 if e_team[i] < 0.0 else rate_target(
             e_team[i], False, prm)
-        if worst > prm.reform_stop_m and pr.s[i] >= s_end - FINISH_S:
+        if worst > prm.reform_stop_m and pr.s[i] >= s_end - prm.finish_s:
             out[i] = 0.0
 
 
