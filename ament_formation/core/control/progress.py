@@ -131,7 +131,7 @@ def rate_target(e_team, giving_way, prm):
 @njit(cache=True)
 def rate_targets(e_team, giving_way, pr, leaders, s_end, prm, out):
     """S17.1-S17.3: the rate target of every leader row -> ``out``: :func:`rate_target` of its
-    team, and 0 within ``FINISH_S`` of its end while some team is not re-formed (E above
+    team, and 0 within ``finish_s`` of its end while some team is not re-formed (E above
     ``reform_stop_m``): the mission ends with every team in formation."""
     worst = 0.0
     for i in leaders:
