@@ -1,4 +1,4 @@
-"""Metrics (DESIGN §4) on synthetic runs with known answers; run directories round trip; the figure
+"""Metrics (docs/design.md §4) on synthetic runs with known answers; run directories round trip; the figure
 is redrawn by `formation plot DIR`.
 """
 

@@ -1,4 +1,4 @@
-"""Scenario loading and strict validation (DESIGN §5): every kind of bad input is rejected with
+"""Scenario loading and strict validation (docs/design.md §5): every kind of bad input is rejected with
 its own one-line message naming the file, the field and the problem; the CLI exits with code 2.
 """
 

@@ -1,5 +1,5 @@
 """Whole-system tests: every node in one executor with real ptys and rendered frames, and the
-safety behaviour of the controller (DESIGN §7).
+safety behaviour of the controller (docs/design.md §7).
 """
 
 from __future__ import annotations

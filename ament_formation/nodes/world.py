@@ -1,4 +1,4 @@
-"""formation_world: the simulated hardware twin (DESIGN §1, §6).
+"""formation_world: the simulated hardware twin (docs/design.md §1, §6).
 
 The plant of every robot (1 kHz RK4, core/sim/twin.py) with the scenario's disturbance and moving
 obstacles; one emulated motor board per robot on its own pty (hw/pty_board.py: the bridge opens

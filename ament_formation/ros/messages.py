@@ -1,4 +1,4 @@
-"""Conversions between standard ROS messages and the core's arrays (DESIGN §6).
+"""Conversions between standard ROS messages and the core's arrays (docs/design.md §6).
 
 Every function is pure: message in, numpy/dict out (or the reverse). Units are SI, frames are the
 world frame unless the name says otherwise; state rows are [x_m, y_m, theta_rad, v_mps,

@@ -1,5 +1,5 @@
 """A recorded whole-system run (run.mcap) as the core's :class:`SimResult`, so metrics and figures
-are computed exactly as for `formation sim` (DESIGN §4), from the *ground truth* of the twin.
+are computed exactly as for `formation sim` (docs/design.md §4), from the *ground truth* of the twin.
 
 Sources in the recording:
   /formation/graph          start_s (scenario time t = ROS time - start_s), graph events

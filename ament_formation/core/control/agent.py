@@ -3,7 +3,7 @@
 
 An :class:`AgentBatch` hosts one robot (the controller node) or several (a team process, the
 camera-sensing simulator) and owns, per robot: the S10.1 pose estimator, the camera-loss and
-hold stops (DESIGN.md §7 as docs/safety.md restates it), the table of the robots it hears
+hold stops (docs/design.md §7), the table of the robots it hears
 (states extrapolated with their commanded accelerations, S10.2, and the hearing range), the
 formation graph and the coordinator's encounter assignment (S7.1), the progress of its
 reference when it leads a team (S17), its own switching (S8.7) and the law (S3, S15) with the
@@ -235,7 +235,7 @@ def _brake(r, i, v, w, st, sc, camera_loss, out):
 
 @njit(cache=True)
 def _camera_lost(r, now, v, w, st, sc):
-    """DESIGN §7 camera loss: the stop begins once the camera age exceeds pose_timeout_s minus
+    """docs/design.md §7 camera loss: the stop begins once the camera age exceeds pose_timeout_s minus
     the time to rest from (v, omega) (docs/safety.md §7); latched until a newer pose."""
     cam_t = st.est.f[r, F_CAMERA_T]
     if st.stop[r, 0] > 0.5:
@@ -323,7 +323,7 @@ def _drive(r, i, now, t, st, sc, ob, out):
     if m.mode[i] == MODE_MUTUAL:
         m.wc[i, 0] += sc.ak.period_s * wdx
         m.wc[i, 1] += sc.ak.period_s * wdy
-    lim = sc.coeffs[ROW_TAU_MAX, i]  # DESIGN §7: clamped here too; non-finite -> 0
+    lim = sc.coeffs[ROW_TAU_MAX, i]  # docs/design.md §7: clamped here too; non-finite -> 0
     out.torque[r, 0] = min(max(t1 if math.isfinite(t1) else 0.0, -lim), lim)
     out.torque[r, 1] = min(max(t2 if math.isfinite(t2) else 0.0, -lim), lim)
     out.accel[r, 0], out.accel[r, 1] = acx, acy

@@ -1,4 +1,4 @@
-"""The controlled stop (DESIGN §7): what a robot's controller commands when its inputs go stale
+"""The controlled stop (docs/design.md §7): what a robot's controller commands when its inputs go stale
 (no camera pose for ``pose_timeout_s``, its parent's state lost): wheels to rest, held there; and
 when the camera-loss stop must begin so that the robot is at rest by ``pose_timeout_s``
 (:class:`StopLead`, docs/safety.md §7).
@@ -25,7 +25,7 @@ def stop_torque(
     decel_mps2: float = 0.0,
     period_s: float = 0.01,
 ) -> np.ndarray:
-    """Controlled stop (DESIGN §7): torques (N, 2) that bring (v, omega) to rest and hold them
+    """Controlled stop (docs/design.md §7): torques (N, 2) that bring (v, omega) to rest and hold them
     there against the bounded disturbance g.
 
     A sliding-mode velocity regulator on sigma = x2 (S2.2: x2dot = f2 + B2 u + g):
@@ -167,7 +167,7 @@ def time_to_band(
 
 class StopLead:
     """When the camera-loss stop must begin so that the robot is at rest by ``pose_timeout_s``
-    (DESIGN §7, docs/safety.md §7).
+    (docs/design.md §7, docs/safety.md §7).
 
     Rule: the controlled stop (:func:`stop_torque`) begins once the camera age exceeds
     ``pose_timeout_s - lead(v, omega)``, lead = time to rest from the current speed under the stop

@@ -1,4 +1,4 @@
-"""Run metrics (DESIGN §4 ``metrics.json``) from a recorded run and its scenario.
+"""Run metrics (docs/design.md §4 ``metrics.json``) from a recorded run and its scenario.
 
 Distances use the exact Euclidean signed distance of the controlled point p to the prohibited
 ellipse P_j (< 0 inside;
@@ -17,7 +17,7 @@ Conventions (samples k = 0..T-1 at times t_k):
   that window is empty. A follower's goal g_i hangs on its original parent, so its error includes
   every upstream detour: the formation is settled only when the whole team is (as spec S12
   measures it). ``formation_rms_after_own_exit_m`` is the same RMS from 10 s after the robot's
-  own last exit (DESIGN §4 read per robot).
+  own last exit (docs/design.md §4 read per robot).
 """
 
 from __future__ import annotations
@@ -140,7 +140,7 @@ def _team(scenario, rid: int) -> int:
 
 
 def compute_metrics(result: SimResult, scenario) -> dict:
-    """DESIGN §4 metrics of a run.
+    """docs/design.md §4 metrics of a run.
 
     Parameters
     ----------

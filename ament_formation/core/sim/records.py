@@ -2,7 +2,7 @@
 
 Layout of a run directory::
 
-    metrics.json       DESIGN §4 metrics
+    metrics.json       docs/design.md §4 metrics
     figure.png         the Fig. 4-like figure (written by the caller, see core/sim/plot.py)
     trajectories.csv   t_s, then per robot <id>: r<id>_x_m, r<id>_y_m, r<id>_theta_rad,
     r<id>_v_mps,
@@ -123,7 +123,7 @@ def write_run(out_dir, result: SimResult, scenario: Scenario, metrics: dict | No
 
 
 def write_metrics(out_dir, metrics: dict) -> Path:
-    """``out_dir/metrics.json`` (indented, keys in DESIGN §4 order)."""
+    """``out_dir/metrics.json`` (indented, keys in docs/design.md §4 order)."""
     path = Path(out_dir) / 'metrics.json'
     path.write_text(json.dumps(_plain(metrics), indent=2) + '\n')
     return path

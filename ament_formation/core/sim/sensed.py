@@ -7,7 +7,7 @@ objects the nodes hold:
 * camera: every robot's pose of p captured at the scenario's ``camera.fps`` (or ``fps``), with
   Gaussian noise (``noise_m`` per axis, ``noise_rad`` on the heading), lost with probability
   ``drop_prob`` per robot and frame, delivered ``latency_s`` after capture with its capture stamp
-  (the tracker's PoseStamped, DESIGN §6);
+  (the tracker's PoseStamped, docs/design.md §6);
 * each robot's agent (core/control/agent.py, what nodes/controller.py runs: the S10.1
   estimator, the stops, the robots it hears, its own switching and the law) at
   ``control_rate_hz``, on the wheel samples of the period, the camera poses arrived by then and
