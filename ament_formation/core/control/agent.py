@@ -274,7 +274,7 @@ def _decide(r, i, t, st, sc, ob, prm):
     """Row r's own table (S8.7) every decision period, then the coordinator's assignment."""
     m = _modes_of(st.modes, r)
     robots = Robots(st.x[r, :, :2].copy(), st.pd[r], st.goal[r], st.goal_dot[r], st.vc[r],
-                    sc.team, sc.rbody, st.parent[r], sc.slot, st.known[r])
+                    sc.team, sc.rbody, st.parent[r], sc.slot, st.known[r], sc.orig_parent)
     nev = st.nev[r]
     ev = st.ev[r]
     nev = robot_transitions(i, t, robots, ob, m, prm, ev, nev)

@@ -253,8 +253,9 @@ def robot_threats(robots, m, pairs, prm):
         rvx, rvy = pd[i, 0] - pd[k, 0], pd[i, 1] - pd[k, 1]
         trig, em, lam, h_em, h_l = threat_test(zx, zy, rvx, rvy, 0.0, r, r,
                                                _teammate_q_scale(i, k, r, robots, prm), prm)
-        if trig and (lam > prm.robot_horizon_s or _moving_together(i, k, rvx, rvy, m, prm)):
-            trig = False
+        if trig and (lam > prm.robot_horizon_s or _moving_together(i, k, rvx, rvy, m, prm)
+                     or robots.origin[i] == k or robots.origin[k] == i):
+            trig = False  # a follower and its own parent: the barrier, not an encounter (S7.2)
         if trig or em:
             _keep(th, i, k, em, lam, h_em)
             _keep(th, k, i, em, lam, h_em)

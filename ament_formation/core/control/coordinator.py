@@ -151,7 +151,7 @@ class Coordinator:
         goals_and_fields(x, pd, self.ref, self.orig_parent, self.orig_offset, self.prm, goal,
                          goal_dot, vc)
         robots = Robots(np.ascontiguousarray(x[:, :2]), pd, goal, goal_dot, vc, self.team,
-                        self.rbody, self._parent_rows(), self.slot, known)
+                        self.rbody, self._parent_rows(), self.slot, known, self.orig_parent)
         oc, ov, oa, ophi, ophid, ophidd = self.field.fill(t_s, self._obs)
         ob = ObstacleSnapshot(oc, ov, oa, ophi, ophid, ophidd, self.field.axes, self.field.static)
         m = self.modes

@@ -85,14 +85,16 @@ def new_modes(n: int) -> Modes:
 
 
 Robots = namedtuple(
-    'Robots', ['p', 'pd', 'goal', 'goal_dot', 'vc', 'team', 'rbody', 'parent', 'slot', 'known']
+    'Robots',
+    ['p', 'pd', 'goal', 'goal_dot', 'vc', 'team', 'rbody', 'parent', 'slot', 'known', 'origin'],
 )
 Robots.__doc__ = """Every robot as the decisions read it (rows in robot-id order): ``p``, ``pd``
 (N, 2) controlled points [m] and their velocities [m/s]; ``goal``, ``goal_dot`` (N, 2) the
 formation goal g [m] and its velocity [m/s] (S8.3 item 1); ``vc`` (N, 2) the coordination field
 V_c [m/s]; ``team`` (N,) team-leader row; ``rbody`` (N,) body radii [m]; ``parent`` (N,) current
 formation parent row (-1: root or unknown); ``slot`` (N, 2) formation slot c [m] (NaN: unknown);
-``known`` (N,) bool: the row's data is current (a robot heard, S10.2).
+``known`` (N,) bool: the row's data is current (a robot heard, S10.2); ``origin`` (N,) the original
+parent row (S9 pi0; -1 for a leader).
 """
 
 

@@ -136,7 +136,8 @@ def _decide(t, robots, graph, plant, ob, m, teams, mission, prm, ev):
     """One decision: each robot's table (S8.7), then the coordinator's (S8.8) with the teams'
     progress (S17). Returns the event count."""
     dec = Robots(robots.x[:, :2].copy(), robots.pd, robots.goal, robots.goal_dot, robots.vc,
-                 graph.team, plant.rbody, graph.parent, graph.slot, robots.known)
+                 graph.team, plant.rbody, graph.parent, graph.slot, robots.known,
+                 graph.orig_parent)
     nev = 0
     for i in range(robots.x.shape[0]):
         nev = robot_transitions(i, t, dec, ob, m, prm, ev, nev)
