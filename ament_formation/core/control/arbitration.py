@@ -29,8 +29,8 @@ toward a robot of a team that gives way to this one's (S7.5), emergencies always
 ``pairing`` = two free robots of one team, or in an emergency, form a mutual pair; otherwise the
 robot yields. Right of way between teams (S7.5): a team that meets another keeps a rank from
 then until their robots are ``right_of_way_release_m`` apart; the team already further into the
-meeting point (or at rest at its goals) ranks first, and the other's robots yield to its robots
-without parking (they go round, out of the way, until S8.3 lets them back).
+meeting point (or at rest at its goals) ranks first, and the other's robots yield to its robots,
+to a moving team's without parking (they go round, out of the way, until S8.3 lets them back).
 """
 
 from __future__ import annotations
@@ -364,8 +364,8 @@ def _engage(i, k, em, t, robots, m, teams, prm, ev, nev):
     if free and (robots.team[i] == robots.team[k] or em):
         return form_pair(i, k, t, robots, m, prm, ev, nev)
     nev = _yield_to(i, k, t, robots, m, prm, ev, nev)
-    if _rank_first(k, i, robots, teams):
-        m.park_at[i] = INF  # giving way: out of the way, not waiting in it (S7.5)
+    if _rank_first(k, i, robots, teams) and not teams.done[robots.team[k]]:
+        m.park_at[i] = INF  # giving way to a moving team: out of its way, not waiting in it
     return nev
 
 
