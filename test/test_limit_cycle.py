@@ -423,17 +423,17 @@ def test_kernel_field_matches_numpy():
 @FEW
 @given(seed=SEEDS)
 def test_compiled_gain_design_and_direction_match_the_oracle(seed):
-    """S6.5/S6.6 as the automaton runs them (core/control/limit_cycle.py) against the numpy
+    """S6.5/S6.6 as the switching runs them (core/control/limit_cycle.py) against the numpy
     oracle: the same gains; the same rotation sense wherever the arc lengths are not within
     quadrature error of the rule-3 margin (the kernel's 64-node midpoint rule and the oracle's
     Gauss-Legendre agree to 2e-3 of the perimeter on eccentric ellipses).
     """
     from ament_formation.core.control import limit_cycle as lc
-    from ament_formation.core.control.automaton import SwitchingParams
+    from ament_formation.core.control.law_params import LawParams
 
     rng = np.random.default_rng(seed)
-    sw = SwitchingParams()
-    av, prm = sw.avoidance, sw.compiled()
+    law = LawParams()
+    av, prm = law.avoidance, law.compiled()
     n = 40
     phi, r1, r2 = _ellipses(rng, n)
     for i in range(n):

@@ -1,6 +1,6 @@
 """Obstacles too close to pass between are avoided as one (spec S13 #3, docs/law-changes.md §18):
 the enclosing ellipse, which obstacles merge and which do not, the validator's check of the
-merged limit cycle, and the law (simulator, robot controller, arbiter) avoiding the merged one
+merged limit cycle, and the law (simulator, robot agent, coordinator) avoiding the merged one
 while metrics and records keep the scenario's obstacles.
 """
 
@@ -11,8 +11,8 @@ import math
 import numpy as np
 import pytest
 
-from ament_formation.core.control.arbiter import EncounterArbiter
-from ament_formation.core.control.controller import RobotController
+from ament_formation.core.control.agent import RobotAgent
+from ament_formation.core.control.coordinator import Coordinator
 from ament_formation.core.errors import ConfigError
 from ament_formation.core.model.ellipse import (
     boundary_points,
@@ -20,7 +20,7 @@ from ament_formation.core.model.ellipse import (
     points_inside,
 )
 from ament_formation.core.model.obstacles import avoided_as_one, MERGE_REACH, ObstacleSpec
-from ament_formation.core.params import AvoidanceParams, ControlGains, RobotParams
+from ament_formation.core.params import AvoidanceParams
 from ament_formation.core.scenario.loader import parse_scenario
 from ament_formation.core.sim.metrics import compute_metrics
 from ament_formation.core.sim.simulator import simulate
@@ -165,9 +165,14 @@ def test_a_robot_aimed_between_two_close_obstacles_goes_round_both():
     assert robot['final_error_m'] < 0.01  # back on its path
 
 
-def test_the_robot_controller_and_the_arbiter_know_the_merged_obstacle():
+def test_the_robot_agent_and_the_coordinator_know_the_merged_obstacle():
     scenario = _scenario(PAIR)
     assert [o.name for o in scenario.avoided_obstacles()] == ['A+B']
-    law = RobotController(0, RobotParams(), ControlGains(), AV, scenario.avoided_obstacles())
-    assert law.obstacle_names == ('A+B',)
-    assert EncounterArbiter(scenario).obstacle_names == ('A+B',)
+    agent = RobotAgent(scenario, 0)
+    assert agent.obstacle_names == ('A+B',)
+    assert agent.encode_mode({'mode': 'obstacle', 'target': 'A+B', 'direction': 'cw'})[:2] == (
+        1, 0)
+    coordinator = Coordinator(scenario)
+    assert coordinator.obstacle_names == ('A+B',)
+    np.testing.assert_allclose(coordinator.field.axes[0], scenario.avoided_obstacles()[0]
+                               .semi_axes_m)
