@@ -1,6 +1,6 @@
 """The fast simulator with camera sensing (core/sim/sensed.py, issue 13): camera poses with
-latency, noise and drops, the S10 estimators, the law at the controller's period, the
-coordinator; and the `formation sim --sensing` option.
+latency, noise and drops, every robot's agent (one AgentBatch) at the controller's period, the
+coordinator; runs until the mission ends; the record; and the `formation sim --sensing` option.
 """
 
 import json
@@ -13,6 +13,7 @@ import yaml
 from ament_formation.core.config_files import config_file
 from ament_formation.core.errors import ConfigError
 from ament_formation.core.scenario.loader import load_scenario, parse_scenario
+from ament_formation.core.sim.campaign import classify
 from ament_formation.core.sim.metrics import check_run, compute_metrics
 from ament_formation.core.sim.sensed import (
     MEASURED_NOISE_M,
@@ -108,6 +109,83 @@ def test_camera_run_is_a_simresult_and_stays_accurate(short, camera):
     assert s['frames'] == pytest.approx(30 * short.duration_s, abs=1)
     assert s['estimator']['camera_accepted'] == s['poses_sent'] + 2 * 10  # + the pre-start frames
     assert s['estimate_error_m']['rms'] < 0.5e-3  # the estimator fuses 0.18 mm noise
+
+
+def test_the_record_is_the_true_run_until_the_mission_ends(short, camera):
+    """The record of a sensed run: every 10 ms from t = 0 to the end of the mission (every
+    reference at its end, S17.3, which is no earlier than duration_s); the goals are the
+    formation's on the true states, at the coordinator's progress; avoiding follows the mode
+    events.
+    """
+    rec = camera
+    n = rec.t_s.size
+    assert rec.state.shape == (n, 2, 5) and rec.torque_nm.shape == (n, 2, 2)
+    np.testing.assert_allclose(np.diff(rec.t_s), 0.01, atol=1e-9)
+    assert short.duration_s <= rec.mission_end_s <= short.duration_s + 5.0
+    assert rec.nominal_duration_s == short.duration_s
+    assert rec.mission_end_s <= rec.t_s[-1] < rec.mission_end_s + 0.02
+    assert np.abs(rec.torque_nm).max() <= short.robot(0).params.torque_limit_nm
+    # the leader's progress: from 0, never backwards, to the end of its path; a follower has none
+    s = rec.progress_s[:, 0]
+    assert s[0] == 0.0 and np.all(np.diff(s) >= 0.0)
+    assert s[-1] == pytest.approx(short.duration_s, abs=1e-9)
+    assert np.all(rec.progress_s[:, 1] == 0.0)
+    # goals: r(s) for the leader, its true p + delta for the follower
+    path = short.robot(0).path
+    for k in range(0, n, 97):
+        r, _, _ = path.reference(float(s[k]))
+        np.testing.assert_allclose(rec.goal_m[k, 0], r, atol=1e-6)
+    np.testing.assert_allclose(rec.goal_m[:, 1], rec.state[:, 0, :2] + [0.0, 1.2], atol=1e-12)
+    # the leader slowed down for its detour: progress fell behind the clock, then caught up
+    assert s[np.searchsorted(rec.t_s, 12.0)] < 12.0 - 0.2
+    # avoiding: from each enter to its exit
+    (enter, exit_), = [(a['t_s'], b['t_s']) for a, b in
+                       zip(rec.mode_events[::2], rec.mode_events[1::2])]
+    inside = (rec.t_s >= enter + 0.011) & (rec.t_s < exit_ - 0.011)
+    outside = (rec.t_s < enter - 0.011) | (rec.t_s >= exit_ + 0.011)
+    assert rec.avoiding[inside, 0].all() and not rec.avoiding[outside, 0].any()
+    assert not rec.avoiding[:, 1].any()
+    assert rec.graph_events[0] == {'t_s': 0.0, 'parents': {'0': None, '1': 0}}
+    np.testing.assert_allclose(rec.obstacle_center_m[:, 0], [[0.55, -0.2]] * n)
+
+
+def test_a_hold_runs_on_past_the_mission_end_on_the_same_run(short, camera):
+    held = simulate_sensed(short, SensingParams.preset('camera'), hold_s=2.0)
+    assert held.mission_end_s == camera.mission_end_s
+    assert held.t_s[-1] == pytest.approx(camera.t_s[-1] + 2.0, abs=0.011)
+    n = camera.t_s.size
+    np.testing.assert_array_equal(held.state[:n], camera.state)
+    np.testing.assert_array_equal(held.torque_nm[:n], camera.torque_nm)
+    # at rest at its end, the leader's reference holds still, and so does the team
+    assert np.all(held.progress_s[n:, 0] == short.duration_s)
+    err = np.hypot(*(held.state[-1, :, :2] - held.goal_m[-1]).T)
+    assert err.max() < 0.012
+
+
+@pytest.mark.parametrize('name', ['paper', 'v_formation'])
+def test_camera_sensing_gives_the_ideal_runs_classes_on_the_shipped_scenarios(name):
+    """The shipped scenarios, ideal and with the measured camera: both pass their checks, and
+    the campaign's failure classes (core/sim/campaign.py) agree: none.
+    """
+    sc = load_scenario(config_file(f'scenarios/{name}.yaml'))
+    ideal = simulate(sc)
+    cam = simulate_sensed(sc, SensingParams.preset('camera', seed=5))
+    found = {}
+    for label, res in (('ideal', ideal), ('camera', cam)):
+        m = compute_metrics(res, sc)
+        found[label] = classify(m, res, sc)[0]
+        checked = check_run(m, sc)
+        assert checked['ok'], (label, checked['failure'])
+        assert res.mission_end_s is not None and res.mission_end_s >= sc.duration_s
+    assert found['camera'] == found['ideal'] == []
+
+    # the same detours: each robot enters the same obstacles
+    def entered(res):
+        return sorted({(e['robot'], e['target']) for e in res.mode_events
+                       if e['event'] == 'enter' and e['mode'] == 'obstacle'})
+
+    assert entered(cam) == entered(ideal)
+    assert cam.mission_end_s == pytest.approx(ideal.mission_end_s, abs=2.0)
 
 
 def test_perfect_sensing_is_close_to_the_ideal_run(short, ideal):
