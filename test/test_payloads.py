@@ -230,7 +230,8 @@ def bad_payloads(schema_id: str, n: int, seed: int) -> list[str]:
             _delete(data, required[int(rng.integers(len(required)))])
             out.append(json.dumps(data))
         elif kind == 3:
-            data['schema'] = f'{schema_id[:-1]}{int(rng.integers(2, 9))}'
+            version = int(schema_id.rsplit('v', 1)[1])  # another version than this one
+            data['schema'] = f'{schema_id[:-1]}{version + int(rng.integers(1, 8))}'
             out.append(json.dumps(data))
         elif kind == 4:
             path = known[int(rng.integers(len(known)))]
@@ -318,8 +319,9 @@ def test_fuzz_into_controller_and_coordinator(ros_context):
 
 def test_fuzz_into_world_and_live_view(ros_context, tmp_path):
     """The other receivers: 1,000 bad /formation/graph payloads through the world's and the live
-    view's callbacks and 1,000 bad robot_<id>/mode payloads through the live view's: nothing
-    raises, every one is counted in their 'inputs' status (WARN), and a good graph still works.
+    view's callbacks, 1,000 bad /formation/encounters payloads through the world's and 1,000 bad
+    robot_<id>/mode payloads through the live view's: nothing raises, every one is counted in
+    their 'inputs' status (WARN), and a good graph and a good decision still work.
     """
     from std_msgs.msg import String
 
@@ -344,10 +346,16 @@ def test_fuzz_into_world_and_live_view(ros_context, tmp_path):
             live._on_graph(String(data=text))
         for k, text in enumerate(bad_payloads(pl.MODE_V1, 1000, 32)):
             live._on_mode(k % 2, String(data=text))
-        assert world.rejections.counts == {'graph': 1000}
+        for text in bad_payloads(pl.ENCOUNTERS_V2, 1000, 33):
+            world._on_encounters(String(data=text))
+        assert world.rejections.counts == {'graph': 1000, 'encounters': 1000}
         assert live.rejected['graph'] == 1000 and live.rejected['mode'] == 1000
         assert live.graph is None and live.modes == {} and world.start_s is None
-        for node, expected in ((world, {'rejected_graph': 1000}), (live, {'rejected_mode': 1000})):
+        assert world.mission_end_s is None
+        for node, expected in (
+            (world, {'rejected_graph': 1000, 'rejected_encounters': 1000}),
+            (live, {'rejected_mode': 1000}),
+        ):
             statuses = {t.name: (lvl, vals) for t, lvl, _m, vals in node.diag._evaluate()}
             level, values = statuses[f'{node.get_name()}: inputs']
             assert level == diag.WARN and expected.items() <= values.items(), values
@@ -355,6 +363,9 @@ def test_fuzz_into_world_and_live_view(ros_context, tmp_path):
         world._on_graph(good)
         live._on_graph(good)
         assert world.start_s == 12.5 and live.graph.revision == 3 and live.start_s == 12.5
+        # the mission's end (the world ends hold_s after it)
+        world._on_encounters(m.encounters_msg(m.EncountersMessage(4, {}, {0: 1.0}, 30.0, 15.5)))
+        assert world.mission_end_s == 15.5
     finally:
         live.destroy_node()
         world.destroy_node()
