@@ -131,7 +131,7 @@ def fuzz(scenario: Path, count: int, pace_s: float, run_dir: Path) -> dict:
         before = {name: dict(values) for name, values in latest.items()}
         texts = {
             'graph': bad_payloads(pl.GRAPH_V1, count, 101),
-            'encounters': bad_payloads(pl.ENCOUNTERS_V1, count, 102),
+            'encounters': bad_payloads(pl.ENCOUNTERS_V2, count, 102),
             'mode': bad_payloads(pl.MODE_V1, count, 103),
         }
         t0 = time.monotonic()

@@ -147,6 +147,19 @@ def _node(ctx, **params):
     )
 
 
+def _node_lead(node) -> StopLead:
+    """The stop lead the node's agent runs (AgentBatch: from the node's parameters)."""
+    p, sc = node.prm, node.scenario
+    return StopLead(sc.robot(node.rid).params, p.stop_time_s, sc.control,
+                    sc.disturbance.accel_bound, p.stop_margin_s, p.stop_speed_max_mps,
+                    p.stop_turn_rate_max_radps, p.stop_decel_mps2, 1.0 / p.control_rate_hz)
+
+
+def _camera(node, t_s: float) -> None:
+    """Robot 1's camera pose captured at ``t_s`` (its initial pose), as the pose topic gives it."""
+    node.batch.camera(node.rid, t_s, (0.0, 1.0, 0.0))
+
+
 def _drive(node, t0: float, v: float, w: float, ticks: int, start: int = 0) -> list[str]:
     """Ticks ``start`` .. ``start + ticks - 1`` at PERIOD_S, wheel samples at rates giving
     (v, w) before each; the safety state after each tick.
@@ -158,8 +171,7 @@ def _drive(node, t0: float, v: float, w: float, ticks: int, start: int = 0) -> l
     for i in range(start, start + ticks):
         now = t0 + i * PERIOD_S
         q = (rates[0] * i * PERIOD_S, rates[1] * i * PERIOD_S)
-        node.estimator.wheel_update(now, q, rates)
-        node.last_wheel_s = now  # wheel data fresh (the node stamps it with its own clock)
+        node.wheel_sample(q, rates, now)  # as the bridge's samples reach it
         node.control_tick(now)
         states.append(node.safety)
     return states
@@ -174,17 +186,24 @@ def test_node_begins_the_stop_lead_before_pose_timeout(ros_context, v, w):
     """
     node = _node(ros_context)
     try:
+        lead = _node_lead(node)
         t0 = 1000.0
-        node.estimator.camera_update(t0, (0.0, 1.0, 0.0))  # the last pose, captured at t0
+        _camera(node, t0)  # the last pose, captured at t0
         states = _drive(node, t0, v, w, 60)
         first = states.index('stopped_pose')
         age = first * PERIOD_S
-        threshold = 0.5 - node.stop_lead.lead_s(v, w)
+        threshold = 0.5 - lead.lead_s(v, w)
         assert threshold < age <= threshold + PERIOD_S + 1e-9
-        assert age + node.stop_lead.time_to_rest(v, w) <= 0.5 + PERIOD_S - 0.03 + 1e-9
-        assert all(s != 'stopped_pose' for s in states[:first])
+        assert age + lead.time_to_rest(v, w) <= 0.5 + PERIOD_S - 0.03 + 1e-9
+        assert set(states[:first]) == {'waiting'}  # no graph yet: standing by until then
         assert node.mode['mode'] == 'stopped'  # /robot_i/mode as before
-        assert node.over_stop_speed == 0
+        assert node.batch.counters(node.r)['over_stop_speed'] == 0
+        # braking: the stop's torque opposes the motion (zero from rest)
+        torque = node.batch.out.torque[node.r]
+        if v > 0.0:
+            assert torque.sum() < 0.0
+        elif v == 0.0 and w == 0.0:
+            np.testing.assert_allclose(torque, 0.0, atol=1e-9)
     finally:
         node.destroy_node()
 
@@ -192,14 +211,16 @@ def test_node_begins_the_stop_lead_before_pose_timeout(ros_context, v, w):
 def test_node_counts_speeds_beyond_the_bounds_and_caps_the_lead(ros_context):
     node = _node(ros_context)
     try:
+        lead = _node_lead(node)
         t0 = 1000.0
-        node.estimator.camera_update(t0, (0.0, 1.0, 0.0))
+        _camera(node, t0)
         states = _drive(node, t0, 0.2, 3.0, 30)  # both beyond the bounds (0.15 m/s, 2.5 rad/s)
         first = states.index('stopped_pose')
-        threshold = 0.5 - node.stop_lead.max_s  # the cap: 0.041 s
+        threshold = 0.5 - lead.max_s  # the cap: 0.041 s
+        assert threshold == pytest.approx(0.041, abs=0.002)
         assert threshold < first * PERIOD_S <= threshold + PERIOD_S + 1e-9
         # every tick driven faster than the bound, the one that began the stop included
-        assert node.over_stop_speed == first + 1
+        assert node.batch.counters(node.r)['over_stop_speed'] == first + 1
         assert node._control_status()[2]['over_stop_speed'] == first + 1
     finally:
         node.destroy_node()
@@ -212,13 +233,13 @@ def test_node_stop_is_latched_until_a_new_pose(ros_context):
     node = _node(ros_context)
     try:
         t0 = 1000.0
-        node.estimator.camera_update(t0, (0.0, 1.0, 0.0))
+        _camera(node, t0)
         states = _drive(node, t0, 0.15, 0.0, 40)
         first = states.index('stopped_pose')
         assert set(states[first:]) == {'stopped_pose'}
         # slower now (lead 0.03 s only) but the pose is as stale as before: still stopped
         assert _drive(node, t0, 0.0, 0.0, 5, start=40) == ['stopped_pose'] * 5
-        node.estimator.camera_update(t0 + 0.44, (0.0, 1.0, 0.0))  # a fresh pose
+        _camera(node, t0 + 0.44)  # a fresh pose
         assert _drive(node, t0, 0.0, 0.0, 1, start=45) == ['waiting']  # no graph yet: waiting
     finally:
         node.destroy_node()
@@ -235,6 +256,13 @@ def test_node_refuses_a_pose_timeout_shorter_than_the_worst_case_lead(ros_contex
         stop_margin_s=0.02,
     )
     try:
-        assert node.stop_lead.max_s <= 0.3
+        assert _node_lead(node).max_s <= 0.3
+        # the agent's compiled lead is this one: the stop begins 0.3 - lead(0.05, 0) after the
+        # last pose
+        t0 = 1000.0
+        _camera(node, t0)
+        states = _drive(node, t0, 0.05, 0.0, 40)
+        threshold = 0.3 - _node_lead(node).lead_s(0.05, 0.0)
+        assert threshold < states.index('stopped_pose') * PERIOD_S <= threshold + PERIOD_S + 1e-9
     finally:
         node.destroy_node()

@@ -155,7 +155,7 @@ def test_markers_replace_and_delete_over_a_run(ros_context, executor):
             scenario=str(DATA / 'redundant_chain.yaml'),
             start_delay_s=0.0,
             markers_rate_hz=20.0,
-            encounter_rate_hz=0.0,
+            encounter_rate_hz=1.0,
         ),
     )
     fake = rclpy.create_node('fake_controllers', context=ros_context)
@@ -303,3 +303,86 @@ def test_diagnostics_of_the_coordinator(ros_context, executor):
     assert stall_seen() >= 0.25
     probe.destroy_node()
     coord.destroy_node()
+
+
+def _two_robots(tmp_path, duration_s: float):
+    """Leader 0 on a line at 0.05 m/s, follower 1 1 m to its left; no obstacle."""
+    import yaml
+
+    path = tmp_path / 'two.yaml'
+    path.write_text(yaml.safe_dump({
+        'name': 'two',
+        'duration_s': duration_s,
+        'robots': [
+            {'id': 0, 'leader': True, 'slot_m': [0.0, 0.0], 'initial_pose': [0.0, 0.0, 0.0],
+             'path': {'type': 'line', 'start_m': [0.0, 0.0], 'heading_rad': 0.0,
+                      'speed_mps': 0.05}},
+            {'id': 1, 'slot_m': [0.0, 1.0], 'initial_pose': [0.0, 1.0, 0.0]},
+        ],
+        'graph': {'edges': [[0, 1]]},
+    }, sort_keys=False))
+    return path
+
+
+def test_encounters_v2_carry_the_teams_rates_and_the_missions_end(
+    ros_context, executor, tmp_path
+):
+    """/formation/encounters (v2): sent before the start (the robots hear the coordinator), then
+    the leader's progress rate (S17.1): 0 while its follower is 1 m from its goal (the team waits
+    for it, E above reform_stop_m), 1 once it is back; the mission's end (every reference at its
+    end, S17.3) once, no earlier than duration_s of progress.
+    """
+    import rclpy
+    from std_msgs.msg import String
+
+    from ament_formation.nodes.coordinator import CoordinatorNode, CoordinatorParams
+
+    duration_s = 2.0
+    coord = CoordinatorNode(
+        context=ros_context,
+        params=CoordinatorParams(scenario=str(_two_robots(tmp_path, duration_s)),
+                                 start_delay_s=0.2, wait_for_robots=False, markers_rate_hz=0.0,
+                                 republish_s=0.3),
+    )
+    fake = rclpy.create_node('fake_controllers', context=ros_context)
+    got: list[m.EncountersMessage] = []
+    fake.create_subscription(
+        String, '/formation/encounters', lambda msg: got.append(m.encounters_from_msg(msg)),
+        QOS_GRAPH)
+    state_pubs = {i: fake.create_publisher(m.Odometry, f'/robot_{i}/state', QOS_CONTROL)
+                  for i in (0, 1)}
+    where = {0: (0.0, 0.0), 1: (0.0, 2.0)}  # robot 1 1 m beyond its slot
+    fake.create_timer(0.02, lambda: [
+        state_pubs[i].publish(m.odometry([*where[i], 0.0, 0.0, 0.0], m.stamp_from_s(1.0),
+                                         f'robot_{i}')) for i in (0, 1)])
+    executor.add_node(coord)
+    executor.add_node(fake)
+    try:
+        # transient local: the message sent before the start reaches a late subscriber
+        assert spin_until(executor, lambda: bool(got), 10.0)
+        assert got[0].assignments == {} and got[0].mission_end_s is None
+        start_s = coord.start_s
+        # the team waits for robot 1: target 0, the reference slows down and stays short of its
+        # end
+        assert spin_until(executor, lambda: got[-1].rates.get(0) == 0.0, 20.0), got[-1]
+        assert got[-1].stamp_s >= start_s and got[-1].mission_end_s is None
+        # its rate follows the target with progress_tau_s (1 s): it comes to rest about 1 s of
+        # path time on, short of the end
+        pr = coord.core.progress
+        assert spin_until(executor, lambda: pr.sd[0] < 0.02, 20.0), pr
+        assert 0.5 < pr.s[0] < 1.1 and got[-1].mission_end_s is None
+        # robot 1 back at its goal: the rate goes back to 1, the mission ends
+        where[1] = (0.0, 1.0)
+        assert spin_until(executor, lambda: got[-1].rates.get(0) == 1.0, 20.0), got[-1]
+        assert spin_until(executor, lambda: got[-1].mission_end_s is not None, 30.0), got[-1]
+        end = got[-1]
+        # the waiting made the mission last longer than its free traversal
+        assert duration_s < end.mission_end_s <= end.stamp_s - start_s + 1e-6
+        assert coord.core.progress.s[0] == duration_s  # the reference rests at its end
+        n = len(got)
+        assert spin_until(executor, lambda: len(got) > n, 5.0)  # re-sent: the end stays said
+        assert got[-1].mission_end_s == end.mission_end_s
+        assert [g.revision for g in got] == sorted(g.revision for g in got)
+    finally:
+        fake.destroy_node()
+        coord.destroy_node()

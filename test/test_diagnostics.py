@@ -199,29 +199,70 @@ def test_controller_reports_a_stalled_control_loop(controller, executor):
 
 
 def test_controller_safety_stop_is_published_when_it_happens(controller, executor):
-    """A robot that stops (here: its wheel data stops) is ERROR on /diagnostics at once, not at the
-    next 1 s sample, and back to OK when it runs again; a brief stop between two samples is seen.
+    """A robot that stops (its wheel data stops, its parent falls silent, the coordinator falls
+    silent, a clock is off) is on /diagnostics at once (ERROR; hold_parent WARN) with why, not at
+    the next 1 s sample, and back to OK when it runs again; a brief stop between two samples is
+    seen. The control timer runs (100 Hz); only the inputs are fed here.
     """
+    from ament_formation.ros import messages as m
+
     ctrl, probe, statuses = controller
     name = 'formation_controller: robot_1 control'
+    now = ctrl.now_s
+
+    def feed(wheels=True):
+        t = now()
+        if wheels:
+            ctrl.wheel_sample((0.0, 0.0), (0.0, 0.0), t)
+        ctrl.batch.camera(1, t, (-0.5, 0.5, 0.0))  # its camera pose, fresh
+
+    def seen(n0, *wanted):
+        """The statuses published since n0 include ``wanted`` (level, status) in this order."""
+        got = [(diag.level_int(st.level), st.message.split(':')[0])
+               for _, st in statuses[name][n0:]]
+        it = iter(got)
+        return all(w in it for w in wanted)
+
+    assert spin_until(executor, lambda: (feed(), ctrl.batch.initialized(ctrl.r))[1], 10.0)
+    assert ctrl.safety == 'waiting'  # no graph, no coordinator yet
     n0 = len(statuses[name])
-    published0 = ctrl.diag.published
-    ctrl._safety('stopped_wheels')  # what the control period does on a wheel timeout
-    assert ctrl.diag.published == published0 + 1
-    ctrl._safety('waiting')
-    assert ctrl.diag.published == published0 + 2
-    assert spin_until(executor, lambda: len(statuses[name]) >= n0 + 2, 5.0)
-    levels = [(diag.level_int(st.level), st.message) for _, st in statuses[name][n0: n0 + 2]]
-    assert levels == [(diag.ERROR, 'stopped_wheels'), (diag.OK, 'waiting')]
-    ctrl._safety('hold_parent')
-    assert spin_until(
-        executor,
-        lambda: any(
-            st.message == 'hold_parent' and diag.level_int(st.level) == diag.WARN
-            for _, st in statuses[name][n0:]
-        ),
-        5.0,
-    )
+    # the wheel data stops for a moment: stopped_wheels, then waiting again within a second
+    assert spin_until(executor, lambda: (feed(wheels=False), ctrl.safety == 'stopped_wheels')[1],
+                      5.0)
+    t_stop = time.monotonic()
+    assert spin_until(executor, lambda: (feed(), ctrl.safety == 'waiting')[1], 5.0)
+    assert time.monotonic() - t_stop < 1.0
+    assert spin_until(executor, lambda: (feed(), seen(n0, (diag.ERROR, 'stopped_wheels'),
+                                                      (diag.OK, 'waiting')))[1], 5.0)
+    message = next(st.message for _, st in statuses[name][n0:] if diag.level_int(st.level))
+    assert message.startswith('stopped_wheels: no wheel data')
+    # the mission starts (graph and coordinator heard) but its parent robot 0 is never heard:
+    # hold_parent, WARN
+    n0 = len(statuses[name])
+    ctrl._on_graph(m.graph_msg(m.GraphMessage(1, {0: None, 1: 0, 2: 1, 3: 0}, {1: (-0.5, 0.5)},
+                                              stamp_s=now(), start_s=now() - 1.0)))
+    ctrl._on_encounters(m.encounters_msg(m.EncountersMessage(1, {}, {0: 1.0}, now())))
+    assert spin_until(executor, lambda: (feed(), seen(n0, (diag.WARN, 'hold_parent')))[1], 5.0)
+    values = {kv.key: kv.value for kv in statuses[name][-1][1].values}
+    assert values['coordinator_heard'] == 'True' and values['safety'] == 'hold_parent'
+    # the coordinator falls silent for coordinator_timeout_s (2.5 s): stopped_coordinator
+    t_last = time.monotonic()
+    assert spin_until(executor, lambda: (feed(), seen(n0, (diag.ERROR, 'stopped_coordinator')))[1],
+                      10.0)
+    assert time.monotonic() - t_last >= ctrl.prm.coordinator_timeout_s - 0.1
+    _, st = next((t, st) for t, st in reversed(statuses[name]) if 'coordinator' in st.message)
+    values = {kv.key: kv.value for kv in st.values}
+    assert values['coordinator_heard'] == 'False'
+    assert 'is formation_coordinator running' in st.message
+    # a coordinator whose clock is 5 s ahead (beyond the 2 s bound): stopped_clock, the offset
+    # reported
+    n0 = len(statuses[name])
+    ctrl._on_encounters(m.encounters_msg(m.EncountersMessage(2, {}, {0: 1.0}, now() + 5.0)))
+    assert spin_until(executor, lambda: (feed(), seen(n0, (diag.ERROR, 'stopped_clock')))[1], 5.0)
+    st = next(st for _, st in statuses[name][n0:] if st.message.startswith('stopped_clock'))
+    values = {kv.key: kv.value for kv in st.values}
+    assert 4.9 < float(values['clock_offset_coordinator_s']) <= 5.0
+    assert 'synchronise the clocks' in st.message
 
 
 def test_world_reports_each_board_brake_and_its_cause(ros_context, tmp_path):

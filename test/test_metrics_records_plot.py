@@ -34,6 +34,8 @@ DESIGN_KEYS = {
     'robots',
     'mode_events',
     'graph_events',
+    'mission_end_s',
+    'mission_ratio',
 }
 ROBOT_KEYS = {
     'min_clearance_m',
@@ -145,6 +147,27 @@ def test_straight_pass_clearance_and_one_entry():
     assert m['min_inter_robot_distance_m'] == pytest.approx(1.25, abs=1e-12)
     assert m['sim_time_s'] == pytest.approx(40.0) and m['wall_time_s'] == 0.5
     json.dumps(m)  # plain JSON types
+
+
+def test_mission_end_and_the_completed_check():
+    """metrics.json carries the mission's end (every leader's reference at its end, S17.3) and
+    its ratio to the free traversal (duration_s); ``completed`` is that the mission ended.
+    """
+    from ament_formation.core.sim.metrics import check_run
+
+    scen = scenario()  # duration_s 40
+    t = np.round(np.arange(0.0, 52.5 + 1e-9, 0.01), 10)
+    m = compute_metrics(make_result(scen, t, straight_run(scen, t), mission_end_s=52.0), scen)
+    assert m['mission_end_s'] == 52.0 and m['mission_ratio'] == pytest.approx(1.3)
+    done = {c['name']: c for c in check_run(m, scen)['checks']}['completed']
+    assert (done['ok'], done['value'], done['limit'], done['op']) == (True, 52.0, 40.0, '>=')
+    # a run cut before its mission ended (the simulator's cap, a process that died)
+    m = compute_metrics(make_result(scen, t, straight_run(scen, t)), scen)
+    assert m['mission_end_s'] is None and m['mission_ratio'] is None
+    checked = check_run(m, scen, measured=False)
+    done = {c['name']: c for c in checked['checks']}['completed']
+    assert done['ok'] is False and done['value'] is None and 'did not end' in done['detail']
+    assert checked['ok'] is False and 'completed' in checked['failure']
 
 
 def test_each_entry_into_p_is_counted_once_and_robot_pairs_count():
@@ -356,8 +379,8 @@ def test_read_run_rejects_a_damaged_directory(run_dir, tmp_path):
 
 
 def test_formation_sim_writes_a_complete_run_directory(tmp_path, capsys):
-    """`formation sim` end to end on the paper scenario cut to 3 s (the simulator's behaviour over
-    the whole run is tested with the simulator).
+    """`formation sim` end to end on the paper scenario cut to a 3 s mission (the simulator's
+    behaviour over the whole run is tested with the simulator).
     """
     from pathlib import Path
 
@@ -376,7 +399,10 @@ def test_formation_sim_writes_a_complete_run_directory(tmp_path, capsys):
     assert 'scenario paper' in summary and 'R1:' in summary
     m = json.loads((out / 'metrics.json').read_text())
     assert DESIGN_KEYS <= set(m) and set(m['robots']) == {'0', '1'}
-    assert m['sim_time_s'] == pytest.approx(3.0, abs=0.051)
+    # the run lasts until the mission ends (the references at their ends), not less than 3 s
+    assert 3.0 <= m['mission_end_s'] < 6.0 and m['mission_ratio'] == m['mission_end_s'] / 3.0
+    assert m['sim_time_s'] == pytest.approx(m['mission_end_s'], abs=0.051)
+    assert m['ok'] and {c['name']: c['ok'] for c in m['checks']}['completed'] is True
     assert m['prohibited_entries'] == 0 and m['min_clearance_m'] > 0.5
     assert (out / 'figure.png').stat().st_size > 20_000
     back, _scen, _m = read_run(out)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import copy
 import json
+import math
 import os
 from pathlib import Path
 import signal
@@ -31,16 +32,22 @@ def _good_graph() -> dict:
 
 
 def _good_encounters() -> dict:
-    from ament_formation.core.control.controller import EncounterAssignment
-
     return json.loads(
         m.encounters_msg(
-            4,
-            {
-                0: EncounterAssignment('yield', 1, -1.0, 3.0, None),
-                1: EncounterAssignment('mutual', 0, 1.0, 3.0, (0.1, 0.0)),
-            },
-            2.0,
+            m.EncountersMessage(
+                4,
+                {
+                    0: {'mode': 'yield', 'partner': 1, 'direction': -1.0, 't_entry_s': 3.0,
+                        'drift_mps': None, 'park_at_s': -math.inf},
+                    1: {'mode': 'mutual', 'partner': 0, 'direction': 1.0, 't_entry_s': 3.0,
+                        'drift_mps': [0.1, 0.0], 'park_at_s': 7.5},
+                    2: {'mode': 'make_way', 'partner': 2, 'direction': 1.0, 't_entry_s': 0.0,
+                        'drift_mps': None, 'park_at_s': 9.0},
+                },
+                {3: 0.25},
+                2.0,
+                41.5,
+            )
         ).data
     )
 
@@ -49,7 +56,7 @@ def _good_mode() -> dict:
     return json.loads(m.mode_msg('obstacle', 'O1', 'ccw', avoiding=True).data)
 
 
-GOOD = {pl.GRAPH_V1: _good_graph, pl.ENCOUNTERS_V1: _good_encounters, pl.MODE_V1: _good_mode}
+GOOD = {pl.GRAPH_V1: _good_graph, pl.ENCOUNTERS_V2: _good_encounters, pl.MODE_V1: _good_mode}
 
 
 # --------------------------------------------------------------------------- schemas and round
@@ -77,8 +84,16 @@ def test_round_trips_carry_the_schema_version():
         {1: (0.0, 1.2)},
         13.5,
     )
-    rev, assignments = m.encounters_from_msg(m.String(data=json.dumps(_good_encounters())))
-    assert rev == 4 and assignments[0].direction == -1.0 and assignments[1].drift_mps == (0.1, 0.0)
+    enc = m.encounters_from_msg(m.String(data=json.dumps(_good_encounters())))
+    assert (enc.revision, enc.stamp_s, enc.mission_end_s, enc.rates) == (4, 2.0, 41.5, {3: 0.25})
+    assert enc.assignments[0]['direction'] == -1.0 and enc.assignments[0]['drift_mps'] is None
+    assert enc.assignments[0]['park_at_s'] == -math.inf  # null: the parking factor at once
+    assert enc.assignments[1]['drift_mps'] == [0.1, 0.0] and enc.assignments[1]['park_at_s'] == 7.5
+    assert enc.assignments[2]['mode'] == 'make_way' and enc.assignments[2]['park_at_s'] == 9.0
+    # before the mission's end: null
+    before = m.encounters_msg(m.EncountersMessage(1, {}, {0: 1.0}, 0.5))
+    assert json.loads(before.data)['mission_end_s'] is None
+    assert m.encounters_from_msg(before).mission_end_s is None
     mode = m.mode_from_msg(m.String(data=json.dumps(_good_mode())))
     assert mode == {'mode': 'obstacle', 'target': 'O1', 'direction': 'ccw', 'avoiding': True}
 
@@ -128,6 +143,23 @@ def test_specific_members():
     data = _good_encounters()
     data['assignments']['0']['direction'] = 0.5
     with pytest.raises(ValueError, match='/assignments/0/direction: must be one of'):
+        m.encounters_from_msg(m.String(data=json.dumps(data)))
+    data = _good_encounters()
+    data['rates']['3'] = 1.5  # a progress rate target is in [0, 1] (S17)
+    with pytest.raises(ValueError, match='/rates/3: must be <= 1'):
+        m.encounters_from_msg(m.String(data=json.dumps(data)))
+    data = _good_encounters()
+    data['assignments']['2']['mode'] = 'obstacle'  # robots decide their obstacle modes themselves
+    with pytest.raises(ValueError, match='/assignments/2/mode: must be one of'):
+        m.encounters_from_msg(m.String(data=json.dumps(data)))
+    # an encounters/v1 payload (no rates, no mission end) is another version: refused
+    data = _good_encounters()
+    for key in ('rates', 'mission_end_s'):
+        del data[key]
+    for a in data['assignments'].values():
+        del a['park_at_s']
+    data['schema'] = 'ament_formation/encounters/v1'
+    with pytest.raises(ValueError, match="/schema: expected 'ament_formation/encounters/v2'"):
         m.encounters_from_msg(m.String(data=json.dumps(data)))
     data = _good_graph()
     data['extra'] = 1
@@ -180,7 +212,7 @@ def bad_payloads(schema_id: str, n: int, seed: int) -> list[str]:
     known = [p for p in _paths(good) if not (schema_id == pl.MODE_V1 and len(p) > 1)]
     schema = pl.SCHEMAS[schema_id]
     required = [(k,) for k in schema['required']]
-    if schema_id == pl.ENCOUNTERS_V1:
+    if schema_id == pl.ENCOUNTERS_V2:
         item = schema['properties']['assignments']['additionalProperties']
         required += [
             ('assignments', rid, k) for rid in good['assignments'] for k in item['required']
@@ -198,7 +230,8 @@ def bad_payloads(schema_id: str, n: int, seed: int) -> list[str]:
             _delete(data, required[int(rng.integers(len(required)))])
             out.append(json.dumps(data))
         elif kind == 3:
-            data['schema'] = f'{schema_id[:-1]}{int(rng.integers(2, 9))}'
+            version = int(schema_id.rsplit('v', 1)[1])  # another version than this one
+            data['schema'] = f'{schema_id[:-1]}{version + int(rng.integers(1, 8))}'
             out.append(json.dumps(data))
         elif kind == 4:
             path = known[int(rng.integers(len(known)))]
@@ -231,6 +264,7 @@ def test_fuzz_into_controller_and_coordinator(ros_context):
     """
     from std_msgs.msg import String
 
+    from ament_formation.core.control.switching import MODE_YIELD
     from ament_formation.nodes.controller import ControllerNode, ControllerParams
     from ament_formation.nodes.coordinator import CoordinatorNode, CoordinatorParams
     from ament_formation.ros import diagnostics as diag
@@ -243,12 +277,12 @@ def test_fuzz_into_controller_and_coordinator(ros_context):
     )
     coord = CoordinatorNode(
         context=ros_context,
-        params=CoordinatorParams(scenario=scenario, encounter_rate_hz=0.0, markers_rate_hz=0.0),
+        params=CoordinatorParams(scenario=scenario, encounter_rate_hz=1.0, markers_rate_hz=0.0),
     )
     try:
         for text in bad_payloads(pl.GRAPH_V1, 1000, 11):
             ctrl._on_graph(String(data=text))
-        for text in bad_payloads(pl.ENCOUNTERS_V1, 1000, 12):
+        for text in bad_payloads(pl.ENCOUNTERS_V2, 1000, 12):
             ctrl._on_encounters(String(data=text))
         for k, text in enumerate(bad_payloads(pl.MODE_V1, 1000, 13)):
             coord._on_mode(k % 4, String(data=text))
@@ -267,7 +301,15 @@ def test_fuzz_into_controller_and_coordinator(ros_context):
         ctrl._on_graph(
             m.graph_msg(m.GraphMessage(5, {0: None, 1: 0, 2: 3, 3: 0}, {2: (-0.5, 0.5)}))
         )
-        assert ctrl.graph.revision == 5 and ctrl.parent.rid == 3
+        b = ctrl.batch
+        assert ctrl.graph.revision == 5 and b.state.parent[ctrl.r, b.row[2]] == b.row[3]
+        np.testing.assert_allclose(b.state.offset[ctrl.r], (-0.5, 0.5))  # c_2 - c_3
+        ctrl._on_encounters(
+            m.encounters_msg(m.EncountersMessage(2, {2: _good_encounters()['assignments']['0']
+                                                     | {'partner': 3}}, {0: 0.5}, 1.0))
+        )
+        assert ctrl.encounter_revision == 2
+        assert tuple(b.state.assigned[ctrl.r, :3]) == (MODE_YIELD, b.row[3], -1.0)
         coord._on_mode(1, m.mode_msg('obstacle', 'O1', 'ccw', avoiding=True))
         assert coord.avoiding == {1}
     finally:
@@ -277,8 +319,9 @@ def test_fuzz_into_controller_and_coordinator(ros_context):
 
 def test_fuzz_into_world_and_live_view(ros_context, tmp_path):
     """The other receivers: 1,000 bad /formation/graph payloads through the world's and the live
-    view's callbacks and 1,000 bad robot_<id>/mode payloads through the live view's: nothing
-    raises, every one is counted in their 'inputs' status (WARN), and a good graph still works.
+    view's callbacks, 1,000 bad /formation/encounters payloads through the world's and 1,000 bad
+    robot_<id>/mode payloads through the live view's: nothing raises, every one is counted in
+    their 'inputs' status (WARN), and a good graph and a good decision still work.
     """
     from std_msgs.msg import String
 
@@ -303,10 +346,16 @@ def test_fuzz_into_world_and_live_view(ros_context, tmp_path):
             live._on_graph(String(data=text))
         for k, text in enumerate(bad_payloads(pl.MODE_V1, 1000, 32)):
             live._on_mode(k % 2, String(data=text))
-        assert world.rejections.counts == {'graph': 1000}
+        for text in bad_payloads(pl.ENCOUNTERS_V2, 1000, 33):
+            world._on_encounters(String(data=text))
+        assert world.rejections.counts == {'graph': 1000, 'encounters': 1000}
         assert live.rejected['graph'] == 1000 and live.rejected['mode'] == 1000
         assert live.graph is None and live.modes == {} and world.start_s is None
-        for node, expected in ((world, {'rejected_graph': 1000}), (live, {'rejected_mode': 1000})):
+        assert world.mission_end_s is None
+        for node, expected in (
+            (world, {'rejected_graph': 1000, 'rejected_encounters': 1000}),
+            (live, {'rejected_mode': 1000}),
+        ):
             statuses = {t.name: (lvl, vals) for t, lvl, _m, vals in node.diag._evaluate()}
             level, values = statuses[f'{node.get_name()}: inputs']
             assert level == diag.WARN and expected.items() <= values.items(), values
@@ -314,6 +363,9 @@ def test_fuzz_into_world_and_live_view(ros_context, tmp_path):
         world._on_graph(good)
         live._on_graph(good)
         assert world.start_s == 12.5 and live.graph.revision == 3 and live.start_s == 12.5
+        # the mission's end (the world ends hold_s after it)
+        world._on_encounters(m.encounters_msg(m.EncountersMessage(4, {}, {0: 1.0}, 30.0, 15.5)))
+        assert world.mission_end_s == 15.5
     finally:
         live.destroy_node()
         world.destroy_node()
@@ -385,7 +437,7 @@ def test_running_controller_process_survives_bad_payloads(tmp_path):
         # never count more than were sent, and must still be running.
         n = 60
         graphs = iter(bad_payloads(pl.GRAPH_V1, 4 * n, 21))
-        encounters = iter(bad_payloads(pl.ENCOUNTERS_V1, 4 * n, 22))
+        encounters = iter(bad_payloads(pl.ENCOUNTERS_V2, 4 * n, 22))
         sent = {'graph': 0, 'encounters': 0}
 
         def rejected(k: int = -1) -> dict:

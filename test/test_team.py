@@ -39,11 +39,13 @@ def test_unknown_robot_is_rejected(ros_context):
 
 
 def test_one_tick_runs_every_hosted_controller_and_peers_read_in_process(ros_context):
-    """One team tick = one control period of every hosted controller, in id order; a controller
-    sees its peer's state, accel and mode exactly as the peer published them (no DDS subscription).
+    """One team tick = one control period of every hosted robot's agent (one AgentBatch, one
+    compiled call); a hosted robot hears its hosted peer's state, accel and mode exactly as the
+    peer's agent made them, in process (no DDS subscription between them).
     """
+    from ament_formation.core.control.agent import RUNNING
+    from ament_formation.core.control.switching import MODE_C, MODE_OBSTACLE
     from ament_formation.core.scenario.loader import load_scenario
-    from ament_formation.ros import messages as msgs
 
     sc = load_scenario(SCENARIO)
     team = TeamNode(
@@ -52,38 +54,41 @@ def test_one_tick_runs_every_hosted_controller_and_peers_read_in_process(ros_con
     try:
         assert sorted(team.controllers) == [0, 1] and team.bridges == {}
         c0, c1 = team.controllers[0], team.controllers[1]
-        assert (
-            c1.neighbours[0] is team.peers.records[0] and c0.neighbours[1] is team.peers.records[1]
-        )
-        assert (
-            c1.neighbours[0].subs == [] and c1.neighbours[0].state is None
-        )  # nothing published yet
+        b, st = team.batch, team.batch.state
+        assert c0.batch is b and c1.batch is b and b.hosted == (0, 1)
+        r0, r1, k0 = c0.r, c1.r, b.row[0]
+        # no DDS subscription to a hosted peer: robot 1 hears its parent 0 in process
+        c1.update_hearing()
+        topics = {s.topic_name for c in (c0, c1) for s in c.subscriptions}
+        assert not any(t.startswith(('/robot_0/', '/robot_1/')) and not t.endswith('/pose')
+                       and not t.endswith('wheel_state') for t in topics), topics
+        assert c1._full == {} and b.needed(1) == [0]
         now = c0.now_s()
         for c in (c0, c1):  # a camera pose and wheel data for each
-            c.estimator.wheel_update(now, np.zeros(2), np.zeros(2))
-            c.last_wheel_s = now
-            c.estimator.camera_update(
-                now - 0.03, np.asarray(sc.robot(c.rid).initial_pose, dtype=float)
-            )
+            b.wheel(c.rid, now, np.zeros(2), np.zeros(2))
+            b.camera(c.rid, now - 0.03, np.asarray(sc.robot(c.rid).initial_pose, dtype=float))
         # the period runs at a fixed time 1 ms after the inputs: a loaded machine's delay between
         # these lines must not age the pose or wheel data beyond their timeouts
-        team._now_ns = lambda: int((now + 0.001) * 1e9)
+        t = now + 0.001
+        team._now_ns = lambda: int(t * 1e9)
         team._control()
         assert (c0.ticks, c1.ticks) == (1, 1)
-        seen = c1.neighbours[0]
-        published, stamp_s = msgs.state_from_odometry(
-            c0._msg_state
-        )  # what went out on robot_0/state
-        np.testing.assert_allclose(seen.state, published, atol=1e-12)
-        np.testing.assert_allclose(seen.state[:2], sc.robot(0).initial_pose[:2], atol=1e-3)
-        # the message carries whole nanoseconds, a float of epoch seconds ~2.4e-7 s: the two
-        # agree to the float's resolution, not to a nanosecond
-        assert seen.stamp_s == pytest.approx(stamp_s, abs=1e-6) and seen.stamp_s >= now
-        assert (seen.mode, seen.target) == ('coordination', None)
-        c0.mode = {'mode': 'obstacle', 'target': 'O1', 'direction': 'cw', 'avoiding': True}
-        c0._send(np.zeros(2), np.array([0.01, -0.02]), c0.now_s())
-        assert (seen.mode, seen.target) == ('obstacle', 'O1')
-        np.testing.assert_array_equal(seen.accel, [0.01, -0.02])
+        assert (c0.safety, c1.safety) == ('waiting', 'waiting')  # no graph, no coordinator yet
+        np.testing.assert_allclose(b.out.torque, 0.0)
+        # what robot 0's agent made of the period is what robot 1 hears, stamped with the period
+        np.testing.assert_allclose(b.out.state[r0, :2], sc.robot(0).initial_pose[:2], atol=1e-3)
+        np.testing.assert_array_equal(st.heard_x[r1, k0], b.out.state[r0])
+        assert st.stamp[r1, k0] == pytest.approx(t, abs=1e-6)
+        assert (st.rep_mode[r1, k0], st.rep_tgt[r1, k0]) == (MODE_C, -1)  # not running yet
+        # a running robot 0 on obstacle O1 (cw) with a commanded acceleration: in process at once
+        st.status[r0] = RUNNING
+        b.out.mode[r0] = (MODE_OBSTACLE, 0, -1.0)
+        b.out.accel[r0] = (0.01, -0.02)
+        b.share(t + 0.01)
+        assert (st.rep_mode[r1, k0], st.rep_tgt[r1, k0], st.rep_sdir[r1, k0]) == (
+            MODE_OBSTACLE, 0, -1.0)
+        np.testing.assert_array_equal(st.heard_a[r1, k0], [0.01, -0.02])
+        assert st.stamp[r1, k0] == pytest.approx(t + 0.01, abs=1e-6)
     finally:
         team.destroy_node()
     assert team.controllers == {}

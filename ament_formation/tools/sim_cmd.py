@@ -19,6 +19,7 @@ naming file, field and problem and exits with code 2.
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 import math
 from pathlib import Path
 import sys
@@ -61,8 +62,8 @@ def register(subparsers) -> None:
         type=float,
         default=0.0,
         metavar='S',
-        help="run S s past the scenario's duration with every leader's path held at its end "
-        '(stop_s; how formation sweep tells a stuck robot from a late one; default 0)',
+        help="run S s past the mission's end (every leader's reference at its end, at rest "
+        'there; how formation sweep tells a stuck robot from a late one; default 0)',
     )
     sim.add_argument('--no-figure', action='store_true', help='skip figure.png')
     sim.add_argument('--quiet', action='store_true', help='no progress and no summary')
@@ -193,22 +194,22 @@ def run_sim(args: argparse.Namespace) -> int:
     if not (math.isfinite(args.hold) and 0.0 <= args.hold <= 600.0):
         raise ConfigError(f'must be in [0, 600] (got {args.hold})', '--hold')
     scenario = load_scenario(args.scenario)
-    if args.hold > 0.0:
-        from ament_formation.core.sim.campaign import held_scenario
-
-        scenario = held_scenario(scenario, args.hold)
-    check_sim_budget(scenario, dt_s, record_s, sensed=sensing is not None)
+    # a run lasts at least its free traversal (duration_s) and the hold after the mission's end
+    check_sim_budget(replace(scenario, duration_s=scenario.duration_s + args.hold), dt_s,
+                     record_s, sensed=sensing is not None)
 
     from ament_formation.core.sim.simulator import simulate
 
     progress = None if args.quiet else _Progress(sys.stderr)
     try:
         if sensing is None:
-            result = simulate(scenario, dt_s=dt_s, record_every_s=record_s, progress=progress)
+            result = simulate(scenario, dt_s=dt_s, record_every_s=record_s, progress=progress,
+                              hold_s=args.hold)
         else:
             from ament_formation.core.sim.sensed import simulate_sensed
 
-            result = simulate_sensed(scenario, sensing, dt_s, record_s, progress=progress)
+            result = simulate_sensed(scenario, sensing, dt_s, record_s, progress=progress,
+                                     hold_s=args.hold)
     finally:
         if progress is not None:
             progress.finish()
