@@ -67,7 +67,7 @@ if [ -n "$params_file" ]; then
   [ -f "$params_file" ] || { echo "launch_robot.sh: --params: no such file '$params_file'" >&2; exit 2; }
   params=(--params-file "$(realpath "$params_file")")
 fi
-info="$("${AF_PYTHON[@]}" "$here/launch_info.py" "$scenario")" || exit 2
+info="$("${AF_PYTHON[@]}" "$here/launch_info.py" "$scenario" ${params_file:+"$params_file"})" || exit 2
 eval "$info"   # sets ids, robot_ids_list, marker_ids_list, torque_<id>
 [[ " $ids " == *" $id "* ]] || {
   echo "launch_robot.sh: --id: robot $id is not in $scenario (ids: $ids)" >&2; exit 2; }

@@ -338,15 +338,34 @@ def parse_user_yaml(text: str, source: str | None, what: str):
     except ConfigError as err:
         raise err.with_file(source) from None
     except yaml.YAMLError as err:
-        mark = getattr(err, 'problem_mark', None)
-        where = f' at line {mark.line + 1}, column {mark.column + 1}' if mark else ''
-        problem = getattr(err, 'problem', None) or str(err).splitlines()[0]
-        raise ConfigError(f'malformed YAML{where}: {problem}', file=source) from None
+        raise yaml_error(err, source) from None
     except RecursionError:  # a structure deeper than Python's stack in a PyYAML internal
         raise ConfigError(f'nested deeper than {MAX_NESTING} levels', file=source) from None
     finally:
         if loader is not None:
             loader.dispose()
+
+
+def yaml_error(err: yaml.YAMLError, source: str | None) -> ConfigError:
+    """One-line ConfigError of a PyYAML error: ``malformed YAML at line L, column C: problem``."""
+    mark = getattr(err, 'problem_mark', None)
+    where = f' at line {mark.line + 1}, column {mark.column + 1}' if mark else ''
+    problem = getattr(err, 'problem', None) or str(err).splitlines()[0]
+    return ConfigError(f'malformed YAML{where}: {problem}', file=source)
+
+
+def check_user_yaml_syntax(text: str, source: str | None, what: str) -> str:
+    """``text`` checked (:func:`check_user_text`) and well-formed YAML (every document; parsed
+    to events only, nothing constructed or expanded), for a file another parser reads (rcl reads
+    a params file itself); returns the checked text.
+    """
+    text = check_user_text(text, source, what)
+    try:
+        for _event in yaml.parse(text, Loader=yaml.SafeLoader):
+            pass
+    except yaml.YAMLError as err:
+        raise yaml_error(err, source) from None
+    return text
 
 
 def read_user_yaml(path, what: str, max_bytes: int = MAX_USER_FILE_BYTES):

@@ -321,6 +321,7 @@ def _environ(pid: int) -> dict:
 
 # ------------------------------------------------------------------------------- the run
 def run_multihost(args: argparse.Namespace) -> int:
+    from ament_formation.core.config_files import read_user_text
     from ament_formation.core.scenario.loader import load_scenario
     from ament_formation.tools import netns
 
@@ -334,6 +335,7 @@ def run_multihost(args: argparse.Namespace) -> int:
     profile = Path(args.profile).resolve() if args.profile else config_dir() / UDP_PROFILE
     if not profile.is_file():
         raise ConfigError('no such file', '--profile', str(profile))
+    read_user_text(profile, 'Fast DDS profile')  # text, no control characters (tinyxml2 parses it)
     out = Path(args.out or tempfile.mkdtemp(prefix='ament_formation_multihost_')).resolve()
     if out.exists() and not out.is_dir():
         raise ConfigError('exists and is not a directory', '--out', str(out))
