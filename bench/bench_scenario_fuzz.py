@@ -3,11 +3,13 @@ inputs): run with `bench/run.sh bench_scenario_fuzz.py [--count 1000] [--seed S]
 
 Seeded mutants of the shipped scenarios (test/scenario_mutants.py: huge, tiny, non-finite and
 wrongly typed values, 10^5-character strings, lists multiplied to 1,000 robots or 600 obstacles,
-alias bombs, nesting up to 100,000 levels, truncated files, flipped characters) are written to
-files and each is given to `formation sim` (its own ``main``, with the figure) in a forked
-process of its own, with a 60 s limit. Counted:
+alias bombs, nesting up to 100,000 levels, truncated files, flipped characters; a quarter of them
+byte-level damage: control characters, NUL, ESC sequences, a BOM, CRLF, invalid UTF-8, UTF-16,
+flipped bits, zeroed blocks) are written to files and each is given to `formation sim` (its own
+``main``, with the figure) in a forked process of its own, with a 60 s limit. Counted:
 
-  traceback   the command ended with an exception other than a one-line refusal
+  traceback   the command ended with an exception other than a one-line refusal, or its stderr
+              holds a Python traceback
   slow        over 30 s of wall time (killed at 60 s)
   big         peak RSS over 1 GB
   long line   a refusal of 300 characters or more, or on more than one line
@@ -59,7 +61,7 @@ def _child(path: str, out: str, conn) -> None:
 def run_one(item) -> dict:
     label, text, workdir = item
     fd, path = tempfile.mkstemp(suffix='.yaml', dir=workdir)
-    with os.fdopen(fd, 'w') as fh:
+    with os.fdopen(fd, 'wb') as fh:
         fh.write(text)
     out = path[:-5] + '_run'
     ctx = multiprocessing.get_context('fork')
@@ -116,7 +118,9 @@ def main() -> int:
                     print(f'  {i} / {len(items)} ({time.monotonic() - wall0:.0f} s)', flush=True)
     refused = [r for r in rows if r['rc'] == 2]
     ran = [r for r in rows if r['rc'] in (0, 1)]
-    tracebacks = [r for r in rows if r['rc'] not in (0, 1, 2)]
+    tracebacks = [
+        r for r in rows if r['rc'] not in (0, 1, 2) or 'Traceback' in (r['stderr'] or '')
+    ]
     slow = [r for r in rows if r['wall_s'] > 30.0]
     big = [r for r in rows if r['rss_mb'] > 1024.0]
     long_lines = [
@@ -132,6 +136,29 @@ def main() -> int:
         f'tracebacks {len(tracebacks)}, over 30 s {len(slow)}, over 1 GB {len(big)}, '
         f'refusals not one line under 300 chars {len(long_lines)}'
     )
+    damaged = [r for r in rows if ': bytes: ' in r['label']]
+    kinds: dict[str, list[int]] = {}
+    for r in damaged:
+        kind = r['label'].split(': bytes: ', 1)[1]
+        kind = kind.split(' at byte')[0].split(' appended')[0].split(' zeroed')[0]
+        kind = 'control characters' if kind.startswith('control characters') else kind
+        kind = 'invalid UTF-8' if kind.startswith('invalid UTF-8') else kind
+        counts = kinds.setdefault(kind, [0, 0, 0])
+        counts[0 if r['rc'] == 2 else 1 if r['rc'] in (0, 1) else 2] += 1
+    print(
+        f'byte-level damage: {len(damaged)} mutants, '
+        f'{sum(r["rc"] == 2 for r in damaged)} refused in one line, '
+        f'{sum(r["rc"] in (0, 1) for r in damaged)} read correctly and ran, '
+        f'{sum(r in tracebacks for r in damaged)} tracebacks'
+    )
+    for kind, (n_refused, n_ran, n_other) in sorted(kinds.items()):
+        print(f'  {kind}: {n_refused} refused, {n_ran} ran, {n_other} other')
+    examples = {}
+    for r in damaged:
+        if r['rc'] == 2:
+            examples.setdefault(r['stderr'].split(': ', 3)[-1][:40], r['stderr'].strip())
+    for line in list(examples.values())[:6]:
+        print(f'  e.g. {line}')
     walls = sorted(r['wall_s'] for r in rows)
     rss = sorted(r['rss_mb'] for r in rows if r['rss_mb'] == r['rss_mb'])
     print(
