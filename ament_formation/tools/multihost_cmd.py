@@ -442,6 +442,7 @@ class _Run:
                 'FASTDDS_DEFAULT_PROFILES_FILE',
                 'AMENT_FORMATION_DDS',
                 'ROS_LOCALHOST_ONLY',
+                'AMENT_FORMATION_LOOPBACK_ONLY',  # inside the namespaces: the lab network
             )
         }
         env.update(
