@@ -236,7 +236,7 @@ def _mutate_bytes(rng: random.Random, raw: bytes) -> tuple[str, bytes]:
         accented = raw.replace(b'name: ', 'name: \u00e9t\u00e9_'.encode(), 1)
         cut = accented.index(b'\xc3') + 1 if b'\xc3' in accented else at
         return 'cut inside a UTF-8 character', accented[:cut]
-    # a zero-width no-break space (a BOM) inside a key: valid UTF-8, an unknown key
+    # a zero-width no-break space (a BOM) inside a key: valid UTF-8, invisible
     return 'BOM inside a key', raw.replace(b'robots:', b'rob\xef\xbb\xbfots:', 1)
 
 

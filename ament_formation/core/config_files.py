@@ -142,8 +142,9 @@ MAX_YAML_NODES = 100_000  # scalars and collections once aliases are expanded (a
 
 # What no text file of ours holds: C0 control characters but tab, newline and carriage return;
 # DEL and the C1 controls (0x80-0x9f, bytes of another encoding read as Latin-1); lone
-# surrogates; the non-characters U+FFFE/U+FFFF (PyYAML and libyaml refuse the same set).
-_BAD_CHAR = re.compile('[\x00-\x08\x0b\x0c\x0e-\x1f\x7f-\x9f\ud800-\udfff\ufffe\uffff]')
+# surrogates; the non-characters U+FFFE/U+FFFF (PyYAML and libyaml refuse the same set); and a
+# byte-order mark after the first character (two files joined; invisible in a key or a value).
+_BAD_CHAR = re.compile('[\x00-\x08\x0b\x0c\x0e-\x1f\x7f-\x9f\ud800-\udfff\ufeff\ufffe\uffff]')
 _C0_NAMES = (
     'NUL SOH STX ETX EOT ENQ ACK BEL BS HT LF VT FF CR SO SI DLE DC1 DC2 DC3 DC4 NAK SYN ETB CAN '
     'EM SUB ESC FS GS RS US'
@@ -178,6 +179,8 @@ def _char_name(ch: str) -> str:
         return f'C1 control character U+{code:04X}'
     if 0xD800 <= code <= 0xDFFF:
         return f'lone surrogate U+{code:04X}'
+    if code == 0xFEFF:
+        return 'byte-order mark U+FEFF inside the text (two files joined?)'
     return f'non-character U+{code:04X}'
 
 
@@ -185,7 +188,8 @@ def check_user_text(text: str, source: str | None, what: str) -> str:
     """``text`` of a user's ``what`` (a scenario, a params file, ...) from ``source``, checked:
     leading byte-order marks stripped, Windows line ends (CRLF) made Unix ones (LF), and a
     ConfigError naming the line and column of the first character no text file holds (NUL, C0
-    control characters but tab/newline/CR, DEL, C1 controls, lone surrogates, U+FFFE/U+FFFF).
+    control characters but tab/newline/CR, DEL, C1 controls, lone surrogates, U+FFFE/U+FFFF, a
+    byte-order mark after the leading ones).
     """
     text = text.lstrip('\ufeff')
     bad = _BAD_CHAR.search(text)
