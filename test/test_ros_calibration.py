@@ -158,7 +158,8 @@ def test_malformed_calibration_files_are_refused_in_one_line(tmp_path, change, f
 @pytest.mark.parametrize('content, problem', [
     (b'', 'must be a mapping'),
     (b'image_width: [640\n', 'malformed YAML at line 2'),
-    (b'\xff\xfe\x00garbage', 'invalid UTF-16'),  # a UTF-16 BOM, then 7 bytes
+    (b'\xff\xfe\x00garbage', 'must be a mapping'),  # a UTF-16 BOM: read as UTF-16 text
+    (b'\xffgarbage', r'line 1, column 1: invalid UTF-8 \(byte 0xff\)'),
     (b'image_width: 640\x07\n', 'line 1, column 17: control character U\\+0007'),
     (b'image_width: caf\xe9\n', r'line 1, column 17: invalid UTF-8 \(byte 0xe9\)'),
     (b'- 1\n- 2\n', 'must be a mapping'),
