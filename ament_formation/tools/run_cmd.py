@@ -197,15 +197,16 @@ def _recording_node(ctx, args: argparse.Namespace, scenario, mcap_path: Path):
     """The recorder's node: every topic to ``mcap_path``; the mission start and the leader's
     latest ground-truth stamp kept in the returned dicts.
 
-    Returns (node, executor, recorder, start {'s'}, latest {'s'}).
+    The node is in no executor: :meth:`TopicRecorder.spin_for` takes every queued message at once
+    (ros/recorder.py), about a tenth of the CPU of an executor's callback per message, so the
+    judge of a run is not what a busy machine starves first.
+
+    Returns (node, recorder, start {'s'}, latest {'s'}).
     """
     import rclpy
     from rclpy.parameter import Parameter
-    from std_msgs.msg import String
 
     from ament_formation.ros import messages as msgs
-    from ament_formation.ros.executors import make_executor
-    from ament_formation.ros.qos import QOS_CONTROL, QOS_GRAPH
     from ament_formation.ros.recorder import McapWriter, TopicRecorder
 
     use_sim_time = args.speed != 1.0
@@ -214,14 +215,12 @@ def _recording_node(ctx, args: argparse.Namespace, scenario, mcap_path: Path):
         context=ctx,
         parameter_overrides=[Parameter('use_sim_time', value=use_sim_time)],
     )
-    executor = make_executor(
-        node, context=ctx
-    )  # SingleThreadedExecutor (ros/executors.py: the judge must not stall)
-    executor.add_node(node)
     exclude = ['/rosout', '/parameter_events'] + (
         [] if args.record_images else ['/camera/image_raw']
     )
-    recorder = TopicRecorder(node, McapWriter(mcap_path), exclude=exclude, scan_period_s=0.25)
+    recorder = TopicRecorder(
+        node, McapWriter(mcap_path), exclude=exclude, scan_period_s=0.25, scan_timer=False
+    )
     start = {'s': None}
     latest = {'s': None}
 
@@ -233,15 +232,13 @@ def _recording_node(ctx, args: argparse.Namespace, scenario, mcap_path: Path):
         if g.start_s is not None:
             start['s'] = g.start_s
 
-    node.create_subscription(String, '/formation/graph', on_graph, QOS_GRAPH)
+    recorder.tap('/formation/graph', on_graph)
     leader = scenario.robots[0].id
-    node.create_subscription(
-        msgs.Odometry,
+    recorder.tap(
         f'/world/truth/robot_{leader}',
         lambda m: latest.__setitem__('s', msgs.stamp_to_s(m.header.stamp)),
-        QOS_CONTROL,
     )
-    return node, executor, recorder, start, latest
+    return node, recorder, start, latest
 
 
 def _start_launch(args: argparse.Namespace, out: Path, proc_dir: Path) -> subprocess.Popen:
@@ -301,9 +298,7 @@ def _timeout_check(now, wall0, start, latest, last_truth, args, proc_dir):
     return None
 
 
-def _supervise(
-    launch, executor, recorder, args, scenario, proc_dir, wall0, start, latest, progress
-):
+def _supervise(launch, recorder, args, scenario, proc_dir, wall0, start, latest, progress):
     """Spin the recorder until the launch ends; the failed check that stopped it early, if any.
 
     Shows progress (unless --quiet) and, once, where the live view is.
@@ -311,7 +306,7 @@ def _supervise(
     last_truth = {'s': None, 'wall': None}
     live_log = proc_dir / 'live_view.log' if (args.live, args.live_host) != (None, None) else None
     while launch.poll() is None:
-        _spin_slice(executor, 0.05)
+        recorder.spin_for(0.05)
         if (
             live_log is not None and not args.quiet and live_log.exists()
         ):  # say where to look, once
@@ -338,21 +333,7 @@ def _supervise(
     return None
 
 
-def _spin_slice(executor, slice_s: float) -> None:
-    """Run the recorder's callbacks for about ``slice_s`` of wall time: spin_once runs one
-    callback, and the recorder takes ~1,500 messages/s from a whole system (one callback per
-    spin_once between progress and timeout checks fell behind under CPU load). The timeout stays
-    the same on every call: rclpy keeps the ready entities of one wait across spin_once calls
-    only while the arguments do not change; a new timeout each call makes it wait anew and serve
-    the first ready subscription again and again, starving the others (a robot's topics then
-    went unrecorded for a whole run).
-    """
-    end = time.monotonic() + slice_s
-    while time.monotonic() < end:
-        executor.spin_once(timeout_sec=slice_s)
-
-
-def _drain(executor, recorder, complete=None, quiet_s: float = 0.3, max_s: float = 5.0) -> None:
+def _drain(recorder, complete=None, quiet_s: float = 0.3, max_s: float = 5.0) -> None:
     """After the system stopped: record what is still queued until nothing came for ``quiet_s``
     (at most ``max_s``), so a recorder a little behind keeps the run's last seconds. While
     ``complete()`` is False (the ground truth has not reached the scenario's end yet), a quiet
@@ -364,7 +345,7 @@ def _drain(executor, recorder, complete=None, quiet_s: float = 0.3, max_s: float
     while time.monotonic() - t0 < max_s and (
         time.monotonic() - last_change < quiet_s or (complete is not None and not complete())
     ):
-        _spin_slice(executor, 0.05)
+        recorder.spin_for(0.05)
         if recorder.writer.message_count != count:
             count, last_change = recorder.writer.message_count, time.monotonic()
 
@@ -373,7 +354,6 @@ def _stop_system(
     launch,
     progress,
     recorder,
-    executor,
     node,
     ctx,
     shm_before,
@@ -400,11 +380,10 @@ def _stop_system(
         progress.finish()
     if drain:  # not after SIGINT/SIGTERM: the user asked to stop now
         try:
-            _drain(executor, recorder, complete)
+            _drain(recorder, complete)
         except (KeyboardInterrupt, RuntimeError):  # a signal while draining: stop now
             pass
     recorder.close()
-    executor.shutdown(timeout_sec=1.0)
     node.destroy_node()
     rclpy.try_shutdown(context=ctx)
     shm.cleanup(shm_before, ignore_pid=os.getpid())  # this process is done with DDS
@@ -445,7 +424,7 @@ def run_system(args: argparse.Namespace) -> int:
         raise KeyboardInterrupt
 
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-    node, executor, recorder, start, latest = _recording_node(ctx, args, scenario, mcap_path)
+    node, recorder, start, latest = _recording_node(ctx, args, scenario, mcap_path)
 
     wall0 = time.monotonic()
     proc_dir = out / 'processes'
@@ -455,7 +434,7 @@ def run_system(args: argparse.Namespace) -> int:
     stop_reason = None  # why this process stopped the system early (a failed check)
     try:
         stop_reason = _supervise(
-            launch, executor, recorder, args, scenario, proc_dir, wall0, start, latest, progress
+            launch, recorder, args, scenario, proc_dir, wall0, start, latest, progress
         )
         launch_rc = launch.poll()
     except (KeyboardInterrupt, RuntimeError) as err:
@@ -465,7 +444,6 @@ def run_system(args: argparse.Namespace) -> int:
             launch,
             progress,
             recorder,
-            executor,
             node,
             ctx,
             shm_before,
