@@ -19,19 +19,24 @@ SCENARIO = ROOT / 'test' / 'data' / 'paper_short.yaml'
 LOOPBACK = ROOT / 'config' / 'fastdds_localhost.xml'
 
 
-def _env(profile: str | None) -> dict:
-    env = {
-        k: v
-        for k, v in os.environ.items()
-        if k not in ('FASTRTPS_DEFAULT_PROFILES_FILE', 'ROS_AUTOMATIC_DISCOVERY_RANGE')
-    }
+def _env(profile: str | None, dds: str | None = None) -> dict:
+    dropped = (
+        'FASTRTPS_DEFAULT_PROFILES_FILE',
+        'ROS_AUTOMATIC_DISCOVERY_RANGE',
+        'AMENT_FORMATION_DDS',
+    )
+    env = {k: v for k, v in os.environ.items() if k not in dropped}
     env['ROS_DOMAIN_ID'] = '7'
     if profile is not None:
         env['FASTRTPS_DEFAULT_PROFILES_FILE'] = profile
+    if dds is not None:
+        env['AMENT_FORMATION_DDS'] = dds
     return env
 
 
-def _launch_env(tmp_path: Path, profile: str | None, multi: bool) -> tuple[str, str]:
+def _launch_env(
+    tmp_path: Path, profile: str | None, multi: bool, dds: str | None = None
+) -> tuple[str, str]:
     """(FASTRTPS_DEFAULT_PROFILES_FILE or '<unset>', ROS_AUTOMATIC_DISCOVERY_RANGE) after
     af_launch_init.
     """
@@ -42,7 +47,7 @@ def _launch_env(tmp_path: Path, profile: str | None, multi: bool) -> tuple[str, 
         '"$ROS_AUTOMATIC_DISCOVERY_RANGE"'
     )
     proc = subprocess.run(
-        ['bash', '-c', script], env=_env(profile), capture_output=True, text=True, timeout=30
+        ['bash', '-c', script], env=_env(profile, dds), capture_output=True, text=True, timeout=30
     )
     assert proc.returncode == 0, proc.stderr
     lines = proc.stdout.splitlines()
@@ -60,8 +65,15 @@ def test_multi_machine_drops_the_loopback_profile(tmp_path, profile):
     assert _launch_env(tmp_path, profile, multi=True) == ('<unset>', 'SUBNET')
 
 
-def test_single_machine_stays_on_loopback(tmp_path):
-    assert _launch_env(tmp_path, None, multi=False) == (str(LOOPBACK), 'LOCALHOST')
+def test_single_machine_stays_on_loopback_udp(tmp_path):
+    # the loopback profile governs discovery (range SUBNET): UDP on 127.0.0.1 only, no shared
+    # memory (docs/executors.md "The stall found")
+    assert _launch_env(tmp_path, None, multi=False) == (str(LOOPBACK), 'SUBNET')
+    assert _launch_env(tmp_path, None, multi=False, dds='udp') == (str(LOOPBACK), 'SUBNET')
+
+
+def test_single_machine_with_shared_memory_on_request(tmp_path):
+    assert _launch_env(tmp_path, None, multi=False, dds='shm') == (str(LOOPBACK), 'LOCALHOST')
 
 
 @pytest.mark.parametrize('launcher', ['launch_robot.sh', 'launch_base.sh'])

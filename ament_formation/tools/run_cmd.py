@@ -142,11 +142,14 @@ def _free_domain_id() -> str:
 
 
 def loopback_env(log_dir: Path) -> None:
-    """The environment of scripts/ros_env.sh, for callers that did not source it."""
+    """The environment of scripts/ros_env.sh, for callers that did not source it: loopback UDP
+    only unless AMENT_FORMATION_DDS=shm (Fast DDS shared memory, which stopped delivering for
+    good in whole-system runs on a busy machine; docs/executors.md "The stall found").
+    """
     profile = str(config_file('fastdds_localhost.xml'))
     env = os.environ
     if (
-        env.get('AMENT_FORMATION_DDS') == 'udp'
+        env.get('AMENT_FORMATION_DDS', 'udp') == 'udp'
         and not env.get('ROS_AUTOMATIC_DISCOVERY_RANGE')
         and env.get('FASTRTPS_DEFAULT_PROFILES_FILE', profile) == profile
     ):
