@@ -28,6 +28,10 @@ from ament_formation.core.errors import ConfigError
 TRUTH_GAP_MAX_S = (
     1.0  # the longest pause [s, scenario time] of the recorded ground truth of a good run
 )
+# SCHED_RR priority of the simulated system and its recorder (--realtime-priority): above every
+# normal process of the machine, below the usual IRQ threads (50) and a robot's own control loop
+# (realtime_priority of the controllers, docs/executors.md "The stall found")
+REALTIME_PRIORITY = 10
 
 
 def check(*args, **kw) -> dict:
@@ -93,6 +97,16 @@ def register(subparsers) -> None:
     )
     p.add_argument('--no-figure', action='store_true', help='skip figure.png')
     p.add_argument('--quiet', action='store_true', help='no progress and no summary')
+    p.add_argument(
+        '--realtime-priority',
+        type=int,
+        default=REALTIME_PRIORITY,
+        metavar='P',
+        help='run the whole simulated system and the recorder under SCHED_RR priority P '
+        f'(1..98, default {REALTIME_PRIORITY}; 0 = normal scheduling), so that CPU-bound work '
+        'elsewhere on the machine cannot pause the run; needs root, CAP_SYS_NICE or an '
+        'RLIMIT_RTPRIO of P (otherwise one line says so and the run goes on at normal priority)',
+    )
     p.add_argument(
         '--startup-timeout',
         type=float,
@@ -192,6 +206,10 @@ def _check_options(args: argparse.Namespace) -> None:
         )
     if args.control_nice is not None and not -20 <= args.control_nice <= 19:
         raise ConfigError(f'must be in [-20, 19] (got {args.control_nice})', '--control-nice')
+    if not 0 <= args.realtime_priority <= 98:
+        raise ConfigError(
+            f'must be in [0, 98] (got {args.realtime_priority})', '--realtime-priority'
+        )
     if args.live is not None and not 0 <= args.live <= 65535:
         raise ConfigError(f'must be a TCP port in [0, 65535] (got {args.live})', '--live')
 
@@ -394,6 +412,40 @@ def _stop_system(
         signal.signal(signum, handler)
 
 
+def _realtime(priority: int, quiet: bool) -> str:
+    """Put this thread under SCHED_RR ``priority`` before anything else starts: the recorder's DDS
+    threads and every process of the launch (world, bridges, controllers, tracker, coordinator)
+    inherit it, so other work on the machine cannot take the CPU from the run. The scheduling
+    in use, as metrics.json states it; refused (no privilege), one line on stderr and normal
+    scheduling. Why (docs/executors.md "The stall found"): the run needs about 1.1 of this
+    machine's 2 cores, and the kernel gives each session (autogroup) of the machine one share.
+    """
+    if priority == 0:
+        return 'normal'
+    try:
+        os.sched_setscheduler(0, os.SCHED_RR, os.sched_param(priority))
+    except (OSError, AttributeError) as err:  # EPERM without the privilege; not Linux
+        why = getattr(err, 'strerror', None) or str(err)
+        if not quiet:
+            print(
+                f'formation run: normal scheduling (SCHED_RR priority {priority}: {why}); '
+                'CPU-bound work elsewhere on this machine can pause the run '
+                '(--realtime-priority 0 runs at normal priority without this note)',
+                file=sys.stderr,
+            )
+        return f'normal (SCHED_RR {priority} refused: {why})'
+    return f'SCHED_RR {priority}'
+
+
+def _normal_scheduling() -> None:
+    """Back to normal scheduling (the evaluation and the figure need no priority)."""
+    try:
+        if os.sched_getscheduler(0) != os.SCHED_OTHER:
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except (OSError, AttributeError):
+        pass
+
+
 def run_system(args: argparse.Namespace) -> int:
     from ament_formation.core.scenario.loader import load_scenario
 
@@ -404,6 +456,7 @@ def run_system(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario)
     out.mkdir(parents=True, exist_ok=True)
     loopback_env(out / 'ros_log')
+    args.scheduling = _realtime(args.realtime_priority, args.quiet)
     from ament_formation.ros import shm
 
     shm_before = shm.snapshot()  # what this run leaves in /dev/shm is removed at its end
@@ -455,6 +508,7 @@ def run_system(args: argparse.Namespace) -> int:
             complete=lambda: _truth_complete(start, latest, scenario),
         )
     wall_s = time.monotonic() - wall0
+    _normal_scheduling()
     if status:
         return status
     extra = (
@@ -541,6 +595,7 @@ def _evaluate(mcap_path: Path, scenario, out: Path, wall_s: float, args, extra: 
             'sim_time_s': 0.0,
             'wall_time_s': wall_s,
             'source': 'formation run (ROS 2 system, ground truth of the simulated twin)',
+            'scheduling': getattr(args, 'scheduling', None),
         }
         check_run(metrics, scenario, extra=extra, measured=False)
         write_metrics(out, metrics)
@@ -550,6 +605,7 @@ def _evaluate(mcap_path: Path, scenario, out: Path, wall_s: float, args, extra: 
     metrics = compute_metrics(result, scenario)
     metrics['wall_time_s'] = wall_s
     metrics['source'] = 'formation run (ROS 2 system, ground truth of the simulated twin)'
+    metrics['scheduling'] = getattr(args, 'scheduling', None)
     metrics['truth_max_gap_s'] = stats.get('truth_max_gap_s')
     gap = stats.get('truth_max_gap_s')
     extra = [
@@ -570,6 +626,8 @@ def _evaluate(mcap_path: Path, scenario, out: Path, wall_s: float, args, extra: 
         robot['safety_stop_time_s'] = float(sum(b - a for a, b in spans))
     torque_gaps = stats.get('torque_max_gap_s') or {}
     metrics['torque_max_gap_s'] = {str(k): v for k, v in torque_gaps.items()}
+    # every stage's longest pause (ros/run_record.py): which one stopped first names a stall
+    metrics['stage_gaps_s'] = stats.get('stage_gaps')
     if torque_gaps:
         rid, worst = max(torque_gaps.items(), key=lambda kv: kv[1])
         extra.append(
