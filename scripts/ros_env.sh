@@ -5,7 +5,7 @@ _af_root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 # AMENT_FORMATION_DDS=shm for Fast DDS's shared memory next to it (the range LOCALHOST, with which
 # rmw_fastrtps always adds its shared-memory transport, whatever the profile says). Why UDP
 # (docs/executors.md "The stall found"): with shared memory, whole-system runs on a busy machine
-# stopped delivering for good (4 of 9 `formation run`s: every process idle in its wait, nothing
+# stopped delivering for good (4 of 8 `formation run`s: every process idle in its wait, nothing
 # arriving; 0 of 11 with UDP), and the shared-memory ports a participant listens on besides its
 # domain's (fastrtps_port7000, 7001, ...) are numbered across every domain of the machine. UDP
 # only: the range is left to the project's loopback profile (every socket on 127.0.0.1, 127.0.0.1
