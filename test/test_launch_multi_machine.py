@@ -27,16 +27,21 @@ _UNSET = (
 )
 
 
-def _env(profile: str | None, domain: str | None = '7') -> dict:
-    env = {k: v for k, v in os.environ.items() if k not in (*_UNSET, 'ROS_DOMAIN_ID')}
+def _env(profile: str | None, domain: str | None = '7', dds: str | None = None) -> dict:
+    env = {k: v for k, v in os.environ.items()
+           if k not in (*_UNSET, 'ROS_DOMAIN_ID', 'AMENT_FORMATION_DDS')}
     if domain is not None:
         env['ROS_DOMAIN_ID'] = domain
     if profile is not None:
         env['FASTRTPS_DEFAULT_PROFILES_FILE'] = profile
+    if dds is not None:
+        env['AMENT_FORMATION_DDS'] = dds
     return env
 
 
-def _launch_env(tmp_path: Path, profile: str | None, multi: bool) -> tuple[str, str]:
+def _launch_env(
+    tmp_path: Path, profile: str | None, multi: bool, dds: str | None = None
+) -> tuple[str, str]:
     """(FASTRTPS_DEFAULT_PROFILES_FILE or '<unset>', ROS_AUTOMATIC_DISCOVERY_RANGE) after
     af_launch_init.
     """
@@ -47,7 +52,7 @@ def _launch_env(tmp_path: Path, profile: str | None, multi: bool) -> tuple[str, 
         '"$ROS_AUTOMATIC_DISCOVERY_RANGE"'
     )
     proc = subprocess.run(
-        ['bash', '-c', script], env=_env(profile), capture_output=True, text=True, timeout=30
+        ['bash', '-c', script], env=_env(profile, dds=dds), capture_output=True, text=True, timeout=30
     )
     assert proc.returncode == 0, proc.stderr
     lines = proc.stdout.splitlines()
@@ -66,7 +71,15 @@ def test_multi_machine_replaces_the_loopback_profile_by_the_udp_one(tmp_path, pr
 
 
 def test_single_machine_stays_on_loopback(tmp_path):
+    # the default: discovery range LOCALHOST with the loopback profile
     assert _launch_env(tmp_path, None, multi=False) == (str(LOOPBACK), 'LOCALHOST')
+    assert _launch_env(tmp_path, None, multi=False, dds='shm') == (str(LOOPBACK), 'LOCALHOST')
+
+
+def test_single_machine_udp_only_on_request(tmp_path):
+    # AMENT_FORMATION_DDS=udp: the loopback profile governs discovery (UDP on 127.0.0.1 only, no
+    # shared memory; docs/executors.md "The stall found")
+    assert _launch_env(tmp_path, None, multi=False, dds='udp') == (str(LOOPBACK), 'SUBNET')
 
 
 @pytest.mark.parametrize('launcher', ['launch_robot.sh', 'launch_base.sh'])
