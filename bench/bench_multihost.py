@@ -7,7 +7,7 @@ process faults.
         [--json OUT.json]
 
 Every run is `formation multihost` (tools/multihost_cmd.py; root, network namespaces): the camera
-PC (world, tracker, coordinator, recorder) and each robot (launch_robot.sh --multi-machine) on a
+PC (world, tracker, coordinator, recorder) and each robot (launch_robot.sh --domain D) on a
 host of its own, DDS over UDP only between them.
 
 * ``--traffic N ...``: a generated formation of N robots (`--robots N`, 0.6 m grid, leader along

@@ -322,6 +322,7 @@ def measure_cost(
             str(scenario),
             '--run-dir',
             str(run_dir / 'robot'),
+            '--loopback',
             *(['--split'] if layout == 'split' else []),
             *extra,
         ]

@@ -3,12 +3,15 @@ inputs): run with `bench/run.sh bench_scenario_fuzz.py [--count 1000] [--seed S]
 
 Seeded mutants of the shipped scenarios (test/scenario_mutants.py: huge, tiny, non-finite and
 wrongly typed values, 10^5-character strings, lists multiplied to 1,000 robots or 600 obstacles,
-alias bombs, nesting up to 100,000 levels, truncated files, flipped characters) are written to
-files and each is given to `formation sim` (its own ``main``, with the figure) in a forked
-process of its own, with a 60 s limit. Counted:
+alias bombs, nesting up to 100,000 levels, truncated files, flipped characters; a quarter of them
+byte-level damage: control characters, NUL, ESC sequences, a BOM, CRLF, invalid UTF-8, UTF-16,
+flipped bits, zeroed blocks) are written to files and each is given to `formation sim` (its own
+``main``, with the figure) in a forked process of its own, with a 60 s limit. Counted:
 
-  traceback   the command ended with an exception other than a one-line refusal
-  slow        over 30 s of wall time (killed at 60 s)
+  traceback   the command ended with an exception other than a one-line refusal, or its stderr
+              holds a Python traceback
+  crash       the process died without a result (a signal, os._exit)
+  slow        over 30 s of wall time (killed at 60 s: counted as killed too)
   big         peak RSS over 1 GB
   long line   a refusal of 300 characters or more, or on more than one line
   refused     exit 2 with one line; ran: exit 0 or 1 (a run that fails its checks is a result)
@@ -38,6 +41,21 @@ sys.path.insert(0, str(ROOT / 'test'))
 from scenario_mutants import mutants  # noqa: E402
 
 LIMIT_S = 60.0
+# byte-level damage in a mutant's label -> its kind in the report
+_BYTE_KINDS = (
+    ('control characters', 'control characters (NUL, BEL, ESC, DEL, C1, ...)'),
+    ('invalid UTF-8', 'invalid UTF-8 sequence'),
+    ('Latin-1', 'Latin-1 comment'),
+    ('cut inside', 'cut inside a UTF-8 character'),
+    ('zero bytes appended', 'zero bytes appended'),
+    ('zeroed', 'block of zero bytes'),
+    ('flipped bits', 'flipped bits'),
+    ('UTF-16 without', 'UTF-16 without BOM'),
+    ('UTF-16 with', 'UTF-16 with BOM (valid)'),
+    ('UTF-8 BOM', 'UTF-8 BOM (valid)'),
+    ('line ends', 'CRLF or CR line ends (valid)'),
+    ('BOM inside a key', 'BOM inside a key'),
+)
 
 
 def _child(path: str, out: str, conn) -> None:
@@ -56,10 +74,25 @@ def _child(path: str, out: str, conn) -> None:
     conn.close()
 
 
+def _valid(data: bytes) -> bool:
+    """Whether the validator accepts the mutant (then a kill at the limit is a slow run)."""
+    from ament_formation.core.config_files import decode_user_bytes
+    from ament_formation.core.errors import ConfigError
+    from ament_formation.core.scenario.loader import parse_scenario_text
+
+    try:
+        parse_scenario_text(decode_user_bytes(data, 'mutant', 'scenario'), 'mutant')
+    except ConfigError:
+        return False
+    except Exception:  # noqa: BLE001 - counted as a traceback by its own run
+        return False
+    return True
+
+
 def run_one(item) -> dict:
     label, text, workdir = item
     fd, path = tempfile.mkstemp(suffix='.yaml', dir=workdir)
-    with os.fdopen(fd, 'w') as fh:
+    with os.fdopen(fd, 'wb') as fh:
         fh.write(text)
     out = path[:-5] + '_run'
     ctx = multiprocessing.get_context('fork')
@@ -116,7 +149,13 @@ def main() -> int:
                     print(f'  {i} / {len(items)} ({time.monotonic() - wall0:.0f} s)', flush=True)
     refused = [r for r in rows if r['rc'] == 2]
     ran = [r for r in rows if r['rc'] in (0, 1)]
-    tracebacks = [r for r in rows if r['rc'] not in (0, 1, 2)]
+    tracebacks = [
+        r for r in rows if r['rc'] not in (0, 1, 2, None) or 'Traceback' in (r['stderr'] or '')
+    ]
+    killed = [r for r in rows if r['rc'] is None and r['kind'] == 'killed']
+    texts = {label: text for label, text, _ in items}
+    killed_valid = sum(_valid(texts[r['label']]) for r in killed)
+    crashes = [r for r in rows if r['rc'] is None and r['kind'] != 'killed']
     slow = [r for r in rows if r['wall_s'] > 30.0]
     big = [r for r in rows if r['rss_mb'] > 1024.0]
     long_lines = [
@@ -129,9 +168,35 @@ def main() -> int:
         f'line, {len(ran)} ran ({sum(r["rc"] == 1 for r in ran)} failed their checks)'
     )
     print(
-        f'tracebacks {len(tracebacks)}, over 30 s {len(slow)}, over 1 GB {len(big)}, '
-        f'refusals not one line under 300 chars {len(long_lines)}'
+        f'tracebacks {len(tracebacks)}, crashes {len(crashes)}, over 30 s {len(slow)} (killed at '
+        f'{LIMIT_S:g} s {len(killed)}: {killed_valid} of them valid files), over 1 GB '
+        f'{len(big)}, refusals not one line under 300 chars {len(long_lines)}'
     )
+    damaged = [r for r in rows if ': bytes: ' in r['label']]
+    kinds: dict[str, list[int]] = {}
+    for r in damaged:
+        kind = r['label'].split(': bytes: ', 1)[1]
+        for prefix, words in _BYTE_KINDS:
+            if prefix in kind:
+                kind = words
+                break
+        counts = kinds.setdefault(kind, [0, 0, 0])
+        counts[0 if r['rc'] == 2 else 1 if r['rc'] in (0, 1) or r in killed else 2] += 1
+    print(
+        f'byte-level damage: {len(damaged)} mutants, '
+        f'{sum(r["rc"] == 2 for r in damaged)} refused in one line, '
+        f'{sum(r["rc"] in (0, 1) or r in killed for r in damaged)} read correctly and ran '
+        f'({sum(r in killed for r in damaged)} of them killed at {LIMIT_S:g} s), '
+        f'{sum(r in tracebacks or r in crashes for r in damaged)} tracebacks or crashes'
+    )
+    for kind, (n_refused, n_ran, n_other) in sorted(kinds.items()):
+        print(f'  {kind}: {n_refused} refused, {n_ran} ran, {n_other} traceback or crash')
+    examples = {}
+    for r in damaged:
+        if r['rc'] == 2:
+            examples.setdefault(r['stderr'].split(': ', 3)[-1][:40], r['stderr'].strip())
+    for line in list(examples.values())[:6]:
+        print(f'  e.g. {line}')
     walls = sorted(r['wall_s'] for r in rows)
     rss = sorted(r['rss_mb'] for r in rows if r['rss_mb'] == r['rss_mb'])
     print(
@@ -139,13 +204,13 @@ def main() -> int:
         f'peak RSS MB: median {rss[len(rss) // 2]:.0f}, max {rss[-1]:.0f}; '
         f'longest refusal {max((len(r["stderr"].strip()) for r in refused), default=0)} chars'
     )
-    for r in (tracebacks + slow + big + long_lines)[:20]:
+    for r in (tracebacks + crashes + slow + big + long_lines)[:20]:
         print(
             f'  {r["label"]}: rc {r["rc"]} {r.get("kind")} {r["wall_s"]:.1f} s '
             f'{r["rss_mb"]:.0f} MB'
         )
     print(f'load average after: {os.getloadavg()}')
-    return 1 if tracebacks or slow or big or long_lines else 0
+    return 1 if tracebacks or crashes or slow or big or long_lines else 0
 
 
 if __name__ == '__main__':

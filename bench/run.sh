@@ -16,6 +16,7 @@ bench="$here/$(basename "$1")"; shift
 logdir="$(mktemp -d -t ament_formation_bench_log.XXXXXX)"
 # shellcheck source=../scripts/ros_env.sh
 source "$root/scripts/ros_env.sh" "$logdir"
+export AMENT_FORMATION_LOOPBACK_ONLY=1   # launch_robot.sh / launch_base.sh: --loopback or refused
 af_shm_snapshot
 trap 'af_shm_cleanup; rm -rf "$logdir"' EXIT
 "$root/.venv/bin/python" "$bench" "$@"

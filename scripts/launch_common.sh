@@ -7,12 +7,14 @@
 # A launcher's exit status: 143 when stopped by SIGTERM, 130 by Ctrl-C (SIGINT), else the status of
 # the first started process that exited (0 when --duration ran out); 2 for bad input.
 #
-# Several machines (opt-in): pass --multi-machine and export the same ROS_DOMAIN_ID on every machine.
-# That sets ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET and drops the loopback-only Fast DDS profile, so
-# DDS then uses every interface of the machine; use it only on a trusted robot network. A lab's own
-# Fast DDS profile is kept: export FASTRTPS_DEFAULT_PROFILES_FILE=/path/lab_profile.xml before
-# launching (e.g. to pin DDS to the robot network's interface); a file that does not exist is bad
-# input (exit code 2). docs/deployment.md.
+# Several machines: --multi-machine (the default of launch_robot.sh and launch_base.sh, see
+# af_choose_network) with the same ROS_DOMAIN_ID on every machine. That sets
+# ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET and replaces the loopback-only Fast DDS profile by the
+# project's UDP profile (config/fastdds_udp.xml), so DDS uses every interface of the machine; use
+# it only on a trusted robot network. A lab's own Fast DDS profile is kept: export
+# FASTRTPS_DEFAULT_PROFILES_FILE=/path/lab_profile.xml before launching (e.g. to pin DDS to the
+# robot network's interface); a file that does not exist is bad input (exit code 2).
+# docs/multi-machine.md.
 AF_ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 # The programs (af_find_programs): $AF_BIN when the caller sets it; for the launchers colcon build
 # installs (<prefix>/share/ament_formation/scripts, what `formation run` of an installed package
@@ -71,7 +73,7 @@ af_launch_init() {
   local lab_profile="${FASTRTPS_DEFAULT_PROFILES_FILE:-}"
   [ "$lab_profile" = "$AF_ROOT/config/fastdds_localhost.xml" ] && lab_profile=""
   if [ "$multi" = 1 ] && [ -n "$lab_profile" ] && [ ! -f "$lab_profile" ]; then
-    echo "$(basename "$0"): --multi-machine: FASTRTPS_DEFAULT_PROFILES_FILE: no such file '$lab_profile'" >&2
+    echo "$(basename "$0"): FASTRTPS_DEFAULT_PROFILES_FILE (the lab network's Fast DDS profile): no such file '$lab_profile'" >&2
     exit 2
   fi
   mkdir -p "$AF_RUN_DIR"
@@ -79,11 +81,8 @@ af_launch_init() {
   source "$AF_ROOT/scripts/ros_env.sh" "$AF_RUN_DIR/ros_log"
   if [ "$multi" = 1 ]; then
     export ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET
-    if [ -n "$lab_profile" ]; then
-      export FASTRTPS_DEFAULT_PROFILES_FILE="$lab_profile"
-    else
-      unset FASTRTPS_DEFAULT_PROFILES_FILE
-    fi
+    # a lab's own profile, else the project's UDP one (no shared memory, non-blocking sends)
+    export FASTRTPS_DEFAULT_PROFILES_FILE="${lab_profile:-$AF_ROOT/config/fastdds_udp.xml}"
   fi
   af_shm_snapshot
   : >"$AF_RUN_DIR/pids"
@@ -152,4 +151,38 @@ af_wait_any() {
     if [ -n "$deadline" ] && [ "$(date +%s%N)" -ge "$deadline" ]; then return 0; fi
     sleep 0.1
   done
+}
+
+# The network of the real-robot launchers (launch_robot.sh, launch_base.sh):
+#   af_choose_network PROG LOOPBACK DOMAIN      sets AF_NETWORK (the argument of af_launch_init)
+# The lab network by default: ROS_DOMAIN_ID from --domain N (else the exported one), which must be
+# in ROS's safe range on Linux (0..101) and the same on every machine; discovery on the subnet;
+# the project's UDP profile (config/fastdds_udp.xml: no shared memory, non-blocking sends) unless
+# the lab exported its own FASTRTPS_DEFAULT_PROFILES_FILE. LOOPBACK non-empty (--loopback): this
+# machine only, as launch_sim.sh. AMENT_FORMATION_LOOPBACK_ONLY (set by the tests and benchmarks)
+# refuses the lab network: nothing they start leaves loopback by a forgotten --loopback.
+af_choose_network() {
+  local prog="$1" loopback="$2" domain="$3"
+  if [ -n "$domain" ]; then
+    if ! [[ "$domain" =~ ^[0-9]{1,3}$ ]] || [ "$domain" -gt 101 ]; then
+      echo "$prog: --domain: expected a ROS domain id in [0, 101] (ROS's safe range on Linux), got '$domain'" >&2
+      exit 2
+    fi
+    export ROS_DOMAIN_ID="$domain"
+  fi
+  AF_NETWORK=()
+  [ -n "$loopback" ] && return 0
+  if [ -n "${AMENT_FORMATION_LOOPBACK_ONLY:-}" ]; then
+    echo "$prog: the lab network is refused here (AMENT_FORMATION_LOOPBACK_ONLY is set: tests and benchmarks stay on loopback); add --loopback" >&2
+    exit 2
+  fi
+  if [ -z "${ROS_DOMAIN_ID:-}" ]; then
+    echo "$prog: the lab network needs the domain id all its machines use: --domain N (0..101) or export ROS_DOMAIN_ID (--loopback: this machine only)" >&2
+    exit 2
+  fi
+  if ! [[ "$ROS_DOMAIN_ID" =~ ^[0-9]{1,3}$ ]] || [ "$ROS_DOMAIN_ID" -gt 101 ]; then
+    echo "$prog: ROS_DOMAIN_ID: expected a ROS domain id in [0, 101] (ROS's safe range on Linux), got '$ROS_DOMAIN_ID'" >&2
+    exit 2
+  fi
+  AF_NETWORK=(--multi-machine)
 }

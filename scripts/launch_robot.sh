@@ -1,10 +1,15 @@
 #!/usr/bin/env bash
 # On one robot's computer: the robot process (bridge to its motor board + its controller).
 #
-#   scripts/launch_robot.sh --id N --port /dev/ttyACM0 --scenario SCENARIO.yaml [--run-dir DIR]
-#                           [--params FILE.yaml] [--split] [--nice N] [--rt-priority P]
-#                           [--wait-for-port] [--multi-machine]
+#   scripts/launch_robot.sh --id N --port /dev/ttyACM0 --scenario SCENARIO.yaml --domain D
+#                           [--run-dir DIR] [--params FILE.yaml] [--split] [--nice N]
+#                           [--rt-priority P] [--wait-for-port] [--loopback]
 #
+# Network: the lab network by default (DDS over UDP on this computer's interfaces, discovery on
+# the subnet), in ROS domain D (0..101, ROS's safe range on Linux; the same on the camera PC and
+# every robot; without --domain the exported ROS_DOMAIN_ID). --loopback: this machine only (a
+# simulated board, the camera PC's launcher on the same machine with the same --domain).
+# docs/multi-machine.md.
 # Default: ONE process, formation_team hosting this robot's formation_bridge and formation_controller
 # nodes (node /robot_N/formation_bridge and /robot_N/formation_controller, same topics and parameters;
 # the controller hands torques to the bridge and takes wheel samples from it in process).
@@ -19,15 +24,14 @@
 # anyway and let the bridge wait for the port to appear (parameter wait_for_port; a port lost while
 # running is always reopened with backoff).
 # Stops every process it started (by PID) on exit, Ctrl-C or TERM (exit status 143 after TERM, 130
-# after Ctrl-C, else that of the first process to exit). DDS stays on loopback unless --multi-machine
-# (then export the same ROS_DOMAIN_ID on the robots and the camera PC).
+# after Ctrl-C, else that of the first process to exit).
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
 # shellcheck source=launch_common.sh
 source "$here/launch_common.sh"
 
-usage() { sed -n '2,23p' "$0" | sed 's/^# \{0,1\}//'; exit 2; }
-id=""; port=""; scenario=""; run_dir=""; params=(); params_file=""; multi=""; split=""
+usage() { sed -n '2,27p' "$0" | sed 's/^# \{0,1\}//'; exit 2; }
+id=""; port=""; scenario=""; run_dir=""; params=(); params_file=""; loopback=""; domain=""; split=""
 nice_n=""; nice_given=""; rt=""; rt_given=""; wait_port=()
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -40,7 +44,10 @@ while [ $# -gt 0 ]; do
     --nice) nice_given=1; nice_n="${2-}"; shift; [ $# -gt 0 ] && shift ;;
     --rt-priority) rt_given=1; rt="${2-}"; shift; [ $# -gt 0 ] && shift ;;
     --wait-for-port) wait_port=(-p wait_for_port:=true); shift ;;
-    --multi-machine) multi="--multi-machine"; shift ;;
+    --domain) domain="${2-}"; shift; [ $# -gt 0 ] && shift
+      [ -n "$domain" ] || { echo "launch_robot.sh: --domain: expected a ROS domain id in [0, 101]" >&2; exit 2; } ;;
+    --loopback) loopback=1; shift ;;
+    --multi-machine) shift ;;   # the lab network: the default (kept for older command lines)
     -h|--help) usage ;;
     *) echo "launch_robot.sh: unknown option $1" >&2; exit 2 ;;
   esac
@@ -67,7 +74,8 @@ if [ -n "$params_file" ]; then
   [ -f "$params_file" ] || { echo "launch_robot.sh: --params: no such file '$params_file'" >&2; exit 2; }
   params=(--params-file "$(realpath "$params_file")")
 fi
-info="$("${AF_PYTHON[@]}" "$here/launch_info.py" "$scenario")" || exit 2
+af_choose_network launch_robot.sh "$loopback" "$domain"   # sets AF_NETWORK
+info="$("${AF_PYTHON[@]}" "$here/launch_info.py" "$scenario" ${params_file:+"$params_file"})" || exit 2
 eval "$info"   # sets ids, robot_ids_list, marker_ids_list, torque_<id>
 [[ " $ids " == *" $id "* ]] || {
   echo "launch_robot.sh: --id: robot $id is not in $scenario (ids: $ids)" >&2; exit 2; }
@@ -78,7 +86,8 @@ ctl=()   # prefix of the robot's processes
 rtp=()
 [ -n "$rt" ] && rtp=(-p realtime_priority:="$rt")
 
-af_launch_init "$(realpath -m "$run_dir")" $multi
+af_launch_init "$(realpath -m "$run_dir")" "${AF_NETWORK[@]}"
+echo "network: $([ ${#AF_NETWORK[@]} = 0 ] && echo "loopback (this machine only)" || echo "lab (subnet discovery, profile $FASTRTPS_DEFAULT_PROFILES_FILE)"), ROS_DOMAIN_ID=$ROS_DOMAIN_ID"
 if [ -z "$split" ]; then
   # the robot process: one formation_team hosting robot N's bridge and controller nodes
   af_start "robot_$id" "${ctl[@]}" "$AF_BIN/formation_team" --ros-args \

@@ -1,13 +1,15 @@
 # Sourced by every script: keep DDS on loopback, give the run its own domain and log folder.
 # Usage: source scripts/ros_env.sh [LOG_DIR]
 _af_root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
-# AMENT_FORMATION_DDS=udp: loopback UDP only, no Fast DDS shared memory (docs/executors.md "The
-# frozen runs": with ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST rmw_fastrtps always adds its
-# shared-memory transport, whatever the profile says, and a publish can then wait on another
-# process's shared-memory port lock while holding the GIL). It leaves the range to the project's
-# loopback profile (UDP bound to 127.0.0.1, 127.0.0.1 as the only peer) by setting it to SUBNET,
-# which only happens when that profile is the one in use.
-if [ "${AMENT_FORMATION_DDS:-}" = "udp" ] && [ -z "${ROS_AUTOMATIC_DISCOVERY_RANGE:-}" ] \
+# DDS transport on one machine: discovery range LOCALHOST with the loopback profile (the default;
+# rmw_fastrtps then adds its shared-memory transport next to UDP on 127.0.0.1), or, on request,
+# AMENT_FORMATION_DDS=udp for loopback UDP only (docs/executors.md "The stall found": with shared
+# memory, whole-system runs on a busy machine stopped delivering for good in 4 of 8 runs, 0 of 11
+# with UDP). UDP only leaves the range to the project's loopback profile (every socket on
+# 127.0.0.1, 127.0.0.1 as the only peer, 4 MB socket buffers for the 300 kB camera frames) by
+# setting it to SUBNET, which only happens when that profile is the one in use and the caller set
+# no range. The default keeps LOCALHOST: the project's rule for every script, test and CI run.
+if [ "${AMENT_FORMATION_DDS:-shm}" = "udp" ] && [ -z "${ROS_AUTOMATIC_DISCOVERY_RANGE:-}" ] \
     && [ "${FASTRTPS_DEFAULT_PROFILES_FILE:-$_af_root/config/fastdds_localhost.xml}" \
          = "$_af_root/config/fastdds_localhost.xml" ]; then
   export ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET

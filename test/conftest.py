@@ -21,6 +21,10 @@ os.environ.setdefault(
     'FASTRTPS_DEFAULT_PROFILES_FILE', str(_ROOT / 'config' / 'fastdds_localhost.xml')
 )
 os.environ.setdefault('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp')
+# the real-robot launchers refuse their lab-network default under it (scripts/launch_common.sh):
+# a test that forgets --loopback fails instead of leaving loopback (the multi-host tests drop it
+# inside the network namespaces they make)
+os.environ['AMENT_FORMATION_LOOPBACK_ONLY'] = '1'
 os.environ.setdefault('ROS_DOMAIN_ID', str(os.getpid() % 101 + 1))  # ROS's safe range: 0..101
 if 'ROS_LOG_DIR' not in os.environ:  # pytest run directly: a log folder removed at exit
     os.environ['ROS_LOG_DIR'] = tempfile.mkdtemp(prefix='ament_formation_ros_log_')

@@ -121,7 +121,7 @@ def test_deployment_split(ros_context, executor, tmp_path):
 
     def launch(args: list[str], run_dir: Path) -> None:
         proc = subprocess.Popen(
-            [*args, '--scenario', str(scenario), '--run-dir', str(run_dir)],
+            [*args, '--scenario', str(scenario), '--run-dir', str(run_dir), '--loopback'],
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
             text=True,
@@ -224,7 +224,8 @@ def test_deployment_split(ros_context, executor, tmp_path):
     [
         (['launch_robot.sh', '--id', '0', '--scenario', str(SCENARIO)], '--port'),
         (
-            ['launch_robot.sh', '--id', '7', '--port', '/dev/null', '--scenario', str(SCENARIO)],
+            ['launch_robot.sh', '--id', '7', '--port', '/dev/null', '--scenario', str(SCENARIO),
+             '--loopback'],
             '--id',
         ),
         (
@@ -245,6 +246,13 @@ def test_deployment_split(ros_context, executor, tmp_path):
         ),
         (['launch_base.sh', '--scenario', '/nonexistent/scenario.yaml'], '--scenario'),
         (['launch_base.sh'], '--scenario'),
+        (['launch_base.sh', '--scenario', str(SCENARIO), '--domain', '102'], '--domain'),
+        (['launch_base.sh', '--scenario', str(SCENARIO), '--domain', 'lab'], '--domain'),
+        (
+            ['launch_robot.sh', '--id', '0', '--port', '/dev/null', '--scenario', str(SCENARIO),
+             '--domain', '-1'],
+            '--domain',
+        ),
         (['launch_sim.sh', str(SCENARIO), '--team', '0'], '--team'),
         (['launch_sim.sh', str(SCENARIO), '--team', 'two'], '--team'),
         (['launch_sim.sh', str(SCENARIO), '--control-nice', '20'], '--control-nice'),
@@ -320,6 +328,7 @@ def test_launch_robot_wait_for_port_starts_and_connects_when_the_board_appears(
             '--run-dir',
             str(run_dir),
             '--wait-for-port',
+            '--loopback',
             *(['--split'] if split else []),
         ],
         stdout=subprocess.PIPE,

@@ -354,6 +354,7 @@ def test_launchers_refuse_a_bad_live_port():
             str(PAPER_SHORT),
             '--live',
             '70000',
+            '--loopback',
         ],
     ):
         res = subprocess.run(cmd, capture_output=True, text=True, timeout=60)

@@ -7,7 +7,7 @@ Two robots of test/data/paper_short.yaml (14 s):
   and the traffic of each robot link are reported, the robot processes ran with the profile and
   the SUBNET range, and nothing of the network is left afterwards;
 * robot 1's link taken down for 3 s at t = 4 s, with a lab's own Fast DDS profile that keeps
-  Fast DDS's default blocking sends (test/data/fastdds_lab_udp.xml, kept by --multi-machine):
+  Fast DDS's default blocking sends (test/data/fastdds_lab_udp.xml, kept by the launchers):
   its controller stops (a stopped state), the robot comes to rest before the link is back, its
   control loop does not stall on the network (the 2-3 s blocked publish of ros/nonblocking.py's
   docstring), robot 0 goes on, robot 1 runs again once its link is back, and the run completes.

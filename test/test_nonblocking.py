@@ -38,7 +38,9 @@ def test_messages_arrive_in_order_and_stop_gives_publish_back(ros_context, execu
             pub.publish(String(data=str(i)))
             assert spin_until(executor, lambda i=i: len(got) > i, 10.0)
         assert got == ['0', '1', '2', '3', '4']
-        assert sender.sent == 5 and sender.errors == 0
+        # the thread counts a message after rcl returns; the subscriber may see it first
+        assert spin_until(executor, lambda: sender.sent == 5, 10.0), sender.sent
+        assert sender.errors == 0
     finally:
         assert sender.stop(flush_timeout_s=2.0)
     assert 'publish' not in pub.__dict__ and sender.adopted == []

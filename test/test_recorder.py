@@ -205,3 +205,51 @@ def test_metadata_yaml_matches_rosbag2_layout(tmp_path):
     )
     for key in ('duration', 'starting_time', 'message_count', 'relative_file_paths', 'files'):
         assert shape(ours[key]) == shape(ref[key]), key
+
+
+def test_spin_for_takes_every_queued_message_in_one_go(ros_context, executor, tmp_path):
+    """The recorder of `formation run` (node in no executor, TopicRecorder.spin_for): a burst
+    far larger than an executor would serve in one wait is recorded whole and in order, log time
+    is the receive time (between the send and the take), publish time the sender's, and taps get
+    each message deserialized.
+    """
+    import time
+
+    import rclpy
+
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+    n = 500  # more than an executor's KEEP_LAST 100 recording queue held before
+    talker = rclpy.create_node('talker', namespace='/robot_3', context=ros_context)
+    # the writer keeps all n: what is tested is the recorder's side
+    pub = talker.create_publisher(
+        m.Odometry, 'state', QoSProfile(depth=n, reliability=ReliabilityPolicy.RELIABLE)
+    )
+    executor.add_node(talker)
+    rec_node = rclpy.create_node('_recorder_batch', context=ros_context)  # in no executor
+    writer = rec.McapWriter(tmp_path / 'run.mcap')
+    recorder = rec.TopicRecorder(rec_node, writer, include=('/robot_3/.*',), scan_timer=False)
+    tapped = []
+    recorder.tap('/robot_3/state', lambda msg: tapped.append(m.stamp_to_s(msg.header.stamp)))
+    deadline = time.monotonic() + 10.0
+    while time.monotonic() < deadline and pub.get_subscription_count() == 0:
+        recorder.spin_for(0.05)
+    assert pub.get_subscription_count() == 1
+    sent_ns = time.time_ns()
+    for k in range(n):
+        pub.publish(m.odometry(np.zeros(5), m.stamp_from_s(0.01 * k), 'robot_3'))
+    deadline = time.monotonic() + 10.0
+    while time.monotonic() < deadline and recorder.counts['/robot_3/state'] < n:
+        recorder.spin_for(0.05)
+    taken_ns = time.time_ns()
+    recorder.close()
+    assert recorder.counts['/robot_3/state'] == n
+    np.testing.assert_allclose(tapped, 0.01 * np.arange(n), atol=1e-9)
+    with open(tmp_path / 'run.mcap', 'rb') as f:
+        msgs = [msg for _, _, msg in make_reader(f).iter_messages()]
+    assert len(msgs) == n
+    assert all(sent_ns <= x.log_time <= taken_ns for x in msgs)
+    assert all(sent_ns <= x.publish_time <= x.log_time for x in msgs)
+    rows = rec.read_topic(tmp_path / 'run.mcap', '/robot_3/state')
+    stamps = [m.stamp_to_s(msg.header.stamp) for _, msg in rows]
+    np.testing.assert_allclose(stamps, 0.01 * np.arange(n), atol=1e-9)

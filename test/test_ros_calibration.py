@@ -157,8 +157,11 @@ def test_malformed_calibration_files_are_refused_in_one_line(tmp_path, change, f
 
 @pytest.mark.parametrize('content, problem', [
     (b'', 'must be a mapping'),
-    (b'image_width: [640\n', 'not valid YAML'),
-    (b'\xff\xfe\x00garbage', 'not UTF-8'),
+    (b'image_width: [640\n', 'malformed YAML at line 2'),
+    (b'\xff\xfe\x00garbage', 'must be a mapping'),  # a UTF-16 BOM: read as UTF-16 text
+    (b'\xffgarbage', r'line 1, column 1: invalid UTF-8 \(byte 0xff\)'),
+    (b'image_width: 640\x07\n', 'line 1, column 17: control character U\\+0007'),
+    (b'image_width: caf\xe9\n', r'line 1, column 17: invalid UTF-8 \(byte 0xe9\)'),
     (b'- 1\n- 2\n', 'must be a mapping'),
 ])
 def test_unreadable_calibration_files_are_refused_in_one_line(tmp_path, content, problem):
@@ -167,7 +170,7 @@ def test_unreadable_calibration_files_are_refused_in_one_line(tmp_path, content,
     with pytest.raises(ConfigError, match=problem) as info:
         load_ros_calibration(path)
     assert str(info.value).startswith(str(path)) and '\n' not in str(info.value)
-    with pytest.raises(ConfigError, match='cannot read'):
+    with pytest.raises(ConfigError, match='no such file'):
         load_ros_calibration(tmp_path / 'missing.yaml')
 
 

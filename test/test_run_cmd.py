@@ -389,3 +389,59 @@ def test_the_processes_check_names_the_first_process_to_exit(tmp_path, log, ok, 
     assert c['name'] == 'processes' and c['ok'] is ok
     if phrase is not None:
         assert phrase in describe_check(c)
+
+
+@pytest.mark.parametrize('value', ['99', '-1'])
+def test_a_realtime_priority_out_of_range_is_refused_in_one_line(tmp_path, value):
+    res = subprocess.run(
+        [FORMATION, 'run', str(SCENARIO), '--out', str(tmp_path / 'o')]
+        + ['--realtime-priority', value],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert res.returncode == 2
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and '--realtime-priority' in lines[0], res.stderr
+
+
+def test_realtime_scheduling_refused_is_said_in_one_line_and_the_run_goes_on(monkeypatch):
+    """Without the privilege (EPERM), one line says so and the run keeps normal scheduling;
+    metrics.json states which scheduling the run had.
+    """
+    from ament_formation.tools import run_cmd
+
+    def refuse(*_args):
+        raise PermissionError(1, 'Operation not permitted')
+
+    monkeypatch.setattr(os, 'sched_setscheduler', refuse)
+    err = io.StringIO()
+    with redirect_stderr(err):
+        got = run_cmd._realtime(10, quiet=False)
+    assert got == 'normal (SCHED_RR 10 refused: Operation not permitted)'
+    lines = err.getvalue().strip().splitlines()
+    assert len(lines) == 1 and 'normal scheduling' in lines[0]
+    with redirect_stderr(err):
+        assert run_cmd._realtime(0, quiet=False) == 'normal'
+    assert len(err.getvalue().strip().splitlines()) == 1  # priority 0: nothing more said
+
+
+def test_stage_gaps_name_the_stage_that_paused():
+    """The longest pause of each stage on [0, t_end]: a bridge silent for 0.5 s shows in
+    wheel_state only; the recording gap is the pause of all received messages together.
+    """
+    from ament_formation.ros.run_record import _stage_gaps
+
+    start = 100.0
+    grid = [start + 0.01 * k for k in range(1001)]  # 10 s at 100 Hz
+    stamps = {
+        ('torque', 0): grid,
+        ('wheel_state', 0): [t for t in grid if not 102.0 < t < 102.5],
+        ('pose', 0): grid[::4],
+        'received': grid,
+    }
+    gaps = _stage_gaps(stamps, (0,), start, 10.0)
+    assert abs(gaps['control_stamp']['0'] - 0.01) < 1e-6
+    assert abs(gaps['wheel_state']['0'] - 0.51) < 1e-6
+    assert abs(gaps['pose']['0'] - 0.04) < 1e-6
+    assert abs(gaps['recording'] - 0.01) < 1e-6

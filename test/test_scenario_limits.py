@@ -272,24 +272,31 @@ def test_refusals_found_by_the_mutant_bench_stay_one_short_line(tmp_path):
     assert 'shorter than one step' in _cli_refusal(tmp_path / 'tiny.yaml', tmp_path)
 
 
-def test_seeded_mutants_of_the_shipped_files_never_crash_the_validator():
-    """150 seeded mutants (tools: test/scenario_mutants.py): each is accepted or refused with a
-    ConfigError of one line under 300 characters; never another exception, never slow.
+def test_seeded_mutants_of_the_shipped_files_never_crash_the_validator(tmp_path):
+    """150 seeded mutants (tools: test/scenario_mutants.py), written to a file and loaded: each is
+    accepted or refused with a ConfigError of one line under 300 characters; never another
+    exception, never slow. Byte-level damage among them is refused or read correctly too.
     """
     refused = accepted = 0
-    for label, text in mutants(seed=20261201, count=150):
+    byte_outcomes = set()
+    path = tmp_path / 'mutant.yaml'
+    for label, data in mutants(seed=20261201, count=150):
+        path.write_bytes(data)
         t0 = time.process_time()
         try:
-            parse_scenario_text(text, 'mutant.yaml')
+            load_scenario(path)
             accepted += 1
+            byte_outcomes.add(('accepted', ': bytes: ' in label))
         except ConfigError as err:
             line = str(err)
             assert '\n' not in line and len(line) <= MAX_LINE_CHARS, (label, line)
             refused += 1
+            byte_outcomes.add(('refused', ': bytes: ' in label))
         except Exception as err:  # noqa: BLE001 - the property under test
             pytest.fail(f'{label}: {type(err).__name__}: {str(err)[:200]}')
         assert time.process_time() - t0 < 10.0, label
     assert refused > 50 and accepted > 5  # the mutants exercise both outcomes
+    assert {('accepted', True), ('refused', True)} <= byte_outcomes
 
 
 def test_a_sinusoid_no_robot_can_follow_is_refused_in_one_line():

@@ -393,7 +393,7 @@ def test_device_index_from_the_command_line(tmp_path):
 def _launch_base(tmp_path: Path, *args: str) -> tuple[subprocess.Popen, Path]:
     run_dir = tmp_path / 'run'
     proc = subprocess.Popen(
-        [str(ROOT / 'scripts' / 'launch_base.sh'), *args, '--run-dir', str(run_dir)],
+        [str(ROOT / 'scripts' / 'launch_base.sh'), *args, '--run-dir', str(run_dir), '--loopback'],
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,

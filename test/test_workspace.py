@@ -157,7 +157,7 @@ def test_the_launchers_find_the_installed_programs(ws, tree):
     scenario = work / 'src' / 'ament_formation' / SHORT
     out = subprocess.run(
         [str(base / 'scripts' / 'launch_robot.sh'), '--id', '7', '--port', '/dev/null',
-         '--scenario', str(scenario)],
+         '--scenario', str(scenario), '--loopback'],
         env=env, capture_output=True, text=True, timeout=300, cwd=work,
     )
     assert out.returncode == 2, out
@@ -172,7 +172,8 @@ def test_a_launcher_without_programs_says_what_to_do(ws):
     bare = {k: v for k, v in env.items() if k not in ('AMENT_PREFIX_PATH', 'PYTHONPATH')}
     out = subprocess.run(
         [str(work / 'src' / 'ament_formation' / 'scripts' / 'launch_robot.sh'), '--id', '0',
-         '--port', '/dev/null', '--scenario', str(work / 'src' / 'ament_formation' / SHORT)],
+         '--port', '/dev/null', '--scenario', str(work / 'src' / 'ament_formation' / SHORT),
+         '--loopback'],
         env=bare, capture_output=True, text=True, timeout=120, cwd=work,
     )
     assert out.returncode == 2, out

@@ -185,9 +185,15 @@ def run_node(
 
     from ament_formation.core.errors import ConfigError
 
-    rclpy.init(
-        args=args if args is not None else sys.argv, signal_handler_options=SignalHandlerOptions.NO
-    )
+    from ament_formation.ros.params import init_rclpy_checked
+
+    try:  # a bad params file or ROS argument: one line, not rcl's log and a traceback
+        init_rclpy_checked(
+            args if args is not None else sys.argv, signal_handler_options=SignalHandlerOptions.NO
+        )
+    except ConfigError as err:
+        print(f'{name}: {err}', file=sys.stderr)
+        return 2
     node = None
     sender = None
     _stop_on_signals(lambda: node)

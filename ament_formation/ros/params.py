@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import types
 import typing
 from typing import Any, Callable, TypeVar
@@ -35,6 +36,7 @@ from rclpy.exceptions import (
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
+from ament_formation.core.config_files import check_user_yaml_syntax, read_user_text
 from ament_formation.core.errors import ConfigError
 
 T = TypeVar('T')
@@ -291,3 +293,82 @@ def _watch(node: Node, obj: Any, names: dict[str, str], hints: dict, on_change: 
 
     node.add_on_set_parameters_callback(on_set)
     node.add_post_set_parameters_callback(post_set)
+
+
+# ------------------------------------------------------------------------------------------------
+# Params files (--ros-args --params-file FILE): rcl reads them, we check them first
+# ------------------------------------------------------------------------------------------------
+
+_RCL_AT = re.compile(r',? at /\S+:\d+')
+_RCL_PARAMS = re.compile(r"Couldn't parse params file: '--params-file (.*?)'\. Error: (.*)", re.S)
+
+
+def params_files_in(argv: list[str]) -> list[str]:
+    """The FILE of every ``--params-file FILE`` among the ROS arguments of ``argv`` (those after
+    ``--ros-args``, up to a ``--``), as rcl takes them.
+    """
+    files, ros = [], False
+    for i, arg in enumerate(argv):
+        if arg == '--ros-args':
+            ros = True
+        elif arg == '--':
+            ros = False
+        elif ros and arg == '--params-file' and i + 1 < len(argv):
+            files.append(argv[i + 1])
+    return files
+
+
+def check_params_file(path: str) -> None:
+    """A params file a user hands over, checked before rcl reads it: the safe reader's checks
+    (no control characters, UTF-8 or a BOM, a size limit) and well-formed YAML; ConfigError
+    naming the file, line and column. (rcl itself reads it afterwards: a byte-order mark, CRLF
+    and UTF-16 are read correctly by it too.)
+    """
+    check_user_yaml_syntax(read_user_text(path, 'params file'), str(path), 'params file')
+
+
+def rcl_args_error(err: Exception) -> ConfigError:
+    """One line for rcl's refusal of the ROS arguments (``RCLError`` of ``rclpy.init``): a params
+    file it cannot take (``FILE: not a ROS params file: <rcl's reason>``), else the reason,
+    without rcl's source locations.
+    """
+    text = _RCL_AT.sub('', str(err))
+    found = _RCL_PARAMS.search(text)
+    if found:
+        return ConfigError(f'not a ROS params file: {found.group(2)}', None, found.group(1))
+    return ConfigError(f'bad ROS arguments: {text}')
+
+
+def init_rclpy_checked(argv: list[str], **init_kw) -> None:
+    """``rclpy.init(args=argv, **init_kw)`` after :func:`check_params_file` of each params file
+    in ``argv``; what rcl still refuses is a ConfigError of one line (:func:`rcl_args_error`), and
+    rcl's own error log is not printed (stderr is held while rcl parses: printed on success).
+    """
+    import os
+    import sys
+    import tempfile
+
+    import rclpy
+    from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+
+    for path in params_files_in(argv):
+        check_params_file(path)
+    sys.stderr.flush()
+    saved = os.dup(2)
+    failure = None
+    with tempfile.TemporaryFile() as held:
+        os.dup2(held.fileno(), 2)
+        try:
+            rclpy.init(args=argv, **init_kw)
+        except _rclpy.RCLError as err:
+            failure = err
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        if failure is None:
+            held.seek(0)
+            said = held.read()
+            if said:
+                os.write(2, said)
+    if failure is not None:
+        raise rcl_args_error(failure)

@@ -8,24 +8,31 @@ channel per topic, message encoding ``cdr``, channel metadata ``offered_qos_prof
 the topic's publishers when it was discovered, rosbag2's version-9 YAML string: a replay offers the
 same reliability and durability, e.g. transient local for /formation/graph) and
 ``topic_type_hash`` (RIHS01 type description hash); the message data are the serialized CDR bytes
-as received (raw subscriptions, no re-encoding); log_time = publish_time = receive time on the
-recorder node's clock [ns] (sim time under ``use_sim_time``). Chunks are zstd-compressed. On close,
+as received (raw subscriptions, no re-encoding); log_time = receive time [ns]: the time the
+recorder's DDS reader received the message (as rosbag2 in Jazzy records it) when messages are
+taken with :meth:`TopicRecorder.spin_for`, else (an executor's callbacks, or ``use_sim_time``) the
+recorder node's clock when the callback runs; publish_time = the sender's source timestamp when
+known, else log_time. Chunks are zstd-compressed. On close,
 ``metadata.yaml`` (rosbag2 version 9, storage ``mcap``, per-topic QoS and counts) is written beside
 the file, so the folder is a rosbag2 bag.
 
     writer = McapWriter(path)                     # plain file writer (no ROS graph needed)
     rec = TopicRecorder(node, writer)             # subscribes to all topics, also later ones
+    ...                                           # an executor spins node (a callback a message)
+    rec.spin_for(0.05)                            # or: node in no executor, every queued message
     ...; rec.close()                              # finalises the file, writes metadata.yaml
     for topic, t_ns, msg in read_messages(path):  # deserialised messages in log-time order
 """
 
 from __future__ import annotations
 
+from contextlib import ExitStack
 import json
 from pathlib import Path
 import re
 import threading
-from typing import Iterable, Iterator
+import time
+from typing import Callable, Iterable, Iterator
 
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
@@ -38,6 +45,12 @@ SCHEMA_ENCODING = 'ros2msg'
 MESSAGE_ENCODING = 'cdr'
 BAG_METADATA_VERSION = 9  # rosbag2 in Jazzy
 ROS_DISTRO = 'jazzy'
+# Messages a recording subscription keeps queued (KEEP_LAST depth): 10 s of a 100 Hz topic, so a
+# recorder that other work keeps off the CPU for seconds loses nothing; image topics keep fewer
+# (a 640x480 frame is 300 kB).
+RECORD_DEPTH = 1000
+RECORD_DEPTH_IMAGES = 30
+_IMAGE_TYPES = frozenset({'sensor_msgs/msg/Image', 'sensor_msgs/msg/CompressedImage'})
 _INFINITE_NS = 9_223_372_036_854_775_807
 
 
@@ -242,8 +255,17 @@ class TopicRecorder:
     each received message unchanged to ``writer``.
 
     ``include``/``exclude``: regular expressions on the topic name (exclude wins). Subscriptions
-    use
-    a QoS compatible with the publishers seen when the topic is first discovered.
+    use a QoS compatible with the publishers seen when the topic is first discovered, with
+    ``depth`` messages queued (:data:`RECORD_DEPTH`; image topics :data:`RECORD_DEPTH_IMAGES`).
+
+    Two ways to run it. With ``node`` in an executor, every message is a callback and a timer
+    rescans (``scan_timer``). Or, ``node`` in no executor and ``scan_timer=False``:
+    :meth:`spin_for` waits on the node's subscriptions itself and takes *every* queued message of
+    each ready subscription in one go, so its cost is per batch, not per message (an rclpy
+    executor rebuilds its wait set in Python for every single callback: ~0.4 ms a message, about
+    half a core for the ~1,500 messages/s of a whole system). :meth:`tap` hands a topic's
+    messages, deserialized, to a function as well (``formation run`` watches the graph and the
+    ground truth that way).
     """
 
     def __init__(
@@ -253,23 +275,39 @@ class TopicRecorder:
         include: Iterable[str] = ('.*',),
         exclude: Iterable[str] = (),
         scan_period_s: float = 0.5,
+        depth: int = RECORD_DEPTH,
+        scan_timer: bool = True,
     ):
         self.node = node
         self.writer = writer
+        self.depth = int(depth)
+        self.scan_period_s = float(scan_period_s)
         self._include = [re.compile(p) for p in include]
         self._exclude = [re.compile(p) for p in exclude]
         self._subs: dict[str, object] = {}
+        self._channel: dict[str, int] = {}
+        self._taps: dict[str, list[Callable]] = {}
         self.counts: dict[str, int] = {}
+        self._next_scan = 0.0
+        self._wait_set = None  # (subscriptions it was built for, rclpy WaitSet)
+        self._sim_time = bool(
+            node.has_parameter('use_sim_time') and node.get_parameter('use_sim_time').value
+        )
         self.scan()
-        self._timer = node.create_timer(scan_period_s, self.scan)
+        self._timer = node.create_timer(scan_period_s, self.scan) if scan_timer else None
 
     def _wanted(self, topic: str) -> bool:
         return any(p.fullmatch(topic) for p in self._include) and not any(
             p.fullmatch(topic) for p in self._exclude
         )
 
+    def tap(self, topic: str, fn: Callable) -> None:
+        """Also call ``fn(message)`` (deserialized) for every recorded message of ``topic``."""
+        self._taps.setdefault(topic, []).append(fn)
+
     def scan(self) -> None:
         """Subscribe to topics that appeared since the last scan."""
+        self._next_scan = time.monotonic() + self.scan_period_s
         for topic, types in self.node.get_topic_names_and_types():
             if topic in self._subs or not types or not self._wanted(topic):
                 continue
@@ -293,22 +331,111 @@ class TopicRecorder:
                 type_hash_str=hashes.pop() if len(hashes) == 1 else None,
             )
             self.counts[topic] = 0
+            self._channel[topic] = cid
+            depth = self.depth
+            if type_name in _IMAGE_TYPES:
+                depth = min(depth, RECORD_DEPTH_IMAGES)
             self._subs[topic] = self.node.create_subscription(
                 cls,
                 topic,
-                self._callback(topic, cid),
-                compatible_qos(self.node, topic, depth=100),
+                self._callback(topic),
+                compatible_qos(self.node, topic, depth=depth),
                 raw=True,
             )
 
-    def _callback(self, topic: str, cid: int):
+    def _record(self, topic: str, data: bytes, log_ns: int, publish_ns: int | None = None) -> None:
+        self.writer.write(self._channel[topic], log_ns, data, publish_ns)
+        self.counts[topic] += 1
+        taps = self._taps.get(topic)
+        if taps:
+            from rclpy.serialization import deserialize_message
+
+            msg = deserialize_message(data, self._subs[topic].msg_type)
+            for fn in taps:
+                fn(msg)
+
+    def _callback(self, topic: str):
         clock = self.node.get_clock()
 
         def on_raw(data: bytes) -> None:
-            self.writer.write(cid, clock.now().nanoseconds, data)
-            self.counts[topic] += 1
+            self._record(topic, data, clock.now().nanoseconds)
 
         return on_raw
+
+    def spin_for(self, duration_s: float, batch_s: float = 0.01) -> int:
+        """Record for ``duration_s`` [s, wall]: wait on the node's subscriptions, take every
+        queued message of each ready one, then let ``batch_s`` pass before the next wait (the
+        messages of that time queue up and are taken together); rescan every
+        ``scan_period_s``. Subscriptions of the node that are not the recording's (the
+        ``/clock`` of its time source under ``use_sim_time``) get their callbacks. For a
+        ``node`` that no executor spins. Returns the number of messages taken.
+        """
+        end = time.monotonic() + duration_s
+        taken = 0
+        while True:
+            now = time.monotonic()
+            if now >= self._next_scan:
+                self.scan()
+            left = end - now
+            if left <= 0.0:
+                return taken
+            n = self._take_ready(min(left, max(self._next_scan - now, 0.0)))
+            taken += n
+            if n and batch_s > 0.0:
+                time.sleep(min(batch_s, max(end - time.monotonic(), 0.0)))
+
+    def _take_ready(self, timeout_s: float) -> int:
+        """One wait (up to ``timeout_s``) on every subscription of the node; take all that is
+        queued on the ready ones.
+        """
+        from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+
+        subs = list(self.node.subscriptions)
+        if not subs:
+            time.sleep(timeout_s)
+            return 0
+        mine = {id(s): t for t, s in self._subs.items()}
+        taken = 0
+        with ExitStack() as stack:
+            for sub in subs:
+                stack.enter_context(sub.handle)
+            stack.enter_context(self.node.context.handle)
+            if self._wait_set is None or self._wait_set[0] != subs:
+                ws = _rclpy.WaitSet(len(subs), 0, 0, 0, 0, 0, self.node.context.handle)
+                self._wait_set = (subs, ws)
+            ws = self._wait_set[1]
+            ws.clear_entities()
+            for sub in subs:
+                ws.add_subscription(sub.handle)
+            ws.wait(max(int(timeout_s * 1e9), 0))
+            ready = set(ws.get_ready_entities('subscription'))
+            for sub in subs:
+                if sub.handle.pointer not in ready:
+                    continue
+                topic = mine.get(id(sub))
+                taken += self._take_all(sub, topic)
+        return taken
+
+    def _take_all(self, sub, topic: str | None) -> int:
+        """Take every queued message of ``sub``: recorded (``topic``) or its own callback."""
+        clock = self.node.get_clock()
+        n = 0
+        while True:
+            got = sub.handle.take_message(sub.msg_type, sub.raw)
+            if got is None:
+                return n
+            n += 1
+            msg, info = got
+            if topic is None:
+                sub.callback(msg)
+                continue
+            received = 0 if self._sim_time else int(info.get('received_timestamp') or 0)
+            self._record(
+                topic,
+                msg,
+                received or clock.now().nanoseconds,
+                int(info.get('source_timestamp') or 0) or None,
+            )
 
     @property
     def topics(self) -> list[str]:
@@ -316,7 +443,9 @@ class TopicRecorder:
 
     def close(self) -> None:
         """Stop recording (destroy the subscriptions) and finalise the file."""
-        self.node.destroy_timer(self._timer)
+        if self._timer is not None:
+            self.node.destroy_timer(self._timer)
+        self._wait_set = None
         for sub in self._subs.values():
             self.node.destroy_subscription(sub)
         self._subs.clear()

@@ -8,6 +8,7 @@ Sources in the recording:
   /world/truth/robot_<id>   states (nav_msgs/Odometry, stamped with the plant time)
   robot_<id>/wheel_torque   commanded torques (zero-order hold between commands)
   robot_<id>/mode           avoidance flags and mode events (log time of reception)
+  robot_<id>/wheel_state, robot_<id>/pose   only their stamps (the gaps of each stage of a run)
 Samples are taken on a regular grid of ``record_every_s`` from t = 0 to the last truth sample.
 """
 
@@ -33,12 +34,15 @@ def _zoh_index(sample_t: np.ndarray, grid: np.ndarray) -> np.ndarray:
     return np.searchsorted(sample_t, grid, side='right') - 1
 
 
-def _read_topics(path, ids):
+def _read_topics(path, ids, stamps: dict | None = None):
     """The recording's messages by kind: (truth, torque, modes, graphs, decisions).
 
     truth {id: [(stamp, state)]}, torque {id: [(log time, tau)]}, modes {id: [(log time, mode)]},
     graphs [(log time, GraphMessage)], decisions [(log time, EncountersMessage)]; messages that
     fail to parse are skipped (not the truth).
+    ``stamps`` (a dict, filled when given): {(stage, id): [header stamp [s]]} for the stages
+    ``torque`` (the controller's command), ``wheel_state`` (the bridge's telemetry), ``pose`` (the
+    tracker's), and {'received': [log time [s]]} of every truth, torque and wheel state message.
     """
     truth: dict[int, list] = {rid: [] for rid in ids}
     torque: dict[int, list] = {rid: [] for rid in ids}
@@ -48,18 +52,31 @@ def _read_topics(path, ids):
     truth_topics = {f'/world/truth/robot_{rid}': rid for rid in ids}
     torque_topics = {f'/robot_{rid}/wheel_torque': rid for rid in ids}
     mode_topics = {f'/robot_{rid}/mode': rid for rid in ids}
+    stage_topics = {}
+    if stamps is not None:
+        stage_topics = {f'/robot_{rid}/{stage}': (stage, rid) for rid in ids for stage in _STAGES}
+        stamps.setdefault('received', [])
     wanted = ['/formation/graph', '/formation/encounters', *truth_topics, *torque_topics,
-              *mode_topics]
+              *mode_topics, *stage_topics]
     for topic, log_ns, msg in read_messages(path, wanted):
         if topic in truth_topics:
             state, stamp = msgs.state_from_odometry(msg)
             truth[truth_topics[topic]].append((stamp, state))
+            if stamps is not None:
+                stamps['received'].append(log_ns * 1e-9)
         elif topic in torque_topics:
             try:
                 tau, stamp = msgs.torque_from_msg(msg)
             except ValueError:
                 continue
             torque[torque_topics[topic]].append((log_ns * 1e-9, tau))
+            if stamps is not None:
+                stamps.setdefault(('torque', torque_topics[topic]), []).append(stamp)
+                stamps['received'].append(log_ns * 1e-9)
+        elif topic in stage_topics:
+            stamps.setdefault(stage_topics[topic], []).append(msgs.stamp_to_s(msg.header.stamp))
+            if stage_topics[topic][0] == 'wheel_state':
+                stamps['received'].append(log_ns * 1e-9)
         elif topic in mode_topics:
             try:
                 modes[mode_topics[topic]].append((log_ns * 1e-9, msgs.mode_from_msg(msg)))
@@ -76,6 +93,27 @@ def _read_topics(path, ids):
             except ValueError:
                 continue
     return truth, torque, modes, graphs, decisions
+
+
+_STAGES = ('wheel_state', 'pose')  # read for their stamps only (besides torque)
+
+
+def _stage_gaps(stamps: dict, ids, start_s: float, t_end: float) -> dict:
+    """The longest pause [s] of each stage on [0, t_end] of scenario time: ``control_stamp``
+    {id: of the torque commands' stamps (the controller stopped commanding)}, ``wheel_state``
+    {id} (the bridge or the twin's board stopped), ``pose`` {id} (the camera or the tracker
+    stopped), and ``recording`` (no truth, torque or wheel state message received by the
+    recorder at all: the recorder, or the whole system, stopped).
+    """
+    out: dict = {}
+    stages = (('torque', 'control_stamp'), ('wheel_state', 'wheel_state'), ('pose', 'pose'))
+    for stage, key in stages:
+        out[key] = {
+            str(rid): _max_gap([t - start_s for t in stamps.get((stage, rid), [])], t_end)
+            for rid in ids
+        }
+    out['recording'] = _max_gap([t - start_s for t in stamps.get('received', [])], t_end)
+    return out
 
 
 def _mission_start(path, graphs, truth: dict, ids) -> float:
@@ -248,7 +286,8 @@ def load_run(
     (the world or the recorder stalled), ``truth_max_gap_at_s`` where it starts,
     ``truth_end_s`` the scenario time of the last sample every robot has, and ``torque_max_gap_s``
     {robot id: the longest pause [s] of its recorded wheel_torque commands over the same span,
-    the end included (a stalled or dead controller)}, ``safety_stops`` {robot id: [(from_s, to_s)]
+    the end included (a stalled or dead controller)}, ``stage_gaps`` (the longest pause of each
+    stage of the run, :func:`_stage_gaps`), ``safety_stops`` {robot id: [(from_s, to_s)]
     intervals of scenario time in which its controller reported a safety stop or hold}.
 
     Avoidance (``avoiding``, mode events) follows the controllers' mode messages; a safety stop or
@@ -257,7 +296,8 @@ def load_run(
     """
     ids = tuple(r.id for r in scenario.robots)
     index = {rid: k for k, rid in enumerate(ids)}
-    truth, torque, modes, graphs, decisions = _read_topics(path, ids)
+    stamps: dict | None = {} if stats is not None else None
+    truth, torque, modes, graphs, decisions = _read_topics(path, ids, stamps)
     start_s = _mission_start(path, graphs, truth, ids)
     ends = [m.mission_end_s for _, m in decisions if m.mission_end_s is not None]
     mission_end = ends[0] if ends else None
@@ -270,6 +310,8 @@ def load_run(
         }
     if mission_end is not None:
         t_end = min(t_end, mission_end + hold_s)
+    if stats is not None:
+        stats['stage_gaps'] = _stage_gaps(stamps, ids, start_s, t_end)
     grid = np.arange(0.0, max(t_end, 0.0) + 1e-9, record_every_s)
     n, big_t = len(ids), len(grid)
     state = np.zeros((big_t, n, 5))

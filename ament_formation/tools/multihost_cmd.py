@@ -7,14 +7,14 @@ own, made of Linux network namespaces on this machine (docs/multi-machine.md).
     formation multihost --robots N [--duration S]          # a generated N-robot formation
 
 Hosts (tools/netns.py): ``af_cam_<run>`` runs the simulated twin's world (plant, emulated motor
-boards on ptys, rendered camera), ``scripts/launch_base.sh --multi-machine`` (tracker,
-coordinator) and the recorder (tools/multihost_record.py); each ``af_r<id>_<run>`` runs
-``scripts/launch_robot.sh --multi-machine`` (the robot process: bridge + controller) on its
-emulated board's pty (a pty is a file: a robot's namespace opens the one the world made, as a
-robot's computer opens its USB serial port); a switch namespace bridges them. DDS is UDP only
-(config/fastdds_udp.xml, or ``--profile``: kept by ``--multi-machine`` as a lab's own profile),
-discovery range SUBNET, a domain id of its own. Everything made is removed at the end, also
-after a failure or Ctrl-C.
+boards on ptys, rendered camera), ``scripts/launch_base.sh --domain D`` (tracker, coordinator;
+the lab network, the launchers' default) and the recorder (tools/multihost_record.py); each
+``af_r<id>_<run>`` runs ``scripts/launch_robot.sh --domain D`` (the robot process: bridge +
+controller) on its emulated board's pty (a pty is a file: a robot's namespace opens the one the
+world made, as a robot's computer opens its USB serial port); a switch namespace bridges them.
+DDS is UDP only (config/fastdds_udp.xml, or ``--profile``: kept by the launchers as a lab's own
+profile), discovery range SUBNET, a domain id D in 1..101 of its own. Everything made is
+removed at the end, also after a failure or Ctrl-C.
 
 Prints and writes to DIR/multihost.json: discovery (robot launchers started -> each controller
 heard by the camera PC -> mission start -> every controller running), bytes/s per robot link
@@ -321,6 +321,7 @@ def _environ(pid: int) -> dict:
 
 # ------------------------------------------------------------------------------- the run
 def run_multihost(args: argparse.Namespace) -> int:
+    from ament_formation.core.config_files import read_user_text
     from ament_formation.core.scenario.loader import load_scenario
     from ament_formation.tools import netns
 
@@ -334,6 +335,7 @@ def run_multihost(args: argparse.Namespace) -> int:
     profile = Path(args.profile).resolve() if args.profile else config_dir() / UDP_PROFILE
     if not profile.is_file():
         raise ConfigError('no such file', '--profile', str(profile))
+    read_user_text(profile, 'Fast DDS profile')  # text, no control characters (tinyxml2 parses it)
     out = Path(args.out or tempfile.mkdtemp(prefix='ament_formation_multihost_')).resolve()
     if out.exists() and not out.is_dir():
         raise ConfigError('exists and is not a directory', '--out', str(out))
@@ -355,6 +357,7 @@ def run_multihost(args: argparse.Namespace) -> int:
     faults = parse_faults(args.fault, ids)
     from ament_formation.tools.run_cmd import _free_domain_id
 
+    # the robots' launchers take the lab network's domain ids only: ROS's safe range, 0..101
     domain = os.environ.get('AF_MULTIHOST_DOMAIN_ID') or _free_domain_id()
     net = netns.LabNetwork(ids, rate=args.rate)
     say = (lambda *a: None) if args.quiet else (lambda *a: print('multihost:', *a, flush=True))
@@ -440,6 +443,7 @@ class _Run:
                 'FASTDDS_DEFAULT_PROFILES_FILE',
                 'AMENT_FORMATION_DDS',
                 'ROS_LOCALHOST_ONLY',
+                'AMENT_FORMATION_LOOPBACK_ONLY',  # inside the namespaces: the lab network
             )
         }
         env.update(
@@ -535,7 +539,7 @@ class _Run:
             'base',
             'camera',
             [str(script_file('launch_base.sh')), '--scenario', sc, '--run-dir',
-             str(self.out / 'base'), '--multi-machine'],
+             str(self.out / 'base'), '--domain', str(self.domain)],
         )  # fmt: skip
         self._wait(
             "the world's ptys",
@@ -557,7 +561,7 @@ class _Run:
                 rid,
                 [str(script_file('launch_robot.sh')), '--id', str(rid), '--port',
                  str(self.pty_dir / f'robot_{rid}'), '--scenario', sc, '--run-dir',
-                 str(self.out / f'robot_{rid}'), '--multi-machine', *rt,
+                 str(self.out / f'robot_{rid}'), '--domain', str(self.domain), *rt,
                  *(['--split'] if rid in self.split else [])],
             )  # fmt: skip
         self.say(f'{len(self.ids)} robot hosts launched; waiting for the mission start')

@@ -28,6 +28,10 @@ from ament_formation.core.errors import ConfigError
 TRUTH_GAP_MAX_S = (
     1.0  # the longest pause [s, scenario time] of the recorded ground truth of a good run
 )
+# SCHED_RR priority of the simulated system and its recorder (--realtime-priority): above every
+# normal process of the machine, below the usual IRQ threads (50) and a robot's own control loop
+# (realtime_priority of the controllers, docs/executors.md "The stall found")
+REALTIME_PRIORITY = 10
 
 
 def check(*args, **kw) -> dict:
@@ -94,6 +98,16 @@ def register(subparsers) -> None:
     p.add_argument('--no-figure', action='store_true', help='skip figure.png')
     p.add_argument('--quiet', action='store_true', help='no progress and no summary')
     p.add_argument(
+        '--realtime-priority',
+        type=int,
+        default=REALTIME_PRIORITY,
+        metavar='P',
+        help='run the whole simulated system and the recorder under SCHED_RR priority P '
+        f'(1..98, default {REALTIME_PRIORITY}; 0 = normal scheduling), so that CPU-bound work '
+        'elsewhere on the machine cannot pause the run; needs root, CAP_SYS_NICE or an '
+        'RLIMIT_RTPRIO of P (otherwise one line says so and the run goes on at normal priority)',
+    )
+    p.add_argument(
         '--startup-timeout',
         type=float,
         default=90.0,
@@ -142,11 +156,15 @@ def _free_domain_id() -> str:
 
 
 def loopback_env(log_dir: Path) -> None:
-    """The environment of scripts/ros_env.sh, for callers that did not source it."""
+    """The environment of scripts/ros_env.sh, for callers that did not source it: discovery range
+    LOCALHOST with the loopback profile, or loopback UDP only with AMENT_FORMATION_DDS=udp (Fast
+    DDS shared memory stopped delivering for good in whole-system runs on a busy machine;
+    docs/executors.md "The stall found").
+    """
     profile = str(config_file('fastdds_localhost.xml'))
     env = os.environ
     if (
-        env.get('AMENT_FORMATION_DDS') == 'udp'
+        env.get('AMENT_FORMATION_DDS', 'shm') == 'udp'
         and not env.get('ROS_AUTOMATIC_DISCOVERY_RANGE')
         and env.get('FASTRTPS_DEFAULT_PROFILES_FILE', profile) == profile
     ):
@@ -189,6 +207,10 @@ def _check_options(args: argparse.Namespace) -> None:
         )
     if args.control_nice is not None and not -20 <= args.control_nice <= 19:
         raise ConfigError(f'must be in [-20, 19] (got {args.control_nice})', '--control-nice')
+    if not 0 <= args.realtime_priority <= 98:
+        raise ConfigError(
+            f'must be in [0, 98] (got {args.realtime_priority})', '--realtime-priority'
+        )
     if args.live is not None and not 0 <= args.live <= 65535:
         raise ConfigError(f'must be a TCP port in [0, 65535] (got {args.live})', '--live')
 
@@ -197,15 +219,16 @@ def _recording_node(ctx, args: argparse.Namespace, scenario, mcap_path: Path):
     """The recorder's node: every topic to ``mcap_path``; the mission start and the leader's
     latest ground-truth stamp kept in the returned dicts.
 
-    Returns (node, executor, recorder, start {'s'}, latest {'s'}).
+    The node is in no executor: :meth:`TopicRecorder.spin_for` takes every queued message at once
+    (ros/recorder.py), about a tenth of the CPU of an executor's callback per message, so the
+    judge of a run is not what a busy machine starves first.
+
+    Returns (node, recorder, start {'s'}, latest {'s'}).
     """
     import rclpy
     from rclpy.parameter import Parameter
-    from std_msgs.msg import String
 
     from ament_formation.ros import messages as msgs
-    from ament_formation.ros.executors import make_executor
-    from ament_formation.ros.qos import QOS_CONTROL, QOS_GRAPH
     from ament_formation.ros.recorder import McapWriter, TopicRecorder
 
     use_sim_time = args.speed != 1.0
@@ -214,14 +237,12 @@ def _recording_node(ctx, args: argparse.Namespace, scenario, mcap_path: Path):
         context=ctx,
         parameter_overrides=[Parameter('use_sim_time', value=use_sim_time)],
     )
-    executor = make_executor(
-        node, context=ctx
-    )  # SingleThreadedExecutor (ros/executors.py: the judge must not stall)
-    executor.add_node(node)
     exclude = ['/rosout', '/parameter_events'] + (
         [] if args.record_images else ['/camera/image_raw']
     )
-    recorder = TopicRecorder(node, McapWriter(mcap_path), exclude=exclude, scan_period_s=0.25)
+    recorder = TopicRecorder(
+        node, McapWriter(mcap_path), exclude=exclude, scan_period_s=0.25, scan_timer=False
+    )
     start = {'s': None}
     latest = {'s': None}
 
@@ -241,16 +262,14 @@ def _recording_node(ctx, args: argparse.Namespace, scenario, mcap_path: Path):
         if m.mission_end_s is not None and start['s'] is not None:
             latest['mission_end_s'] = m.mission_end_s + start['s']
 
-    node.create_subscription(String, '/formation/graph', on_graph, QOS_GRAPH)
-    node.create_subscription(String, '/formation/encounters', on_decision, QOS_GRAPH)
+    recorder.tap('/formation/graph', on_graph)
+    recorder.tap('/formation/encounters', on_decision)
     leader = scenario.robots[0].id
-    node.create_subscription(
-        msgs.Odometry,
+    recorder.tap(
         f'/world/truth/robot_{leader}',
         lambda m: latest.__setitem__('s', msgs.stamp_to_s(m.header.stamp)),
-        QOS_CONTROL,
     )
-    return node, executor, recorder, start, latest
+    return node, recorder, start, latest
 
 
 def _start_launch(args: argparse.Namespace, out: Path, proc_dir: Path) -> subprocess.Popen:
@@ -310,9 +329,7 @@ def _timeout_check(now, wall0, start, latest, last_truth, args, proc_dir):
     return None
 
 
-def _supervise(
-    launch, executor, recorder, args, scenario, proc_dir, wall0, start, latest, progress
-):
+def _supervise(launch, recorder, args, scenario, proc_dir, wall0, start, latest, progress):
     """Spin the recorder until the launch ends; the failed check that stopped it early, if any.
 
     Shows progress (unless --quiet) and, once, where the live view is.
@@ -320,7 +337,7 @@ def _supervise(
     last_truth = {'s': None, 'wall': None}
     live_log = proc_dir / 'live_view.log' if (args.live, args.live_host) != (None, None) else None
     while launch.poll() is None:
-        _spin_slice(executor, 0.05)
+        recorder.spin_for(0.05)
         if (
             live_log is not None and not args.quiet and live_log.exists()
         ):  # say where to look, once
@@ -347,21 +364,7 @@ def _supervise(
     return None
 
 
-def _spin_slice(executor, slice_s: float) -> None:
-    """Run the recorder's callbacks for about ``slice_s`` of wall time: spin_once runs one
-    callback, and the recorder takes ~1,500 messages/s from a whole system (one callback per
-    spin_once between progress and timeout checks fell behind under CPU load). The timeout stays
-    the same on every call: rclpy keeps the ready entities of one wait across spin_once calls
-    only while the arguments do not change; a new timeout each call makes it wait anew and serve
-    the first ready subscription again and again, starving the others (a robot's topics then
-    went unrecorded for a whole run).
-    """
-    end = time.monotonic() + slice_s
-    while time.monotonic() < end:
-        executor.spin_once(timeout_sec=slice_s)
-
-
-def _drain(executor, recorder, complete=None, quiet_s: float = 0.3, max_s: float = 5.0) -> None:
+def _drain(recorder, complete=None, quiet_s: float = 0.3, max_s: float = 5.0) -> None:
     """After the system stopped: record what is still queued until nothing came for ``quiet_s``
     (at most ``max_s``), so a recorder a little behind keeps the run's last seconds. While
     ``complete()`` is False (the ground truth has not reached the scenario's end yet), a quiet
@@ -373,7 +376,7 @@ def _drain(executor, recorder, complete=None, quiet_s: float = 0.3, max_s: float
     while time.monotonic() - t0 < max_s and (
         time.monotonic() - last_change < quiet_s or (complete is not None and not complete())
     ):
-        _spin_slice(executor, 0.05)
+        recorder.spin_for(0.05)
         if recorder.writer.message_count != count:
             count, last_change = recorder.writer.message_count, time.monotonic()
 
@@ -382,7 +385,6 @@ def _stop_system(
     launch,
     progress,
     recorder,
-    executor,
     node,
     ctx,
     shm_before,
@@ -409,16 +411,49 @@ def _stop_system(
         progress.finish()
     if drain:  # not after SIGINT/SIGTERM: the user asked to stop now
         try:
-            _drain(executor, recorder, complete)
+            _drain(recorder, complete)
         except (KeyboardInterrupt, RuntimeError):  # a signal while draining: stop now
             pass
     recorder.close()
-    executor.shutdown(timeout_sec=1.0)
     node.destroy_node()
     rclpy.try_shutdown(context=ctx)
     shm.cleanup(shm_before, ignore_pid=os.getpid())  # this process is done with DDS
     for signum, handler in previous.items():
         signal.signal(signum, handler)
+
+
+def _realtime(priority: int, quiet: bool) -> str:
+    """Put this thread under SCHED_RR ``priority`` before anything else starts: the recorder's DDS
+    threads and every process of the launch (world, bridges, controllers, tracker, coordinator)
+    inherit it, so other work on the machine cannot take the CPU from the run. The scheduling
+    in use, as metrics.json states it; refused (no privilege), one line on stderr and normal
+    scheduling. Why (docs/executors.md "The stall found"): the run needs about 1.1 of this
+    machine's 2 cores, and the kernel gives each session (autogroup) of the machine one share.
+    """
+    if priority == 0:
+        return 'normal'
+    try:
+        os.sched_setscheduler(0, os.SCHED_RR, os.sched_param(priority))
+    except (OSError, AttributeError) as err:  # EPERM without the privilege; not Linux
+        why = getattr(err, 'strerror', None) or str(err)
+        if not quiet:
+            print(
+                f'formation run: normal scheduling (SCHED_RR priority {priority}: {why}); '
+                'CPU-bound work elsewhere on this machine can pause the run '
+                '(--realtime-priority 0 runs at normal priority without this note)',
+                file=sys.stderr,
+            )
+        return f'normal (SCHED_RR {priority} refused: {why})'
+    return f'SCHED_RR {priority}'
+
+
+def _normal_scheduling() -> None:
+    """Back to normal scheduling (the evaluation and the figure need no priority)."""
+    try:
+        if os.sched_getscheduler(0) != os.SCHED_OTHER:
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except (OSError, AttributeError):
+        pass
 
 
 def run_system(args: argparse.Namespace) -> int:
@@ -431,6 +466,7 @@ def run_system(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario)
     out.mkdir(parents=True, exist_ok=True)
     loopback_env(out / 'ros_log')
+    args.scheduling = _realtime(args.realtime_priority, args.quiet)
     from ament_formation.ros import shm
 
     shm_before = shm.snapshot()  # what this run leaves in /dev/shm is removed at its end
@@ -454,7 +490,7 @@ def run_system(args: argparse.Namespace) -> int:
         raise KeyboardInterrupt
 
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-    node, executor, recorder, start, latest = _recording_node(ctx, args, scenario, mcap_path)
+    node, recorder, start, latest = _recording_node(ctx, args, scenario, mcap_path)
 
     wall0 = time.monotonic()
     proc_dir = out / 'processes'
@@ -464,7 +500,7 @@ def run_system(args: argparse.Namespace) -> int:
     stop_reason = None  # why this process stopped the system early (a failed check)
     try:
         stop_reason = _supervise(
-            launch, executor, recorder, args, scenario, proc_dir, wall0, start, latest, progress
+            launch, recorder, args, scenario, proc_dir, wall0, start, latest, progress
         )
         launch_rc = launch.poll()
     except (KeyboardInterrupt, RuntimeError) as err:
@@ -474,7 +510,6 @@ def run_system(args: argparse.Namespace) -> int:
             launch,
             progress,
             recorder,
-            executor,
             node,
             ctx,
             shm_before,
@@ -483,6 +518,7 @@ def run_system(args: argparse.Namespace) -> int:
             complete=lambda: _truth_complete(start, latest, scenario),
         )
     wall_s = time.monotonic() - wall0
+    _normal_scheduling()
     if status:
         return status
     extra = (
@@ -571,6 +607,7 @@ def _evaluate(mcap_path: Path, scenario, out: Path, wall_s: float, args, extra: 
             'sim_time_s': 0.0,
             'wall_time_s': wall_s,
             'source': 'formation run (ROS 2 system, ground truth of the simulated twin)',
+            'scheduling': getattr(args, 'scheduling', None),
         }
         check_run(metrics, scenario, extra=extra, measured=False)
         write_metrics(out, metrics)
@@ -580,6 +617,7 @@ def _evaluate(mcap_path: Path, scenario, out: Path, wall_s: float, args, extra: 
     metrics = compute_metrics(result, scenario)
     metrics['wall_time_s'] = wall_s
     metrics['source'] = 'formation run (ROS 2 system, ground truth of the simulated twin)'
+    metrics['scheduling'] = getattr(args, 'scheduling', None)
     metrics['truth_max_gap_s'] = stats.get('truth_max_gap_s')
     gap = stats.get('truth_max_gap_s')
     extra = [
@@ -600,6 +638,8 @@ def _evaluate(mcap_path: Path, scenario, out: Path, wall_s: float, args, extra: 
         robot['safety_stop_time_s'] = float(sum(b - a for a, b in spans))
     torque_gaps = stats.get('torque_max_gap_s') or {}
     metrics['torque_max_gap_s'] = {str(k): v for k, v in torque_gaps.items()}
+    # every stage's longest pause (ros/run_record.py): which one stopped first names a stall
+    metrics['stage_gaps_s'] = stats.get('stage_gaps')
     if torque_gaps:
         rid, worst = max(torque_gaps.items(), key=lambda kv: kv[1])
         extra.append(

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import io
 import json
 import math
 import os
@@ -29,6 +30,7 @@ import sys
 import tempfile
 import time
 
+from ament_formation.core.config_files import read_user_text
 from ament_formation.core.errors import ConfigError
 
 from ament_formation.core.sim.campaign import HOLD_S
@@ -133,10 +135,13 @@ def _replayed(args) -> list[dict]:
     src = Path(args.replay)
     if Path(args.out).resolve() == src.resolve():
         raise ConfigError('must not be the campaign replayed', '--out', str(args.out))
+    if not (src / 'summary.json').is_file():
+        raise ConfigError('not a campaign directory (no summary.json)', '--replay', str(src))
+    text = read_user_text(src / 'summary.json', 'campaign summary')
     try:
-        summary = json.loads((src / 'summary.json').read_text())
+        summary = json.loads(text)
         args.seed, args.sensing = int(summary['seed']), str(summary['sensing'])
-    except (OSError, ValueError, KeyError, TypeError) as err:
+    except (ValueError, KeyError, TypeError, RecursionError) as err:
         raise ConfigError(
             f'not a campaign directory ({type(err).__name__} reading summary.json)', '--replay'
         ) from None
@@ -144,8 +149,14 @@ def _replayed(args) -> list[dict]:
         raise ConfigError(f'unknown sensing {args.sensing[:40]!r} in summary.json', '--replay')
     families = {}
     if (src / 'runs.csv').is_file():
-        with open(src / 'runs.csv', newline='') as f:
-            families = {row.get('index'): row.get('family') for row in csv.DictReader(f)}
+        rows = read_user_text(src / 'runs.csv', 'campaign table', 1_000_000_000)
+        try:
+            families = {
+                row.get('index'): row.get('family')
+                for row in csv.DictReader(io.StringIO(rows, newline=''))
+            }
+        except csv.Error as err:
+            raise ConfigError(f'malformed CSV: {err}', None, str(src / 'runs.csv')) from None
     cases = []
     for path in sorted((src / 'failures').glob('[0-9][0-9][0-9][0-9][0-9]-*.yaml')):
         index = int(path.name[:5])

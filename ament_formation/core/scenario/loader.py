@@ -29,12 +29,17 @@ from dataclasses import dataclass, field, fields
 import difflib
 from functools import cached_property
 import math
-from pathlib import Path as FsPath
 import re
 
 import numpy as np
 import yaml
 
+from ament_formation.core.config_files import (  # noqa: F401 - limits named here too
+    MAX_NESTING,
+    MAX_YAML_NODES,
+    parse_user_yaml,
+    read_user_text,
+)
 from ament_formation.core.errors import ConfigError, excerpt, MAX_MAGNITUDE
 from ament_formation.core.model.obstacles import (
     avoided_as_one,
@@ -53,8 +58,6 @@ MAX_NAME_CHARS = 100  # a scenario's or an obstacle's name (titles, legends, CSV
 # Bounded input (docs/scenarios.md "Limits"): what a scenario may ask of the machine. A file over
 # these limits is refused in one line before any large allocation.
 MAX_FILE_BYTES = 1_000_000  # a scenario file (the shipped ones are under 5 kB)
-MAX_NESTING = 32  # YAML collections inside collections
-MAX_YAML_NODES = 100_000  # scalars and collections once aliases are expanded (alias bombs)
 MAX_ROBOTS = 1024
 MAX_OBSTACLES = 256  # the limit-cycle overlap check is pairwise
 # the limit-cycle check of obstacles that move: pairs that may meet x instants (a few s)
@@ -261,91 +264,10 @@ def _weak_components(ids, edges) -> list[list[int]]:
 # ------------------------------------------------------------------------------------------------
 
 
-class _StrictLoader(yaml.SafeLoader):
-    """SafeLoader that rejects a key repeated inside one mapping, and nesting deeper than
-    :data:`MAX_NESTING` (checked before descending: no RecursionError on deep input).
-    """
-
-    def __init__(self, stream):
-        super().__init__(stream)
-        self._depth = 0
-
-    def compose_node(self, parent, index):
-        self._depth += 1
-        try:
-            if self._depth > MAX_NESTING:
-                mark = self.peek_event().start_mark
-                raise ConfigError(
-                    f'nested deeper than {MAX_NESTING} levels (line {mark.line + 1})'
-                )
-            return super().compose_node(parent, index)
-        finally:
-            self._depth -= 1
-
-
-def _expanded_size(root, limit: int) -> int:
-    """Number of YAML nodes once every alias is expanded (what a constructed value would hold),
-    counted without expanding; ConfigError above ``limit`` or for a recursive alias.
-    """
-    sizes: dict[int, int] = {}
-    active: set[int] = set()
-
-    def size(node) -> int:
-        key = id(node)
-        if key in sizes:
-            return sizes[key]
-        if key in active:
-            raise ConfigError('recursive alias (a collection that contains itself)')
-        active.add(key)
-        if isinstance(node, yaml.SequenceNode):
-            n = 1 + sum(size(child) for child in node.value)
-        elif isinstance(node, yaml.MappingNode):
-            n = 1 + sum(size(k) + size(v) for k, v in node.value)
-        else:
-            n = 1
-        active.discard(key)
-        if n > limit:
-            raise ConfigError(
-                f'more than {limit} values once aliases are expanded (an alias bomb?)'
-            )
-        sizes[key] = n
-        return n
-
-    return 0 if root is None else size(root)
-
-
-def _construct_mapping(loader, node, deep=False):
-    seen = {}
-    for key_node, _value in node.value:
-        key = loader.construct_object(key_node, deep=deep)
-        if key in seen:
-            raise ConfigError(
-                f'duplicate key {excerpt(key)} (line {key_node.start_mark.line + 1}; '
-                f'first at line {seen[key]})'
-            )
-        seen[key] = key_node.start_mark.line + 1
-    return loader.construct_mapping(node, deep=deep)
-
-
-_StrictLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping)
-
-
 def load_scenario(path) -> Scenario:
     """Read and validate a scenario YAML file. Raises ConfigError naming ``path``."""
-    path = FsPath(path)
-    source = str(path)
-    try:
-        if path.is_file() and path.stat().st_size > MAX_FILE_BYTES:
-            raise ConfigError(
-                f'file of {path.stat().st_size} bytes; a scenario is at most {MAX_FILE_BYTES}',
-                file=source,
-            )
-        text = path.read_text()
-    except FileNotFoundError:
-        raise ConfigError('no such file', file=source) from None
-    except (IsADirectoryError, PermissionError, UnicodeDecodeError) as err:
-        raise ConfigError(f'cannot read: {err.__class__.__name__}', file=source) from None
-    return parse_scenario_text(text, source)
+    text = read_user_text(path, 'scenario', MAX_FILE_BYTES)
+    return parse_scenario_text(text, str(path))
 
 
 def parse_scenario_text(text: str, source: str | None = None) -> Scenario:
@@ -354,23 +276,7 @@ def parse_scenario_text(text: str, source: str | None = None) -> Scenario:
         raise ConfigError(
             f'{len(text)} characters; a scenario is at most {MAX_FILE_BYTES}', file=source
         )
-    loader = _StrictLoader(text)
-    try:
-        node = loader.get_single_node()
-        _expanded_size(node, MAX_YAML_NODES)
-        data = None if node is None else loader.construct_document(node)
-    except ConfigError as err:
-        raise err.with_file(source) from None
-    except yaml.YAMLError as err:
-        mark = getattr(err, 'problem_mark', None)
-        where = f' at line {mark.line + 1}, column {mark.column + 1}' if mark else ''
-        problem = getattr(err, 'problem', None) or str(err).splitlines()[0]
-        raise ConfigError(f'malformed YAML{where}: {problem}', file=source) from None
-    except RecursionError:  # a structure deeper than Python's stack in a PyYAML internal
-        raise ConfigError(f'nested deeper than {MAX_NESTING} levels', file=source) from None
-    finally:
-        loader.dispose()
-    return parse_scenario(data, source=source)
+    return parse_scenario(parse_user_yaml(text, source, 'scenario'), source=source)
 
 
 def parse_scenario(mapping, source: str | None = None) -> Scenario:

@@ -24,8 +24,8 @@ import json
 from pathlib import Path
 
 import numpy as np
-import yaml
 
+from ament_formation.core.config_files import parse_user_yaml, read_user_text
 from ament_formation.core.errors import ConfigError
 from ament_formation.core.scenario.loader import dump_scenario, parse_scenario, Scenario
 from ament_formation.core.sim.trajectory import SimResult
@@ -135,17 +135,24 @@ def _plain(value):
     return json_ready(value)
 
 
+_RUN_FILE_MAX_BYTES = 200_000_000  # a run directory's JSON and YAML files (events of long runs)
+
+
 def _read_json(path: Path) -> dict:
+    if not path.exists():
+        raise ConfigError('missing (not a run directory of `formation sim`?)', file=str(path))
+    text = read_user_text(path, 'run file', _RUN_FILE_MAX_BYTES)
     try:
-        return json.loads(path.read_text())
-    except FileNotFoundError:
-        raise ConfigError(
-            'missing (not a run directory of `formation sim`?)', file=str(path)
-        ) from None
+        data = json.loads(text)
     except json.JSONDecodeError as err:
         raise ConfigError(
-            f'invalid JSON at line {err.lineno}: {err.msg}', file=str(path)
+            f'invalid JSON at line {err.lineno}, column {err.colno}: {err.msg}', file=str(path)
         ) from None
+    except RecursionError:
+        raise ConfigError('invalid JSON: nested too deep', file=str(path)) from None
+    if not isinstance(data, dict):
+        raise ConfigError('must be a JSON object', file=str(path))
+    return data
 
 
 def _read_csv(path: Path) -> tuple[list[str], np.ndarray]:
@@ -180,12 +187,18 @@ def read_run(run_dir) -> tuple[SimResult, Scenario, dict | None]:
         raise ConfigError('no such run directory', file=str(root))
     meta = _read_json(root / 'run.json')
     scen_path = root / 'scenario.yaml'
+    if not scen_path.exists():
+        raise ConfigError('missing', file=str(scen_path))
+    text = read_user_text(scen_path, 'scenario', _RUN_FILE_MAX_BYTES)
+    scenario = parse_scenario(parse_user_yaml(text, str(scen_path), 'scenario'), str(scen_path))
     try:
-        scenario = parse_scenario(yaml.safe_load(scen_path.read_text()), source=str(scen_path))
-    except FileNotFoundError:
-        raise ConfigError('missing', file=str(scen_path)) from None
-    ids = [int(i) for i in meta['robot_ids']]
-    names = [str(n) for n in meta['obstacle_names']]
+        ids = [int(i) for i in meta['robot_ids']]
+        names = [str(n) for n in meta['obstacle_names']]
+    except (KeyError, TypeError, ValueError) as err:
+        raise ConfigError(
+            f'robot_ids and obstacle_names: lists expected ({type(err).__name__})',
+            file=str(root / 'run.json'),
+        ) from None
 
     tpath = root / 'trajectories.csv'
     header, table = _read_csv(tpath)

@@ -18,8 +18,8 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import yaml
 
+from ament_formation.core.config_files import read_user_yaml
 from ament_formation.core.errors import ConfigError
 from ament_formation.core.vision import aruco_compat
 from ament_formation.core.vision.camera_model import CameraModel
@@ -75,10 +75,7 @@ class CharucoSpec:
         """
         path = Path(text)
         if path.suffix in ('.yaml', '.yml') or path.is_file():
-            try:
-                data = yaml.safe_load(path.read_text()) or {}
-            except (OSError, yaml.YAMLError) as err:
-                raise ConfigError(f'cannot read board file ({err})', '--board') from None
+            data = read_user_yaml(path, 'board file') or {}
             if not isinstance(data, dict):
                 raise ConfigError('board file must be a mapping', '--board', str(path))
             try:
@@ -230,14 +227,7 @@ def load_reference_markers(path: str | Path) -> ReferenceMarkers:
     yaw_rad: 0.0}, ...]}``.
     """
     path = Path(path)
-    try:
-        data = yaml.safe_load(path.read_text()) or {}
-    except OSError as err:
-        raise ConfigError(f'cannot read ({err.strerror})', None, str(path)) from None
-    except yaml.YAMLError as err:
-        raise ConfigError(
-            f'not valid YAML ({str(err).splitlines()[0]})', None, str(path)
-        ) from None
+    data = read_user_yaml(path, 'reference marker file') or {}
     if not isinstance(data, dict):
         raise ConfigError('must be a mapping', None, str(path))
     unknown = sorted(set(data) - {'size_m', 'dictionary', 'markers'})

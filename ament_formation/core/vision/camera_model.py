@@ -33,6 +33,7 @@ import cv2
 import numpy as np
 import yaml
 
+from ament_formation.core.config_files import read_user_yaml
 from ament_formation.core.errors import ConfigError
 
 _R0 = np.diag(
@@ -422,15 +423,7 @@ def camera_setup_to_dict(setup: CameraSetup) -> dict:
 
 def load_camera_yaml(path: str | Path) -> CameraSetup:
     """Read and validate a camera.yaml; raises ConfigError naming the file and field."""
-    path = Path(path)
-    try:
-        data = yaml.safe_load(path.read_text()) or {}
-    except OSError as err:
-        raise ConfigError(f'cannot read ({err.strerror})', None, str(path)) from None
-    except yaml.YAMLError as err:
-        raise ConfigError(
-            f'not valid YAML ({str(err).splitlines()[0]})', None, str(path)
-        ) from None
+    data = read_user_yaml(path, 'camera file') or {}
     return camera_setup_from_dict(data, str(path))
 
 

@@ -31,8 +31,8 @@ import math
 from pathlib import Path
 
 import numpy as np
-import yaml
 
+from ament_formation.core.config_files import read_user_yaml
 from ament_formation.core.errors import ConfigError, excerpt
 from ament_formation.core.vision.camera_model import CameraModel
 
@@ -176,16 +176,7 @@ def load_ros_calibration(path: str | Path) -> Intrinsics:
     """Read a ROS ``camera_calibration`` YAML file; ConfigError naming the file and field."""
     path = Path(path)
     source = str(path)
-    try:
-        text = path.read_bytes().decode('utf-8-sig')
-    except OSError as err:
-        raise ConfigError(f'cannot read ({err.strerror})', None, source) from None
-    except UnicodeDecodeError as err:
-        raise ConfigError(f'not UTF-8 text (byte {err.start})', None, source) from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as err:
-        raise ConfigError(f'not valid YAML ({str(err).splitlines()[0]})', None, source) from None
+    data = read_user_yaml(path, 'camera_calibration file')  # the safe reader (config_files)
     if not isinstance(data, dict):
         raise ConfigError('must be a mapping (a ROS camera_calibration file)', None, source)
     unknown = sorted(str(k) for k in set(data) - set(KEYS))
