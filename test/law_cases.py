@@ -39,10 +39,10 @@ NO_OBSTACLES = obstacles()
 
 
 def robots(p, pd=None, goal=None, goal_dot=None, vc=None, team=None, parent=None, slot=None,
-           known=None, rbody=R_BODY) -> Robots:
+           known=None, rbody=R_BODY, origin=None) -> Robots:
     """:data:`Robots` of points p (N, 2); by default: at rest, goals 3 s ahead of their
     velocity (moving with it), V_c = p_dot, each robot its own team, no parents, slots unknown,
-    every robot known."""
+    every robot known, original parents as the current ones."""
     p = np.array(p, float).reshape(-1, 2)
     n = len(p)
     pd = np.zeros((n, 2)) if pd is None else np.array(pd, float).reshape(n, 2)
@@ -53,8 +53,9 @@ def robots(p, pd=None, goal=None, goal_dot=None, vc=None, team=None, parent=None
     parent = np.full(n, -1) if parent is None else np.array(parent)
     slot = np.full((n, 2), np.nan) if slot is None else np.array(slot, float).reshape(n, 2)
     known = np.ones(n, bool) if known is None else np.array(known, bool)
+    origin = parent if origin is None else np.array(origin)
     return Robots(p, pd, goal, goal_dot, vc, team.astype(np.int64), np.full(n, float(rbody)),
-                  parent.astype(np.int64), slot, known)
+                  parent.astype(np.int64), slot, known, origin.astype(np.int64))
 
 
 def modes(n: int):

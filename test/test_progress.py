@@ -17,6 +17,7 @@ from ament_formation.core.control.progress import (
     at,
     leader_reference,
     max_time_s,
+    max_wait_s,
     new_progress,
     rate_target,
     rate_targets,
@@ -97,15 +98,27 @@ def test_the_rate_target_slows_from_reform_start_to_a_wait_at_reform_stop():
     assert np.all(np.diff(r) <= 1e-15) and r.min() == 0.0 and r.max() == 1.0  # monotone
 
 
-def _targets(e_team, s, giving=None, s_end=30.0):
+def _targets(e_team, s, giving=None, s_end=30.0, t=None):
     n = len(e_team)
     pr = new_progress(n)
     pr.s[:] = s
     out = np.full(n, np.nan)
     leaders = np.arange(n, dtype=np.int64)
     gw = np.zeros(n, bool) if giving is None else np.array(giving)
-    rate_targets(np.array(e_team, float), gw, pr, leaders, s_end, PRM, out)
+    t = max(s) if t is None else t  # no lag unless asked
+    rate_targets(t, np.array(e_team, float), gw, pr, leaders, s_end, PRM, out)
     return out.tolist()
+
+
+def test_a_reference_waits_at_most_its_budget_then_moves_on():
+    # S17.2: max(20 s, max_wait_fraction * s_end) of lag in all, then the target is 1 whatever
+    # the team's error or giving way
+    budget = max_wait_s(30.0, PRM)
+    assert budget == pytest.approx(max(20.0, PRM.max_wait_fraction * 30.0))
+    far = PRM.reform_stop_m + 0.1
+    assert _targets([far, far], [5.0, 5.0], giving=[False, True], t=5.0 + budget - 0.01) == [
+        0.0, 0.0]
+    assert _targets([far, far], [5.0, 5.0], giving=[False, True], t=5.0 + budget) == [1.0, 1.0]
 
 
 def test_rate_targets_per_team_a_parked_leader_moves_on_and_the_finish_rule():

@@ -616,7 +616,7 @@ def coordinate(t, dt, robots, ob, m, teams, progress, refs, leaders, e_team, prm
     """
     nev = arbitrate(t, robots, m, teams, prm, ev, nev)
     team_errors(robots.p, robots.goal, robots.team, robots.known, ob, prm, e_team)
-    rate_targets(e_team, teams.giving_way, progress, leaders, refs.s_end, prm, progress.target)
+    rate_targets(t, e_team, teams.giving_way, progress, leaders, refs.s_end, prm, progress.target)
     done = True
     for i in leaders:
         step(progress, i, dt, progress.target[i], refs.s_end, prm)

@@ -107,6 +107,10 @@ class LawParams:
         2.0, 's', 'a reference this close to its end (in path time) waits while any team is not '
         're-formed: the mission ends with every team in formation (S17.3)'
     )
+    max_wait_fraction: float = threshold(
+        1.0, '1', "a team's reference waits at most this fraction of the free traversal (at least "
+        '20 s) in all: then it moves on, so every mission ends (S17.2)'
+    )
     make_way_s: float = threshold(
         10.0, 's', 'a robot parked on an obstacle beside a stalled robot stops parking for this '
         'long (it goes round, S8.9)'

@@ -45,6 +45,15 @@ rate it follows [1].
 """
 
 
+MIN_WAIT_S = 20.0  # the least a reference may wait in all (S17.2) [s]
+
+
+@njit(cache=True)
+def max_wait_s(s_end, prm):
+    """S17.2: how long in all a team's reference may wait (lag behind its nominal timing) [s]."""
+    return max(MIN_WAIT_S, prm.max_wait_fraction * s_end)
+
+
 def max_time_s(duration_s: float) -> float:
     """S17.3: how long a mission may take before a run gives up on it: three times its free
     traversal, at least 30 s more [s]."""
@@ -129,19 +138,23 @@ def rate_target(e_team, giving_way, prm):
 
 # implements: S17.1
 @njit(cache=True)
-def rate_targets(e_team, giving_way, pr, leaders, s_end, prm, out):
-    """S17.1-S17.3: the rate target of every leader row -> ``out``: :func:`rate_target` of its
-    team, and 0 within ``finish_s`` of its end while some team is not re-formed (E above
-    ``reform_stop_m``): the mission ends with every team in formation."""
+def rate_targets(t, e_team, giving_way, pr, leaders, s_end, prm, out):
+    """S17.1-S17.3: the rate target of every leader row at time ``t`` [s since the mission's
+    start] -> ``out``: :func:`rate_target` of its team, and 0 within ``finish_s`` of its end while
+    some team is not re-formed (E above ``reform_stop_m``): the mission ends with every team in
+    formation. A reference that has waited :func:`max_wait_s` in all (t - s) moves on at 1."""
     worst = 0.0
     for i in leaders:
         worst = max(worst, abs(e_team[i]))
+    budget = max_wait_s(s_end, prm)
     for i in leaders:
         # a parked leader (E < 0) moves on: its goal must come out of the obstacle's Q
         out[i] = 0.0 if giving_way[i] else 1.0 if e_team[i] < 0.0 else rate_target(
             e_team[i], False, prm)
         if worst > prm.reform_stop_m and pr.s[i] >= s_end - prm.finish_s:
             out[i] = 0.0
+        if t - pr.s[i] >= budget:
+            out[i] = 1.0
 
 
 @njit(cache=True)
