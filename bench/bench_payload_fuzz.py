@@ -57,8 +57,8 @@ def _pids(run_dir: Path) -> dict[int, str]:
 
 
 def fuzz(scenario: Path, count: int, pace_s: float, run_dir: Path) -> dict:
-    import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
+    import rclpy
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import HistoryPolicy, QoSProfile

@@ -257,9 +257,9 @@ def camera_loss(ctx, tmp: Path, run_s: float) -> dict:
     import rclpy
     from std_msgs.msg import String
 
+    from ament_formation.core.control.stop import REST_SPEED_MPS
     from ament_formation.core.scenario.loader import load_scenario
     from ament_formation.hw.mjpeg_stream import MjpegServer
-    from ament_formation.core.control.stop import REST_SPEED_MPS
     from ament_formation.nodes.controller import ControllerParams
     from ament_formation.nodes.world import WorldNode, WorldParams
     from ament_formation.ros.executors import make_executor

@@ -12,8 +12,8 @@ from ament_formation.core.control.law_params import LawParams
 from ament_formation.core.control.switching import (
     MODE_NAMES,
     new_modes,
-    Robots,
     robot_transitions,
+    Robots,
 )
 from ament_formation.core.model.obstacles import ObstacleSnapshot
 
@@ -22,8 +22,9 @@ R_BODY = 0.1
 
 
 def obstacles(*specs) -> ObstacleSnapshot:
-    """ObstacleSnapshot of dicts {center, axes, phi, phi_dot, vel} (defaults: at the origin,
-    (0.4, 0.15), not turning, at rest)."""
+    """An ObstacleSnapshot of dicts {center, axes, phi, phi_dot, vel} (defaults: at the origin,
+    (0.4, 0.15), not turning, at rest).
+    """
     m = len(specs)
     c = np.array([s.get('center', (0.0, 0.0)) for s in specs], float).reshape(m, 2)
     v = np.array([s.get('vel', (0.0, 0.0)) for s in specs], float).reshape(m, 2)
@@ -42,7 +43,8 @@ def robots(p, pd=None, goal=None, goal_dot=None, vc=None, team=None, parent=None
            known=None, rbody=R_BODY, origin=None) -> Robots:
     """:data:`Robots` of points p (N, 2); by default: at rest, goals 3 s ahead of their
     velocity (moving with it), V_c = p_dot, each robot its own team, no parents, slots unknown,
-    every robot known, original parents as the current ones."""
+    every robot known, original parents as the current ones.
+    """
     p = np.array(p, float).reshape(-1, 2)
     n = len(p)
     pd = np.zeros((n, 2)) if pd is None else np.array(pd, float).reshape(n, 2)

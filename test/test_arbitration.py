@@ -31,8 +31,13 @@ from ament_formation.core.control.arbitration import (
     reacts_to,
     right_of_way,
 )
-from ament_formation.core.control.coordinator import Coordinator, DRIFT_RESEND_MPS, Publisher, \
-    RATE_RESEND, SILENT_S
+from ament_formation.core.control.coordinator import (
+    Coordinator,
+    DRIFT_RESEND_MPS,
+    Publisher,
+    RATE_RESEND,
+    SILENT_S,
+)
 from ament_formation.core.control.law_params import LawParams
 from ament_formation.core.control.switching import (
     KIND_ROBOT,
@@ -289,8 +294,8 @@ def test_c7_a_yielder_leaves_when_s8_3_holds_for_the_dwell_and_t_min():
     m = modes(2)
     set_mode(m, 0, MODE_YIELD, 1, 1.0, t_entry=0.0)
     # robot 1 at rest 0.4 m east; robot 0's goal and V_c lead away west
-    rb = robots([(0.0, 0.0), (0.4, 0.0)], [(-0.05, 0.0), (0.0, 0.0)], goal=[(-1.0, 0.0),
-                                                                           (0.4, 0.0)])
+    rb = robots([(0.0, 0.0), (0.4, 0.0)], [(-0.05, 0.0), (0.0, 0.0)],
+                goal=[(-1.0, 0.0), (0.4, 0.0)])
     t_exit = None
     for t in np.round(np.arange(0.0, 2.0, 0.1), 10):
         evs = coordinator_decision(t, m, rb)
@@ -580,7 +585,8 @@ def test_a_mutual_pair_at_a_floor_edge_drifts_away_from_it():
 @pytest.fixture(scope='module')
 def three_robots():
     """test/data/head_on.yaml (robots 0 and 1 head-on on y = 0.6, two teams) plus a robot 2 far
-    away (5 m north, driving east), and the simulator's run of it (recorded at 50 Hz)."""
+    away (5 m north, driving east), and the simulator's run of it (recorded at 50 Hz).
+    """
     mapping = yaml.safe_load((DATA / 'head_on.yaml').read_text())
     mapping['robots'].append({
         'id': 2, 'leader': True, 'slot_m': [0.0, 0.0], 'marker_id': 2,
@@ -739,7 +745,8 @@ def meetings():
 @pytest.mark.parametrize('n', [2, 3, 4])
 def test_symmetric_meetings_are_safe_and_settle(meetings, n):
     """Exact ties (S6.6 rule 4, S14.4) and 3-4 teams meeting at once (S7.5): safety, no
-    livelock, the mission ends, everyone back on its path."""
+    livelock, the mission ends, everyone back on its path.
+    """
     sc, res, m = meetings[n]
     assert m['prohibited_entries'] == 0
     assert m['min_inter_robot_distance_m'] > R_AA

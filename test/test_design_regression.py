@@ -1,5 +1,6 @@
-"""Random scenarios that failed one version of the law or another (test/scenarios_regression/*.yaml,
-each with its old failure in its header) run to the mission's end with none of the campaign's
+"""Random scenarios that failed one version of the law or another
+(test/scenarios_regression/*.yaml, each with its old failure in its header) run to the mission's
+end with none of the campaign's
 failure classes (docs/sweep.md): no entry into P, no contact, no runaway, no chattering, no body
 over the floor's edge, the mission ended, and no robot more than 0.5 m from a free goal when it
 ends. Scenarios that failed with camera sensing run with the campaign's sensing seed. The braking
@@ -11,6 +12,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from law_cases import NO_OBSTACLES, obstacles
 import numpy as np
 import pytest
 
@@ -20,8 +22,6 @@ from ament_formation.core.scenario.loader import load_scenario
 from ament_formation.core.sim.campaign import findings, HARD
 from ament_formation.core.sim.metrics import compute_metrics
 from ament_formation.core.sim.simulator import simulate
-
-from law_cases import obstacles, NO_OBSTACLES
 
 HERE = Path(__file__).resolve().parent / 'scenarios_regression'
 FILES = sorted(HERE.glob('*.yaml'))

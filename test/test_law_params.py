@@ -93,8 +93,8 @@ def test_compiled_holds_gains_avoidance_thresholds_and_an_infinite_floor():
     k = law.compiled()
     assert isinstance(k, LawK) and all(isinstance(v, float) for v in k)
     names = set(LawK._fields)
-    assert {f for f in ControlGains.__dataclass_fields__} <= names
-    assert {f for f in AvoidanceParams.__dataclass_fields__} <= names
+    assert set(ControlGains.__dataclass_fields__) <= names
+    assert set(AvoidanceParams.__dataclass_fields__) <= names
     assert set(THRESHOLDS) <= names and set(FLOOR_FIELDS) <= names
     for name, (default, _u, _r) in THRESHOLDS.items():
         assert getattr(k, name) == default
@@ -129,7 +129,8 @@ def _plain(cell: str) -> str:
 
 def s18_table(text: str) -> dict[str, tuple[str, str, str]]:
     """{name: (default, unit, reason)} of the first table under the heading naming S18 whose
-    header row is | name | default | unit | reason |."""
+    header row is | name | default | unit | reason |.
+    """
     lines = text.split('\n')
     start = next((q for q, line in enumerate(lines)
                   if line.startswith('#') and re.search(r'\bS18\b', line)), None)

@@ -1,5 +1,5 @@
-"""Metrics (docs/design.md §4) on synthetic runs with known answers; run directories round trip; the figure
-is redrawn by `formation plot DIR`.
+"""Metrics (docs/design.md §4) on synthetic runs with known answers; run directories round
+trip; the figure is redrawn by `formation plot DIR`.
 """
 
 from __future__ import annotations

@@ -216,7 +216,6 @@ def test_spin_for_takes_every_queued_message_in_one_go(ros_context, executor, tm
     import time
 
     import rclpy
-
     from rclpy.qos import QoSProfile, ReliabilityPolicy
 
     n = 500  # more than an executor's KEEP_LAST 100 recording queue held before

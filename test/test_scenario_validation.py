@@ -1,5 +1,6 @@
-"""Scenario loading and strict validation (docs/design.md §5): every kind of bad input is rejected with
-its own one-line message naming the file, the field and the problem; the CLI exits with code 2.
+"""Scenario loading and strict validation (docs/design.md §5): every kind of bad input is
+rejected with its own one-line message naming the file, the field and the problem; the CLI exits
+with code 2.
 """
 
 from __future__ import annotations

@@ -61,7 +61,7 @@ def headings(text: str) -> set[str]:
 
 
 def cited_labels(root: Path = PKG) -> dict[str, str]:
-    """label -> one file of the package citing it (S2, S8.3, S8.3/goal ...)."""
+    """Label -> one file of the package citing it (S2, S8.3, S8.3/goal ...)."""
     out: dict[str, str] = {}
     for path in sorted(root.rglob('*.py')):
         for m in re.finditer(r'(?<![\w.])S\d+(?:\.\d+)*(?:/goal)?(?!\w)', path.read_text()):

@@ -348,8 +348,8 @@ def test_r1_a_robot_held_still_does_not_turn_into_a_pass_the_floor_closes():
 
 
 def test_one_sense_per_obstacle_a_robot_takes_the_sense_of_a_known_robot_already_on_it():
-    rb = robots([(0.6, 0.0), (-0.6, 0.0)], [(-0.05, 0.0), (0.0, 0.0)], goal=[(2.0, 0.6),
-                                                                            (-2.0, 0.0)])
+    rb = robots([(0.6, 0.0), (-0.6, 0.0)], [(-0.05, 0.0), (0.0, 0.0)],
+                goal=[(2.0, 0.6), (-2.0, 0.0)])
     m = modes(2)
     own = choose_sense(0, 0, rb, BAR, m, PRM)
     set_mode(m, 1, MODE_OBSTACLE, 0, -own)

@@ -22,7 +22,8 @@ from ament_formation.core.errors import ConfigError
 @dataclass(frozen=True)
 class ClockParams:
     """``window_s``: the minimum is taken over this long [s]; ``deadband_s``: smaller offsets are
-    0 [s]; ``bound_s``: a larger offset is not compensated: the robot stops and says why [s]."""
+    0 [s]; ``bound_s``: a larger offset is not compensated: the robot stops and says why [s].
+    """
 
     window_s: float = 10.0
     deadband_s: float = 0.02
@@ -56,7 +57,8 @@ class ClockOffsets:
 
     def observe(self, source: str, stamp_s: float, received_s: float) -> None:
         """A message of ``source`` stamped ``stamp_s`` (its clock) received at ``received_s``
-        (ours)."""
+        (ours).
+        """
         if not (math.isfinite(stamp_s) and math.isfinite(received_s)):
             return
         src = self.sources.get(source)
@@ -75,7 +77,8 @@ class ClockOffsets:
 
     def offset_s(self, source: str) -> float:
         """How far ``source``'s clock runs ahead of ours [s] (0 when unknown or in the
-        deadband)."""
+        deadband).
+        """
         src = self.sources.get(source)
         return 0.0 if src is None else src.offset
 

@@ -23,7 +23,8 @@ A port that cannot be opened at start ends the process with one line on stderr n
 code 2), unless ``wait_for_port`` is true: then the bridge waits for it, reopening with backoff.
 
 The port is read and written only non-blocking, from a timer: the executor never blocks. Safety
-(docs/design.md §7): NaN/inf inputs are rejected and counted, torques clamped, stale input -> STOP (the
+(docs/design.md §7): NaN/inf inputs are rejected and counted, torques clamped, stale input -> STOP
+(the
 board brakes to rest), a vanished port is reopened with backoff, STOP is sent on shutdown.
 """
 

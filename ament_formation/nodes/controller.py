@@ -86,7 +86,8 @@ class ControllerParams(AgentParams):
 
 def set_realtime(priority: int, logger=None) -> bool:
     """Put the calling thread under SCHED_FIFO ``priority``; False (with a warning) when not
-    permitted (needs root or CAP_SYS_NICE)."""
+    permitted (needs root or CAP_SYS_NICE).
+    """
     import os
 
     try:
@@ -100,7 +101,8 @@ def set_realtime(priority: int, logger=None) -> bool:
 
 class ControllerNode(Node):
     """See the module docstring. In a team (nodes/team.py) the agents of every hosted robot are
-    one ``batch`` the team ticks; this node then only wires robot ``robot_id``'s topics."""
+    one ``batch`` the team ticks; this node then only wires robot ``robot_id``'s topics.
+    """
 
     def __init__(self, *, context=None, params: ControllerParams | None = None,
                  tick_timer: bool = True, batch: AgentBatch | None = None, bridge=None,
@@ -157,8 +159,8 @@ class ControllerNode(Node):
         self.diag = diag.Diagnostics(self)
         robot = f'robot_{self.rid}'
         self.diag.add(f'{robot} control', self._control_status, hardware_id=robot)
-        self.control_watch = self.diag.watch(f'{robot} control loop',
-                                              1.0 / self.prm.control_rate_hz, hardware_id=robot)
+        self.control_watch = self.diag.watch(
+            f'{robot} control loop', 1.0 / self.prm.control_rate_hz, hardware_id=robot)
         self.diag.add(f'{robot} inputs', self.rejections.status, hardware_id=robot)
         self._last_status = None
         self.hearing_check = self.create_timer(0.1, self.update_hearing)
@@ -270,7 +272,8 @@ class ControllerNode(Node):
 
     def update_hearing(self) -> None:
         """Subscribe the state and accel of the robots the agent needs (S10.2), drop the
-        others."""
+        others.
+        """
         need = set(self.batch.needed(self.rid)) - set(self.batch.hosted)
         for k in need - set(self._full):
             wrap = TakenAtTick if self._tick_inputs else (lambda f: f)

@@ -247,7 +247,8 @@ class CoordinatorNode(Node):
     def _arbitrate(self) -> None:
         """The coordinator's decision (core/control/coordinator.py) at its rate; published on
         change and every republish_s (before the start: the empty decision, so the robots hear
-        the coordinator)."""
+        the coordinator).
+        """
         now = self.now_s()
         self.arbitration_watch.tick(int(now * 1e9))
         if self.start_s is not None and now >= self.start_s:

@@ -184,7 +184,6 @@ def run_node(
     from rclpy.signals import SignalHandlerOptions
 
     from ament_formation.core.errors import ConfigError
-
     from ament_formation.ros.params import init_rclpy_checked
 
     try:  # a bad params file or ROS argument: one line, not rcl's log and a traceback

@@ -307,7 +307,8 @@ def graph_from_msg(msg: String) -> GraphMessage:
 class EncountersMessage:
     """Decoded /formation/encounters (encounters/v2): revision, {robot id: assignment dict},
     {leader id: progress rate target}, ``stamp_s`` [s, the coordinator's ROS time] and
-    ``mission_end_s`` [s, scenario time] (None before the mission ends)."""
+    ``mission_end_s`` [s, scenario time] (None before the mission ends).
+    """
 
     revision: int
     assignments: dict
@@ -318,7 +319,8 @@ class EncountersMessage:
 
 def encounters_msg(m: EncountersMessage) -> String:
     """std_msgs/String JSON ament_formation/encounters/v2 of the coordinator's decision
-    (assignment dicts as core/control/coordinator.py makes them)."""
+    (assignment dicts as core/control/coordinator.py makes them).
+    """
     def one(a: dict) -> dict:
         park = a.get('park_at_s')
         return {
@@ -342,7 +344,8 @@ def encounters_msg(m: EncountersMessage) -> String:
 
 def encounters_from_msg(msg: String) -> EncountersMessage:
     """An :class:`EncountersMessage`; ValueError naming the problem unless it follows
-    ament_formation/encounters/v2."""
+    ament_formation/encounters/v2.
+    """
     data = payloads.decode(msg.data, payloads.ENCOUNTERS_V2)
     assignments = {}
     for k, a in data['assignments'].items():

@@ -1,5 +1,6 @@
 """A recorded whole-system run (run.mcap) as the core's :class:`SimResult`, so metrics and figures
-are computed exactly as for `formation sim` (docs/design.md §4), from the *ground truth* of the twin.
+are computed exactly as for `formation sim` (docs/design.md §4), from the *ground truth* of the
+twin.
 
 Sources in the recording:
   /formation/graph          start_s (scenario time t = ROS time - start_s), graph events
@@ -207,7 +208,8 @@ def _robot_modes(rid: int, modes_rid: list, start_s: float):
 
 def _progress(scenario, index: dict, grid: np.ndarray, decisions: list, start_s: float):
     """(T, N) the progress s of each leader's reference on the grid (0 for followers): the rate
-    targets the coordinator published (S17.2), followed as a leader's agent follows them."""
+    targets the coordinator published (S17.2), followed as a leader's agent follows them.
+    """
     law = LawParams.for_scenario(scenario).compiled()
     n = len(index)
     pr = new_progress(n)
@@ -228,7 +230,8 @@ def _progress(scenario, index: dict, grid: np.ndarray, decisions: list, start_s:
 def _goals(scenario, index: dict, grid: np.ndarray, state: np.ndarray,
            progress: np.ndarray) -> np.ndarray:
     """Goals: leader r(s) at its progress (S17); follower p of its original parent + delta
-    (S1)."""
+    (S1).
+    """
     graph = FormationGraph.from_scenario(scenario)
     goal = np.zeros((len(grid), len(index), 2))
     for r in scenario.robots:

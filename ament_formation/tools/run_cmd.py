@@ -531,7 +531,8 @@ def run_system(args: argparse.Namespace) -> int:
 
 def _truth_complete(start: dict, latest: dict, scenario) -> bool:
     """Whether the recorded ground truth has reached the mission's end (the coordinator's
-    ``mission_end_s``, as the ``completed`` check counts it) or the run's time cap."""
+    ``mission_end_s``, as the ``completed`` check counts it) or the run's time cap.
+    """
     from ament_formation.core.control.progress import max_time_s
 
     if start['s'] is None or latest['s'] is None:

@@ -32,7 +32,6 @@ import time
 
 from ament_formation.core.config_files import read_user_text
 from ament_formation.core.errors import ConfigError
-
 from ament_formation.core.sim.campaign import HOLD_S
 from ament_formation.tools.sensing_args import SENSING_CHOICES as SENSING
 

@@ -27,7 +27,6 @@ import numpy as np
 
 from ament_formation.core.control.estimator import (
     camera_update_k,
-    CAMERA_OUTCOMES,
     COUNTERS,
     EstimatorK,
     EstimatorParams,
@@ -41,7 +40,7 @@ from ament_formation.core.control.estimator import (
 from ament_formation.core.control.law import goal_k, mode_row, robot_law_k, RobotTracking
 from ament_formation.core.control.law_params import LawParams
 from ament_formation.core.control.progress import leader_reference, new_progress, step, tabulate
-from ament_formation.core.control.stop import lead_k, StopK, StopLead, stop_torque_k
+from ament_formation.core.control.stop import lead_k, stop_torque_k, StopK, StopLead
 from ament_formation.core.control.switching import (
     apply_assignment,
     MODE_C,
@@ -51,8 +50,8 @@ from ament_formation.core.control.switching import (
     MODE_YIELD,
     Modes,
     new_modes,
-    Robots,
     robot_transitions,
+    Robots,
 )
 from ament_formation.core.errors import ConfigError
 from ament_formation.core.model.dynamics import (
@@ -102,7 +101,7 @@ class AgentParams:
     camera_gain: float = param(0.5, 'S10 complementary gain per camera frame, (0, 1]',
                                range=(0.001, 1.0))
     coordinator_timeout_s: float = param(
-        2.5, "no message from the coordinator this long -> controlled stop (it owns the robot "
+        2.5, 'no message from the coordinator this long -> controlled stop (it owns the robot '
         "encounters, S7.1) [s]; above the coordinator's republish_s", range=(0.05, 60.0))
     hear_all: bool = param(False, "hear every robot (off: the parents, the assignment's partner "
                            'and the robots within hearing range, S10.2)')
@@ -160,7 +159,8 @@ of the robot itself in its own row, -1 elsewhere; ``offset`` (R, 2), ``start_s``
 the assignment (``assigned`` (R, 5) [mode, row, sense, t_entry, park_at], ``assigned_w``
 (R, 2)),
 ``coord_s`` when the coordinator was last heard, ``rate_target`` (R,) its progress rate for a
-leader; ``progress`` (Progress of R rows) and ``t_ref`` (R,) when it last advanced; ``stop`` (R, 2) [latched, camera stamp];
+leader; ``progress`` (Progress of R rows) and ``t_ref`` (R,) when it last advanced; ``stop``
+(R, 2) [latched, camera stamp];
 ``status`` (R,); ``t_dec`` (R,) the last decision [s]; events ``ev`` (R, E, 6), ``nev`` (R,);
 queues ``camq`` (R, Q, 4), ``wheelq`` (R, Q, 5) and their counts; ``counters`` (R, 2) [late
 decisions (unused), over the stop bounds]; ``halt`` (R,) a status the caller stops the robot
@@ -195,7 +195,8 @@ def _est_k(row):
 @njit(cache=True)
 def _view(r, now, st, sc, plant_d):
     """S10.2: the robots robot r hears, extrapolated to ``now`` with their commanded
-    accelerations while younger than ``hold_s`` -> st.x, st.pd, st.acmd, st.known (row r)."""
+    accelerations while younger than ``hold_s`` -> st.x, st.pd, st.acmd, st.known (row r).
+    """
     ak = sc.ak
     i = sc.rows[r]
     for k in range(st.x.shape[1]):
@@ -235,8 +236,9 @@ def _brake(r, i, v, w, st, sc, camera_loss, out):
 
 @njit(cache=True)
 def _camera_lost(r, now, v, w, st, sc):
-    """docs/design.md §7 camera loss: the stop begins once the camera age exceeds pose_timeout_s minus
-    the time to rest from (v, omega) (docs/safety.md §7); latched until a newer pose."""
+    """docs/design.md §7 camera loss: the stop begins once the camera age exceeds pose_timeout_s
+    minus the time to rest from (v, omega) (docs/safety.md §7); latched until a newer pose.
+    """
     cam_t = st.est.f[r, F_CAMERA_T]
     if st.stop[r, 0] > 0.5:
         if cam_t == st.stop[r, 1]:
@@ -336,7 +338,6 @@ def _drive(r, i, now, t, st, sc, ob, out):
 @njit(cache=True)
 def agent_tick_k(now, st, sc, out):
     """One control period of every hosted robot at ``now`` [s, own clock] (module docstring)."""
-    prm = sc.prm
     nob = sc.obstacles[6].shape[0]
     ob = ObstacleSnapshot(np.empty((nob, 2)), np.empty((nob, 2)), np.empty((nob, 2)),
                           np.empty(nob), np.empty(nob), np.empty(nob), sc.obstacles[6],
@@ -392,7 +393,8 @@ def agent_tick_k(now, st, sc, out):
 def needed_k(r, k, st, sc, hear_all):
     """S10.2: robot r needs robot k's state at the control rate: its current and original
     parents, its assignment's partner, and the robots within hearing range (every robot with
-    ``hear_all``)."""
+    ``hear_all``).
+    """
     i = sc.rows[r]
     if k == i:
         return False
@@ -404,7 +406,8 @@ def needed_k(r, k, st, sc, hear_all):
 def broadcast_k(stamp, x, a, modes, sent, st, sc, hear_all):
     """What the robots of ``sent`` (N,) bool broadcast at ``stamp`` [s] (states x (N, 5),
     commanded accelerations a (N, 2), reports modes (N, 3) [mode, target, sense]) reaches every
-    hosted robot that needs it (:func:`needed_k`; reports reach every one)."""
+    hosted robot that needs it (:func:`needed_k`; reports reach every one).
+    """
     for r in range(sc.rows.shape[0]):
         for k in range(x.shape[0]):
             if not sent[k]:
@@ -422,7 +425,8 @@ def broadcast_k(stamp, x, a, modes, sent, st, sc, hear_all):
 @njit(cache=True)
 def range_k(k, px, py, st, sc, hysteresis):
     """A camera pose (px, py) of robot k: the hearing range of every hosted robot (its own
-    estimate against the reach, with hysteresis) -> st.in_range[:, k]."""
+    estimate against the reach, with hysteresis) -> st.in_range[:, k].
+    """
     for r in range(sc.rows.shape[0]):
         i = sc.rows[r]
         if k == i or st.est.i[r, I_INIT] == 0:
@@ -435,7 +439,8 @@ def range_k(k, px, py, st, sc, hysteresis):
 @njit(cache=True)
 def frame_k(stamp, poses, kept, st, sc, hear_all, hysteresis):
     """A camera frame (poses (N, 3) of every robot, ``kept`` (N,) bool) captured at ``stamp``:
-    each hosted robot's own pose to its estimator's queue, every pose to the hearing ranges."""
+    each hosted robot's own pose to its estimator's queue, every pose to the hearing ranges.
+    """
     for r in range(sc.rows.shape[0]):
         i = sc.rows[r]
         if kept[i]:
@@ -568,7 +573,8 @@ class AgentBatch:
 
     def camera(self, rid: int, stamp_s: float, pose) -> None:
         """A camera pose [x_m, y_m, theta_rad] of p captured at ``stamp_s`` (own clock): of a
-        hosted robot, for its estimator; of any other robot, for the hearing ranges."""
+        hosted robot, for its estimator; of any other robot, for the hearing ranges.
+        """
         rid = int(rid)
         if rid in self.hosted:
             r, st = self._r(rid), self.state
@@ -581,7 +587,8 @@ class AgentBatch:
 
     def hear(self, rid: int, state, accel, stamp_s: float) -> None:
         """Robot ``rid``'s broadcast (state (5,), commanded acceleration (2,)) stamped
-        ``stamp_s`` (own clock), for every hosted robot."""
+        ``stamp_s`` (own clock), for every hosted robot.
+        """
         k, st = self.row[int(rid)], self.state
         st.heard_x[:, k] = state
         st.heard_a[:, k] = accel
@@ -595,7 +602,8 @@ class AgentBatch:
 
     def encode_mode(self, mode: dict) -> tuple[int, int, float]:
         """(mode, target row or obstacle index, sense) of a mode report; anything not an
-        avoidance mode with a known target is coordination."""
+        avoidance mode with a known target is coordination.
+        """
         name, target = mode.get('mode'), mode.get('target')
         sdir = -1.0 if mode.get('direction') == 'cw' else 1.0
         if name == 'obstacle' and target in self.obstacle_names:
@@ -615,7 +623,8 @@ class AgentBatch:
 
     def set_graph(self, parents: dict, start_s: float | None) -> None:
         """The coordinator's graph (S9): {child id: parent id | None}, and the mission start
-        [s, own clock] (None: not fixed yet)."""
+        [s, own clock] (None: not fixed yet).
+        """
         st = self.state
         for r, rid in enumerate(self.hosted):
             i = self.row[rid]
@@ -629,7 +638,8 @@ class AgentBatch:
     def assign(self, now_s: float, assignments: dict, rates: dict | None = None) -> None:
         """The coordinator's message at ``now_s``: {robot id: {mode, partner, direction,
         t_entry_s, drift_mps, park_at_s}} or {mode: make_way, park_at_s} (robots without one:
-        none) and {team leader id: progress rate target} (S7.1, S8.9, S17)."""
+        none) and {team leader id: progress rate target} (S7.1, S8.9, S17).
+        """
         st = self.state
         for r, rid in enumerate(self.hosted):
             a = assignments.get(rid, assignments.get(str(rid)))
@@ -650,7 +660,8 @@ class AgentBatch:
 
     def share(self, now_s: float) -> None:
         """The hosted robots' broadcasts of this period reach each other in the process (a
-        team: no DDS between the robots it hosts)."""
+        team: no DDS between the robots it hosts).
+        """
         n = len(self.ids)
         x, a, modes = np.zeros((n, 5)), np.zeros((n, 2)), np.zeros((n, 3))
         sent = np.zeros(n, dtype=np.bool_)
@@ -664,7 +675,8 @@ class AgentBatch:
     # ------------------------------------------------------------------ the period
     def tick(self, now_s: float) -> None:
         """One control period of every hosted robot; results in :attr:`out`, mode events of
-        the hosted robots in :attr:`events`."""
+        the hosted robots in :attr:`events`.
+        """
         st = self.state
         st.nev[:] = 0
         agent_tick_k(float(now_s), st, self.static, self.out)
@@ -698,7 +710,8 @@ class AgentBatch:
 
     def mode_dict(self, r: int) -> dict:
         """The mode report of hosted robot r: {mode, target, direction, avoiding}; a robot that
-        is not running reports ``hold`` (waiting, hold_parent) or ``stopped``."""
+        is not running reports ``hold`` (waiting, hold_parent) or ``stopped``.
+        """
         status = int(self.state.status[r])
         if status != RUNNING:
             name = 'hold' if status in (WAITING, HOLD_PARENT) else 'stopped'
@@ -724,7 +737,8 @@ class AgentBatch:
 
 class RobotAgent(AgentBatch):
     """One robot's agent (the controller node): an :class:`AgentBatch` of one hosted robot with
-    the per-robot API ``tick(now_s) -> (torque (2,), accel (2,))``."""
+    the per-robot API ``tick(now_s) -> (torque (2,), accel (2,))``.
+    """
 
     def __init__(self, scenario, robot_id: int, params: AgentParams | None = None,
                  law: LawParams | None = None):

@@ -96,7 +96,8 @@ def keepout_radius(rbody, i, k, prm):
 @njit(cache=True)
 def candidate_pairs(p, known, cell_m):
     """Pairs (i < k) of known robots closer than ``cell_m`` [m], by a uniform grid (near-linear in
-    N): p (N, 2) -> (P, 2) int."""
+    N): p (N, 2) -> (P, 2) int.
+    """
     n = p.shape[0]
     out = np.empty((max(16, 8 * n), 2), dtype=np.int64)
     cnt = 0
@@ -154,7 +155,8 @@ def candidate_pairs(p, known, cell_m):
 @njit(cache=True)
 def reacts_to(k, i, m, parent):
     """S7.4: robot k reacts to robot i, directly or through a chain of following links: yields,
-    pairs and the formation link of a robot in C to its current parent (S14.5)."""
+    pairs and the formation link of a robot in C to its current parent (S14.5).
+    """
     cur = k
     for _ in range(m.mode.shape[0] + 1):
         md = m.mode[cur]
@@ -185,7 +187,8 @@ def _rank_first(a, b, robots, teams):
 def _teammate_q_scale(i, k, r, robots, prm):
     """S14.3: robot k's protected region Q as teammate i sees it: kappa R_aa shrunk to the slot
     distance less the keep-out margin (a team at its slots stands outside each other's Q),
-    never inside the heading region I."""
+    never inside the heading region I.
+    """
     if robots.team[i] != robots.team[k]:
         return prm.protected_scale
     s = math.hypot(robots.slot[i, 0] - robots.slot[k, 0], robots.slot[i, 1] - robots.slot[k, 1])
@@ -198,7 +201,8 @@ def _teammate_q_scale(i, k, r, robots, prm):
 def _moving_together(i, k, rvx, rvy, m, prm):
     """S14.3, S7.2: two robots moving together or resting together (relative speed below
     ``teammate_speed_mps``, or below ``teammate_release_speed_mps`` when their last encounter was
-    with each other) are no threat but in an emergency."""
+    with each other) are no threat but in an emergency.
+    """
     lim = prm.teammate_speed_mps
     if (m.last_kind[i] == KIND_ROBOT and m.last_tgt[i] == k) or (
         m.last_kind[k] == KIND_ROBOT and m.last_tgt[k] == i
@@ -213,7 +217,8 @@ RobotThreats = namedtuple('RobotThreats', ['k', 'em', 'lam', 'h_em', 'count'])
 @njit(cache=True)
 def _keep(th, a, b, em, lam, h_em):
     """Record robot b as a threat of a; when a's slots are full b replaces the least urgent one
-    if it ranks before it (S8.1)."""
+    if it ranks before it (S8.1).
+    """
     c = th.count[a]
     if c < MAX_THREATS:
         slot = c
@@ -237,7 +242,8 @@ def _keep(th, a, b, em, lam, h_em):
 def robot_threats(robots, m, pairs, prm):
     """Guard ``robot_threat`` over the candidate pairs: the S8.1 test on the keep-out circle
     R_aa, the teammates' Q and exemption (S14.3), and a horizon: a contact with I more than
-    ``robot_horizon_s`` away is no threat -> :data:`RobotThreats`."""
+    ``robot_horizon_s`` away is no threat -> :data:`RobotThreats`.
+    """
     p, pd, rbody = robots.p, robots.pd, robots.rbody
     n = p.shape[0]
     th = RobotThreats(np.full((n, MAX_THREATS), -1, dtype=np.int64),
@@ -286,7 +292,8 @@ def _urgency(i, k, robots, prm):
 @njit(cache=True)
 def form_pair(i, k, t, robots, m, prm, ev, nev):
     """S7.3: robots i and k enter a mutual pair at one t_s with w_c = (p_dot_i + p_dot_k)/2 and
-    one sense: the S6.6 sense of each round the other when they agree, else +1 (S14.1)."""
+    one sense: the S6.6 sense of each round the other when they agree, else +1 (S14.1).
+    """
     s = _agent_sense(i, k, robots, prm)
     if _agent_sense(k, i, robots, prm) != s:
         s = 1.0
@@ -310,7 +317,8 @@ def form_pair(i, k, t, robots, m, prm, ev, nev):
 @njit(cache=True)
 def _yield_to(i, k, t, robots, m, prm, ev, nev):
     """Robot i yields to robot k (S7.3), sense by S6.6; the progress monitor starts again unless
-    this re-targets a yield (S8.9: a robot still among several robots stays stalled)."""
+    this re-targets a yield (S8.9: a robot still among several robots stays stalled).
+    """
     s = _agent_sense(i, k, robots, prm)
     if m.mode[i] != MODE_C:
         nev = release(i, t, m, ev, nev)
@@ -343,7 +351,8 @@ def _most_urgent(i, t, robots, m, th, teams, prm):
 def _engage(i, k, em, t, robots, m, teams, prm, ev, nev):
     """Row C6: robot i takes robot k. From an encounter only past T_dwell, for an emergency or a
     robot clearly closer (S8.2); a pair is left for an emergency only (S14.2). Pairing: k reacts
-    to i -> mutual (S7.4); both free and of one team, or an emergency -> mutual; else yield."""
+    to i -> mutual (S7.4); both free and of one team, or an emergency -> mutual; else yield.
+    """
     md = m.mode[i]
     if md != MODE_C:
         if t - m.t_entry[i] < prm.dwell_s:
@@ -372,7 +381,8 @@ def _engage(i, k, em, t, robots, m, teams, prm, ev, nev):
 @njit(cache=True)
 def _sync_pairs_and_loops(t, robots, m, prm, ev, nev):
     """Rows C1 and C2: a pair whose partner went onto an obstacle becomes a yield to it; a yield
-    whose target reacts back to the yielder (a chain closed by a re-parenting) becomes a pair."""
+    whose target reacts back to the yielder (a chain closed by a re-parenting) becomes a pair.
+    """
     for i in range(m.mode.shape[0]):
         if not robots.known[i]:
             continue
@@ -390,7 +400,8 @@ def _sync_pairs_and_loops(t, robots, m, prm, ev, nev):
 @njit(cache=True)
 def _blocker(i, robots, m, prm):
     """Guard ``blocked_by``: the nearest known robot within the barrier's range of robot i's
-    keep-out circle, on its way to its goal (-1: none)."""
+    keep-out circle, on its way to its goal (-1: none).
+    """
     p, goal = robots.p, robots.goal
     gx, gy = goal[i, 0] - p[i, 0], goal[i, 1] - p[i, 1]
     best, b_d = -1, INF
@@ -420,7 +431,8 @@ def _make_way(i, t, robots, m, prm, ev, nev):
     """Row C9: the robots at rest beside robot i (stalled on its obstacle, S8.9) make way: one
     in C or yielding yields to i without parking (it circles i until S8.3 lets it go back); one
     parked on an obstacle of its own stops parking for ``make_way_s`` (it goes round).
-    Returns the event count."""
+    Returns the event count.
+    """
     p, pd = robots.p, robots.pd
     for k in range(p.shape[0]):
         if k == i or not robots.known[k] or m.mode[k] == MODE_MUTUAL:
@@ -440,7 +452,8 @@ def _make_way(i, t, robots, m, prm, ev, nev):
 @njit(cache=True)
 def _stalls(t, robots, m, teams, prm, ev, nev):
     """Rows C3-C5 and C9: the progress monitor (S8.9) of every robot the coordinator owns, and
-    its own watch of the robots on obstacles."""
+    its own watch of the robots on obstacles.
+    """
     p = robots.p
     for i in range(m.mode.shape[0]):
         md = m.mode[i]
@@ -490,7 +503,8 @@ def _exit_against(i, k, vkx, vky, robots, r, prm):
 @njit(cache=True)
 def _exits(t, robots, m, prm, ev, nev):
     """Rows C7 and C8: a yielder leaves when S8.3 holds against k's velocity; a pair leaves
-    jointly when it holds for both, each against the other's coordination field."""
+    jointly when it holds for both, each against the other's coordination field.
+    """
     for i in range(m.mode.shape[0]):
         md = m.mode[i]
         if not robots.known[i] or not (md == MODE_YIELD or (md == MODE_MUTUAL and m.tgt[i] > i)):
@@ -516,7 +530,8 @@ def _exits(t, robots, m, prm, ev, nev):
 @njit(cache=True)
 def _drift_targets(robots, m, prm):
     """S7.3/S14.1: each pair's drift target, the mean of the two coordination fields capped at
-    ``mutual_drift_cap_mps``, kept off the floor's edges (S16.3)."""
+    ``mutual_drift_cap_mps``, kept off the floor's edges (S16.3).
+    """
     cap, p, vc, rb = prm.mutual_drift_cap_mps, robots.p, robots.vc, robots.rbody
     for i in range(m.mode.shape[0]):
         if m.mode[i] != MODE_MUTUAL:
@@ -534,7 +549,8 @@ def _drift_targets(robots, m, prm):
 @njit(cache=True)
 def _meeting_point_distance(ld, c, robots):
     """How far the meeting point c lies ahead of team leader row ``ld`` along its goal's motion
-    [m] (0 for a goal at rest: it is there)."""
+    [m] (0 for a goal at rest: it is there).
+    """
     gx, gy = robots.goal_dot[ld, 0], robots.goal_dot[ld, 1]
     v = math.hypot(gx, gy)
     if v < 1e-6:
@@ -549,7 +565,8 @@ def right_of_way(t, robots, pairs, teams, prm):
     end of its reference first, then by the time the meeting began, then the team further into
     the meeting point; a team whose robots are all ``right_of_way_release_m`` from every other
     team's loses its key. The keys order all meeting teams at once, so no three teams wait on
-    each other in a circle."""
+    each other in a circle.
+    """
     n = robots.p.shape[0]
     near = np.zeros(n, dtype=np.bool_)
     fresh = np.full(n, INF)
@@ -582,7 +599,8 @@ def arbitrate(t, robots, m, teams, prm, ev, nev):
     """One decision of the coordinator's table (module docstring) over every known robot:
     ``robots`` :data:`~ament_formation.core.control.switching.Robots`, ``m`` their
     :data:`~ament_formation.core.control.switching.Modes` (obstacle modes as the robots decided
-    them), ``teams`` :data:`Teams` (updated). Returns the event count."""
+    them), ``teams`` :data:`Teams` (updated). Returns the event count.
+    """
     cell = prm.protected_scale * (2.0 * robots.rbody.max() + prm.agent_keepout_margin_m)
     pairs = candidate_pairs(robots.p, robots.known, max(cell, prm.right_of_way_release_m))
     right_of_way(t, robots, pairs, teams, prm)

@@ -86,20 +86,21 @@ class Coordinator:
 
     # ------------------------------------------------------------------ inputs
     def state(self, rid: int, x, stamp_s: float) -> None:
-        """Robot ``rid``'s broadcast state (5,) stamped ``stamp_s`` (scenario time)."""
+        """Take robot ``rid``'s broadcast x (5 values) stamped ``stamp_s`` (scenario time)."""
         q = self.row.get(int(rid))
         if q is not None:
             self.x[q] = x
             self.stamp[q] = stamp_s
 
     def report(self, rid: int, mode: dict) -> None:
-        """Robot ``rid``'s mode report ({mode, target, direction, avoiding})."""
+        """Take robot ``rid``'s mode report, a dict {mode, target, direction, avoiding}."""
         if int(rid) in self.row and isinstance(mode, dict):
             self.reported[int(rid)] = mode
 
     def reported_avoiding(self) -> dict | None:
         """The new S9 parents when the set of robots the reports show avoiding changed, else
-        None (restoration is rewiring with fewer avoiders, S9 step 6)."""
+        None (restoration is rewiring with fewer avoiders, S9 step 6).
+        """
         avoiding = frozenset(r for r, m in self.reported.items() if m.get('avoiding'))
         if avoiding == self.avoiding:
             return None
@@ -135,7 +136,8 @@ class Coordinator:
 
     def decide(self, t_s: float) -> tuple[dict, dict]:
         """One decision at scenario time ``t_s``: (assignments {robot id: {mode, partner,
-        direction, t_entry_s, drift_mps}}, rates {leader id: progress rate target})."""
+        direction, t_entry_s, drift_mps}}, rates {leader id: progress rate target}).
+        """
         t_s = float(t_s)
         dt = 0.0 if self._t_dec is None else max(0.0, t_s - self._t_dec)
         self._t_dec = t_s
@@ -179,7 +181,8 @@ class Coordinator:
 
     def assignments(self) -> dict:
         """{robot id: assignment dict} of the robots in a robot encounter now, and of the robots
-        on an obstacle asked to make way ({mode: make_way, park_at_s})."""
+        on an obstacle asked to make way ({mode: make_way, park_at_s}).
+        """
         m, out = self.modes, {}
         for q, rid in enumerate(self.ids):
             if m.mode[q] == MODE_OBSTACLE and math.isfinite(m.park_at[q]) and m.park_at[q] > 0:
@@ -209,7 +212,8 @@ DRIFT_RESEND_MPS = 0.005  # a pair's w_c that moved this much is sent again [m/s
 class Publisher:
     """When the coordinator publishes its decision (node and sensed simulator alike): on a new
     decision (a mode, partner, sense or entry time changed), when a pair's w_c or a rate target
-    moved (:data:`DRIFT_RESEND_MPS`, :data:`RATE_RESEND`), and every ``republish_s``."""
+    moved (:data:`DRIFT_RESEND_MPS`, :data:`RATE_RESEND`), and every ``republish_s``.
+    """
 
     def __init__(self, republish_s: float = 1.0):
         self.republish_s = float(republish_s)

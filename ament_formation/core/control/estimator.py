@@ -115,7 +115,8 @@ def wrap(a):
 @njit(cache=True)
 def arc_step(x, y, theta, ds, dth):
     """One odometry step of an axle pose: an exact arc, chord = ds sinc(dth/2) along
-    theta + dth/2."""
+    theta + dth/2.
+    """
     h = 0.5 * dth
     chord = ds * (math.sin(h) / h if abs(h) > 1e-9 else 1.0 - h * h / 6.0)
     return x + chord * math.cos(theta + h), y + chord * math.sin(theta + h), theta + dth
@@ -157,7 +158,8 @@ def _refold(e, row):
 @njit(cache=True)
 def wheel_update_k(e, row, t, ql, qr, wl, wr, k):
     """One encoder sample (absolute wheel angles [rad], rates [rad/s]) taken at ``t`` [s].
-    Returns False (counted) when rejected."""
+    Returns False (counted) when rejected.
+    """
     f, ints, cnt = e.f[row], e.i[row], e.counters[row]
     if not (math.isfinite(ql) and math.isfinite(qr) and math.isfinite(wl)
             and math.isfinite(wr) and math.isfinite(t)):
@@ -222,7 +224,8 @@ def _initialize(e, row, t, x, y, th, k):
 @njit(cache=True)
 def camera_update_k(e, row, t, x, y, th, k):
     """Fuse a camera pose of p captured at ``t`` [s]; returns the index of its outcome in
-    :data:`CAMERA_OUTCOMES`."""
+    :data:`CAMERA_OUTCOMES`.
+    """
     f, ints, cnt = e.f[row], e.i[row], e.counters[row]
     if not (math.isfinite(t) and math.isfinite(x) and math.isfinite(y) and math.isfinite(th)):
         cnt[C_NONFINITE] += 1
@@ -240,8 +243,8 @@ def camera_update_k(e, row, t, x, y, th, k):
     split = False
     if before < ints[I_COUNT]:
         st = e.steps[row, (ints[I_HEAD] + before) % HISTORY]
-        t0 = f[F_ANCHOR_T] if before == 0 else e.steps[row, (ints[I_HEAD] + before - 1) %
-                                                          HISTORY, 0]
+        prev = (ints[I_HEAD] + before - 1) % HISTORY
+        t0 = f[F_ANCHOR_T] if before == 0 else e.steps[row, prev, 0]
         if t0 < t:
             frac = (t - t0) / (st[0] - t0)
             px, py, pth = arc_step(px, py, pth, frac * st[1], frac * st[2])
@@ -261,8 +264,8 @@ def camera_update_k(e, row, t, x, y, th, k):
     ints[I_GATED] = 0
     if split:
         st = e.steps[row, (ints[I_HEAD] + before) % HISTORY]
-        t0 = f[F_ANCHOR_T] if before == 0 else e.steps[row, (ints[I_HEAD] + before - 1) %
-                                                          HISTORY, 0]
+        prev = (ints[I_HEAD] + before - 1) % HISTORY
+        t0 = f[F_ANCHOR_T] if before == 0 else e.steps[row, prev, 0]
         frac = (t - t0) / (st[0] - t0)
         st[1] *= 1.0 - frac
         st[2] *= 1.0 - frac
@@ -282,7 +285,8 @@ def camera_update_k(e, row, t, x, y, th, k):
 @njit(cache=True)
 def state_at_k(e, row, t, k, out):
     """State (5,) of p -> ``out``, extrapolated with the latest (v, omega) to ``t`` (at most
-    ``max_extrapolation_s`` past the newest odometry sample; never backwards)."""
+    ``max_extrapolation_s`` past the newest odometry sample; never backwards).
+    """
     f = e.f[row]
     v, w = f[F_V], f[F_W]
     dt = 0.0
@@ -298,7 +302,8 @@ def state_at_k(e, row, t, k, out):
 
 class PoseEstimator:
     """One robot's S10.1 fusion with a Python API (tests, tools); the robot agent calls the
-    kernels on its rows directly."""
+    kernels on its rows directly.
+    """
 
     def __init__(self, params: EstimatorParams):
         self.p = params
@@ -332,7 +337,8 @@ class PoseEstimator:
 
     def camera_update(self, t_s: float, pose_xyt) -> str:
         """Fuse a camera pose of p captured at ``t_s``; returns its outcome (a name of
-        :data:`CAMERA_OUTCOMES`)."""
+        :data:`CAMERA_OUTCOMES`).
+        """
         pose = np.asarray(pose_xyt, dtype=float).reshape(-1)
         if pose.shape != (3,):
             self._e.counters[0, C_NONFINITE] += 1

@@ -54,7 +54,8 @@ def mode_row(m, i):
 @njit(cache=True)
 def _target_k(i, md, k, x, pd, acmd, rbody, ob, prm):
     """The avoidance target of robot i: (c, c_dot, c_ddot, phi, phi_dot, phi_ddot, r1, r2, v_tan)
-    of obstacle k (S6) or of robot k (S7: its keep-out circle R_aa)."""
+    of obstacle k (S6) or of robot k (S7: its keep-out circle R_aa).
+    """
     if md == MODE_OBSTACLE:
         return (ob.c[k, 0], ob.c[k, 1], ob.v[k, 0], ob.v[k, 1], ob.a[k, 0], ob.a[k, 1],
                 ob.phi[k], ob.phi_dot[k], ob.phi_ddot[k], ob.axes[k, 0], ob.axes[k, 1],
@@ -68,7 +69,8 @@ def _target_k(i, md, k, x, pd, acmd, rbody, ob, prm):
 def _formation_field(i, x, pd, acmd, track, prm, vmax, amax):
     """S4 field of robot i -> (vdx, vdy, vddx, vddy): a leader tracks r(s) (S17), a follower
     p_j + delta with its parent's velocity and commanded acceleration as feed-forward, bounded
-    by ``vmax`` [m/s] and ``amax`` [m/s^2] (S15.1)."""
+    by ``vmax`` [m/s] and ``amax`` [m/s^2] (S15.1).
+    """
     j = track.parent
     if j < 0:
         ref = track.ref
@@ -87,7 +89,8 @@ def _formation_field(i, x, pd, acmd, track, prm, vmax, amax):
 def _avoidance_field(t, p, target, track, state, prm, vmax, amax):
     """S6.3/S6.4 limit-cycle field of a robot at ``p`` (x, y, x_dot, y_dot of its point) round
     its ``target`` (:func:`_target_k`) -> (vdx, vdy, vddx, vddy, w_c_dot_x, w_c_dot_y); the w_c
-    derivative is non-zero for a mutual pair only (V_d = w_c + F/2, S7.3)."""
+    derivative is non-zero for a mutual pair only (V_d = w_c + F/2, S7.3).
+    """
     md = state.mode
     cx, cy, cvx, cvy, cax, cay, phi, phd, phdd, r1, r2, vtan = target
     if md != MODE_OBSTACLE:  # a robot target's feed-forward is bounded (S15.1)
@@ -152,7 +155,8 @@ def robot_law_k(i, t, x, pd, acmd, rbody, coeffs, ob, nbrs, track, state, prm):
 def goal_k(i, x, pd, ref, orig_parent, orig_offset, prm):
     """S8.3 item 1: the formation goal of robot i and the coordination field V_c = g_dot -
     Phi(p - g) -> (gx, gy, gdx, gdy, vcx, vcy). Leaders: g = r(s) (``ref`` row i); followers:
-    the point of the original parent + delta."""
+    the point of the original parent + delta.
+    """
     j = orig_parent[i]
     if j < 0:
         gx, gy, gdx, gdy = ref[i, 0], ref[i, 1], ref[i, 2], ref[i, 3]

@@ -164,7 +164,8 @@ class LawParams:
     @classmethod
     def for_scenario(cls, scenario, **overrides) -> 'LawParams':
         """The scenario's gains, avoidance block and floor with these defaults (or
-        ``overrides``, fields by name)."""
+        ``overrides``, fields by name).
+        """
         floor = scenario.floor
         bounds = None if floor is None else (*map(float, floor.x_m), *map(float, floor.y_m))
         return cls(gains=scenario.control, avoidance=scenario.avoidance, floor_m=bounds,
@@ -208,7 +209,7 @@ def _law_fields() -> list[str]:
 
 
 # numba reads a field of a named tuple of floats as fast as a local
-from collections import namedtuple  # noqa: E402
+from collections import namedtuple  # noqa: E402, I100
 
 LawK = namedtuple('LawK', _law_fields())
 LawK.__doc__ = """:class:`LawParams` for the compiled code: a named tuple of floats named as the

@@ -56,13 +56,15 @@ def max_wait_s(s_end, prm):
 
 def max_time_s(duration_s: float) -> float:
     """S17.3: how long a mission may take before a run gives up on it: three times its free
-    traversal, at least 30 s more [s]."""
+    traversal, at least 30 s more [s].
+    """
     return duration_s + max(30.0, 2.0 * duration_s)
 
 
 def tabulate(paths, s_end: float, step_s: float = REFERENCE_STEP_S) -> References:
     """:data:`References` of ``paths`` (one per robot row, None for a follower) over
-    [0, ``s_end``]."""
+    [0, ``s_end``].
+    """
     grid = np.arange(int(math.ceil(s_end / step_s)) + 2) * step_s
     rows = np.full(len(paths), -1, dtype=np.int64)
     tabs = []
@@ -101,7 +103,8 @@ def leader_reference(refs, i, s, sd, sdd, out):
 @njit(cache=True)
 def goal_free(gx, gy, ob, prm):
     """The goal lies outside every obstacle's protected region Q (else the robot is parked on a
-    limit cycle by design and does not count in its team's error, S17.1)."""
+    limit cycle by design and does not count in its team's error, S17.1).
+    """
     for j in range(ob.c.shape[0]):
         kap = prm.protected_scale
         if h_value(gx - ob.c[j, 0], gy - ob.c[j, 1], ob.phi[j], kap * ob.axes[j, 0],
@@ -114,7 +117,8 @@ def goal_free(gx, gy, ob, prm):
 def team_errors(p, goal, team, known, ob, prm, out):
     """S17.1: E of every team -> ``out`` (N,) at the leader rows: the largest |p_i - g_i| of its
     known robots with a free goal; -E when the leader's own goal is not free (the reference must
-    carry it out of the obstacle's Q, the followers' goals hang on the parked leader)."""
+    carry it out of the obstacle's Q, the followers' goals hang on the parked leader).
+    """
     out[:] = 0.0
     for i in range(p.shape[0]):
         if not known[i] or not goal_free(goal[i, 0], goal[i, 1], ob, prm):
@@ -142,7 +146,8 @@ def rate_targets(t, e_team, giving_way, pr, leaders, s_end, prm, out):
     """S17.1-S17.3: the rate target of every leader row at time ``t`` [s since the mission's
     start] -> ``out``: :func:`rate_target` of its team, and 0 within ``finish_s`` of its end while
     some team is not re-formed (E above ``reform_stop_m``): the mission ends with every team in
-    formation. A reference that has waited :func:`max_wait_s` in all (t - s) moves on at 1."""
+    formation. A reference that has waited :func:`max_wait_s` in all (t - s) moves on at 1.
+    """
     worst = 0.0
     for i in leaders:
         worst = max(worst, abs(e_team[i]))
@@ -160,7 +165,8 @@ def rate_targets(t, e_team, giving_way, pr, leaders, s_end, prm, out):
 @njit(cache=True)
 def at(pr, i, tau, s_end):
     """(s, s_dot, s_ddot) of row i ``tau`` [s] into its current interval (s_ddot constant over
-    it); at s_end the reference rests."""
+    it); at s_end the reference rests.
+    """
     sdd = pr.sdd[i]
     s = pr.s[i] + pr.sd[i] * tau + 0.5 * sdd * tau * tau
     if s >= s_end:
@@ -171,7 +177,8 @@ def at(pr, i, tau, s_end):
 @njit(cache=True)
 def step(pr, i, dt, target, s_end, prm):
     """Row i to the end of its interval of ``dt`` [s], then toward ``target`` for the next one:
-    s_ddot = (target - s_dot) / ``progress_tau_s`` (S17.2)."""
+    s_ddot = (target - s_dot) / ``progress_tau_s`` (S17.2).
+    """
     s, sd, _ = at(pr, i, dt, s_end)
     pr.s[i] = s
     pr.sd[i] = sd

@@ -38,7 +38,6 @@ import numpy as np
 from ament_formation.core.control.floor import floor_edges, near_floor
 from ament_formation.core.model.dynamics import ROW_M_TILDE, ROW_R, ROW_TAU_MAX
 
-
 PASSES = 4  # alternating projections of the barrier (then a stop if a robot's is still violated)
 
 

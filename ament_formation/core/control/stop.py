@@ -1,5 +1,6 @@
-"""The controlled stop (docs/design.md §7): what a robot's controller commands when its inputs go stale
-(no camera pose for ``pose_timeout_s``, its parent's state lost): wheels to rest, held there; and
+"""The controlled stop (docs/design.md §7): what a robot's controller commands when its
+inputs go stale (no camera pose for ``pose_timeout_s``, its parent's state lost): wheels to rest,
+held there; and
 when the camera-loss stop must begin so that the robot is at rest by ``pose_timeout_s``
 (:class:`StopLead`, docs/safety.md §7).
 """
@@ -25,8 +26,8 @@ def stop_torque(
     decel_mps2: float = 0.0,
     period_s: float = 0.01,
 ) -> np.ndarray:
-    """Controlled stop (docs/design.md §7): torques (N, 2) that bring (v, omega) to rest and hold them
-    there against the bounded disturbance g.
+    """Controlled stop (docs/design.md §7): torques (N, 2) that bring (v, omega) to rest and
+    hold them there against the bounded disturbance g.
 
     A sliding-mode velocity regulator on sigma = x2 (S2.2: x2dot = f2 + B2 u + g):
     u = B2^-1 (-x2 / T - K sat(x2 / eps) - f2), with T = ``stop_time_s`` and the gains of
@@ -97,7 +98,8 @@ the hold-parent stop (the formation law's K and boundary layer, ``hold_*``; omeg
 @njit(cache=True)
 def stop_torque_k(v, w, plant, tau_max, stop_time_s, gain_v, eps_v, gain_w, eps_w):
     """:func:`stop_torque` of one robot (its (v, omega), plant and gains per unit of its own
-    components) -> (tau_left, tau_right)."""
+    components) -> (tau_left, tau_right).
+    """
     mt, it, r, a, d, mc = plant
     vdot = -v / stop_time_s - gain_v * min(1.0, max(-1.0, v / eps_v)) - mc * d / mt * w * w
     wdot = -w / stop_time_s - gain_w * min(1.0, max(-1.0, w / eps_w)) + mc * d / it * w * v
@@ -280,7 +282,8 @@ class StopLead:
 
     def compiled(self, gains: ControlGains) -> StopK:
         """:data:`StopK` of this lead, with the hold-parent stop's v gains (the formation law's,
-        :func:`stop_gains` without the camera-loss deceleration)."""
+        :func:`stop_gains` without the camera-loss deceleration).
+        """
         (k_v, e_v), _w = stop_gains(gains, 0.0, self.period_s)
         return StopK(self.stop_time_s, *self._v, *self._w, self.margin_s, self.max_s,
                      self.speed_max_mps, self.turn_rate_max_radps, k_v, e_v)

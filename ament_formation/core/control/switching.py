@@ -158,7 +158,8 @@ def release(i, t, m, ev, nev):
 @njit(cache=True)
 def relative_velocity(zx, zy, vx, vy, cvx, cvy, phi_dot):
     """S14.2: the robot's velocity relative to the target's material point under it,
-    p_dot - (c_dot + phi_dot J z)."""
+    p_dot - (c_dot + phi_dot J z).
+    """
     return vx - cvx + phi_dot * zy, vy - cvy - phi_dot * zx
 
 
@@ -237,7 +238,8 @@ def cooling(kind, target, t, i, m, prm):
 @njit(cache=True)
 def ranks_before(em, h_em, lam, best, b_em, b_hem, b_lam):
     """S8.1 ranking: emergencies first (smallest h_em), then the earliest contact (smallest
-    lambda); ``best`` < 0: nothing ranked yet."""
+    lambda); ``best`` < 0: nothing ranked yet.
+    """
     if best < 0:
         return True
     if em != b_em:
@@ -254,7 +256,8 @@ def stalled(i, t, p, anchor, t_anchor, prm):
     """S8.9 progress monitor of robot i at p (its ``anchor`` (N, 2) and ``t_anchor`` (N,)):
     re-anchors when the robot has moved more than ``stall_distance_m`` from its anchor; True
     when it has not for ``stall_time_s``. Whoever owns the robot's mode acts (R1, the
-    coordinator's C3-C5, C9) and re-anchors (:func:`anchor_at`)."""
+    coordinator's C3-C5, C9) and re-anchors (:func:`anchor_at`).
+    """
     ax, ay = anchor[i, 0], anchor[i, 1]
     if not (math.hypot(p[i, 0] - ax, p[i, 1] - ay) <= prm.stall_distance_m):  # NaN: first call
         anchor_at(i, t, p, anchor, t_anchor)
@@ -286,7 +289,8 @@ def reanchor(i, t, p, m):
 def begin_episode(i, t, p, m, prm):
     """Robot i leaves C for an avoidance: its monitor starts again, unless it left an avoidance
     less than ``stall_time_s`` ago (one episode: a robot that flips between reasons without
-    moving stays stalled, S8.9)."""
+    moving stays stalled, S8.9).
+    """
     if t - m.last_exit[i] >= prm.stall_time_s:
         reanchor(i, t, p, m)
 
@@ -294,7 +298,8 @@ def begin_episode(i, t, p, m, prm):
 @njit(cache=True)
 def parked(px, py, gx, gy, cx, cy, phi, r1, r2, prm):
     """S8.9/S6.5: the goal's anomaly on the limit cycle is within the parking anomaly of the
-    robot's: the field asks it to wait there (it is not stalled, it is parked)."""
+    robot's: the field asks it to wait there (it is not stalled, it is parked).
+    """
     big1 = prm.limit_cycle_scale * r1
     big2 = prm.limit_cycle_scale * r2
     dd = anomaly(gx - cx, gy - cy, phi, big1, big2) - anomaly(px - cx, py - cy, phi, big1, big2)
@@ -308,7 +313,8 @@ def parked(px, py, gx, gy, cx, cy, phi, r1, r2, prm):
 def obstacle_candidate(i, t, robots, ob, m, prm):
     """Guard ``obstacle_threat`` of robot i over every obstacle (S8.1, S14.2) -> (best
     candidate j or -1, its emergency flag, its h_L, emergency and h_L of the obstacle the robot
-    is on now)."""
+    is on now).
+    """
     p, pd = robots.p, robots.pd
     best, b_em, b_hem, b_lam, b_hl = -1, False, INF, INF, INF
     cur_em, cur_hl = False, INF
@@ -336,7 +342,8 @@ def obstacle_candidate(i, t, robots, ob, m, prm):
 @njit(cache=True)
 def choose_sense(i, j, robots, ob, m, prm):
     """The sense of robot i entering obstacle j: the sense of a robot already on j (one sense per
-    obstacle, S14.6), else S6.6 rules 1-4; then S16.2 (the floor)."""
+    obstacle, S14.6), else S6.6 rules 1-4; then S16.2 (the floor).
+    """
     for q in range(m.mode.shape[0]):
         if q != i and robots.known[q] and m.mode[q] == MODE_OBSTACLE and m.tgt[q] == j:
             return m.sdir[q]
@@ -356,7 +363,8 @@ def choose_sense(i, j, robots, ob, m, prm):
 @njit(cache=True)
 def _reverse_on_obstacle(i, j, t, robots, ob, m, prm, ev, nev):
     """Row R1: a robot stalled on obstacle j's limit cycle, not parked, turns the other way
-    unless the floor closes that way (S8.9, S16.2). Returns (acted, nev)."""
+    unless the floor closes that way (S8.9, S16.2). Returns (acted, nev).
+    """
     p, goal = robots.p, robots.goal
     if not progress(i, t, p, m, prm):
         return False, nev
@@ -380,7 +388,8 @@ def robot_transitions(i, t, robots, ob, m, prm, ev, nev):
     """One decision of robot i's own table (module docstring, rows R1-R4) on ``robots``
     (:data:`Robots`), obstacles ``ob`` (ObstacleSnapshot) and the switching state ``m``
     (:data:`Modes`, row i updated in place; a mutual partner demoted, S8.3). Returns the event
-    count."""
+    count.
+    """
     jn, em_n, hl_n, cur_em, cur_hl = obstacle_candidate(i, t, robots, ob, m, prm)
     md = m.mode[i]
     if md == MODE_OBSTACLE:
@@ -425,7 +434,8 @@ def apply_assignment(i, t, a_mode, a_row, a_sense, a_t_entry, a_wx, a_wy, a_park
     when its parking factor applies (``a_park_at`` [s]). On an obstacle the robot keeps its own
     mode (static obstacles beat robots; its report tells the coordinator) and takes only a
     request to make way (``a_park_at``: no parking until then, S8.9). A different or withdrawn
-    assignment ends the encounter in force."""
+    assignment ends the encounter in force.
+    """
     md = m.mode[i]
     if md == MODE_OBSTACLE:
         m.park_at[i] = max(m.park_at[i], a_park_at)

@@ -18,7 +18,6 @@ is the controlled point p (CoM, distance d ahead of the axle midpoint); ``torque
 from __future__ import annotations
 
 from collections import namedtuple
-
 from dataclasses import dataclass
 import math
 from typing import Callable, Sequence

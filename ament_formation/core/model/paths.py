@@ -507,7 +507,9 @@ def fast_reference(path):
 
 
 def path_from_config(cfg) -> Path:
-    """Build a path from its scenario mapping (docs/design.md §5), e.g. ``{type: line, start_m: [0, 0],
+    """Build a path from its scenario mapping (docs/design.md §5).
+
+    For example ``{type: line, start_m: [0, 0],
     heading_rad: 0, speed_mps: 0.05}``; with ``stop_s`` (any type) the path stops there and rests
     (:class:`HeldPath`). Raises ConfigError naming the key (relative to the path).
     """

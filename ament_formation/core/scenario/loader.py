@@ -1,4 +1,4 @@
-"""Scenario files (docs/design.md §5): load a YAML scenario and validate it completely and strictly.
+"""Scenario files (docs/design.md §5): load a YAML scenario, validate it completely, strictly.
 
 Every problem raises :class:`ConfigError` whose one-line text names the file, the field (a path
 such

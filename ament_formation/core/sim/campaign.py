@@ -188,7 +188,8 @@ def _within_after(result, scenario, t_end: float, limit_m: float) -> float | Non
 
 def reform_time_s(result, scenario) -> float | None:
     """Seconds from the last exit from any avoidance mode until every robot with a free goal is
-    within :data:`REFORMED_M` of its goal (0 without avoidance; None: not within the run)."""
+    within :data:`REFORMED_M` of its goal (0 without avoidance; None: not within the run).
+    """
     exits = [e['t_s'] for e in result.mode_events if e['event'] == 'exit']
     if not exits:
         return 0.0

@@ -20,7 +20,8 @@ objects the nodes hold:
   disturbance, obstacle motion).
 
 The agents' stops run as on the robots (a run never starves them at drop rates below about
-0.5). Not modelled: encoder quantisation, clock offsets and DDS delays (a broadcast reaches the robots that hear it by their next period; a robot coming into
+0.5). Not modelled: encoder quantisation, clock offsets and DDS delays (a broadcast reaches the
+robots that hear it by their next period; a robot coming into
 hearing range is heard at once).
 
 The record is the TRUE state (the same :class:`~ament_formation.core.sim.trajectory.SimResult` as
@@ -215,7 +216,8 @@ PRESTART_FRAMES = 10  # frames the estimators fuse before the mission starts (ro
 class _Loop:
     """The state of one sensed run (see :func:`simulate_sensed`): the twin, the camera, every
     robot's agent (one :class:`AgentBatch`: what each robot's computer runs) and the
-    coordinator."""
+    coordinator.
+    """
 
     def __init__(self, scenario, sensing: SensingParams, dt_s: float):
         self.sc = scenario
@@ -246,7 +248,8 @@ class _Loop:
 
     def prestart(self, fps: float) -> None:
         """The estimators fuse frames of the robots at rest before the mission starts; the
-        coordinator's graph (mission start at t = 0) and first message reach every robot."""
+        coordinator's graph (mission start at t = 0) and first message reach every robot.
+        """
         pose = self.true_pose()
         st, sc = self.agents.state, self.agents.static
         zeros = np.zeros((len(self.ids), 2))
@@ -426,7 +429,8 @@ class _Record:
 
 def _true_goals(scenario, loop, t_s: np.ndarray, rec: _Record) -> np.ndarray:
     """(T, N, 2) formation goals of the TRUE states: a leader's r(s) at the coordinator's
-    progress, a follower's original parent + delta."""
+    progress, a follower's original parent + delta.
+    """
     ids, state = loop.ids, rec.state[:rec.n]
     coord = loop.coord
     row = {rid: i for i, rid in enumerate(ids)}

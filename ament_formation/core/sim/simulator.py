@@ -44,8 +44,8 @@ from ament_formation.core.control.switching import (
     MODE_NAMES,
     MODE_OBSTACLE,
     new_modes,
-    Robots,
     robot_transitions,
+    Robots,
 )
 from ament_formation.core.model.disturbance import (
     Disturbance,
@@ -53,8 +53,13 @@ from ament_formation.core.model.disturbance import (
     disturbance_phasor_advance_k,
     disturbance_phasor_init_k,
 )
-from ament_formation.core.model.dynamics import PlantCoeffs, point_velocity_k, rk4_step_k, \
-    robot_plant_k, ROW_D
+from ament_formation.core.model.dynamics import (
+    PlantCoeffs,
+    point_velocity_k,
+    rk4_step_k,
+    robot_plant_k,
+    ROW_D,
+)
 from ament_formation.core.model.obstacles import (
     obstacle_arrays,
     obstacle_states,
@@ -98,7 +103,8 @@ NEIGHBOUR_SLACK_M = 0.05  # the neighbour lists reach this beyond the barrier's 
 @njit(cache=True)
 def neighbour_lists(p, known, rbody, prm):
     """:data:`Neighbours` of every robot: the known robots whose keep-out circle is within the
-    barrier's range, plus ``NEIGHBOUR_SLACK_M`` for the motion until the next decision."""
+    barrier's range, plus ``NEIGHBOUR_SLACK_M`` for the motion until the next decision.
+    """
     reach = 2.0 * rbody.max() + prm.agent_keepout_margin_m + prm.safety_range_m + \
         NEIGHBOUR_SLACK_M
     pairs = candidate_pairs(p, known, reach)
@@ -123,7 +129,8 @@ def neighbour_lists(p, known, rbody, prm):
 @njit(cache=True)
 def _references(t, robots, graph, mission):
     """The leaders' references r, r_dot, r_ddot at t (within the progress interval begun at the
-    last decision) into ``robots.ref``."""
+    last decision) into ``robots.ref``.
+    """
     pr, refs = mission.progress, mission.refs
     tau = t - mission.t_dec[0]
     for i in graph.leaders:
@@ -134,7 +141,8 @@ def _references(t, robots, graph, mission):
 @njit(cache=True)
 def _decide(t, robots, graph, plant, ob, m, teams, mission, prm, ev):
     """One decision: each robot's table (S8.7), then the coordinator's (S8.8) with the teams'
-    progress (S17). Returns the event count."""
+    progress (S17). Returns the event count.
+    """
     dec = Robots(robots.x[:, :2].copy(), robots.pd, robots.goal, robots.goal_dot, robots.vc,
                  graph.team, plant.rbody, graph.parent, graph.slot, robots.known,
                  graph.orig_parent)
@@ -181,7 +189,8 @@ def _reaching(reach, i, t, sx, sy, eps):
 @njit(cache=True)
 def _record(rk, robots, mode, ob, rec, mission):
     """Sample ``rk`` of the record: states, torques, goals, flags, obstacle poses, the progress
-    of every leader's reference (S17; 0 for followers)."""
+    of every leader's reference (S17; 0 for followers).
+    """
     x = robots.x
     for i in range(x.shape[0]):
         rec.progress[rk, i] = mission.progress.s[i] if mission.refs.row[i] >= 0 else 0.0
@@ -219,11 +228,13 @@ def _plant_step(robots, plant, d_sin, d_cos, g_prev, dt):
 
 
 @njit(cache=True)
-def _run_segment(k0, k_end, rk0, skip_decide, clock, robots, graph, plant, obstacles, m, teams,
-                 mission, prm, ev, reach, rec):
-    """Steps k0 .. k_end-1 of the closed loop. Returns (next step, next record row, events,
-    why it returned: CHUNK_END, EVENTS, MISSION_END or RECORD_FULL)."""
+def _run_segment(span, skip_decide, clock, robots, graph, plant, obstacles, m, teams, mission,
+                 prm, ev, reach, rec):
+    """Steps k0 .. k_end-1 of the closed loop, ``span`` = (k0, k_end, first record row). Returns (next step, next record row, events,
+    why it returned: CHUNK_END, EVENTS, MISSION_END or RECORD_FULL).
+    """
     dt, dec_every, rec_every = clock
+    k0, k_end, rk0 = span
     x, pd = robots.x, robots.pd
     n = x.shape[0]
     d_sin = np.empty_like(plant.d_amp)
@@ -430,7 +441,7 @@ def simulate(
     next_progress = 5.0
     while k < k_end:
         k, rk, nev, why = _run_segment(
-            k, min(k_end, k + int(round(5.0 / dt_s))), rk, skip, clock, robots,
+            (k, min(k_end, k + int(round(5.0 / dt_s))), rk), skip, clock, robots,
             setup.graph_arrays(parent, offset, order), setup.plant, setup.obstacles, m, teams,
             mission, setup.prm, ev, reach, rec)
         if reach.count[0] > reach.records.shape[0] // 2:
@@ -493,7 +504,8 @@ def _drain_reaching(setup: _Setup, reach: ReachArrays, reaching: list[dict]) -> 
 
 def _record_scenario_obstacles(scenario, t_rec: np.ndarray, rec: RecordArrays) -> RecordArrays:
     """``rec`` with the scenario's obstacles at the record times (the loop recorded the ones the
-    law avoids, some merged: S13.3)."""
+    law avoids, some merged: S13.3).
+    """
     field = ObstacleField(scenario.obstacles)
     states = [field.at(float(t)) for t in t_rec]
     if not states:
@@ -509,7 +521,8 @@ def target_name(names, ids, mode: int, target: int) -> str:
 
 def _mode_events(setup: _Setup, rows: np.ndarray, mode_events: list[dict]) -> set[int]:
     """Append the event rows (t, robot row, enter, mode, target, sense) to ``mode_events`` as
-    dicts; the set of robot rows that switched."""
+    dicts; the set of robot rows that switched.
+    """
     changed = set()
     for t_ev, i, enter, md, target, s in rows:
         i = int(i)
