@@ -230,8 +230,10 @@ def _plant_step(robots, plant, d_sin, d_cos, g_prev, dt):
 @njit(cache=True)
 def _run_segment(span, skip_decide, clock, robots, graph, plant, obstacles, m, teams, mission,
                  prm, ev, reach, rec):
-    """Steps k0 .. k_end-1 of the closed loop, ``span`` = (k0, k_end, first record row). Returns (next step, next record row, events,
-    why it returned: CHUNK_END, EVENTS, MISSION_END or RECORD_FULL).
+    """Steps k0 .. k_end-1 of the closed loop, ``span`` = (k0, k_end, first record row).
+
+    Returns (next step, next record row, events, why it returned: CHUNK_END, EVENTS,
+    MISSION_END or RECORD_FULL).
     """
     dt, dec_every, rec_every = clock
     k0, k_end, rk0 = span
