@@ -565,9 +565,12 @@ def test_every_shipped_scenario_declares_what_a_run_must_achieve():
         assert not load_scenario(path).expect.empty, path
 
 
-def _metrics(rms=(0.001, 0.004), entries=(1, 1), sim_time_s=55.0, pair_m=1.0, entries_p=0):
+def _metrics(rms=(0.001, 0.004), entries=(1, 1), mission_end_s=57.3, pair_m=1.0, entries_p=0):
+    # a run is complete when its mission ended (every reference at its end, S17.3): its
+    # mission_end_s, no earlier than duration_s (55 s); None when it did not end (cut short)
     return {
-        'sim_time_s': sim_time_s,
+        'sim_time_s': 9.8 if mission_end_s is None else mission_end_s,
+        'mission_end_s': mission_end_s,
         'prohibited_entries': entries_p,
         'min_clearance_m': 0.03,
         'min_inter_robot_distance_m': pair_m,
@@ -592,7 +595,8 @@ def test_check_run_passes_a_good_run_and_names_every_failed_check():
     ]
 
     bad = check_run(
-        _metrics(rms=(0.0424, None), entries=(3, 1), sim_time_s=9.8, pair_m=0.15, entries_p=1),
+        _metrics(rms=(0.0424, None), entries=(3, 1), mission_end_s=None, pair_m=0.15,
+                 entries_p=1),
         paper,
     )
     failed = {c['name']: c for c in bad['checks'] if not c['ok']}
@@ -606,10 +610,11 @@ def test_check_run_passes_a_good_run_and_names_every_failed_check():
     }
     assert failed['contact']['limit'] == pytest.approx(0.2)  # 2 x body radius
     assert failed['settled_rms_m[R1]']['value'] is None  # no settled window is a failure
+    assert failed['completed']['value'] is None and good['checks'][0]['value'] == 57.3
     line = bad['failure']
     assert (
         '\n' not in line
-        and 'completed 9.8 < 55' in line
+        and 'completed: the mission did not end' in line
         and 'settled_rms_m[R0] 0.0424 > 0.005' in line
     )
     assert 'avoidance_entries[R0] 3 not in [1, 2]' in line and 'no settled window' in line
