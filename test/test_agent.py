@@ -175,7 +175,9 @@ def test_camera_loss_stops_in_time_to_be_at_rest_by_the_pose_timeout(v):
                     HEAD_ON.disturbance.accel_bound, prm.stop_margin_s, prm.stop_speed_max_mps,
                     prm.stop_turn_rate_max_radps, prm.stop_decel_mps2, 0.01)
     expected = prm.pose_timeout_s - lead.lead_s(v, 0.0)  # camera age at which the stop begins
-    assert 0.3 < expected <= prm.pose_timeout_s - prm.stop_margin_s
+    # docs/safety.md §7 table, "stop begins at age": 0.470 s at rest, 0.209 s at 0.1 m/s
+    assert expected == pytest.approx({0.0: 0.470, 0.1: 0.209}[v], abs=1e-3)
+    assert expected <= prm.pose_timeout_s - prm.stop_margin_s
     statuses = []  # (camera age [s], status): the pose was captured at T0 - 5 ms
     for k in range(1, 60):
         statuses.append((round(0.01 * k + 0.005, 3), rb.tick(T0 + 0.01 * k, camera=False)))
