@@ -144,11 +144,13 @@ def test_the_period_waits_for_a_pose_the_graph_and_the_coordinator():
     assert rb.mode['mode'] == 'stopped' and rb.torque.tolist() == [0.0, 0.0]  # at rest
     a.assign(T0 + 0.05, {}, None)
     assert rb.tick(T0 + 0.05, camera=False) == 'running'
-    # the leader stands on r(0) at rest; its reference moves on at 0.05 m/s: it drives forward
-    assert rb.torque[0] > 0.01 and rb.torque[1] > 0.01
+    # the leader stands on r(0) at rest, heading along x; its reference moves on at 0.05 m/s
+    # along the sine, whose tangent at r(0) is 32 deg to the left: it drives forward and turns
+    # left (the right wheel's torque the larger)
+    assert rb.torque.sum() > 0.01 and rb.torque[1] > rb.torque[0] + 0.01
     assert rb.mode == {'mode': 'coordination', 'target': None, 'direction': None,
                        'avoiding': False}
-    assert a.out.accel[0, 0] > 0.0
+    assert a.out.accel[0, 0] > 0.0 and a.out.accel[0, 1] > 0.0
 
 
 def test_no_wheel_data_is_zero_torque_until_it_comes_back():
