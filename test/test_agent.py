@@ -401,11 +401,12 @@ def test_an_assignment_with_a_partner_not_heard_waits_until_it_is():
 def test_a_coordinated_robot_never_enters_a_robot_encounter_by_itself():
     """S7.1: the coordinator alone decides yield/mutual; the robot's own emergency response is
     the barrier. Robot 1 stands 0.30 m ahead (inside Q, inside the barrier's range of R_aa
-    = 0.25 m) and robot 0 closes at 0.1 m/s: no encounter, but a braking command.
+    = 0.25 m) and robot 0 closes at its reference's speed, 0.08 m/s: no encounter, but a braking
+    command (alone, on its line at that speed, it has nothing to brake for).
     """
-    near = _facing(gap_m=0.30, v=0.1)
+    near = _facing(gap_m=0.30, v=0.08)
     alone = Robot(HEAD_ON, 0)
-    alone.start((0.0, 0.6, 0.0), v=0.1)
+    alone.start((0.0, 0.6, 0.0), v=0.08)
     for k in range(1, 20):
         near.agent.hear(1, np.array([0.30, 0.6, math.pi, 0.0, 0.0]), np.zeros(2), T0 + 0.01 * k)
         near.tick(T0 + 0.01 * k)
