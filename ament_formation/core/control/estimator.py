@@ -29,10 +29,10 @@ from ament_formation.core.errors import ConfigError
 from ament_formation.core.params import RobotParams
 
 HISTORY = 256  # odometry steps kept per robot (more than history_s at the wheel rate)
-# float slots of a robot's row
+# float slots of a robot's row (F_OUT_T: the time of the latest state returned, state_at_k)
 (F_ANCHOR_T, F_ANCHOR_X, F_ANCHOR_Y, F_ANCHOR_TH, F_AXLE_X, F_AXLE_Y, F_TH, F_QL, F_QR, F_Q_T,
- F_V, F_W, F_ODOM_T, F_CAMERA_T) = range(14)
-N_F = 14
+ F_V, F_W, F_ODOM_T, F_CAMERA_T, F_OUT_T) = range(15)
+N_F = 15
 # int slots: initialised, has a wheel sample, gated frames in a row, ring head, ring count
 I_INIT, I_HAS_Q, I_GATED, I_HEAD, I_COUNT = range(5)
 N_I = 5
@@ -44,7 +44,7 @@ CAMERA_OUTCOMES = ('initialized', 'accepted', 'relocked', 'rejected_nonfinite',
                    'rejected_stale', 'rejected_outlier')
 
 EstimatorArrays = namedtuple('EstimatorArrays', ['f', 'i', 'steps', 'counters'])
-EstimatorArrays.__doc__ = """The estimates of R robots: ``f`` (R, 14) float slots (F_*),
+EstimatorArrays.__doc__ = """The estimates of R robots: ``f`` (R, 15) float slots (F_*),
 ``i`` (R, 5) int slots (I_*), ``steps`` (R, HISTORY, 3) the odometry ring [t_s, ds_m, dth_rad],
 ``counters`` (R, 7) int (:data:`COUNTERS`)."""
 
@@ -102,6 +102,7 @@ def new_estimates(n: int) -> EstimatorArrays:
     f = np.zeros((n, N_F))
     f[:, F_CAMERA_T] = -np.inf
     f[:, F_ODOM_T] = np.nan
+    f[:, F_OUT_T] = -np.inf
     return EstimatorArrays(f, np.zeros((n, N_I), dtype=np.int64), np.zeros((n, HISTORY, 3)),
                            np.zeros((n, len(COUNTERS)), dtype=np.int64))
 
@@ -217,6 +218,7 @@ def _initialize(e, row, t, x, y, th, k):
         th), th
     e.i[row, I_INIT] = 1
     f[F_CAMERA_T] = t
+    f[F_OUT_T] = -np.inf
     _refold(e, row)
     e.counters[row, C_CAM] += 1
 
@@ -285,13 +287,15 @@ def camera_update_k(e, row, t, x, y, th, k):
 @njit(cache=True)
 def state_at_k(e, row, t, k, out):
     """State (5,) of p -> ``out``, extrapolated with the latest (v, omega) to ``t`` (at most
-    ``max_extrapolation_s`` past the newest odometry sample; never backwards).
+    ``max_extrapolation_s`` past the newest odometry sample; never going back: never before
+    that sample, nor before the time of a state it returned already).
     """
     f = e.f[row]
     v, w = f[F_V], f[F_W]
     dt = 0.0
     if math.isfinite(f[F_ODOM_T]):
-        dt = min(max(0.0, t - f[F_ODOM_T]), k.max_extrapolation_s)
+        dt = min(max(0.0, max(t, f[F_OUT_T]) - f[F_ODOM_T]), k.max_extrapolation_s)
+        f[F_OUT_T] = f[F_ODOM_T] + dt
     x, y, th = arc_step(f[F_AXLE_X], f[F_AXLE_Y], f[F_TH], v * dt, w * dt)
     out[0] = x + k.d * math.cos(th)
     out[1] = y + k.d * math.sin(th)
@@ -352,7 +356,7 @@ class PoseEstimator:
         return out
 
     def state(self) -> np.ndarray:
-        """(5,) at the newest odometry sample."""
+        """(5,) at the newest odometry sample (or later: :meth:`state_at` never goes back)."""
         t = self._e.f[0, F_ODOM_T]
         return self.state_at(float(t) if math.isfinite(t) else 0.0)
 
