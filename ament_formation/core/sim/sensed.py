@@ -300,7 +300,9 @@ class _Loop:
         parents = self.coord.reported_avoiding()
         if parents is not None:
             ag.set_graph(parents, 0.0)
-            self.graph_events.append({'t_s': round(t_s, 9), 'parents': _parents_json(parents)})
+            graph = _parents_json(parents)
+            if graph != self.graph_events[-1]['parents']:  # a change of the graph (as simulate)
+                self.graph_events.append({'t_s': round(t_s, 9), 'parents': graph})
         if arbitrate:
             assignments, rates = self.coord.decide(t_s)
             if self.publisher.due(t_s, assignments, rates):
