@@ -94,6 +94,42 @@ def test_one_tick_runs_every_hosted_controller_and_peers_read_in_process(ros_con
     assert team.controllers == {}
 
 
+def test_the_control_loop_runs_the_callbacks_that_take_the_team_lock(ros_context):
+    """The control loop holds the team's lock for a whole period and, within it, hands the hosted
+    bridges' wheel samples to the controllers and takes the heard robots' state; those callbacks
+    take the lock too (the executor thread may run them), so the loop must get it again, not
+    wait for itself forever (a team whose loop hung drove no robot).
+    """
+    import threading
+
+    team = TeamNode(context=ros_context, params=TeamParams(scenario=str(SCENARIO)))
+    try:
+        assert team.loop is not None and team.lock is not None  # wall clock: the loop thread
+        c1 = team.controllers[1]
+        done = threading.Event()
+
+        def period():  # what ControlLoop does: the lock held, then a hosted bridge's sample
+            with team.lock:
+                c1.wheel_sample(np.zeros(2), np.zeros(2), c1.now_s())
+                c1._on_state(0, _odometry(c1.now_s()))
+            done.set()
+
+        worker = threading.Thread(target=period, daemon=True)
+        worker.start()
+        assert done.wait(5.0), 'the control loop deadlocked on its own lock'
+        assert team.batch.state.nwheel[c1.r] >= 1
+        assert team.batch.state.stamp[c1.r, team.batch.row[0]] > 0.0
+    finally:
+        team.destroy_node()
+
+
+def _odometry(stamp_s: float):
+    from ament_formation.ros import messages as msgs
+
+    return msgs.odometry(np.array([0.0, 0.0, 0.0, 0.0, 0.0]), msgs.stamp_from_s(stamp_s),
+                         'robot_0')
+
+
 def test_process_exits_2_on_bad_parameters(tmp_path):
     exe = program('formation_team')
     proc = subprocess.run(

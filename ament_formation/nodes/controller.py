@@ -358,12 +358,18 @@ class ControllerNode(Node):
     def mode(self) -> dict:
         return self.batch.mode_dict(self.r)
 
+    def coordinated(self, now_s: float | None = None) -> bool:
+        """The coordinator is heard: its last message arrived within ``coordinator_timeout_s``
+        (then it decides this robot's robot encounters, S7.1; diagnostics ``coordinator_heard``).
+        """
+        now = self.now_s() if now_s is None else now_s
+        return bool(now - self.batch.state.coord_s[self.r] <= self.prm.coordinator_timeout_s)
+
     def _control_status(self) -> tuple[int, str, dict]:
         b, r, now = self.batch, self.r, self.now_s()
         status = b.status(r)
         values = {'ticks': self.ticks, 'late_ticks': self.late_ticks, 'safety': status,
-                  'mode': b.mode_dict(r)['mode'],
-                  'coordinator_heard': now - b.state.coord_s[r] <= self.prm.coordinator_timeout_s,
+                  'mode': b.mode_dict(r)['mode'], 'coordinator_heard': self.coordinated(now),
                   'camera_age_s': round(b.camera_age_s(r, now), 3),
                   **{f'rejected_{k}': v for k, v in self.rejected.items()},
                   **b.counters(r), **self.clocks.report()}

@@ -22,7 +22,8 @@ the thread sleeps in select() on the ports and reads telemetry the moment it arr
 timer). The full-rate state and accel of the robots the controllers hear (other processes) are
 taken by the loop at the start of each period, what arrived since the previous one
 (ros/tick_inputs.py: no executor wake per message). Callbacks that change what a period reads
-(camera pose, graph, encounters) take the team's lock. With ``realtime_priority`` P the loop
+(camera pose, graph, encounters, wheel samples, heard states) take the team's lock, a re-entrant
+one: the loop itself runs some of them while it holds it. With ``realtime_priority`` P the loop
 thread runs under SCHED_FIFO P and the executor thread under P - 1. On simulated time
 (``use_sim_time``) executor timers run the periods.
 
@@ -131,7 +132,10 @@ class TeamNode(Node):
         self._now_ns = diag.clock_ns(self)  # the node's clock [ns] (read directly unless sim time)
         common = [*hosted_parameters, Parameter('use_sim_time', value=use_sim_time)]
         threaded = not use_sim_time and control_thread
-        self.lock = threading.Lock() if threaded else None
+        # re-entrant: the loop thread holds it for a whole period and, within it, runs callbacks
+        # that take it too when the executor thread may run them (a hosted bridge's wheel
+        # samples, the heard robots' state taken at the period); a plain Lock deadlocked there
+        self.lock = threading.RLock() if threaded else None
         self.loop: ControlLoop | None = None
         self.poll_watch = None  # stalls of the bridges' poll timer (diagnostics "serial poll")
         # the hosted controllers' parameters reach this node too (-p NAME:=VALUE of the process)

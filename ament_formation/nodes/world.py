@@ -110,6 +110,8 @@ class WorldParams:
             raise ConfigError(
                 f'must be in (0, tick_s] s (got {self.physics_dt_s!r})', 'physics_dt_s'
             )
+        if not (math.isfinite(self.hold_s) and 0.0 <= self.hold_s <= 3600.0):
+            raise ConfigError(f'must be in [0, 3600] s (got {self.hold_s!r})', 'hold_s')
 
 
 def _camera_path(name: str) -> Path:

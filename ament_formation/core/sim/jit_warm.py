@@ -53,6 +53,7 @@ def warm() -> None:
             agents.camera(r.id, 0.0, np.asarray(r.initial_pose, dtype=float))
         agents.tick(0.01)
         agents.share(0.01)
+        agents.needed(sc.robot_ids[0])  # the nodes' hearing (S10.2), called on its own
 
 
 def _warm_geometry() -> None:
