@@ -15,6 +15,7 @@ import pytest
 from ament_formation.core.control.arbitration import coordinate, new_teams
 from ament_formation.core.control.progress import (
     at,
+    finish_wait_s,
     leader_reference,
     max_time_s,
     max_wait_s,
@@ -119,6 +120,21 @@ def test_a_reference_waits_at_most_its_budget_then_moves_on():
     assert _targets([far, far], [5.0, 5.0], giving=[False, True], t=5.0 + budget - 0.01) == [
         0.0, 0.0]
     assert _targets([far, far], [5.0, 5.0], giving=[False, True], t=5.0 + budget) == [1.0, 1.0]
+
+
+def test_the_finish_wait_outlasts_the_budget_and_still_ends_within_the_runs_cap():
+    # S17.3: at its finish a reference waits for the teams past the S17.2 budget (a leader held
+    # up on an obstacle is not left 0.9 m short of its goal, pairsense65), up to finish_wait_s
+    budget, room = max_wait_s(30.0, PRM), finish_wait_s(30.0, PRM)
+    assert budget < room
+    assert 30.0 + room + PRM.finish_s + PRM.progress_tau_s < max_time_s(30.0)
+    assert finish_wait_s(5.0, PRM) > max_wait_s(5.0, PRM)  # short missions too
+    far = PRM.reform_stop_m + 0.1
+    near_end = 30.0 - PRM.finish_s + 0.1
+    assert _targets([far, 0.0], [near_end, near_end], t=near_end + budget + 1.0) == [0.0, 0.0]
+    assert _targets([far, 0.0], [near_end, near_end], t=near_end + room + 0.01) == [1.0, 1.0]
+    # away from the finish, the budget alone counts (the S17.2 test above)
+    assert _targets([far, 0.0], [20.0, 20.0], t=20.0 + budget) == [1.0, 1.0]
 
 
 def test_rate_targets_per_team_a_parked_leader_moves_on_and_the_finish_rule():

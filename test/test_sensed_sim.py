@@ -256,7 +256,9 @@ def test_robot_encounter_goes_through_the_coordinator(hear_all):
 def test_a_sensed_pair_turns_the_way_both_goals_agree_on(lanes, sense):
     # docs/law-changes.md section 14, through the coordinator's arbiter and both controllers:
     # robot 0 drives east in the northern lane, robot 1 west in the southern one, so both goals
-    # lie clockwise round the other robot (mirrored: counter-clockwise)
+    # lie clockwise round the other robot (mirrored: counter-clockwise). The two robots are two
+    # teams: the coordinator has the later-ranked one yield (S7.5, no mutual pair outside an
+    # emergency), and whichever yields turns the way its goal (and so both goals) asks
     mapping = yaml.safe_load((DATA / 'head_on.yaml').read_text())
     for robot, y in zip(mapping['robots'], lanes):
         robot['path']['start_m'][1] = robot['initial_pose'][1] = y
@@ -265,7 +267,8 @@ def test_a_sensed_pair_turns_the_way_both_goals_agree_on(lanes, sense):
     enters = [
         (e['robot'], e['mode'], e['direction']) for e in res.mode_events if e['event'] == 'enter'
     ]
-    assert enters == [(0, 'mutual', sense), (1, 'mutual', sense)]
+    assert len(enters) == 1 and enters[0][1:] == ('yield', sense), enters
+    assert enters[0][0] in (0, 1)
     assert compute_metrics(res, sc)['min_inter_robot_distance_m'] > 0.3
 
 

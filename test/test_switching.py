@@ -165,7 +165,8 @@ def test_r4_an_emergency_overrides_the_heading_test_and_the_cool_down():
 
 def test_threat_test_flags_an_imminent_contact_with_p_as_an_emergency():
     # outside E, heading straight at P: P reached in (0.6 - 0.4) / v
-    for v, em in ((0.1, True), (0.2, True), (0.13, True), (0.05, False)):
+    # imminent_s = 1.5 s (S18): 0.2 / 0.14 = 1.43 s is imminent, 0.2 / 0.13 = 1.54 s is not
+    for v, em in ((0.2, True), (0.14, True), (0.13, False), (0.1, False), (0.05, False)):
         trig, emergency, lam, h_em, h_l = threat_test(0.6, 0.0, -v, 0.0, 0.0, 0.4, 0.15, 1.8,
                                                       PRM)
         assert trig and emergency == (0.2 / v < PRM.imminent_s), v
@@ -185,8 +186,8 @@ def test_r4_a_rotating_bar_sweeping_toward_a_standing_robot_triggers_entry():
 
 def test_r4_the_most_urgent_obstacle_is_taken_emergencies_first():
     # two bars; the robot heads at the near one (contact later) while inside E of the far one
-    two = obstacles({'center': (0.0, 0.0)}, {'center': (1.02, 0.0)})
-    rb = one((0.6, 0.0), (-0.05, 0.0))  # 0.42 m from bar 1's centre: inside its E
+    two = obstacles({'center': (0.0, 0.0)}, {'center': (1.01, 0.0)})
+    rb = one((0.6, 0.0), (-0.05, 0.0))  # 0.41 m from bar 1's centre: inside its E (0.42 m)
     m = modes(1)
     assert [e[2:5] for e in robot_decision(0.0, m, rb, two)] == [('enter', 'obstacle', 1)]
     # without the emergency, the earliest contact with I

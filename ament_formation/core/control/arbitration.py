@@ -565,7 +565,7 @@ def right_of_way(t, robots, pairs, teams, prm):
     end of its reference first, then by the time the meeting began, then the team further into
     the meeting point; a team whose robots are all ``right_of_way_release_m`` from every other
     team's loses its key. The keys order all meeting teams at once, so no three teams wait on
-    each other in a circle.
+    each other in a circle; an exact tie (a symmetric meeting) goes to the lower team row.
     """
     n = robots.p.shape[0]
     near = np.zeros(n, dtype=np.bool_)
@@ -590,7 +590,22 @@ def right_of_way(t, robots, pairs, teams, prm):
         elif teams.done[tm]:
             teams.rank[tm] = -1.0  # at rest at its goals: the others go round it
         elif teams.rank[tm] == INF:
-            teams.rank[tm] = fresh[tm]
+            teams.rank[tm] = _untied(tm, fresh[tm], teams.rank)
+
+
+@njit(cache=True)
+def _untied(tm, key, rank):
+    """S7.5: ``key`` moved up by the least step that makes it differ from every other team's
+    key (a symmetric meeting gives equal keys; equal keys would order nobody).
+    """
+    tied = True
+    while tied:
+        tied = False
+        for q in range(rank.shape[0]):
+            if q != tm and rank[q] == key:
+                key += max(abs(key), 1.0) * 1e-12
+                tied = True
+    return key
 
 
 # implements: S7, S7.1

@@ -16,7 +16,9 @@ target with a first-order lag (``progress_tau_s``), so s_ddot stays bounded (S17
 
 The mission ends when every leader's reference has reached its end (S17.3); a reference within
 ``finish_s`` of its end waits while any team is not re-formed, so that the mission ends with every
-team in formation (a team already at its end may have been pushed out of formation since).
+team in formation (a team already at its end may have been pushed out of formation since). The
+wait along the path is bounded by :func:`max_wait_s`; the finish wait outlasts that budget, bounded
+by :func:`finish_wait_s` so that the mission still ends within the run's cap (:func:`max_time_s`).
 """
 
 from __future__ import annotations
@@ -59,6 +61,15 @@ def max_time_s(duration_s: float) -> float:
     traversal, at least 30 s more [s].
     """
     return duration_s + max(30.0, 2.0 * duration_s)
+
+
+@njit(cache=True)
+def finish_wait_s(s_end, prm):
+    """S17.3: how long in all (t - s) a reference may lag when it waits at its finish for the
+    teams to re-form: what :func:`max_time_s` leaves, less the time to finish after the wait
+    (twice ``finish_s`` + ``progress_tau_s``), so that the mission still ends within the run [s].
+    """
+    return max(30.0, 2.0 * s_end) - 2.0 * (prm.finish_s + prm.progress_tau_s)
 
 
 def tabulate(paths, s_end: float, step_s: float = REFERENCE_STEP_S) -> References:
@@ -146,20 +157,23 @@ def rate_targets(t, e_team, giving_way, pr, leaders, s_end, prm, out):
     """S17.1-S17.3: the rate target of every leader row at time ``t`` [s since the mission's
     start] -> ``out``: :func:`rate_target` of its team, and 0 within ``finish_s`` of its end while
     some team is not re-formed (E above ``reform_stop_m``): the mission ends with every team in
-    formation. A reference that has waited :func:`max_wait_s` in all (t - s) moves on at 1.
+    formation. A reference that has waited :func:`max_wait_s` in all (t - s) moves on at 1, but
+    for the finish wait, which lasts up to :func:`finish_wait_s` in all.
     """
     worst = 0.0
     for i in leaders:
         worst = max(worst, abs(e_team[i]))
     budget = max_wait_s(s_end, prm)
+    finish_room = finish_wait_s(s_end, prm)
     for i in leaders:
         # a parked leader (E < 0) moves on: its goal must come out of the obstacle's Q
         out[i] = 0.0 if giving_way[i] else 1.0 if e_team[i] < 0.0 else rate_target(
             e_team[i], False, prm)
-        if worst > prm.reform_stop_m and pr.s[i] >= s_end - prm.finish_s:
-            out[i] = 0.0
-        if t - pr.s[i] >= budget:
+        late = t - pr.s[i]
+        if late >= budget:
             out[i] = 1.0
+        if worst > prm.reform_stop_m and pr.s[i] >= s_end - prm.finish_s and late < finish_room:
+            out[i] = 0.0  # the finish wait outlasts the budget, within the run's cap (S17.3)
 
 
 @njit(cache=True)

@@ -330,8 +330,8 @@ def simulate_sensed(
 ) -> SensedResult:
     """Run ``scenario`` with camera sensing, every robot's agent at its control period and the
     coordinator (module docstring) until the mission ends (the coordinator's references at
-    their ends, S17.3) and ``hold_s`` [s] longer, or until :func:`max_time_s`; return the TRUE
-    record.
+    their ends, S17.3) and ``hold_s`` [s] longer (in full), or until :func:`max_time_s` when the
+    mission does not end; return the TRUE record.
 
     ``sensing``: :class:`SensingParams` (e.g. ``SensingParams.preset('camera')``); ``dt_s``:
     plant integration step [s] (RK4, torque held between control periods; the control period
@@ -366,7 +366,7 @@ def simulate_sensed(
             loop.tick(t, arb_every > 0 and k % arb_every == 0)
             end = loop.coord.mission_end_s
             if end is not None and k_end == k_cap:
-                k_end = min(k_cap, k + int(round(hold_s / dt_s)) + 1)
+                k_end = k + int(round(hold_s / dt_s)) + 1  # the hold in full (S17.3)
         if k % rec_every == 0:
             rec.add(tw, rows, loop)
         nxt = min(k_end, (k // step + 1) * step, int(math.ceil(next_frame * cap_every - 1e-9)))

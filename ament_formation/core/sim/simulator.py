@@ -407,8 +407,9 @@ def simulate(
     hold_s: float = 0.0,
 ) -> SimResult:
     """Run the closed loop of ``scenario`` until its mission ends (every leader's reference at
-    its end, S17.3) and ``hold_s`` [s] longer (the references at rest), or until
-    :func:`max_time_s`; return the record (``mission_end_s`` None when the mission did not end).
+    its end, S17.3) and ``hold_s`` [s] longer (the references at rest, the hold in full), or
+    until :func:`max_time_s` when the mission does not end; return the record (``mission_end_s``
+    None when the mission did not end).
 
     ``dt_s``: integration and control period [s] (RK4, ZOH torques; the S3.2 law runs every
     step); ``record_every_s``: the record's period [s]; ``progress``: callable(t_s, duration_s)
@@ -452,7 +453,7 @@ def simulate(
         if why == RECORD_FULL:
             rec = _grown(rec, int(rec.state.shape[0] * 1.5) + 16)
         elif why == MISSION_END:
-            k_end = min(k_cap, k + int(round(hold_s / dt_s)))
+            k_end = k + int(round(hold_s / dt_s))  # the hold in full (S17.3)
         elif why == EVENTS:
             if nev > ev.shape[0]:
                 raise RuntimeError('mode event buffer overflow')
@@ -470,7 +471,7 @@ def simulate(
                     graph_events.append({'t_s': round(k * dt_s, 9),
                                          'parents': _parents_json(parents)})
             if mission.end_s[0] == mission.end_s[0] and k_end == k_cap:
-                k_end = min(k_cap, k + int(round(hold_s / dt_s)))
+                k_end = k + int(round(hold_s / dt_s))  # the hold in full (S17.3)
         if progress is not None and k * dt_s >= next_progress:
             progress(k * dt_s, scenario.duration_s)
             next_progress += 5.0
