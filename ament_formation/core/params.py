@@ -96,6 +96,13 @@ class RobotParams:
                     value,
                     'must be a finite number >= 0 [kg m^2]',
                 )
+        # r appears squared in divisors (S2.2): a wheel of 1e-300 m made them zero
+        _require(
+            1e-3 <= self.wheel_radius_m <= 10.0,
+            'wheel_radius_m',
+            self.wheel_radius_m,
+            'must be in [0.001, 10] m',
+        )
 
     @property
     def wheel_spin_inertia(self) -> float:
