@@ -14,9 +14,19 @@ cd "$here"
 # found in the sourced install prefix instead
 export PATH="$here/.venv/bin:$PATH"
 # two workers, one test module each at a time (module fixtures stay in one process); each module
-# takes its own DDS domain (test/conftest.py), so the workers do not hear each other.
-# AMENT_FORMATION_TEST_WORKERS=0 runs everything in this process.
+# takes its own DDS domain (test/conftest.py), so the workers do not hear each other. Then the
+# whole systems timed by the wall clock (marker "alone", test/conftest.py), one at a time.
+# AMENT_FORMATION_TEST_WORKERS=0 runs the first part in this process too.
 workers="${AMENT_FORMATION_TEST_WORKERS:-2}"
+py="$here/.venv/bin/python"
 status=0
-"$here/.venv/bin/python" -m pytest -p no:cacheprovider -n "$workers" --dist loadfile "$@" || status=$?
+"$py" -m pytest -p no:cacheprovider -n "$workers" --dist loadfile -m 'not alone' "$@" || status=$?
+alone=0
+"$py" -m pytest -p no:cacheprovider -m alone "$@" || alone=$?
+# exit 5: no test of that part was selected (a subset given on the command line)
+if [ "$status" -eq 5 ] && [ "$alone" -eq 5 ]; then
+  status=5
+elif [ "$status" -eq 0 ] || [ "$status" -eq 5 ]; then
+  if [ "$alone" -eq 5 ]; then status=0; else status=$alone; fi
+fi
 exit "$status"

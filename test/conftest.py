@@ -127,3 +127,18 @@ def executor(ros_context):
         yield ex
     finally:
         ex.shutdown(timeout_sec=1.0)
+
+
+# whole systems of processes timed by the wall clock (a control loop's gaps, a launch's start
+# within a minute): scripts/test.sh runs them after the rest, one at a time (marker ``alone``)
+ALONE_MODULES = frozenset({
+    'test_launch_deploy', 'test_launch_multi_machine', 'test_launch_sim', 'test_multihost',
+    'test_params_files', 'test_programs', 'test_readme_lab', 'test_system', 'test_tracker_source',
+})
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        module = getattr(item, 'module', None)
+        if module is not None and module.__name__.rpartition('.')[2] in ALONE_MODULES:
+            item.add_marker(pytest.mark.alone)
