@@ -52,7 +52,8 @@ def _launch_env(
         '"$ROS_AUTOMATIC_DISCOVERY_RANGE"'
     )
     proc = subprocess.run(
-        ['bash', '-c', script], env=_env(profile, dds=dds), capture_output=True, text=True, timeout=30
+        ['bash', '-c', script], env=_env(profile, dds=dds), capture_output=True, text=True,
+        timeout=30,
     )
     assert proc.returncode == 0, proc.stderr
     lines = proc.stdout.splitlines()
