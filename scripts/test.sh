@@ -13,6 +13,10 @@ cd "$here"
 # the tests find the programs on PATH (test/processes.py program()); in a ROS 2 workspace they are
 # found in the sourced install prefix instead
 export PATH="$here/.venv/bin:$PATH"
+# two workers, one test module each at a time (module fixtures stay in one process); each module
+# takes its own DDS domain (test/conftest.py), so the workers do not hear each other.
+# AMENT_FORMATION_TEST_WORKERS=0 runs everything in this process.
+workers="${AMENT_FORMATION_TEST_WORKERS:-2}"
 status=0
-"$here/.venv/bin/python" -m pytest -p no:cacheprovider "$@" || status=$?
+"$here/.venv/bin/python" -m pytest -p no:cacheprovider -n "$workers" --dist loadfile "$@" || status=$?
 exit "$status"

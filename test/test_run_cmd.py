@@ -428,7 +428,8 @@ def test_realtime_scheduling_refused_is_said_in_one_line_and_the_run_goes_on(mon
 
 def test_stage_gaps_name_the_stage_that_paused():
     """The longest pause of each stage on [0, t_end]: a bridge silent between the samples at
-    102.0 and 102.5 s (a 0.5 s gap between consecutive messages) shows in wheel_state only; the recording gap is the pause of all received messages together.
+    102.0 and 102.5 s (a 0.5 s gap between consecutive messages) shows in wheel_state only;
+    the recording gap is the pause of all received messages together.
     """
     from ament_formation.ros.run_record import _stage_gaps
 

@@ -28,6 +28,14 @@ def one_line(text: str, limit: int = MAX_LINE_CHARS) -> str:
     return text if len(text) <= limit else f'{text[: limit - 3]}...'
 
 
+def _path_tail(path: str, limit: int = 100) -> str:
+    """A file's path on one line of at most ``limit`` characters, cut at its start: the end
+    (the file's name) is what the reader needs.
+    """
+    text = ' '.join(str(path).split())
+    return text if len(text) <= limit else f'...{text[3 - limit:]}'
+
+
 class ConfigError(ValueError):
     """Bad user input (scenario, parameters, calibration data).
 
@@ -43,7 +51,8 @@ class ConfigError(ValueError):
 
     def _line(self) -> str:
         """``FILE: FIELD: problem`` on one line of at most :data:`MAX_LINE_CHARS` characters."""
-        parts = [one_line(p, 100) for p in (self.file, self.field) if p]
+        parts = [_path_tail(self.file)] if self.file else []
+        parts += [one_line(self.field, 100)] if self.field else []
         return one_line(': '.join(parts + [str(self.problem)]), MAX_LINE_CHARS)
 
     def with_file(self, file: str) -> 'ConfigError':
