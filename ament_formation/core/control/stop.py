@@ -152,19 +152,11 @@ def time_to_band(
 
     Needs K > g_bar and g_bar / c < y_rest (checked by :class:`StopLead`). Exact for a constant
     disturbance at its bound along the motion, an upper bound for any |g| <= g_bar (comparison),
-    while the law is not torque-limited (StopLead checks that up to its speed bounds).
+    while the law is not torque-limited (StopLead checks that up to its speed bounds). One
+    implementation: the compiled :func:`band_time_k`.
     """
-    y = abs(float(y0))
-    t = 0.0
-    b = gain - g_bar
-    if y > eps:
-        t = stop_time_s * math.log((y + b * stop_time_s) / (eps + b * stop_time_s))
-        y = eps
-    rate = 1.0 / stop_time_s + gain / eps
-    residual = g_bar / rate
-    if y > y_rest:
-        t += math.log((y - residual) / (y_rest - residual)) / rate
-    return t
+    return float(band_time_k(float(y0), float(stop_time_s), float(gain), float(eps),
+                             float(g_bar), float(y_rest)))
 
 
 class StopLead:
