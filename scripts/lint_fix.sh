@@ -7,7 +7,7 @@
 #   --check   change nothing: only report what flake8 finds
 #   LINT_EXCLUDE=REGEX  leave the paths matching REGEX alone (e.g. files someone is editing)
 #
-# Steps (ruff and flake8 are pinned in requirements.txt; .venv from scripts/setup.sh):
+# Steps (ruff and flake8 are pinned in requirements.txt; from .venv (scripts/setup.sh) or PATH):
 #   1. ruff format, line length 99, single quotes (flake8-quotes Q000): a formatter that keeps
 #      the AST (it checks it), so behaviour is unchanged; it wraps the code lines over 99 columns.
 #   2. ruff check --fix of what a formatter leaves: import order in ament's google style (I100,
@@ -24,9 +24,18 @@ check=0
 if [ "${1:-}" = "--check" ]; then check=1; shift; fi
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 root="$(cd "${1:-$here}" && pwd)"
-bin="${LINT_BIN:-$here/.venv/bin}"
-for tool in ruff flake8; do
-  [ -x "$bin/$tool" ] || { echo "lint_fix: $bin/$tool missing (run scripts/setup.sh)" >&2; exit 2; }
+# the tools: LINT_BIN's, else the checkout's .venv (scripts/setup.sh), else those on PATH (a ROS
+# workspace or a system install has no .venv)
+tool_path() {
+  local name="$1" alt="${2:-}"
+  if [ -n "${LINT_BIN:-}" ]; then echo "$LINT_BIN/$name"; return; fi
+  if [ -x "$here/.venv/bin/$name" ]; then echo "$here/.venv/bin/$name"; return; fi
+  command -v "$name" 2>/dev/null || { [ -n "$alt" ] && command -v "$alt" 2>/dev/null; } || echo "$name"
+}
+ruff="$(tool_path ruff)"; flake8="$(tool_path flake8)"; python="$(tool_path python python3)"
+for tool in "$ruff" "$flake8" "$python"; do
+  [ -x "$tool" ] || { echo "lint_fix: $tool missing: pip install the pinned ruff and flake8 of" \
+    "requirements.txt, or run scripts/setup.sh" >&2; exit 2; }
 done
 cd "$root"
 # the Python files of the repository (tracked or new, not ignored), outside vendored folders
@@ -46,18 +55,18 @@ ruff_cfg=(
   --config "lint.pydocstyle.convention = 'pep257'"
 )
 
-count() { "$bin/flake8" --no-show-source --statistics "$@" 2>/dev/null | grep -cE '^[^ ]+:[0-9]+:[0-9]+: ' || true; }
+count() { "$flake8" --no-show-source --statistics "$@" 2>/dev/null | grep -cE '^[^ ]+:[0-9]+:[0-9]+: ' || true; }
 
 if [ "$check" = 0 ]; then
   before="$(count "${files[@]}")"
   echo "lint_fix: flake8 findings before: $before (${#files[@]} files)"
   # 1. formatter: quotes and code lines
-  "$bin/ruff" format --quiet "${ruff_cfg[@]}" "${files[@]}"
+  "$ruff" format --quiet "${ruff_cfg[@]}" "${files[@]}"
   # 2. fixes the formatter does not make (D400 adds a period: an "unsafe" fix only to ruff)
-  "$bin/ruff" check --quiet --fix --unsafe-fixes --preview --exit-zero --no-cache "${ruff_cfg[@]}" \
+  "$ruff" check --quiet --fix --unsafe-fixes --preview --exit-zero --no-cache "${ruff_cfg[@]}" \
     --select I001,Q000,Q001,Q002,Q003,D209,D210,D400,D403,D205,E203,W291,W293 "${files[@]}" >/dev/null
   # 3. comments and docstring lines over 99 columns
-  "$bin/python" - "${files[@]}" <<'PY'
+  "$python" - "${files[@]}" <<'PY'
 import ast
 import sys
 import textwrap
@@ -151,7 +160,7 @@ PY
 fi
 
 echo "lint_fix: flake8 findings left, by code:"
-"$bin/flake8" --no-show-source --statistics "${files[@]}" 2>/dev/null \
+"$flake8" --no-show-source --statistics "${files[@]}" 2>/dev/null \
   | grep -E '^[0-9]+ +[A-Z]+[0-9]+ ' | sort -rn || true
 left="$(count "${files[@]}")"
 echo "lint_fix: flake8 findings left: $left"
