@@ -132,8 +132,9 @@ def executor(ros_context):
 # whole systems of processes timed by the wall clock (a control loop's gaps, a launch's start
 # within a minute): scripts/test.sh runs them after the rest, one at a time (marker ``alone``)
 ALONE_MODULES = frozenset({
-    'test_launch_deploy', 'test_launch_multi_machine', 'test_launch_sim', 'test_multihost',
-    'test_params_files', 'test_programs', 'test_readme_lab', 'test_system', 'test_tracker_source',
+    'test_board_check', 'test_launch_deploy', 'test_launch_multi_machine', 'test_launch_sim',
+    'test_live_view', 'test_multihost', 'test_params_files', 'test_programs', 'test_readme_lab',
+    'test_system', 'test_tracker_source',
 })
 
 
