@@ -37,6 +37,9 @@ from ament_formation.core.serial.motor_constants import load_config_h, MotorCons
 _REFRESH_S = 2.0  # the commanded torque is handed to the link this often (keep-alive 100 Hz)
 _INPUT_TIMEOUT_S = 5.0  # the link's input staleness (the board's own watchdog is 0.2 s)
 _REST_WINDOW_S = 0.2  # at rest: no encoder count changed for this long
+# a spin lasts spin_s of the board's clock: an emulator running slower than real time (a loaded
+# host) gets its whole spin, up to this many times spin_s of the host's clock
+_SLOW_BOARD_FACTOR = 10.0
 
 
 class BoardUnavailable(RuntimeError):
@@ -184,6 +187,15 @@ class BoardSession:
         t[hi] = up[-1] + (x[hi] - pos[-1]) * (up[-1] - up[-2]) / (pos[-1] - pos[-2])
         return t
 
+    def _board_elapsed(self, first: int) -> float | None:
+        """Board seconds from sample ``first`` to the newest (0 before it came; None without
+        the board's clock).
+        """
+        if len(self.samples) <= first:
+            return 0.0
+        t = self.board_times([first, len(self.samples) - 1])
+        return None if t is None else float(t[1] - t[0])
+
     def handshake(self, timeout_s: float = 5.0) -> int:
         """HELLO until the board is configured: its counts per revolution; raises
         BoardUnavailable otherwise.
@@ -240,9 +252,12 @@ class BoardSession:
             ):
                 ended['by'] = 'speed'
                 return True
-            return False
+            board_s = self._board_elapsed(start)
+            if board_s is None:  # too few STATUS frames for the board's clock: the host's
+                return self.transport.now() - t0 >= spin_s
+            return board_s >= spin_s
 
-        self.pump(done, spin_s)
+        self.pump(done, spin_s * _SLOW_BOARD_FACTOR)
         self.command(0.0, 0.0)
         first = next((i for i in range(start, len(self.samples))
                       if self.samples[i].received_s >= t0), len(self.samples))
