@@ -64,7 +64,8 @@ def _field(x, vd, ob=NO_OBSTACLES):
     pd = np.zeros((n, 2))  # heading 0, omega 0: p_dot = (v, 0)
     pd[:, 0] = x[:, 3]
     nbrs = np.arange(n, dtype=np.int64)
-    return safe_field(0, x, pd, nbrs, vd[0], vd[1], 0.0, 0.0, ob, np.full(n, 0.1), PRM)
+    orows = np.arange(ob.c.shape[0], dtype=np.int64)
+    return safe_field(0, x, pd, nbrs, orows, vd[0], vd[1], 0.0, 0.0, ob, np.full(n, 0.1), PRM)
 
 
 def test_safety_filter_leaves_a_free_robot_alone_and_caps_its_speed():

@@ -44,8 +44,9 @@ def _no_obstacles():
 
 def _field(p, pd, vd, prm):
     x = np.array([[p[0], p[1], 0.0, 0.0, 0.0]])
-    return safe_field(0, x, np.array([pd], float), np.zeros(0, dtype=np.int64), vd[0], vd[1],
-                      0.0, 0.0, _no_obstacles(), np.array([RB]), prm)
+    return safe_field(0, x, np.array([pd], float), np.zeros(0, dtype=np.int64),
+                      np.zeros(0, dtype=np.int64), vd[0], vd[1], 0.0, 0.0, _no_obstacles(),
+                      np.array([RB]), prm)
 
 
 def test_an_edge_is_a_wall_the_approach_speed_toward_it_is_limited_the_slide_along_it_kept():

@@ -136,13 +136,14 @@ AgentK = namedtuple('AgentK', ['period_s', 'pose_timeout_s', 'wheel_timeout_s', 
 
 Static = namedtuple('Static', ['rows', 'rbody', 'coeffs', 'team', 'slot', 'orig_parent',
                                'orig_offset', 'leader', 'refs', 'obstacles', 'est_k', 'stop_k',
-                               'reach', 'prm', 'ak'])
+                               'reach', 'prm', 'ak', 'ob_rows'])
 Static.__doc__ = """What does not change during a run: ``rows`` (R,) the hosted robots' rows;
 per robot row (N,): ``rbody``, ``coeffs`` (7, N), ``team``, ``slot`` (N, 2), ``orig_parent``,
 ``orig_offset`` (N, 2), ``leader`` bool; ``refs`` the leaders' references (S17); ``obstacles``
 the avoided obstacles' motion (obstacle_arrays); per hosted robot: ``est_k`` (R, 10) estimator
 constants, ``stop_k`` (R, 15) the stop's (StopK); ``reach`` (N, N) hearing range [m]; ``prm``
-LawK; ``ak`` AgentK."""
+LawK; ``ak`` AgentK; ``ob_rows`` (M,) the obstacle rows the barrier checks (every one: a robot
+sees a lab's few obstacles)."""
 
 State = namedtuple('State', ['est', 'heard_x', 'heard_a', 'stamp', 'rep_mode', 'rep_tgt',
                              'rep_sdir', 'in_range', 'x', 'pd', 'acmd', 'known', 'goal',
@@ -321,7 +322,8 @@ def _drive(r, i, now, t, st, sc, ob, out):
                           (st.ref[r, i, 0], st.ref[r, i, 1], st.ref[r, i, 2], st.ref[r, i, 3],
                            st.ref[r, i, 4], st.ref[r, i, 5]), (gx, gy), (gdx, gdy))
     t1, t2, sx, sy, sat, acx, acy, wdx, wdy = robot_law_k(
-        i, t, x, pd, st.acmd[r], sc.rbody, sc.coeffs, ob, nbrs, track, mode_row(m, i), prm)
+        i, t, x, pd, st.acmd[r], sc.rbody, sc.coeffs, ob, nbrs, sc.ob_rows, track, mode_row(m, i),
+        prm)
     if m.mode[i] == MODE_MUTUAL:
         m.wc[i, 0] += sc.ak.period_s * wdx
         m.wc[i, 1] += sc.ak.period_s * wdy
@@ -535,12 +537,13 @@ class AgentBatch:
                                       + av.agent_keepout_margin_m) + p.hear_margin_m
         ak = AgentK(1.0 / p.control_rate_hz, p.pose_timeout_s, p.wheel_timeout_s,
                     p.parent_timeout_s, p.parent_hold_s, p.coordinator_timeout_s)
+        obstacles = tuple(obstacle_arrays(scenario.avoided_obstacles()))
         return Static(np.array([self.row[r] for r in hosted], dtype=np.int64), rbody, coeffs,
-                      team, slot, orig_parent, orig_offset, leader, refs,
-                      tuple(obstacle_arrays(scenario.avoided_obstacles())),
+                      team, slot, orig_parent, orig_offset, leader, refs, obstacles,
                       np.array(est_k, dtype=float).reshape(-1, 10),
                       np.array(stop_k, dtype=float).reshape(-1, 15), reach,
-                      self.law.compiled(), ak)
+                      self.law.compiled(), ak,
+                      np.arange(obstacles[0].shape[0], dtype=np.int64))
 
     @staticmethod
     def _state(nr: int, n: int) -> State:

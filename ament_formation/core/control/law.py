@@ -121,13 +121,14 @@ def _avoidance_field(t, p, target, track, state, prm, vmax, amax):
 
 
 # implements: S3.2
-@njit(cache=True)
-def robot_law_k(i, t, x, pd, acmd, rbody, coeffs, ob, nbrs, track, state, prm):
+@njit(cache=True, inline='always')
+def robot_law_k(i, t, x, pd, acmd, rbody, coeffs, ob, nbrs, orows, track, state, prm):
     """Torque of robot i at time ``t`` [s] in its mode (S3.2 with the mode's V_d, V_d_dot).
 
     x (N, 5) states, pd (N, 2) point velocities, acmd (N, 2) commanded point accelerations (a
     parent's of this sample, S4), rbody (N,), coeffs (7, N) plant rows; ``ob`` the obstacles
-    (ObstacleSnapshot) at t; ``nbrs`` rows of the robots the barrier checks; ``track``
+    (ObstacleSnapshot) at t; ``nbrs`` rows of the robots the barrier checks, ``orows`` rows of
+    the obstacles it checks (the rest are out of its reach); ``track``
     :data:`RobotTracking`, ``state`` :data:`RobotMode`; ``prm`` LawK. Returns (tau_left,
     tau_right, sigma_x, sigma_y, saturated, a_cmd_x, a_cmd_y, w_c_dot_x, w_c_dot_y).
     """
@@ -141,7 +142,7 @@ def robot_law_k(i, t, x, pd, acmd, rbody, coeffs, ob, nbrs, track, state, prm):
         p = (x[i, 0], x[i, 1], pd[i, 0], pd[i, 1])
         vdx, vdy, vddx, vddy, wdx, wdy = _avoidance_field(t, p, target, track, state, prm, vmax,
                                                           amax)
-    vdx, vdy, vddx, vddy = safe_field(i, x, pd, nbrs, vdx, vdy, vddx, vddy, ob, rbody, prm)
+    vdx, vdy, vddx, vddy = safe_field(i, x, pd, nbrs, orows, vdx, vdy, vddx, vddy, ob, rbody, prm)
     k = prm.switching_gain_mps2
     t1, t2, sx, sy, sat, acx, acy = smc_torque_k(
         x[i, 2], x[i, 3], x[i, 4], vdx, vdy, vddx, vddy, robot_plant_k(coeffs, i),

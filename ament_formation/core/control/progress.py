@@ -116,10 +116,13 @@ def goal_free(gx, gy, ob, prm):
     """The goal lies outside every obstacle's protected region Q (else the robot is parked on a
     limit cycle by design and does not count in its team's error, S17.1).
     """
+    kap = prm.protected_scale
     for j in range(ob.c.shape[0]):
-        kap = prm.protected_scale
-        if h_value(gx - ob.c[j, 0], gy - ob.c[j, 1], ob.phi[j], kap * ob.axes[j, 0],
-                   kap * ob.axes[j, 1]) < 0.0:
+        dx, dy = gx - ob.c[j, 0], gy - ob.c[j, 1]
+        big = 1.01 * kap * max(ob.axes[j, 0], ob.axes[j, 1])
+        if abs(dx) > big or abs(dy) > big:  # beyond Q's bounding square: outside Q
+            continue
+        if h_value(dx, dy, ob.phi[j], kap * ob.axes[j, 0], kap * ob.axes[j, 1]) < 0.0:
             return False
     return True
 

@@ -70,18 +70,16 @@ def allowed_speed(gap, a_brk, lag):
 
 
 @njit(cache=True)
-def _barrier(vdx, vdy, vddx, vddy, pdx, pdy, nx, ny, bvx, bvy, gap, a_brk, lag, brake):
-    """Limit the approach of V_d toward a boundary (outward normal n, boundary velocity bv) to the
-    speed that still stops within ``gap`` after a reaction time ``lag`` at deceleration ``a_brk``:
-    sqrt(2 a gap + (a lag)^2) - a lag. With ``brake``, when the robot's own velocity p_dot exceeds
-    it (the S3 loop lags V_d), V_d_dot gets the braking acceleration that removes the excess within
-    lag / 3 (beyond the switching gain K). Returns (vdx, vdy, vddx, vddy, active).
+def _barrier(vdx, vdy, vddx, vddy, pdx, pdy, nx, ny, bvx, bvy, allowed, lag, brake):
+    """Limit the approach of V_d toward a boundary (outward normal n, boundary velocity bv) to
+    ``allowed`` (:func:`allowed_speed` of its gap). With ``brake``, when the robot's own velocity
+    p_dot exceeds it (the S3 loop lags V_d), V_d_dot gets the braking acceleration that removes the
+    excess within lag / 3 (beyond the switching gain K). Returns (vdx, vdy, vddx, vddy).
     """
-    allowed = allowed_speed(gap, a_brk, lag)
     approach = -((vdx - bvx) * nx + (vdy - bvy) * ny)
     excess = -((pdx - bvx) * nx + (pdy - bvy) * ny) - allowed if brake else 0.0
     if approach <= allowed and excess <= 0.0:
-        return vdx, vdy, vddx, vddy, False
+        return vdx, vdy, vddx, vddy
     dn = vddx * nx + vddy * ny
     if dn < 0.0:  # no feed-forward toward the boundary while braking
         vddx -= dn * nx
@@ -92,7 +90,7 @@ def _barrier(vdx, vdy, vddx, vddy, pdx, pdy, nx, ny, bvx, bvy, gap, a_brk, lag, 
     if approach > allowed:
         vdx += (approach - allowed) * nx
         vdy += (approach - allowed) * ny
-    return vdx, vdy, vddx, vddy, True
+    return vdx, vdy, vddx, vddy
 
 
 @njit(cache=True)
@@ -119,39 +117,6 @@ def _obstacle_gap(px, py, oc, ov, ophi, ophid, oaxes, j):
 
 
 @njit(cache=True)
-def _robot_barriers(i, x, pd, nbrs, vdx, vdy, vddx, vddy, rbody, a_brk, prm, brake):
-    """The barrier against every robot k of ``nbrs`` whose keep-out circle R_aa (S15.3) is within
-    ``safety_range_m`` (reciprocal: each robot of a pair takes half of the approach speed budget,
-    and makes way for the other's approach beyond its half, e.g. when an obstacle pushes that
-    robot). Returns (vdx, vdy, vddx, vddy, active).
-    """
-    g0, reach, lag = prm.safety_gap_m, prm.safety_range_m, prm.safety_lag_s
-    active = False
-    for q in range(nbrs.shape[0]):
-        k = nbrs[q]
-        dx = x[i, 0] - x[k, 0]
-        dy = x[i, 1] - x[k, 1]
-        keep = rbody[i] + rbody[k] + prm.agent_keepout_margin_m
-        lim = keep + reach
-        if k == i or abs(dx) > lim or abs(dy) > lim:
-            continue
-        dist = math.hypot(dx, dy)
-        gap = dist - keep
-        if gap < reach and dist > 1e-9:
-            nx = dx / dist
-            ny = dy / dist
-            # k coming at i faster than its own share (pushed, or lagging): i makes way
-            share = max(0.0, allowed_speed(gap - g0, 0.25 * a_brk, lag))
-            push = max(0.0, pd[k, 0] * nx + pd[k, 1] * ny - share)
-            vdx, vdy, vddx, vddy, act = _barrier(
-                vdx, vdy, vddx, vddy, pd[i, 0], pd[i, 1], nx, ny, push * nx, push * ny,
-                gap - g0, 0.25 * a_brk, lag, brake,
-            )
-            active = active or act
-    return vdx, vdy, vddx, vddy, active
-
-
-@njit(cache=True)
 def _obstacle_near(px, py, oc, ov, ophi, ophid, oaxes, j, prm):
     """Obstacle j's boundary P as the barrier sees it from p: (near, gap, nx, ny, bvx, bvy), near
     when P is within ``safety_range_m``, gap the distance to P less the margin, scaled to the
@@ -167,67 +132,77 @@ def _obstacle_near(px, py, oc, ov, ophi, ophid, oaxes, j, prm):
     return gap < reach, gap - margin, nx, ny, bvx, bvy
 
 
-@njit(cache=True)
-def _obstacle_barriers(p, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, a_brk, prm, brake):
-    """The barrier against every obstacle boundary P within ``safety_range_m`` (boundary velocity
-    included).
+# The boundaries within reach of a robot, as rows (nx, ny, bvx, bvy, allowed): outward normal n,
+# boundary velocity bv, the approach speed allowed from the boundary's gap. They depend on the
+# state only, not on V_d, so they are computed once per sample and every projection reuses them.
+
+
+@njit(cache=True, inline='always')
+def _row(cons, n, nx, ny, bvx, bvy, allowed):
+    cons[n, 0], cons[n, 1], cons[n, 2], cons[n, 3], cons[n, 4] = nx, ny, bvx, bvy, allowed
+    return n + 1
+
+
+@njit(cache=True, inline='always')
+def _robot_rows(i, x, pd, nbrs, rbody, a_brk, prm, cons):
+    """Rows of every robot k of ``nbrs`` whose keep-out circle R_aa (S15.3) is within
+    ``safety_range_m`` (reciprocal: each robot of a pair takes half of the approach speed budget,
+    and makes way for the other's approach beyond its half, e.g. when an obstacle pushes that
+    robot) from row 0. Returns the row count.
     """
-    px, py, pdx, pdy = p
-    for j in range(oc.shape[0]):
-        near, gap, nx, ny, bvx, bvy = _obstacle_near(px, py, oc, ov, ophi, ophid, oaxes, j, prm)
-        if near:
-            vdx, vdy, vddx, vddy, _a = _barrier(
-                vdx,
-                vdy,
-                vddx,
-                vddy,
-                pdx,
-                pdy,
-                nx,
-                ny,
-                bvx,
-                bvy,
-                gap,
-                a_brk,
-                prm.safety_lag_s,
-                brake,
-            )
-    return vdx, vdy, vddx, vddy
+    g0, reach, lag = prm.safety_gap_m, prm.safety_range_m, prm.safety_lag_s
+    n = 0
+    for q in range(nbrs.shape[0]):
+        k = nbrs[q]
+        dx = x[i, 0] - x[k, 0]
+        dy = x[i, 1] - x[k, 1]
+        keep = rbody[i] + rbody[k] + prm.agent_keepout_margin_m
+        lim = keep + reach
+        if k == i or abs(dx) > lim or abs(dy) > lim:
+            continue
+        dist = math.hypot(dx, dy)
+        gap = dist - keep
+        if gap < reach and dist > 1e-9:
+            nx = dx / dist
+            ny = dy / dist
+            allowed = allowed_speed(gap - g0, 0.25 * a_brk, lag)
+            # k coming at i faster than its own share (pushed, or lagging): i makes way
+            push = max(0.0, pd[k, 0] * nx + pd[k, 1] * ny - max(0.0, allowed))
+            n = _row(cons, n, nx, ny, push * nx, push * ny, allowed)
+    return n
 
 
-@njit(cache=True)
-def _wall(vdx, vdy, vddx, vddy, pdx, pdy, gap, nx, ny, a_brk, prm, brake):
-    """The barrier against one floor edge (inward normal n) at ``gap`` from the body."""
-    if gap < prm.safety_range_m:
-        vdx, vdy, vddx, vddy, _a = _barrier(
-            vdx,
-            vdy,
-            vddx,
-            vddy,
-            pdx,
-            pdy,
-            nx,
-            ny,
-            0.0,
-            0.0,
-            gap - prm.safety_gap_m,
-            a_brk,
-            prm.safety_lag_s,
-            brake,
-        )
-    return vdx, vdy, vddx, vddy
-
-
-@njit(cache=True)
-def _floor_barriers(p, vdx, vdy, vddx, vddy, rb, a_brk, prm, brake):
-    """The barrier against each edge of a declared floor within ``safety_range_m`` of the body
-    (radius ``rb`` about p): the edges are walls that do not move.
+@njit(cache=True, inline='always')
+def _wall_rows(px, py, rb, a_brk, prm, cons, n):
+    """Rows of each edge of a declared floor within ``safety_range_m`` of the body (radius ``rb``
+    about p): walls that do not move (inward normal). Returns the row count.
     """
-    px, py, pdx, pdy = p
     for gap, nx, ny in floor_edges(px, py, rb, prm):
-        vdx, vdy, vddx, vddy = _wall(
-            vdx, vdy, vddx, vddy, pdx, pdy, gap, nx, ny, a_brk, prm, brake
-        )
+        if gap < prm.safety_range_m:
+            n = _row(cons, n, nx, ny, 0.0, 0.0,
+                     allowed_speed(gap - prm.safety_gap_m, a_brk, prm.safety_lag_s))
+    return n
+
+
+@njit(cache=True, inline='always')
+def _obstacle_rows(px, py, orows, ob, a_brk, prm, cons, n):
+    """Rows of every obstacle boundary P of rows ``orows`` within ``safety_range_m`` (boundary
+    velocity included). Returns the row count.
+    """
+    for j in orows:
+        near, gap, nx, ny, bvx, bvy = _obstacle_near(px, py, ob.c, ob.v, ob.phi, ob.phi_dot,
+                                                     ob.axes, j, prm)
+        if near:
+            n = _row(cons, n, nx, ny, bvx, bvy, allowed_speed(gap, a_brk, prm.safety_lag_s))
+    return n
+
+
+@njit(cache=True, inline='always')
+def _project(cons, lo, hi, vdx, vdy, vddx, vddy, pdx, pdy, lag, brake):
+    """:func:`_barrier` of rows ``lo`` .. ``hi`` - 1 in turn. Returns (vdx, vdy, vddx, vddy)."""
+    for q in range(lo, hi):
+        vdx, vdy, vddx, vddy = _barrier(vdx, vdy, vddx, vddy, pdx, pdy, cons[q, 0], cons[q, 1],
+                                        cons[q, 2], cons[q, 3], cons[q, 4], lag, brake)
     return vdx, vdy, vddx, vddy
 
 
@@ -241,7 +216,7 @@ def _feasible(cons, n, vx, vy):
 
 
 @njit(cache=True)
-def _escape(vx0, vy0, p, rb, oc, ov, ophi, ophid, oaxes, a_brk, prm):
+def _escape(vx0, vy0, p, rb, orows, oc, ov, ophi, ophid, oaxes, a_brk, prm):
     """A robot squeezed between a floor edge and an obstacle (docs/law-changes.md §12): the
     velocity closest to (vx0, vy0) that meets every wall's and every obstacle's barrier within
     reach exactly (the alternating projections approach it slowly when the wall and the obstacle
@@ -252,13 +227,13 @@ def _escape(vx0, vy0, p, rb, oc, ov, ophi, ophid, oaxes, a_brk, prm):
     """
     g0, reach, lag = prm.safety_gap_m, prm.safety_range_m, prm.safety_lag_s
     px, py = p[0], p[1]
-    cons = np.empty((4 + oc.shape[0], 3))  # rows (nx, ny, b)
+    cons = np.empty((4 + orows.shape[0], 3))  # rows (nx, ny, b)
     n = 0
     for gap, nx, ny in floor_edges(px, py, rb, prm):
         if gap < reach:
             cons[n, 0], cons[n, 1], cons[n, 2] = nx, ny, -allowed_speed(gap - g0, a_brk, lag)
             n += 1
-    for j in range(oc.shape[0]):
+    for j in orows:
         near, gap, nx, ny, bvx, bvy = _obstacle_near(px, py, oc, ov, ophi, ophid, oaxes, j, prm)
         if near:
             cons[n, 0], cons[n, 1] = nx, ny
@@ -289,54 +264,43 @@ def _escape(vx0, vy0, p, rb, oc, ov, ophi, ophid, oaxes, a_brk, prm):
 
 
 # implements: S15
-@njit(cache=True)
-def safe_field(i, x, pd, nbrs, vdx, vdy, vddx, vddy, ob, rbody, prm):
+@njit(cache=True, inline='always')
+def safe_field(i, x, pd, nbrs, orows, vdx, vdy, vddx, vddy, ob, rbody, prm):
     """V_d, V_d_dot of robot i after the speed limit and the braking barrier (module docstring)
-    against the obstacles ``ob`` (ObstacleSnapshot), the robots of ``nbrs`` (rows of x, pd) and
-    the floor. Returns (vdx, vdy, vddx, vddy).
+    against the obstacles of rows ``orows`` of ``ob`` (ObstacleSnapshot), the robots of ``nbrs``
+    (rows of x, pd) and the floor. Returns (vdx, vdy, vddx, vddy).
     """
-    oc, ov, ophi, ophid, oaxes = ob.c, ob.v, ob.phi, ob.phi_dot, ob.axes
     vdx, vdy = clip_norm(vdx, vdy, prm.speed_limit_mps)
     vx0, vy0 = vdx, vdy
     a_brk = prm.brake_gain_fraction * prm.switching_gain_mps2  # the S3 loop without feed-forward
-    p = (x[i, 0], x[i, 1], pd[i, 0], pd[i, 1])
+    lag = prm.safety_lag_s
+    px, py, pdx, pdy = x[i, 0], x[i, 1], pd[i, 0], pd[i, 1]
     rb = rbody[i]
-    walls = near_floor(x[i, 0], x[i, 1], rb, prm)
+    walls = near_floor(px, py, rb, prm)
+    cons = np.empty((nbrs.shape[0] + 4 + orows.shape[0], 5))
+    nr = _robot_rows(i, x, pd, nbrs, rbody, a_brk, prm, cons)  # rows: robots, walls, obstacles
+    nw = _wall_rows(px, py, rb, a_brk, prm, cons, nr) if walls else nr
+    no = _obstacle_rows(px, py, orows, ob, a_brk, prm, cons, nw) if orows.shape[0] else nw
+    if no == 0:  # nothing within reach: the speed limit only
+        return vdx, vdy, vddx, vddy
     for _ in range(PASSES):  # alternating projections onto the robots', walls' and obstacles'
-        vdx, vdy, vddx, vddy, _act = _robot_barriers(
-            i, x, pd, nbrs, vdx, vdy, vddx, vddy, rbody, a_brk, prm, False
-        )
-        if walls:
-            vdx, vdy, vddx, vddy = _floor_barriers(p, vdx, vdy, vddx, vddy, rb, a_brk, prm, False)
-        vdx, vdy, vddx, vddy = _obstacle_barriers(
-            p, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, a_brk, prm, False
-        )
-    qx, qy, _a, _b, _act = _robot_barriers(
-        i, x, pd, nbrs, vdx, vdy, vddx, vddy, rbody, a_brk, prm, False
-    )
+        vdx, vdy, vddx, vddy = _project(cons, 0, no, vdx, vdy, vddx, vddy, pdx, pdy, lag, False)
+    qx, qy, _a, _b = _project(cons, 0, nr, vdx, vdy, vddx, vddy, pdx, pdy, lag, False)
     squeezed = abs(qx - vdx) + abs(qy - vdy)
     if walls:
-        fx, fy, _c, _d = _floor_barriers(p, vdx, vdy, vddx, vddy, rb, a_brk, prm, False)
+        fx, fy, _c, _d = _project(cons, nr, nw, vdx, vdy, vddx, vddy, pdx, pdy, lag, False)
         squeezed += abs(fx - vdx) + abs(fy - vdy)
     if squeezed > 1e-9:  # between a robot or wall and an obstacle
         found = False
         if walls:  # along the wall, out of the obstacle's way (S16.1)
-            found, ex, ey = _escape(vx0, vy0, p, rb, oc, ov, ophi, ophid, oaxes, a_brk, prm)
+            found, ex, ey = _escape(vx0, vy0, (px, py, pdx, pdy), rb, orows, ob.c, ob.v, ob.phi,
+                                    ob.phi_dot, ob.axes, a_brk, prm)
             if found:  # robots in the way: no escape
-                qx, qy, _a, _b, _act = _robot_barriers(
-                    i, x, pd, nbrs, ex, ey, 0.0, 0.0, rbody, a_brk, prm, False
-                )
+                qx, qy, _a, _b = _project(cons, 0, nr, ex, ey, 0.0, 0.0, pdx, pdy, lag, False)
                 found = abs(qx - ex) + abs(qy - ey) <= 1e-9
         if found:
             vdx, vdy, vddx, vddy = ex, ey, 0.0, 0.0
         else:  # stop (obstacles may move it)
             vdx, vdy, vddx, vddy = 0.0, 0.0, 0.0, 0.0
     # the braking acceleration where the robot's own velocity is beyond the limits
-    vdx, vdy, vddx, vddy, _act = _robot_barriers(
-        i, x, pd, nbrs, vdx, vdy, vddx, vddy, rbody, a_brk, prm, True
-    )
-    if walls:
-        vdx, vdy, vddx, vddy = _floor_barriers(p, vdx, vdy, vddx, vddy, rb, a_brk, prm, True)
-    return _obstacle_barriers(
-        p, vdx, vdy, vddx, vddy, oc, ov, ophi, ophid, oaxes, a_brk, prm, True
-    )
+    return _project(cons, 0, no, vdx, vdy, vddx, vddy, pdx, pdy, lag, True)

@@ -70,10 +70,10 @@ SIM_BUDGET = {
     'robot_steps': 1e7,  # duration / dt x robots (the compiled loop: about 1e6 robot-steps/s)
     'robot_samples': 1e6,  # duration / record period x robots (about 0.6 kB each in memory)
     'pair_samples': 5e6,  # robot pairs x record samples (the metrics' pairwise distances)
-    'robot_pair_steps': 5e7,  # robot pairs x steps (each robot's law looks at every other)
-    # obstacles: each robot's law evaluates every obstacle every step (about 3e6/s); every
-    # obstacle is recorded (memory) and written to obstacles.csv at every record sample
-    'robot_obstacle_steps': 3e7,
+    # obstacles: each one's motion is evaluated every step (about 5e7/s; each robot's law checks
+    # only the ones within its reach, from lists rebuilt every decision); every obstacle is
+    # recorded (memory) and written to obstacles.csv at every record sample
+    'obstacle_steps': 1e8,
     'obstacle_samples': 1e6,
     # camera sensing (--sensing): each robot's controller, estimator and camera model run at
     # their real rates in Python, about 0.03 s of CPU per robot-second
@@ -898,15 +898,14 @@ def check_sim_budget(
         'robot_steps': steps * n,
         'robot_samples': samples * n,
         'pair_samples': samples * n * (n - 1) / 2,
-        'robot_pair_steps': steps * n * (n - 1) / 2,
-        'robot_obstacle_steps': steps * n * m,
+        'obstacle_steps': steps * m,
         'obstacle_samples': samples * m,
         'sensed_robot_seconds': scenario.duration_s * n if sensed else 0.0,
     }
     for key, value in need.items():
         if value > budget[key]:
             what = key.replace('_', '-')
-            who = f'{n} robots' + (f' and {m} obstacles' if 'obstacle' in key else '')
+            who = f'{m} obstacles' if key.startswith('obstacle') else f'{n} robots'
             fewer = 'robots or obstacles' if 'obstacle' in key else 'robots'
             other = 'ideal sensing' if key == 'sensed_robot_seconds' else 'a longer record period'
             raise ConfigError(

@@ -89,9 +89,10 @@ RecordArrays = namedtuple(
     'RecordArrays', ['state', 'torque', 'goal', 'avoiding', 'saturated', 'ob_center', 'ob_phi',
                      'progress']
 )
-Neighbours = namedtuple('Neighbours', ['start', 'idx'])
-Neighbours.__doc__ = """Robot rows each robot's barrier checks (CSR: the rows of robot i are
-``idx[start[i]:start[i + 1]]``), rebuilt every decision."""
+Neighbours = namedtuple('Neighbours', ['start', 'idx', 'ob_start', 'ob_idx'])
+Neighbours.__doc__ = """Robot rows and obstacle rows each robot's barrier checks (CSR: the robot
+rows of robot i are ``idx[start[i]:start[i + 1]]``, its obstacle rows
+``ob_idx[ob_start[i]:ob_start[i + 1]]``), rebuilt every decision."""
 Mission = namedtuple('Mission', ['refs', 'progress', 't_dec', 'end_s'])
 Mission.__doc__ = """The leaders' references (:data:`References`), their progress
 (:data:`Progress`), ``t_dec`` (1,) [s] the time of the last decision, ``end_s`` (1,) [s] when
@@ -101,29 +102,102 @@ NEIGHBOUR_SLACK_M = 0.05  # the neighbour lists reach this beyond the barrier's 
 
 
 @njit(cache=True)
-def neighbour_lists(p, known, rbody, prm):
+def _csr(n, pairs):
+    """CSR lists of rows 0..n-1 from (P, 2) pairs (row, member)."""
+    start = np.zeros(n + 1, dtype=np.int64)
+    for q in range(pairs.shape[0]):
+        start[pairs[q, 0] + 1] += 1
+    for i in range(n):
+        start[i + 1] += start[i]
+    fill = start[:-1].copy()
+    idx = np.empty(pairs.shape[0], dtype=np.int64)
+    for q in range(pairs.shape[0]):
+        a = pairs[q, 0]
+        idx[fill[a]] = pairs[q, 1]
+        fill[a] += 1
+    return start, idx
+
+
+@njit(cache=True)
+def obstacle_pairs(p, oc, radius):
+    """(robot row, obstacle row) of every obstacle j whose centre is within ``radius[j]`` [m] of
+    robot p in x and in y (a square), by a uniform grid of the obstacles (near-linear in N + M):
+    p (N, 2), oc (M, 2) -> (P, 2) int.
+    """
+    n, m = p.shape[0], oc.shape[0]
+    out = np.empty((max(16, 4 * n), 2), dtype=np.int64)
+    if n == 0 or m == 0:
+        return out[:0]
+    cell = max(radius.max(), 1e-6)
+    x0, y0 = oc[:, 0].min(), oc[:, 1].min()
+    ix = np.empty(m, dtype=np.int64)
+    iy = np.empty(m, dtype=np.int64)
+    for j in range(m):
+        ix[j] = int((oc[j, 0] - x0) / cell)
+        iy[j] = int((oc[j, 1] - y0) / cell)
+    nx, ny = ix.max() + 1, iy.max() + 1
+    if nx * ny > 16 * m + 4096:  # sparse, huge arena: one row of cells per x
+        ny = 1
+        iy[:] = 0
+    start = np.zeros(nx * ny + 1, dtype=np.int64)
+    for j in range(m):
+        start[ix[j] * ny + iy[j] + 1] += 1
+    for c in range(nx * ny):
+        start[c + 1] += start[c]
+    fill = start[:-1].copy()
+    members = np.empty(m, dtype=np.int64)
+    for j in range(m):
+        c = ix[j] * ny + iy[j]
+        members[fill[c]] = j
+        fill[c] += 1
+    cnt = 0
+    for i in range(n):
+        cx0 = int(math.floor((p[i, 0] - x0) / cell))
+        cy0 = int(math.floor((p[i, 1] - y0) / cell)) if ny > 1 else 0
+        for cx in range(max(0, cx0 - 1), min(nx, cx0 + 2)):
+            for cy in range(max(0, cy0 - 1), min(ny, cy0 + 2)):
+                c = cx * ny + cy
+                for q in range(start[c], start[c + 1]):
+                    j = members[q]
+                    if abs(p[i, 0] - oc[j, 0]) <= radius[j] and abs(
+                            p[i, 1] - oc[j, 1]) <= radius[j]:
+                        if cnt >= out.shape[0]:
+                            grown = np.empty((2 * out.shape[0], 2), dtype=np.int64)
+                            grown[:cnt] = out[:cnt]
+                            out = grown
+                        out[cnt, 0] = i
+                        out[cnt, 1] = j
+                        cnt += 1
+    return out[:cnt]
+
+
+@njit(cache=True)
+def neighbour_lists(p, known, rbody, prm, oc, obstacles, horizon_s):
     """:data:`Neighbours` of every robot: the known robots whose keep-out circle is within the
-    barrier's range, plus ``NEIGHBOUR_SLACK_M`` for the motion until the next decision.
+    barrier's range, plus ``NEIGHBOUR_SLACK_M`` for the motion until the next decision; the
+    obstacles (centres ``oc`` now, motion ``obstacles``) whose square of half-side r1 + range
+    (the barrier's own first test, core/control/safety.py) may hold the robot before
+    ``horizon_s`` [s] (their fastest motion over it and ``NEIGHBOUR_SLACK_M`` added).
     """
     reach = 2.0 * rbody.max() + prm.agent_keepout_margin_m + prm.safety_range_m + \
         NEIGHBOUR_SLACK_M
     pairs = candidate_pairs(p, known, reach)
-    n = p.shape[0]
-    start = np.zeros(n + 1, dtype=np.int64)
+    both = np.empty((2 * pairs.shape[0], 2), dtype=np.int64)
     for q in range(pairs.shape[0]):
-        start[pairs[q, 0] + 1] += 1
-        start[pairs[q, 1] + 1] += 1
-    for i in range(n):
-        start[i + 1] += start[i]
-    fill = start[:-1].copy()
-    idx = np.empty(2 * pairs.shape[0], dtype=np.int64)
-    for q in range(pairs.shape[0]):
-        a, b = pairs[q, 0], pairs[q, 1]
-        idx[fill[a]] = b
-        fill[a] += 1
-        idx[fill[b]] = a
-        fill[b] += 1
-    return Neighbours(start, idx)
+        both[2 * q, 0], both[2 * q, 1] = pairs[q, 0], pairs[q, 1]
+        both[2 * q + 1, 0], both[2 * q + 1, 1] = pairs[q, 1], pairs[q, 0]
+    start, idx = _csr(p.shape[0], both)
+    m = oc.shape[0]
+    radius = np.empty(m)
+    for j in range(m):
+        speed = math.hypot(obstacles.v[j, 0], obstacles.v[j, 1]) + math.hypot(
+            obstacles.amp[j, 0], obstacles.amp[j, 1]) * abs(obstacles.w[j])
+        radius[j] = obstacles.axes[j, 0] + prm.safety_range_m + NEIGHBOUR_SLACK_M + \
+            (speed + prm.speed_limit_mps) * horizon_s
+    ob_start, ob_idx = _csr(p.shape[0], obstacle_pairs(p, oc, radius))
+    for i in range(p.shape[0]):  # in row order, as the barrier's projections go
+        ob_idx[ob_start[i]:ob_start[i + 1]] = np.sort(ob_idx[ob_start[i]:ob_start[i + 1]])
+    return Neighbours(start, idx, ob_start, ob_idx)
 
 
 @njit(cache=True)
@@ -251,7 +325,12 @@ def _run_segment(span, skip_decide, clock, robots, graph, plant, obstacles, m, t
                           np.empty((obstacles.axes.shape[0], 2)),
                           np.empty(obstacles.axes.shape[0]), np.empty(obstacles.axes.shape[0]),
                           np.empty(obstacles.axes.shape[0]), obstacles.axes, obstacles.static)
-    nb = neighbour_lists(x[:, :2].copy(), robots.known, plant.rbody, prm)
+    horizon = dec_every * dt
+    obstacle_states(k0 * dt, obstacles.c0, obstacles.v, obstacles.amp, obstacles.w,
+                    obstacles.phi0, obstacles.phid, ob.c, ob.v, ob.a, ob.phi, ob.phi_dot,
+                    ob.phi_ddot)
+    nb = neighbour_lists(x[:, :2].copy(), robots.known, plant.rbody, prm, ob.c, obstacles,
+                         horizon)
     rk = rk0
     ended = mission.end_s[0] == mission.end_s[0]
     for kk in range(k0, k_end):
@@ -269,7 +348,8 @@ def _run_segment(span, skip_decide, clock, robots, graph, plant, obstacles, m, t
                          robots.goal, robots.goal_dot, robots.vc)
         if kk % dec_every == 0 and not (skip_decide and kk == k0):
             nev = _decide(t, robots, graph, plant, ob, m, teams, mission, prm, ev)
-            nb = neighbour_lists(x[:, :2].copy(), robots.known, plant.rbody, prm)
+            nb = neighbour_lists(x[:, :2].copy(), robots.known, plant.rbody, prm, ob.c,
+                                 obstacles, horizon)
             if nev > 0:
                 return kk, rk, nev, EVENTS
             if not ended and mission.end_s[0] == mission.end_s[0]:
@@ -284,7 +364,8 @@ def _run_segment(span, skip_decide, clock, robots, graph, plant, obstacles, m, t
                                   (robots.goal_dot[i, 0], robots.goal_dot[i, 1]))
             t1, t2, sx, sy, sat, acx, acy, wdx, wdy = robot_law_k(
                 i, t, x, pd, robots.acmd, plant.rbody, plant.coeffs, ob,
-                nb.idx[nb.start[i]:nb.start[i + 1]], track, mode_row(m, i), prm)
+                nb.idx[nb.start[i]:nb.start[i + 1]], nb.ob_idx[nb.ob_start[i]:nb.ob_start[i + 1]],
+                track, mode_row(m, i), prm)
             robots.torque[i, 0] = t1
             robots.torque[i, 1] = t2
             robots.sat_flag[i] = sat
