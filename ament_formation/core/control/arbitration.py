@@ -43,7 +43,7 @@ import numpy as np
 
 from ament_formation.core.control.floor import drift_off_edges
 from ament_formation.core.control.limit_cycle import choose_direction
-from ament_formation.core.control.progress import rate_targets, step, team_errors
+from ament_formation.core.control.progress import finish_wait_s, rate_targets, step, team_errors
 from ament_formation.core.control.switching import (
     anchor_at,
     begin_episode,
@@ -465,9 +465,12 @@ def _stalls(t, robots, m, teams, prm, ev, nev):
                 anchor_at(i, t, p, teams.anchor, teams.t_anchor)
             continue
         teams.anchor[i, 0] = np.nan  # the watch starts again on the next obstacle
-        if not progress(i, t, p, m, prm):
-            continue
         k = m.tgt[i]
+        if md == MODE_MUTUAL:  # a pair is stalled when either robot is (its lower row acts)
+            if k < i or not (progress(i, t, p, m, prm) | progress(k, t, p, m, prm)):
+                continue
+        elif not progress(i, t, p, m, prm):
+            continue
         if md == MODE_YIELD and not (t >= m.park_at[i] and _round_parked(i, k, robots, prm)):
             s, park_at = -m.sdir[i], m.park_at[i]  # C3
             nev = leave(i, t, m, ev, nev)
@@ -645,14 +648,20 @@ def arbitrate(t, robots, m, teams, prm, ev, nev):
 def coordinate(t, dt, robots, ob, m, teams, progress, refs, leaders, e_team, prm, ev, nev):
     """The coordinator's decision (ideal simulator and coordinator alike): the table
     (:func:`arbitrate`), then every team's error, its reference's rate target and progress over
-    ``dt`` [s] since the last decision (S17). Returns (event count, every reference at its end).
+    ``dt`` [s] since the last decision (S17). Returns (event count, the mission has ended: every
+    reference at its end, and every team re-formed or the finish wait used up).
     """
     nev = arbitrate(t, robots, m, teams, prm, ev, nev)
     team_errors(robots.p, robots.goal, robots.team, robots.known, ob, prm, e_team)
     rate_targets(t, e_team, teams.giving_way, progress, leaders, refs.s_end, prm, progress.target)
     done = True
+    worst = 0.0
     for i in leaders:
         step(progress, i, dt, progress.target[i], refs.s_end, prm)
         teams.done[i] = progress.s[i] >= refs.s_end
         done = done and teams.done[i]
-    return nev, done
+        worst = max(worst, abs(e_team[i]))
+    # S17.3: at their ends the references still wait for the teams to re-form (a goal that
+    # leaves an obstacle's Q in the last moments counts again), up to the finish wait's room
+    waited = t - refs.s_end >= finish_wait_s(refs.s_end, prm)
+    return nev, done and (worst <= prm.reform_stop_m or waited)
