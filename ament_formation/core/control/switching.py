@@ -397,7 +397,11 @@ def robot_transitions(i, t, robots, ob, m, prm, ev, nev):
         acted, nev = _reverse_on_obstacle(i, j, t, robots, ob, m, prm, ev, nev)  # R1
         if acted:
             return nev
-        if jn >= 0 and not cur_em and (em_n or hl_n < cur_hl):  # R2: more_urgent
+        # R2: more_urgent; back to the obstacle just left only reason_dwell_s after the switch,
+        # emergencies included (between two near obstacles they alternate, S8.4)
+        back = m.last_kind[i] == KIND_OBSTACLE and m.last_tgt[i] == jn and (
+            t - m.t_entry[i] < prm.reason_dwell_s)
+        if jn >= 0 and not cur_em and (em_n or hl_n < cur_hl) and not back:
             sweep = ob.static[j] and ob.static[jn]
             s = m.sdir[i] if sweep else choose_sense(i, jn, robots, ob, m, prm)
             nev = leave(i, t, m, ev, nev)
