@@ -1,6 +1,7 @@
 """Random scenarios the restated law still fails (test/scenarios_known/*.yaml, each with its
-failure in its header), from `formation sweep --count 500` on seed 31 (a seed no change was
-traced on) and on seed 2: kept so that the failure stays visible and a fix shows. Each must still
+failure in its header), from `formation sweep --count 500` on seeds 31 and 2, and on seed 53 (a
+seed no change was traced on, run after the last change of the law): kept so that the failure
+stays visible and a fix shows. Each must still
 fail with the class in its header; a law that fixes one turns its test red (strict): move the
 file to test/scenarios_regression/ then.
 """
