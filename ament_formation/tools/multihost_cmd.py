@@ -2,8 +2,8 @@
 own, made of Linux network namespaces on this machine (docs/multi-machine.md).
 
     formation multihost --scenario S.yaml [--out DIR] [--link-down ROBOT:AT_S:DURATION_S ...]
-                        [--fault ROBOT:AT_S:KIND ...] [--rate LIMIT] [--profile LAB.xml]
-                        [--no-expect]
+                        [--fault ROBOT:AT_S:KIND ...] [--clock-shift ROBOT:SECONDS ...]
+                        [--rate LIMIT] [--profile LAB.xml] [--no-expect]
     formation multihost --robots N [--duration S]          # a generated N-robot formation
 
 Hosts (tools/netns.py): ``af_cam_<run>`` runs the simulated twin's world (plant, emulated motor
@@ -21,7 +21,10 @@ heard by the camera PC -> mission start -> every controller running), bytes/s pe
 during the mission (switch port counters: from / to the robot), each link-loss event (the robot's
 controller stop, time and distance to rest from the ground truth, rejoin), each process fault
 (``--fault``: its controller or bridge process killed or frozen; time and distance to rest from the
-ground truth, the emulated board's brake and what started it) and the run's checks
+ground truth, the emulated board's brake and what started it), the clocks (each robot's shift,
+``--clock-shift``, and the offsets its controller estimated for the camera PC, the coordinator and
+the robots it heard, with their errors; a robot stopped by its clock, ``stopped_clock``, and why)
+and the run's checks
 (core/sim/metrics.check_run on the recorded ground truth, as `formation run`, plus the multi-host
 checks). DIR/metrics.json, DIR/run.mcap and DIR/figure.png as `formation run`. Exit status 0
 when every check passed, 1 when one failed, 2 for bad input or when namespaces are unavailable
@@ -52,6 +55,9 @@ REST_SPEED_MPS = 0.005  # at rest below this point speed (docs/safety.md)
 CONTROL_GAP_MAX_S = 0.2  # a longer control-loop gap lets the board's watchdog brake on its own
 TRUTH_GAP_MAX_S = 1.0
 REJOIN_MAX_S = 5.0  # after the link is back, the robot runs again within this [s]
+# --clock-shift: a shifted robot's controller estimates the camera PC's clock within this [s]
+# (core/clock.py: short by the smallest latency seen, stamp to arrival)
+CLOCK_ERROR_MAX_S = 0.05
 # --fault KIND: (the robot process it hits, the signal); the robot runs launch_robot.sh --split
 FAULT_KINDS = {
     'controller-kill': ('controller', signal.SIGKILL),
@@ -113,6 +119,15 @@ def register(subparsers) -> None:
         f'process), controller-stop (SIGSTOP, SIGCONT {FAULT_HOLD_S:g} s later) or bridge-kill '
         "(SIGKILL to its bridge process: the board's watchdog stops it); that robot runs "
         'launch_robot.sh --split (repeatable, one fault per robot)',
+    )
+    p.add_argument(
+        '--clock-shift',
+        action='append',
+        default=[],
+        metavar='ROBOT:SECONDS',
+        help="run robot ROBOT's host with its wall clock SECONDS ahead (negative: behind) of the "
+        'camera PC (libfaketime; scripts/install_clock_deps.sh); beyond the bound of the '
+        'controllers (2 s) the robot stops, stopped_clock (repeatable, one per robot)',
     )
     p.add_argument(
         '--rate',
@@ -288,8 +303,10 @@ def _program(name: str) -> str:
     return program_file(name)
 
 
-def _log_lines(path: Path):
-    """(severity, wall time, logger, message) of every ROS console line of a log file."""
+def _log_lines(path: Path, shift_s: float = 0.0):
+    """(severity, wall time, logger, message) of every ROS console line of a log file; a host
+    whose clock runs ``shift_s`` ahead (--clock-shift) has its times put back on the true clock.
+    """
     try:
         text = path.read_text(errors='replace')
     except OSError:
@@ -297,7 +314,7 @@ def _log_lines(path: Path):
     for line in text.splitlines():
         m = _LOG_TIME.match(line.strip())
         if m:
-            yield m.group(1), float(m.group(2)), m.group(3), m.group(4)
+            yield m.group(1), float(m.group(2)) - shift_s, m.group(3), m.group(4)
 
 
 def _pid_of(run_dir: Path, name: str) -> int | None:
@@ -323,7 +340,7 @@ def _environ(pid: int) -> dict:
 def run_multihost(args: argparse.Namespace) -> int:
     from ament_formation.core.config_files import read_user_text
     from ament_formation.core.scenario.loader import load_scenario
-    from ament_formation.tools import netns
+    from ament_formation.tools import clock_shift, netns
 
     reason = netns.unavailable_reason()
     if reason is not None:
@@ -332,6 +349,8 @@ def run_multihost(args: argparse.Namespace) -> int:
     if args.rate is not None and not netns.valid_rate(args.rate):
         raise ConfigError(f'expected a tc rate such as 2mbit or 500kbit (got {args.rate!r})',
                           '--rate')  # fmt: skip
+    if args.clock_shift and clock_shift.missing_reason() is not None:
+        raise ConfigError(clock_shift.missing_reason(), '--clock-shift')
     profile = Path(args.profile).resolve() if args.profile else config_dir() / UDP_PROFILE
     if not profile.is_file():
         raise ConfigError('no such file', '--profile', str(profile))
@@ -355,6 +374,7 @@ def run_multihost(args: argparse.Namespace) -> int:
         raise ConfigError(f'{args.robots} robots asked, the scenario has {len(ids)}', '--robots')
     events = [parse_link_down(t, ids) for t in args.link_down]
     faults = parse_faults(args.fault, ids)
+    shifts = clock_shift.parse_clock_shifts(args.clock_shift, ids)
     from ament_formation.tools.run_cmd import _free_domain_id
 
     # the robots' launchers take the lab network's domain ids only: ROS's safe range, 0..101
@@ -369,6 +389,7 @@ def run_multihost(args: argparse.Namespace) -> int:
         'ros_domain_id': int(domain),
         'profile': str(profile),
         'rate': args.rate,
+        'clock_shift_s': {str(r): s for r, s in sorted(shifts.items())},
         'load_avg_start': os.getloadavg(),
     }
     procs: dict[str, _Proc] = {}
@@ -380,11 +401,13 @@ def run_multihost(args: argparse.Namespace) -> int:
 
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGTERM, signal.SIGINT)}
     status = 1
+    since = time.time()
+    run = None
     try:
         net.build()
         say(f'namespaces {", ".join(net.made)} (domain {domain}, profile {profile.name})')
         run = _Run(args, out, scenario, scenario_path, ids, events, net, profile, domain, procs,
-                   report, say, faults)  # fmt: skip
+                   report, say, faults, shifts)  # fmt: skip
         run.execute()
         status = run.evaluate()
     except KeyboardInterrupt:
@@ -393,6 +416,8 @@ def run_multihost(args: argparse.Namespace) -> int:
         for name in sorted(procs, key=lambda n: (n == 'world', n == 'recorder')):
             procs[name].stop()
         failed = net.destroy()
+        if run is not None and shifts:
+            report['clock_shm_removed'] = clock_shift.remove_shm(run.faketime_pids(), since)
         for s, h in old.items():
             signal.signal(s, h)
         left = net.leftovers()
@@ -407,7 +432,7 @@ def run_multihost(args: argparse.Namespace) -> int:
 
 class _Run:
     def __init__(self, args, out, scenario, scenario_path, ids, events, net, profile, domain,
-                 procs, report, say, faults=()):  # fmt: skip
+                 procs, report, say, faults=(), shifts=None):  # fmt: skip
         self.args, self.out, self.scenario, self.scenario_path = args, out, scenario, scenario_path
         self.ids, self.events, self.net, self.profile = ids, events, net, profile
         self.domain, self.procs, self.report, self.say = domain, procs, report, say
@@ -428,6 +453,8 @@ class _Run:
         self.faults = list(faults)
         self.split = {f[0] for f in faults}  # robots launched with --split
         self.fault_log: list[dict] = []
+        self.shifts: dict[int, float] = dict(shifts or {})  # --clock-shift: robot -> seconds
+        self.clock_hosts: dict[int, dict] = {}  # robot -> its faketime variables and probe
         self.wall0 = time.monotonic()
 
     # ---------------------------------------------------------------- processes
@@ -553,13 +580,15 @@ class _Run:
             90.0,
             watch=('world', 'base', 'recorder'),
         )
+        self._shift_clocks()
         launched = time.time()
         rt = [] if a.robot_rt is None else ['--rt-priority', str(a.robot_rt)]
         for rid in self.ids:
+            shifted = self.clock_hosts.get(rid, {}).get('prefix', [])
             self._start(
                 f'robot_{rid}',
                 rid,
-                [str(script_file('launch_robot.sh')), '--id', str(rid), '--port',
+                [*shifted, str(script_file('launch_robot.sh')), '--id', str(rid), '--port',
                  str(self.pty_dir / f'robot_{rid}'), '--scenario', sc, '--run-dir',
                  str(self.out / f'robot_{rid}'), '--domain', str(self.domain), *rt,
                  *(['--split'] if rid in self.split else [])],
@@ -573,6 +602,33 @@ class _Run:
         self._profiles_in_use()
         self._mission(everyone)
 
+    def _shift_clocks(self) -> None:
+        """--clock-shift: the variables of each shifted robot host (tools/clock_shift.py) and its
+        wall clock measured against ours by a probe run as its robot process will be.
+        """
+        if not self.shifts:
+            return
+        from ament_formation.tools import clock_shift
+
+        fix = clock_shift.build_fix(self.out / 'clock')
+        for rid, seconds in sorted(self.shifts.items()):
+            variables = clock_shift.host_env(seconds, fix)
+            prefix = clock_shift.env_prefix(variables)
+            probe = clock_shift.measure_shift([*self.net.exec_prefix(rid), *prefix])
+            self.clock_hosts[rid] = {'variables': variables, 'prefix': prefix, 'probe': probe}
+            self.say(f'robot {rid}: wall clock {variables["FAKETIME"]} s (libfaketime), measured '
+                     f'{_signed(probe["shift_s"])} (round trip {_s(probe["rtt_s"])})')  # fmt: skip
+            if probe['shift_s'] is None or abs(probe['shift_s'] - seconds) > 0.01:
+                raise _Abort(f'--clock-shift {rid}:{seconds:g}: the clock of its host reads '
+                             f'{_signed(probe["shift_s"])} ahead ({probe.get("error", "")})')
+
+    def faketime_pids(self) -> list[int]:
+        """The processes that loaded libfaketime first on their host (see remove_shm)."""
+        pids = [h['probe'].get('pid') for h in self.clock_hosts.values()]
+        pids += [self.procs[f'robot_{r}'].popen.pid for r in self.clock_hosts
+                 if f'robot_{r}' in self.procs]  # fmt: skip
+        return [p for p in pids if p]
+
     def _profiles_in_use(self) -> None:
         """The Fast DDS profile each robot process really runs with (its /proc environment)."""
         used = {}
@@ -583,6 +639,8 @@ class _Run:
                 'FASTRTPS_DEFAULT_PROFILES_FILE': env.get('FASTRTPS_DEFAULT_PROFILES_FILE'),
                 'ROS_AUTOMATIC_DISCOVERY_RANGE': env.get('ROS_AUTOMATIC_DISCOVERY_RANGE'),
                 'ROS_DOMAIN_ID': env.get('ROS_DOMAIN_ID'),
+                'FAKETIME': env.get('FAKETIME'),
+                'LD_PRELOAD': env.get('LD_PRELOAD'),
             }
         self.report['robot_process_environment'] = used
 
@@ -743,7 +801,8 @@ class _Run:
         for rid in self.ids:
             split = rid in self.split  # node up: the controller process's first log line
             for _sev, wall, _logger, message in _log_lines(
-                self.out / f'robot_{rid}' / f'{self._process_name(rid)}.log'
+                self.out / f'robot_{rid}' / f'{self._process_name(rid)}.log',
+                self.shifts.get(rid, 0.0),
             ):
                 if split or message.startswith('hosting robots'):
                     up[rid] = wall
@@ -835,7 +894,8 @@ class _Run:
             )  # fmt: skip
         traces = []
         for ev in self.link_log:
-            trace = link_loss_trace(result, scenario, ev, self.out, self.modes)
+            trace = link_loss_trace(result, scenario, ev, self.out, self.modes,
+                                    self.shifts.get(ev['robot'], 0.0))  # fmt: skip
             traces.append(trace)
             extra += trace.pop('checks')
         self.report['link_loss'] = traces
@@ -846,10 +906,12 @@ class _Run:
             faults.append(trace)
             extra += trace.pop('checks')
         self.report['faults'] = faults
+        self.report['clock'], clock_checks = self._clocks()
+        extra += clock_checks
         check_run(metrics, scenario, extra=extra)
         metrics['multihost'] = {
             k: self.report.get(k)
-            for k in ('discovery', 'traffic', 'link_loss', 'faults', 'control_loops')
+            for k in ('discovery', 'traffic', 'link_loss', 'faults', 'control_loops', 'clock')
         }
         write_run(self.out, result, scenario, metrics)
         if not self.args.no_figure:
@@ -865,8 +927,56 @@ class _Run:
             rid: r.get('final_error_m') for rid, r in metrics['robots'].items()
         }
         self.report['prohibited_entries'] = metrics.get('prohibited_entries')
+        self.report['mission_end_s'] = metrics.get('mission_end_s')
         self._print(metrics)
         return 0 if metrics['ok'] else 1
+
+    def _clocks(self) -> tuple[dict, list[dict]]:
+        """Each robot's clock (its shift, the offsets its controller estimated, from its
+        /diagnostics in the recording; its clock stop and why, from its log) and the checks: no
+        robot stopped by its clock (``clock_stop[R<id>]``; the stop beyond the bound is the
+        controlled stop a run with such a shift must end in, and a failed run all the same), and
+        per shifted robot each camera PC source estimated within CLOCK_ERROR_MAX_S.
+        """
+        from ament_formation.core.clock import ClockParams
+        from ament_formation.tools import clock_shift
+
+        p = ClockParams()
+        statuses = clock_shift.controller_status(self.mcap, self.ids)
+        robots, checks = {}, []
+        for rid in self.ids:
+            log = self.out / f'robot_{rid}' / f'{self._process_name(rid)}.log'
+            rec = clock_shift.robot_clock(rid, self.shifts, statuses.get(rid, []), self.start_s,
+                                          log)  # fmt: skip
+            host = self.clock_hosts.get(rid)
+            if host is not None:
+                rec['faketime'] = host['variables']['FAKETIME']
+                rec['measured_shift_s'] = host['probe']['shift_s']
+                rec['probe_rtt_s'] = host['probe']['rtt_s']
+            rec['beyond_bound'] = abs(rec['shift_s']) > p.bound_s
+            robots[str(rid)] = rec
+            stop = rec['clock_stop']
+            if stop is None:
+                checks.append(_check(f'clock_stop[R{rid}]', True, 'none', 'none', '=='))
+            else:
+                checks.append(_check(
+                    f'clock_stop[R{rid}]', False, None, 'none', '==',
+                    f'stopped_clock at t = {stop["t_s"]} s: '
+                    f'{stop["reason"] or "(no reason in its log)"}'))  # fmt: skip
+            if rid not in self.shifts:
+                continue
+            for source in ('camera', 'coordinator'):
+                est = rec['estimates'].get(source) or {}
+                err = est.get('error_s')
+                checks.append(_check(
+                    f'clock_offset[R{rid}.{source}]', err is not None
+                    and abs(err) <= CLOCK_ERROR_MAX_S, None if err is None else abs(err),
+                    CLOCK_ERROR_MAX_S, '<=', f'no offset of {source} reported' if err is None
+                    else f'|error|: estimated {est["estimated_offset_s"]:+.4f} s, true '
+                    f'{est["true_offset_s"]:+.4f} s'))  # fmt: skip
+        clock = {'bound_s': p.bound_s, 'deadband_s': p.deadband_s, 'window_s': p.window_s,
+                 'error_max_s': CLOCK_ERROR_MAX_S, 'robots': robots}  # fmt: skip
+        return clock, checks
 
     def _print(self, metrics: dict) -> None:
         if self.args.quiet:
@@ -1107,7 +1217,7 @@ def fault_trace(result, scenario, ev: dict, brakes: list, modes) -> dict:
     return trace
 
 
-def link_loss_trace(result, scenario, ev: dict, out: Path, modes) -> dict:
+def link_loss_trace(result, scenario, ev: dict, out: Path, modes, shift_s: float = 0.0) -> dict:
     """What the robot that lost its link did, from the ground truth (SimResult on scenario time)
     and its controller's log, and what the others did meanwhile. Times [s] from the link going
     down. The robot must be at rest (point speed < REST_SPEED_MPS from then until the link came
@@ -1137,7 +1247,7 @@ def link_loss_trace(result, scenario, ev: dict, out: Path, modes) -> dict:
     stop_w = resume_w = None
     stop_state = None
     at_down = None  # the safety state in force when the link went down
-    for _sev, wall, logger, message in _log_lines(log):
+    for _sev, wall, logger, message in _log_lines(log, shift_s):
         if 'formation_controller' not in logger or not message.startswith('safety:'):
             continue
         new = message.rsplit('->', 1)[-1].strip()
@@ -1222,6 +1332,7 @@ def summary(report: dict) -> str:
                 f'R{r} {o["modes"]} {o["distance_m"]:.3f} m' for r, o in lt['others'].items()
             )
         )
+    lines += clock_lines(report.get('clock') or {})
     loops = report.get('control_loops') or {}
     if loops:
         lines.append(
@@ -1232,8 +1343,34 @@ def summary(report: dict) -> str:
     return '\n'.join(lines)
 
 
+def clock_lines(clock: dict) -> list[str]:
+    """One line per robot whose clock is shifted or that a clock stopped: its shift, the offsets
+    its controller estimated (error from the truth), its clock stop and why.
+    """
+    lines = []
+    for rid, rec in (clock.get('robots') or {}).items():
+        if not rec.get('shift_s') and rec.get('clock_stop') is None:
+            continue
+        est = ', '.join(
+            f'{src} {_signed(e["estimated_offset_s"])} (true {_signed(e["true_offset_s"])}, error '
+            f'{_signed(e["error_s"])})'
+            for src, e in rec['estimates'].items()
+        )
+        line = (f'clock R{rid}: shifted {_signed(rec["shift_s"])} (measured '
+                f'{_signed(rec.get("measured_shift_s"))}); estimated offsets {est or "none"}')
+        stop = rec.get('clock_stop')
+        if stop is not None:
+            line += f'; stopped_clock at t = {stop["t_s"]} s: {stop["reason"]}'
+        lines.append(line)
+    return lines
+
+
 def _s(v) -> str:
     return 'n/a' if v is None else f'{v:.3f} s'
+
+
+def _signed(v) -> str:
+    return 'n/a' if v is None else f'{v:+.4f} s'
 
 
 def _m(v) -> str:
