@@ -469,6 +469,37 @@ def wheels_k(t, angle, rate, st, sc):
         st.nwheel[r] = q + 1
 
 
+ASSIGN_NONE, ASSIGN_NONE_PARK, ASSIGN_YIELD, ASSIGN_MUTUAL = range(4)  # assign_k's kinds
+
+
+@njit(cache=True)
+def assign_k(now, rows, kind, partner, val, has_rate, rate, coord_s, assigned, assigned_w,
+             rate_target):
+    """The coordinator's message at ``now`` for every hosted robot (rows ``rows``), by robot row
+    i: ``kind`` (N,) ASSIGN_NONE (no assignment), ASSIGN_NONE_PARK (none, but ``park_at_s``:
+    make way), ASSIGN_YIELD or ASSIGN_MUTUAL with ``partner`` (N,) row and ``val`` (N, 5)
+    [direction, t_entry_s, park_at_s, drift w_c (2) [m/s]]; the progress rate target ``rate``
+    (N,) where ``has_rate`` (clamped to [0, 1]) -> ``coord_s``, ``assigned``, ``assigned_w``,
+    ``rate_target`` (State's, by hosted row).
+    """
+    for r in range(rows.shape[0]):
+        i = rows[r]
+        coord_s[r] = now
+        k = kind[i]
+        if k == ASSIGN_YIELD or k == ASSIGN_MUTUAL:
+            assigned[r, 0] = MODE_YIELD if k == ASSIGN_YIELD else MODE_MUTUAL
+            assigned[r, 1] = partner[i]
+            assigned[r, 2], assigned[r, 3], assigned[r, 4] = val[i, 0], val[i, 1], val[i, 2]
+            assigned_w[r, 0], assigned_w[r, 1] = val[i, 3], val[i, 4]
+        else:
+            assigned[r, 0], assigned[r, 1], assigned[r, 2], assigned[r, 3] = MODE_C, -1, 1.0, 0.0
+            assigned[r, 4] = val[i, 2] if k == ASSIGN_NONE_PARK else -np.inf
+        if has_rate[i]:
+            v = rate[i]
+            v = v if v > 0.0 else 0.0  # min(1, max(0, rate))
+            rate_target[r] = v if v < 1.0 else 1.0
+
+
 class AgentBatch:
     """The robot agents of ``robot_ids`` in ``scenario`` (module docstring).
 
@@ -641,25 +672,35 @@ class AgentBatch:
     def assign(self, now_s: float, assignments: dict, rates: dict | None = None) -> None:
         """The coordinator's message at ``now_s``: {robot id: {mode, partner, direction,
         t_entry_s, drift_mps, park_at_s}} or {mode: make_way, park_at_s} (robots without one:
-        none) and {team leader id: progress rate target} (S7.1, S8.9, S17).
+        none) and {team leader id: progress rate target} (S7.1, S8.9, S17); :func:`assign_k`.
         """
-        st = self.state
-        for r, rid in enumerate(self.hosted):
+        n = len(self.ids)
+        kind, partner = np.zeros(n, dtype=np.int64), np.full(n, -1, dtype=np.int64)
+        val = np.zeros((n, 5))  # direction, t_entry_s, park_at_s, drift (2)
+        has_rate, rate = np.zeros(n, dtype=np.bool_), np.zeros(n)
+        for rid in self.hosted:
+            i = self.row[rid]
             a = assignments.get(rid, assignments.get(str(rid)))
-            st.coord_s[r] = now_s
-            park_at = -np.inf if a is None else float(a.get('park_at_s', -np.inf))
-            if a is None or a['mode'] == 'make_way' or int(a['partner']) not in self.row:
-                st.assigned[r] = (MODE_C, -1, 1.0, 0.0, park_at)
-            else:
-                st.assigned[r] = (MODE_YIELD if a['mode'] == 'yield' else MODE_MUTUAL,
-                                  self.row[int(a['partner'])], float(a['direction']),
-                                  float(a['t_entry_s']), park_at)
-                w = a.get('drift_mps')
-                st.assigned_w[r] = (0.0, 0.0) if w is None else w
-            if rates is not None:
-                rate = rates.get(rid, rates.get(str(rid)))
-                if rate is not None:
-                    st.rate_target[r] = min(1.0, max(0.0, float(rate)))
+            if a is None:
+                continue
+            val[i, 2] = float(a.get('park_at_s', -np.inf))
+            if a['mode'] == 'make_way' or int(a['partner']) not in self.row:
+                kind[i] = ASSIGN_NONE_PARK
+                continue
+            kind[i] = ASSIGN_YIELD if a['mode'] == 'yield' else ASSIGN_MUTUAL
+            partner[i] = self.row[int(a['partner'])]
+            val[i, 0], val[i, 1] = float(a['direction']), float(a['t_entry_s'])
+            w = a.get('drift_mps')
+            val[i, 3:5] = (0.0, 0.0) if w is None else w
+        if rates is not None:
+            for rid in self.hosted:
+                r = rates.get(rid, rates.get(str(rid)))
+                if r is not None:
+                    has_rate[self.row[rid]] = True
+                    rate[self.row[rid]] = float(r)
+        st = self.state
+        assign_k(float(now_s), self.static.rows, kind, partner, val, has_rate, rate, st.coord_s,
+                 st.assigned, st.assigned_w, st.rate_target)
 
     def share(self, now_s: float) -> None:
         """The hosted robots' broadcasts of this period reach each other in the process (a
