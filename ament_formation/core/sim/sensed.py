@@ -27,6 +27,12 @@ hearing range is heard at once).
 The record is the TRUE state (the same :class:`~ament_formation.core.sim.trajectory.SimResult` as
 ``simulate``); :attr:`SensedResult.sensing` adds the sensing figures (frames, drops, estimator
 counters, estimate error).
+
+The mission runs in one compiled loop (core/sim/sensed_loop.py, issue 34): the same kernels the
+objects above call (the agents', the coordinator's decision and publisher, the twin's RK4), step
+by step, with Python only for the S9 rewiring, the camera's draws (in the generator's order) and
+growing buffers; test_sensed_sim.py holds it to the objects' Python interfaces, bit for bit. A
+camera run costs about what an ideal one does (docs/sweep.md, "Camera sensing's cost").
 """
 
 from __future__ import annotations
