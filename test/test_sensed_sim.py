@@ -326,3 +326,96 @@ def test_bad_sensing_options_exit_2_with_one_line(tmp_path, capsys, extra, optio
     assert rc == 2
     assert len(err) == 1 and err[0].startswith(f'formation sim: {option}:'), err
     assert not (tmp_path / 'r').exists()
+
+
+# --------------------------------------------------------------------------- the compiled loop
+
+
+def _python_loop(scenario, sensing, hold_s=0.0):
+    """The sensed run through the Python interfaces, period by period (the loop of
+    simulate_sensed before issue 34 compiled it): the twin, the camera's queue, the agents'
+    AgentBatch.tick, the coordinator's state/report/reported_avoiding/decide, the Publisher and
+    AgentBatch.assign. Returns (state, torque, mode events, graph events, frames, error sum).
+    """
+    from ament_formation.core.control.agent import broadcast_k, frame_k, RUNNING, wheels_k
+    from ament_formation.core.control.coordinator import Publisher
+    from ament_formation.core.control.progress import max_time_s
+    from ament_formation.core.sim.sensed import _Loop, _parents_json
+
+    dt = 0.001
+    fps = sensing.frame_rate_hz(scenario)
+    loop = _Loop(scenario, sensing, dt)
+    loop.prestart(fps)
+    loop.twin.start()
+    tw, ag, coord, cam = loop.twin, loop.agents, loop.coord, loop.camera
+    st, sc, prm, rows = ag.state, ag.static, loop.params, loop.rows
+    publisher, reports = Publisher(sensing.republish_s), [None] * len(loop.ids)
+    states, torques, err_sq = [], [], 0.0
+    k_cap = int(round(max_time_s(scenario.duration_s) / dt))
+    k, k_end, next_frame, cap_every = 0, k_cap, 0, 1.0 / (fps * dt)
+    while k < k_end:
+        t = k * dt
+        if k >= next_frame * cap_every - 1e-9:
+            cam.capture(t, loop.true_pose())
+            next_frame += 1
+        if k % 10 == 0:  # 100 Hz
+            wheels_k(t, tw.wheel_angle_rad[rows], tw.wheel_rate_radps[rows], st, sc)
+            for pose, kept, stamp in cam.deliver(t):
+                frame_k(stamp, pose, kept, st, sc, prm.hear_all, prm.hear_hysteresis_m)
+            broadcast_k(loop.b_t, loop.bx, loop.ba, loop.bmode, loop.sent, st, sc, prm.hear_all)
+            ag.tick(t)
+            e = np.hypot(*(ag.out.state[:, :2] - tw.state[rows, :2]).T)
+            err_sq += float(e @ e)
+            loop.mode_events.extend(ag.events)
+            loop.bx[:], loop.ba[:], loop.bmode[:] = ag.out.state, ag.out.accel, ag.out.mode
+            loop.b_t = t
+            loop.bmode[st.status != RUNNING] = (0.0, -1.0, 1.0)
+            for r, rid in enumerate(loop.ids):
+                coord.state(rid, ag.out.state[r], t)
+                key = (int(st.status[r]), *ag.out.mode[r].tolist())
+                if key != reports[r]:
+                    reports[r] = key
+                    coord.report(rid, ag.mode_dict(r))
+            parents = coord.reported_avoiding()
+            if parents is not None:
+                ag.set_graph(parents, 0.0)
+                graph = _parents_json(parents)
+                if graph != loop.graph_events[-1]['parents']:
+                    loop.graph_events.append({'t_s': round(t, 9), 'parents': graph})
+            if k % 20 == 0:  # 50 Hz
+                assignments, rates = coord.decide(t)
+                if publisher.due(t, assignments, rates):
+                    ag.assign(t, assignments, rates)
+            if coord.mission_end_s is not None and k_end == k_cap:
+                k_end = k + int(round(hold_s / dt)) + 1
+        if k % 10 == 0:
+            states.append(tw.state[rows].copy())
+            torques.append(ag.out.torque.copy())
+        nxt = min(k_end, (k // 10 + 1) * 10, int(np.ceil(next_frame * cap_every - 1e-9)))
+        tw.advance((nxt - k) * dt, ag.out.torque[np.argsort(rows)])
+        k = nxt
+    return (np.array(states), np.array(torques), loop.mode_events, loop.graph_events,
+            cam.frames, err_sq)
+
+
+@pytest.mark.parametrize('name, preset', [('head_on', 'camera-stress'),
+                                          ('redundant_chain', 'camera')])
+def test_the_compiled_loop_is_the_python_interfaces_bit_for_bit(name, preset):
+    """simulate_sensed runs the mission in one compiled loop (issue 34); fed the same camera
+    draws, it is the agents', the coordinator's, the publisher's and the twin's Python
+    interfaces period by period, bit for bit: a head-on mutual pair (its drift resent as it
+    moves; hearing by range), and a chain whose follower turns onto an obstacle (the graph
+    rewired) and stays parked there.
+    """
+    sc = load_scenario(DATA / f'{name}.yaml')
+    sensing = SensingParams.preset(preset, seed=7)
+    res = simulate_sensed(sc, sensing, hold_s=1.0)
+    state, torque, events, graphs, frames, err_sq = _python_loop(sc, sensing, hold_s=1.0)
+    assert res.state.shape == state.shape
+    assert res.state.tobytes() == state.tobytes() and res.torque_nm.tobytes() == torque.tobytes()
+    assert res.mode_events == events and len(events) >= (1 if name == 'redundant_chain' else 4)
+    assert res.graph_events == graphs and len(graphs) >= (2 if name == 'redundant_chain' else 1)
+    assert res.sensing['frames'] == frames
+    # a period per record sample
+    n = len(sc.robots)
+    assert res.sensing['estimate_error_m']['rms'] == np.sqrt(err_sq / (n * len(state)))

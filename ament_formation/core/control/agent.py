@@ -194,201 +194,218 @@ def _est_k(row):
 
 
 @njit(cache=True)
-def _view(r, now, st, sc, plant_d):
-    """S10.2: the robots robot r hears, extrapolated to ``now`` with their commanded
-    accelerations while younger than ``hold_s`` -> st.x, st.pd, st.acmd, st.known (row r).
+def _view(r, i, now, hold_s, fresh_s, stamp, heard_x, heard_a, rep_mode, rep_tgt, rep_sdir, x,
+          pd, acmd, known, mode, tgt, sdir, plant_d):
+    """S10.2: the robots robot r (row i) hears, extrapolated to ``now`` with their commanded
+    accelerations while younger than ``hold_s`` -> x, pd, acmd, known and the reported modes
+    (row r of the State's arrays).
     """
-    ak = sc.ak
-    i = sc.rows[r]
-    for k in range(st.x.shape[1]):
+    for k in range(x.shape[1]):
         if k == i:
             continue
-        age = now - st.stamp[r, k]
-        ok = age <= ak.hold_s
-        st.known[r, k] = ok
+        age = now - stamp[r, k]
+        ok = age <= hold_s
+        known[r, k] = ok
         if not ok:
             continue
-        x = st.x[r, k]
-        hx = st.heard_x[r, k]
+        xk = x[r, k]
+        hx = heard_x[r, k]
         for q in range(5):
-            x[q] = hx[q]
-        st.acmd[r, k, 0] = st.heard_a[r, k, 0]
-        st.acmd[r, k, 1] = st.heard_a[r, k, 1]
-        pdx, pdy = point_velocity_k(x[2], x[3], x[4], plant_d[k])
-        if age > ak.fresh_s:
-            x[0] += pdx * age + 0.5 * st.acmd[r, k, 0] * age * age
-            x[1] += pdy * age + 0.5 * st.acmd[r, k, 1] * age * age
-        st.pd[r, k, 0], st.pd[r, k, 1] = pdx, pdy
-        m = st.modes
-        m.mode[r, k] = st.rep_mode[r, k]
-        m.tgt[r, k] = st.rep_tgt[r, k]
-        m.sdir[r, k] = st.rep_sdir[r, k]
+            xk[q] = hx[q]
+        acmd[r, k, 0] = heard_a[r, k, 0]
+        acmd[r, k, 1] = heard_a[r, k, 1]
+        pdx, pdy = point_velocity_k(xk[2], xk[3], xk[4], plant_d[k])
+        if age > fresh_s:
+            xk[0] += pdx * age + 0.5 * acmd[r, k, 0] * age * age
+            xk[1] += pdy * age + 0.5 * acmd[r, k, 1] * age * age
+        pd[r, k, 0], pd[r, k, 1] = pdx, pdy
+        mode[r, k] = rep_mode[r, k]
+        tgt[r, k] = rep_tgt[r, k]
+        sdir[r, k] = rep_sdir[r, k]
 
 
 @njit(cache=True)
-def _brake(r, i, v, w, st, sc, camera_loss, out):
-    """The controlled stop (camera loss: the stop lead's gains; hold: the formation law's)."""
-    sk = sc.stop_k[r]
-    gv, ev_ = (sk[1], sk[2]) if camera_loss else (sk[13], sk[14])
-    t1, t2 = stop_torque_k(v, w, robot_plant_k(sc.coeffs, i), sc.coeffs[ROW_TAU_MAX, i], sk[0],
-                           gv, ev_, sk[5], sk[6])
-    out.torque[r, 0], out.torque[r, 1] = t1, t2
-
-
-@njit(cache=True)
-def _camera_lost(r, now, v, w, st, sc):
-    """docs/design.md §7 camera loss: the stop begins once the camera age exceeds pose_timeout_s
-    minus the time to rest from (v, omega) (docs/safety.md §7); latched until a newer pose.
+def _brake(r, i, v, w, sk, coeffs, camera_loss, torque):
+    """The controlled stop (camera loss: the stop lead's gains ``sk`` (15,); hold: the formation
+    law's) -> torque[r].
     """
-    cam_t = st.est.f[r, F_CAMERA_T]
-    if st.stop[r, 0] > 0.5:
-        if cam_t == st.stop[r, 1]:
+    gv, ev_ = (sk[1], sk[2]) if camera_loss else (sk[13], sk[14])
+    t1, t2 = stop_torque_k(v, w, robot_plant_k(coeffs, i), coeffs[ROW_TAU_MAX, i], sk[0], gv,
+                           ev_, sk[5], sk[6])
+    torque[r, 0], torque[r, 1] = t1, t2
+
+
+@njit(cache=True)
+def _camera_lost(r, now, v, w, cam_t, stop, sk, counters, pose_timeout_s):
+    """docs/design.md §7 camera loss: the stop begins once the camera age (the newest pose
+    ``cam_t``) exceeds pose_timeout_s minus the time to rest from (v, omega) (docs/safety.md §7);
+    latched until a newer pose.
+    """
+    if stop[r, 0] > 0.5:
+        if cam_t == stop[r, 1]:
             return True
-        st.stop[r, 0] = 0.0
-    sk = sc.stop_k[r]
+        stop[r, 0] = 0.0
     if abs(v) > sk[11] or abs(w) > sk[12]:
-        st.counters[r, 1] += 1
+        counters[r, 1] += 1
     lead = lead_k(v, w, StopK(sk[0], sk[1], sk[2], sk[3], sk[4], sk[5], sk[6], sk[7], sk[8],
                               sk[9], sk[10], sk[11], sk[12], sk[13], sk[14]))
-    if now - cam_t > sc.ak.pose_timeout_s - lead:
-        st.stop[r, 0] = 1.0
-        st.stop[r, 1] = cam_t
+    if now - cam_t > pose_timeout_s - lead:
+        stop[r, 0] = 1.0
+        stop[r, 1] = cam_t
         return True
     return False
 
 
 @njit(cache=True)
-def _inputs(r, st, sc):
+def _inputs(r, est, ek_row, nwheel, wheelq, ncam, camq):
     """Row r's queued wheel samples, then its camera poses, into its estimator."""
-    ek = _est_k(sc.est_k[r])
-    for q in range(st.nwheel[r]):
-        w = st.wheelq[r, q]
-        wheel_update_k(st.est, r, w[0], w[1], w[2], w[3], w[4], ek)
-    for q in range(st.ncam[r]):
-        c = st.camq[r, q]
-        camera_update_k(st.est, r, c[0], c[1], c[2], c[3], ek)
-    st.nwheel[r] = 0
-    st.ncam[r] = 0
+    ek = _est_k(ek_row)
+    for q in range(nwheel[r]):
+        w = wheelq[r, q]
+        wheel_update_k(est, r, w[0], w[1], w[2], w[3], w[4], ek)
+    for q in range(ncam[r]):
+        c = camq[r, q]
+        camera_update_k(est, r, c[0], c[1], c[2], c[3], ek)
+    nwheel[r] = 0
+    ncam[r] = 0
     return ek
 
 
 @njit(cache=True)
-def _decide(r, i, t, st, sc, ob, prm):
-    """Row r's own table (S8.7) every decision period, then the coordinator's assignment."""
-    m = _modes_of(st.modes, r)
-    robots = Robots(st.x[r, :, :2].copy(), st.pd[r], st.goal[r], st.goal_dot[r], st.vc[r],
-                    sc.team, sc.rbody, st.parent[r], sc.slot, st.known[r], sc.orig_parent)
-    nev = st.nev[r]
-    ev = st.ev[r]
-    nev = robot_transitions(i, t, robots, ob, m, prm, ev, nev)
-    a = st.assigned[r]
+def _decide(r, i, t, x, pd, goal, goal_dot, vc, team, rbody, parent, slot, known, orig_parent,
+            ob, modes, prm, nev, ev, assigned, assigned_w):
+    """Row r's own table (S8.7) every decision period, then the coordinator's assignment (on the
+    State's and Static's arrays).
+    """
+    m = _modes_of(modes, r)
+    robots = Robots(x[r, :, :2].copy(), pd[r], goal[r], goal_dot[r], vc[r], team, rbody,
+                    parent[r], slot, known[r], orig_parent)
+    n_ev = nev[r]
+    evr = ev[r]
+    n_ev = robot_transitions(i, t, robots, ob, m, prm, evr, n_ev)
+    a = assigned[r]
     am, arow = int(a[0]), int(a[1])
-    if am != MODE_C and (arow < 0 or not st.known[r, arow]):
+    if am != MODE_C and (arow < 0 or not known[r, arow]):
         am, arow = MODE_C, -1  # the partner is not heard: no encounter with it
-    nev = apply_assignment(i, t, am, arow, a[2], a[3], st.assigned_w[r, 0],
-                           st.assigned_w[r, 1], a[4], m, ev, nev)
-    st.nev[r] = nev
-
-
-@njit(cache=True)
-def _drive(r, i, now, t, st, sc, ob, out):
-    """The running robot's period: goals, reference, decisions, law, clamp."""
-    prm = sc.prm
-    if sc.leader[i]:
-        pr = st.progress
-        dt = t - st.t_ref[r] if st.t_ref[r] == st.t_ref[r] else 0.0
-        step(pr, r, max(0.0, dt), st.rate_target[r], sc.refs.s_end, prm)
-        st.t_ref[r] = t
-        leader_reference(sc.refs, i, pr.s[r], pr.sd[r], pr.sdd[r], st.ref[r, i])
-    x, pd = st.x[r], st.pd[r]
-    j0 = sc.orig_parent[i]
-    if j0 >= 0 and not st.known[r, j0]:  # pi0 silent: the goal on the robot (no exit pull)
-        st.ref[r, i, 0], st.ref[r, i, 1] = x[i, 0], x[i, 1]
-        st.ref[r, i, 2], st.ref[r, i, 3] = pd[i, 0], pd[i, 1]
-        j0 = -1
-    op = sc.orig_parent.copy()
-    op[i] = j0
-    gx, gy, gdx, gdy, vcx, vcy = goal_k(i, x, pd, st.ref[r], op, sc.orig_offset, prm)
-    st.goal[r, i, 0], st.goal[r, i, 1] = gx, gy
-    st.goal_dot[r, i, 0], st.goal_dot[r, i, 1] = gdx, gdy
-    st.vc[r, i, 0], st.vc[r, i, 1] = vcx, vcy
-    if t - st.t_dec[r] >= sc.ak.period_s - 1e-9 or st.t_dec[r] < 0.0:
-        _decide(r, i, t, st, sc, ob, prm)
-        st.t_dec[r] = t
-    m = _modes_of(st.modes, r)
-    nbrs = np.flatnonzero(st.known[r])
-    par = st.parent[r, i]
-    track = RobotTracking(par, (st.offset[r, 0], st.offset[r, 1]),
-                          (st.ref[r, i, 0], st.ref[r, i, 1], st.ref[r, i, 2], st.ref[r, i, 3],
-                           st.ref[r, i, 4], st.ref[r, i, 5]), (gx, gy), (gdx, gdy))
-    t1, t2, sx, sy, sat, acx, acy, wdx, wdy = robot_law_k(
-        i, t, x, pd, st.acmd[r], sc.rbody, sc.coeffs, ob, nbrs, sc.ob_rows, track, mode_row(m, i),
-        prm)
-    if m.mode[i] == MODE_MUTUAL:
-        m.wc[i, 0] += sc.ak.period_s * wdx
-        m.wc[i, 1] += sc.ak.period_s * wdy
-    lim = sc.coeffs[ROW_TAU_MAX, i]  # docs/design.md §7: clamped here too; non-finite -> 0
-    out.torque[r, 0] = min(max(t1 if math.isfinite(t1) else 0.0, -lim), lim)
-    out.torque[r, 1] = min(max(t2 if math.isfinite(t2) else 0.0, -lim), lim)
-    out.accel[r, 0], out.accel[r, 1] = acx, acy
-    out.sigma[r, 0], out.sigma[r, 1] = sx, sy
-    out.saturated[r] = sat
-    st.acmd[r, i, 0], st.acmd[r, i, 1] = acx, acy
+    n_ev = apply_assignment(i, t, am, arow, a[2], a[3], assigned_w[r, 0], assigned_w[r, 1], a[4],
+                            m, evr, n_ev)
+    nev[r] = n_ev
 
 
 # implements: S10.3
 @njit(cache=True)
 def agent_tick_k(now, st, sc, out):
-    """One control period of every hosted robot at ``now`` [s, own clock] (module docstring)."""
+    """One control period of every hosted robot at ``now`` [s, own clock] (module docstring).
+
+    The State's and Static's arrays are taken out once and handed to the helpers as arrays (a
+    compiled call taking the tuples themselves, some 70 arrays, costs about 1 us).
+    """
     nob = sc.obstacles[6].shape[0]
     ob = ObstacleSnapshot(np.empty((nob, 2)), np.empty((nob, 2)), np.empty((nob, 2)),
                           np.empty(nob), np.empty(nob), np.empty(nob), sc.obstacles[6],
                           sc.obstacles[7])
-    plant_d = sc.coeffs[ROW_D]
-    for r in range(sc.rows.shape[0]):
-        i = sc.rows[r]
-        ek = _inputs(r, st, sc)
-        out.torque[r, 0] = out.torque[r, 1] = 0.0
+    rows, coeffs, ak, prm, o = sc.rows, sc.coeffs, sc.ak, sc.prm, sc.obstacles
+    plant_d = coeffs[ROW_D]
+    est, x, pd, acmd, known, status = st.est, st.x, st.pd, st.acmd, st.known, st.status
+    ms, ref, goal, goal_dot, vc = st.modes, st.ref, st.goal, st.goal_dot, st.vc
+    torque = out.torque
+    for r in range(rows.shape[0]):
+        i = rows[r]
+        ek = _inputs(r, est, sc.est_k[r], st.nwheel, st.wheelq, st.ncam, st.camq)
+        torque[r, 0] = torque[r, 1] = 0.0
         out.accel[r, 0] = out.accel[r, 1] = 0.0
         out.saturated[r] = False
-        if st.est.i[r, I_INIT] == 0:
-            st.status[r] = WAITING
+        if est.i[r, I_INIT] == 0:
+            status[r] = WAITING
             continue
-        state_at_k(st.est, r, now, ek, out.state[r])
-        xi = st.x[r, i]
+        state_at_k(est, r, now, ek, out.state[r])
+        xi = x[r, i]
         for q in range(5):
             xi[q] = out.state[r, q]
-        st.known[r, i] = True
+        known[r, i] = True
         v, w = xi[3], xi[4]
-        st.pd[r, i, 0], st.pd[r, i, 1] = point_velocity_k(xi[2], v, w, plant_d[i])
-        if not now - st.est.f[r, F_ODOM_T] <= sc.ak.wheel_timeout_s:
-            st.status[r] = STOPPED_WHEELS  # nothing to brake with: zero torque
+        pd[r, i, 0], pd[r, i, 1] = point_velocity_k(xi[2], v, w, plant_d[i])
+        if not now - est.f[r, F_ODOM_T] <= ak.wheel_timeout_s:
+            status[r] = STOPPED_WHEELS  # nothing to brake with: zero torque
             continue
-        if _camera_lost(r, now, v, w, st, sc):
-            st.status[r] = STOPPED_POSE
-            _brake(r, i, v, w, st, sc, True, out)
+        sk = sc.stop_k[r]
+        if _camera_lost(r, now, v, w, est.f[r, F_CAMERA_T], st.stop, sk, st.counters,
+                        ak.pose_timeout_s):
+            status[r] = STOPPED_POSE
+            _brake(r, i, v, w, sk, coeffs, True, torque)
             continue
         t = now - st.start_s[r]
         if not t >= 0.0:  # NaN: no graph yet
-            st.status[r] = WAITING
+            status[r] = WAITING
             continue
-        if not now - st.coord_s[r] <= sc.ak.coordinator_timeout_s or st.halt[r] > 0:
-            st.status[r] = st.halt[r] if st.halt[r] > 0 else STOPPED_COORDINATOR
-            _brake(r, i, v, w, st, sc, False, out)
+        if not now - st.coord_s[r] <= ak.coordinator_timeout_s or st.halt[r] > 0:
+            status[r] = st.halt[r] if st.halt[r] > 0 else STOPPED_COORDINATOR
+            _brake(r, i, v, w, sk, coeffs, False, torque)
             continue
-        _view(r, now, st, sc, plant_d)
+        _view(r, i, now, ak.hold_s, ak.fresh_s, st.stamp, st.heard_x, st.heard_a, st.rep_mode,
+              st.rep_tgt, st.rep_sdir, x, pd, acmd, known, ms.mode, ms.tgt, ms.sdir, plant_d)
         par = st.parent[r, i]
-        if par >= 0 and not st.known[r, par]:
-            st.status[r] = HOLD_PARENT
-            _brake(r, i, v, w, st, sc, False, out)
+        if par >= 0 and not known[r, par]:
+            status[r] = HOLD_PARENT
+            _brake(r, i, v, w, sk, coeffs, False, torque)
             continue
-        st.status[r] = RUNNING
-        o = sc.obstacles
+        status[r] = RUNNING
         obstacle_states(t, o[0], o[1], o[2], o[3], o[4], o[5], ob.c, ob.v, ob.a, ob.phi,
                         ob.phi_dot, ob.phi_ddot)
-        _drive(r, i, now, t, st, sc, ob, out)
-        m = st.modes
-        out.mode[r, 0], out.mode[r, 1], out.mode[r, 2] = m.mode[r, i], m.tgt[r, i], m.sdir[r, i]
+        # the running robot's period: goals, reference, decisions, law, clamp
+        if sc.leader[i]:
+            pr = st.progress
+            dt = t - st.t_ref[r] if st.t_ref[r] == st.t_ref[r] else 0.0
+            step(pr, r, max(0.0, dt), st.rate_target[r], sc.refs.s_end, prm)
+            st.t_ref[r] = t
+            leader_reference(sc.refs, i, pr.s[r], pr.sd[r], pr.sdd[r], ref[r, i])
+        xr, pdr = x[r], pd[r]
+        j0 = sc.orig_parent[i]
+        if j0 >= 0 and not known[r, j0]:  # pi0 silent: the goal on the robot (no exit pull)
+            ref[r, i, 0], ref[r, i, 1] = xr[i, 0], xr[i, 1]
+            ref[r, i, 2], ref[r, i, 3] = pdr[i, 0], pdr[i, 1]
+            j0 = -1
+        op = sc.orig_parent.copy()
+        op[i] = j0
+        gx, gy, gdx, gdy, vcx, vcy = goal_k(i, xr, pdr, ref[r], op, sc.orig_offset, prm)
+        goal[r, i, 0], goal[r, i, 1] = gx, gy
+        goal_dot[r, i, 0], goal_dot[r, i, 1] = gdx, gdy
+        vc[r, i, 0], vc[r, i, 1] = vcx, vcy
+        if t - st.t_dec[r] >= ak.period_s - 1e-9 or st.t_dec[r] < 0.0:
+            _decide(r, i, t, x, pd, goal, goal_dot, vc, sc.team, sc.rbody, st.parent, sc.slot,
+                    known, sc.orig_parent, ob, ms, prm, st.nev, st.ev, st.assigned,
+                    st.assigned_w)
+            st.t_dec[r] = t
+        m = _modes_of(ms, r)
+        nbrs = np.flatnonzero(known[r])
+        par = st.parent[r, i]
+        track = RobotTracking(par, (st.offset[r, 0], st.offset[r, 1]),
+                              (ref[r, i, 0], ref[r, i, 1], ref[r, i, 2], ref[r, i, 3],
+                               ref[r, i, 4], ref[r, i, 5]), (gx, gy), (gdx, gdy))
+        t1, t2, sx, sy, sat, acx, acy, wdx, wdy = robot_law_k(
+            i, t, xr, pdr, acmd[r], sc.rbody, coeffs, ob, nbrs, sc.ob_rows, track,
+            mode_row(m, i), prm)
+        if m.mode[i] == MODE_MUTUAL:
+            m.wc[i, 0] += ak.period_s * wdx
+            m.wc[i, 1] += ak.period_s * wdy
+        lim = coeffs[ROW_TAU_MAX, i]  # docs/design.md §7: clamped here too; non-finite -> 0
+        torque[r, 0] = min(max(t1 if math.isfinite(t1) else 0.0, -lim), lim)
+        torque[r, 1] = min(max(t2 if math.isfinite(t2) else 0.0, -lim), lim)
+        out.accel[r, 0], out.accel[r, 1] = acx, acy
+        out.sigma[r, 0], out.sigma[r, 1] = sx, sy
+        out.saturated[r] = sat
+        acmd[r, i, 0], acmd[r, i, 1] = acx, acy
+        out.mode[r, 0], out.mode[r, 1], out.mode[r, 2] = ms.mode[r, i], ms.tgt[r, i], \
+            ms.sdir[r, i]
+
+
+@njit(cache=True)
+def _needs(r, i, k, hear_all, parent, orig_parent, assigned, in_range):
+    """:func:`needed_k` of hosted row r (robot row i) on the arrays it reads."""
+    if k == i:
+        return False
+    return (hear_all or k == parent[r, i] or k == orig_parent[i] or k == int(assigned[r, 1])
+            or in_range[r, k])
 
 
 @njit(cache=True)
@@ -397,11 +414,8 @@ def needed_k(r, k, st, sc, hear_all):
     parents, its assignment's partner, and the robots within hearing range (every robot with
     ``hear_all``).
     """
-    i = sc.rows[r]
-    if k == i:
-        return False
-    return (hear_all or k == st.parent[r, i] or k == sc.orig_parent[i]
-            or k == int(st.assigned[r, 1]) or st.in_range[r, k])
+    return _needs(r, sc.rows[r], k, hear_all, st.parent, sc.orig_parent, st.assigned,
+                  st.in_range)
 
 
 @njit(cache=True)
@@ -410,18 +424,35 @@ def broadcast_k(stamp, x, a, modes, sent, st, sc, hear_all):
     commanded accelerations a (N, 2), reports modes (N, 3) [mode, target, sense]) reaches every
     hosted robot that needs it (:func:`needed_k`; reports reach every one).
     """
-    for r in range(sc.rows.shape[0]):
+    rows, orig_parent = sc.rows, sc.orig_parent
+    parent, assigned, in_range = st.parent, st.assigned, st.in_range
+    rep_mode, rep_tgt, rep_sdir = st.rep_mode, st.rep_tgt, st.rep_sdir
+    heard_x, heard_a, heard_t = st.heard_x, st.heard_a, st.stamp
+    for r in range(rows.shape[0]):
+        i = rows[r]
         for k in range(x.shape[0]):
             if not sent[k]:
                 continue
-            st.rep_mode[r, k] = int(modes[k, 0])
-            st.rep_tgt[r, k] = int(modes[k, 1])
-            st.rep_sdir[r, k] = modes[k, 2]
-            if needed_k(r, k, st, sc, hear_all):
+            rep_mode[r, k] = int(modes[k, 0])
+            rep_tgt[r, k] = int(modes[k, 1])
+            rep_sdir[r, k] = modes[k, 2]
+            if _needs(r, i, k, hear_all, parent, orig_parent, assigned, in_range):
                 for q in range(5):
-                    st.heard_x[r, k, q] = x[k, q]
-                st.heard_a[r, k, 0], st.heard_a[r, k, 1] = a[k, 0], a[k, 1]
-                st.stamp[r, k] = stamp
+                    heard_x[r, k, q] = x[k, q]
+                heard_a[r, k, 0], heard_a[r, k, 1] = a[k, 0], a[k, 1]
+                heard_t[r, k] = stamp
+
+
+@njit(cache=True)
+def _in_range(k, px, py, rows, init, x, reach, in_range, hysteresis):
+    """:func:`range_k` on the arrays it reads (``init`` the estimators' I_INIT column)."""
+    for r in range(rows.shape[0]):
+        i = rows[r]
+        if k == i or init[r] == 0:
+            continue
+        d = math.hypot(px - x[r, i, 0], py - x[r, i, 1])
+        rch = reach[i, k]
+        in_range[r, k] = d < rch or (in_range[r, k] and d < rch + hysteresis)
 
 
 @njit(cache=True)
@@ -429,13 +460,7 @@ def range_k(k, px, py, st, sc, hysteresis):
     """A camera pose (px, py) of robot k: the hearing range of every hosted robot (its own
     estimate against the reach, with hysteresis) -> st.in_range[:, k].
     """
-    for r in range(sc.rows.shape[0]):
-        i = sc.rows[r]
-        if k == i or st.est.i[r, I_INIT] == 0:
-            continue
-        d = math.hypot(px - st.x[r, i, 0], py - st.x[r, i, 1])
-        reach = sc.reach[i, k]
-        st.in_range[r, k] = d < reach or (st.in_range[r, k] and d < reach + hysteresis)
+    _in_range(k, px, py, sc.rows, st.est.i[:, I_INIT], st.x, sc.reach, st.in_range, hysteresis)
 
 
 @njit(cache=True)
@@ -452,9 +477,11 @@ def frame_k(stamp, poses, kept, st, sc, hear_all, hysteresis):
                 st.camq[r, q, 1 + c] = poses[i, c]
             st.ncam[r] = q + 1
     if not hear_all:
+        rows, init, x, reach, in_range = sc.rows, st.est.i[:, I_INIT], st.x, sc.reach, st.in_range
         for k in range(poses.shape[0]):
             if kept[k]:
-                range_k(k, poses[k, 0], poses[k, 1], st, sc, hysteresis)
+                _in_range(k, poses[k, 0], poses[k, 1], rows, init, x, reach, in_range,
+                          hysteresis)
 
 
 @njit(cache=True)
@@ -467,6 +494,37 @@ def wheels_k(t, angle, rate, st, sc):
         st.wheelq[r, q, 1], st.wheelq[r, q, 2] = angle[i, 0], angle[i, 1]
         st.wheelq[r, q, 3], st.wheelq[r, q, 4] = rate[i, 0], rate[i, 1]
         st.nwheel[r] = q + 1
+
+
+ASSIGN_NONE, ASSIGN_NONE_PARK, ASSIGN_YIELD, ASSIGN_MUTUAL = range(4)  # assign_k's kinds
+
+
+@njit(cache=True)
+def assign_k(now, rows, kind, partner, val, has_rate, rate, coord_s, assigned, assigned_w,
+             rate_target):
+    """The coordinator's message at ``now`` for every hosted robot (rows ``rows``), by robot row
+    i: ``kind`` (N,) ASSIGN_NONE (no assignment), ASSIGN_NONE_PARK (none, but ``park_at_s``:
+    make way), ASSIGN_YIELD or ASSIGN_MUTUAL with ``partner`` (N,) row and ``val`` (N, 5)
+    [direction, t_entry_s, park_at_s, drift w_c (2) [m/s]]; the progress rate target ``rate``
+    (N,) where ``has_rate`` (clamped to [0, 1]) -> ``coord_s``, ``assigned``, ``assigned_w``,
+    ``rate_target`` (State's, by hosted row).
+    """
+    for r in range(rows.shape[0]):
+        i = rows[r]
+        coord_s[r] = now
+        k = kind[i]
+        if k == ASSIGN_YIELD or k == ASSIGN_MUTUAL:
+            assigned[r, 0] = MODE_YIELD if k == ASSIGN_YIELD else MODE_MUTUAL
+            assigned[r, 1] = partner[i]
+            assigned[r, 2], assigned[r, 3], assigned[r, 4] = val[i, 0], val[i, 1], val[i, 2]
+            assigned_w[r, 0], assigned_w[r, 1] = val[i, 3], val[i, 4]
+        else:
+            assigned[r, 0], assigned[r, 1], assigned[r, 2], assigned[r, 3] = MODE_C, -1, 1.0, 0.0
+            assigned[r, 4] = val[i, 2] if k == ASSIGN_NONE_PARK else -np.inf
+        if has_rate[i]:
+            v = rate[i]
+            v = v if v > 0.0 else 0.0  # min(1, max(0, rate))
+            rate_target[r] = v if v < 1.0 else 1.0
 
 
 class AgentBatch:
@@ -641,25 +699,35 @@ class AgentBatch:
     def assign(self, now_s: float, assignments: dict, rates: dict | None = None) -> None:
         """The coordinator's message at ``now_s``: {robot id: {mode, partner, direction,
         t_entry_s, drift_mps, park_at_s}} or {mode: make_way, park_at_s} (robots without one:
-        none) and {team leader id: progress rate target} (S7.1, S8.9, S17).
+        none) and {team leader id: progress rate target} (S7.1, S8.9, S17); :func:`assign_k`.
         """
-        st = self.state
-        for r, rid in enumerate(self.hosted):
+        n = len(self.ids)
+        kind, partner = np.zeros(n, dtype=np.int64), np.full(n, -1, dtype=np.int64)
+        val = np.zeros((n, 5))  # direction, t_entry_s, park_at_s, drift (2)
+        has_rate, rate = np.zeros(n, dtype=np.bool_), np.zeros(n)
+        for rid in self.hosted:
+            i = self.row[rid]
             a = assignments.get(rid, assignments.get(str(rid)))
-            st.coord_s[r] = now_s
-            park_at = -np.inf if a is None else float(a.get('park_at_s', -np.inf))
-            if a is None or a['mode'] == 'make_way' or int(a['partner']) not in self.row:
-                st.assigned[r] = (MODE_C, -1, 1.0, 0.0, park_at)
-            else:
-                st.assigned[r] = (MODE_YIELD if a['mode'] == 'yield' else MODE_MUTUAL,
-                                  self.row[int(a['partner'])], float(a['direction']),
-                                  float(a['t_entry_s']), park_at)
-                w = a.get('drift_mps')
-                st.assigned_w[r] = (0.0, 0.0) if w is None else w
-            if rates is not None:
-                rate = rates.get(rid, rates.get(str(rid)))
-                if rate is not None:
-                    st.rate_target[r] = min(1.0, max(0.0, float(rate)))
+            if a is None:
+                continue
+            val[i, 2] = float(a.get('park_at_s', -np.inf))
+            if a['mode'] == 'make_way' or int(a['partner']) not in self.row:
+                kind[i] = ASSIGN_NONE_PARK
+                continue
+            kind[i] = ASSIGN_YIELD if a['mode'] == 'yield' else ASSIGN_MUTUAL
+            partner[i] = self.row[int(a['partner'])]
+            val[i, 0], val[i, 1] = float(a['direction']), float(a['t_entry_s'])
+            w = a.get('drift_mps')
+            val[i, 3:5] = (0.0, 0.0) if w is None else w
+        if rates is not None:
+            for rid in self.hosted:
+                r = rates.get(rid, rates.get(str(rid)))
+                if r is not None:
+                    has_rate[self.row[rid]] = True
+                    rate[self.row[rid]] = float(r)
+        st = self.state
+        assign_k(float(now_s), self.static.rows, kind, partner, val, has_rate, rate, st.coord_s,
+                 st.assigned, st.assigned_w, st.rate_target)
 
     def share(self, now_s: float) -> None:
         """The hosted robots' broadcasts of this period reach each other in the process (a

@@ -15,10 +15,11 @@ from ament_formation.core.jit_cache import _warm_stamp, is_warm
 
 def warm() -> None:
     """Compile (or load) every numba kernel the programs and ``formation sim`` use, by building
-    what they build: the simulator on a short run of each shipped scenario, the robot agents and
-    the coordinator of each (as the nodes and the camera-sensing simulator run them), the world's
-    plant twin and the tracker's corner refinement. numba compiles a kernel's whole call tree on
-    its first call, so one call of each entry point covers the branches not taken.
+    what they build: the simulator and the camera-sensing one (its compiled loop) on a short run
+    of each shipped scenario, the robot agents and the coordinator of each (as the nodes run
+    them), the world's plant twin and the tracker's corner refinement. numba compiles a kernel's
+    whole call tree on its first call, so one call of each entry point covers the branches not
+    taken.
     """
     import dataclasses
 
@@ -28,6 +29,7 @@ def warm() -> None:
     from ament_formation.core.control.agent import AgentBatch
     from ament_formation.core.control.coordinator import Coordinator
     from ament_formation.core.scenario.loader import load_scenario
+    from ament_formation.core.sim.sensed import SensingParams, simulate_sensed
     from ament_formation.core.sim.simulator import simulate
     from ament_formation.core.sim.twin import PlantTwin
     from ament_formation.core.vision import corner_refinement
@@ -38,6 +40,7 @@ def warm() -> None:
     for path in scenarios:
         sc = load_scenario(path)
         simulate(dataclasses.replace(sc, duration_s=0.05))
+        simulate_sensed(dataclasses.replace(sc, duration_s=0.05), SensingParams.preset('camera'))
         twin = PlantTwin(sc)
         twin.pose_rates()
         twin.obstacle_states()

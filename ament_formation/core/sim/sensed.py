@@ -27,6 +27,12 @@ hearing range is heard at once).
 The record is the TRUE state (the same :class:`~ament_formation.core.sim.trajectory.SimResult` as
 ``simulate``); :attr:`SensedResult.sensing` adds the sensing figures (frames, drops, estimator
 counters, estimate error).
+
+The mission runs in one compiled loop (core/sim/sensed_loop.py, issue 34): the same kernels the
+objects above call (the agents', the coordinator's decision and publisher, the twin's RK4), step
+by step, with Python only for the S9 rewiring, the camera's draws (in the generator's order) and
+growing buffers; test_sensed_sim.py holds it to the objects' Python interfaces, bit for bit. A
+camera run costs about what an ideal one does (docs/sweep.md, "Camera sensing's cost").
 """
 
 from __future__ import annotations
@@ -39,17 +45,13 @@ from typing import Callable
 
 import numpy as np
 
-from ament_formation.core.control.agent import (
-    AgentBatch,
-    AgentParams,
-    broadcast_k,
-    frame_k,
-    RUNNING,
-    wheels_k,
-)
-from ament_formation.core.control.coordinator import Coordinator, Publisher
-from ament_formation.core.control.progress import leader_reference, max_time_s
+from ament_formation.core.control.agent import AgentBatch, AgentParams, frame_k, wheels_k
+from ament_formation.core.control.coordinator import Coordinator, new_pub
+from ament_formation.core.control.progress import max_time_s
+from ament_formation.core.control.switching import MODE_NAMES
 from ament_formation.core.errors import ConfigError, excerpt
+from ament_formation.core.model.obstacles import obstacle_arrays
+from ament_formation.core.sim import sensed_loop as loopk
 from ament_formation.core.sim.trajectory import SimResult
 from ament_formation.core.sim.twin import PlantTwin
 
@@ -216,7 +218,8 @@ PRESTART_FRAMES = 10  # frames the estimators fuse before the mission starts (ro
 class _Loop:
     """The state of one sensed run (see :func:`simulate_sensed`): the twin, the camera, every
     robot's agent (one :class:`AgentBatch`: what each robot's computer runs) and the
-    coordinator.
+    coordinator. The robots at rest before the mission (:meth:`prestart`) go through their
+    Python interfaces; the mission runs in the compiled loop (:class:`_Run`).
     """
 
     def __init__(self, scenario, sensing: SensingParams, dt_s: float):
@@ -231,17 +234,13 @@ class _Loop:
                                   coordinator_timeout_s=sensing.coordinator_timeout_s)
         self.agents = AgentBatch(scenario, self.ids, self.params)
         self.coord = Coordinator(scenario)
-        self.publisher = Publisher(sensing.republish_s)
         self.camera = _Camera(len(self.ids), sensing, dt_s)
         n = len(self.ids)
         self.sent = np.zeros(n, dtype=np.bool_)  # the previous period's broadcasts
         self.bx, self.ba, self.bmode = np.zeros((n, 5)), np.zeros((n, 2)), np.zeros((n, 3))
         self.b_t = 0.0
-        self.reports: list = [None] * n
         self.mode_events: list[dict] = []
         self.graph_events = [{'t_s': 0.0, 'parents': _parents_json(self.coord.parents)}]
-        self.err_sq = self.err_max = 0.0
-        self.err_n = 0
 
     def true_pose(self) -> np.ndarray:
         return self.twin.state[self.rows, :3]
@@ -269,45 +268,6 @@ class _Loop:
         self.bx[:] = self.agents.out.state
         self.b_t = 0.0
 
-    def tick(self, t_s: float, arbitrate: bool) -> None:
-        """One control period of every robot, then the coordinator."""
-        tw, ag = self.twin, self.agents
-        st, sc = ag.state, ag.static
-        wheels_k(t_s, tw.wheel_angle_rad[self.rows], tw.wheel_rate_radps[self.rows], st, sc)
-        for pose, kept, stamp in self.camera.deliver(t_s):  # the frames arrived by now
-            frame_k(stamp, pose, kept, st, sc, self.params.hear_all,
-                    self.params.hear_hysteresis_m)
-        broadcast_k(self.b_t, self.bx, self.ba, self.bmode, self.sent, st, sc,
-                    self.params.hear_all)
-        ag.tick(t_s)
-        out = ag.out
-        truth = tw.state[self.rows, :2]
-        e = np.hypot(out.state[:, 0] - truth[:, 0], out.state[:, 1] - truth[:, 1])
-        self.err_sq += float(e @ e)
-        self.err_max = max(self.err_max, float(e.max()))
-        self.err_n += len(e)
-        self.mode_events.extend(ag.events)
-        self.bx[:], self.ba[:], self.bmode[:] = out.state, out.accel, out.mode
-        self.b_t = t_s
-        running = st.status == RUNNING
-        self.bmode[~running] = (0.0, -1.0, 1.0)
-        for r, rid in enumerate(self.ids):
-            self.coord.state(rid, out.state[r], t_s)
-            key = (int(st.status[r]), *out.mode[r].tolist())
-            if key != self.reports[r]:
-                self.reports[r] = key
-                self.coord.report(rid, ag.mode_dict(r))
-        parents = self.coord.reported_avoiding()
-        if parents is not None:
-            ag.set_graph(parents, 0.0)
-            graph = _parents_json(parents)
-            if graph != self.graph_events[-1]['parents']:  # a change of the graph (as simulate)
-                self.graph_events.append({'t_s': round(t_s, 9), 'parents': graph})
-        if arbitrate:
-            assignments, rates = self.coord.decide(t_s)
-            if self.publisher.due(t_s, assignments, rates):
-                ag.assign(t_s, assignments, rates)
-
     def estimator_counters(self) -> dict:
         total: dict = {}
         for r in range(len(self.ids)):
@@ -318,6 +278,159 @@ class _Loop:
 
 def _parents_json(parents: dict) -> dict:
     return {str(c): (None if p is None else int(p)) for c, p in sorted(parents.items())}
+
+
+NOISE_FRAMES = 256  # camera frames drawn at once for the compiled loop
+BLAS_DOT_N = 16  # numpy's dot of this many values or more is BLAS's blocked sum
+
+
+class _Run:
+    """The mission of a :class:`_Loop` in the compiled loop (core/sim/sensed_loop.py): its
+    arrays, and what Python does when the loop returns (noise, rewiring, records, events).
+    """
+
+    def __init__(self, loop: _Loop, sensing: SensingParams, dt_s: float, fps: float,
+                 every: tuple[int, int, int], k_cap: int, hold_steps: int, n_rec: int):
+        ag, tw, coord, sc = loop.agents, loop.twin, loop.coord, loop.sc
+        if not (coord.ids == ag.ids == ag.hosted == loop.ids):
+            raise RuntimeError('the agents, the coordinator and the camera must share the rows')
+        self.loop, self.dt_s = loop, dt_s
+        n = len(loop.ids)
+        ctrl_every, rec_every, arb_every = every
+        step = math.gcd(ctrl_every, rec_every)
+        self.reg = np.zeros(loopk.N_REG, dtype=np.int64)
+        self.reg[loopk.K_END] = self.reg[loopk.K_CAP] = k_cap
+        self.fl = np.zeros(loopk.N_FREG)
+        self.fl[loopk.B_T] = loop.b_t
+        self.clock = loopk.ClockK(float(dt_s), ctrl_every, rec_every, arb_every,
+                                  1.0 / (fps * dt_s), step, hold_steps, loop.params.hear_all,
+                                  float(loop.params.hear_hysteresis_m), n >= BLAS_DOT_N)
+        k, dist = tw.k, tw.disturbance
+        obstacles = obstacle_arrays(sc.obstacles)
+        self.twin = loopk.TwinK(tw.state, tw.wheel_angle_rad, np.array([tw.t_s]), loop.rows,
+                                np.argsort(loop.rows), k.m_tilde, k.I_tilde, k.r, k.a, k.d,
+                                k.m_c, k.tau_max, dist.amplitude, dist.freq_hz, dist.phase_rad,
+                                tuple(obstacles[:6]), tw.obstacles.buffers(), np.zeros((n, 2)),
+                                np.zeros((2 * step + 1, n, 2)))
+        self.rng = loop.camera.rng  # the prestart's generator goes on
+        ring = int(math.ceil((sensing.latency_s + (ctrl_every + 1) * dt_s) * fps)) + 8
+        self.camera = self._camera(ring, n, (sensing.noise_m, sensing.noise_rad,
+                                             sensing.drop_prob, sensing.latency_s))
+        names = coord.obstacle_names
+        self.buf = loopk.LoopK(
+            np.zeros((n, 2)), np.zeros((n, 2)), loop.bx, loop.ba, loop.bmode, loop.sent,
+            np.zeros(n, dtype=np.bool_),
+            np.array([rid in coord.avoiding for rid in loop.ids], dtype=np.bool_),
+            np.array([names.index(o) if o in names else -1 for o in ag.obstacle_names],
+                     dtype=np.int64),
+            np.isin(np.arange(n), coord.leaders),
+            np.zeros((8 * n * ag.state.ev.shape[1], 7)),
+            np.zeros((1024 if self.clock.blas_error else 1, n)))
+        m = len(sc.obstacles)
+        n_rec = max(16, n_rec)
+        self.rec = loopk.RecordK(np.zeros((n_rec, n, 5)), np.zeros((n_rec, n, 2)),
+                                 np.zeros((n_rec, n), bool), np.zeros((n_rec, n), bool),
+                                 np.zeros((n_rec, m, 2)), np.zeros((n_rec, m)),
+                                 np.zeros((n_rec, n)))
+        self.pub = new_pub(n, sensing.republish_s)
+
+    @staticmethod
+    def _camera(ring: int, n: int, figures: tuple) -> loopk.CameraK:
+        """An empty ring of ``ring`` frames, room for the draws of :data:`NOISE_FRAMES`, the
+        camera's (noise_m, noise_rad, drop_prob, latency_s).
+        """
+        return loopk.CameraK(np.zeros(ring), np.zeros(ring), np.zeros((ring, n, 3)),
+                             np.zeros((ring, n), dtype=np.bool_), np.zeros((NOISE_FRAMES, n)),
+                             np.zeros((NOISE_FRAMES, n, 3)), *(float(v) for v in figures))
+
+    def run(self, progress, duration_s: float) -> None:
+        """The compiled loop until the run ends; ``progress`` about every 5 s."""
+        reg, dt_s = self.reg, self.dt_s
+        chunk = max(1, int(round(5.0 / dt_s)))
+        reg[loopk.K_STOP] = chunk
+        reg[loopk.NOISE_POS] = NOISE_FRAMES  # nothing drawn yet
+        next_progress = 5.0
+        while True:
+            ag = self.loop.agents
+            why = loopk.run_k(reg, self.fl, self.clock, ag.state, ag.static, ag.out,
+                              self.loop.coord.k, self.pub, self.twin, self.camera, self.buf,
+                              self.rec)
+            if why == loopk.DONE:
+                break
+            if why == loopk.CHUNK_END:
+                reg[loopk.K_STOP] += chunk
+                t = int(reg[loopk.K]) * dt_s
+                if progress is not None and t >= next_progress:
+                    progress(t, duration_s)
+                    next_progress += 5.0
+            elif why == loopk.NOISE:
+                self._draw()
+            elif why == loopk.REWIRE:
+                self._rewire(int(reg[loopk.K]) * dt_s)
+            elif why == loopk.RECORD_FULL:
+                self.rec = loopk.RecordK(*(np.concatenate([a, np.zeros_like(a)])
+                                           for a in self.rec))
+            elif why == loopk.FLUSH:
+                self.flush()
+            elif why == loopk.QUEUE_FULL:
+                self._grow_ring()
+            else:
+                raise RuntimeError(f'the sensed loop stopped for an unknown reason {why}')
+        self.flush()
+        tw = self.loop.twin
+        tw.t_s = float(self.twin.t[0])
+        tw.torque_nm = self.twin.tau.copy()
+
+    def _draw(self) -> None:
+        """The next frames' drops and noise, drawn as _Camera.capture draws them."""
+        cam, rng, n = self.camera, self.rng, self.camera.u.shape[1]
+        for f in range(cam.u.shape[0]):
+            cam.u[f] = rng.random(n)  # always drawn: a drop rate does not change the noise
+            cam.e[f] = rng.standard_normal((n, 3))
+        self.reg[loopk.NOISE_POS] = 0
+
+    def _grow_ring(self) -> None:
+        cam, reg = self.camera, self.reg
+        q = (reg[loopk.CQ_HEAD] + np.arange(reg[loopk.CQ_N])) % cam.arrive.shape[0]
+        grown = self._camera(2 * cam.arrive.shape[0], cam.u.shape[1], cam[6:])
+        for old, new in zip(cam[:4], grown[:4]):
+            new[:len(q)] = old[q]
+        grown.u[:], grown.e[:] = cam.u, cam.e
+        self.camera = grown
+        reg[loopk.CQ_HEAD] = 0
+
+    def _rewire(self, t_s: float) -> None:
+        """S9 on the changed set of avoiding robots (_Loop.tick: reported_avoiding)."""
+        loop, buf = self.loop, self.buf
+        avoiding = frozenset(loop.ids[q] for q in np.flatnonzero(buf.avoid_now))
+        parents = loop.coord.set_avoiding(avoiding)
+        if parents is not None:
+            loop.agents.set_graph(parents, 0.0)
+            graph = _parents_json(parents)
+            if graph != loop.graph_events[-1]['parents']:  # a change of the graph (as simulate)
+                loop.graph_events.append({'t_s': round(t_s, 9), 'parents': graph})
+        buf.avoid_set[:] = buf.avoid_now
+
+    def flush(self) -> None:
+        """The agents' mode events as dicts; the estimate errors BLAS sums."""
+        reg, buf, ag = self.reg, self.buf, self.loop.agents
+        for row in buf.events[:reg[loopk.EV_N]]:
+            md, tgt = int(row[4]), int(row[5])
+            self.loop.mode_events.append({
+                't_s': float(row[1]), 'robot': ag.hosted[int(row[0])],
+                'event': 'enter' if row[3] > 0.5 else 'exit', 'mode': MODE_NAMES[md],
+                'target': ag._target(md, tgt), 'direction': 'ccw' if row[6] > 0 else 'cw'})
+        reg[loopk.EV_N] = 0
+        fl = self.fl
+        for e in buf.err[:reg[loopk.ERR_N]]:
+            fl[loopk.ERR_SQ] += float(e @ e)
+            fl[loopk.ERR_MAX] = max(float(fl[loopk.ERR_MAX]), float(e.max()))
+            reg[loopk.ERR_COUNT] += len(e)
+        reg[loopk.ERR_N] = 0
+
+    def record(self) -> loopk.RecordK:
+        n = int(self.reg[loopk.REC_N])
+        return loopk.RecordK(*(a[:n] for a in self.rec))
 
 
 def simulate_sensed(
@@ -337,6 +450,7 @@ def simulate_sensed(
     plant integration step [s] (RK4, torque held between control periods; the control period
     1 / ``sensing.control_rate_hz`` is a whole number of steps); ``record_every_s``: the
     record's period; ``progress``: callable(t_s, duration_s) about every 5 s of simulated time.
+    The mission runs in one compiled loop (core/sim/sensed_loop.py).
     """
     wall0 = time.perf_counter()
     if not (isinstance(dt_s, (int, float)) and math.isfinite(dt_s) and 0 < dt_s <= 0.01):
@@ -346,104 +460,54 @@ def simulate_sensed(
     rec_every = max(1, int(round(record_every_s / dt_s)))
     arb_every = (0 if sensing.encounter_rate_hz <= 0
                  else max(1, int(round(1.0 / (sensing.encounter_rate_hz * dt_s)))))
-    cap_every = 1.0 / (fps * dt_s)
     loop = _Loop(scenario, sensing, dt_s)
     loop.prestart(fps)
     loop.twin.start()
-    n, m = len(loop.ids), len(scenario.obstacles)
-    rec = _Record(n, m, int((scenario.duration_s + 10.0) / record_every_s))
-    tw, rows = loop.twin, loop.rows
-    inv = np.argsort(rows)  # twin rows -> sorted-id rows
     k_cap = int(round(max_time_s(scenario.duration_s) / dt_s))
-    k_end, k, next_frame, next_progress = k_cap, 0, 0, 5.0
-    step = math.gcd(ctrl_every, rec_every)
-    while k < k_end:
-        t = k * dt_s
-        if k >= next_frame * cap_every - 1e-9:
-            loop.camera.capture(t, loop.true_pose())
-            next_frame += 1
-        if k % ctrl_every == 0:
-            loop.tick(t, arb_every > 0 and k % arb_every == 0)
-            end = loop.coord.mission_end_s
-            if end is not None and k_end == k_cap:
-                k_end = k + int(round(hold_s / dt_s)) + 1  # the hold in full (S17.3)
-        if k % rec_every == 0:
-            rec.add(tw, rows, loop)
-        nxt = min(k_end, (k // step + 1) * step, int(math.ceil(next_frame * cap_every - 1e-9)))
-        tw.advance((nxt - k) * dt_s, loop.agents.out.torque[inv])
-        k = nxt
-        if progress is not None and t >= next_progress:
-            progress(t, scenario.duration_s)
-            next_progress += 5.0
+    run = _Run(loop, sensing, dt_s, fps, (ctrl_every, rec_every, arb_every), k_cap,
+               int(round(hold_s / dt_s)) + 1, int((scenario.duration_s + 10.0) / record_every_s))
+    run.run(progress, scenario.duration_s)
+    k = int(run.reg[loopk.K])
     if progress is not None:
         progress(k * dt_s, scenario.duration_s)
-    cam = loop.camera
-    t_rec = np.arange(rec.n) * rec_every * dt_s
+    rec = run.record()
+    reg, fl = run.reg, run.fl
+    n_rec = rec.state.shape[0]
+    t_rec = np.arange(n_rec) * rec_every * dt_s
     return SensedResult(
         scenario_name=scenario.name, robot_ids=loop.ids,
         obstacle_names=tuple(o.name for o in scenario.obstacles), t_s=t_rec,
-        state=rec.state[:rec.n], torque_nm=rec.torque[:rec.n],
-        goal_m=_true_goals(scenario, loop, t_rec, rec), avoiding=rec.avoid[:rec.n],
-        saturated=rec.sat[:rec.n], obstacle_center_m=rec.oc[:rec.n],
-        obstacle_phi_rad=rec.ophi[:rec.n], mode_events=loop.mode_events,
+        state=rec.state, torque_nm=rec.torque,
+        goal_m=_true_goals(loop, rec), avoiding=rec.avoid,
+        saturated=rec.sat, obstacle_center_m=rec.oc,
+        obstacle_phi_rad=rec.ophi, mode_events=loop.mode_events,
         graph_events=loop.graph_events, reaching=[], dt_s=dt_s,
         wall_time_s=time.perf_counter() - wall0, mission_end_s=loop.coord.mission_end_s,
-        nominal_duration_s=float(scenario.duration_s), progress_s=rec.progress[:rec.n],
+        nominal_duration_s=float(scenario.duration_s), progress_s=rec.progress,
         sensing={
             'params': sensing.as_dict(scenario), 'prestart_frames': PRESTART_FRAMES,
-            'frames': cam.frames, 'poses_sent': cam.sent, 'poses_dropped': cam.dropped,
+            'frames': int(reg[loopk.FRAMES]), 'poses_sent': int(reg[loopk.SENT]),
+            'poses_dropped': int(reg[loopk.DROPPED]),
             'estimator': loop.estimator_counters(),
-            'estimate_error_m': {'rms': math.sqrt(loop.err_sq / max(1, loop.err_n)),
-                                 'max': loop.err_max},
+            'estimate_error_m': {'rms': math.sqrt(float(fl[loopk.ERR_SQ])
+                                                  / max(1, int(reg[loopk.ERR_COUNT]))),
+                                 'max': float(fl[loopk.ERR_MAX])},
         },
     )
 
 
-class _Record:
-    """The TRUE record of a sensed run, grown as it goes."""
-
-    def __init__(self, n: int, m: int, rows: int):
-        self.n = 0
-        self.state, self.torque = np.zeros((rows, n, 5)), np.zeros((rows, n, 2))
-        self.avoid, self.sat = np.zeros((rows, n), bool), np.zeros((rows, n), bool)
-        self.oc, self.ophi = np.zeros((rows, m, 2)), np.zeros((rows, m))
-        self.progress = np.zeros((rows, n))
-        self.s = np.zeros((rows, n))
-
-    def add(self, tw, rows, loop) -> None:
-        if self.n == self.state.shape[0]:
-            for name in ('state', 'torque', 'avoid', 'sat', 'oc', 'ophi', 'progress'):
-                a = getattr(self, name)
-                setattr(self, name, np.concatenate([a, np.zeros_like(a)]))
-        q = self.n
-        self.state[q] = tw.state[rows]
-        self.torque[q] = loop.agents.out.torque
-        self.avoid[q] = loop.agents.out.mode[:, 0] != 0
-        self.sat[q] = loop.agents.out.saturated
-        if self.oc.shape[1]:
-            obs = tw.obstacle_states()
-            self.oc[q] = obs.center_m
-            self.ophi[q] = obs.phi_rad
-        c = loop.coord
-        self.progress[q] = np.where(c.refs.row >= 0, c.progress.s, 0.0)
-        self.n += 1
-
-
-def _true_goals(scenario, loop, t_s: np.ndarray, rec: _Record) -> np.ndarray:
+def _true_goals(loop: _Loop, rec) -> np.ndarray:
     """(T, N, 2) formation goals of the TRUE states: a leader's r(s) at the coordinator's
     progress, a follower's original parent + delta.
     """
-    ids, state = loop.ids, rec.state[:rec.n]
+    ids, state = loop.ids, rec.state
     coord = loop.coord
     row = {rid: i for i, rid in enumerate(ids)}
-    goal = np.zeros((len(t_s), len(ids), 2))
-    out = np.zeros(6)
+    goal = np.zeros((state.shape[0], len(ids), 2))
     for i, rid in enumerate(ids):
         p0 = coord.graph.original_parent.get(rid)
         if p0 is None:
-            for q in range(len(t_s)):
-                leader_reference(coord.refs, i, rec.progress[q, i], 0.0, 0.0, out)
-                goal[q, i] = out[:2]
+            loopk.leader_goals_k(coord.refs, i, rec.progress[:, i], goal[:, i])
         else:
             goal[:, i] = state[:, row[p0], :2] + coord.graph.offset(rid, p0)
     return goal
