@@ -194,12 +194,15 @@ def _est_k(row):
 
 
 @njit(cache=True)
-def _view(r, i, now, hold_s, fresh_s, stamp, heard_x, heard_a, rep_mode, rep_tgt, rep_sdir, x,
-          pd, acmd, known, mode, tgt, sdir, plant_d):
-    """S10.2: the robots robot r (row i) hears, extrapolated to ``now`` with their commanded
-    accelerations while younger than ``hold_s`` -> x, pd, acmd, known and the reported modes
-    (row r of the State's arrays).
+def _view(r, i, now, hold_s, fresh_s, heard, view, reported, plant_d):
+    """S10.2: the robots robot r (row i) hears (``heard``: stamp, heard_x, heard_a, rep_mode,
+    rep_tgt, rep_sdir), extrapolated to ``now`` with their commanded accelerations while younger
+    than ``hold_s`` -> ``view`` (x, pd, acmd, known) and ``reported`` (mode, tgt, sdir), row r of
+    the State's arrays.
     """
+    stamp, heard_x, heard_a, rep_mode, rep_tgt, rep_sdir = heard
+    x, pd, acmd, known = view
+    mode, tgt, sdir = reported
     for k in range(x.shape[1]):
         if k == i:
             continue
@@ -272,11 +275,15 @@ def _inputs(r, est, ek_row, nwheel, wheelq, ncam, camq):
 
 
 @njit(cache=True)
-def _decide(r, i, t, x, pd, goal, goal_dot, vc, team, rbody, parent, slot, known, orig_parent,
-            ob, modes, prm, nev, ev, assigned, assigned_w):
+def _decide(r, i, t, view, fixed, ob, modes, prm, events, assignment):
     """Row r's own table (S8.7) every decision period, then the coordinator's assignment (on the
-    State's and Static's arrays).
+    State's and Static's arrays: ``view`` x, pd, goal, goal_dot, vc, known, parent; ``fixed``
+    team, rbody, slot, orig_parent; ``events`` nev, ev; ``assignment`` assigned, assigned_w).
     """
+    x, pd, goal, goal_dot, vc, known, parent = view
+    team, rbody, slot, orig_parent = fixed
+    nev, ev = events
+    assigned, assigned_w = assignment
     m = _modes_of(modes, r)
     robots = Robots(x[r, :, :2].copy(), pd[r], goal[r], goal_dot[r], vc[r], team, rbody,
                     parent[r], slot, known[r], orig_parent)
@@ -342,8 +349,9 @@ def agent_tick_k(now, st, sc, out):
             status[r] = st.halt[r] if st.halt[r] > 0 else STOPPED_COORDINATOR
             _brake(r, i, v, w, sk, coeffs, False, torque)
             continue
-        _view(r, i, now, ak.hold_s, ak.fresh_s, st.stamp, st.heard_x, st.heard_a, st.rep_mode,
-              st.rep_tgt, st.rep_sdir, x, pd, acmd, known, ms.mode, ms.tgt, ms.sdir, plant_d)
+        _view(r, i, now, ak.hold_s, ak.fresh_s,
+              (st.stamp, st.heard_x, st.heard_a, st.rep_mode, st.rep_tgt, st.rep_sdir),
+              (x, pd, acmd, known), (ms.mode, ms.tgt, ms.sdir), plant_d)
         par = st.parent[r, i]
         if par >= 0 and not known[r, par]:
             status[r] = HOLD_PARENT
@@ -372,9 +380,9 @@ def agent_tick_k(now, st, sc, out):
         goal_dot[r, i, 0], goal_dot[r, i, 1] = gdx, gdy
         vc[r, i, 0], vc[r, i, 1] = vcx, vcy
         if t - st.t_dec[r] >= ak.period_s - 1e-9 or st.t_dec[r] < 0.0:
-            _decide(r, i, t, x, pd, goal, goal_dot, vc, sc.team, sc.rbody, st.parent, sc.slot,
-                    known, sc.orig_parent, ob, ms, prm, st.nev, st.ev, st.assigned,
-                    st.assigned_w)
+            _decide(r, i, t, (x, pd, goal, goal_dot, vc, known, st.parent),
+                    (sc.team, sc.rbody, sc.slot, sc.orig_parent), ob, ms, prm, (st.nev, st.ev),
+                    (st.assigned, st.assigned_w))
             st.t_dec[r] = t
         m = _modes_of(ms, r)
         nbrs = np.flatnonzero(known[r])
