@@ -134,7 +134,7 @@ def executor(ros_context):
 ALONE_MODULES = frozenset({
     'test_board_check', 'test_launch_deploy', 'test_launch_multi_machine', 'test_launch_sim',
     'test_live_view', 'test_multihost', 'test_params_files', 'test_programs', 'test_readme_lab',
-    'test_run_cmd', 'test_system', 'test_tracker_source',
+    'test_system', 'test_tracker_source',
 })
 
 
