@@ -48,15 +48,20 @@ def warm() -> None:
         for r in sc.robots:
             coord.state(r.id, np.array([*r.initial_pose, 0.0, 0.0]), 0.0)
         coord.decide(0.0)
-        agents = AgentBatch(sc, sc.robot_ids)
-        agents.set_graph(coord.parents, 0.0)
-        agents.assign(0.0, {}, coord.rates())
-        for q, r in enumerate(sorted(sc.robots, key=lambda r: r.id)):
-            agents.wheel(r.id, 0.0, (0.0, 0.0), (0.0, 0.0))
-            agents.camera(r.id, 0.0, np.asarray(r.initial_pose, dtype=float))
-        agents.tick(0.01)
-        agents.share(0.01)
-        agents.needed(sc.robot_ids[0])  # the nodes' hearing (S10.2), called on its own
+        # every robot in one batch (the team, the sensed loop) and one robot alone (a robot's
+        # controller): a one-row batch's arrays are C- and F-contiguous at once, so numba types
+        # them differently and would compile again in each controller at start
+        for hosted in (sc.robot_ids, sc.robot_ids[:1]):
+            agents = AgentBatch(sc, hosted)
+            agents.set_graph(coord.parents, 0.0)
+            agents.assign(0.0, {}, coord.rates())
+            for r in sorted(sc.robots, key=lambda r: r.id):
+                if r.id in hosted:
+                    agents.wheel(r.id, 0.0, (0.0, 0.0), (0.0, 0.0))
+                    agents.camera(r.id, 0.0, np.asarray(r.initial_pose, dtype=float))
+            agents.tick(0.01)
+            agents.share(0.01)
+            agents.needed(hosted[0])  # the nodes' hearing (S10.2), called on its own
 
 
 def _warm_geometry() -> None:
