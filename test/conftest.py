@@ -53,52 +53,31 @@ def _numba_kernels_compiled_once():
     warm_numba_kernels(timeout_s=900.0)
 
 
-_SHM = Path('/dev/shm')
-_SHM_PREFIXES = ('fastrtps_', 'sem.fastrtps_')
-
-
-def _fast_dds_segments() -> set[str]:
-    try:
-        return {p.name for p in _SHM.iterdir() if p.name.startswith(_SHM_PREFIXES)}
-    except OSError:
-        return set()
-
-
-def _mapped_segments() -> set[str]:
-    mapped = set()
-    for maps in Path('/proc').glob('[0-9]*/maps'):
-        try:
-            text = maps.read_text()
-        except OSError:
-            continue
-        mapped.update(
-            line.rsplit('/dev/shm/', 1)[1] for line in text.splitlines() if '/dev/shm/' in line
-        )
-    return mapped
-
-
 @pytest.fixture(scope='module', autouse=True)
 def _module_dds_domain():
     """Each test module on a DDS domain of its own, and the Fast DDS shared memory its processes
     left (a killed process leaves its port segments and, possibly locked, port mutexes) removed
-    once nobody maps it: a later module never meets a dead participant's segments.
+    once no live process uses it: a later module never meets a dead participant's segments.
+
+    With the rules of ``formation run`` (ros/shm.py): an entry goes only when no live process
+    maps or holds open any entry of its group. The other worker's run is live meanwhile, and its
+    participants' liveness files (``_el``, only held open) and port mutexes (neither mapped nor
+    open between uses) appeared since this module began too: removing them by "not mapped"
+    alone, as this fixture once did, made Fast DDS take that run's participants for dead and
+    stop delivering to them for good (docs/executors.md, "The stall found").
     """
+    from ament_formation.ros import shm
+
     session_domain = os.environ['ROS_DOMAIN_ID']
     taken = take_free_domain(avoid=(int(session_domain),))
     if taken is not None:
         os.environ['ROS_DOMAIN_ID'] = str(taken[0])
-    before = _fast_dds_segments()
+    before = shm.snapshot()
     try:
         yield
     finally:
         os.environ['ROS_DOMAIN_ID'] = session_domain
-        left = _fast_dds_segments() - before
-        if left:
-            for name in left - _mapped_segments():
-                try:
-                    (_SHM / name).unlink()
-                except OSError:
-                    pass
+        shm.cleanup(before)
         if taken is not None:
             os.close(taken[1])
 
