@@ -88,9 +88,12 @@ af_shm_note_used() {
   _af_shm_used+="$(_af_shm_open_by "$@" | _af_shm_group)"$'\n'
 }
 af_shm_cleanup() {
-  local f key busy
+  local f key busy names
+  # the names first, then who uses them: an entry made after the scan of the processes (another
+  # run starting) would otherwise count as unused, and its participant as dead (docs/executors.md)
+  names="$(ls "$AF_SHM_DIR" 2>/dev/null | grep -E "$_af_shm_pattern" || true)"
   busy="$(_af_shm_open_by | _af_shm_group | sort -u)"
-  for f in $(ls "$AF_SHM_DIR" 2>/dev/null | grep -E "$_af_shm_pattern" || true); do
+  for f in $names; do
     key="${f#sem.}"; key="${key%_mutex}"; key="${key%_el}"; key="${key%_sl}"
     if grep -qxF "$key" <<<"$busy"; then
       continue  # its group is in use by a live process
