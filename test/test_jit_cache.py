@@ -11,6 +11,8 @@ import subprocess
 import sys
 import time
 
+import pytest
+
 from ament_formation.core import jit_cache
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -132,3 +134,18 @@ def test_a_process_importing_the_package_uses_the_hashed_folder(tmp_path):
     ).stdout.split()
     want = str(tmp_path / 'cache' / f'numba-{jit_cache.source_hash()}')
     assert out == [want, want]
+
+
+def test_the_warm_parts_are_checked_and_a_bad_part_is_one_line(capsys):
+    """setup.sh's warm runs the two parts in parallel processes (``--part``); a wrong name is
+    refused with status 2 and one line, before anything compiles.
+    """
+    from ament_formation.core.sim import jit_warm
+
+    assert jit_warm.PARTS == ('closed_loop', 'rest')
+    assert jit_warm.main(['--part', 'everything']) == 2
+    assert jit_warm.main(['--part']) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ['jit_warm: --part needs one of closed_loop, rest'] * 2
+    with pytest.raises(ValueError, match='unknown part'):
+        jit_warm.warm('everything')
