@@ -22,7 +22,7 @@ import pytest
 from ament_formation.core.model.obstacles import ObstacleField
 from ament_formation.core.params import AvoidanceParams, RobotParams
 from ament_formation.core.scenario import families
-from ament_formation.core.scenario.loader import parse_scenario
+from ament_formation.core.scenario.loader import load_scenario, parse_scenario
 from ament_formation.core.sim import campaign
 from ament_formation.tools import cli
 
@@ -412,6 +412,51 @@ def test_perturbed_campaign_of_a_shipped_scenario(tmp_path):
     assert [r['family'] for r in rows] == ['perturbed', 'perturbed']
     assert rows[0]['name'] != rows[1]['name'] and rows[0]['name'].startswith('paper-p0-')
     assert rc == (1 if any(r['status'] == 'fail' for r in rows) else 0)
+
+
+def test_a_folder_of_scenario_files_runs_each_as_it_is(tmp_path):
+    """--scenarios DIR: every DIR/*.yaml once, in name order, as given (another generator's
+    files, a user's own): rows of family "given" named after the scenarios, the same row as the
+    campaign's run of that mapping, and a failing one written to failures/ like any other.
+    """
+    import shutil
+
+    data = Path(__file__).resolve().parent / 'data'
+    folder = tmp_path / 'mine'
+    folder.mkdir()
+    shutil.copy(data / 'paper_short.yaml', folder / 'b-paper_short.yaml')
+    shutil.copy(data / 'head_on.yaml', folder / 'a-head_on.yaml')
+    (folder / 'notes.txt').write_text('not a scenario')  # only *.yaml is read
+    out = tmp_path / 'out'
+    rc = cli.main(['sweep', '--out', str(out), '--scenarios', str(folder), '--workers', '0',
+                   '--quiet', '--no-plot'])
+    rows = _rows(out)
+    names = [load_scenario(f).name for f in sorted(folder.glob('*.yaml'))]
+    assert [r['name'] for r in rows] == names and [r['index'] for r in rows] == ['0', '1']
+    assert {r['family'] for r in rows} == {'given'}
+    assert rc == (1 if any(r['status'] == 'fail' for r in rows) else 0)
+    summary = json.loads((out / 'summary.json').read_text())
+    assert summary['runs'] == summary['requested'] == 2 and summary['families'] == ['given']
+
+
+@pytest.mark.parametrize(
+    'make, field',
+    [
+        (lambda d: d / 'missing', '--scenarios'),  # no such folder
+        (lambda d: d, '--scenarios'),  # a folder without *.yaml
+        (lambda d: (d / 'bad.yaml').write_text('name: x\nrobots: 3\n') and d, 'bad.yaml'),
+    ],
+)
+def test_scenarios_folder_refusals_are_one_line(make, field, tmp_path, capsys):
+    folder = tmp_path / 'in'
+    folder.mkdir()
+    rc = cli.main(['sweep', '--out', str(tmp_path / 'o'), '--quiet', '--scenarios',
+                   str(make(folder))])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and field in err and '\n' not in err and len(err) < 300
+    rc = cli.main(['sweep', '--out', str(tmp_path / 'o'), '--quiet', '--scenarios', str(folder),
+                   '--perturb', str(folder / 'x.yaml')])
+    assert rc == 2 and 'not several' in capsys.readouterr().err
 
 
 @pytest.mark.parametrize(

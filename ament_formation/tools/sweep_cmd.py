@@ -1,8 +1,10 @@
 """`formation sweep --out DIR`: a Monte Carlo campaign of closed-loop runs.
 
-Cases are random scenarios of declared families (core/scenario/families.py) or seeded
-perturbations of a given scenario (``--perturb SCENARIO.yaml``); each runs in the fast simulator
-(``--sensing ideal``, or camera sensing) and is classified (core/sim/campaign.py). Engines:
+Cases are random scenarios of declared families (core/scenario/families.py), seeded
+perturbations of a given scenario (``--perturb SCENARIO.yaml``), or every scenario file of a
+folder as it is (``--scenarios DIR``: your own, or another generator's); each runs in the fast
+simulator (``--sensing ideal``, or camera sensing) and is classified
+(core/sim/campaign.py). Engines:
 
 * embedded (default): a Dask ``LocalCluster`` of ``--workers`` processes on 127.0.0.1, started and
   stopped by the command (``--workers 0``: every run in this process, no Dask);
@@ -58,6 +60,12 @@ def register(subparsers) -> None:
     )
     p.add_argument('--scale', type=float, default=1.0, help='perturbation size (default 1)')
     p.add_argument(
+        '--scenarios',
+        metavar='DIR',
+        help='run every scenario file DIR/*.yaml as it is (sorted by name; --count and --families '
+        'do not apply): a campaign of your own scenarios or of another generator',
+    )
+    p.add_argument(
         '--replay',
         metavar='CAMPAIGN',
         help="run again the failing runs of an earlier campaign's directory (its failures/, its "
@@ -101,10 +109,14 @@ def _cases(args) -> list[dict]:
         raise ConfigError(f'must be in (0, 10] (got {args.scale})', '--scale')
     if not (math.isfinite(args.hold) and 0.0 <= args.hold <= 600.0):
         raise ConfigError(f'must be in [0, 600] (got {args.hold})', '--hold')
+    given = [flag for flag, value in (('--replay', args.replay), ('--perturb', args.perturb),
+                                      ('--scenarios', args.scenarios)) if value]
+    if len(given) > 1:
+        raise ConfigError(f'give one of {", ".join(given)}, not several', given[0])
     if args.replay:
-        if args.perturb:
-            raise ConfigError('give --replay or --perturb, not both', '--replay')
         return _replayed(args)
+    if args.scenarios:
+        return _given(args)
     common = {'seed': args.seed, 'sensing': args.sensing, 'hold_s': args.hold}
     if args.perturb:
         base = scenario_to_mapping(load_scenario(args.perturb))
@@ -173,6 +185,24 @@ def _replayed(args) -> list[dict]:
     if not cases:
         raise ConfigError('has no failures/NNNNN-NAME.yaml to replay', '--replay', str(src))
     return cases
+
+
+def _given(args) -> list[dict]:
+    """The cases of ``--scenarios DIR``: every ``DIR/*.yaml`` as it is, in name order (index: its
+    place in that order, family ``given``), each validated first: a file the validator refuses
+    stops the campaign before any run, in one line naming the file.
+    """
+    from ament_formation.core.scenario.loader import load_scenario, scenario_to_mapping
+
+    src = Path(args.scenarios)
+    if not src.is_dir():
+        raise ConfigError('is not a directory', '--scenarios', str(src))
+    paths = sorted(src.glob('*.yaml'))
+    if not paths:
+        raise ConfigError('has no *.yaml scenario file', '--scenarios', str(src))
+    common = {'seed': args.seed, 'sensing': args.sensing, 'hold_s': args.hold, 'family': 'given'}
+    return [{**common, 'index': i, 'mapping': scenario_to_mapping(load_scenario(path))}
+            for i, path in enumerate(paths)]
 
 
 class _Stop:
