@@ -72,6 +72,9 @@ class ControllerParams(AgentParams):
     robot_id: int = param(-1, "this robot's id in the scenario (required, >= 0)")
     realtime_priority: int = param(0, 'SCHED_FIFO priority of the control loop (1..98; 0: normal '
                                    'scheduling; needs root or CAP_SYS_NICE)', range=(0, 98))
+    tick_on_pose: bool = param(
+        True, "run the control period as soon as this robot's camera pose arrives, then every "
+        '1/control_rate_hz from there (false: the timer alone, a pose waits up to a period)')
 
     def __post_init__(self) -> None:
         if not self.scenario:
@@ -168,6 +171,10 @@ class ControllerNode(Node):
                       if tick_timer else None)
         if tick_timer and self.prm.realtime_priority:
             set_realtime(self.prm.realtime_priority, self.get_logger())
+        # a pose is used the moment it arrives (issue 34: up to a period of idle wait otherwise);
+        # not with the inputs taken at the tick (the tick would run inside its own input pass)
+        self._tick_on_pose = bool(self.timer is not None and self.prm.tick_on_pose
+                                  and not tick_inputs)
 
     @property
     def subscriptions(self):
@@ -191,6 +198,9 @@ class ControllerNode(Node):
             return
         with self.lock:
             self.batch.camera(self.rid, self.clocks.local('camera', stamp_s), pose)
+        if self._tick_on_pose:
+            self.control_tick()
+            self.timer.reset()  # the next period a full period from this one: no double tick
 
     def _on_camera(self, k: int, msg) -> None:
         pose, _stamp = cdr.pose_from_msg(msg)
