@@ -237,3 +237,44 @@ def test_control_loop_reads_telemetry_as_it_arrives_and_never_spins_on_a_hung_po
     assert len(team.ticks) >= 1 and reads >= 1
     assert reads <= elapsed / ControlLoop.MIN_READ_GAP_S + 2, (reads, elapsed)
     assert time.process_time() - cpu0 < 0.5 * elapsed  # not a busy loop
+
+
+def test_a_fresh_pose_runs_the_period_at_once_and_the_next_a_full_period_later():
+    """ControlLoop.pose_arrived (a team of one robot: the robot's computer, tick_on_pose): the
+    period runs at once instead of at the schedule's next one, and the schedule restarts from it.
+    Periods of 1 s, so that "at once" and "a full period later" are far apart under load.
+    """
+    import os
+    import time
+
+    from ament_formation.nodes.team import ControlLoop
+
+    r, w = os.pipe()
+    os.set_blocking(r, False)
+    team = _FakeTeam(_FakeBridge(r, drain=True))
+    loop = ControlLoop(team, rate_hz=1.0)
+
+    def wait_ticks(n: int) -> float:
+        deadline = time.monotonic() + 5.0
+        while len(team.ticks) < n and time.monotonic() < deadline:
+            time.sleep(0.005)
+        assert len(team.ticks) >= n, f'{len(team.ticks)} periods, {n} expected'
+        return team.ticks[n - 1]
+
+    loop.start()
+    try:
+        first = wait_ticks(1)
+        while time.monotonic() < first + 0.4:  # the pose comes mid-period
+            time.sleep(0.005)
+        sent = time.monotonic()
+        loop.pose_arrived()
+        at_pose = wait_ticks(2)
+        after = wait_ticks(3)
+        assert at_pose - sent < 0.3  # not at the schedule's next period (0.6 s away)
+        assert after - at_pose > 0.8  # the schedule restarted from the pose's period
+        assert loop.pose_periods == 1
+    finally:
+        loop.stop()
+        os.close(w)
+        os.close(r)
+    loop.pose_arrived()  # after stop: writes nowhere, raises nothing

@@ -175,6 +175,9 @@ class ControllerNode(Node):
         # not with the inputs taken at the tick (the tick would run inside its own input pass)
         self._tick_on_pose = bool(self.timer is not None and self.prm.tick_on_pose
                                   and not tick_inputs)
+        # in a team of one robot (a robot's computer): the team's control loop runs the period
+        # (nodes/team.py sets it)
+        self.on_own_pose = None
 
     @property
     def subscriptions(self):
@@ -201,6 +204,8 @@ class ControllerNode(Node):
         if self._tick_on_pose:
             self.control_tick()
             self.timer.reset()  # the next period a full period from this one: no double tick
+        elif self.on_own_pose is not None:
+            self.on_own_pose()
 
     def _on_camera(self, k: int, msg) -> None:
         pose, _stamp = cdr.pose_from_msg(msg)

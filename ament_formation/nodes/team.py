@@ -25,7 +25,9 @@ taken by the loop at the start of each period, what arrived since the previous o
 (camera pose, graph, encounters, wheel samples, heard states) take the team's lock, a re-entrant
 one: the loop itself runs some of them while it holds it. With ``realtime_priority`` P the loop
 thread runs under SCHED_FIFO P and the executor thread under P - 1. On simulated time
-(``use_sim_time``) executor timers run the periods.
+(``use_sim_time``) executor timers run the periods. A team of one robot (a robot's computer) runs
+a period as soon as that robot's camera pose arrives (parameter ``tick_on_pose``), the next one a
+full period later: a pose does not wait up to a period for the schedule.
 
 The robot process of a robot's computer (scripts/launch_robot.sh, default): a team of one robot,
 ``robot_ids:=[N]``, ``port_template:=/dev/ttyACM0`` (no ``{id}`` needed for one robot). For
@@ -48,6 +50,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 import math
+import os
 import select
 import sys
 import threading
@@ -183,6 +186,12 @@ class TeamNode(Node):
         rate_hz = rates.pop()
         if threaded:
             self.loop = ControlLoop(self, rate_hz, self.prm.realtime_priority)
+            # one robot hosted (a robot's computer): its camera pose runs the period at once
+            # (tick_on_pose); with several, each robot's pose of a frame would run one period
+            if len(self.controllers) == 1:
+                (only,) = self.controllers.values()
+                if only.prm.tick_on_pose:
+                    only.on_own_pose = self.loop.pose_arrived
             if self.prm.realtime_priority > 1:  # the executor thread: callbacks before other work
                 set_realtime(self.prm.realtime_priority - 1, None)
             self.loop.start()
@@ -218,6 +227,8 @@ class TeamNode(Node):
             controller.publish(now_s)
 
     def destroy_node(self):
+        for controller in self.controllers.values():
+            controller.on_own_pose = None
         if self.loop is not None:
             self.loop.stop()
         for node in [*self.controllers.values(), *self.bridges.values()]:
@@ -243,6 +254,12 @@ class ControlLoop:
         self.priority = priority
         self._stop = threading.Event()
         self.errors = 0
+        self.pose_periods = 0  # periods run at once for a fresh pose (pose_arrived)
+        # pose_arrived() wakes the select() through this pipe
+        self._wake_r, self._wake_w = os.pipe()
+        os.set_blocking(self._wake_r, False)
+        os.set_blocking(self._wake_w, False)
+        self._pose_due = False
         self.thread = threading.Thread(target=self._run, name='control_loop', daemon=True)
 
     def start(self) -> None:
@@ -251,8 +268,34 @@ class ControlLoop:
 
     def stop(self) -> None:
         self._stop.set()
+        self._wake()
         if self.thread.is_alive() and threading.current_thread() is not self.thread:
             self.thread.join(timeout=2.0)
+        if not self.thread.is_alive() and self._wake_r >= 0:
+            r, w = self._wake_r, self._wake_w
+            self._wake_r = self._wake_w = -1  # a late pose_arrived() writes nowhere
+            os.close(r)
+            os.close(w)
+
+    def pose_arrived(self) -> None:
+        """The hosted robot's camera pose arrived (executor thread): run a period now, the next
+        one a full period later (the pose-to-torque path without an idle wait).
+        """
+        self._pose_due = True
+        self._wake()
+
+    def _wake(self) -> None:
+        try:
+            os.write(self._wake_w, b'.')
+        except (BlockingIOError, OSError):  # already woken (pipe full), or closed
+            pass
+
+    def _drain(self) -> None:
+        try:
+            while os.read(self._wake_r, 4096):
+                pass
+        except (BlockingIOError, OSError):
+            pass
 
     def _fds(self) -> list[int]:
         fds = []
@@ -278,12 +321,15 @@ class ControlLoop:
             try:
                 wait = next_s - time.monotonic()
                 if wait > 0.0:
-                    fds = self._fds()
-                    ready = (
-                        select.select(fds, [], [], wait)[0]
-                        if fds
-                        else self._stop.wait(wait) and []
-                    )
+                    ready = select.select([*self._fds(), self._wake_r], [], [], wait)[0]
+                    if self._wake_r in ready:
+                        self._drain()
+                        ready.remove(self._wake_r)
+                        if self._pose_due:  # a fresh pose: this period now
+                            self._pose_due = False
+                            self.pose_periods += 1
+                            next_s = time.monotonic()
+                            continue
                     if ready:
                         # at most one read per MIN_READ_GAP_S: a port that stays readable without
                         # data (a hung-up pty) must not turn this (real-time) thread into a busy
