@@ -170,6 +170,29 @@ def test_mission_end_and_the_completed_check():
     assert checked['ok'] is False and 'completed' in checked['failure']
 
 
+def test_reached_goals_fails_a_run_whose_robot_stood_still_but_not_a_parked_goal():
+    """``reached_goals``: when the mission ended, every robot within 0.5 m of its goal; a robot
+    that stood still (a stop, a starved controller) fails the run even though the mission ended
+    (its finish wait used up); a goal inside an avoided obstacle's Q is excepted (parked).
+    """
+    from ament_formation.core.sim.metrics import check_run, FAR_FROM_GOAL_M
+
+    scen = scenario()
+    t = np.round(np.arange(0.0, 52.5 + 1e-9, 0.01), 10)
+    m = compute_metrics(make_result(scen, t, straight_run(scen, t), mission_end_s=52.0), scen)
+    reached = {c['name']: c for c in check_run(m, scen)['checks']}['reached_goals']
+    assert reached['ok'] and reached['value'] <= FAR_FROM_GOAL_M == reached['limit']
+    worst = max(m['robots'], key=lambda k: m['robots'][k]['final_error_m'])
+    m['robots'][worst]['final_error_m'] = 0.9  # stood still 0.9 m short
+    checked = check_run(m, scen)
+    reached = {c['name']: c for c in checked['checks']}['reached_goals']
+    assert not reached['ok'] and reached['value'] == 0.9 and f'R{worst} ends 0.90 m' in (
+        reached['detail'])
+    assert not checked['ok'] and 'reached_goals 0.9 > 0.5' in checked['failure']
+    m['robots'][worst]['goal_in_q_at_end'] = True  # its goal inside an obstacle's Q: parked
+    assert 'reached_goals' not in (check_run(m, scen)['failure'] or '')
+
+
 def test_each_entry_into_p_is_counted_once_and_robot_pairs_count():
     scen = scenario(
         obstacles=[{'name': 'W', 'center_m': [2.0, 0.0], 'semi_axes_m': [0.3, 0.3]}],

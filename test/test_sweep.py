@@ -264,8 +264,10 @@ def test_a_stuck_run_replays_with_formation_sim_hold(tmp_path):
     # docs/sweep.md: --hold runs 0.5 s past the mission's end, the references at rest there
     assert metrics['mission_end_s'] is not None
     assert metrics['sim_time_s'] == pytest.approx(metrics['mission_end_s'] + 0.5, abs=0.02)
-    assert rc == 0  # (formation sim checks contacts and entries, not the goal)
     assert metrics['robots']['1']['final_error_m'] > 1.0  # still far: stuck
+    # a robot that never arrived fails the run (check reached_goals), not only the campaign row
+    assert rc == 1 and metrics['failure'].startswith('reached_goals ')
+    assert 'R1 ends' in metrics['failure']
     assert cli.main(['sim', str(scen), '--hold', 'nan', '--out', str(out), '--quiet']) == 2
 
 

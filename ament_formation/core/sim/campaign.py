@@ -38,14 +38,14 @@ formation: every robot within :data:`REFORMED_M` of its goal).
 from __future__ import annotations
 
 from collections import Counter
-import math
 import time
 import traceback
 
 import numpy as np
 
+from ament_formation.core.sim.metrics import FAR_FROM_GOAL_M, goal_in_q
+
 RUNAWAY_SPEED_MPS = 0.3
-FAR_FROM_GOAL_M = 0.5
 REFORMED_M = 0.05
 HOLD_S = 30.0
 CHATTER_EVENTS = 50
@@ -86,32 +86,6 @@ COLUMNS = (
     'draws',
     'wall_s',
 )
-
-
-def _goal_in_q(scenario, result, i: int) -> bool:
-    """Whether robot i's final goal lies inside the protected region Q of an obstacle the law
-    avoids (there it cannot settle: it is parked on the limit cycle or beside it). Obstacles
-    avoided as one (docs/law-changes.md §18) count as their enclosing ellipse (static).
-    """
-    law = scenario.avoided_obstacles()
-    if not law:
-        return False
-    g = result.goal_m[-1, i]
-    kappa = scenario.avoidance.protected_scale
-    rows = {name: j for j, name in enumerate(result.obstacle_names)}
-    for obs in law:
-        j = rows.get(obs.name)
-        if j is None:  # an enclosing ellipse: it stands still
-            c, phi = np.asarray(obs.center_m), obs.orientation_rad
-        else:
-            c, phi = result.obstacle_center_m[-1, j], result.obstacle_phi_rad[-1, j]
-        z = g - c
-        u = math.cos(phi) * z[0] + math.sin(phi) * z[1]
-        w = -math.sin(phi) * z[0] + math.cos(phi) * z[1]
-        r1, r2 = kappa * obs.semi_axes_m[0], kappa * obs.semi_axes_m[1]
-        if (u / r1) ** 2 + (w / r2) ** 2 <= 1.0:
-            return True
-    return False
 
 
 def _last_mode(robot: dict) -> str:
@@ -156,7 +130,7 @@ def findings(metrics: dict, result, scenario) -> dict[str, str]:
         robot = metrics['robots'][str(rid)]
         err = robot['final_error_m']
         if err is not None and err > FAR_FROM_GOAL_M:
-            key = 'parked' if _goal_in_q(scenario, result, i) else 'far_from_goal'
+            key = 'parked' if goal_in_q(scenario, result, i) else 'far_from_goal'
             found.setdefault(key, f'R{rid} ends {err:.2f} m from its goal ({_last_mode(robot)})')
     events = Counter(e['robot'] for e in metrics.get('mode_events') or [])
     if events and max(events.values()) > CHATTER_EVENTS:
@@ -178,7 +152,7 @@ def _catch_up_s(result, scenario, t_end: float) -> float | None:
 def _within_after(result, scenario, t_end: float, limit_m: float) -> float | None:
     t = np.asarray(result.t_s, dtype=float)
     k0 = int(np.searchsorted(t, t_end - 1e-9))
-    free = [i for i in range(len(result.robot_ids)) if not _goal_in_q(scenario, result, i)]
+    free = [i for i in range(len(result.robot_ids)) if not goal_in_q(scenario, result, i)]
     if not free or k0 >= t.size:
         return 0.0
     err = np.linalg.norm(result.state[k0:, free, :2] - result.goal_m[k0:, free], axis=2)

@@ -139,6 +139,35 @@ def _team(scenario, rid: int) -> int:
         return rid
 
 
+FAR_FROM_GOAL_M = 0.5  # a robot farther from its free goal when the mission ends did not arrive
+
+
+def goal_in_q(scenario, result: SimResult, i: int) -> bool:
+    """Whether robot i's final goal lies inside the protected region Q of an obstacle the law
+    avoids (there it cannot settle: it is parked on the limit cycle or beside it). Obstacles
+    avoided as one (docs/law-changes.md §18) count as their enclosing ellipse (static).
+    """
+    law = scenario.avoided_obstacles()
+    if not law:
+        return False
+    g = result.goal_m[-1, i]
+    kappa = scenario.avoidance.protected_scale
+    rows = {name: j for j, name in enumerate(result.obstacle_names)}
+    for obs in law:
+        j = rows.get(obs.name)
+        if j is None:  # an enclosing ellipse: it stands still
+            c, phi = np.asarray(obs.center_m), obs.orientation_rad
+        else:
+            c, phi = result.obstacle_center_m[-1, j], result.obstacle_phi_rad[-1, j]
+        z = g - c
+        u = math.cos(phi) * z[0] + math.sin(phi) * z[1]
+        w = -math.sin(phi) * z[0] + math.cos(phi) * z[1]
+        r1, r2 = kappa * obs.semi_axes_m[0], kappa * obs.semi_axes_m[1]
+        if (u / r1) ** 2 + (w / r2) ** 2 <= 1.0:
+            return True
+    return False
+
+
 def compute_metrics(result: SimResult, scenario) -> dict:
     """docs/design.md §4 metrics of a run.
 
@@ -222,6 +251,7 @@ def compute_metrics(result: SimResult, scenario) -> dict:
             'settled_from_s': float(start),
             'formation_rms_after_own_exit_m': _rms_from(err[:, i], t, own_start),
             'final_error_m': float(err[-1, i]) if len(t) else None,
+            'goal_in_q_at_end': bool(len(t)) and goal_in_q(scenario, result, i),
             'peak_torque_nm': [float(torque[:, 0].max()), float(torque[:, 1].max())]
             if len(t)
             else [0.0, 0.0],
@@ -328,7 +358,9 @@ def check_run(
     Every run: ``completed`` (the mission ended: every reference reached its end, S17.3,
     ``mission_end_s`` against its free traversal ``duration_s``), ``prohibited_entries`` (0),
     ``contact``
-    (no two robot footprints overlap: |p_a - p_b| >= R_a + R_b for every pair). Then the scenario's
+    (no two robot footprints overlap: |p_a - p_b| >= R_a + R_b for every pair), ``reached_goals``
+    (when the mission ended, every robot within :data:`FAR_FROM_GOAL_M` of its goal, a goal inside
+    an avoided obstacle's Q excepted: robots that stood still do not pass). Then the scenario's
     ``expect:`` block (:class:`~ament_formation.core.scenario.loader.ExpectSpec`). ``failure`` is
     one line
     naming the failed checks (None when ``ok``). ``measured=False`` (nothing was recorded): only
@@ -356,10 +388,17 @@ def check_run(
             check('contact', worst[0] >= 0.0, worst[2], worst[3], '>=', f'robots {worst[1]}')
         )
 
+    robots = metrics.get('robots') or {}
+    if end is not None:  # a run that stopped short fails `completed` already
+        far = {rid: r['final_error_m'] for rid, r in robots.items()
+               if r.get('final_error_m') is not None and not r.get('goal_in_q_at_end')}
+        if far:
+            rid, err = max(far.items(), key=lambda kv: kv[1])
+            checks.append(check('reached_goals', err <= FAR_FROM_GOAL_M, err, FAR_FROM_GOAL_M,
+                                '<=', f'R{rid} ends {err:.2f} m from its goal'))
     if getattr(scenario, 'floor', None) is not None:
         checks.append(_le('on_floor', metrics.get('floor_excursion_m'), 0.0))
     e = scenario.expect
-    robots = metrics.get('robots') or {}
     for rid, limit in e.settled_rms_max_m:
         checks.append(
             _le(
