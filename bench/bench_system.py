@@ -167,6 +167,9 @@ def _stop(procs: list[subprocess.Popen]) -> None:
             p.wait()
 
 
+TICK_ON_POSE: list[str] = []  # -p tick_on_pose:=... for controllers and teams (--tick-on-pose)
+
+
 def node_processes(
     scenario_path: Path,
     pty_dir: Path,
@@ -204,6 +207,7 @@ def node_processes(
                     f'port_template:={pty_dir}/robot_{{id}}',
                     '-p',
                     'poll_rate_hz:=200.0',
+                    *TICK_ON_POSE,
                 ],
                 log_dir,
                 f'team_{k // team}',
@@ -230,7 +234,8 @@ def node_processes(
         )
         procs.append(
             _start(
-                [*controller, *ns, '-p', f'scenario:={scenario_path}', '-p', f'robot_id:={r.id}'],
+                [*controller, *ns, '-p', f'scenario:={scenario_path}', '-p', f'robot_id:={r.id}',
+                 *TICK_ON_POSE],
                 log_dir,
                 f'controller_{r.id}',
             )
@@ -430,7 +435,16 @@ def main() -> int:
         help='start the bridge/controller/team processes under `nice -n N` (like '
         'scripts/launch_sim.sh --control-nice; negative needs root)',
     )
+    ap.add_argument(
+        '--tick-on-pose',
+        choices=('true', 'false'),
+        default=None,
+        help="the controllers' tick_on_pose parameter in the process layouts (default: the "
+        "node's default, true): false runs the control period on the timer alone",
+    )
     args = ap.parse_args()
+    if args.tick_on_pose is not None:
+        TICK_ON_POSE[:] = ['-p', f'tick_on_pose:={args.tick_on_pose}']
     tmp = Path(tempfile.mkdtemp(prefix='ament_formation_bench_'))
     profile = 'fastdds_localhost_shm.xml' if args.dds == 'shm' else 'fastdds_localhost.xml'
     os.environ['FASTRTPS_DEFAULT_PROFILES_FILE'] = str(ROOT / 'config' / profile)
@@ -439,6 +453,7 @@ def main() -> int:
         f'DDS profile {profile}; executor {args.executor}; '
         + (f'{args.team} robots per formation_team process' if args.team else 'a process per node')
         + ('' if args.control_nice is None else f'; control processes at nice {args.control_nice}')
+        + ('' if args.tick_on_pose is None else f'; tick_on_pose {args.tick_on_pose}')
     )
     try:
         loopback_env(tmp / 'ros_log')
