@@ -6,18 +6,20 @@
    the nodes as separate processes (scripts/launch_sim.sh-like: world in this process so the
    board's receive log is visible, everything else in its own process).
    Attribution: for each pose message of robot 0 (stamp = capture time), the first wheel_torque
-   published by the controller after the pose arrived; that command's arrival at the board is
-   found in the board's command log by its (quantised) torque values.
+   the controller stamped at or after the pose's DDS receive time at the probe (the same host: the
+   controller's own copy arrives at about the same moment); that command's arrival at the board
+   is found in the board's command log by its (quantised) torque values.
 2. Robot count: the largest N (line formation, no obstacles, N controllers + N bridges as
    processes, 100 Hz control, 30 fps camera) with < 1 % missed control deadlines (late ticks from
    the controllers' /diagnostics) and the world keeping real time.
 
 Options: --dds shm|udp (shared-memory Fast DDS profile config/fastdds_localhost_shm.xml, the
 default here, or the loopback-UDP-only profile of the tests), --executor events|single (what the
-node processes spin on, ros/executors.make_executor). Caveat: in the multi-process latency run the
-probe shares the world's process, so a busy world delays the probe's view of a pose's arrival and
-pairs it with a later torque (an over-estimate). Only poses captured from 1 s after the mission
-start count: the start-up (processes discovering each other, kernels loading) is not the loop.
+node processes spin on, ros/executors.make_executor). The probe shares the world's process but
+takes a pose's arrival from the middleware's receive stamp, so a busy world no longer pairs a pose
+with a later torque (the over-estimate of earlier versions of this benchmark, up to a control
+period). Only poses captured from 1 s after the mission start count: the start-up (processes
+discovering each other, kernels loading) is not the loop.
 
 Baseline for the ratios: the wire time of one torque frame at 115200 baud and the 10 ms control
 period.
@@ -60,12 +62,18 @@ class LatencyProbe:
         from ament_formation.ros import messages as m
         from ament_formation.ros.qos import QOS_CONTROL
 
-        self.poses: list[tuple[float, float]] = []  # (capture stamp, arrival wall)
+        self.poses: list[tuple[float, float]] = []  # (capture stamp, DDS receive time, wall)
         self.torques: list[tuple[float, np.ndarray]] = []  # (publish stamp, efforts)
+        # the pose's arrival is its DDS receive time (the middleware's, wall clock), not the
+        # moment this process's executor ran the callback: a controller that runs its period on
+        # the pose (tick_on_pose) stamps its torque before a busy probe gets there, and the
+        # next period's torque would be paired instead (10 ms too late)
         node.create_subscription(
             m.PoseStamped,
             f'/robot_{rid}/pose',
-            lambda msg: self.poses.append((m.stamp_to_s(msg.header.stamp), time.time())),
+            lambda msg, info: self.poses.append(
+                (m.stamp_to_s(msg.header.stamp), info['received_timestamp'] * 1e-9)
+            ),
             QOS_CONTROL,
         )
         node.create_subscription(
@@ -98,6 +106,32 @@ class LatencyProbe:
                     out.append(log_t[k] - capture_s)
                     break
         return np.array(out)
+
+
+class _ProbeThread:
+    """The probe's node on a SingleThreadedExecutor of its own, in a thread (the probe's pose
+    callback takes the message info, which the EventsExecutor of the world cannot give).
+    """
+
+    def __init__(self, node, context):
+        import threading
+
+        from rclpy.executors import SingleThreadedExecutor
+
+        self.executor = SingleThreadedExecutor(context=context)
+        self.executor.add_node(node)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name='probe', daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set() and self.executor.context.ok():
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+        self.executor.shutdown(timeout_sec=1.0)
 
 
 def _wait_for_start(executor, world, timeout_s: float) -> bool:
@@ -138,12 +172,13 @@ def latency_in_process(seconds: float) -> np.ndarray:
     system.world.boards[0].board.command_log = log
     probe_node = rclpy.create_node('_bench_probe', context=ctx)
     probe = LatencyProbe(probe_node)
-    ex.add_node(probe_node)
+    spinner = _ProbeThread(probe_node, ctx)
     try:
         _wait_for_start(ex, system.world, 60.0)
         _spin_for(ex, seconds)
         return probe.latencies_s(log, after_s=system.world.start_s + SETTLE_S)
     finally:
+        spinner.close()
         system.destroy(ex)
         probe_node.destroy_node()
         rclpy.try_shutdown(context=ctx)
@@ -292,13 +327,14 @@ def latency_multi_process(
     probe_node = rclpy.create_node('_bench_probe', context=ctx)
     probe = LatencyProbe(probe_node)
     ex.add_node(world)
-    ex.add_node(probe_node)
+    spinner = _ProbeThread(probe_node, ctx)
     procs = node_processes(SCENARIO, pty_dir, tmp, team, control_nice)
     try:
         _wait_for_start(ex, world, 60.0)
         _spin_for(ex, seconds)
         return probe.latencies_s(log, after_s=world.start_s + SETTLE_S)
     finally:
+        spinner.close()
         _stop(procs)
         world.destroy_node()
         probe_node.destroy_node()
