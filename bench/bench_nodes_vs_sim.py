@@ -93,8 +93,10 @@ def _nodes(path: Path, out: Path) -> dict:
     from ament_formation.core.sim.metrics import compute_metrics
     from ament_formation.ros.run_record import load_run
 
+    # 14 processes for 6 robots start in about a minute on 2 cores: the start is given 300 s
     res = subprocess.run([_formation(), 'run', str(path), '--out', str(out), '--quiet',
-                          '--no-figure'], capture_output=True, text=True, timeout=1800)
+                          '--no-figure', '--startup-timeout', '300'],
+                         capture_output=True, text=True, timeout=1800)
     row = {'exit': res.returncode, 'failed_check': res.stderr.strip().splitlines()[-1:] or ['-']}
     scenario = load_scenario(path)
     try:
