@@ -47,7 +47,7 @@ from ament_formation.core.scenario.loader import load_scenario
 from ament_formation.ros import cdr
 from ament_formation.ros import diagnostics as diag
 from ament_formation.ros import messages as msgs
-from ament_formation.ros.executors import run_node
+from ament_formation.ros.executors import run_node, set_realtime
 from ament_formation.ros.listeners import Listeners
 from ament_formation.ros.params import declare_dataclass
 from ament_formation.ros.qos import QOS_CONTROL, QOS_GRAPH
@@ -85,21 +85,6 @@ class ControllerParams(AgentParams):
             raise ConfigError(f'must be an integer in [0, 98] (got {self.realtime_priority!r})',
                               'realtime_priority')
         super().__post_init__()
-
-
-def set_realtime(priority: int, logger=None) -> bool:
-    """Put the calling thread under SCHED_FIFO ``priority``; False (with a warning) when not
-    permitted (needs root or CAP_SYS_NICE).
-    """
-    import os
-
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(int(priority)))
-    except (OSError, AttributeError) as err:
-        if logger is not None:
-            logger.warn(f'realtime_priority {priority}: cannot use SCHED_FIFO ({err})')
-        return False
-    return True
 
 
 class ControllerNode(Node):
@@ -171,13 +156,10 @@ class ControllerNode(Node):
                       if tick_timer else None)
         if tick_timer and self.prm.realtime_priority:
             set_realtime(self.prm.realtime_priority, self.get_logger())
-        # a pose is used the moment it arrives (issue 34: up to a period of idle wait otherwise);
-        # not with the inputs taken at the tick (the tick would run inside its own input pass)
-        self._tick_on_pose = bool(self.timer is not None and self.prm.tick_on_pose
-                                  and not tick_inputs)
-        # in a team of one robot (a robot's computer): the team's control loop runs the period
-        # (nodes/team.py sets it)
-        self.on_own_pose = None
+        # a pose is used the moment it arrives (not when the inputs are taken at the tick: the tick
+        # would run inside its own input pass); in a team of one robot, the team's loop runs it
+        self._tick_on_pose = bool(self.timer and self.prm.tick_on_pose and not tick_inputs)
+        self.on_own_pose = None  # set by nodes/team.py
 
     @property
     def subscriptions(self):

@@ -66,9 +66,9 @@ from ament_formation.core.params import param
 from ament_formation.core.scenario.loader import load_scenario
 from ament_formation.nodes.bridge import BridgeNode
 from ament_formation.nodes.controller import _send_zero_torque as _controller_zero_torque
-from ament_formation.nodes.controller import ControllerNode, set_realtime
+from ament_formation.nodes.controller import ControllerNode
 from ament_formation.ros import diagnostics as diag
-from ament_formation.ros.executors import run_node
+from ament_formation.ros.executors import run_node, set_realtime
 from ament_formation.ros.params import declare_dataclass
 
 

@@ -279,3 +279,18 @@ def _publish_thread(name: str, node):
     if not sender.adopt(p for n in nodes for p in n.publishers):
         return None
     return sender
+
+
+def set_realtime(priority: int, logger=None) -> bool:
+    """Put the calling thread under SCHED_FIFO ``priority``; False (with a warning) when not
+    permitted (needs root or CAP_SYS_NICE).
+    """
+    import os
+
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(int(priority)))
+    except (OSError, AttributeError) as err:
+        if logger is not None:
+            logger.warn(f'realtime_priority {priority}: cannot use SCHED_FIFO ({err})')
+        return False
+    return True
