@@ -2,10 +2,10 @@
 failure in its header), from `formation sweep --count 500` on seeds 31 and 2, on seed 53 (a
 seed no change was traced on, run after the last change of the law), the ten hard runs of
 2,000-run campaigns on seeds 2027 (never traced) and 1 (2026-12-07), and (``og-*``) from
-scenarios of another
-generator's rules (bench/other_generator.py, seed 2026, 400 files, `formation sweep
---scenarios`; five of the six are one team overtaking another in a corridor, a situation the
-project's own families never draw): kept so that the failure stays visible and a fix shows.
+scenarios of another generator's rules (bench/other_generator.py, seed 2026, 400 files,
+`formation sweep --scenarios`; five of the six are one team overtaking another in a
+corridor, a situation the project's own families never draw): kept so that the failure stays
+visible and a fix shows.
 Each must still fail with the class in its header; a law that fixes one turns its test red
 (strict): move the file to test/scenarios_regression/ then.
 """
