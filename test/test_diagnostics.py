@@ -242,11 +242,11 @@ def test_controller_safety_stop_is_published_when_it_happens(controller, executo
     ctrl._on_graph(m.graph_msg(m.GraphMessage(1, {0: None, 1: 0, 2: 1, 3: 0}, {1: (-0.5, 0.5)},
                                               stamp_s=now(), start_s=now() - 1.0)))
     ctrl._on_encounters(m.encounters_msg(m.EncountersMessage(1, {}, {0: 1.0}, now())))
+    t_last = time.monotonic()  # the coordinator's last message (the timeout counts from here)
     assert spin_until(executor, lambda: (feed(), seen(n0, (diag.WARN, 'hold_parent')))[1], 5.0)
     values = {kv.key: kv.value for kv in statuses[name][-1][1].values}
     assert values['coordinator_heard'] == 'True' and values['safety'] == 'hold_parent'
     # the coordinator falls silent for coordinator_timeout_s (2.5 s): stopped_coordinator
-    t_last = time.monotonic()
     assert spin_until(executor, lambda: (feed(), seen(n0, (diag.ERROR, 'stopped_coordinator')))[1],
                       10.0)
     assert time.monotonic() - t_last >= ctrl.prm.coordinator_timeout_s - 0.1
