@@ -73,8 +73,9 @@ class ControllerParams(AgentParams):
     realtime_priority: int = param(0, 'SCHED_FIFO priority of the control loop (1..98; 0: normal '
                                    'scheduling; needs root or CAP_SYS_NICE)', range=(0, 98))
     tick_on_pose: bool = param(
-        True, "run the control period as soon as this robot's camera pose arrives, then every "
-        '1/control_rate_hz from there (false: the timer alone, a pose waits up to a period)')
+        False, "run the control period as soon as this robot's camera pose arrives, then every "
+        '1/control_rate_hz from there (false: the timer alone, a pose waits up to a period; off '
+        'by default: measured, it did not shorten the pose-to-torque p99, docs/executors.md)')
 
     def __post_init__(self) -> None:
         if not self.scenario:

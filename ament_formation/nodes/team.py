@@ -25,9 +25,9 @@ taken by the loop at the start of each period, what arrived since the previous o
 (camera pose, graph, encounters, wheel samples, heard states) take the team's lock, a re-entrant
 one: the loop itself runs some of them while it holds it. With ``realtime_priority`` P the loop
 thread runs under SCHED_FIFO P and the executor thread under P - 1. On simulated time
-(``use_sim_time``) executor timers run the periods. A team of one robot (a robot's computer) runs
-a period as soon as that robot's camera pose arrives (parameter ``tick_on_pose``), the next one a
-full period later: a pose does not wait up to a period for the schedule.
+(``use_sim_time``) executor timers run the periods. With ``tick_on_pose: true`` (default false), a
+team of one robot (a robot's computer) runs a period as soon as that robot's camera pose arrives,
+the next one a full period later: a pose does not wait up to a period for the schedule.
 
 The robot process of a robot's computer (scripts/launch_robot.sh, default): a team of one robot,
 ``robot_ids:=[N]``, ``port_template:=/dev/ttyACM0`` (no ``{id}`` needed for one robot). For
