@@ -63,6 +63,45 @@ def test_sources_are_kept_apart_and_the_worst_one_is_named():
                                        'clock_offset_robot_3_s']
 
 
+def test_another_robots_clock_beyond_the_bound_is_its_fault_not_ours():
+    # robot 0's view when robot 1's host runs 5 s ahead: the base machines agree with robot 0,
+    # so robot 0 keeps driving (robot 1 sees the base 5 s off and stops itself)
+    clocks = ClockOffsets()
+    _feed(clocks, 'camera', 0.0, 0.0, 3.0, seed=7)
+    _feed(clocks, 'coordinator', 0.0, 0.0, 3.0, seed=8)
+    _feed(clocks, 'robot_1', 5.0, 0.0, 3.0, seed=9)
+    assert clocks.beyond_bound() is None
+    (src, off), = clocks.peers_beyond_bound()
+    assert src == 'robot_1' and off == pytest.approx(5.0, abs=0.01)
+    # its stamps are still read on our clock, within the smallest latency
+    assert clocks.local('robot_1', 17.0) == pytest.approx(12.0, abs=0.01)
+    # robot 1's view of the same run: the base is 5 s behind it, robot 0 too; it stops
+    clocks = ClockOffsets()
+    _feed(clocks, 'camera', -5.0, 0.0, 3.0, seed=10)
+    _feed(clocks, 'robot_0', -5.0, 0.0, 3.0, seed=11)
+    src, off = clocks.beyond_bound()
+    assert src == 'camera' and off == pytest.approx(-5.0, abs=0.01)
+    assert [s for s, _ in clocks.peers_beyond_bound()] == ['robot_0']
+    # each such robot is named once
+    assert [s for s, _ in clocks.newly_beyond_bound()] == ['robot_0']
+    assert clocks.newly_beyond_bound() == []
+
+
+def test_a_late_joiners_first_latched_message_is_not_taken_for_offset():
+    # the coordinator's graph (transient local) was sent 0.9 s before we joined: its age is
+    # not an offset; the next messages, fresh, give the offset (0 here: one clock)
+    clocks = ClockOffsets()
+    clocks.observe_latched('graph', 'coordinator', 100.0, 100.9)
+    assert 'coordinator' not in clocks.sources
+    assert clocks.beyond_bound() is None
+    clocks.observe_latched('encounters', 'coordinator', 99.5, 100.9)  # its own first: history
+    assert 'coordinator' not in clocks.sources
+    clocks.observe_latched('graph', 'coordinator', 101.0, 101.003)
+    assert clocks.offset_s('coordinator') == 0.0 and clocks.sources['coordinator'].count == 1
+    clocks.observe_latched('graph', 'coordinator', 102.0 + 1.5, 102.004)  # 1.5 s ahead
+    assert clocks.offset_s('coordinator') == pytest.approx(1.5 - 0.004)
+
+
 @pytest.mark.parametrize('offset_s', [0.0, 0.01, -0.01])
 def test_one_machine_or_synchronised_clocks_are_left_alone(offset_s):
     # within the 20 ms deadband (latency included) the offset is 0: ages are read as stamped

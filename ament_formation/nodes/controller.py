@@ -221,7 +221,7 @@ class ControllerNode(Node):
         if self.graph is not None and graph.revision < self.graph.revision:
             return
         self.graph = graph
-        self.clocks.observe('coordinator', graph.stamp_s, self.now_s())
+        self.clocks.observe_latched('graph', 'coordinator', graph.stamp_s, self.now_s())
         start = None if graph.start_s is None else self.clocks.local('coordinator', graph.start_s)
         with self.lock:
             self.batch.set_graph(graph.parents, start)
@@ -237,7 +237,7 @@ class ControllerNode(Node):
             return
         self.encounter_revision = m.revision
         now = self.now_s()
-        self.clocks.observe('coordinator', m.stamp_s, now)
+        self.clocks.observe_latched('encounters', 'coordinator', m.stamp_s, now)
         with self.lock:
             self.batch.assign(now, m.assignments, m.rates)
 
@@ -305,6 +305,10 @@ class ControllerNode(Node):
                 f'{self.clocks.p.bound_s:g} s: controlled stop; synchronise the clocks '
                 '(docs/lab.md, Clocks)')
         self.batch.state.halt[self.r] = halt
+        for src, off in self.clocks.newly_beyond_bound():
+            self.get_logger().warning(
+                f"{src}'s clock is {off:+.3f} s off ours and the base's: its stamps are "
+                'compensated and it stops itself (docs/lab.md, Clocks)')
 
     def publish(self, now: float) -> None:
         """What this robot's agent made of the period: torque, state, accel, mode, events."""
