@@ -58,7 +58,7 @@ cam=()
 [ -n "$camera" ] && cam=(-p source:="$camera")
 [ -n "$camera_wait" ] && cam+=(-p source_wait_s:="$([ "$camera_wait" = inf ] && echo .inf || echo "$camera_wait")")
 af_choose_network launch_base.sh "$loopback" "$domain"   # sets AF_NETWORK
-info="$("${AF_PYTHON[@]}" "$here/launch_info.py" "$scenario" ${params_file:+"$params_file"})" || exit 2
+info="$("${AF_PYTHON[@]}" "$here/launch_info.py" "$scenario" ${params_file:+"$params_file"} --camera-check)" || exit 2
 eval "$info"   # sets ids, robot_ids_list, marker_ids_list
 
 af_launch_init "$(realpath -m "$run_dir")" "${AF_NETWORK[@]}"

@@ -3,7 +3,7 @@
 #
 #   scripts/launch_sim.sh SCENARIO.yaml [--run-dir DIR] [--duration S] [--speed F] [--team K]
 #                         [--control-nice N] [--control-rt P] [--live [PORT]] [--live-host HOST]
-#                         [--multi-machine]
+#                         [--camera FILE] [--multi-machine]
 #
 # Processes: formation_world (plant, emulated boards on ptys, synthetic camera), one formation_bridge
 # and one formation_controller per robot (namespace robot_<id>), formation_tracker,
@@ -19,6 +19,9 @@
 # --live [PORT]: also formation_live_view, the run live in Foxglove on ws://127.0.0.1:PORT (default
 # 8765, 0 = any free port, see live_view.log); --live-host HOST (implies --live) binds it to HOST instead
 # (e.g. the lab address; off by default: loopback only). See docs/live_view.md.
+# --camera FILE: the camera the world renders and the tracker reads (a config/ name or a path; default
+# camera.yaml). When it does not see every start and goal of the scenario, the world and the tracker
+# get one fitted to the scenario instead, RUN_DIR/camera.yaml (same lens and height; launch_info.py).
 # Logs and the PID list ("PID NAME" per line) go to RUN_DIR (default: a new temp folder).
 # The run ends when the world finishes the scenario, when any process exits, or after --duration S.
 # DDS stays on loopback unless --multi-machine (see scripts/launch_common.sh).
@@ -27,11 +30,11 @@ here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
 # shellcheck source=launch_common.sh
 source "$here/launch_common.sh"
 
-usage() { sed -n '2,24p' "$0" | sed 's/^# \{0,1\}//'; exit 2; }
+usage() { sed -n '2,27p' "$0" | sed 's/^# \{0,1\}//'; exit 2; }
 [ $# -ge 1 ] || usage
 scenario="$(realpath "$1")"; shift
 run_dir=""; duration=""; speed="1.0"; multi=""; team=""; team_given=""; control_nice=""; nice_given=""; control_rt=""
-live=""; live_port="8765"; live_host="127.0.0.1"
+live=""; live_port="8765"; live_host="127.0.0.1"; camera="camera.yaml"
 while [ $# -gt 0 ]; do
   case "$1" in
     --run-dir) run_dir="$2"; shift 2 ;;
@@ -41,6 +44,8 @@ while [ $# -gt 0 ]; do
     --control-nice) nice_given=1; control_nice="${2-}"; shift; [ $# -gt 0 ] && shift ;;
     --control-rt) control_rt="${2-}"; shift; [ $# -gt 0 ] && shift ;;
     --multi-machine) multi="--multi-machine"; shift ;;
+    --camera) camera="${2-}"; shift; [ $# -gt 0 ] && shift
+      [ -n "$camera" ] || { echo "launch_sim.sh: --camera: expected a camera file" >&2; exit 2; } ;;
     --live) live=1; shift; if [ $# -gt 0 ] && [[ "$1" =~ ^[0-9]+$ ]]; then live_port="$1"; shift; fi ;;
     --live-host) live=1; live_host="${2-}"; shift; [ $# -gt 0 ] && shift ;;
     -h|--help) usage ;;
@@ -73,8 +78,9 @@ rtp=()   # parameter of the control-path processes that own a control loop (cont
 run_dir="$(realpath -m "$run_dir")"
 
 # robot ids, marker ids (tracker lists) and torque limits (bridges) from the scenario
-info="$("${AF_PYTHON[@]}" "$here/launch_info.py" "$scenario")" || exit 2
-eval "$info"   # sets ids, robot_ids_list, marker_ids_list, torque_<id>
+mkdir -p "$run_dir"
+info="$("${AF_PYTHON[@]}" "$here/launch_info.py" "$scenario" --camera-fit "$run_dir" "$camera")" || exit 2
+eval "$info"   # sets ids, robot_ids_list, marker_ids_list, torque_<id>, camera_file
 
 af_launch_init "$run_dir" $multi
 echo "run folder: $run_dir (ROS_DOMAIN_ID=$ROS_DOMAIN_ID)"
@@ -84,7 +90,7 @@ use_sim_time=false
 
 af_start world "$AF_BIN/formation_world" --ros-args --params-file "$AF_PARAMS_DIR/formation_world.yaml" \
   -p scenario:="$scenario" -p pty_dir:="$pty_dir" \
-  -p speed_factor:="$speed"
+  -p speed_factor:="$speed" -p camera_config:="$camera_file"
 # the emulated boards' ptys appear as RUN_DIR/pty/robot_<id>
 for _ in $(seq 1 1200); do   # up to 60 s: a busy machine imports slowly
   ready=1
@@ -124,7 +130,7 @@ else
 fi
 af_start tracker "$AF_BIN/formation_tracker" --ros-args \
   --params-file "$AF_PARAMS_DIR/formation_tracker.yaml" -p robot_ids:="$robot_ids_list" \
-  -p marker_ids:="$marker_ids_list" -p use_sim_time:=$use_sim_time
+  -p marker_ids:="$marker_ids_list" -p use_sim_time:=$use_sim_time -p camera_config:="$camera_file"
 af_start coordinator "$AF_BIN/formation_coordinator" --ros-args \
   --params-file "$AF_PARAMS_DIR/formation_coordinator.yaml" -p scenario:="$scenario" \
   -p use_sim_time:=$use_sim_time

@@ -77,6 +77,14 @@ def register(subparsers) -> None:
     )
     p.add_argument('--record-images', action='store_true', help='also record /camera/image_raw')
     p.add_argument(
+        '--camera',
+        default=None,
+        metavar='FILE',
+        help='the simulated camera (a config/ name or a path; default camera.yaml); a camera '
+        'that does not see every start and goal is replaced by one fitted to the scenario, '
+        'written to DIR/processes/camera.yaml (docs/camera.md, "Coverage")',
+    )
+    p.add_argument(
         '--live',
         nargs='?',
         type=int,
@@ -290,7 +298,8 @@ def _start_launch(args: argparse.Namespace, out: Path, proc_dir: Path) -> subpro
             if args.live is None and args.live_host is None
             else ['--live', str(8765 if args.live is None else args.live)]
         )
-        + ([] if args.live_host is None else ['--live-host', args.live_host]),
+        + ([] if args.live_host is None else ['--live-host', args.live_host])
+        + ([] if args.camera is None else ['--camera', args.camera]),
         stdout=open(out / 'launch.log', 'w'),
         stderr=subprocess.STDOUT,
         start_new_session=True,
