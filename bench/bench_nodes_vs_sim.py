@@ -3,7 +3,7 @@ as a process on the simulated twin, evaluated from the recorded ground truth) ne
 simulator's (`formation sweep`'s run of the same scenario, core/sim/campaign.py), for
 config/scenarios/v_formation.yaml and generated two-team scenarios (issue 32).
 
-    bench/run.sh bench_nodes_vs_sim.py [--two-teams SEED:INDEX ...] [--out DIR]
+    bench/run.sh bench_nodes_vs_sim.py [--two-teams SEED:INDEX ...] [--out DIR] [--team K]
 
 For each scenario: the fast simulator's row (classes, reason, mission time over free traversal,
 settled RMS, minimum robot distance and clearance, final error) and the same figures from the
@@ -88,14 +88,15 @@ def _formation() -> str:
     raise SystemExit('bench_nodes_vs_sim: no `formation` program on PATH')
 
 
-def _nodes(path: Path, out: Path) -> dict:
+def _nodes(path: Path, out: Path, team: int | None = None) -> dict:
     from ament_formation.core.scenario.loader import load_scenario
     from ament_formation.core.sim.metrics import compute_metrics
     from ament_formation.ros.run_record import load_run
 
     # 14 processes for 6 robots start in about a minute on 2 cores: the start is given 300 s
     res = subprocess.run([_formation(), 'run', str(path), '--out', str(out), '--quiet',
-                          '--no-figure', '--startup-timeout', '300'],
+                          '--no-figure', '--startup-timeout', '300',
+                          *([] if team is None else ['--team', str(team)])],
                          capture_output=True, text=True, timeout=1800)
     row = {'exit': res.returncode, 'failed_check': res.stderr.strip().splitlines()[-1:] or ['-']}
     scenario = load_scenario(path)
@@ -119,6 +120,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument('--two-teams', nargs='*', default=list(DEFAULT_TWO_TEAMS),
                     metavar='SEED:INDEX', help='generated two_teams scenarios (default 1:2 2:5)')
     ap.add_argument('--out', type=Path, help='keep the runs here (default: a temporary folder)')
+    ap.add_argument('--team', type=int, default=None, metavar='K',
+                    help='formation run --team K (K robots per process; default: a process '
+                    'per node, 2 per robot)')
     args = ap.parse_args(argv)
     for spec in args.two_teams:
         parts = spec.split(':')
@@ -130,7 +134,7 @@ def main(argv: list[str] | None = None) -> int:
         rows, same = [], True
         for path in _scenarios(args.two_teams, base):
             fast = _fast(path)
-            nodes = _nodes(path, base / f'run-{path.stem}')
+            nodes = _nodes(path, base / f'run-{path.stem}', args.team)
             hard = lambda c: {x for x in c.split() if x not in ('-', 'keepout', 'parked')}  # noqa
             agree = hard(fast['classes']) == hard(nodes.get('classes', ''))
             same &= agree

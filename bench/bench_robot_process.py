@@ -22,6 +22,13 @@ run with `bench/run.sh bench_robot_process.py [options]`.
    per robot, and the controlled stops (``stopped_pose``) and outlier-rejected camera poses the
    controllers logged.
 
+3. (``--profile PY_SPY``) where the robot process's time goes: py-spy (a sampling profiler, not a
+   dependency of the project: ``pip install py-spy`` anywhere and give its path) records every
+   process of the robot at 200 Hz, without pausing it (``--nonblocking``), over the window; the
+   table gives each function's share of the samples, inclusive (it or a callee on the stack) and
+   self (on top), for the threads that ran; the raw stacks are kept in the run folder
+   (``profile_<layout>.txt``, collapsed format for flame graphs).
+
 Options: --window-s S (default 15), --layouts split robot, --no-idle, --quota [PCT], --paper
 [idle hogs quota], --rt-priority P (control loops under SCHED_FIFO P: launch_sim.sh
 --control-rt), --control-nice N. The machine's other load is printed (load average): figures
@@ -35,6 +42,7 @@ import json
 import math
 import os
 from pathlib import Path
+import re
 import shutil
 import signal
 import subprocess
@@ -293,6 +301,7 @@ def measure_cost(
     extra: list[str],
     scenario: Path = SCENARIO,
     rid: int = 1,
+    py_spy: str | None = None,
 ) -> dict:
     """Robot ``rid`` of ``scenario`` on its own: its emulated motor board on a pty (`formation
     board`, not counted), scripts/launch_robot.sh (``split``: --split), inputs from
@@ -372,6 +381,12 @@ def measure_cost(
                 ),
             }
         probe.spin_for(2.0)
+        spies = [subprocess.Popen(
+            [py_spy, 'record', '--pid', str(pid), '--duration', str(int(math.ceil(window_s))),
+             '--rate', '200', '--nonblocking', '--threads', '--format', 'raw', '--output',
+             str(run_dir / f'profile_{layout}_{pid}.txt')],
+            stdout=subprocess.DEVNULL, stderr=open(run_dir / f'py_spy_{pid}.log', 'w'))
+            for pid in (pids if py_spy else [])]
         t0, c0, d0, thr0 = (
             time.monotonic(),
             sum(cpu_ticks(p) for p in pids),
@@ -387,6 +402,8 @@ def measure_cost(
             probe.COUNTERS
         )
         states = {v['_message'] for v in probe.values.values()}
+        for spy in spies:
+            spy.wait(timeout=60)
         thr = [
             (b[0] - a[0], round(b[1] - a[1], 3))
             for a, b in zip(thr0, (g.throttled() for g in groups))
@@ -397,6 +414,7 @@ def measure_cost(
             'window_s': t1 - t0,
             'throttled': thr,
             'safety': states,
+            'profiles': sorted(run_dir.glob(f'profile_{layout}_*.txt')) if py_spy else [],
             'robots': {
                 rid: {
                     'cpu_pct': 100.0 * (c1 - c0) / HZ / (t1 - t0),
@@ -429,6 +447,37 @@ def measure_cost(
 
 
 # ------------------------------------------------------------------ part 2
+def profile_table(paths: list[Path], top: int = 25) -> str:
+    """Functions by their share of the samples of py-spy's collapsed stacks (``frame;frame;...
+    count`` per line, the thread first): inclusive and self, over every thread.
+    """
+    incl: dict[str, int] = {}
+    own: dict[str, int] = {}
+    total = 0
+    for path in paths:
+        for line in path.read_text(errors='replace').splitlines():
+            stack, _, count = line.rpartition(' ')
+            if not count.isdigit():
+                continue
+            n = int(count)
+            total += n
+            frames = [re.sub(r' \(([^)]*/)?([^/)]+)\)$', r' (\2)', f)  # file name, no folder
+                      for f in stack.split(';')[1:]]
+            for f in set(frames):
+                incl[f] = incl.get(f, 0) + n
+            if frames:
+                own[frames[-1]] = own.get(frames[-1], 0) + n
+    if not total:
+        return '(no samples)'
+    rows = [f'{"incl %":>7} {"self %":>7}  function (file:line)  [{total} samples]']
+    for f, n in sorted(incl.items(), key=lambda kv: -kv[1])[:top]:
+        rows.append(f'{100.0 * n / total:7.1f} {100.0 * own.get(f, 0) / total:7.1f}  {f}')
+    rows.append('top self:')
+    for f, n in sorted(own.items(), key=lambda kv: -kv[1])[:top // 2]:
+        rows.append(f'{100.0 * n / total:7.1f}  {f}')
+    return '\n'.join(rows)
+
+
 def hog() -> subprocess.Popen:
     """A CPU-bound process (a busy loop) beside the system."""
     return subprocess.Popen([sys.executable, '-c', 'while True: pass'])
@@ -541,6 +590,8 @@ def main() -> int:
     )
     ap.add_argument('--control-nice', type=int, default=None, metavar='N')
     ap.add_argument('--keep', action='store_true', help='keep the run folders')
+    ap.add_argument('--profile', default=None, metavar='PY_SPY',
+                    help='py-spy executable: profile the robot processes over the window')
     args = ap.parse_args()
     tmp = Path(tempfile.mkdtemp(prefix='ament_formation_bench_robot_'))
     loopback_env(tmp / 'ros_log')
@@ -573,7 +624,8 @@ def main() -> int:
                     for layout in args.layouts:
                         probe = DiagProbe()  # a fresh participant per run: nothing carried over
                         try:
-                            r = measure_cost(layout, q, args.window_s, tmp, probe, robot_extra)
+                            r = measure_cost(layout, q, args.window_s, tmp, probe, robot_extra,
+                                             py_spy=args.profile)
                         finally:
                             probe.close()
                         if 'error' in r:
@@ -591,6 +643,8 @@ def main() -> int:
                                 f'{row["ticks"]:6d} {row["late"]:5d} {pct:7.2f}  '
                                 f'{"/".join(map(str, row["camera"]))}'
                             )
+                        if r.get('profiles'):
+                            print(profile_table(r['profiles']))
                         if r['throttled']:
                             print(f'        cgroup throttling in the window: {r["throttled"]}')
                         print(
