@@ -22,7 +22,8 @@ from ament_formation.core.control.agent import (
 )
 from ament_formation.core.control.coordinator import Coordinator, Publisher
 from ament_formation.core.control.rewiring import FormationGraph
-from ament_formation.core.control.stop import stop_gains, stop_torque, stop_torque_k, StopLead
+from ament_formation.core.control.stop import (delay_scale_k, stop_gains, stop_torque,
+                                               stop_torque_k, StopLead)
 from ament_formation.core.control.switching import KIND_ROBOT, MODE_C, MODE_MUTUAL, MODE_OBSTACLE
 from ament_formation.core.errors import ConfigError
 from ament_formation.core.model.dynamics import PlantCoeffs, rk4_step_k, robot_plant_k, RobotPlant
@@ -681,3 +682,65 @@ def test_stop_brings_the_wheels_to_rest():
             rk4_step_k(tuple(x), (t1, t2), (0.0, 0.0), (0.0, 0.0), (0.0, 0.0), dt, RobotPlant(*k))
         )
     assert abs(x[3]) < 1e-4 and abs(x[4]) < 1e-3
+
+
+def _stop_with_late_wheels(delay_s, scaled, seconds=3.0):
+    """The camera-loss stop law of the reference robot on the plant, its (v, omega) ``delay_s``
+    old (a sample held), commands every 10 ms: (|v|, |omega|) maxima over the last 0.5 s.
+    """
+    (k_v, e_v), (k_w, e_w) = stop_gains(GAINS, 0.8, 0.01)
+    k_w, e_w = k_w / K.d[0], e_w / K.d[0]
+    plant = RobotPlant(K.m_tilde[0], K.I_tilde[0], K.r[0], K.a[0], K.d[0], K.m_c[0])
+    s = delay_scale_k(0.3, k_v, e_v, k_w, e_w, delay_s - 0.02) if scaled else 1.0
+    dt, lag = 0.001, int(round(delay_s / 0.001))
+    x, history, tau, tail = (0.0, 0.0, 0.0, 0.1, 1.0), [], (0.0, 0.0), []
+    for n in range(int(seconds / dt)):
+        history.append(x)
+        if n % 10 == 0:
+            m = history[max(0, len(history) - 1 - lag)]
+            tau = stop_torque_k(m[3], m[4], plant, K.tau_max[0], 0.3 / s, k_v * s, e_v,
+                                k_w * s, e_w)
+        x = rk4_step_k(x, tau, (0.0, 0.0), (0.0, 0.0), (0.0, 0.0), dt, plant)
+        if n * dt >= seconds - 0.5:
+            tail.append((abs(x[3]), abs(x[4])))
+    return max(v for v, _ in tail), max(w for _, w in tail)
+
+
+@pytest.mark.parametrize('delay_s', [0.035, 0.1, 0.2])
+def test_the_stop_comes_to_rest_with_late_wheel_samples(delay_s):
+    """The stop law's loop closes through the wheels' telemetry; measured 70 ms late or more it
+    did not come to rest (docs/safety.md §7, "A late measurement"). With its rates scaled for the
+    sample's age it does; nothing changes for fresh samples.
+    """
+    v, w = _stop_with_late_wheels(delay_s, scaled=True)
+    assert v < 0.0025 and w < 0.025, (v, w)
+    if delay_s >= 0.1:  # unscaled, the same loop swings on: the scaling is what holds it
+        v0, w0 = _stop_with_late_wheels(delay_s, scaled=False)
+        assert w0 > 0.05, (v0, w0)
+
+
+def test_the_stop_scaling_leaves_fresh_samples_alone_and_shrinks_with_age():
+    (k_v, e_v), (k_w, e_w) = stop_gains(GAINS, 0.8, 0.01)
+    args = (0.3, k_v, e_v, k_w / K.d[0], e_w / K.d[0])
+    assert delay_scale_k(*args, 0.0) == 1.0 and delay_scale_k(*args, 0.014) == 1.0
+    assert 0.0 < delay_scale_k(*args, 0.1) < delay_scale_k(*args, 0.05) < 1.0
+
+
+def test_a_robot_whose_wheel_samples_are_late_brakes_gentler():
+    """The agent scales its camera-loss stop by the age of its newest wheel sample."""
+    def stop_torque_at(wheel_age_s):
+        rb = Robot(HEAD_ON, 0)
+        rb.start((0.0, 0.6, 0.0), v=0.1)
+        for k in range(1, 60):
+            now = T0 + 0.01 * k
+            if rb.tick(now, camera=False) == 'stopped_pose':
+                break
+        last_wheel = now
+        while now < last_wheel + wheel_age_s - 1e-9:  # periods without a wheel sample
+            now += 0.01
+            rb.agent.tick(now)
+        assert rb.status == 'stopped_pose'
+        return np.abs(rb.torque).max()
+
+    fresh, late = stop_torque_at(0.0), stop_torque_at(0.06)
+    assert 0.0 < late < 0.75 * fresh, (fresh, late)

@@ -545,15 +545,37 @@ class _Run:
             self.stop_reason = {'name': 'multihost', 'detail': str(err)}
             self.say(f'FAILED: {err}')
 
+    def _camera(self) -> Path:
+        """The camera the world renders and the tracker reads: config/camera.yaml, or one fitted
+        to a scenario it does not see (core/scenario/coverage.py, as launch_sim.sh does).
+        """
+        from ament_formation.core.scenario import coverage
+        from ament_formation.core.vision.camera_model import load_camera_yaml, save_camera_yaml
+
+        path = config_dir() / 'camera.yaml'
+        setup = load_camera_yaml(path)
+        if not coverage.needs_fitting(setup, self.scenario):
+            return path
+        fitted = coverage.fit_camera(setup, coverage.scenario_extent_m(self.scenario))
+        out = save_camera_yaml(fitted, self.out / 'camera.yaml')
+        self.say(f'the simulated camera is fitted to the scenario ({fitted.camera.width_px}x'
+                 f'{fitted.camera.height_px} px): {out}')
+        return out
+
     def _execute(self) -> None:
         a, sc = self.args, str(self.scenario_path)
         params = config_dir() / 'params'
+        camera = self._camera()
+        base_params = self.out / 'base_params.yaml'
+        base_params.write_text('formation_tracker:\n  ros__parameters:\n'
+                               f'    camera_config: {json.dumps(str(camera))}\n')
         self._start(
             'world',
             'camera',
             [_program('formation_world'), '--ros-args', '--params-file',
              str(params / 'formation_world.yaml'), '-p', f'scenario:={sc}',
-             '-p', f'pty_dir:={self.pty_dir}', '-p', 'speed_factor:=1.0'],
+             '-p', f'pty_dir:={self.pty_dir}', '-p', 'speed_factor:=1.0',
+             '-p', f'camera_config:={camera}'],
         )  # fmt: skip
         self._start(
             'recorder',
@@ -566,7 +588,8 @@ class _Run:
             'base',
             'camera',
             [str(script_file('launch_base.sh')), '--scenario', sc, '--run-dir',
-             str(self.out / 'base'), '--domain', str(self.domain)],
+             str(self.out / 'base'), '--domain', str(self.domain), '--params',
+             str(base_params)],
         )  # fmt: skip
         self._wait(
             "the world's ptys",

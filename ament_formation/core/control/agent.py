@@ -40,7 +40,8 @@ from ament_formation.core.control.estimator import (
 from ament_formation.core.control.law import goal_k, mode_row, robot_law_k, RobotTracking
 from ament_formation.core.control.law_params import LawParams
 from ament_formation.core.control.progress import leader_reference, new_progress, step, tabulate
-from ament_formation.core.control.stop import lead_k, stop_torque_k, StopK, StopLead
+from ament_formation.core.control.stop import (delay_scale_k, lead_k, stop_torque_k, StopK,
+                                               StopLead)
 from ament_formation.core.control.switching import (
     apply_assignment,
     MODE_C,
@@ -228,13 +229,14 @@ def _view(r, i, now, hold_s, fresh_s, heard, view, reported, plant_d):
 
 
 @njit(cache=True)
-def _brake(r, i, v, w, sk, coeffs, camera_loss, torque):
+def _brake(r, i, v, w, sk, coeffs, camera_loss, torque, age_s):
     """The controlled stop (camera loss: the stop lead's gains ``sk`` (15,); hold: the formation
-    law's) -> torque[r].
+    law's) -> torque[r], its rates scaled for (v, omega) ``age_s`` old (stop.delay_scale_k).
     """
     gv, ev_ = (sk[1], sk[2]) if camera_loss else (sk[13], sk[14])
-    t1, t2 = stop_torque_k(v, w, robot_plant_k(coeffs, i), coeffs[ROW_TAU_MAX, i], sk[0], gv,
-                           ev_, sk[5], sk[6])
+    s = delay_scale_k(sk[0], gv, ev_, sk[5], sk[6], age_s)
+    t1, t2 = stop_torque_k(v, w, robot_plant_k(coeffs, i), coeffs[ROW_TAU_MAX, i], sk[0] / s,
+                           gv * s, ev_, sk[5] * s, sk[6])
     torque[r, 0], torque[r, 1] = t1, t2
 
 
@@ -339,7 +341,7 @@ def agent_tick_k(now, st, sc, out):
         if _camera_lost(r, now, v, w, est.f[r, F_CAMERA_T], st.stop, sk, st.counters,
                         ak.pose_timeout_s):
             status[r] = STOPPED_POSE
-            _brake(r, i, v, w, sk, coeffs, True, torque)
+            _brake(r, i, v, w, sk, coeffs, True, torque, now - est.f[r, F_ODOM_T])
             continue
         t = now - st.start_s[r]
         if not t >= 0.0:  # NaN: no graph yet
@@ -347,7 +349,7 @@ def agent_tick_k(now, st, sc, out):
             continue
         if not now - st.coord_s[r] <= ak.coordinator_timeout_s or st.halt[r] > 0:
             status[r] = st.halt[r] if st.halt[r] > 0 else STOPPED_COORDINATOR
-            _brake(r, i, v, w, sk, coeffs, False, torque)
+            _brake(r, i, v, w, sk, coeffs, False, torque, now - est.f[r, F_ODOM_T])
             continue
         _view(r, i, now, ak.hold_s, ak.fresh_s,
               (st.stamp, st.heard_x, st.heard_a, st.rep_mode, st.rep_tgt, st.rep_sdir),
@@ -355,7 +357,7 @@ def agent_tick_k(now, st, sc, out):
         par = st.parent[r, i]
         if par >= 0 and not known[r, par]:
             status[r] = HOLD_PARENT
-            _brake(r, i, v, w, sk, coeffs, False, torque)
+            _brake(r, i, v, w, sk, coeffs, False, torque, now - est.f[r, F_ODOM_T])
             continue
         status[r] = RUNNING
         obstacle_states(t, o[0], o[1], o[2], o[3], o[4], o[5], ob.c, ob.v, ob.a, ob.phi,

@@ -95,6 +95,27 @@ on v [m/s^2, m/s] and omega [rad/s^2, rad/s] (``gain_*``, ``eps_*``, the disturb
 the hold-parent stop (the formation law's K and boundary layer, ``hold_*``; omega as above)."""
 
 
+# The stop law closes its loop through the wheels' telemetry: the (v, omega) it brakes is that of
+# the newest wheel sample, as old as that sample, and its command takes STOP_LOOP_LAG_S more to
+# act (DDS, the bridge, the serial line, the board's 10 ms step). A loop of rate c (1/T + K/eps,
+# 23.3 /s) delayed by tau is stable only for c tau < pi/2 and rings from about 1: integrated on the
+# plant, the stop came to rest with the measurement up to 50 ms old, and not at all from 70 ms
+# (|omega| swinging up to 0.35 rad/s at 70 ms, 1.1 rad/s at 150 ms) -- what a loaded robot
+# computer or a stalled serial link give. So the rates are scaled by delay_scale_k: c tau is kept
+# at most STOP_DELAY_MARGIN (docs/safety.md §7, "A late measurement"); with fresh samples (age up
+# to 14 ms) nothing changes.
+STOP_LOOP_LAG_S = 0.02
+STOP_DELAY_MARGIN = 0.8
+
+
+@njit(cache=True)
+def delay_scale_k(stop_time_s, gain_v, eps_v, gain_w, eps_w, age_s):
+    """Factor (0, 1] for the stop law's rates when its (v, omega) is ``age_s`` old."""
+    rate = 1.0 / stop_time_s + max(gain_v / eps_v, gain_w / eps_w)
+    loop = rate * (max(age_s, 0.0) + STOP_LOOP_LAG_S)
+    return 1.0 if loop <= STOP_DELAY_MARGIN else STOP_DELAY_MARGIN / loop
+
+
 @njit(cache=True)
 def stop_torque_k(v, w, plant, tau_max, stop_time_s, gain_v, eps_v, gain_w, eps_w):
     """:func:`stop_torque` of one robot (its (v, omega), plant and gains per unit of its own
