@@ -214,8 +214,9 @@ class DiagProbe:
 class RobotInputs:
     """What a robot's computer receives from the rest of the lab, published from this process:
     its camera pose at 30 fps (``robot_<rid>/pose``, capture stamp 20 ms old), its parent's state
-    and commanded acceleration at 100 Hz, the parent's camera pose and mode, and
-    ``/formation/graph`` with the mission start; plus a probe of the controllers' diagnostics.
+    and commanded acceleration at 100 Hz, the parent's camera pose and mode,
+    ``/formation/graph`` with the mission start and the coordinator's (empty) decisions every
+    second; plus a probe of the controllers' diagnostics.
     """
 
     def __init__(self, probe: DiagProbe, scenario: Path, rid: int):
@@ -245,6 +246,9 @@ class RobotInputs:
         )
         self.pub_mode = n.create_publisher(String, f'/robot_{self.parent}/mode', QOS_CONTROL)
         self.pub_graph = n.create_publisher(String, '/formation/graph', QOS_GRAPH)
+        # the coordinator's decisions (none) every second, as formation_coordinator republishes
+        # them: without them the controller stops (stopped_coordinator, coordinator_timeout_s)
+        self.pub_encounters = n.create_publisher(String, '/formation/encounters', QOS_GRAPH)
         now = self.now_s()
         parents = {r.id: fg.original_parent.get(r.id) for r in sc.robots}
         offsets = {
@@ -286,6 +290,9 @@ class RobotInputs:
                 msg.pose.position.x, msg.pose.position.y = x, y
                 msg.pose.orientation.z, msg.pose.orientation.w = math.sin(th / 2), math.cos(th / 2)
                 self.pub_pose[k].publish(msg)
+        if self.ticks % 100 == 1:
+            self.pub_encounters.publish(m.encounters_msg(m.EncountersMessage(
+                revision=1, assignments={}, rates={}, stamp_s=now)))
         if self.ticks % 100 == 0:
             self.pub_mode.publish(
                 m.mode_msg(mode='coordination', target=None, direction=None, avoiding=False)
