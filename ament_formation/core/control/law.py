@@ -44,14 +44,14 @@ target, ``park_at`` [s] when the S6.5 parking factor applies from.
 """
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def mode_row(m, i):
     """:data:`RobotMode` of row i of ``m`` (:data:`Modes`)."""
     return RobotMode(m.mode[i], m.tgt[i], m.sdir[i], m.t_entry[i], (m.wc[i, 0], m.wc[i, 1]),
                      (m.wtgt[i, 0], m.wtgt[i, 1]), m.park_at[i])
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def _target_k(i, md, k, x, pd, acmd, rbody, ob, prm):
     """The avoidance target of robot i: (c, c_dot, c_ddot, phi, phi_dot, phi_ddot, r1, r2, v_tan)
     of obstacle k (S6) or of robot k (S7: its keep-out circle R_aa).
@@ -65,7 +65,7 @@ def _target_k(i, md, k, x, pd, acmd, rbody, ob, prm):
             prm.agent_tangential_speed_mps)
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def _formation_field(i, x, pd, acmd, track, prm, vmax, amax):
     """S4 field of robot i -> (vdx, vdy, vddx, vddy): a leader tracks r(s) (S17), a follower
     p_j + delta with its parent's velocity and commanded acceleration as feed-forward, bounded
@@ -122,14 +122,16 @@ def _avoidance_field(t, p, target, track, state, prm, vmax, amax):
 
 # implements: S3.2
 @njit(cache=True, inline='always')
-def robot_law_k(i, t, x, pd, acmd, rbody, coeffs, ob, nbrs, orows, track, state, prm):
+def robot_law_k(i, t, x, pd, acmd, rbody, coeffs, ob, nbrs, orows, track, state, prm,
+                cons=None):
     """Torque of robot i at time ``t`` [s] in its mode (S3.2 with the mode's V_d, V_d_dot).
 
     x (N, 5) states, pd (N, 2) point velocities, acmd (N, 2) commanded point accelerations (a
     parent's of this sample, S4), rbody (N,), coeffs (7, N) plant rows; ``ob`` the obstacles
     (ObstacleSnapshot) at t; ``nbrs`` rows of the robots the barrier checks, ``orows`` rows of
     the obstacles it checks (the rest are out of its reach); ``track``
-    :data:`RobotTracking`, ``state`` :data:`RobotMode`; ``prm`` LawK. Returns (tau_left,
+    :data:`RobotTracking`, ``state`` :data:`RobotMode`; ``prm`` LawK; ``cons`` the barrier's
+    scratch rows (core/control/safety.py :func:`safe_field`; None: its own). Returns (tau_left,
     tau_right, sigma_x, sigma_y, saturated, a_cmd_x, a_cmd_y, w_c_dot_x, w_c_dot_y).
     """
     vmax = prm.speed_limit_mps
@@ -142,7 +144,12 @@ def robot_law_k(i, t, x, pd, acmd, rbody, coeffs, ob, nbrs, orows, track, state,
         p = (x[i, 0], x[i, 1], pd[i, 0], pd[i, 1])
         vdx, vdy, vddx, vddy, wdx, wdy = _avoidance_field(t, p, target, track, state, prm, vmax,
                                                           amax)
-    vdx, vdy, vddx, vddy = safe_field(i, x, pd, nbrs, orows, vdx, vdy, vddx, vddy, ob, rbody, prm)
+    if cons is None:
+        vdx, vdy, vddx, vddy = safe_field(i, x, pd, nbrs, orows, vdx, vdy, vddx, vddy, ob, rbody,
+                                          prm)
+    else:
+        vdx, vdy, vddx, vddy = safe_field(i, x, pd, nbrs, orows, vdx, vdy, vddx, vddy, ob, rbody,
+                                          prm, cons)
     k = prm.switching_gain_mps2
     t1, t2, sx, sy, sat, acx, acy = smc_torque_k(
         x[i, 2], x[i, 3], x[i, 4], vdx, vdy, vddx, vddy, robot_plant_k(coeffs, i),
@@ -152,7 +159,7 @@ def robot_law_k(i, t, x, pd, acmd, rbody, coeffs, ob, nbrs, orows, track, state,
 
 
 # implements: S8.3/goal
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def goal_k(i, x, pd, ref, orig_parent, orig_offset, prm):
     """S8.3 item 1: the formation goal of robot i and the coordination field V_c = g_dot -
     Phi(p - g) -> (gx, gy, gdx, gdy, vcx, vcy). Leaders: g = r(s) (``ref`` row i); followers:

@@ -30,6 +30,7 @@ from numba import njit
 import numpy as np
 
 from ament_formation.core.model.ellipse import h_value
+from ament_formation.core.model.obstacles import obstacle_pairs
 from ament_formation.core.model.paths import tabulated_reference_k
 
 REFERENCE_STEP_S = 0.01  # grid of the tabulated references in progress s [s]
@@ -128,20 +129,60 @@ def goal_free(gx, gy, ob, prm):
 
 
 @njit(cache=True)
+def _goal_free_among(gx, gy, ob, prm, rows):
+    """:func:`goal_free` over the obstacle rows ``rows`` only (those whose Q's bounding square
+    holds the goal: the others pass its first test).
+    """
+    kap = prm.protected_scale
+    for j in rows:
+        if h_value(gx - ob.c[j, 0], gy - ob.c[j, 1], ob.phi[j], kap * ob.axes[j, 0],
+                   kap * ob.axes[j, 1]) < 0.0:
+            return False
+    return True
+
+
+@njit(cache=True)
+def _free_goals(goal, ob, prm):
+    """(N,) bool: :func:`goal_free` of every row's goal; for many robots and obstacles by a grid
+    of the obstacles' bounding squares of Q (the same squares, so the same answers).
+    """
+    n, m = goal.shape[0], ob.c.shape[0]
+    free = np.ones(n, dtype=np.bool_)
+    if n * m <= 256:
+        for i in range(n):
+            free[i] = goal_free(goal[i, 0], goal[i, 1], ob, prm)
+        return free
+    big = np.empty(m)
+    for j in range(m):
+        big[j] = 1.01 * prm.protected_scale * max(ob.axes[j, 0], ob.axes[j, 1])
+    pairs = obstacle_pairs(goal, ob.c, big)  # |g - c| <= big in x and y: goal_free's test
+    q = 0
+    while q < pairs.shape[0]:
+        i = pairs[q, 0]
+        r = q
+        while r < pairs.shape[0] and pairs[r, 0] == i:
+            r += 1
+        free[i] = _goal_free_among(goal[i, 0], goal[i, 1], ob, prm, pairs[q:r, 1])
+        q = r
+    return free
+
+
+@njit(cache=True)
 def team_errors(p, goal, team, known, ob, prm, out):
     """S17.1: E of every team -> ``out`` (N,) at the leader rows: the largest |p_i - g_i| of its
     known robots with a free goal; -E when the leader's own goal is not free (the reference must
     carry it out of the obstacle's Q, the followers' goals hang on the parked leader).
     """
     out[:] = 0.0
+    free = _free_goals(goal, ob, prm)
     for i in range(p.shape[0]):
-        if not known[i] or not goal_free(goal[i, 0], goal[i, 1], ob, prm):
+        if not known[i] or not free[i]:
             continue
         e = math.hypot(p[i, 0] - goal[i, 0], p[i, 1] - goal[i, 1])
         if e > out[team[i]]:
             out[team[i]] = e
     for i in range(p.shape[0]):
-        if team[i] == i and not goal_free(goal[i, 0], goal[i, 1], ob, prm):
+        if team[i] == i and not free[i]:
             out[i] = -out[i]
 
 

@@ -50,7 +50,7 @@ def clip_norm(vx, vy, cap):
     return vx, vy
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def accel_limit(coeffs, i):
     """Largest point acceleration the torque limit allows, 2 tau_max / (m~ r) [m/s^2] (S2.2)."""
     return 2.0 * coeffs[ROW_TAU_MAX, i] / (coeffs[ROW_M_TILDE, i] * coeffs[ROW_R, i])
@@ -93,7 +93,7 @@ def _barrier(vdx, vdy, vddx, vddy, pdx, pdy, nx, ny, bvx, bvy, allowed, lag, bra
     return vdx, vdy, vddx, vddy
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def _obstacle_gap(px, py, oc, ov, ophi, ophid, oaxes, j):
     """(gap, nx, ny, bvx, bvy) of obstacle j's boundary P seen from p: the first-order distance
     (k - 1)/|grad k| (k: the level of p in P's similar ellipses), the normal grad k/|grad k| and
@@ -116,7 +116,7 @@ def _obstacle_gap(px, py, oc, ov, ophi, ophid, oaxes, j):
     return (k - 1.0) / gn, gx / gn, gy / gn, ov[j, 0] - ophid[j] * zy, ov[j, 1] + ophid[j] * zx
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def _obstacle_near(px, py, oc, ov, ophi, ophid, oaxes, j, prm):
     """Obstacle j's boundary P as the barrier sees it from p: (near, gap, nx, ny, bvx, bvy), near
     when P is within ``safety_range_m``, gap the distance to P less the margin, scaled to the
@@ -263,12 +263,20 @@ def _escape(vx0, vy0, p, rb, orows, oc, ov, ophi, ophid, oaxes, a_brk, prm):
     return best < math.inf, bx, by
 
 
+@njit(cache=True, inline='always')
+def _same(a, b):
+    """Whether a and b are the same float, the sign of a zero included (NaN: never)."""
+    return a == b and math.copysign(1.0, a) == math.copysign(1.0, b)
+
+
 # implements: S15
 @njit(cache=True, inline='always')
-def safe_field(i, x, pd, nbrs, orows, vdx, vdy, vddx, vddy, ob, rbody, prm):
+def safe_field(i, x, pd, nbrs, orows, vdx, vdy, vddx, vddy, ob, rbody, prm, cons=None):
     """V_d, V_d_dot of robot i after the speed limit and the braking barrier (module docstring)
     against the obstacles of rows ``orows`` of ``ob`` (ObstacleSnapshot), the robots of ``nbrs``
-    (rows of x, pd) and the floor. Returns (vdx, vdy, vddx, vddy).
+    (rows of x, pd) and the floor. ``cons``: scratch rows (at least len(nbrs) + 4 + len(orows),
+    5) to use instead of a new array (a caller running many robots a step allocates them once).
+    Returns (vdx, vdy, vddx, vddy).
     """
     vdx, vdy = clip_norm(vdx, vdy, prm.speed_limit_mps)
     vx0, vy0 = vdx, vdy
@@ -277,14 +285,19 @@ def safe_field(i, x, pd, nbrs, orows, vdx, vdy, vddx, vddy, ob, rbody, prm):
     px, py, pdx, pdy = x[i, 0], x[i, 1], pd[i, 0], pd[i, 1]
     rb = rbody[i]
     walls = near_floor(px, py, rb, prm)
-    cons = np.empty((nbrs.shape[0] + 4 + orows.shape[0], 5))
+    if cons is None:
+        cons = np.empty((nbrs.shape[0] + 4 + orows.shape[0], 5))
     nr = _robot_rows(i, x, pd, nbrs, rbody, a_brk, prm, cons)  # rows: robots, walls, obstacles
     nw = _wall_rows(px, py, rb, a_brk, prm, cons, nr) if walls else nr
     no = _obstacle_rows(px, py, orows, ob, a_brk, prm, cons, nw) if orows.shape[0] else nw
     if no == 0:  # nothing within reach: the speed limit only
         return vdx, vdy, vddx, vddy
     for _ in range(PASSES):  # alternating projections onto the robots', walls' and obstacles'
-        vdx, vdy, vddx, vddy = _project(cons, 0, no, vdx, vdy, vddx, vddy, pdx, pdy, lag, False)
+        ux, uy, uxx, uyy = _project(cons, 0, no, vdx, vdy, vddx, vddy, pdx, pdy, lag, False)
+        same = _same(ux, vdx) and _same(uy, vdy) and _same(uxx, vddx) and _same(uyy, vddy)
+        vdx, vdy, vddx, vddy = ux, uy, uxx, uyy
+        if same:  # a pass that changed nothing: every later pass would leave it as it is
+            break
     qx, qy, _a, _b = _project(cons, 0, nr, vdx, vdy, vddx, vddy, pdx, pdy, lag, False)
     squeezed = abs(qx - vdx) + abs(qy - vdy)
     if walls:

@@ -310,15 +310,15 @@ def parked(px, py, gx, gy, cx, cy, phi, r1, r2, prm):
 
 
 @njit(cache=True)
-def obstacle_candidate(i, t, robots, ob, m, prm):
-    """Guard ``obstacle_threat`` of robot i over every obstacle (S8.1, S14.2) -> (best
-    candidate j or -1, its emergency flag, its h_L, emergency and h_L of the obstacle the robot
-    is on now).
+def obstacle_candidate(i, t, robots, ob, m, prm, rows):
+    """Guard ``obstacle_threat`` of robot i over the obstacle rows ``rows`` (ascending; at least
+    those of :func:`robot_transitions_among`) (S8.1, S14.2) -> (best candidate j or -1, its
+    emergency flag, its h_L, emergency and h_L of the obstacle the robot is on now).
     """
     p, pd = robots.p, robots.pd
     best, b_em, b_hem, b_lam, b_hl = -1, False, INF, INF, INF
     cur_em, cur_hl = False, INF
-    for j in range(ob.c.shape[0]):
+    for j in rows:
         zx = p[i, 0] - ob.c[j, 0]
         zy = p[i, 1] - ob.c[j, 1]
         on_j = m.mode[i] == MODE_OBSTACLE and m.tgt[i] == j
@@ -382,6 +382,15 @@ def _reverse_on_obstacle(i, j, t, robots, ob, m, prm, ev, nev):
     return True, enter(i, t, MODE_OBSTACLE, j, s, m, ev, nev)
 
 
+@njit(cache=True)
+def threat_radius(ob, prm):
+    """(M,) [m] per obstacle: the half-side of a square about its centre beyond which
+    :func:`obstacle_candidate` skips it (Q's reach ``protected_scale`` r1, widened by 1e-9
+    relative so that no rounding of the squared test falls outside).
+    """
+    return prm.protected_scale * ob.axes[:, 0] * (1.0 + 1e-9) + 1e-12
+
+
 # implements: S8, S8.7
 @njit(cache=True)
 def robot_transitions(i, t, robots, ob, m, prm, ev, nev):
@@ -390,7 +399,18 @@ def robot_transitions(i, t, robots, ob, m, prm, ev, nev):
     (:data:`Modes`, row i updated in place; a mutual partner demoted, S8.3). Returns the event
     count.
     """
-    jn, em_n, hl_n, cur_em, cur_hl = obstacle_candidate(i, t, robots, ob, m, prm)
+    return robot_transitions_among(i, t, robots, ob, m, prm, ev, nev,
+                                   np.arange(ob.c.shape[0]))
+
+
+@njit(cache=True)
+def robot_transitions_among(i, t, robots, ob, m, prm, ev, nev, orows):
+    """:func:`robot_transitions` with the obstacle rows ``orows`` (ascending) the guard
+    ``obstacle_threat`` tests: every obstacle whose square of :func:`threat_radius` holds the
+    robot, and the one it is on (the others cannot pass the guard; the simulator finds them by a
+    grid once per decision instead of testing all M for each robot).
+    """
+    jn, em_n, hl_n, cur_em, cur_hl = obstacle_candidate(i, t, robots, ob, m, prm, orows)
     md = m.mode[i]
     if md == MODE_OBSTACLE:
         j = m.tgt[i]

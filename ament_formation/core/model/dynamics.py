@@ -148,7 +148,7 @@ RobotPlant.__doc__ = """One robot's plant coefficients as :func:`rk4_step_k` tak
 the fields of :class:`PlantCoeffs` for one robot without the torque limit)."""
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def robot_plant_k(coeffs, i):
     """:data:`RobotPlant` of robot column ``i`` of the (7, N) coefficient rows
     [m~, I~, r, a, d, m_c, tau_max] (the torque limit, row 6, is not part of it).

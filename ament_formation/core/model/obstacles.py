@@ -379,3 +379,56 @@ def _first_overlaps(times, c0, vel, amp, omega, phi0, phid, axes, pairs, cos_t, 
             ):  # fmt: skip
                 out[p] = k
                 break
+
+
+@njit(cache=True)
+def obstacle_pairs(p, oc, radius):
+    """(robot row, obstacle row) of every obstacle j whose centre is within ``radius[j]`` [m] of
+    robot p in x and in y (a square), by a uniform grid of the obstacles (near-linear in N + M):
+    p (N, 2), oc (M, 2) -> (P, 2) int.
+    """
+    n, m = p.shape[0], oc.shape[0]
+    out = np.empty((max(16, 4 * n), 2), dtype=np.int64)
+    if n == 0 or m == 0:
+        return out[:0]
+    cell = max(radius.max(), 1e-6)
+    x0, y0 = oc[:, 0].min(), oc[:, 1].min()
+    ix = np.empty(m, dtype=np.int64)
+    iy = np.empty(m, dtype=np.int64)
+    for j in range(m):
+        ix[j] = int((oc[j, 0] - x0) / cell)
+        iy[j] = int((oc[j, 1] - y0) / cell)
+    nx, ny = ix.max() + 1, iy.max() + 1
+    if nx * ny > 16 * m + 4096:  # sparse, huge arena: one row of cells per x
+        ny = 1
+        iy[:] = 0
+    start = np.zeros(nx * ny + 1, dtype=np.int64)
+    for j in range(m):
+        start[ix[j] * ny + iy[j] + 1] += 1
+    for c in range(nx * ny):
+        start[c + 1] += start[c]
+    fill = start[:-1].copy()
+    members = np.empty(m, dtype=np.int64)
+    for j in range(m):
+        c = ix[j] * ny + iy[j]
+        members[fill[c]] = j
+        fill[c] += 1
+    cnt = 0
+    for i in range(n):
+        cx0 = int(math.floor((p[i, 0] - x0) / cell))
+        cy0 = int(math.floor((p[i, 1] - y0) / cell)) if ny > 1 else 0
+        for cx in range(max(0, cx0 - 1), min(nx, cx0 + 2)):
+            for cy in range(max(0, cy0 - 1), min(ny, cy0 + 2)):
+                c = cx * ny + cy
+                for q in range(start[c], start[c + 1]):
+                    j = members[q]
+                    if abs(p[i, 0] - oc[j, 0]) <= radius[j] and abs(
+                            p[i, 1] - oc[j, 1]) <= radius[j]:
+                        if cnt >= out.shape[0]:
+                            grown = np.empty((2 * out.shape[0], 2), dtype=np.int64)
+                            grown[:cnt] = out[:cnt]
+                            out = grown
+                        out[cnt, 0] = i
+                        out[cnt, 1] = j
+                        cnt += 1
+    return out[:cnt]

@@ -29,7 +29,7 @@ from numba import njit
 import numpy as np
 
 from ament_formation.core.control.arbitration import candidate_pairs, coordinate, new_teams
-from ament_formation.core.control.law import goals_and_fields, mode_row, robot_law_k, RobotTracking
+from ament_formation.core.control.law import goal_k, mode_row, robot_law_k, RobotTracking
 from ament_formation.core.control.law_params import LawParams
 from ament_formation.core.control.progress import (
     at,
@@ -44,8 +44,9 @@ from ament_formation.core.control.switching import (
     MODE_NAMES,
     MODE_OBSTACLE,
     new_modes,
-    robot_transitions,
+    robot_transitions_among,
     Robots,
+    threat_radius,
 )
 from ament_formation.core.model.disturbance import (
     Disturbance,
@@ -62,6 +63,7 @@ from ament_formation.core.model.dynamics import (
 )
 from ament_formation.core.model.obstacles import (
     obstacle_arrays,
+    obstacle_pairs,
     obstacle_states,
     ObstacleField,
     ObstacleSnapshot,
@@ -119,59 +121,6 @@ def _csr(n, pairs):
 
 
 @njit(cache=True)
-def obstacle_pairs(p, oc, radius):
-    """(robot row, obstacle row) of every obstacle j whose centre is within ``radius[j]`` [m] of
-    robot p in x and in y (a square), by a uniform grid of the obstacles (near-linear in N + M):
-    p (N, 2), oc (M, 2) -> (P, 2) int.
-    """
-    n, m = p.shape[0], oc.shape[0]
-    out = np.empty((max(16, 4 * n), 2), dtype=np.int64)
-    if n == 0 or m == 0:
-        return out[:0]
-    cell = max(radius.max(), 1e-6)
-    x0, y0 = oc[:, 0].min(), oc[:, 1].min()
-    ix = np.empty(m, dtype=np.int64)
-    iy = np.empty(m, dtype=np.int64)
-    for j in range(m):
-        ix[j] = int((oc[j, 0] - x0) / cell)
-        iy[j] = int((oc[j, 1] - y0) / cell)
-    nx, ny = ix.max() + 1, iy.max() + 1
-    if nx * ny > 16 * m + 4096:  # sparse, huge arena: one row of cells per x
-        ny = 1
-        iy[:] = 0
-    start = np.zeros(nx * ny + 1, dtype=np.int64)
-    for j in range(m):
-        start[ix[j] * ny + iy[j] + 1] += 1
-    for c in range(nx * ny):
-        start[c + 1] += start[c]
-    fill = start[:-1].copy()
-    members = np.empty(m, dtype=np.int64)
-    for j in range(m):
-        c = ix[j] * ny + iy[j]
-        members[fill[c]] = j
-        fill[c] += 1
-    cnt = 0
-    for i in range(n):
-        cx0 = int(math.floor((p[i, 0] - x0) / cell))
-        cy0 = int(math.floor((p[i, 1] - y0) / cell)) if ny > 1 else 0
-        for cx in range(max(0, cx0 - 1), min(nx, cx0 + 2)):
-            for cy in range(max(0, cy0 - 1), min(ny, cy0 + 2)):
-                c = cx * ny + cy
-                for q in range(start[c], start[c + 1]):
-                    j = members[q]
-                    if abs(p[i, 0] - oc[j, 0]) <= radius[j] and abs(
-                            p[i, 1] - oc[j, 1]) <= radius[j]:
-                        if cnt >= out.shape[0]:
-                            grown = np.empty((2 * out.shape[0], 2), dtype=np.int64)
-                            grown[:cnt] = out[:cnt]
-                            out = grown
-                        out[cnt, 0] = i
-                        out[cnt, 1] = j
-                        cnt += 1
-    return out[:cnt]
-
-
-@njit(cache=True)
 def neighbour_lists(p, known, rbody, prm, oc, obstacles, horizon_s):
     """:data:`Neighbours` of every robot: the known robots whose keep-out circle is within the
     barrier's range, plus ``NEIGHBOUR_SLACK_M`` for the motion until the next decision; the
@@ -201,6 +150,25 @@ def neighbour_lists(p, known, rbody, prm, oc, obstacles, horizon_s):
 
 
 @njit(cache=True)
+def _barrier_rows_needed(nb):
+    """Rows the barrier of any robot may fill with :data:`Neighbours` ``nb``: its robots, the
+    four floor edges, its obstacles (core/control/safety.py :func:`safe_field`).
+    """
+    most = 0
+    for i in range(nb.start.shape[0] - 1):
+        most = max(most, nb.start[i + 1] - nb.start[i] + 4 + nb.ob_start[i + 1] - nb.ob_start[i])
+    return most
+
+
+@njit(cache=True)
+def _barrier_rows(nb):
+    """Scratch rows of the barrier shared by every robot of a step (one allocation, not one per
+    robot and step), with room to spare.
+    """
+    return np.empty((2 * _barrier_rows_needed(nb) + 16, 5))
+
+
+@njit(cache=True, inline='always')  # per step: no call with its many arrays
 def _references(t, robots, graph, mission):
     """The leaders' references r, r_dot, r_ddot at t (within the progress interval begun at the
     last decision) into ``robots.ref``.
@@ -213,6 +181,62 @@ def _references(t, robots, graph, mission):
 
 
 @njit(cache=True)
+def _threat_rows(p, ob, m, prm):
+    """CSR lists (start, rows) of the obstacle rows each robot's guard ``obstacle_threat`` tests
+    (core/control/switching.py :func:`robot_transitions_among`): the obstacles whose square of
+    :func:`threat_radius` holds the robot (a grid, near-linear in N + M), and the one it is on,
+    ascending and once each.
+    """
+    n, m_ob = p.shape[0], ob.c.shape[0]
+    if n * m_ob <= 256:  # a few: every robot tests every obstacle (no grid to build)
+        return np.arange(n + 1) * m_ob, np.arange(n * m_ob) % max(m_ob, 1)
+    pairs = obstacle_pairs(p, ob.c, threat_radius(ob, prm))
+    on = 0
+    for i in range(n):
+        on += m.mode[i] == MODE_OBSTACLE
+    both = np.empty((pairs.shape[0] + on, 2), dtype=np.int64)
+    both[:pairs.shape[0]] = pairs
+    q = pairs.shape[0]
+    for i in range(n):
+        if m.mode[i] == MODE_OBSTACLE:
+            both[q, 0], both[q, 1] = i, m.tgt[i]
+            q += 1
+    start, idx = _csr(n, both)
+    out = np.zeros(n + 1, dtype=np.int64)
+    cnt = 0
+    for i in range(n):  # insertion sort of each short list, then each row once, compacted
+        for a in range(start[i] + 1, start[i + 1]):
+            v = idx[a]
+            b = a - 1
+            while b >= start[i] and idx[b] > v:
+                idx[b + 1] = idx[b]
+                b -= 1
+            idx[b + 1] = v
+        for a in range(start[i], start[i + 1]):
+            if a == start[i] or idx[a] != idx[a - 1]:
+                idx[cnt] = idx[a]
+                cnt += 1
+        out[i + 1] = cnt
+    return out, idx[:cnt]
+
+
+@njit(cache=True, inline='always')  # per step: no call with its many arrays
+def _goals(every, robots, graph, m, prm):
+    """The formation goals g, g_dot and the fields V_c (core/control/law.py :func:`goal_k`) of
+    every robot when ``every`` (a decision reads them all, the record the goals), else of the
+    robots off coordination only (the law reads a goal in an avoidance mode alone, S6.5).
+    """
+    x, pd = robots.x, robots.pd
+    for i in range(x.shape[0]):
+        if every or m.mode[i] != MODE_C:
+            gx, gy, gdx, gdy, vcx, vcy = goal_k(i, x, pd, robots.ref, graph.orig_parent,
+                                                graph.orig_offset, prm)
+            robots.goal[i, 0], robots.goal[i, 1] = gx, gy
+            robots.goal_dot[i, 0], robots.goal_dot[i, 1] = gdx, gdy
+            robots.vc[i, 0], robots.vc[i, 1] = vcx, vcy
+
+
+@njit(cache=True)
 def _decide(t, robots, graph, plant, ob, m, teams, mission, prm, ev):
     """One decision: each robot's table (S8.7), then the coordinator's (S8.8) with the teams'
     progress (S17). Returns the event count.
@@ -221,8 +245,13 @@ def _decide(t, robots, graph, plant, ob, m, teams, mission, prm, ev):
                  graph.team, plant.rbody, graph.parent, graph.slot, robots.known,
                  graph.orig_parent)
     nev = 0
+    start, rows = _threat_rows(dec.p, ob, m, prm)
     for i in range(robots.x.shape[0]):
-        nev = robot_transitions(i, t, dec, ob, m, prm, ev, nev)
+        # no obstacle to test: a robot off obstacles has nothing to do (its table's rows all
+        # start from an obstacle, R1-R4), and a call per robot costs its many arguments
+        if start[i + 1] > start[i]:
+            nev = robot_transitions_among(i, t, dec, ob, m, prm, ev, nev,
+                                          rows[start[i]:start[i + 1]])
     nev, done = coordinate(t, t - mission.t_dec[0], dec, ob, m, teams, mission.progress,
                            mission.refs, graph.leaders, robots.e_team, prm, ev, nev)
     mission.t_dec[0] = t
@@ -244,7 +273,7 @@ def _reach_record(reach, i, t, done):
         reach.count[0] = r + 1
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')  # per step: no call with its many arrays
 def _reaching(reach, i, t, sx, sy, eps):
     """S3.4: sigma0 at a pending switch, the end of the phase when ||sigma||_inf <= eps."""
     sig = max(abs(sx), abs(sy))
@@ -283,7 +312,7 @@ def _record(rk, robots, mode, ob, rec, mission):
         rec.ob_phi[rk, j] = ob.phi[j]
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')  # per step: no call with its many arrays
 def _plant_step(robots, plant, d_sin, d_cos, g_prev, dt):
     """RK4 with ZOH torques and g at t, t + dt/2, t + dt (S2.2) for every robot."""
     x = robots.x
@@ -331,6 +360,7 @@ def _run_segment(span, skip_decide, clock, robots, graph, plant, obstacles, m, t
                     ob.phi_ddot)
     nb = neighbour_lists(x[:, :2].copy(), robots.known, plant.rbody, prm, ob.c, obstacles,
                          horizon)
+    cons = _barrier_rows(nb)
     rk = rk0
     ended = mission.end_s[0] == mission.end_s[0]
     for kk in range(k0, k_end):
@@ -344,12 +374,13 @@ def _run_segment(span, skip_decide, clock, robots, graph, plant, obstacles, m, t
             pd[i, 0], pd[i, 1] = point_velocity_k(x[i, 2], x[i, 3], x[i, 4],
                                                   plant.coeffs[ROW_D, i])
         _references(t, robots, graph, mission)
-        goals_and_fields(x, pd, robots.ref, graph.orig_parent, graph.orig_offset, prm,
-                         robots.goal, robots.goal_dot, robots.vc)
+        _goals(kk % dec_every == 0 or kk % rec_every == 0, robots, graph, m, prm)
         if kk % dec_every == 0 and not (skip_decide and kk == k0):
             nev = _decide(t, robots, graph, plant, ob, m, teams, mission, prm, ev)
             nb = neighbour_lists(x[:, :2].copy(), robots.known, plant.rbody, prm, ob.c,
                                  obstacles, horizon)
+            if cons.shape[0] < _barrier_rows_needed(nb):
+                cons = _barrier_rows(nb)
             if nev > 0:
                 return kk, rk, nev, EVENTS
             if not ended and mission.end_s[0] == mission.end_s[0]:
@@ -365,7 +396,7 @@ def _run_segment(span, skip_decide, clock, robots, graph, plant, obstacles, m, t
             t1, t2, sx, sy, sat, acx, acy, wdx, wdy = robot_law_k(
                 i, t, x, pd, robots.acmd, plant.rbody, plant.coeffs, ob,
                 nb.idx[nb.start[i]:nb.start[i + 1]], nb.ob_idx[nb.ob_start[i]:nb.ob_start[i + 1]],
-                track, mode_row(m, i), prm)
+                track, mode_row(m, i), prm, cons)
             robots.torque[i, 0] = t1
             robots.torque[i, 1] = t2
             robots.sat_flag[i] = sat
