@@ -16,7 +16,8 @@ reason its controller logged.
 What each shift should give (docs/multi-machine.md): within the controllers' bound (2 s) the run
 passes all its checks, the offsets estimated within ``CLOCK_ERROR_MAX_S``; beyond it that robot
 stops, ``stopped_clock``, because of the camera PC's clock, the other robots do not, and the run
-fails with that reason (a controlled stop is not a pass). The column ``as wanted`` says whether the run did that.
+fails with that reason (a controlled stop is not a pass). The column ``as wanted`` says whether
+the run did that.
 ``--control-gap-max``: passed on (the longest control-loop gap a run may show; default 0.2 s, the
 board's watchdog; a 2-core machine shared with other work needs more, as test/test_multihost.py
 allows 1 s); the longest gap of each run is in the table.
@@ -121,8 +122,10 @@ def row(shift: float, robot: int, r: dict, bound_s: float) -> dict:
     if abs(shift) > bound_s:
         stop = stops.get(str(robot)) or {}
         out['wanted'] = 'stopped_clock (camera PC clock) of that robot only, run failed'
-        out['as_wanted'] = bool(stop) and not rep.get('ok') and set(stops) == {str(robot)} and any(
-            f'the clock of {s}' in (stop.get('reason') or '') for s in ('camera', 'coordinator'))
+        out['as_wanted'] = (
+            bool(stop) and not rep.get('ok') and set(stops) == {str(robot)}
+            and any(f'the clock of {s}' in (stop.get('reason') or '')
+                    for s in ('camera', 'coordinator')))
     else:
         out['wanted'] = 'all checks pass, offsets estimated'
         out['as_wanted'] = bool(rep.get('ok')) and (
