@@ -345,6 +345,38 @@ def test_r1_a_robot_held_still_does_not_turn_into_a_pass_the_floor_closes():
     assert held(low) == ([('exit', -1.0), ('enter', 1.0)], 1.0)  # the pass is open
 
 
+def test_r1_a_moving_robot_turns_when_the_floor_closes_its_way_ahead_and_the_other_is_open():
+    # formation-s2-528: an obstacle moving toward a corner closed, after the entry, the arc a
+    # robot was on; sliding along the wall it kept "moving" and was never stalled, and was
+    # pressed off the floor. S16.2 now holds on the obstacle too, once T_min after the entry.
+    bar = obstacles({'axes': (0.3, 0.15), 'center': (1.5, 0.25)})
+    top, goal = (1.5, 0.415), (2.2, 0.3)  # counter-clockwise runs under the closed bottom
+    walled = LawParams(floor_m=(0.0, 3.0, 0.0, 2.5)).compiled()
+
+    def moving(t, prm, sense=1.0, t_entry=0.0):
+        m = on_bar(sense, t_entry)
+        held_since(m, 0, top, t - 0.5)  # the monitor re-anchored half a second ago
+        evs = robot_decision(t, m, one(top, (0.02, 0.0), goal=goal, goal_dot=(0.0, 0.0),
+                                       vc=(0.0, 0.0)), bar, 0, prm)
+        return [(e[2], e[5]) for e in evs], m.sdir[0]
+
+    t = walled.min_avoid_s
+    assert moving(t, walled) == ([('exit', 1.0), ('enter', -1.0)], -1.0)
+    assert moving(t - 0.01, walled) == ([], 1.0)  # not within T_min of the entry
+    assert moving(t, walled, sense=-1.0) == ([], -1.0)  # its way is the open one
+    assert moving(t, PRM) == ([], 1.0)  # no floor, no stall: it keeps its sense
+    both = LawParams(floor_m=(0.0, 3.0, 0.2, 2.5)).compiled()  # both ways closed: kept
+    assert moving(t, both) == ([], 1.0)
+    # another robot goes round the bar its way: one sense per obstacle (S14.6) keeps it
+    m = modes(2)
+    for i in (0, 1):
+        set_mode(m, i, MODE_OBSTACLE, 0, 1.0, 0.0)
+    held_since(m, 0, top, t - 0.5)
+    rb = robots([top, (1.1, 0.25)], [(0.02, 0.0), (0.0, -0.02)], goal=[goal, (0.5, 0.25)],
+                goal_dot=[(0.0, 0.0), (0.0, 0.0)], vc=[(0.0, 0.0), (0.0, 0.0)])
+    assert robot_decision(t, m, rb, bar, 0, walled) == [] and m.sdir[0] == 1.0
+
+
 # ------------------------------------------------------------------ the sense (S6.6, S14.6)
 
 

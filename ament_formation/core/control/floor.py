@@ -7,7 +7,8 @@ edges (infinite when undeclared). The law meets the floor three ways, all here:
   core/control/safety.py);
 * S16.2 a rotation sense whose limit-cycle arc to the goal would pass closer to an edge than a
   body radius plus the barrier gap is not chosen when the other sense's arc does not
-  (:func:`floor_side`, at an obstacle entry and at a reversal of the progress monitor);
+  (:func:`floor_side`, at an obstacle entry, at a reversal of the progress monitor, and on
+  the obstacle when the floor has closed the way ahead since the entry);
 * S16.3 a mutual pair's drift target keeps the circle the pair turns on inside the floor
   (:func:`drift_off_edges`).
 """
@@ -34,6 +35,12 @@ def floor_edges(px, py, rb, prm):
         (py - prm.floor_y_min_m - rb, 0.0, 1.0),
         (prm.floor_y_max_m - py - rb, 0.0, -1.0),
     )
+
+
+@njit(cache=True)
+def has_floor(prm):
+    """Whether the scenario declares a floor (its edges are finite)."""
+    return math.isfinite(prm.floor_x_max_m)
 
 
 @njit(cache=True)

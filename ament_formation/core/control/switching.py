@@ -13,8 +13,10 @@ The robot's table (S8.7), rows tried in this order each decision period:
 ====  ==========  ========================================  ===================================
 row   from        guard                                     to
 ====  ==========  ========================================  ===================================
-R1    A(j)        ``stalled`` and not ``parked`` and the    A(j), the other sense
-                  other way keeps to the floor
+R1    A(j)        not ``parked``, the other way keeps to    A(j), the other sense
+                  the floor, and ``stalled`` or (T_min
+                  after the entry, no other robot on j
+                  its way) the floor closes the way ahead
 R2    A(j)        ``more_urgent(j')``                       A(j') (sense kept between two
                                                             static obstacles, S6.6 rule 5)
 R3    A(j)        ``cleared(j)`` held T_dwell, T_min in A   C (cool-down starts)
@@ -36,7 +38,7 @@ import math
 from numba import njit
 import numpy as np
 
-from ament_formation.core.control.floor import floor_side
+from ament_formation.core.control.floor import floor_side, has_floor
 from ament_formation.core.control.limit_cycle import anomaly, choose_direction
 from ament_formation.core.model.ellipse import ellipse_coords, h_value, ray_time, segment_hits
 
@@ -340,13 +342,24 @@ def obstacle_candidate(i, t, robots, ob, m, prm, rows):
 
 
 @njit(cache=True)
-def choose_sense(i, j, robots, ob, m, prm):
-    """The sense of robot i entering obstacle j: the sense of a robot already on j (one sense per
-    obstacle, S14.6), else S6.6 rules 1-4; then S16.2 (the floor).
+def sense_on(i, j, robots, m):
+    """The sense of a known robot other than i on obstacle j (S14.6: one sense per obstacle), 0
+    when there is none.
     """
     for q in range(m.mode.shape[0]):
         if q != i and robots.known[q] and m.mode[q] == MODE_OBSTACLE and m.tgt[q] == j:
             return m.sdir[q]
+    return 0.0
+
+
+@njit(cache=True)
+def choose_sense(i, j, robots, ob, m, prm):
+    """The sense of robot i entering obstacle j: the sense of a robot already on j (one sense per
+    obstacle, S14.6), else S6.6 rules 1-4; then S16.2 (the floor).
+    """
+    shared = sense_on(i, j, robots, m)
+    if shared != 0.0:
+        return shared
     p, pd, goal, gd = robots.p, robots.pd, robots.goal, robots.goal_dot
     zx, zy = p[i, 0] - ob.c[j, 0], p[i, 1] - ob.c[j, 1]
     rvx, rvy = relative_velocity(zx, zy, pd[i, 0], pd[i, 1], ob.v[j, 0], ob.v[j, 1],
@@ -362,24 +375,31 @@ def choose_sense(i, j, robots, ob, m, prm):
 
 @njit(cache=True)
 def _reverse_on_obstacle(i, j, t, robots, ob, m, prm, ev, nev):
-    """Row R1: a robot stalled on obstacle j's limit cycle, not parked, turns the other way
-    unless the floor closes that way (S8.9, S16.2). Returns (acted, nev).
+    """Row R1: a robot on obstacle j's limit cycle, not parked, turns the other way when it is
+    stalled, or when the floor closes its way ahead while the other way is open and no other
+    robot goes round j its way (S16.2: an obstacle moving toward an edge narrows the arc ahead
+    after the entry chose it; S14.6), in either case unless the floor closes the other way
+    (S8.9, S16.2). Returns (acted, nev).
     """
     p, goal = robots.p, robots.goal
-    if not progress(i, t, p, m, prm):
-        return False, nev
+    stuck = progress(i, t, p, m, prm)
     if parked(p[i, 0], p[i, 1], goal[i, 0], goal[i, 1], ob.c[j, 0], ob.c[j, 1], ob.phi[j],
               ob.axes[j, 0], ob.axes[j, 1], prm):
         return False, nev
-    s = -m.sdir[i]
+    s = m.sdir[i]
+    if not (stuck or has_floor(prm)):
+        return False, nev
     big1, big2 = prm.limit_cycle_scale * ob.axes[j, 0], prm.limit_cycle_scale * ob.axes[j, 1]
-    kept, _ = floor_side(s, p[i, 0], p[i, 1], goal[i, 0], goal[i, 1], ob.c[j, 0], ob.c[j, 1],
-                         ob.phi[j], big1, big2, robots.rbody[i] + prm.safety_gap_m, prm)
-    if kept != s:
-        return False, nev  # the floor closes the other way: wait on the open side
+    clear = robots.rbody[i] + prm.safety_gap_m
+    kept, other_open = floor_side(s, p[i, 0], p[i, 1], goal[i, 0], goal[i, 1], ob.c[j, 0],
+                                  ob.c[j, 1], ob.phi[j], big1, big2, clear, prm)
+    closed_ahead = (kept != s and t - m.t_entry[i] >= prm.min_avoid_s - 1e-9
+                    and sense_on(i, j, robots, m) != s)  # not against one sense per obstacle
+    if not (stuck or closed_ahead) or not other_open:
+        return False, nev  # progressing on an open way, or the floor closes the other way
     reanchor(i, t, p, m)
     nev = leave(i, t, m, ev, nev)
-    return True, enter(i, t, MODE_OBSTACLE, j, s, m, ev, nev)
+    return True, enter(i, t, MODE_OBSTACLE, j, -s, m, ev, nev)
 
 
 @njit(cache=True)
