@@ -48,7 +48,7 @@ def near_floor(px, py, rb, prm):
     return g - rb < prm.safety_range_m
 
 
-@njit(cache=True, error_model='numpy')
+@njit(cache=True, error_model='numpy', forceinline=True)
 def _arc_leaves(cx, cy, phi, big_r1, big_r2, psi0, dpsi, clear, prm):
     """Whether the limit cycle's arc from anomaly ``psi0`` over ``dpsi`` (signed) passes closer
     than ``clear`` to an edge (16 samples per turn, ends included).
@@ -73,7 +73,7 @@ def _arc_leaves(cx, cy, phi, big_r1, big_r2, psi0, dpsi, clear, prm):
 
 
 # implements: S16
-@njit(cache=True, error_model='numpy')
+@njit(cache=True, error_model='numpy', forceinline=True)
 def floor_side(sense, px, py, gx, gy, cx, cy, phi, big_r1, big_r2, clear, prm):
     """S16.2: the sense that keeps to the floor on the limit cycle L = (big_r1, big_r2) about c:
     ``sense``, unless its arc from p to the goal g passes closer than ``clear`` to an edge while
@@ -104,7 +104,7 @@ def _off(w, lo, hi, cap, push_m):
     return w
 
 
-@njit(cache=True, error_model='numpy')
+@njit(cache=True, error_model='numpy', forceinline=True)
 def drift_off_edges(wx, wy, mx, my, room, cap, prm):
     """S16.3: a pair's drift target (wx, wy) [m/s] with the pair's centre (mx, my) needing
     ``room`` [m] to each edge: a component toward a crossed edge is dropped and one away from it

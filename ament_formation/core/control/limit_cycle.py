@@ -115,14 +115,14 @@ def parking_factor_k(
     return q, direction * (rate_g - rate_a) / psi_slow
 
 
-@njit(cache=True, error_model='numpy')
+@njit(cache=True, error_model='numpy', forceinline=True)
 def anomaly(zx, zy, phi, r1, r2):
     """Eccentric anomaly psi = atan2(w/R2, u/R1) of z on the ellipse (S6.5)."""
     u, w = ellipse_coords(zx, zy, phi, r1, r2)
     return math.atan2(w, u)
 
 
-@njit(cache=True, error_model='numpy')
+@njit(cache=True, error_model='numpy', forceinline=True)
 def arc_length(psi0, dpsi, r1, r2):
     """Length of the ellipse arc from anomaly psi0 over dpsi >= 0 (midpoint rule, 64 nodes)."""
     n = 64
@@ -137,7 +137,7 @@ def arc_length(psi0, dpsi, r1, r2):
 
 
 # implements: S6.6
-@njit(cache=True, error_model='numpy')
+@njit(cache=True, error_model='numpy', forceinline=True)
 def choose_direction(
     zx, zy, zdx, zdy, gx, gy, gdx, gdy, phi, big_r1, big_r2, look_ahead_m, velocity_tiebreak
 ):

@@ -17,7 +17,7 @@ import numpy as np
 INF = math.inf
 
 
-@njit(cache=True, error_model='numpy')
+@njit(cache=True, error_model='numpy', forceinline=True)
 def ellipse_coords(zx, zy, phi, r1, r2):
     """Normalised body coordinates (U, W) = (u/r1, w/r2) of z (S6.2); h = U^2 + W^2 - 1."""
     c = math.cos(phi)
@@ -26,14 +26,14 @@ def ellipse_coords(zx, zy, phi, r1, r2):
 
 
 # implements: S6.2
-@njit(cache=True, error_model='numpy')
+@njit(cache=True, error_model='numpy', forceinline=True)
 def h_value(zx, zy, phi, r1, r2):
     """Ellipse function h = z^T A z - 1 of the ellipse (r1, r2, phi) (S6.2)."""
     u, w = ellipse_coords(zx, zy, phi, r1, r2)
     return u * u + w * w - 1.0
 
 
-@njit(cache=True, error_model='numpy')
+@njit(cache=True, error_model='numpy', forceinline=True)
 def ray_time(zx, zy, vx, vy, phi, r1, r2):
     """Smallest lambda >= 0 with z + lambda v inside the ellipse (S8 heading test).
 
@@ -57,7 +57,7 @@ def ray_time(zx, zy, vx, vy, phi, r1, r2):
     return lam
 
 
-@njit(cache=True, error_model='numpy')
+@njit(cache=True, error_model='numpy', forceinline=True)
 def segment_hits(p0x, p0y, p1x, p1y, cx, cy, phi, r1, r2):
     """True when the segment [p0, p1] meets the ellipse (centre c) (S8.3 item 1)."""
     u0, w0 = ellipse_coords(p0x - cx, p0y - cy, phi, r1, r2)
