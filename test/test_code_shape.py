@@ -43,3 +43,20 @@ def test_no_long_function_and_no_wide_compiled_function_beyond_the_ratchet():
     assert not new, f'over {MAX_LINES} lines, or compiled with > {MAX_JIT_PARAMS} params: {new}'
     grown = [k for k, v in over.items() if v[0] > KNOWN[k][0] or v[1] > KNOWN[k][1]]
     assert not grown, f'grew: {[(k, over[k], KNOWN[k]) for k in grown]}'
+
+
+def test_every_compiled_function_uses_the_numpy_error_model():
+    """Issue 34: with Python's error model every float division tests for zero and may raise, and
+    an exception exit keeps numba's reference counting of the arrays around it (atomic increments
+    and decrements, most of the closed loop's time before). Explicit on every decorator: numba
+    would otherwise inherit the flag from whichever caller compiles a kernel first.
+    """
+    missing = []
+    for path in sorted(PKG.rglob('*.py')):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                for d in node.decorator_list:
+                    text = ast.unparse(d)
+                    if 'njit' in text and "error_model='numpy'" not in text:
+                        missing.append(f'{path.relative_to(PKG).as_posix()}:{node.name}')
+    assert not missing, f"compiled without error_model='numpy': {missing}"

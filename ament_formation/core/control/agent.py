@@ -181,20 +181,20 @@ def _modes(n_hosted: int, n: int) -> Modes:
     return Modes(*(np.array(np.broadcast_to(a, (n_hosted, *a.shape))) for a in one))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _modes_of(ms, r):
     return Modes(ms.mode[r], ms.tgt[r], ms.sdir[r], ms.t_entry[r], ms.since[r], ms.last_kind[r],
                  ms.last_tgt[r], ms.last_exit[r], ms.wc[r], ms.wtgt[r], ms.anchor[r],
                  ms.t_anchor[r], ms.park_at[r])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _est_k(row):
     return EstimatorK(row[0], row[1], row[2], row[3], row[4], row[5], row[6], row[7], row[8],
                       row[9])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _view(r, i, now, hold_s, fresh_s, heard, view, reported, plant_d):
     """S10.2: the robots robot r (row i) hears (``heard``: stamp, heard_x, heard_a, rep_mode,
     rep_tgt, rep_sdir), extrapolated to ``now`` with their commanded accelerations while younger
@@ -228,7 +228,7 @@ def _view(r, i, now, hold_s, fresh_s, heard, view, reported, plant_d):
         sdir[r, k] = rep_sdir[r, k]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _brake(r, i, v, w, sk, coeffs, camera_loss, torque, age_s):
     """The controlled stop (camera loss: the stop lead's gains ``sk`` (15,); hold: the formation
     law's) -> torque[r], its rates scaled for (v, omega) ``age_s`` old (stop.delay_scale_k).
@@ -240,7 +240,7 @@ def _brake(r, i, v, w, sk, coeffs, camera_loss, torque, age_s):
     torque[r, 0], torque[r, 1] = t1, t2
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _camera_lost(r, now, v, w, cam_t, stop, sk, counters, pose_timeout_s):
     """docs/design.md §7 camera loss: the stop begins once the camera age (the newest pose
     ``cam_t``) exceeds pose_timeout_s minus the time to rest from (v, omega) (docs/safety.md §7);
@@ -261,7 +261,7 @@ def _camera_lost(r, now, v, w, cam_t, stop, sk, counters, pose_timeout_s):
     return False
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _inputs(r, est, ek_row, nwheel, wheelq, ncam, camq):
     """Row r's queued wheel samples, then its camera poses, into its estimator."""
     ek = _est_k(ek_row)
@@ -276,7 +276,7 @@ def _inputs(r, est, ek_row, nwheel, wheelq, ncam, camq):
     return ek
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _decide(r, i, t, view, fixed, ob, modes, prm, events, assignment):
     """Row r's own table (S8.7) every decision period, then the coordinator's assignment (on the
     State's and Static's arrays: ``view`` x, pd, goal, goal_dot, vc, known, parent; ``fixed``
@@ -302,7 +302,7 @@ def _decide(r, i, t, view, fixed, ob, modes, prm, events, assignment):
 
 
 # implements: S10.3
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def agent_tick_k(now, st, sc, out):
     """One control period of every hosted robot at ``now`` [s, own clock] (module docstring).
 
@@ -409,7 +409,7 @@ def agent_tick_k(now, st, sc, out):
             ms.sdir[r, i]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _needs(r, i, k, hear_all, parent, orig_parent, assigned, in_range):
     """:func:`needed_k` of hosted row r (robot row i) on the arrays it reads."""
     if k == i:
@@ -418,7 +418,7 @@ def _needs(r, i, k, hear_all, parent, orig_parent, assigned, in_range):
             or in_range[r, k])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def needed_k(r, k, st, sc, hear_all):
     """S10.2: robot r needs robot k's state at the control rate: its current and original
     parents, its assignment's partner, and the robots within hearing range (every robot with
@@ -428,7 +428,7 @@ def needed_k(r, k, st, sc, hear_all):
                   st.in_range)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def broadcast_k(stamp, x, a, modes, sent, st, sc, hear_all):
     """What the robots of ``sent`` (N,) bool broadcast at ``stamp`` [s] (states x (N, 5),
     commanded accelerations a (N, 2), reports modes (N, 3) [mode, target, sense]) reaches every
@@ -453,7 +453,7 @@ def broadcast_k(stamp, x, a, modes, sent, st, sc, hear_all):
                 heard_t[r, k] = stamp
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _in_range(k, px, py, rows, init, x, reach, in_range, hysteresis):
     """:func:`range_k` on the arrays it reads (``init`` the estimators' I_INIT column)."""
     for r in range(rows.shape[0]):
@@ -465,7 +465,7 @@ def _in_range(k, px, py, rows, init, x, reach, in_range, hysteresis):
         in_range[r, k] = d < rch or (in_range[r, k] and d < rch + hysteresis)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def range_k(k, px, py, st, sc, hysteresis):
     """A camera pose (px, py) of robot k: the hearing range of every hosted robot (its own
     estimate against the reach, with hysteresis) -> st.in_range[:, k].
@@ -473,7 +473,7 @@ def range_k(k, px, py, st, sc, hysteresis):
     _in_range(k, px, py, sc.rows, st.est.i[:, I_INIT], st.x, sc.reach, st.in_range, hysteresis)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def frame_k(stamp, poses, kept, st, sc, hear_all, hysteresis):
     """A camera frame (poses (N, 3) of every robot, ``kept`` (N,) bool) captured at ``stamp``:
     each hosted robot's own pose to its estimator's queue, every pose to the hearing ranges.
@@ -494,7 +494,7 @@ def frame_k(stamp, poses, kept, st, sc, hear_all, hysteresis):
                           hysteresis)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def wheels_k(t, angle, rate, st, sc):
     """Every hosted robot's wheel sample at ``t`` (angle, rate (N, 2) by robot row)."""
     for r in range(sc.rows.shape[0]):
@@ -509,7 +509,7 @@ def wheels_k(t, angle, rate, st, sc):
 ASSIGN_NONE, ASSIGN_NONE_PARK, ASSIGN_YIELD, ASSIGN_MUTUAL = range(4)  # assign_k's kinds
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def assign_k(now, rows, kind, partner, val, has_rate, rate, coord_s, assigned, assigned_w,
              rate_target):
     """The coordinator's message at ``now`` for every hosted robot (rows ``rows``), by robot row

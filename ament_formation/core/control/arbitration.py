@@ -87,13 +87,13 @@ def new_teams(n: int) -> Teams:
                  np.full((n, 2), np.nan), np.zeros(n))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def keepout_radius(rbody, i, k, prm):
     """R_aa of a robot pair (S7): R_body,i + R_body,k + margin (0.25 m by default)."""
     return rbody[i] + rbody[k] + prm.agent_keepout_margin_m
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def candidate_pairs(p, known, cell_m):
     """Pairs (i < k) of known robots closer than ``cell_m`` [m], by a uniform grid (near-linear in
     N): p (N, 2) -> (P, 2) int.
@@ -152,7 +152,7 @@ def candidate_pairs(p, known, cell_m):
     return out[:cnt]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def reacts_to(k, i, m, parent):
     """S7.4: robot k reacts to robot i, directly or through a chain of following links: yields,
     pairs and the formation link of a robot in C to its current parent (S14.5).
@@ -176,14 +176,14 @@ def reacts_to(k, i, m, parent):
     return False
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def _rank_first(a, b, robots, teams):
     """S7.5: robot a's team goes before robot b's (False for one team, or no meeting)."""
     ta, tb = robots.team[a], robots.team[b]
     return ta != tb and teams.rank[ta] < teams.rank[tb]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def _teammate_q_scale(i, k, r, robots, prm):
     """S14.3: robot k's protected region Q as teammate i sees it: kappa R_aa shrunk to the slot
     distance less the keep-out margin (a team at its slots stands outside each other's Q),
@@ -197,7 +197,7 @@ def _teammate_q_scale(i, k, r, robots, prm):
     return min(prm.protected_scale, max(prm.heading_scale, (s - prm.agent_keepout_margin_m) / r))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def _moving_together(i, k, rvx, rvy, m, prm):
     """S14.3, S7.2: two robots moving together or resting together (relative speed below
     ``teammate_speed_mps``, or below ``teammate_release_speed_mps`` when their last encounter was
@@ -214,7 +214,7 @@ def _moving_together(i, k, rvx, rvy, m, prm):
 RobotThreats = namedtuple('RobotThreats', ['k', 'em', 'lam', 'h_em', 'count'])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def _keep(th, a, b, em, lam, h_em):
     """Record robot b as a threat of a; when a's slots are full b replaces the least urgent one
     if it ranks before it (S8.1).
@@ -238,7 +238,7 @@ def _keep(th, a, b, em, lam, h_em):
 
 
 # implements: S7.2
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def robot_threats(robots, m, pairs, prm):
     """Guard ``robot_threat`` over the candidate pairs: the S8.1 test on the keep-out circle
     R_aa, the teammates' Q and exemption (S14.3), and a horizon: a contact with I more than
@@ -268,7 +268,7 @@ def robot_threats(robots, m, pairs, prm):
     return th
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def _agent_sense(i, k, robots, prm):
     """S6.6 rules 1-3 and 7: the sense of robot i round robot k (ties +1)."""
     p, pd, goal, gd = robots.p, robots.pd, robots.goal, robots.goal_dot
@@ -279,7 +279,7 @@ def _agent_sense(i, k, robots, prm):
                             2.0 * prm.protected_scale * big / prm.limit_cycle_scale, False)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def _urgency(i, k, robots, prm):
     """(emergency, h_L) of robot k as robot i sees it."""
     p, pd = robots.p, robots.pd
@@ -289,7 +289,7 @@ def _urgency(i, k, robots, prm):
     return em, h_l
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def form_pair(i, k, t, robots, m, prm, ev, nev):
     """S7.3: robots i and k enter a mutual pair at one t_s with w_c = (p_dot_i + p_dot_k)/2 and
     one sense: the S6.6 sense of each round the other when they agree, else +1 (S14.1).
@@ -314,7 +314,7 @@ def form_pair(i, k, t, robots, m, prm, ev, nev):
     return nev
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def _yield_to(i, k, t, robots, m, prm, ev, nev):
     """Robot i yields to robot k (S7.3), sense by S6.6; the progress monitor starts again unless
     this re-targets a yield (S8.9: a robot still among several robots stays stalled).
@@ -327,7 +327,7 @@ def _yield_to(i, k, t, robots, m, prm, ev, nev):
     return enter(i, t, MODE_YIELD, k, s, m, ev, nev)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def _most_urgent(i, t, robots, m, th, teams, prm):
     """Guard ``robot_threat`` and admissible (module docstring) -> (row or -1, emergency)."""
     best, b_em, b_hem, b_lam = -1, False, INF, INF
@@ -347,7 +347,7 @@ def _most_urgent(i, t, robots, m, th, teams, prm):
     return best, b_em
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def _engage(i, k, em, t, robots, m, teams, prm, ev, nev):
     """Row C6: robot i takes robot k. From an encounter only past T_dwell, for an emergency or a
     robot clearly closer (S8.2); a pair is left for an emergency only (S14.2). Pairing: k reacts
@@ -378,7 +378,7 @@ def _engage(i, k, em, t, robots, m, teams, prm, ev, nev):
     return nev
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def _sync_pairs_and_loops(t, robots, m, prm, ev, nev):
     """Rows C1 and C2: a pair whose partner went onto an obstacle becomes a yield to it; a yield
     whose target reacts back to the yielder (a chain closed by a re-parenting) becomes a pair.
@@ -397,7 +397,7 @@ def _sync_pairs_and_loops(t, robots, m, prm, ev, nev):
     return nev
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def _blocker(i, robots, m, prm):
     """Guard ``blocked_by``: the nearest known robot within the barrier's range of robot i's
     keep-out circle, on its way to its goal (-1: none).
@@ -417,7 +417,7 @@ def _blocker(i, robots, m, prm):
     return best
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def _round_parked(i, k, robots, prm):
     """S8.9: robot i yielding round k waits where its goal, seen from k, is (it is parked)."""
     p, goal = robots.p, robots.goal
@@ -426,7 +426,7 @@ def _round_parked(i, k, robots, prm):
     return abs((dd + math.pi) % (2.0 * math.pi) - math.pi) <= prm.parking_anomaly_rad
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def _make_way(i, t, robots, m, prm, ev, nev):
     """Row C9: the robots at rest beside robot i (stalled on its obstacle, S8.9) make way: one
     in C or yielding yields to i without parking (it circles i until S8.3 lets it go back); one
@@ -449,7 +449,7 @@ def _make_way(i, t, robots, m, prm, ev, nev):
     return nev
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def _stalls(t, robots, m, teams, prm, ev, nev):
     """Rows C3-C5 and C9: the progress monitor (S8.9) of every robot the coordinator owns, and
     its own watch of the robots on obstacles.
@@ -495,7 +495,7 @@ def _stalls(t, robots, m, teams, prm, ev, nev):
     return nev
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def _exit_against(i, k, vkx, vky, robots, r, prm):
     """S8.3 items 1-3 of robot i against the circle of radius r round robot k moving at vk."""
     p, g, vc = robots.p, robots.goal, robots.vc
@@ -503,7 +503,7 @@ def _exit_against(i, k, vkx, vky, robots, r, prm):
                    vkx, vky, 0.0, 0.0, r, r, prm)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def _exits(t, robots, m, prm, ev, nev):
     """Rows C7 and C8: a yielder leaves when S8.3 holds against k's velocity; a pair leaves
     jointly when it holds for both, each against the other's coordination field.
@@ -530,7 +530,7 @@ def _exits(t, robots, m, prm, ev, nev):
     return nev
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def _drift_targets(robots, m, prm):
     """S7.3/S14.1: each pair's drift target, the mean of the two coordination fields capped at
     ``mutual_drift_cap_mps``, kept off the floor's edges (S16.3).
@@ -549,7 +549,7 @@ def _drift_targets(robots, m, prm):
                                                      0.5 * (p[i, 1] + p[k, 1]), room, cap, prm)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def _meeting_point_distance(ld, c, robots):
     """How far the meeting point c lies ahead of team leader row ``ld`` along its goal's motion
     [m] (0 for a goal at rest: it is there).
@@ -562,7 +562,7 @@ def _meeting_point_distance(ld, c, robots):
 
 
 # implements: S7.5
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def right_of_way(t, robots, pairs, teams, prm):
     """S7.5: teams meeting another team get a rank key (lower goes first): a team at rest at the
     end of its reference first, then by the time the meeting began, then the team further into
@@ -596,7 +596,7 @@ def right_of_way(t, robots, pairs, teams, prm):
             teams.rank[tm] = _untied(tm, fresh[tm], teams.rank)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def _untied(tm, key, rank):
     """S7.5: ``key`` moved up by the least step that makes it differ from every other team's
     key (a symmetric meeting gives equal keys; equal keys would order nobody).
@@ -612,7 +612,7 @@ def _untied(tm, key, rank):
 
 
 # implements: S7, S7.1
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def arbitrate(t, robots, m, teams, prm, ev, nev):
     """One decision of the coordinator's table (module docstring) over every known robot:
     ``robots`` :data:`~ament_formation.core.control.switching.Robots`, ``m`` their
@@ -644,7 +644,7 @@ def arbitrate(t, robots, m, teams, prm, ev, nev):
 
 
 # implements: S17.3
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def coordinate(t, dt, robots, ob, m, teams, progress, refs, leaders, e_team, prm, ev, nev):
     """The coordinator's decision (ideal simulator and coordinator alike): the table
     (:func:`arbitrate`), then every team's error, its reference's rate target and progress over

@@ -64,7 +64,7 @@ their snapshot's buffers (6)); the decision's state (``progress``, ``ref`` (N, 6
 ``end_s`` (1,) when the mission ended (NaN: not yet); ``prm`` LawK."""
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def sync_obstacles_k(t, ck):
     """The robots' own obstacle modes (their reports) into the decision's state (S7.1: theirs
     to decide): a robot newly on an obstacle enters it, one that left it exits.
@@ -85,7 +85,7 @@ def sync_obstacles_k(t, ck):
             m.anchor[q, 0] = m.anchor[q, 1] = np.nan
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def decide_k(t, ck):
     """One decision of the coordinator at scenario time ``t`` on :data:`CoordK` ``ck``: the
     robots' obstacle modes, the goals of the states heard within :data:`SILENT_S`, the pairs'
@@ -337,7 +337,7 @@ def new_pub(n: int, republish_s: float) -> PubK:
                 np.zeros((n, 5)), np.zeros(n), float(republish_s))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _entry_k(m, q):
     """Robot row q's assignment as :meth:`Coordinator.assignments` has it: (kind, partner row,
     direction, t_entry_s, park_at_s, drift x, drift y).
@@ -353,7 +353,7 @@ def _entry_k(m, q):
     return ASSIGN_NONE, -1, 0.0, 0.0, 0.0, 0.0, 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _moved_k(ck, pub):
     """:meth:`Publisher._moved` of the coordinator's decision now against ``pub``'s."""
     m = ck.modes
@@ -374,7 +374,7 @@ def _moved_k(ck, pub):
     return False
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def publish_due_k(t, ck, pub):
     """:meth:`Publisher.due` of the coordinator's decision now (:data:`CoordK` ``ck``) at ``t``
     [s]: when due, ``pub`` takes it (what is published) and True comes back.

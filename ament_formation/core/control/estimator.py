@@ -107,13 +107,13 @@ def new_estimates(n: int) -> EstimatorArrays:
                            np.zeros((n, len(COUNTERS)), dtype=np.int64))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def wrap(a):
     """Angle wrapped to [-pi, pi)."""
     return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def arc_step(x, y, theta, ds, dth):
     """One odometry step of an axle pose: an exact arc, chord = ds sinc(dth/2) along
     theta + dth/2.
@@ -123,7 +123,7 @@ def arc_step(x, y, theta, ds, dth):
     return x + chord * math.cos(theta + h), y + chord * math.sin(theta + h), theta + dth
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _fold(e, row, upto):
     """The axle pose after the anchor and the first ``upto`` steps of the ring."""
     f = e.f[row]
@@ -135,7 +135,7 @@ def _fold(e, row, upto):
     return x, y, th
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _drop(e, row, n, fold):
     """Remove the n oldest steps (folded into the anchor when ``fold``)."""
     if n <= 0:
@@ -149,14 +149,14 @@ def _drop(e, row, n, fold):
     e.i[row, I_COUNT] -= n
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _refold(e, row):
     x, y, th = _fold(e, row, e.i[row, I_COUNT])
     e.f[row, F_AXLE_X], e.f[row, F_AXLE_Y], e.f[row, F_TH] = x, y, th
 
 
 # implements: S10, S10.1
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def wheel_update_k(e, row, t, ql, qr, wl, wr, k):
     """One encoder sample (absolute wheel angles [rad], rates [rad/s]) taken at ``t`` [s].
     Returns False (counted) when rejected.
@@ -205,7 +205,7 @@ def wheel_update_k(e, row, t, ql, qr, wl, wr, k):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _initialize(e, row, t, x, y, th, k):
     """The first camera pose: anchor at its stamp, the steps recorded after it replayed."""
     f = e.f[row]
@@ -223,7 +223,7 @@ def _initialize(e, row, t, x, y, th, k):
     e.counters[row, C_CAM] += 1
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def camera_update_k(e, row, t, x, y, th, k):
     """Fuse a camera pose of p captured at ``t`` [s]; returns the index of its outcome in
     :data:`CAMERA_OUTCOMES`.
@@ -284,7 +284,7 @@ def camera_update_k(e, row, t, x, y, th, k):
     return outcome
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def state_at_k(e, row, t, k, out):
     """State (5,) of p -> ``out``, extrapolated with the latest (v, omega) to ``t`` (at most
     ``max_extrapolation_s`` past the newest odometry sample; never going back: never before

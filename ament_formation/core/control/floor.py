@@ -24,7 +24,7 @@ from ament_formation.core.control.limit_cycle import anomaly
 TWO_PI = 2.0 * math.pi
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def floor_edges(px, py, rb, prm):
     """S16.1: the four edges seen from a body of radius ``rb`` about p: ((gap [m], inward normal
     x, y), ...) (gaps infinite without a floor).
@@ -37,13 +37,13 @@ def floor_edges(px, py, rb, prm):
     )
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def has_floor(prm):
     """Whether the scenario declares a floor (its edges are finite)."""
     return math.isfinite(prm.floor_x_max_m)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def near_floor(px, py, rb, prm):
     """Whether the body (radius ``rb`` about p) is within ``safety_range_m`` of an edge."""
     g = min(
@@ -55,7 +55,7 @@ def near_floor(px, py, rb, prm):
     return g - rb < prm.safety_range_m
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def _arc_leaves(cx, cy, phi, big_r1, big_r2, psi0, dpsi, clear, prm):
     """Whether the limit cycle's arc from anomaly ``psi0`` over ``dpsi`` (signed) passes closer
     than ``clear`` to an edge (16 samples per turn, ends included).
@@ -80,7 +80,7 @@ def _arc_leaves(cx, cy, phi, big_r1, big_r2, psi0, dpsi, clear, prm):
 
 
 # implements: S16
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def floor_side(sense, px, py, gx, gy, cx, cy, phi, big_r1, big_r2, clear, prm):
     """S16.2: the sense that keeps to the floor on the limit cycle L = (big_r1, big_r2) about c:
     ``sense``, unless its arc from p to the goal g passes closer than ``clear`` to an edge while
@@ -99,7 +99,7 @@ def floor_side(sense, px, py, gx, gy, cx, cy, phi, big_r1, big_r2, clear, prm):
     return sense, not other_leaves or own_leaves
 
 
-@njit(cache=True, inline='always')
+@njit(cache=True, error_model='numpy', inline='always')
 def _off(w, lo, hi, cap, push_m):
     """A drift component ``w`` with room ``lo`` toward the lower edge and ``hi`` toward the upper
     one (< 0: the circle crosses that edge): away from a crossed edge, never toward it.
@@ -111,7 +111,7 @@ def _off(w, lo, hi, cap, push_m):
     return w
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def drift_off_edges(wx, wy, mx, my, room, cap, prm):
     """S16.3: a pair's drift target (wx, wy) [m/s] with the pair's centre (mx, my) needing
     ``room`` [m] to each edge: a component toward a crossed edge is dropped and one away from it

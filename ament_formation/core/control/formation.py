@@ -11,7 +11,7 @@ from numba import njit
 
 
 # implements: S4
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def tracking_field_k(ex, ey, rvx, rvy, rax, ray, pdx, pdy, alpha, v_cap):
     """S4 field V_d = ref_vel - Phi(e), V_d_dot = ref_acc - DPhi(e)(p_dot - ref_vel).
 

@@ -44,14 +44,14 @@ target, ``park_at`` [s] when the S6.5 parking factor applies from.
 """
 
 
-@njit(cache=True, inline='always')
+@njit(cache=True, error_model='numpy', inline='always')
 def mode_row(m, i):
     """:data:`RobotMode` of row i of ``m`` (:data:`Modes`)."""
     return RobotMode(m.mode[i], m.tgt[i], m.sdir[i], m.t_entry[i], (m.wc[i, 0], m.wc[i, 1]),
                      (m.wtgt[i, 0], m.wtgt[i, 1]), m.park_at[i])
 
 
-@njit(cache=True, inline='always')
+@njit(cache=True, error_model='numpy', inline='always')
 def _target_k(i, md, k, x, pd, acmd, rbody, ob, prm):
     """The avoidance target of robot i: (c, c_dot, c_ddot, phi, phi_dot, phi_ddot, r1, r2, v_tan)
     of obstacle k (S6) or of robot k (S7: its keep-out circle R_aa).
@@ -65,7 +65,7 @@ def _target_k(i, md, k, x, pd, acmd, rbody, ob, prm):
             prm.agent_tangential_speed_mps)
 
 
-@njit(cache=True, inline='always')
+@njit(cache=True, error_model='numpy', inline='always')
 def _formation_field(i, x, pd, acmd, track, prm, vmax, amax):
     """S4 field of robot i -> (vdx, vdy, vddx, vddy): a leader tracks r(s) (S17), a follower
     p_j + delta with its parent's velocity and commanded acceleration as feed-forward, bounded
@@ -85,7 +85,7 @@ def _formation_field(i, x, pd, acmd, track, prm, vmax, amax):
                             prm.formation_gain_per_s, prm.formation_speed_cap_mps)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def _avoidance_field(t, p, target, track, state, prm, vmax, amax):
     """S6.3/S6.4 limit-cycle field of a robot at ``p`` (x, y, x_dot, y_dot of its point) round
     its ``target`` (:func:`_target_k`) -> (vdx, vdy, vddx, vddy, w_c_dot_x, w_c_dot_y); the w_c
@@ -121,7 +121,7 @@ def _avoidance_field(t, p, target, track, state, prm, vmax, amax):
 
 
 # implements: S3.2
-@njit(cache=True, inline='always')
+@njit(cache=True, error_model='numpy', inline='always')
 def robot_law_k(i, t, x, pd, acmd, rbody, coeffs, ob, nbrs, orows, track, state, prm,
                 cons=None):
     """Torque of robot i at time ``t`` [s] in its mode (S3.2 with the mode's V_d, V_d_dot).
@@ -159,7 +159,7 @@ def robot_law_k(i, t, x, pd, acmd, rbody, coeffs, ob, nbrs, orows, track, state,
 
 
 # implements: S8.3/goal
-@njit(cache=True, inline='always')
+@njit(cache=True, error_model='numpy', inline='always')
 def goal_k(i, x, pd, ref, orig_parent, orig_offset, prm):
     """S8.3 item 1: the formation goal of robot i and the coordination field V_c = g_dot -
     Phi(p - g) -> (gx, gy, gdx, gdy, vcx, vcy). Leaders: g = r(s) (``ref`` row i); followers:
@@ -177,7 +177,7 @@ def goal_k(i, x, pd, ref, orig_parent, orig_offset, prm):
     return gx, gy, gdx, gdy, vcx, vcy
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def goals_and_fields(x, pd, ref, orig_parent, orig_offset, prm, goal, goal_dot, vc):
     """:func:`goal_k` of every row -> ``goal``, ``goal_dot``, ``vc`` (N, 2)."""
     for i in range(x.shape[0]):

@@ -22,7 +22,7 @@ TWO_PI = 2.0 * math.pi
 
 
 # implements: S6
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def ellipse_field_k(zx, zy, zdx, zdy, phi, phi_dot, phi_ddot, r1, r2, psi_dot, psi_ddot, c, c_dot):
     """S6.3 field and S6.4 closed-form derivative (c1 = c2 = c) -> (fx, fy, fdx, fdy, h, h_dot)."""
     cphi = math.cos(phi)
@@ -66,7 +66,7 @@ def ellipse_field_k(zx, zy, zdx, zdy, phi, phi_dot, phi_ddot, r1, r2, psi_dot, p
     return fx, fy, fdx, fdy, h, hd
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def gain_schedule_k(t_since_entry_s, psi_dot_max, c_max, direction, mu, mu_dot, beta0, tau_g_s):
     """S6.5 beta(t) schedule -> (psi_dot, psi_ddot, c, c_dot)."""
     t = t_since_entry_s if t_since_entry_s > 0.0 else 0.0
@@ -82,7 +82,7 @@ def gain_schedule_k(t_since_entry_s, psi_dot_max, c_max, direction, mu, mu_dot, 
     )
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def _anomaly_and_rate(zx, zy, zdx, zdy, cphi, sphi, phi_dot, r1, r2):
     u = cphi * zx + sphi * zy
     w = -sphi * zx + cphi * zy
@@ -97,7 +97,7 @@ def _anomaly_and_rate(zx, zy, zdx, zdy, cphi, sphi, phi_dot, r1, r2):
     return math.atan2(ww, uu), rate
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def parking_factor_k(
     zx, zy, zdx, zdy, gx, gy, gdx, gdy, phi, phi_dot, r1, r2, direction, psi_slow
 ):
@@ -115,14 +115,14 @@ def parking_factor_k(
     return q, direction * (rate_g - rate_a) / psi_slow
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def anomaly(zx, zy, phi, r1, r2):
     """Eccentric anomaly psi = atan2(w/R2, u/R1) of z on the ellipse (S6.5)."""
     u, w = ellipse_coords(zx, zy, phi, r1, r2)
     return math.atan2(w, u)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def arc_length(psi0, dpsi, r1, r2):
     """Length of the ellipse arc from anomaly psi0 over dpsi >= 0 (midpoint rule, 64 nodes)."""
     n = 64
@@ -137,7 +137,7 @@ def arc_length(psi0, dpsi, r1, r2):
 
 
 # implements: S6.6
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def choose_direction(
     zx, zy, zdx, zdy, gx, gy, gdx, gdy, phi, big_r1, big_r2, look_ahead_m, velocity_tiebreak
 ):
@@ -177,7 +177,7 @@ def choose_direction(
 
 
 # implements: S6.5
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def design_gains(r1, r2, v_tan, prm):
     """S6.5 design: psi_dot_max = v_tan / sqrt(R1 R2), c_max = v_rad / (kappa sqrt(r1 r2) h_Q)."""
     rho_l = prm.limit_cycle_scale

@@ -51,7 +51,7 @@ rate it follows [1].
 MIN_WAIT_S = 20.0  # the least a reference may wait in all (S17.2) [s]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def max_wait_s(s_end, prm):
     """S17.2: how long in all a team's reference may wait (lag behind its nominal timing) [s]."""
     return max(MIN_WAIT_S, prm.max_wait_fraction * s_end)
@@ -64,7 +64,7 @@ def max_time_s(duration_s: float) -> float:
     return duration_s + max(30.0, 2.0 * duration_s)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def finish_wait_s(s_end, prm):
     """S17.3: how long in all (t - s) a reference may lag when it waits at its finish for the
     teams to re-form: what :func:`max_time_s` leaves, less the time to finish after the wait
@@ -96,7 +96,7 @@ def new_progress(n: int) -> Progress:
 
 
 # implements: S17
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def leader_reference(refs, i, s, sd, sdd, out):
     """r, r_dot, r_ddot of leader row i at progress (s, s_dot, s_ddot) -> ``out`` (6,)."""
     h = refs.step_s
@@ -112,7 +112,7 @@ def leader_reference(refs, i, s, sd, sdd, out):
     out[5] = out[5] * sd * sd + rpy * sdd
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def goal_free(gx, gy, ob, prm):
     """The goal lies outside every obstacle's protected region Q (else the robot is parked on a
     limit cycle by design and does not count in its team's error, S17.1).
@@ -128,7 +128,7 @@ def goal_free(gx, gy, ob, prm):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def _goal_free_among(gx, gy, ob, prm, rows):
     """:func:`goal_free` over the obstacle rows ``rows`` only (those whose Q's bounding square
     holds the goal: the others pass its first test).
@@ -141,7 +141,7 @@ def _goal_free_among(gx, gy, ob, prm, rows):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _free_goals(goal, ob, prm):
     """(N,) bool: :func:`goal_free` of every row's goal; for many robots and obstacles by a grid
     of the obstacles' bounding squares of Q (the same squares, so the same answers).
@@ -167,7 +167,7 @@ def _free_goals(goal, ob, prm):
     return free
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def team_errors(p, goal, team, known, ob, prm, out):
     """S17.1: E of every team -> ``out`` (N,) at the leader rows: the largest |p_i - g_i| of its
     known robots with a free goal; -E when the leader's own goal is not free (the reference must
@@ -186,7 +186,7 @@ def team_errors(p, goal, team, known, ob, prm, out):
             out[i] = -out[i]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def rate_target(e_team, giving_way, prm):
     """S17.1, S17.2: the progress rate a team's reference follows, in [0, 1]."""
     if giving_way:
@@ -196,7 +196,7 @@ def rate_target(e_team, giving_way, prm):
 
 
 # implements: S17.1
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def rate_targets(t, e_team, giving_way, pr, leaders, s_end, prm, out):
     """S17.1-S17.3: the rate target of every leader row at time ``t`` [s since the mission's
     start] -> ``out``: :func:`rate_target` of its team, and 0 within ``finish_s`` of its end while
@@ -220,7 +220,7 @@ def rate_targets(t, e_team, giving_way, pr, leaders, s_end, prm, out):
             out[i] = 0.0  # the finish wait outlasts the budget, within the run's cap (S17.3)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def at(pr, i, tau, s_end):
     """(s, s_dot, s_ddot) of row i ``tau`` [s] into its current interval (s_ddot constant over
     it); at s_end the reference rests.
@@ -232,7 +232,7 @@ def at(pr, i, tau, s_end):
     return s, max(0.0, pr.sd[i] + sdd * tau), sdd
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def step(pr, i, dt, target, s_end, prm):
     """Row i to the end of its interval of ``dt`` [s], then toward ``target`` for the next one:
     s_ddot = (target - s_dot) / ``progress_tau_s`` (S17.2).

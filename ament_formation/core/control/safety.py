@@ -41,7 +41,7 @@ from ament_formation.core.model.dynamics import ROW_M_TILDE, ROW_R, ROW_TAU_MAX
 PASSES = 4  # alternating projections of the barrier (then a stop if a robot's is still violated)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def clip_norm(vx, vy, cap):
     """(vx, vy) scaled down to length ``cap`` when longer."""
     nrm = math.hypot(vx, vy)
@@ -50,13 +50,13 @@ def clip_norm(vx, vy, cap):
     return vx, vy
 
 
-@njit(cache=True, inline='always')
+@njit(cache=True, error_model='numpy', inline='always')
 def accel_limit(coeffs, i):
     """Largest point acceleration the torque limit allows, 2 tau_max / (m~ r) [m/s^2] (S2.2)."""
     return 2.0 * coeffs[ROW_TAU_MAX, i] / (coeffs[ROW_M_TILDE, i] * coeffs[ROW_R, i])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def allowed_speed(gap, a_brk, lag):
     """Approach speed [m/s] from which a robot stops within ``gap`` [m] after a reaction time
     ``lag`` [s] at the deceleration ``a_brk`` [m/s^2]: sqrt(2 a gap + (a lag)^2) - a lag. A closed
@@ -69,7 +69,7 @@ def allowed_speed(gap, a_brk, lag):
     return math.sqrt(2.0 * a_brk * gap + al * al) - al
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def _barrier(vdx, vdy, vddx, vddy, pdx, pdy, nx, ny, bvx, bvy, allowed, lag, brake):
     """Limit the approach of V_d toward a boundary (outward normal n, boundary velocity bv) to
     ``allowed`` (:func:`allowed_speed` of its gap). With ``brake``, when the robot's own velocity
@@ -93,7 +93,7 @@ def _barrier(vdx, vdy, vddx, vddy, pdx, pdy, nx, ny, bvx, bvy, allowed, lag, bra
     return vdx, vdy, vddx, vddy
 
 
-@njit(cache=True, inline='always')
+@njit(cache=True, error_model='numpy', inline='always')
 def _obstacle_gap(px, py, oc, ov, ophi, ophid, oaxes, j):
     """(gap, nx, ny, bvx, bvy) of obstacle j's boundary P seen from p: the first-order distance
     (k - 1)/|grad k| (k: the level of p in P's similar ellipses), the normal grad k/|grad k| and
@@ -116,7 +116,7 @@ def _obstacle_gap(px, py, oc, ov, ophi, ophid, oaxes, j):
     return (k - 1.0) / gn, gx / gn, gy / gn, ov[j, 0] - ophid[j] * zy, ov[j, 1] + ophid[j] * zx
 
 
-@njit(cache=True, inline='always')
+@njit(cache=True, error_model='numpy', inline='always')
 def _obstacle_near(px, py, oc, ov, ophi, ophid, oaxes, j, prm):
     """Obstacle j's boundary P as the barrier sees it from p: (near, gap, nx, ny, bvx, bvy), near
     when P is within ``safety_range_m``, gap the distance to P less the margin, scaled to the
@@ -137,13 +137,13 @@ def _obstacle_near(px, py, oc, ov, ophi, ophid, oaxes, j, prm):
 # state only, not on V_d, so they are computed once per sample and every projection reuses them.
 
 
-@njit(cache=True, inline='always')
+@njit(cache=True, error_model='numpy', inline='always')
 def _row(cons, n, nx, ny, bvx, bvy, allowed):
     cons[n, 0], cons[n, 1], cons[n, 2], cons[n, 3], cons[n, 4] = nx, ny, bvx, bvy, allowed
     return n + 1
 
 
-@njit(cache=True, inline='always')
+@njit(cache=True, error_model='numpy', inline='always')
 def _robot_rows(i, x, pd, nbrs, rbody, a_brk, prm, cons):
     """Rows of every robot k of ``nbrs`` whose keep-out circle R_aa (S15.3) is within
     ``safety_range_m`` (reciprocal: each robot of a pair takes half of the approach speed budget,
@@ -172,7 +172,7 @@ def _robot_rows(i, x, pd, nbrs, rbody, a_brk, prm, cons):
     return n
 
 
-@njit(cache=True, inline='always')
+@njit(cache=True, error_model='numpy', inline='always')
 def _wall_rows(px, py, rb, a_brk, prm, cons, n):
     """Rows of each edge of a declared floor within ``safety_range_m`` of the body (radius ``rb``
     about p): walls that do not move (inward normal). Returns the row count.
@@ -184,7 +184,7 @@ def _wall_rows(px, py, rb, a_brk, prm, cons, n):
     return n
 
 
-@njit(cache=True, inline='always')
+@njit(cache=True, error_model='numpy', inline='always')
 def _obstacle_rows(px, py, orows, ob, a_brk, prm, cons, n):
     """Rows of every obstacle boundary P of rows ``orows`` within ``safety_range_m`` (boundary
     velocity included). Returns the row count.
@@ -197,7 +197,7 @@ def _obstacle_rows(px, py, orows, ob, a_brk, prm, cons, n):
     return n
 
 
-@njit(cache=True, inline='always')
+@njit(cache=True, error_model='numpy', inline='always')
 def _project(cons, lo, hi, vdx, vdy, vddx, vddy, pdx, pdy, lag, brake):
     """:func:`_barrier` of rows ``lo`` .. ``hi`` - 1 in turn. Returns (vdx, vdy, vddx, vddy)."""
     for q in range(lo, hi):
@@ -206,7 +206,7 @@ def _project(cons, lo, hi, vdx, vdy, vddx, vddy, pdx, pdy, lag, brake):
     return vdx, vdy, vddx, vddy
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def _feasible(cons, n, vx, vy):
     """Whether (vx, vy) meets every constraint n . v >= b of ``cons[:n]`` (rows nx, ny, b)."""
     for q in range(n):
@@ -215,19 +215,19 @@ def _feasible(cons, n, vx, vy):
     return True
 
 
-@njit(cache=True)
-def _escape(vx0, vy0, p, rb, orows, oc, ov, ophi, ophid, oaxes, a_brk, prm):
+@njit(cache=True, error_model='numpy', forceinline=True)
+def _escape(vx0, vy0, p, rb, orows, oc, ov, ophi, ophid, oaxes, a_brk, prm, cons):
     """A robot squeezed between a floor edge and an obstacle (docs/law-changes.md §12): the
     velocity closest to (vx0, vy0) that meets every wall's and every obstacle's barrier within
     reach exactly (the alternating projections approach it slowly when the wall and the obstacle
     face each other at an acute angle, leaving a stop that a moving obstacle then pushes through
     the wall). Half-planes n . v >= b in 2-D: the closest point is v0, its projection on one line
     or the vertex of two. Returns (found, vx, vy); not found when they leave nothing within the
-    speed limit.
+    speed limit. ``cons``: scratch rows (at least 4 + len(orows), 3 columns used).
     """
     g0, reach, lag = prm.safety_gap_m, prm.safety_range_m, prm.safety_lag_s
     px, py = p[0], p[1]
-    cons = np.empty((4 + orows.shape[0], 3))  # rows (nx, ny, b)
+    # rows (nx, ny, b)
     n = 0
     for gap, nx, ny in floor_edges(px, py, rb, prm):
         if gap < reach:
@@ -263,20 +263,21 @@ def _escape(vx0, vy0, p, rb, orows, oc, ov, ophi, ophid, oaxes, a_brk, prm):
     return best < math.inf, bx, by
 
 
-@njit(cache=True, inline='always')
+@njit(cache=True, error_model='numpy', inline='always')
 def _same(a, b):
     """Whether a and b are the same float, the sign of a zero included (NaN: never)."""
     return a == b and math.copysign(1.0, a) == math.copysign(1.0, b)
 
 
 # implements: S15
-@njit(cache=True, inline='always')
+@njit(cache=True, error_model='numpy', inline='always')
 def safe_field(i, x, pd, nbrs, orows, vdx, vdy, vddx, vddy, ob, rbody, prm, cons=None):
     """V_d, V_d_dot of robot i after the speed limit and the braking barrier (module docstring)
     against the obstacles of rows ``orows`` of ``ob`` (ObstacleSnapshot), the robots of ``nbrs``
-    (rows of x, pd) and the floor. ``cons``: scratch rows (at least len(nbrs) + 4 + len(orows),
-    5) to use instead of a new array (a caller running many robots a step allocates them once).
-    Returns (vdx, vdy, vddx, vddy).
+    (rows of x, pd) and the floor. ``cons``: scratch rows (at least len(nbrs) + 8 +
+    2 len(orows), 5: the barrier's rows, then :func:`_escape`'s) to use instead of a new array (a
+    caller running many robots a step allocates them once; no allocation in the loop, so no
+    exception path that keeps numba's reference counts). Returns (vdx, vdy, vddx, vddy).
     """
     vdx, vdy = clip_norm(vdx, vdy, prm.speed_limit_mps)
     vx0, vy0 = vdx, vdy
@@ -286,7 +287,7 @@ def safe_field(i, x, pd, nbrs, orows, vdx, vdy, vddx, vddy, ob, rbody, prm, cons
     rb = rbody[i]
     walls = near_floor(px, py, rb, prm)
     if cons is None:
-        cons = np.empty((nbrs.shape[0] + 4 + orows.shape[0], 5))
+        cons = np.empty((nbrs.shape[0] + 8 + 2 * orows.shape[0], 5))
     nr = _robot_rows(i, x, pd, nbrs, rbody, a_brk, prm, cons)  # rows: robots, walls, obstacles
     nw = _wall_rows(px, py, rb, a_brk, prm, cons, nr) if walls else nr
     no = _obstacle_rows(px, py, orows, ob, a_brk, prm, cons, nw) if orows.shape[0] else nw
@@ -307,7 +308,7 @@ def safe_field(i, x, pd, nbrs, orows, vdx, vdy, vddx, vddy, ob, rbody, prm, cons
         found = False
         if walls:  # along the wall, out of the obstacle's way (S16.1)
             found, ex, ey = _escape(vx0, vy0, (px, py, pdx, pdy), rb, orows, ob.c, ob.v, ob.phi,
-                                    ob.phi_dot, ob.axes, a_brk, prm)
+                                    ob.phi_dot, ob.axes, a_brk, prm, cons[no:])
             if found:  # robots in the way: no escape
                 qx, qy, _a, _b = _project(cons, 0, nr, ex, ey, 0.0, 0.0, pdx, pdy, lag, False)
                 found = abs(qx - ex) + abs(qy - ey) <= 1e-9

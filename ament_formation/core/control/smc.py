@@ -12,7 +12,7 @@ from numba import njit
 from ament_formation.core.model.dynamics import commanded_point_accel_k, point_velocity_k
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def _switch(sig, gain, eps):
     if eps > 0.0:
         q = sig / eps
@@ -29,7 +29,7 @@ def _switch(sig, gain, eps):
 
 
 # implements: S3, S5
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def smc_torque_k(th, v, w, vdx, vdy, vddx, vddy, plant, tau_max, k1, k2, eps):
     """S3.1, S3.2 with sat(sigma/eps) (S3.5, eps = 0: sign) and uniform scaling (S3.6).
 

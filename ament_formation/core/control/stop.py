@@ -108,7 +108,7 @@ STOP_LOOP_LAG_S = 0.02
 STOP_DELAY_MARGIN = 0.8
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def delay_scale_k(stop_time_s, gain_v, eps_v, gain_w, eps_w, age_s):
     """Factor (0, 1] for the stop law's rates when its (v, omega) is ``age_s`` old."""
     rate = 1.0 / stop_time_s + max(gain_v / eps_v, gain_w / eps_w)
@@ -116,7 +116,7 @@ def delay_scale_k(stop_time_s, gain_v, eps_v, gain_w, eps_w, age_s):
     return 1.0 if loop <= STOP_DELAY_MARGIN else STOP_DELAY_MARGIN / loop
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def stop_torque_k(v, w, plant, tau_max, stop_time_s, gain_v, eps_v, gain_w, eps_w):
     """:func:`stop_torque` of one robot (its (v, omega), plant and gains per unit of its own
     components) -> (tau_left, tau_right).
@@ -131,7 +131,7 @@ def stop_torque_k(v, w, plant, tau_max, stop_time_s, gain_v, eps_v, gain_w, eps_
     return t1 / scale, t2 / scale
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def band_time_k(y0, stop_time_s, gain, eps, g_bar, y_rest):
     """:func:`time_to_band` in the compiled code."""
     y = abs(y0)
@@ -147,7 +147,7 @@ def band_time_k(y0, stop_time_s, gain, eps, g_bar, y_rest):
     return t
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def lead_k(v, w, sk):
     """:meth:`StopLead.lead_s` in the compiled code (``sk`` :data:`StopK`)."""
     rest = max(band_time_k(v, sk.stop_time_s, sk.gain_v, sk.eps_v, sk.g_v, sk.rest_v),

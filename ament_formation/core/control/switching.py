@@ -103,7 +103,7 @@ parent row (S9 pi0; -1 for a leader).
 # --------------------------------------------------------------------------- events
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def event(ev, nev, t, i, enter, mode, target, s):
     """Write a mode event row [t_s, robot row, 1 enter / 0 exit, mode, target, sense]."""
     if nev < ev.shape[0]:
@@ -116,7 +116,7 @@ def event(ev, nev, t, i, enter, mode, target, s):
     return nev + 1
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def leave(i, t, m, ev, nev):
     """Robot i leaves its mode for C (event exit); the S8.4 cool-down starts now."""
     nev = event(ev, nev, t, i, False, m.mode[i], m.tgt[i], m.sdir[i])
@@ -129,7 +129,7 @@ def leave(i, t, m, ev, nev):
     return nev
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def enter(i, t, mode, target, s, m, ev, nev):
     """Robot i enters ``mode`` toward ``target`` with sense ``s`` (event enter)."""
     m.mode[i] = mode
@@ -141,7 +141,7 @@ def enter(i, t, mode, target, s, m, ev, nev):
     return event(ev, nev, t, i, True, mode, target, s)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def release(i, t, m, ev, nev):
     """Robot i leaves a robot encounter; a mutual partner becomes a plain yielder to i (S8.3)."""
     if m.mode[i] == MODE_MUTUAL:
@@ -157,7 +157,7 @@ def release(i, t, m, ev, nev):
 # --------------------------------------------------------------------------- geometry guards
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def relative_velocity(zx, zy, vx, vy, cvx, cvy, phi_dot):
     """S14.2: the robot's velocity relative to the target's material point under it,
     p_dot - (c_dot + phi_dot J z).
@@ -165,7 +165,7 @@ def relative_velocity(zx, zy, vx, vy, cvx, cvy, phi_dot):
     return vx - cvx + phi_dot * zy, vy - cvy - phi_dot * zx
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def _h_dot(zx, zy, rvx, rvy, phi, r1, r2):
     """dh/dt up to a positive factor: grad h . z_dot_rel (S6.4, S6.3(b))."""
     u, w = ellipse_coords(zx, zy, phi, r1, r2)
@@ -174,7 +174,7 @@ def _h_dot(zx, zy, rvx, rvy, phi, r1, r2):
 
 
 # implements: S8.1
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def threat_test(zx, zy, rvx, rvy, phi, r1, r2, q_scale, prm):
     """S8.1 entry test of one target P = (r1, r2) seen from z, relative velocity rv, protected
     region Q = ``q_scale`` P -> (triggered, emergency, lam_in [s], h_em, h_l).
@@ -199,7 +199,7 @@ def threat_test(zx, zy, rvx, rvy, phi, r1, r2, q_scale, prm):
 
 
 # implements: S8.3
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def cleared(px, py, gx, gy, vcx, vcy, cx, cy, cvx, cvy, phi, phi_dot, r1, r2, prm):
     """S8.3 items 1-3 against one target P (centre c, velocity c_dot, orientation phi): the
     segment [p, g] misses C = rho_clr P; outside E; the coordination field V_c the robot would
@@ -218,7 +218,7 @@ def cleared(px, py, gx, gy, vcx, vcy, cx, cy, cvx, cvy, phi, phi_dot, r1, r2, pr
     return ray_time(zx, zy, rvx, rvy, phi, prm.heading_scale * r1, prm.heading_scale * r2) == INF
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def dwell_exit(holds, t, i, m, prm):
     """S8.3 item 4: items 1-3 have held for T_dwell and the robot has been T_min in its mode."""
     if not holds:
@@ -229,7 +229,7 @@ def dwell_exit(holds, t, i, m, prm):
     return t - m.since[i] >= prm.dwell_s - 1e-9 and t - m.t_entry[i] >= prm.min_avoid_s - 1e-9
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def cooling(kind, target, t, i, m, prm):
     """S8.4: a heading-triggered re-entry to the target just left waits T_cool."""
     return m.last_kind[i] == kind and m.last_tgt[i] == target and (
@@ -237,7 +237,7 @@ def cooling(kind, target, t, i, m, prm):
     )
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def ranks_before(em, h_em, lam, best, b_em, b_hem, b_lam):
     """S8.1 ranking: emergencies first (smallest h_em), then the earliest contact (smallest
     lambda); ``best`` < 0: nothing ranked yet.
@@ -253,7 +253,7 @@ def ranks_before(em, h_em, lam, best, b_em, b_hem, b_lam):
 
 
 # implements: S8.9
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def stalled(i, t, p, anchor, t_anchor, prm):
     """S8.9 progress monitor of robot i at p (its ``anchor`` (N, 2) and ``t_anchor`` (N,)):
     re-anchors when the robot has moved more than ``stall_distance_m`` from its anchor; True
@@ -267,7 +267,7 @@ def stalled(i, t, p, anchor, t_anchor, prm):
     return t - t_anchor[i] >= prm.stall_time_s
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def anchor_at(i, t, p, anchor, t_anchor):
     """The progress monitor of robot i starts again at p."""
     anchor[i, 0] = p[i, 0]
@@ -275,19 +275,19 @@ def anchor_at(i, t, p, anchor, t_anchor):
     t_anchor[i] = t
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def progress(i, t, p, m, prm):
     """:func:`stalled` on the monitor of ``m`` (:data:`Modes`)."""
     return stalled(i, t, p, m.anchor, m.t_anchor, prm)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def reanchor(i, t, p, m):
     """The monitor of ``m`` starts again at robot i's p (after it acted)."""
     anchor_at(i, t, p, m.anchor, m.t_anchor)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def begin_episode(i, t, p, m, prm):
     """Robot i leaves C for an avoidance: its monitor starts again, unless it left an avoidance
     less than ``stall_time_s`` ago (one episode: a robot that flips between reasons without
@@ -297,7 +297,7 @@ def begin_episode(i, t, p, m, prm):
         reanchor(i, t, p, m)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def parked(px, py, gx, gy, cx, cy, phi, r1, r2, prm):
     """S8.9/S6.5: the goal's anomaly on the limit cycle is within the parking anomaly of the
     robot's: the field asks it to wait there (it is not stalled, it is parked).
@@ -311,7 +311,7 @@ def parked(px, py, gx, gy, cx, cy, phi, r1, r2, prm):
 # --------------------------------------------------------------------------- the robot's table
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def obstacle_candidate(i, t, robots, ob, m, prm, rows):
     """Guard ``obstacle_threat`` of robot i over the obstacle rows ``rows`` (ascending; at least
     those of :func:`robot_transitions_among`) (S8.1, S14.2) -> (best candidate j or -1, its
@@ -341,7 +341,7 @@ def obstacle_candidate(i, t, robots, ob, m, prm, rows):
     return best, b_em, b_hl, cur_em, cur_hl
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def sense_on(i, j, robots, m):
     """The sense of a known robot other than i on obstacle j (S14.6: one sense per obstacle), 0
     when there is none.
@@ -352,7 +352,7 @@ def sense_on(i, j, robots, m):
     return 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def choose_sense(i, j, robots, ob, m, prm):
     """The sense of robot i entering obstacle j: the sense of a robot already on j (one sense per
     obstacle, S14.6), else S6.6 rules 1-4; then S16.2 (the floor).
@@ -373,7 +373,7 @@ def choose_sense(i, j, robots, ob, m, prm):
     return s
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def _reverse_on_obstacle(i, j, t, robots, ob, m, prm, ev, nev):
     """Row R1: a robot on obstacle j's limit cycle, not parked, turns the other way when it is
     stalled, or when the floor closes its way ahead while the other way is open and no other
@@ -402,7 +402,7 @@ def _reverse_on_obstacle(i, j, t, robots, ob, m, prm, ev, nev):
     return True, enter(i, t, MODE_OBSTACLE, j, -s, m, ev, nev)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def threat_radius(ob, prm):
     """(M,) [m] per obstacle: the half-side of a square about its centre beyond which
     :func:`obstacle_candidate` skips it (Q's reach ``protected_scale`` r1, widened by 1e-9
@@ -412,7 +412,7 @@ def threat_radius(ob, prm):
 
 
 # implements: S8, S8.7
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def robot_transitions(i, t, robots, ob, m, prm, ev, nev):
     """One decision of robot i's own table (module docstring, rows R1-R4) on ``robots``
     (:data:`Robots`), obstacles ``ob`` (ObstacleSnapshot) and the switching state ``m``
@@ -423,7 +423,7 @@ def robot_transitions(i, t, robots, ob, m, prm, ev, nev):
                                    np.arange(ob.c.shape[0]))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def robot_transitions_among(i, t, robots, ob, m, prm, ev, nev, orows):
     """:func:`robot_transitions` with the obstacle rows ``orows`` (ascending) the guard
     ``obstacle_threat`` tests: every obstacle whose square of :func:`threat_radius` holds the
@@ -470,7 +470,7 @@ def robot_transitions_among(i, t, robots, ob, m, prm, ev, nev, orows):
 # --------------------------------------------------------------------------- assignments
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def apply_assignment(i, t, a_mode, a_row, a_sense, a_t_entry, a_wx, a_wy, a_park_at, m, ev,
                      nev):
     """The coordinator's robot encounter for robot i (S7.1): ``a_mode`` MODE_YIELD/MODE_MUTUAL

@@ -128,7 +128,7 @@ class Disturbance:
 
 
 # implements: S2.3
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def disturbance_k(t, amp, freq, phase):
     """g(t) = sum_m A sin(2 pi f t + phi) for one robot; amp/freq/phase (2, M) -> (g1, g2)."""
     g1 = 0.0
@@ -139,7 +139,7 @@ def disturbance_k(t, amp, freq, phase):
     return g1, g2
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def disturbance_grid_k(t, amp, freq, phase, out):
     """The disturbance of every robot at every time: t (T,), amp/freq/phase (N, 2, M) -> out
     (T, N, 2).
@@ -151,7 +151,7 @@ def disturbance_grid_k(t, amp, freq, phase, out):
             out[s, i, 1] = g2
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def disturbance_phasor_init_k(t, freq, phase, sin_out, cos_out):
     """Start the phasors of one robot at time t:
     sin_out/cos_out (2, M) = sin/cos(2 pi f t + phi).
@@ -163,7 +163,7 @@ def disturbance_phasor_init_k(t, freq, phase, sin_out, cos_out):
             cos_out[k, m] = math.cos(arg)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def disturbance_phasor_advance_k(amp, sin_st, cos_st, cos_step, sin_step):
     """Rotate the phasors of one robot by one step (angles 2 pi f h, from
     :meth:`Disturbance.step_rotation`) in place and return g (g1, g2) at the new time.

@@ -130,7 +130,7 @@ def b2_inv(k: PlantCoeffs) -> np.ndarray:
 
 
 # implements: S2
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def state_derivative_k(x, y, th, v, w, t1, t2, g1, g2, mt, It, r, a, d, mc):
     """Xdot of (16)-(20) for one robot -> (xdot, ydot, thdot, vdot, wdot)."""
     mcd = mc * d
@@ -148,7 +148,7 @@ RobotPlant.__doc__ = """One robot's plant coefficients as :func:`rk4_step_k` tak
 the fields of :class:`PlantCoeffs` for one robot without the torque limit)."""
 
 
-@njit(cache=True, inline='always')
+@njit(cache=True, error_model='numpy', inline='always')
 def robot_plant_k(coeffs, i):
     """:data:`RobotPlant` of robot column ``i`` of the (7, N) coefficient rows
     [m~, I~, r, a, d, m_c, tau_max] (the torque limit, row 6, is not part of it).
@@ -163,7 +163,7 @@ def robot_plant_k(coeffs, i):
     )
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def rk4_step_k(s, tau, g0, gh, g1, dt, p):
     """One RK4 step of one robot with ZOH torque: state ``s`` (x, y, theta, v, omega), torque
     ``tau`` (left, right), the disturbance g (g1, g2) at t (``g0``), t + dt/2 (``gh``) and t + dt
@@ -235,7 +235,7 @@ def rk4_step_k(s, tau, g0, gh, g1, dt, p):
     )
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def rk4_step_all(state, torque, g0, gh, g1, dt, mt, It, r, a, d, mc, out):
     """rk4_step_k over all rows: state (N, 5), torque/g0/gh/g1 (N, 2), coefficient arrays (N,);
     writes the new state into ``out`` (N, 5) (may be ``state`` itself).
@@ -255,7 +255,7 @@ def rk4_step_all(state, torque, g0, gh, g1, dt, mt, It, r, a, d, mc, out):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def point_velocity_k(th, v, w, d):
     """p_dot = S1(theta) x2, (16)-(17) -> (px_dot, py_dot)."""
     c = math.cos(th)
@@ -263,7 +263,7 @@ def point_velocity_k(th, v, w, d):
     return v * c - d * w * s, v * s + d * w * c
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def commanded_point_accel_k(th, v, w, t1, t2, mt, It, r, a, d, mc):
     """A = S1 (f2 + B2 u) + S1dot x2 (disturbance-free) -> (ax, ay)."""
     c = math.cos(th)
@@ -276,7 +276,7 @@ def commanded_point_accel_k(th, v, w, t1, t2, mt, It, r, a, d, mc):
     return ax, ay
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def point_velocities(state, d):
     """p_dot of every row: state (N, 5), d (N,) CoM offsets [m] -> (N, 2) [m/s]
     (:func:`point_velocity_k` row by row).

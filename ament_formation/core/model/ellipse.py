@@ -17,7 +17,7 @@ import numpy as np
 INF = math.inf
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def ellipse_coords(zx, zy, phi, r1, r2):
     """Normalised body coordinates (U, W) = (u/r1, w/r2) of z (S6.2); h = U^2 + W^2 - 1."""
     c = math.cos(phi)
@@ -26,14 +26,14 @@ def ellipse_coords(zx, zy, phi, r1, r2):
 
 
 # implements: S6.2
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def h_value(zx, zy, phi, r1, r2):
     """Ellipse function h = z^T A z - 1 of the ellipse (r1, r2, phi) (S6.2)."""
     u, w = ellipse_coords(zx, zy, phi, r1, r2)
     return u * u + w * w - 1.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def ray_time(zx, zy, vx, vy, phi, r1, r2):
     """Smallest lambda >= 0 with z + lambda v inside the ellipse (S8 heading test).
 
@@ -57,7 +57,7 @@ def ray_time(zx, zy, vx, vy, phi, r1, r2):
     return lam
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def segment_hits(p0x, p0y, p1x, p1y, cx, cy, phi, r1, r2):
     """True when the segment [p0, p1] meets the ellipse (centre c) (S8.3 item 1)."""
     u0, w0 = ellipse_coords(p0x - cx, p0y - cy, phi, r1, r2)
@@ -206,7 +206,7 @@ _ANGLES = np.linspace(0.0, 2 * np.pi, BOUNDARY_SAMPLES, endpoint=False)
 UNIT_CIRCLE = (np.cos(_ANGLES), np.sin(_ANGLES))  # as boundary_points computes them
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _inside_one(x, y, c, cp, sp, axes) -> bool:
     """Whether (x, y) lies in the ellipse (centre c, cos/sin of its orientation, semi-axes)."""
     z0, z1 = x - c[0], y - c[1]
@@ -215,7 +215,7 @@ def _inside_one(x, y, c, cp, sp, axes) -> bool:
     return (u / axes[0]) ** 2 + (w / axes[1]) ** 2 <= 1.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _boundary_inside(c1, cp1, sp1, axes1, c2, cp2, sp2, axes2, cos_t, sin_t) -> bool:
     """Whether a boundary sample of ellipse 1 lies in ellipse 2."""
     for i in range(cos_t.shape[0]):
@@ -226,7 +226,7 @@ def _boundary_inside(c1, cp1, sp1, axes1, c2, cp2, sp2, axes2, cos_t, sin_t) -> 
     return False
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _half_width(nx, ny, cp, sp, axes) -> float:
     """The support of an ellipse (orientation cos/sin, semi-axes) along the unit (nx, ny),
     about its centre: sqrt(n' A n), A = R diag(r1^2, r2^2) R'.
@@ -236,7 +236,7 @@ def _half_width(nx, ny, cp, sp, axes) -> float:
     return math.sqrt((axes[0] * u) ** 2 + (axes[1] * w) ** 2)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _separated(c1, cp1, sp1, axes1, c2, cp2, sp2, axes2) -> bool:
     """Whether a line separates the two ellipses, tried along the line of centres and each
     one's axes: then no point of one lies in the other (a proof, never a guess; False only
@@ -258,7 +258,7 @@ def _separated(c1, cp1, sp1, axes1, c2, cp2, sp2, axes2) -> bool:
     return False
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _overlap_kernel(c1, cp1, sp1, axes1, c2, cp2, sp2, axes2, cos_t, sin_t, out):
     """:func:`ellipses_overlap`'s test for each of K pairs, into ``out`` (K,). Pairs a line
     separates are not sampled.
@@ -269,7 +269,7 @@ def _overlap_kernel(c1, cp1, sp1, axes1, c2, cp2, sp2, axes2, cos_t, sin_t, out)
         )
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def overlap_one(c1, cp1, sp1, axes1, c2, cp2, sp2, axes2, cos_t, sin_t) -> bool:
     """:func:`ellipses_overlap` for one pair in a kernel: centres (2,), cos and sin of the
     orientations, semi-axes (2,), the unit circle's samples (``UNIT_CIRCLE``).
@@ -284,7 +284,7 @@ def overlap_one(c1, cp1, sp1, axes1, c2, cp2, sp2, axes2, cos_t, sin_t) -> bool:
     )
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _inverse3(x):
     """The inverse of a 3 x 3 matrix (cofactors)."""
     out = np.empty((3, 3))
@@ -297,7 +297,7 @@ def _inverse3(x):
     return out / det
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _mvee_weights(pts, tol, max_iter):
     """The weights u (S,) of Khachiyan's algorithm with Todd-Yildirim away steps for the
     minimum-volume ellipse of ``pts`` (S, 2): stops when every lifted point's m is within a
@@ -344,7 +344,7 @@ def _mvee_weights(pts, tol, max_iter):
     return u
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _hull_chain(pts, out):
     """Andrew's monotone chain over ``pts`` (S, 2) sorted by x, then y: the hull's vertices,
     counter-clockwise, written to ``out`` (2 S, 2); returns how many. Duplicate and collinear

@@ -321,7 +321,7 @@ def obstacle_arrays(obs) -> tuple:
 
 
 # implements: S6.1
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def obstacle_states(t, c0, vel, amp, omega, phi0, phid, oc, ov, oa, ophi, ophid, ophidd):
     """Centre, velocity, acceleration, orientation and rates of every obstacle at t
     (into the outputs).
@@ -358,7 +358,7 @@ def first_overlaps(times, c0, vel, amp, omega, phi0, phid, axes, pairs) -> np.nd
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _first_overlaps(times, c0, vel, amp, omega, phi0, phid, axes, pairs, cos_t, sin_t, out):
     ca, cb = np.empty(2), np.empty(2)
     for p in range(pairs.shape[0]):
@@ -381,7 +381,7 @@ def _first_overlaps(times, c0, vel, amp, omega, phi0, phid, axes, pairs, cos_t, 
                 break
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def obstacle_pairs(p, oc, radius):
     """(robot row, obstacle row) of every obstacle j whose centre is within ``radius[j]`` [m] of
     robot p in x and in y (a square), by a uniform grid of the obstacles (near-linear in N + M):

@@ -435,7 +435,7 @@ class TabulatedReference:
         return out[0:2], out[2:4], out[4:6]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def quintic_hermite_k(s, h, p0, v0, a0, p1, v1, a1):
     """Quintic Hermite interpolation on one interval of length ``h`` [s] at the fraction ``s`` in
     [0, 1] from the value, first and second derivative at both ends (p0, v0, a0) and (p1, v1, a1):
@@ -473,7 +473,7 @@ def quintic_hermite_k(s, h, p0, v0, a0, p1, v1, a1):
     return r, rd, rdd
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def tabulated_reference_k(tab, j, s, h, out):
     """(r, r_dot, r_ddot) -> ``out`` (6,) at fraction ``s`` of interval ``j`` of a reference table
     ``tab`` (rows [x, y, x_dot, y_dot, x_ddot, y_ddot] every ``h`` seconds), by

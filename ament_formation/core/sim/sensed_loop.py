@@ -85,7 +85,7 @@ estimate errors of the periods (``ClockK.blas_error``)."""
 RecordK = namedtuple('RecordK', ['state', 'torque', 'avoid', 'sat', 'oc', 'ophi', 'progress'])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _capture(t, reg, cam, tw):
     """A frame at ``t`` of every robot's TRUE pose of p, noised and thinned (_Camera.capture)."""
     q = (reg[CQ_HEAD] + reg[CQ_N]) % cam.arrive.shape[0]
@@ -111,7 +111,7 @@ def _capture(t, reg, cam, tw):
     reg[CQ_N] += 1
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _tick(t, reg, fl, clock, st, sc, out, ck, tw, cam, lb):
     """A control period's robot side (_Loop.tick up to the coordinator's decision): wheel
     samples, the frames arrived, the previous period's broadcasts, every agent's period, the
@@ -199,7 +199,7 @@ def _tick(t, reg, fl, clock, st, sc, out, ck, tw, cam, lb):
     return changed
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _record(reg, out, ck, tw, rec):
     """The record's sample of now (_Record.add): the TRUE state, torques, flags, obstacles, the
     coordinator's progress of every leader's reference.
@@ -223,7 +223,7 @@ def _record(reg, out, ck, tw, rec):
     reg[REC_N] = q + 1
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _advance(n_steps, dt, out, tw):
     """PlantTwin.advance: ``n_steps`` RK4 steps with the agents' torques held (clamped; NaN
     -> 0), the disturbance at every half step.
@@ -251,7 +251,7 @@ def _advance(n_steps, dt, out, tw):
     tw.t[0] += n_steps * dt
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def run_k(reg, fl, clock, st, sc, out, ck, pub, tw, cam, lb, rec):
     """The loop of simulate_sensed from step ``reg[K]`` (module docstring); returns why it
     stopped (:data:`DONE` when ``reg[K]`` reached ``reg[K_END]``). Each return is at the top of
@@ -304,7 +304,7 @@ def run_k(reg, fl, clock, st, sc, out, ck, pub, tw, cam, lb, rec):
         reg[PHASE] = 0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def leader_goals_k(refs, i, progress, out):
     """A leader's formation goal r(s) (s_dot = 0) at every progress of ``progress`` (T,) ->
     ``out`` (T, 2).

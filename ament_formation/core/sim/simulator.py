@@ -103,7 +103,7 @@ the mission ended (NaN before)."""
 NEIGHBOUR_SLACK_M = 0.05  # the neighbour lists reach this beyond the barrier's range
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _csr(n, pairs):
     """CSR lists of rows 0..n-1 from (P, 2) pairs (row, member)."""
     start = np.zeros(n + 1, dtype=np.int64)
@@ -120,7 +120,7 @@ def _csr(n, pairs):
     return start, idx
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def neighbour_lists(p, known, rbody, prm, oc, obstacles, horizon_s):
     """:data:`Neighbours` of every robot: the known robots whose keep-out circle is within the
     barrier's range, plus ``NEIGHBOUR_SLACK_M`` for the motion until the next decision; the
@@ -149,18 +149,20 @@ def neighbour_lists(p, known, rbody, prm, oc, obstacles, horizon_s):
     return Neighbours(start, idx, ob_start, ob_idx)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _barrier_rows_needed(nb):
     """Rows the barrier of any robot may fill with :data:`Neighbours` ``nb``: its robots, the
-    four floor edges, its obstacles (core/control/safety.py :func:`safe_field`).
+    four floor edges, its obstacles, then the escape's edges and obstacles (core/control/safety.py
+    :func:`safe_field`).
     """
     most = 0
     for i in range(nb.start.shape[0] - 1):
-        most = max(most, nb.start[i + 1] - nb.start[i] + 4 + nb.ob_start[i + 1] - nb.ob_start[i])
+        obs = nb.ob_start[i + 1] - nb.ob_start[i]
+        most = max(most, nb.start[i + 1] - nb.start[i] + 8 + 2 * obs)
     return most
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _barrier_rows(nb):
     """Scratch rows of the barrier shared by every robot of a step (one allocation, not one per
     robot and step), with room to spare.
@@ -168,7 +170,7 @@ def _barrier_rows(nb):
     return np.empty((2 * _barrier_rows_needed(nb) + 16, 5))
 
 
-@njit(cache=True, inline='always')  # per step: no call with its many arrays
+@njit(cache=True, error_model='numpy', inline='always')  # per step: no call with its many arrays
 def _references(t, robots, graph, mission):
     """The leaders' references r, r_dot, r_ddot at t (within the progress interval begun at the
     last decision) into ``robots.ref``.
@@ -180,7 +182,7 @@ def _references(t, robots, graph, mission):
         leader_reference(refs, i, s, sd, sdd, robots.ref[i])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _threat_rows(p, ob, m, prm):
     """CSR lists (start, rows) of the obstacle rows each robot's guard ``obstacle_threat`` tests
     (core/control/switching.py :func:`robot_transitions_among`): the obstacles whose square of
@@ -220,7 +222,7 @@ def _threat_rows(p, ob, m, prm):
     return out, idx[:cnt]
 
 
-@njit(cache=True, inline='always')  # per step: no call with its many arrays
+@njit(cache=True, error_model='numpy', inline='always')  # per step: no call with its many arrays
 def _goals(every, robots, graph, m, prm):
     """The formation goals g, g_dot and the fields V_c (core/control/law.py :func:`goal_k`) of
     every robot when ``every`` (a decision reads them all, the record the goals), else of the
@@ -236,7 +238,7 @@ def _goals(every, robots, graph, m, prm):
             robots.vc[i, 0], robots.vc[i, 1] = vcx, vcy
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _decide(t, robots, graph, plant, ob, m, teams, mission, prm, ev):
     """One decision: each robot's table (S8.7), then the coordinator's (S8.8) with the teams'
     progress (S17). Returns the event count.
@@ -260,7 +262,7 @@ def _decide(t, robots, graph, plant, ob, m, teams, mission, prm, ev):
     return nev
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy', forceinline=True)
 def _reach_record(reach, i, t, done):
     """Append the reaching phase of robot i that ends at t (S3.4) while there is room."""
     r = reach.count[0]
@@ -273,7 +275,7 @@ def _reach_record(reach, i, t, done):
         reach.count[0] = r + 1
 
 
-@njit(cache=True, inline='always')  # per step: no call with its many arrays
+@njit(cache=True, error_model='numpy', inline='always')  # per step: no call with its many arrays
 def _reaching(reach, i, t, sx, sy, eps):
     """S3.4: sigma0 at a pending switch, the end of the phase when ||sigma||_inf <= eps."""
     sig = max(abs(sx), abs(sy))
@@ -289,7 +291,7 @@ def _reaching(reach, i, t, sx, sy, eps):
         reach.active[i] = False
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _record(rk, robots, mode, ob, rec, mission):
     """Sample ``rk`` of the record: states, torques, goals, flags, obstacle poses, the progress
     of every leader's reference (S17; 0 for followers).
@@ -312,7 +314,7 @@ def _record(rk, robots, mode, ob, rec, mission):
         rec.ob_phi[rk, j] = ob.phi[j]
 
 
-@njit(cache=True, inline='always')  # per step: no call with its many arrays
+@njit(cache=True, error_model='numpy', inline='always')  # per step: no call with its many arrays
 def _plant_step(robots, plant, d_sin, d_cos, g_prev, dt):
     """RK4 with ZOH torques and g at t, t + dt/2, t + dt (S2.2) for every robot."""
     x = robots.x
@@ -330,7 +332,7 @@ def _plant_step(robots, plant, d_sin, d_cos, g_prev, dt):
             x[i, q] = nx[q]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _run_segment(span, skip_decide, clock, robots, graph, plant, obstacles, m, teams, mission,
                  prm, ev, reach, rec):
     """Steps k0 .. k_end-1 of the closed loop, ``span`` = (k0, k_end, first record row).

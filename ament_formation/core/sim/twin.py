@@ -26,7 +26,7 @@ from ament_formation.core.model.dynamics import (
 from ament_formation.core.model.obstacles import ObstacleField, ObstacleStates
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _advance_k(state, wheel, tau, g, dt, mt, It, r, a, d, mc):
     """n_steps RK4 steps (ZOH torque) of every robot; g (2 n_steps + 1, N, 2) is the disturbance
     at t, t + dt/2, t + dt, ...; wheel angles integrated with the trapezoidal rule (S2.2).

@@ -28,7 +28,7 @@ N_PASSES = 2
 _SETTLED_PX = 0.25  # skip the second pass when the first moved no corner farther
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _bilinear(img, x, y):
     h, w = img.shape
     if x < 0.0:
@@ -48,7 +48,7 @@ def _bilinear(img, x, y):
     return a * (1.0 - fy) + b * fy
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _undistort(u, v, fx, fy, cx, cy, d):
     """Pixel (u, v) → ideal normalized (x, y): Newton's method on the distortion model
     (converges in 3–5 steps to 1e-14; OpenCV's fixed-point iteration needs tens).
@@ -79,7 +79,7 @@ def _undistort(u, v, fx, fy, cx, cy, d):
     return x, y
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _distort(x, y, fx, fy, cx, cy, d):
     """Ideal normalized (x, y) → pixel (u, v)."""
     k1, k2, p1, p2, k3 = d[0], d[1], d[2], d[3], d[4]
@@ -90,7 +90,7 @@ def _distort(x, y, fx, fy, cx, cy, d):
     return fx * xd + cx, fy * yd + cy
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def refine_kernel(img, corners, fx, fy, cx, cy, dist, bits, out_norm, out_sigma):
     """Img (H, W) uint8 or float; corners (K, 4, 2) px → out_norm (K, 4, 2) ideal normalized
     corners, out_sigma (K,) corner σ [px] (NaN: refinement failed, the detector's corners are
@@ -240,7 +240,7 @@ def refine(
     return out, sigma
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def _verify_kernel(img, corners, expected, n, min_contrast, out):
     """Read the (n + 2)² cell centres (quiet ring, border, code) of each quad, bilinearly
     interpolated between its corners; out[k] = True when contrast >= min_contrast and at most
@@ -315,7 +315,7 @@ def verify_codes(
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model='numpy')
 def poses_kernel(
     normalized,
     r_wc,
