@@ -5,9 +5,9 @@ seed no change was traced on, run after the last change of the law), the ten har
 fixed by the floor's R1 reversal and moved, with seed 2's off-floor formation-s2-528, to
 test/scenarios_regression/), the eleven hard runs of seed 4711's 2,000 (never looked at, run
 after that change), and (``og-*``) from
-scenarios of another generator's rules (bench/other_generator.py, seed 2026, 400 files,
-`formation sweep --scenarios`; five of the six are one team overtaking another in a
-corridor, a situation the project's own families never draw): kept so that the failure stays
+scenarios of another generator's rules (bench/other_generator.py, seeds 2026 and 9090, 400 files
+each, `formation sweep --scenarios`; eleven of the thirteen are one team overtaking another in
+a corridor, a situation the project's own families never draw): kept so that the failure stays
 visible and a fix shows.
 Each must still fail with the class in its header; a law that fixes one turns its test red
 (strict): move the file to test/scenarios_regression/ then.
