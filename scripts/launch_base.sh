@@ -53,13 +53,14 @@ if [ -n "$params_file" ]; then
   [ -f "$params_file" ] || { echo "launch_base.sh: --params: no such file '$params_file'" >&2; exit 2; }
   params=(--params-file "$(realpath "$params_file")")
 fi
-[ -n "$run_dir" ] || run_dir="$(mktemp -d -t ament_formation_base.XXXXXX)"
 cam=()
 [ -n "$camera" ] && cam=(-p source:="$camera")
 [ -n "$camera_wait" ] && cam+=(-p source_wait_s:="$([ "$camera_wait" = inf ] && echo .inf || echo "$camera_wait")")
 af_choose_network launch_base.sh "$loopback" "$domain"   # sets AF_NETWORK
 info="$("${AF_PYTHON[@]}" "$here/launch_info.py" "$scenario" ${params_file:+"$params_file"} --camera-check)" || exit 2
 eval "$info"   # sets ids, robot_ids_list, marker_ids_list
+[ -n "$run_dir" ] || run_dir="$(mktemp -d -t ament_formation_base.XXXXXX)"   # after the checks: a refused
+# launch leaves no empty run folder behind
 
 af_launch_init "$(realpath -m "$run_dir")" "${AF_NETWORK[@]}"
 echo "network: $([ ${#AF_NETWORK[@]} = 0 ] && echo "loopback (this machine only)" || echo "lab (subnet discovery, profile $FASTRTPS_DEFAULT_PROFILES_FILE)"), ROS_DOMAIN_ID=$ROS_DOMAIN_ID"
