@@ -275,7 +275,11 @@ def test_stream_on_loopback_and_camera_loss(tmp_path, probe, executor):
         ), 'no poses from the stream'
         assert proc.poll() is None, stderr_of(proc)
         assert_tracked_like_truth(probe, 0, min_frames=60)
-        assert any(lv == DiagnosticStatus.OK for lv, _ in levels_seen(probe)), levels_seen(probe)
+        assert spin_until(  # the first diagnostics may come after the first 60 frames' poses
+            executor,
+            lambda: any(lv == DiagnosticStatus.OK for lv, _ in levels_seen(probe)),
+            10.0,
+        ), levels_seen(probe)
         # 2. the stream is cut: diagnostics ERROR, no poses of frames after the cut
         n_diag = len(probe.diags)
         server.stop()
