@@ -105,7 +105,7 @@ def test_c6_robots_of_two_teams_do_not_pair_one_gives_way_out_of_the_way():
     assert m.mode[0] == MODE_C
     assert teams.rank[0] < teams.rank[1] < INF
     assert m.park_at[1] == INF  # giving way: it goes round, it does not wait (park) in the way
-    assert list(teams.giving_way) == [False, True]  # team 1's reference waits (S17)
+    assert list(teams.way_rate) == [1.0, 0.0]  # team 1's reference waits (S17)
 
 
 def test_c6_an_emergency_pairs_robots_of_any_team_and_turns_a_yield_into_a_pair():
@@ -490,7 +490,86 @@ def test_a_team_passing_a_team_at_rest_goes_round_it_and_its_reference_does_not_
     evs = coordinator_decision(1.0, m, robots(p, pd, goal=[p[0], (-1.0, 0.0)]), teams)
     assert entered(evs) == [(1, 'yield', 0)] and m.park_at[1] < INF
     assert m.mode[0] == MODE_C
-    assert teams.rank[0] == -1.0 and not teams.giving_way.any()
+    assert teams.rank[0] == -1.0 and (teams.way_rate == 1.0).all()
+
+
+def _headway(p_k, pd_k, heading=(1.0, 0.0), done=False):
+    """Robot 0 (team 0, ranked first) at p_k moving at pd_k; robot 1 (team 1, its path along
+    ``heading``) at rest at the origin, in C: team 1's way_rate after one decision.
+    """
+    m, teams = modes(2), new_teams(2)
+    teams.rank[:] = [0.0, 1.0]  # team 0 goes first (S7.5)
+    teams.heading[1] = heading
+    teams.done[0] = done
+    coordinator_decision(1.0, m, robots([p_k, (0.0, 0.0)], [pd_k, (0.0, 0.0)],
+                                        goal=[p_k, (2.0, 0.0)]), teams)
+    assert teams.way_rate[0] == 1.0  # the team that goes first is never held by the other
+    return teams.way_rate[1]
+
+
+def test_headway_a_team_slows_and_waits_for_a_moving_team_that_goes_first_in_its_way():
+    # S7.5 headway: a robot of the first team crossing team 1's way ahead of its robot: the cap
+    # falls linearly from headway_go_m to headway_stop_m (0.3 m of span by default)
+    go, stop = PRM.headway_go_m, PRM.headway_stop_m
+    assert _headway((go + 0.05, 0.0), (0.0, 0.05)) == 1.0
+    mid = 0.5 * (go + stop)
+    assert _headway((mid, 0.0), (0.0, 0.05)) == pytest.approx(0.5)
+    assert _headway((stop - 0.02, 0.1), (0.0, 0.05)) == 0.0
+    assert _headway((mid, 0.0), (0.05, 0.0)) == pytest.approx(0.5)  # ahead, going the same way
+    # ... and is the least over the pairs: a second team-0 robot nearer ahead caps harder
+    m, teams = modes(3), new_teams(3)
+    teams.rank[:] = [0.0, 1.0, INF]
+    teams.heading[1] = (1.0, 0.0)
+    rb = robots([(go - 0.05, 0.2), (0.0, 0.0), (stop + 0.03, -0.1)],
+                [(0.0, 0.05), (0.0, 0.0), (0.0, 0.05)], team=[0, 1, 0])
+    coordinator_decision(1.0, m, rb, teams)
+    d = math.hypot(stop + 0.03, 0.1)
+    assert teams.way_rate[1] == pytest.approx((d - stop) / (go - stop))
+
+
+def test_headway_does_not_hold_a_team_for_a_robot_behind_beside_at_rest_coming_or_done():
+    mid = 0.5 * (PRM.headway_go_m + PRM.headway_stop_m)
+    assert _headway((-mid, 0.0), (0.0, 0.05)) == 1.0  # behind
+    q = PRM.protected_scale * R_AA
+    assert _headway((mid, q + 0.02), (0.05, 0.0)) == 1.0  # beside the way, beyond Q's radius
+    assert _headway((mid, 0.0), (0.0, 0.5 * PRM.teammate_speed_mps)) == 1.0  # at rest: go round
+    assert _headway((mid, 0.0), (-0.05, 0.0)) == 1.0  # coming at it: waiting stands in its way
+    assert _headway((mid, 0.0), (0.0, 0.05), done=True) == 1.0  # a team at its end
+    assert _headway((mid, 0.0), (0.0, 0.05), heading=(np.nan, np.nan)) == 1.0  # no way known
+    # the same robot ahead in the way of a team that goes first holds nobody
+    m, teams = modes(2), new_teams(2)
+    teams.rank[:] = [1.0, 0.0]
+    teams.heading[1] = (1.0, 0.0)
+    coordinator_decision(1.0, m, robots([(mid, 0.0), (0.0, 0.0)], [(0.0, 0.05), (0.0, 0.0)]),
+                         teams)
+    assert list(teams.way_rate) == [1.0, 1.0]
+
+
+def test_headway_the_coordinator_holds_a_crossing_team_back_in_the_closed_loop():
+    # two one-robot teams crossing at right angles, team 1 arriving later: its reference waits
+    # short of the crossing (its robot never yields: it stops, with its reference's lag, about
+    # 0.1 m inside headway_stop_m), then goes
+    sc = parse_scenario({
+        'name': 'cross_headway', 'duration_s': 30.0,
+        'robots': [
+            {'id': 0, 'leader': True, 'slot_m': [0.0, 0.0], 'marker_id': 0,
+             'initial_pose': [-0.9, 0.0, 0.0],
+             'path': {'type': 'line', 'start_m': [-0.9, 0.0], 'heading_rad': 0.0,
+                      'speed_mps': 0.06}},
+            {'id': 1, 'leader': True, 'slot_m': [0.0, 0.0], 'marker_id': 1,
+             'initial_pose': [0.0, -0.95, math.pi / 2],
+             'path': {'type': 'line', 'start_m': [0.0, -0.95], 'heading_rad': math.pi / 2,
+                      'speed_mps': 0.06}},
+        ],
+        'graph': {'edges': []}, 'obstacles': [],
+    })
+    res = simulate(sc, record_every_s=0.05)
+    x = res.state
+    gap = np.hypot(x[:, 0, 0] - x[:, 1, 0], x[:, 0, 1] - x[:, 1, 1])
+    assert [e for e in res.mode_events if e['mode'] in ('yield', 'mutual')] == []
+    assert PRM.headway_stop_m - 0.15 < gap.min() < PRM.headway_stop_m
+    metrics = compute_metrics(res, sc)
+    assert max(r['final_error_m'] for r in metrics['robots'].values()) < 0.05
 
 
 def _triangle(n=3, radius=0.28):

@@ -88,14 +88,14 @@ def test_the_reference_rests_at_its_end():
 
 def test_the_rate_target_slows_from_reform_start_to_a_wait_at_reform_stop():
     lo, hi = PRM.reform_start_m, PRM.reform_stop_m
-    assert rate_target(0.0, False, PRM) == 1.0
-    assert rate_target(lo, False, PRM) == pytest.approx(1.0)
-    assert rate_target(0.5 * (lo + hi), False, PRM) == pytest.approx(0.5)
-    assert rate_target(hi, False, PRM) == pytest.approx(0.0)
-    assert rate_target(2.0, False, PRM) == 0.0
-    assert rate_target(0.0, True, PRM) == 0.0  # giving way to a team before it (S7.5)
+    assert rate_target(0.0, 1.0, PRM) == 1.0
+    assert rate_target(lo, 1.0, PRM) == pytest.approx(1.0)
+    assert rate_target(0.5 * (lo + hi), 1.0, PRM) == pytest.approx(0.5)
+    assert rate_target(hi, 1.0, PRM) == pytest.approx(0.0)
+    assert rate_target(2.0, 1.0, PRM) == 0.0
+    assert rate_target(0.0, 0.0, PRM) == 0.0  # giving way to a team before it (S7.5)
     e = np.linspace(0.0, 1.0, 201)
-    r = np.array([rate_target(v, False, PRM) for v in e])
+    r = np.array([rate_target(v, 1.0, PRM) for v in e])
     assert np.all(np.diff(r) <= 1e-15) and r.min() == 0.0 and r.max() == 1.0  # monotone
 
 
@@ -105,9 +105,9 @@ def _targets(e_team, s, giving=None, s_end=30.0, t=None):
     pr.s[:] = s
     out = np.full(n, np.nan)
     leaders = np.arange(n, dtype=np.int64)
-    gw = np.zeros(n, bool) if giving is None else np.array(giving)
+    way = np.ones(n) if giving is None else 1.0 - np.array(giving, float)  # the S7.5 cap
     t = max(s) if t is None else t  # no lag unless asked
-    rate_targets(t, np.array(e_team, float), gw, pr, leaders, s_end, PRM, out)
+    rate_targets(t, np.array(e_team, float), way, pr, leaders, s_end, PRM, out)
     return out.tolist()
 
 

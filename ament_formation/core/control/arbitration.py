@@ -43,7 +43,13 @@ import numpy as np
 
 from ament_formation.core.control.floor import drift_off_edges
 from ament_formation.core.control.limit_cycle import choose_direction
-from ament_formation.core.control.progress import finish_wait_s, rate_targets, step, team_errors
+from ament_formation.core.control.progress import (
+    finish_wait_s,
+    path_heading,
+    rate_targets,
+    step,
+    team_errors,
+)
 from ament_formation.core.control.switching import (
     anchor_at,
     begin_episode,
@@ -71,20 +77,23 @@ from ament_formation.core.model.ellipse import h_value
 
 MAX_THREATS = 8  # robot threats kept per robot and decision (the most urgent)
 
-Teams = namedtuple('Teams', ['rank', 'done', 'giving_way', 'anchor', 't_anchor'])
+Teams = namedtuple('Teams', ['rank', 'done', 'way_rate', 'heading', 'anchor', 't_anchor'])
 Teams.__doc__ = """Right of way between teams (S7.5), rows indexed by robot row (a team is its
 leader's row): ``rank`` (N,) float, the team's rank key while it meets another team (lower goes
 first; INF: meeting nobody); ``done`` (N,) bool, the team's reference has reached its end (S17);
-``giving_way`` (N,) bool, output: some robot of the team yields to a robot of a team that ranks
-before it (its reference waits, S17); ``anchor`` (N, 2), ``t_anchor`` (N,): the coordinator's
-own progress monitor of the robots on obstacles (row C9, S8.9).
+``way_rate`` (N,) output, the cap in [0, 1] the right of way puts on the team's reference rate
+(S17): 0 while some robot of it yields to a moving robot of a team that ranks before it, and the
+headway (:func:`headway`) while such a robot moves in its way ahead; ``heading`` (N, 2) input,
+the unit direction of the team's path at its progress (NaN: none); ``anchor`` (N, 2),
+``t_anchor`` (N,): the coordinator's own progress monitor of the robots on obstacles (row C9,
+S8.9).
 """
 
 
 def new_teams(n: int) -> Teams:
     """:data:`Teams` of n robot rows, nobody meeting anybody."""
-    return Teams(np.full(n, INF), np.zeros(n, dtype=np.bool_), np.zeros(n, dtype=np.bool_),
-                 np.full((n, 2), np.nan), np.zeros(n))
+    return Teams(np.full(n, INF), np.zeros(n, dtype=np.bool_), np.ones(n),
+                 np.full((n, 2), np.nan), np.full((n, 2), np.nan), np.zeros(n))
 
 
 @njit(cache=True, error_model='numpy', forceinline=True)
@@ -561,6 +570,46 @@ def _meeting_point_distance(ld, c, robots):
     return ((c[0] - robots.p[ld, 0]) * gx + (c[1] - robots.p[ld, 1]) * gy) / v
 
 
+@njit(cache=True, error_model='numpy', forceinline=True)
+def headway(i, k, robots, teams, prm):
+    """S7.5: the rate cap in [0, 1] that robot k, of a moving team that goes first, puts on robot
+    i's team: 1 unless k moves (faster than ``teammate_speed_mps``, not against the way: within
+    120 degrees of it) and lies ahead of i in its team's way (along ``Teams.heading``, within Q's
+    radius of the line), falling from 1 at ``headway_go_m`` to 0 at ``headway_stop_m``: the team
+    follows or waits at a distance instead of closing up, yielding and closing up again.
+    """
+    p, pd = robots.p, robots.pd
+    ux, uy = teams.heading[robots.team[i], 0], teams.heading[robots.team[i], 1]
+    vk = math.hypot(pd[k, 0], pd[k, 1])
+    if not (ux == ux) or vk <= prm.teammate_speed_mps or pd[k, 0] * ux + pd[k, 1] * uy < -0.5 * vk:
+        return 1.0  # at rest (go round it) or coming at i (waiting would stand in its way)
+    dx, dy = p[k, 0] - p[i, 0], p[k, 1] - p[i, 1]
+    if dx * ux + dy * uy <= 0.0 or abs(dx * uy - dy * ux) > prm.protected_scale * (
+            keepout_radius(robots.rbody, i, k, prm)):
+        return 1.0
+    d = math.hypot(dx, dy)
+    return min(1.0, max(0.0, (d - prm.headway_stop_m) / (prm.headway_go_m - prm.headway_stop_m)))
+
+
+@njit(cache=True, error_model='numpy', forceinline=True)
+def _way_rates(robots, m, pairs, teams, prm):
+    """S7.5, S17.1: ``Teams.way_rate``, the cap the right of way puts on each team's rate: 0
+    while one of its robots yields to a moving robot of a team that ranks first (it waits while
+    that team goes by), else the least :func:`headway` over the close pairs with such robots.
+    """
+    wr, team = teams.way_rate, robots.team
+    wr[:] = 1.0
+    for q in range(pairs.shape[0]):
+        for i, k in ((pairs[q, 0], pairs[q, 1]), (pairs[q, 1], pairs[q, 0])):
+            if _rank_first(k, i, robots, teams) and not teams.done[team[k]]:
+                wr[team[i]] = min(wr[team[i]], headway(i, k, robots, teams, prm))
+    for i in range(m.mode.shape[0]):
+        k = m.tgt[i]
+        if m.mode[i] == MODE_YIELD and _rank_first(k, i, robots, teams) and not teams.done[
+                team[k]]:
+            wr[team[i]] = 0.0
+
+
 # implements: S7.5
 @njit(cache=True, error_model='numpy')
 def right_of_way(t, robots, pairs, teams, prm):
@@ -633,13 +682,7 @@ def arbitrate(t, robots, m, teams, prm, ev, nev):
             nev = _engage(i, k, em, t, robots, m, teams, prm, ev, nev)
     nev = _exits(t, robots, m, prm, ev, nev)
     _drift_targets(robots, m, prm)
-    gw = teams.giving_way
-    gw[:] = False
-    for i in range(m.mode.shape[0]):
-        k = m.tgt[i]
-        if m.mode[i] == MODE_YIELD and _rank_first(k, i, robots, teams) and not teams.done[
-                robots.team[k]]:
-            gw[robots.team[i]] = True  # waits while a team with the right of way goes by
+    _way_rates(robots, m, pairs, teams, prm)
     return nev
 
 
@@ -651,9 +694,11 @@ def coordinate(t, dt, robots, ob, m, teams, progress, refs, leaders, e_team, prm
     ``dt`` [s] since the last decision (S17). Returns (event count, the mission has ended: every
     reference at its end, and every team re-formed or the finish wait used up).
     """
+    for i in leaders:
+        path_heading(refs, i, progress.s[i], teams.heading[i])
     nev = arbitrate(t, robots, m, teams, prm, ev, nev)
     team_errors(robots.p, robots.goal, robots.team, robots.known, ob, prm, e_team)
-    rate_targets(t, e_team, teams.giving_way, progress, leaders, refs.s_end, prm, progress.target)
+    rate_targets(t, e_team, teams.way_rate, progress, leaders, refs.s_end, prm, progress.target)
     done = True
     worst = 0.0
     for i in leaders:

@@ -123,6 +123,15 @@ class LawParams:
         0.9, 'm', 'two teams keep their right of way until no robots of theirs are closer '
         'than this (S7.5)'
     )
+    headway_go_m: float = threshold(
+        0.8, 'm', 'a team slows down when a moving robot of a team that goes first comes this '
+        'close ahead of one of its robots, in its way (S7.5; within right_of_way_release_m, where '
+        'the teams are ranked)'
+    )
+    headway_stop_m: float = threshold(
+        0.5, 'm', 'and waits when it is this close: just outside Q of a robot pair (S7.5, '
+        'S17.1), so that it follows at a distance instead of yielding and closing up in turn'
+    )
     floor_m: tuple[float, float, float, float] | None = None
 
     def __post_init__(self) -> None:
@@ -154,6 +163,13 @@ class LawParams:
                 f'must be > reform_start_m ({self.reform_start_m:g} m) '
                 f'(got {self.reform_stop_m!r})',
                 'reform_stop_m',
+            )
+        if not self.headway_stop_m < self.headway_go_m <= self.right_of_way_release_m:
+            raise ConfigError(
+                f'must be > headway_stop_m ({self.headway_stop_m:g} m) and <= '
+                f'right_of_way_release_m ({self.right_of_way_release_m:g} m) '
+                f'(got {self.headway_go_m!r})',
+                'headway_go_m',
             )
         if self.floor_m is not None:
             x0, x1, y0, y1 = (float(v) for v in self.floor_m)

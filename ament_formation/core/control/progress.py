@@ -9,7 +9,8 @@ target with a first-order lag (``progress_tau_s``), so s_ddot stays bounded (S17
   ``reform_stop_m`` (S17.1): a team that fell apart waits for its robots instead of leaving them
   behind;
 * a team that gives way to another (S7.5) waits: target 0 while one of its robots yields to a
-  robot of a team that ranks before it;
+  moving robot of a team that ranks before it, and below 1 while such a robot moves across its
+  way close ahead of one of its robots (the headway, ``Teams.way_rate``);
 * a team whose leader's goal lies inside an obstacle's Q moves on (target 1): waiting would
   keep the leader parked, and its followers' goals with it;
 * the reference ends at s = s_end (the scenario's ``duration_s``): there it rests.
@@ -187,19 +188,20 @@ def team_errors(p, goal, team, known, ob, prm, out):
 
 
 @njit(cache=True, error_model='numpy', forceinline=True)
-def rate_target(e_team, giving_way, prm):
-    """S17.1, S17.2: the progress rate a team's reference follows, in [0, 1]."""
-    if giving_way:
-        return 0.0
+def rate_target(e_team, way_rate, prm):
+    """S17.1, S17.2: the progress rate a team's reference follows, in [0, 1]: its error's,
+    capped by ``way_rate``, the right of way's (S7.5).
+    """
     span = prm.reform_stop_m - prm.reform_start_m
-    return min(1.0, max(0.0, (prm.reform_stop_m - e_team) / span))
+    return min(way_rate, 1.0, max(0.0, (prm.reform_stop_m - e_team) / span))
 
 
 # implements: S17.1
 @njit(cache=True, error_model='numpy', forceinline=True)
-def rate_targets(t, e_team, giving_way, pr, leaders, s_end, prm, out):
+def rate_targets(t, e_team, way_rate, pr, leaders, s_end, prm, out):
     """S17.1-S17.3: the rate target of every leader row at time ``t`` [s since the mission's
-    start] -> ``out``: :func:`rate_target` of its team, and 0 within ``finish_s`` of its end while
+    start] -> ``out``: :func:`rate_target` of its team (``way_rate`` (N,) the right of way's cap,
+    S7.5), and 0 within ``finish_s`` of its end while
     some team is not re-formed (E above ``reform_stop_m``): the mission ends with every team in
     formation. A reference that has waited :func:`max_wait_s` in all (t - s) moves on at 1, but
     for the finish wait, which lasts up to :func:`finish_wait_s` in all.
@@ -211,13 +213,25 @@ def rate_targets(t, e_team, giving_way, pr, leaders, s_end, prm, out):
     finish_room = finish_wait_s(s_end, prm)
     for i in leaders:
         # a parked leader (E < 0) moves on: its goal must come out of the obstacle's Q
-        out[i] = 0.0 if giving_way[i] else 1.0 if e_team[i] < 0.0 else rate_target(
-            e_team[i], False, prm)
+        out[i] = min(way_rate[i], 1.0) if e_team[i] < 0.0 else rate_target(
+            e_team[i], way_rate[i], prm)
         late = t - pr.s[i]
         if late >= budget:
             out[i] = 1.0
         if worst > prm.reform_stop_m and pr.s[i] >= s_end - prm.finish_s and late < finish_room:
             out[i] = 0.0  # the finish wait outlasts the budget, within the run's cap (S17.3)
+
+
+@njit(cache=True, error_model='numpy', forceinline=True)
+def path_heading(refs, i, s, out):
+    """The unit direction r'(s)/|r'(s)| of leader row i's path at progress s -> ``out`` (2,) (NaN
+    where the path does not move): the way its team goes, also while its reference waits.
+    """
+    table = refs.table[refs.row[i]]
+    j = min(max(int(round(s / refs.step_s)), 0), table.shape[0] - 1)
+    vx, vy = table[j, 2], table[j, 3]
+    v = math.hypot(vx, vy)
+    out[0], out[1] = (vx / v, vy / v) if v > 1e-9 else (np.nan, np.nan)
 
 
 @njit(cache=True, error_model='numpy', forceinline=True)
