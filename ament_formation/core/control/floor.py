@@ -79,6 +79,27 @@ def _arc_leaves(cx, cy, phi, big_r1, big_r2, psi0, dpsi, clear, prm):
     return False
 
 
+@njit(cache=True, error_model='numpy', forceinline=True)
+def cycle_inside(cx, cy, phi, big_r1, big_r2, clear, prm):
+    """Whether the whole limit cycle L = (big_r1, big_r2) about c keeps ``clear`` from every
+    edge, by a bound: a point c + R(phi) (u, w) with |u| <= big_r1, |w| <= big_r2 lies within
+    |cos phi| big_r1 + |sin phi| big_r2 of c in x (and alike in y), and a relative 1e-9 covers
+    the rounding of :func:`_arc_leaves`'s samples. True: no arc of L leaves the floor (so
+    :func:`floor_side` keeps the sense, the other way open); False says nothing.
+    """
+    c = abs(math.cos(phi))
+    s = abs(math.sin(phi))
+    bx = c * big_r1 + s * big_r2
+    by = s * big_r1 + c * big_r2
+    tol = 1e-9 * (1.0 + abs(cx) + abs(cy) + bx + by + clear)
+    return (
+        cx - bx - clear - tol >= prm.floor_x_min_m
+        and cx + bx + clear + tol <= prm.floor_x_max_m
+        and cy - by - clear - tol >= prm.floor_y_min_m
+        and cy + by + clear + tol <= prm.floor_y_max_m
+    )
+
+
 # implements: S16
 @njit(cache=True, error_model='numpy', forceinline=True)
 def floor_side(sense, px, py, gx, gy, cx, cy, phi, big_r1, big_r2, clear, prm):

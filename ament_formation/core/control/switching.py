@@ -38,7 +38,7 @@ import math
 from numba import njit
 import numpy as np
 
-from ament_formation.core.control.floor import floor_side, has_floor
+from ament_formation.core.control.floor import cycle_inside, floor_side, has_floor
 from ament_formation.core.control.limit_cycle import anomaly, choose_direction
 from ament_formation.core.model.ellipse import ellipse_coords, h_value, ray_time, segment_hits
 
@@ -383,14 +383,19 @@ def _reverse_on_obstacle(i, j, t, robots, ob, m, prm, ev, nev):
     """
     p, goal = robots.p, robots.goal
     stuck = progress(i, t, p, m, prm)
+    big1, big2 = prm.limit_cycle_scale * ob.axes[j, 0], prm.limit_cycle_scale * ob.axes[j, 1]
+    clear = robots.rbody[i] + prm.safety_gap_m
+    if not stuck and (not has_floor(prm) or cycle_inside(ob.c[j, 0], ob.c[j, 1], ob.phi[j],
+                                                         big1, big2, clear, prm)):
+        # the answer below without its arcs: no floor, or none near the whole cycle (floor_side
+        # would keep the sense, so not closed ahead), and not stalled
+        return False, nev
     if parked(p[i, 0], p[i, 1], goal[i, 0], goal[i, 1], ob.c[j, 0], ob.c[j, 1], ob.phi[j],
               ob.axes[j, 0], ob.axes[j, 1], prm):
         return False, nev
     s = m.sdir[i]
     if not (stuck or has_floor(prm)):
         return False, nev
-    big1, big2 = prm.limit_cycle_scale * ob.axes[j, 0], prm.limit_cycle_scale * ob.axes[j, 1]
-    clear = robots.rbody[i] + prm.safety_gap_m
     kept, other_open = floor_side(s, p[i, 0], p[i, 1], goal[i, 0], goal[i, 1], ob.c[j, 0],
                                   ob.c[j, 1], ob.phi[j], big1, big2, clear, prm)
     closed_ahead = (kept != s and t - m.t_entry[i] >= prm.min_avoid_s - 1e-9

@@ -89,10 +89,17 @@ class SinusoidPath:
         n = self._panels()
         width = np.asarray(length, dtype=float) / n
         total = 0.0
+        vals = np.empty(width.shape + _GL_NODES.shape)  # in place: the same operations, no copies
         for j in range(n):
-            nodes = width[..., None] * (j + 0.5 * (_GL_NODES + 1.0))
-            vals = np.sqrt(1.0 + (a * np.cos(k * nodes)) ** 2)
-            total = total + 0.5 * width * np.sum(vals * _GL_WEIGHTS, axis=-1)
+            np.multiply(width[..., None], j + 0.5 * (_GL_NODES + 1.0), out=vals)  # the nodes
+            np.multiply(k, vals, out=vals)
+            np.cos(vals, out=vals)
+            np.multiply(a, vals, out=vals)
+            np.square(vals, out=vals)
+            np.add(1.0, vals, out=vals)
+            np.sqrt(vals, out=vals)
+            np.multiply(vals, _GL_WEIGHTS, out=vals)
+            total = total + 0.5 * width * np.sum(vals, axis=-1)
         return total
 
     def _arc_length(self, x: np.ndarray) -> np.ndarray:

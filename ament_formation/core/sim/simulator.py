@@ -68,6 +68,7 @@ from ament_formation.core.model.obstacles import (
     ObstacleField,
     ObstacleSnapshot,
 )
+from ament_formation.core.sim.borrowed import borrowed, keep_alive
 from ament_formation.core.sim.trajectory import SimResult
 
 # why _run_segment returned
@@ -342,27 +343,33 @@ def _run_segment(span, skip_decide, clock, robots, graph, plant, obstacles, m, t
     """
     dt, dec_every, rec_every = clock
     k0, k_end, rk0 = span
+    # the loop reads every array without reference counting (core/sim/borrowed.py): the
+    # arguments' owners are the caller's, those allocated here are kept alive to the end
+    robots, graph, plant, obstacles, m, teams, mission, ev, reach, rec = borrowed(
+        (robots, graph, plant, obstacles, m, teams, mission, ev, reach, rec))
     x, pd = robots.x, robots.pd
     n = x.shape[0]
-    d_sin = np.empty_like(plant.d_amp)
-    d_cos = np.empty_like(plant.d_amp)
-    g_prev = np.empty((n, 2))
+    own = (np.empty_like(plant.d_amp), np.empty_like(plant.d_amp), np.empty((n, 2)))
+    d_sin, d_cos, g_prev = borrowed(own)
     for i in range(n):  # the disturbance phasors restart at every segment: no drift
         disturbance_phasor_init_k(k0 * dt, plant.d_freq[i], plant.d_phase[i], d_sin[i], d_cos[i])
         g_prev[i, 0], g_prev[i, 1] = disturbance_k(k0 * dt, plant.d_amp[i], plant.d_freq[i],
                                                    plant.d_phase[i])
-    ob = ObstacleSnapshot(np.empty((obstacles.axes.shape[0], 2)),
-                          np.empty((obstacles.axes.shape[0], 2)),
-                          np.empty((obstacles.axes.shape[0], 2)),
-                          np.empty(obstacles.axes.shape[0]), np.empty(obstacles.axes.shape[0]),
-                          np.empty(obstacles.axes.shape[0]), obstacles.axes, obstacles.static)
+    ob_own = ObstacleSnapshot(np.empty((obstacles.axes.shape[0], 2)),
+                              np.empty((obstacles.axes.shape[0], 2)),
+                              np.empty((obstacles.axes.shape[0], 2)),
+                              np.empty(obstacles.axes.shape[0]), np.empty(obstacles.axes.shape[0]),
+                              np.empty(obstacles.axes.shape[0]), obstacles.axes, obstacles.static)
+    ob = borrowed(ob_own)
     horizon = dec_every * dt
     obstacle_states(k0 * dt, obstacles.c0, obstacles.v, obstacles.amp, obstacles.w,
                     obstacles.phi0, obstacles.phid, ob.c, ob.v, ob.a, ob.phi, ob.phi_dot,
                     ob.phi_ddot)
-    nb = neighbour_lists(x[:, :2].copy(), robots.known, plant.rbody, prm, ob.c, obstacles,
-                         horizon)
-    cons = _barrier_rows(nb)
+    nb_own = neighbour_lists(x[:, :2].copy(), robots.known, plant.rbody, prm, ob.c, obstacles,
+                             horizon)
+    nb = borrowed(nb_own)
+    cons_own = _barrier_rows(nb)
+    cons = borrowed(cons_own)
     rk = rk0
     ended = mission.end_s[0] == mission.end_s[0]
     for kk in range(k0, k_end):
@@ -379,10 +386,12 @@ def _run_segment(span, skip_decide, clock, robots, graph, plant, obstacles, m, t
         _goals(kk % dec_every == 0 or kk % rec_every == 0, robots, graph, m, prm)
         if kk % dec_every == 0 and not (skip_decide and kk == k0):
             nev = _decide(t, robots, graph, plant, ob, m, teams, mission, prm, ev)
-            nb = neighbour_lists(x[:, :2].copy(), robots.known, plant.rbody, prm, ob.c,
-                                 obstacles, horizon)
+            nb_own = neighbour_lists(x[:, :2].copy(), robots.known, plant.rbody, prm, ob.c,
+                                     obstacles, horizon)
+            nb = borrowed(nb_own)
             if cons.shape[0] < _barrier_rows_needed(nb):
-                cons = _barrier_rows(nb)
+                cons_own = _barrier_rows(nb)
+                cons = borrowed(cons_own)
             if nev > 0:
                 return kk, rk, nev, EVENTS
             if not ended and mission.end_s[0] == mission.end_s[0]:
@@ -412,6 +421,7 @@ def _run_segment(span, skip_decide, clock, robots, graph, plant, obstacles, m, t
             _record(rk, robots, m.mode, ob, rec, mission)
             rk += 1
         _plant_step(robots, plant, d_sin, d_cos, g_prev, dt)
+    keep_alive((own, ob_own, nb_own, cons_own))
     return k_end, rk, 0, CHUNK_END
 
 
