@@ -493,11 +493,14 @@ def test_a_team_passing_a_team_at_rest_goes_round_it_and_its_reference_does_not_
     assert teams.rank[0] == -1.0 and (teams.way_rate == 1.0).all()
 
 
-def _headway(p_k, pd_k, heading=(1.0, 0.0), done=False):
-    """Robot 0 (team 0, ranked first) at p_k moving at pd_k; robot 1 (team 1, its path along
-    ``heading``) at rest at the origin, in C: team 1's way_rate after one decision.
+def _headway(p_k, pd_k, heading=(1.0, 0.0), done=False, on_obstacle=False):
+    """Robot 0 (team 0, ranked first) at p_k moving at pd_k (in C, or round an obstacle);
+    robot 1 (team 1, its path along ``heading``) at rest at the origin, in C: team 1's way_rate
+    after one decision.
     """
     m, teams = modes(2), new_teams(2)
+    if on_obstacle:
+        set_mode(m, 0, MODE_OBSTACLE, 0)
     teams.rank[:] = [0.0, 1.0]  # team 0 goes first (S7.5)
     teams.heading[1] = heading
     teams.done[0] = done
@@ -527,7 +530,7 @@ def test_headway_a_team_slows_and_waits_for_a_moving_team_that_goes_first_in_its
     assert teams.way_rate[1] == pytest.approx((d - stop) / (go - stop))
 
 
-def test_headway_does_not_hold_a_team_for_a_robot_behind_beside_at_rest_coming_or_done():
+def test_headway_does_not_hold_a_team_for_a_robot_behind_beside_at_rest_coming_circling_or_done():
     mid = 0.5 * (PRM.headway_go_m + PRM.headway_stop_m)
     assert _headway((-mid, 0.0), (0.0, 0.05)) == 1.0  # behind
     q = PRM.protected_scale * R_AA
@@ -535,6 +538,7 @@ def test_headway_does_not_hold_a_team_for_a_robot_behind_beside_at_rest_coming_o
     assert _headway((mid, 0.0), (0.0, 0.5 * PRM.teammate_speed_mps)) == 1.0  # at rest: go round
     assert _headway((mid, 0.0), (-0.05, 0.0)) == 1.0  # coming at it: waiting stands in its way
     assert _headway((mid, 0.0), (0.0, 0.05), done=True) == 1.0  # a team at its end
+    assert _headway((mid, 0.0), (0.0, 0.05), on_obstacle=True) == 1.0  # circling: not going by
     assert _headway((mid, 0.0), (0.0, 0.05), heading=(np.nan, np.nan)) == 1.0  # no way known
     # the same robot ahead in the way of a team that goes first holds nobody
     m, teams = modes(2), new_teams(2)

@@ -25,6 +25,7 @@ import math
 from numba import njit
 import numpy as np
 
+from ament_formation.core.borrowed import borrowed
 from ament_formation.core.control.estimator import (
     camera_update_k,
     COUNTERS,
@@ -307,8 +308,10 @@ def agent_tick_k(now, st, sc, out):
     """One control period of every hosted robot at ``now`` [s, own clock] (module docstring).
 
     The State's and Static's arrays are taken out once and handed to the helpers as arrays (a
-    compiled call taking the tuples themselves, some 70 arrays, costs about 1 us).
+    compiled call taking the tuples themselves, some 70 arrays, costs about 1 us). They are read
+    without reference counting (core/borrowed.py): all are the caller's.
     """
+    st, sc, out = borrowed((st, sc, out))
     nob = sc.obstacles[6].shape[0]
     ob = ObstacleSnapshot(np.empty((nob, 2)), np.empty((nob, 2)), np.empty((nob, 2)),
                           np.empty(nob), np.empty(nob), np.empty(nob), sc.obstacles[6],

@@ -595,13 +595,15 @@ def headway(i, k, robots, teams, prm):
 def _way_rates(robots, m, pairs, teams, prm):
     """S7.5, S17.1: ``Teams.way_rate``, the cap the right of way puts on each team's rate: 0
     while one of its robots yields to a moving robot of a team that ranks first (it waits while
-    that team goes by), else the least :func:`headway` over the close pairs with such robots.
+    that team goes by), else the least :func:`headway` over the close pairs with such robots in
+    coordination (a robot circling an obstacle or a robot may take it nowhere for long).
     """
     wr, team = teams.way_rate, robots.team
     wr[:] = 1.0
     for q in range(pairs.shape[0]):
         for i, k in ((pairs[q, 0], pairs[q, 1]), (pairs[q, 1], pairs[q, 0])):
-            if _rank_first(k, i, robots, teams) and not teams.done[team[k]]:
+            if m.mode[k] == MODE_C and _rank_first(k, i, robots, teams) and not teams.done[
+                    team[k]]:
                 wr[team[i]] = min(wr[team[i]], headway(i, k, robots, teams, prm))
     for i in range(m.mode.shape[0]):
         k = m.tgt[i]

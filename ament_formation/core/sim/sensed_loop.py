@@ -24,6 +24,7 @@ import math
 from numba import njit
 import numpy as np
 
+from ament_formation.core.borrowed import borrowed
 from ament_formation.core.control.agent import (
     agent_tick_k,
     assign_k,
@@ -257,6 +258,10 @@ def run_k(reg, fl, clock, st, sc, out, ck, pub, tw, cam, lb, rec):
     stopped (:data:`DONE` when ``reg[K]`` reached ``reg[K_END]``). Each return is at the top of
     a step (``reg[PHASE]`` 0) but :data:`REWIRE` (1: the period goes on with the coordinator).
     """
+    # the loop reads every array without reference counting (core/borrowed.py): they are all
+    # the caller's, and only an int is returned
+    reg, fl, clock, st, sc, out, ck, pub, tw, cam, lb, rec = borrowed(
+        (reg, fl, clock, st, sc, out, ck, pub, tw, cam, lb, rec))
     dt = clock.dt
     nr = sc.rows.shape[0]
     while True:

@@ -28,6 +28,7 @@ from typing import Callable
 from numba import njit
 import numpy as np
 
+from ament_formation.core.borrowed import borrowed, keep_alive
 from ament_formation.core.control.arbitration import candidate_pairs, coordinate, new_teams
 from ament_formation.core.control.law import goal_k, mode_row, robot_law_k, RobotTracking
 from ament_formation.core.control.law_params import LawParams
@@ -68,7 +69,6 @@ from ament_formation.core.model.obstacles import (
     ObstacleField,
     ObstacleSnapshot,
 )
-from ament_formation.core.sim.borrowed import borrowed, keep_alive
 from ament_formation.core.sim.trajectory import SimResult
 
 # why _run_segment returned
@@ -343,7 +343,7 @@ def _run_segment(span, skip_decide, clock, robots, graph, plant, obstacles, m, t
     """
     dt, dec_every, rec_every = clock
     k0, k_end, rk0 = span
-    # the loop reads every array without reference counting (core/sim/borrowed.py): the
+    # the loop reads every array without reference counting (core/borrowed.py): the
     # arguments' owners are the caller's, those allocated here are kept alive to the end
     robots, graph, plant, obstacles, m, teams, mission, ev, reach, rec = borrowed(
         (robots, graph, plant, obstacles, m, teams, mission, ev, reach, rec))
