@@ -8,7 +8,9 @@ after that change), and (``og-*``) from
 scenarios of another generator's rules (bench/other_generator.py, seeds 2026 and 9090, 400 files
 each, `formation sweep --scenarios`; eleven of the thirteen are one team overtaking another in
 a corridor, a situation the project's own families never draw): kept so that the failure stays
-visible and a fix shows.
+visible and a fix shows. The headway between teams (docs/control-law.md S7.5, 2026-12-07) fixed
+34 of the 47 (every overtake but one, most two-team crossings): they moved to
+test/scenarios_regression/.
 Each must still fail with the class in its header; a law that fixes one turns its test red
 (strict): move the file to test/scenarios_regression/ then.
 """
