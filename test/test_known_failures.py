@@ -10,7 +10,9 @@ each, `formation sweep --scenarios`; eleven of the thirteen are one team overtak
 a corridor, a situation the project's own families never draw): kept so that the failure stays
 visible and a fix shows. The headway between teams (docs/control-law.md S7.5, 2026-12-07) fixed
 34 of the 47 (every overtake but one, most two-team crossings): they moved to
-test/scenarios_regression/.
+test/scenarios_regression/. Its own campaigns' hard runs were added: 2,000 runs of seeds 2, 1 and
+8080 (never looked at before) and the other generator's seeds 2026, 9090 and 5151 (new), 400
+files each, all with ideal sensing.
 Each must still fail with the class in its header; a law that fixes one turns its test red
 (strict): move the file to test/scenarios_regression/ then.
 """
