@@ -393,9 +393,7 @@ def _reverse_on_obstacle(i, j, t, robots, ob, m, prm, ev, nev):
     if parked(p[i, 0], p[i, 1], goal[i, 0], goal[i, 1], ob.c[j, 0], ob.c[j, 1], ob.phi[j],
               ob.axes[j, 0], ob.axes[j, 1], prm):
         return False, nev
-    s = m.sdir[i]
-    if not (stuck or has_floor(prm)):
-        return False, nev
+    s = m.sdir[i]  # here stalled, or near an edge of a declared floor
     kept, other_open = floor_side(s, p[i, 0], p[i, 1], goal[i, 0], goal[i, 1], ob.c[j, 0],
                                   ob.c[j, 1], ob.phi[j], big1, big2, clear, prm)
     closed_ahead = (kept != s and t - m.t_entry[i] >= prm.min_avoid_s - 1e-9
