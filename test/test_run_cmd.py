@@ -449,3 +449,17 @@ def test_stage_gaps_name_the_stage_that_paused():
     assert abs(gaps['wheel_state']['0'] - 0.5) < 1e-6
     assert abs(gaps['pose']['0'] - 0.04) < 1e-6
     assert abs(gaps['recording'] - 0.01) < 1e-6
+
+
+def test_a_signal_raised_inside_rclpys_c_code_is_the_same_stop():
+    # SIGTERM's KeyboardInterrupt inside a pybind11 call comes out as RuntimeError or TypeError
+    # (seen under load: exit 1 instead of 143); without a signal those errors are real and raised
+    from ament_formation.tools.run_cmd import _signal_status
+
+    for err in (KeyboardInterrupt(), RuntimeError('Unable to convert call argument'),
+                TypeError('Unable to convert function return value')):
+        assert _signal_status(err, {'signal': signal.SIGTERM}) == 128 + signal.SIGTERM
+    assert _signal_status(KeyboardInterrupt(), {'signal': None}) == 128 + signal.SIGINT
+    for err in (RuntimeError('x'), TypeError('y')):
+        with pytest.raises(type(err)):
+            _signal_status(err, {'signal': None})

@@ -512,7 +512,7 @@ def run_system(args: argparse.Namespace) -> int:
             launch, recorder, args, scenario, proc_dir, wall0, start, latest, progress
         )
         launch_rc = launch.poll()
-    except (KeyboardInterrupt, RuntimeError) as err:
+    except (KeyboardInterrupt, RuntimeError, TypeError) as err:
         status, launch_rc = _signal_status(err, terminated), None
     finally:
         _stop_system(
@@ -589,9 +589,10 @@ def _process_check(launch_log: Path, launch_rc, proc_dir: Path) -> dict:
 
 def _signal_status(err: BaseException, terminated: dict) -> int:
     """Exit status of a run stopped by SIGINT/SIGTERM (128 + the signal). A signal's
-    KeyboardInterrupt raised inside rclpy's C++ code (a message being taken) comes out as
-    pybind11's RuntimeError "Unable to convert call argument": the same stop. Any other error is
-    raised again.
+    KeyboardInterrupt raised inside rclpy's C++ code comes out as pybind11's RuntimeError
+    "Unable to convert call argument" (a message being taken) or TypeError "Unable to convert
+    function return value" (a message being deserialized, seen with two CPU-bound processes
+    beside the run): the same stop. Any other error is raised again.
     """
     if terminated['signal'] is None and not isinstance(err, KeyboardInterrupt):
         raise err
