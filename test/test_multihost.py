@@ -171,8 +171,13 @@ def test_link_loss_stops_the_robot_which_rejoins(tmp_path):
     assert trace['distance_to_rest_m'] < 0.1, trace
     # the safety logic did not block on the network
     _assert_ok(checks, 'control_gap_s[R1]', 'control_gap_s[R0]')
-    # robot 0 went on meanwhile (0.05 m/s for 3 s: 0.15 m)
-    assert trace['others']['0']['distance_m'] > 0.03, trace
+    # robot 0 went on meanwhile: its controller ran the law (heard in a law mode; on this 2-core
+    # machine its own camera-loss stop may also cut in for a late pose) and it moved. How far is
+    # not fixed: robot 1 is its follower, so the team's error slows the leader's reference while
+    # robot 1 is held (S17.1); seen 0.02-0.15 m in these 3 s
+    others = trace['others']['0']
+    assert set(others['modes']) - {'hold', 'stopped'}, trace
+    assert others['distance_m'] > 0.005, trace
     # robot 1 rejoined: its controller runs again and the camera PC hears it running
     _assert_ok(checks, 'link_loss[R1@4s].controller_stop', 'link_loss[R1@4s].at_rest_s',
                'link_loss[R1@4s].rejoined_s')  # fmt: skip
