@@ -1,7 +1,7 @@
 """Robots as separate hosts (issue 11): traffic per robot link, the paper scenario, link losses,
 process faults.
 
-    bench/run.sh bench_multihost.py [--traffic 2 4 8] [--paper] [--link-loss 3]
+    bench/run.sh bench_multihost.py [--traffic 2 4 8 [--state-rates 100 25]] [--paper] [--link-loss 3]
         [--link-variants default lab lab_nofix] [--faults 5 [--fault-kinds KIND ...]]
         [--duration 20] [--robot-rt P] [--quiet-load L [--quiet-wait S]] [--out DIR]
         [--json OUT.json]
@@ -123,14 +123,29 @@ def _health(run: dict) -> dict:
     }
 
 
-def traffic_part(ns: list[int], duration_s: float, out: Path) -> list[dict]:
+def _state_rate_params(out: Path, rate_hz: float) -> Path:
+    """A robot parameters file sending the state at ``rate_hz``; 100 Hz as before issue 34's
+    change: every period, used as heard up to 0.1 s (parent_timeout_s).
+    """
+    path = out / f'robot_params_{rate_hz:g}hz.yaml'
+    fresh = 0.1 if rate_hz >= 100 else 0.0
+    path.write_text('/**/formation_controller:\n  ros__parameters:\n'
+                    f'    state_rate_hz: {float(rate_hz)}\n    parent_timeout_s: {fresh}\n')
+    return path
+
+
+def traffic_part(ns: list[int], duration_s: float, out: Path,
+                 state_rates: list[float] | None = None) -> list[dict]:
     rows = []
-    for n in ns:
-        run = multihost(out / f'traffic_{n}', '--robots', str(n), '--duration', str(duration_s))
+    for n, rate in [(n, r) for n in ns for r in (state_rates or [None])]:
+        extra = [] if rate is None else ['--robot-params', str(_state_rate_params(out, rate))]
+        name = f'traffic_{n}' + ('' if rate is None else f'_{rate:g}hz')
+        run = multihost(out / name, '--robots', str(n), '--duration', str(duration_s), *extra)
         tr = run['report'].get('traffic') or {}
         links = {h: v for h, v in (tr.get('links') or {}).items() if h != 'camera'}
         row = {
             'robots': n,
+            'state_rate_hz': rate,
             'status': run['status'],
             'window_s': tr.get('window_s'),
             'per_link_total_Bps': {h: v['total_Bps'] for h, v in links.items()},
@@ -145,7 +160,8 @@ def traffic_part(ns: list[int], duration_s: float, out: Path) -> list[dict]:
         }
         rows.append(row)
         print(
-            f'N={n}: robot link mean {_k(row["mean_Bps"])} max {_k(row["max_Bps"])} '
+            f'N={n}' + ('' if rate is None else f' state {rate:g} Hz')
+            + f': robot link mean {_k(row["mean_Bps"])} max {_k(row["max_Bps"])} '
             f'(out/in per robot: '
             + ', '.join(
                 f'R{h} {_k(row["per_link_from_robot_Bps"][h])}/'
@@ -374,6 +390,15 @@ def main() -> int:
         help='default: config/fastdds_udp.xml; lab: a lab profile with blocking sends; '
         'lab_nofix: the same without the robot process publish thread (as before the fix)',
     )
+    ap.add_argument(
+        '--state-rates',
+        nargs='+',
+        type=float,
+        default=None,
+        metavar='HZ',
+        help="--traffic: each N once per rate the robots send their state at (the controller's "
+        'state_rate_hz; 100: every period, as before issue 34); default: the params files',
+    )
     ap.add_argument('--faults', type=int, default=0, metavar='K', help='K runs per fault kind')
     ap.add_argument('--fault-kinds', nargs='+', choices=FAULT_KINDS, default=FAULT_KINDS)
     ap.add_argument('--duration', type=float, default=20.0)
@@ -403,7 +428,7 @@ def main() -> int:
     }
     print(f'bench_multihost: runs in {out}; load average {os.getloadavg()}', flush=True)
     if a.traffic is not None:
-        report['traffic'] = traffic_part(a.traffic or [2, 4, 8], a.duration, out)
+        report['traffic'] = traffic_part(a.traffic or [2, 4, 8], a.duration, out, a.state_rates)
     if a.paper:
         report['paper'] = paper_part(out)
     if a.link_loss:

@@ -53,6 +53,7 @@ import time
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from ament_formation.core.control.agent import AgentParams  # noqa: E402
 from ament_formation.tools.run_cmd import loopback_env  # noqa: E402
 
 SCENARIO = ROOT / 'config' / 'scenarios' / 'paper.yaml'
@@ -211,10 +212,14 @@ class DiagProbe:
 
 
 # ------------------------------------------------------------------ part 1: one robot's computer
+PARENT_STATE_HZ = [AgentParams().state_rate_hz]  # main() sets it (--parent-state-hz)
+
+
 class RobotInputs:
     """What a robot's computer receives from the rest of the lab, published from this process:
     its camera pose at 30 fps (``robot_<rid>/pose``, capture stamp 20 ms old), its parent's state
-    and commanded acceleration at 100 Hz, the parent's camera pose and mode,
+    and commanded acceleration at ``--parent-state-hz`` (default: the controllers'
+    state_rate_hz, 100 Hz), the parent's camera pose and mode,
     ``/formation/graph`` with the mission start and the coordinator's (empty) decisions every
     second; plus a probe of the controllers' diagnostics.
     """
@@ -280,8 +285,10 @@ class RobotInputs:
         self.ticks += 1
         px, py, pth = self.pose[self.parent]
         stamp = m.stamp_from_s(now)
-        self.pub_state.publish(m.odometry([px, py, pth, 0.0, 0.0], stamp, f'robot_{self.parent}'))
-        self.pub_accel.publish(m.accel_stamped([0.0, 0.0], stamp))
+        if (self.ticks - 1) % max(1, round(100.0 / PARENT_STATE_HZ[0])) == 0:
+            self.pub_state.publish(m.odometry([px, py, pth, 0.0, 0.0], stamp,
+                                              f'robot_{self.parent}'))
+            self.pub_accel.publish(m.accel_stamped([0.0, 0.0], stamp))
         if self.ticks % 3 == 0:  # the camera: 30 fps (every robot's pose, as the tracker sends)
             for k, (x, y, th) in self.pose.items():
                 msg = PoseStamped()
@@ -596,10 +603,16 @@ def main() -> int:
         help='control loops under SCHED_FIFO priority P (launch_sim.sh --control-rt)',
     )
     ap.add_argument('--control-nice', type=int, default=None, metavar='N')
+    ap.add_argument('--parent-state-hz', type=float, default=PARENT_STATE_HZ[0], metavar='HZ',
+                    help="the rate the parent's state and accel are sent at (default: the "
+                    "controller's state_rate_hz)")
     ap.add_argument('--keep', action='store_true', help='keep the run folders')
     ap.add_argument('--profile', default=None, metavar='PY_SPY',
                     help='py-spy executable: profile the robot processes over the window')
     args = ap.parse_args()
+    if not 0.1 <= args.parent_state_hz <= 100.0:
+        ap.error('--parent-state-hz: expected a rate in [0.1, 100] Hz')
+    PARENT_STATE_HZ[0] = args.parent_state_hz
     tmp = Path(tempfile.mkdtemp(prefix='ament_formation_bench_robot_'))
     loopback_env(tmp / 'ros_log')
     extra = ([] if args.rt_priority is None else ['--control-rt', str(args.rt_priority)]) + (

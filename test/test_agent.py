@@ -286,8 +286,21 @@ def test_a_robot_needs_its_parents_its_partner_and_the_robots_in_range():
     assert everyone.agent.needed(0) == [1]
 
 
-def test_heard_states_are_extrapolated_with_their_commanded_acceleration():
-    rb = Robot(HEAD_ON, 0)
+@pytest.mark.parametrize(
+    'params, cases',
+    [
+        # parent_timeout_s 0: every heard state extrapolated by its age up to parent_hold_s (1 s)
+        (AgentParams(parent_timeout_s=0.0), [(0.01, True, True), (0.04, True, True),
+                                             (0.5, True, True), (0.99, True, True),
+                                             (1.05, False, False)]),
+        # the default: used as heard up to parent_timeout_s (0.1 s), extrapolated up to
+        # parent_hold_s
+        (AgentParams(), [(0.05, True, False), (0.09, True, False), (0.5, True, True),
+                         (0.99, True, True), (1.05, False, False)]),
+    ],
+)
+def test_heard_states_are_extrapolated_with_their_commanded_acceleration(params, cases):
+    rb = Robot(HEAD_ON, 0, params)
     a = rb.agent
     rb.start((0.0, 0.6, 0.0))
     x1 = np.array([1.0, 0.6, 2.8, 0.08, 0.3])
@@ -295,9 +308,7 @@ def test_heard_states_are_extrapolated_with_their_commanded_acceleration():
     d = HEAD_ON.robot(1).params.com_offset_m
     pd = point_velocity(x1, d)
     k1 = a.row[1]
-    # fresh up to parent_timeout_s (0.1 s), extrapolated up to parent_hold_s (1 s), then lost
-    for age, known, moved in [(0.05, True, False), (0.09, True, False), (0.5, True, True),
-                              (0.99, True, True), (1.05, False, False)]:
+    for age, known, moved in cases:
         a.hear(1, x1, acc, T0 + 1.0 - age)
         rb.tick(T0 + 1.0)
         assert rb.status == 'running'
@@ -532,12 +543,20 @@ def test_torques_are_clamped_and_non_finite_inputs_are_rejected():
         ({'parent_timeout_s': 0.5, 'parent_hold_s': 0.2}, 'parent_hold_s'),
         ({'hear_all': 1}, 'hear_all'),
         ({'camera_gain': 1.5}, 'camera_gain'),
+        ({'control_rate_hz': 50.0, 'state_rate_hz': 60.0}, 'state_rate_hz'),
+        ({'state_rate_hz': 0.0}, 'state_rate_hz'),
     ],
 )
 def test_agent_params_name_the_bad_field(kwargs, field):
     with pytest.raises(ConfigError) as err:
         AgentParams(**kwargs)
     assert err.value.field == field
+
+
+@pytest.mark.parametrize('control_hz, state_hz, every', [(100.0, 25.0, 4), (100.0, 100.0, 1),
+                                                         (100.0, 30.0, 3), (50.0, 25.0, 2)])
+def test_the_state_goes_out_every_whole_number_of_control_periods(control_hz, state_hz, every):
+    assert AgentParams(control_rate_hz=control_hz, state_rate_hz=state_hz).state_every == every
 
 
 def test_a_stop_that_cannot_end_by_the_pose_timeout_or_an_unknown_robot_is_refused():

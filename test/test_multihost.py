@@ -197,6 +197,8 @@ def test_bad_input_and_no_leftovers(tmp_path):
         (['--scenario', str(SCENARIO), '--rate', 'fast'], '--rate'),
         (['--scenario', str(SCENARIO), '--clock-shift', '7:0.9'], '--clock-shift'),
         (['--scenario', str(SCENARIO), '--profile', str(tmp_path / 'no.xml')], '--profile'),
+        (['--scenario', str(SCENARIO), '--robot-params', str(tmp_path / 'no.yaml')],
+         '--robot-params'),
         (['--robots', '12'], '--robots'),
     ):
         before = set(netns.list_namespaces())

@@ -327,11 +327,12 @@ class ControllerNode(Node):
             self.pub_torque.publish(self._msgs['torque'])
         if self.bridge is not None:
             self.bridge.command((float(torque[0]), float(torque[1])))
-        if b.initialized(r) and self._heard['state']():
+        due = (self.ticks - 1) % self.prm.state_every == 0  # state_rate_hz
+        if due and b.initialized(r) and self._heard['state']():
             self._msgs['state'] = msgs.odometry(b.out.state[r], stamp, f'robot_{self.rid}',
                                                 out=self._msgs['state'])
             self.pub_state.publish(self._msgs['state'])
-        if self._heard['accel']():
+        if due and self._heard['accel']():
             self._msgs['accel'] = msgs.accel_stamped(b.out.accel[r], stamp,
                                                      out=self._msgs['accel'])
             self.pub_accel.publish(self._msgs['accel'])

@@ -3,7 +3,8 @@ own, made of Linux network namespaces on this machine (docs/multi-machine.md).
 
     formation multihost --scenario S.yaml [--out DIR] [--link-down ROBOT:AT_S:DURATION_S ...]
                         [--fault ROBOT:AT_S:KIND ...] [--clock-shift ROBOT:SECONDS ...]
-                        [--rate LIMIT] [--profile LAB.xml] [--no-expect]
+                        [--rate LIMIT] [--profile LAB.xml] [--robot-params P.yaml]
+                        [--no-expect]
     formation multihost --robots N [--duration S]          # a generated N-robot formation
 
 Hosts (tools/netns.py): ``af_cam_<run>`` runs the simulated twin's world (plant, emulated motor
@@ -149,6 +150,13 @@ def register(subparsers) -> None:
     )
     p.add_argument(
         '--robot-rt', type=int, default=None, metavar='P', help='launch_robot.sh --rt-priority P'
+    )
+    p.add_argument(
+        '--robot-params',
+        default=None,
+        metavar='YAML',
+        help="every robot's node parameters (launch_robot.sh --params; e.g. the controller's "
+        'state_rate_hz, config/params/formation_controller.yaml)',
     )
     p.add_argument(
         '--record-all',
@@ -355,6 +363,11 @@ def run_multihost(args: argparse.Namespace) -> int:
     if not profile.is_file():
         raise ConfigError('no such file', '--profile', str(profile))
     read_user_text(profile, 'Fast DDS profile')  # text, no control characters (tinyxml2 parses it)
+    if args.robot_params is not None:
+        args.robot_params = str(Path(args.robot_params).resolve())
+        if not Path(args.robot_params).is_file():
+            raise ConfigError('no such file', '--robot-params', args.robot_params)
+        read_user_text(Path(args.robot_params), 'parameters file')
     out = Path(args.out or tempfile.mkdtemp(prefix='ament_formation_multihost_')).resolve()
     if out.exists() and not out.is_dir():
         raise ConfigError('exists and is not a directory', '--out', str(out))
@@ -614,6 +627,7 @@ class _Run:
                 [*shifted, str(script_file('launch_robot.sh')), '--id', str(rid), '--port',
                  str(self.pty_dir / f'robot_{rid}'), '--scenario', sc, '--run-dir',
                  str(self.out / f'robot_{rid}'), '--domain', str(self.domain), *rt,
+                 *(['--params', a.robot_params] if a.robot_params else []),
                  *(['--split'] if rid in self.split else [])],
             )  # fmt: skip
         self.say(f'{len(self.ids)} robot hosts launched; waiting for the mission start')

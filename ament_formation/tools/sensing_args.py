@@ -20,6 +20,8 @@ _OVERRIDES = (
     ('--camera-drop', 'drop_prob', float, 'P', 'probability a robot is missing from a frame'),
     ('--sensing-seed', 'seed', int, 'N', 'seed of the camera noise and drops (default 0)'),
     ('--control-rate-hz', 'control_rate_hz', float, 'HZ', 'controller rate [Hz] (default 100)'),
+    ('--state-rate-hz', 'state_rate_hz', float, 'HZ',
+     'rate the robots send their state at [Hz] (default 100; lower: each one extrapolated by its age)'),
 )
 
 

@@ -79,12 +79,19 @@ class AgentParams:
     """The on-board parameters of a robot (node parameters of formation_controller)."""
 
     control_rate_hz: float = param(100.0, 'control loop rate [Hz]', range=(1.0, 2000.0))
+    state_rate_hz: float = param(
+        100.0, 'rate of the state and commanded acceleration this robot sends to the others '
+        'and the coordinator, <= control_rate_hz: every round(control_rate_hz / state_rate_hz)-th '
+        'period (lower: fewer bytes on the link, more hard runs, S10.2; docs/multi-machine.md, '
+        'Bytes) [Hz]',
+        range=(0.1, 2000.0))
     pose_timeout_s: float = param(
         0.5, 'no camera pose this long -> controlled stop [s]', range=(0.01, 10.0))
     wheel_timeout_s: float = param(
         0.1, 'no wheel_state this long -> zero torque [s]', range=(0.005, 10.0))
     parent_timeout_s: float = param(
-        0.1, 'older states of other robots are extrapolated [s]', range=(0.0, 10.0))
+        0.1, 'older states of other robots are extrapolated by their age [s] (0: every one; '
+        'with a state_rate_hz below the control rate, S10.2)', range=(0.0, 10.0))
     parent_hold_s: float = param(
         1.0, 'older parent state -> hold; other robots ignored [s], >= parent_timeout_s',
         range=(0.0, 60.0))
@@ -126,6 +133,14 @@ class AgentParams:
                 raise ConfigError(f'must be in [{lo:g}, {hi:g}] (got {v!r})', f.name)
         if self.parent_hold_s < self.parent_timeout_s:
             raise ConfigError('must be >= parent_timeout_s', 'parent_hold_s')
+        if self.state_rate_hz > self.control_rate_hz:
+            raise ConfigError('must be <= control_rate_hz (a state is sent in a control period)',
+                              'state_rate_hz')
+
+    @property
+    def state_every(self) -> int:
+        """The state and commanded acceleration go out every this many control periods."""
+        return max(1, round(self.control_rate_hz / self.state_rate_hz))
 
     @classmethod
     def of(cls, obj) -> 'AgentParams':
@@ -432,10 +447,11 @@ def needed_k(r, k, st, sc, hear_all):
 
 
 @njit(cache=True, error_model='numpy')
-def broadcast_k(stamp, x, a, modes, sent, st, sc, hear_all):
+def broadcast_k(stamp, x, a, modes, sent, st, sc, hear_all, states):
     """What the robots of ``sent`` (N,) bool broadcast at ``stamp`` [s] (states x (N, 5),
     commanded accelerations a (N, 2), reports modes (N, 3) [mode, target, sense]) reaches every
-    hosted robot that needs it (:func:`needed_k`; reports reach every one).
+    hosted robot that needs it (:func:`needed_k`; reports reach every one). The states and
+    accelerations only when ``states`` (a period of ``AgentParams.state_rate_hz``).
     """
     rows, orig_parent = sc.rows, sc.orig_parent
     parent, assigned, in_range = st.parent, st.assigned, st.in_range
@@ -449,7 +465,7 @@ def broadcast_k(stamp, x, a, modes, sent, st, sc, hear_all):
             rep_mode[r, k] = int(modes[k, 0])
             rep_tgt[r, k] = int(modes[k, 1])
             rep_sdir[r, k] = modes[k, 2]
-            if _needs(r, i, k, hear_all, parent, orig_parent, assigned, in_range):
+            if states and _needs(r, i, k, hear_all, parent, orig_parent, assigned, in_range):
                 for q in range(5):
                     heard_x[r, k, q] = x[k, q]
                 heard_a[r, k, 0], heard_a[r, k, 1] = a[k, 0], a[k, 1]
@@ -754,7 +770,8 @@ class AgentBatch:
         x[rows], a[rows] = self.out.state, self.out.accel
         modes[rows] = np.where(running[:, None], self.out.mode, (0.0, -1.0, 1.0))
         sent[rows] = [self.initialized(r) for r in range(len(rows))]
-        broadcast_k(now_s, x, a, modes, sent, self.state, self.static, self.params.hear_all)
+        broadcast_k(now_s, x, a, modes, sent, self.state, self.static, self.params.hear_all,
+                    True)
 
     # ------------------------------------------------------------------ the period
     def tick(self, now_s: float) -> None:

@@ -88,7 +88,8 @@ def sync_obstacles_k(t, ck):
 @njit(cache=True, error_model='numpy')
 def decide_k(t, ck):
     """One decision of the coordinator at scenario time ``t`` on :data:`CoordK` ``ck``: the
-    robots' obstacle modes, the goals of the states heard within :data:`SILENT_S`, the pairs'
+    robots' obstacle modes, the goals of the states heard within :data:`SILENT_S` (each moved on
+    by its age at its point velocity), the pairs'
     drift relaxation since the last decision, then :func:`coordinate`. Returns the event count
     (rows of ``ck.ev``).
     """
@@ -97,12 +98,16 @@ def decide_k(t, ck):
     ck.t_dec[0] = t
     sync_obstacles_k(t, ck)
     n = ck.x.shape[0]
-    x = ck.x
+    x = ck.x.copy()
     known = np.empty(n, dtype=np.bool_)
     pd = np.empty((n, 2))
     for i in range(n):
         known[i] = ck.stamp[i] >= t - SILENT_S
         pd[i, 0], pd[i, 1] = point_velocity_k(x[i, 2], x[i, 3], x[i, 4], ck.d[i])
+        age = t - ck.stamp[i]
+        if known[i] and age > 0.0:  # states come at state_rate_hz: each moved on by its age
+            x[i, 0] += pd[i, 0] * age
+            x[i, 1] += pd[i, 1] * age
     pr = ck.progress
     for i in ck.leaders:
         leader_reference(ck.refs, i, pr.s[i], pr.sd[i], pr.sdd[i], ck.ref[i])

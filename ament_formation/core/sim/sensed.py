@@ -76,7 +76,9 @@ class SensingParams:
     arrival at the controller [s]; ``noise_m`` standard deviation per axis of the camera position
     of p [m]; ``noise_rad`` of its heading [rad]; ``drop_prob`` probability that a robot's pose is
     missing from a frame, [0, 1); ``seed`` of the sensing noise and drops. The robot side, as in
-    config/params: ``control_rate_hz`` (formation_controller, 100 Hz), ``camera_gain`` (its S10
+    config/params: ``control_rate_hz`` (formation_controller, 100 Hz), ``state_rate_hz`` (the rate
+    it sends its state at, 100 Hz; the coordinator and the robots hear it then; below the control
+    rate the robots extrapolate every state by its age, ``parent_timeout_s`` 0), ``camera_gain`` (its S10
     gain, 0.5), ``hear_all`` and ``hear_margin_m`` (its hearing range: parents, the assignment's
     partner and the robots whose camera pose is within kappa R_aa + 0.6 m, 0.3 m hysteresis),
     ``encounter_rate_hz`` and ``republish_s`` (formation_coordinator, 50 Hz, 1 s),
@@ -91,6 +93,7 @@ class SensingParams:
     drop_prob: float = 0.0
     seed: int = 0
     control_rate_hz: float = 100.0
+    state_rate_hz: float = 100.0
     camera_gain: float = 0.5
     encounter_rate_hz: float = 50.0
     republish_s: float = 1.0
@@ -117,6 +120,7 @@ class SensingParams:
             bad('seed', self.seed, 'an integer >= 0')
         for name, lo, hi in (
             ('control_rate_hz', 1.0, 1000.0),
+            ('state_rate_hz', 0.1, self.control_rate_hz if number(self.control_rate_hz) else 0),
             ('encounter_rate_hz', 0.0, 1000.0),
             ('republish_s', 1e-3, 60.0),
             ('coordinator_timeout_s', 0.0, 60.0),
@@ -229,6 +233,10 @@ class _Loop:
         twin_row = {int(rid): q for q, rid in enumerate(self.twin.ids)}
         self.rows = np.array([twin_row[rid] for rid in self.ids], dtype=np.int64)
         self.params = AgentParams(control_rate_hz=sensing.control_rate_hz,
+                                  state_rate_hz=sensing.state_rate_hz,
+                                  # below the control rate every state is extrapolated (S10.2)
+                                  **({'parent_timeout_s': 0.0} if sensing.state_rate_hz
+                                     < sensing.control_rate_hz else {}),
                                   camera_gain=sensing.camera_gain, hear_all=sensing.hear_all,
                                   hear_margin_m=sensing.hear_margin_m,
                                   coordinator_timeout_s=sensing.coordinator_timeout_s)
@@ -304,7 +312,8 @@ class _Run:
         self.fl[loopk.B_T] = loop.b_t
         self.clock = loopk.ClockK(float(dt_s), ctrl_every, rec_every, arb_every,
                                   1.0 / (fps * dt_s), step, hold_steps, loop.params.hear_all,
-                                  float(loop.params.hear_hysteresis_m), n >= BLAS_DOT_N)
+                                  float(loop.params.hear_hysteresis_m), n >= BLAS_DOT_N,
+                                  loop.params.state_every)
         k, dist = tw.k, tw.disturbance
         obstacles = obstacle_arrays(sc.obstacles)
         self.twin = loopk.TwinK(tw.state, tw.wheel_angle_rad, np.array([tw.t_s]), loop.rows,

@@ -52,12 +52,14 @@ B_T, ERR_SQ, ERR_MAX = range(3)
 N_FREG = 3
 
 ClockK = namedtuple('ClockK', ['dt', 'ctrl_every', 'rec_every', 'arb_every', 'cap_every',
-                               'step', 'hold_steps', 'hear_all', 'hysteresis', 'blas_error'])
+                               'step', 'hold_steps', 'hear_all', 'hysteresis', 'blas_error',
+                               'state_every'])
 ClockK.__doc__ = """The loop's constants: ``dt`` [s]; control, record and coordinator periods
 and the camera's (float) in steps; ``step`` the gcd of the control and record periods;
 ``hold_steps`` the steps run past the mission's end (+1); the agents' ``hear_all`` and
 ``hysteresis``; ``blas_error``: the estimate errors go to ``LoopK.err`` for the caller (N >= 16:
-numpy's dot of them is BLAS's, summed in another order than a loop's)."""
+numpy's dot of them is BLAS's, summed in another order than a loop's); ``state_every``: the
+robots' states go out every this many control periods (AgentParams.state_every)."""
 
 TwinK = namedtuple('TwinK', ['state', 'wheel', 't', 'rows', 'inv', 'mt', 'It', 'r', 'a', 'd',
                              'mc', 'tau_max', 'd_amp', 'd_freq', 'd_phase', 'obstacles', 'ob',
@@ -135,7 +137,9 @@ def _tick(t, reg, fl, clock, st, sc, out, ck, tw, cam, lb):
                 clock.hysteresis)
         reg[CQ_HEAD] = (h + 1) % cap
         reg[CQ_N] -= 1
-    broadcast_k(fl[B_T], lb.bx, lb.ba, lb.bmode, lb.sent, st, sc, clock.hear_all)
+    # the previous period's broadcasts (stamped fl[B_T]); states every state_every-th period
+    due = int(round(fl[B_T] / (clock.dt * clock.ctrl_every))) % clock.state_every == 0
+    broadcast_k(fl[B_T], lb.bx, lb.ba, lb.bmode, lb.sent, st, sc, clock.hear_all, due)
     st.nev[:] = 0
     agent_tick_k(t, st, sc, out)
     nr = sc.rows.shape[0]
@@ -171,6 +175,7 @@ def _tick(t, reg, fl, clock, st, sc, out, ck, tw, cam, lb):
         if top > fl[ERR_MAX]:  # max(err_max, e.max())
             fl[ERR_MAX] = top
         reg[ERR_COUNT] += nr
+    sent_now = int(round(t / (clock.dt * clock.ctrl_every))) % clock.state_every == 0
     for r in range(nr):
         for q in range(5):
             lb.bx[r, q] = out.state[r, q]
@@ -181,11 +186,13 @@ def _tick(t, reg, fl, clock, st, sc, out, ck, tw, cam, lb):
                 out.mode[r, 2]
         else:
             lb.bmode[r, 0], lb.bmode[r, 1], lb.bmode[r, 2] = 0.0, -1.0, 1.0
-        # the coordinator hears the state and the mode report (AgentBatch.mode_dict)
+        # the coordinator hears the state (in a period of state_rate_hz) and the mode report
+        # (AgentBatch.mode_dict)
         q = sc.rows[r]
-        for c in range(5):
-            ck.x[q, c] = out.state[r, c]
-        ck.stamp[q] = t
+        if sent_now:
+            for c in range(5):
+                ck.x[q, c] = out.state[r, c]
+            ck.stamp[q] = t
         md = int(out.mode[r, 0])
         ck.rep_has[q] = True
         ck.rep_ob[q] = lb.ob_map[int(out.mode[r, 1])] if running and md == MODE_OBSTACLE else -1
