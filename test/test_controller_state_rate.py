@@ -8,7 +8,6 @@ A real subscription in a private context counts what the node sent against its o
 from __future__ import annotations
 
 from pathlib import Path
-import time
 
 import pytest
 
@@ -16,11 +15,9 @@ SCENARIO = Path(__file__).resolve().parent / 'data' / 'paper_short.yaml'
 
 
 def _spin_until(executor, condition, timeout_s: float, what: str) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not condition():
-        if time.monotonic() > deadline:
-            raise AssertionError(f'timed out after {timeout_s} s waiting for {what}')
-        executor.spin_once(timeout_sec=0.01)
+    from ament_formation.ros.executors import spin_until
+
+    assert spin_until(executor, condition, timeout_s), f'timed out waiting for {what}'
 
 
 @pytest.mark.parametrize('state_hz, every', [(100.0, 1), (25.0, 4)])
