@@ -1,7 +1,8 @@
 """Robots as separate hosts (issue 11): traffic per robot link, the paper scenario, link losses,
 process faults.
 
-    bench/run.sh bench_multihost.py [--traffic 2 4 8 [--state-rates 100 25]] [--paper] [--link-loss 3]
+    bench/run.sh bench_multihost.py [--traffic 2 4 8 [--state-rates 100 25]] [--paper]
+        [--link-loss 3]
         [--link-variants default lab lab_nofix] [--faults 5 [--fault-kinds KIND ...]]
         [--duration 20] [--robot-rt P] [--quiet-load L [--quiet-wait S]] [--out DIR]
         [--json OUT.json]

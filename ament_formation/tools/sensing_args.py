@@ -21,7 +21,8 @@ _OVERRIDES = (
     ('--sensing-seed', 'seed', int, 'N', 'seed of the camera noise and drops (default 0)'),
     ('--control-rate-hz', 'control_rate_hz', float, 'HZ', 'controller rate [Hz] (default 100)'),
     ('--state-rate-hz', 'state_rate_hz', float, 'HZ',
-     'rate the robots send their state at [Hz] (default 100; lower: each one extrapolated by its age)'),
+     'rate the robots send their state at [Hz] (default 100; lower: each one extrapolated by '
+     'its age)'),
 )
 
 

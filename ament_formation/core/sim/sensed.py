@@ -78,10 +78,10 @@ class SensingParams:
     missing from a frame, [0, 1); ``seed`` of the sensing noise and drops. The robot side, as in
     config/params: ``control_rate_hz`` (formation_controller, 100 Hz), ``state_rate_hz`` (the rate
     it sends its state at, 100 Hz; the coordinator and the robots hear it then; below the control
-    rate the robots extrapolate every state by its age, ``parent_timeout_s`` 0), ``camera_gain`` (its S10
-    gain, 0.5), ``hear_all`` and ``hear_margin_m`` (its hearing range: parents, the assignment's
-    partner and the robots whose camera pose is within kappa R_aa + 0.6 m, 0.3 m hysteresis),
-    ``encounter_rate_hz`` and ``republish_s`` (formation_coordinator, 50 Hz, 1 s),
+    rate the robots extrapolate every state by its age, ``parent_timeout_s`` 0), ``camera_gain``
+    (its S10 gain, 0.5), ``hear_all`` and ``hear_margin_m`` (its hearing range: parents, the
+    assignment's partner and the robots whose camera pose is within kappa R_aa + 0.6 m, 0.3 m
+    hysteresis), ``encounter_rate_hz`` and ``republish_s`` (formation_coordinator, 50 Hz, 1 s),
     ``coordinator_timeout_s`` (formation_controller, 2.5 s: assignments heard within it, the
     robot's own robot encounters are emergencies only, docs/law-changes.md §23).
     """
