@@ -115,6 +115,14 @@ def _capture(t, reg, cam, tw):
 
 
 @njit(cache=True, error_model='numpy')
+def _states_sent(t, clock):
+    """Whether the robots send their states in the control period at ``t`` [s]: every
+    ``clock.state_every``-th (AgentParams.state_rate_hz).
+    """
+    return int(round(t / (clock.dt * clock.ctrl_every))) % clock.state_every == 0
+
+
+@njit(cache=True, error_model='numpy')
 def _tick(t, reg, fl, clock, st, sc, out, ck, tw, cam, lb):
     """A control period's robot side (_Loop.tick up to the coordinator's decision): wheel
     samples, the frames arrived, the previous period's broadcasts, every agent's period, the
@@ -137,9 +145,9 @@ def _tick(t, reg, fl, clock, st, sc, out, ck, tw, cam, lb):
                 clock.hysteresis)
         reg[CQ_HEAD] = (h + 1) % cap
         reg[CQ_N] -= 1
-    # the previous period's broadcasts (stamped fl[B_T]); states every state_every-th period
-    due = int(round(fl[B_T] / (clock.dt * clock.ctrl_every))) % clock.state_every == 0
-    broadcast_k(fl[B_T], lb.bx, lb.ba, lb.bmode, lb.sent, st, sc, clock.hear_all, due)
+    # the previous period's broadcasts (stamped fl[B_T])
+    broadcast_k(fl[B_T], lb.bx, lb.ba, lb.bmode, lb.sent, st, sc, clock.hear_all,
+                _states_sent(fl[B_T], clock))
     st.nev[:] = 0
     agent_tick_k(t, st, sc, out)
     nr = sc.rows.shape[0]
@@ -175,7 +183,7 @@ def _tick(t, reg, fl, clock, st, sc, out, ck, tw, cam, lb):
         if top > fl[ERR_MAX]:  # max(err_max, e.max())
             fl[ERR_MAX] = top
         reg[ERR_COUNT] += nr
-    sent_now = int(round(t / (clock.dt * clock.ctrl_every))) % clock.state_every == 0
+    sent_now = _states_sent(t, clock)
     for r in range(nr):
         for q in range(5):
             lb.bx[r, q] = out.state[r, q]
