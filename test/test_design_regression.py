@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from ament_formation.core.control.law_params import LawParams
-from ament_formation.core.control.safety import safe_field
+from ament_formation.core.control.safety import clip_field, safe_field
 from ament_formation.core.scenario.loader import load_scenario
 from ament_formation.core.sim.campaign import findings, HARD
 from ament_formation.core.sim.metrics import compute_metrics
@@ -32,9 +32,9 @@ CAMERA = {
     'camchatter1098': 1001101, 'camchatter1470': 1001473, 'camchatter1575': 1001578,
     'camchatter1619': 1001622, 'camchatter1637': 1001640, 'camchatter323': 1000326,
     'camchatter463': 1000466, 'camchatter542': 1000545, 'camchatter699': 1000702,
-    'camrunaway1229': 1001232, 'camrunaway197': 1000200, 'camstuck119': 1000122,
-    'camstuck1660': 1001663, 'camstuck511': 1000514, 'camstuck904': 1000907,
-    'onesided16': 1000019, 'onesided49': 1000052,
+    'camrunaway1229': 1001232, 'camrunaway197': 1000200, 'camrunaway4242-92': 2094529170,
+    'camstuck119': 1000122, 'camstuck1660': 1001663, 'camstuck511': 1000514,
+    'camstuck904': 1000907, 'onesided16': 1000019, 'onesided49': 1000052,
 }
 
 
@@ -74,6 +74,28 @@ def test_safety_filter_leaves_a_free_robot_alone_and_caps_its_speed():
     vx, vy, _, _ = _field(x, (3.0, 4.0))
     assert np.hypot(vx, vy) == pytest.approx(LawParams().speed_limit_mps)
     assert vx / vy == pytest.approx(0.75)
+
+
+def test_a_clipped_field_has_the_clipped_fields_derivative():
+    # a field faster than the limit and speeding up along itself (a limit cycle's transient):
+    # the feed-forward must not push the robot along V_d beyond the limit (S15.1; seed 4242's
+    # rejoining follower reached 0.32 m/s with camera sensing when V_d_dot passed unclipped)
+    cap = LawParams().speed_limit_mps
+
+    def field(t):  # V(t) and its derivative, |V| from 0.4 m/s growing, turning at 1 rad/s
+        speed, th = 0.4 + 0.3 * t, 0.3 + t
+        return (speed * np.cos(th), speed * np.sin(th),
+                0.3 * np.cos(th) - speed * np.sin(th), 0.3 * np.sin(th) + speed * np.cos(th))
+
+    vx, vy, vdx, vdy = clip_field(*field(0.0), cap)
+    assert np.hypot(vx, vy) == pytest.approx(cap)
+    assert vx * vdx + vy * vdy == pytest.approx(0.0, abs=1e-12)  # nothing along V_d
+    h = 1e-6
+    ahead, behind = clip_field(*field(h), cap), clip_field(*field(-h), cap)
+    assert (ahead[0] - behind[0]) / (2 * h) == pytest.approx(vdx, rel=1e-6)
+    assert (ahead[1] - behind[1]) / (2 * h) == pytest.approx(vdy, rel=1e-6)
+    slow = (0.1, -0.2, 3.0, 4.0)
+    assert clip_field(*slow, cap) == slow  # below the limit: untouched, bit for bit
 
 
 def test_safety_filter_stops_the_approach_but_keeps_the_tangential_motion():

@@ -12,9 +12,10 @@ visible and a fix shows. The headway between teams (docs/control-law.md S7.5, 20
 34 of the 47 (every overtake but one, most two-team crossings): they moved to
 test/scenarios_regression/. Its own campaigns' hard runs were added: 2,000 runs of seeds 2, 1 and
 8080 (never looked at before) and the other generator's seeds 2026, 9090 and 5151 (new), 400
-files each, all with ideal sensing. With camera sensing (the file's replay line gives the camera's
-seed): two_teams-s4242-92-5, a runaway (a follower rejoining at 0.32 m/s) of 2,000 camera runs of
-seed 4242, never looked at before (2026-12-07).
+files each, all with ideal sensing. With camera sensing the file's replay line gives the camera's
+seed (two_teams-s4242-92-5, a runaway of 2,000 camera runs of seed 4242, was fixed by the
+clipped field's derivative, docs/control-law.md S15.1, and moved, 2026-12-07, with three ideal
+runs it also fixed: og-merge-s9090-97, two_teams-s2-203-6 and two_teams-s8080-848-7).
 Each must still fail with the class in its header; a law that fixes one turns its test red
 (strict): move the file to test/scenarios_regression/ then.
 """

@@ -51,6 +51,22 @@ def clip_norm(vx, vy, cap):
 
 
 @njit(cache=True, error_model='numpy', inline='always')
+def clip_field(vx, vy, vdx, vdy, cap):
+    """A field V (vx, vy) and its derivative V_dot (vdx, vdy) scaled down to speed ``cap`` when
+    faster -> (vx, vy, vdx, vdy): the clipped field is cap V/|V|, its derivative
+    cap/|V| (V_dot - (u.V_dot) u) with u = V/|V|, so that the feed-forward never pushes the robot
+    along V beyond the cap (S15.1). Unchanged, bit for bit, when |V| <= cap.
+    """
+    nrm = math.hypot(vx, vy)
+    if nrm <= cap or nrm == 0.0:
+        return vx, vy, vdx, vdy
+    ux, uy = vx / nrm, vy / nrm
+    along = ux * vdx + uy * vdy
+    scale = cap / nrm
+    return ux * cap, uy * cap, (vdx - along * ux) * scale, (vdy - along * uy) * scale
+
+
+@njit(cache=True, error_model='numpy', inline='always')
 def accel_limit(coeffs, i):
     """Largest point acceleration the torque limit allows, 2 tau_max / (m~ r) [m/s^2] (S2.2)."""
     return 2.0 * coeffs[ROW_TAU_MAX, i] / (coeffs[ROW_M_TILDE, i] * coeffs[ROW_R, i])
@@ -279,7 +295,7 @@ def safe_field(i, x, pd, nbrs, orows, vdx, vdy, vddx, vddy, ob, rbody, prm, cons
     caller running many robots a step allocates them once; no allocation in the loop, so no
     exception path that keeps numba's reference counts). Returns (vdx, vdy, vddx, vddy).
     """
-    vdx, vdy = clip_norm(vdx, vdy, prm.speed_limit_mps)
+    vdx, vdy, vddx, vddy = clip_field(vdx, vdy, vddx, vddy, prm.speed_limit_mps)
     vx0, vy0 = vdx, vdy
     a_brk = prm.brake_gain_fraction * prm.switching_gain_mps2  # the S3 loop without feed-forward
     lag = prm.safety_lag_s
