@@ -16,8 +16,9 @@ files each, all with ideal sensing. With camera sensing the file's replay line g
 seed (two_teams-s4242-92-5, a runaway of 2,000 camera runs of seed 4242, was fixed by the
 clipped field's derivative, docs/control-law.md S15.1, and moved, 2026-12-07, with three ideal
 runs it also fixed: og-merge-s9090-97, two_teams-s2-203-6 and two_teams-s8080-848-7).
-The seven hard runs of 2,000 camera runs of seed 7777 (never looked at) after that change are
-kept too (``*-s7777-*``: six crossing teams far from their goals, one chattering crossing).
+The hard runs of seed 7777 (never looked at) after that change are kept too (``*-s7777-*``):
+the seven of 2,000 camera runs (six crossing teams far from their goals, one chattering
+crossing, which also fails with ideal sensing) and five more of 2,000 ideal runs.
 Each must still fail with the class in its header; a law that fixes one turns its test red
 (strict): move the file to test/scenarios_regression/ then.
 """
