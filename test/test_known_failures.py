@@ -18,7 +18,8 @@ clipped field's derivative, docs/control-law.md S15.1, and moved, 2026-12-07, wi
 runs it also fixed: og-merge-s9090-97, two_teams-s2-203-6 and two_teams-s8080-848-7).
 The hard runs of seed 7777 (never looked at) after that change are kept too (``*-s7777-*``):
 the seven of 2,000 camera runs (six crossing teams far from their goals, one chattering
-crossing, which also fails with ideal sensing) and five more of 2,000 ideal runs.
+crossing, which also fails with ideal sensing) and five more of 2,000 ideal runs; and the two
+runs of seed 1's 2,000 ideal runs that the change broke (formation-s1-348, two_teams-s1-1844).
 Each must still fail with the class in its header; a law that fixes one turns its test red
 (strict): move the file to test/scenarios_regression/ then.
 """
