@@ -69,9 +69,13 @@ af_launch_init() {
     echo "--multi-machine: export the same ROS_DOMAIN_ID (0..101) on every machine first" >&2
     exit 2
   fi
-  # a lab's own Fast DDS profile (anything but the project's loopback profile) survives --multi-machine
+  # a lab's own Fast DDS profile (anything but the project's two one-machine profiles) survives
+  # --multi-machine
   local lab_profile="${FASTRTPS_DEFAULT_PROFILES_FILE:-}"
-  [ "$lab_profile" = "$AF_ROOT/config/fastdds_localhost.xml" ] && lab_profile=""
+  case "$lab_profile" in
+    "$AF_ROOT/config/fastdds_localhost.xml" | "$AF_ROOT/config/fastdds_localhost_shm.xml")
+      lab_profile="" ;;
+  esac
   if [ "$multi" = 1 ] && [ -n "$lab_profile" ] && [ ! -f "$lab_profile" ]; then
     echo "$(basename "$0"): FASTRTPS_DEFAULT_PROFILES_FILE (the lab network's Fast DDS profile): no such file '$lab_profile'" >&2
     exit 2

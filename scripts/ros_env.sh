@@ -1,21 +1,26 @@
 # Sourced by every script: keep DDS on loopback, give the run its own domain and log folder.
 # Usage: source scripts/ros_env.sh [LOG_DIR]
 _af_root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
-# DDS transport on one machine: discovery range LOCALHOST with the loopback profile (the default;
-# rmw_fastrtps then adds its shared-memory transport next to UDP on 127.0.0.1), or, on request,
-# AMENT_FORMATION_DDS=udp for loopback UDP only (docs/executors.md "The stall found": with shared
-# memory, whole-system runs on a busy machine stopped delivering for good in 4 of 8 runs, 0 of 11
-# with UDP). UDP only leaves the range to the project's loopback profile (every socket on
-# 127.0.0.1, 127.0.0.1 as the only peer, 4 MB socket buffers for the 300 kB camera frames) by
-# setting it to SUBNET, which only happens when that profile is the one in use and the caller set
-# no range. The default keeps LOCALHOST: the project's rule for every script, test and CI run.
-if [ "${AMENT_FORMATION_DDS:-shm}" = "udp" ] && [ -z "${ROS_AUTOMATIC_DISCOVERY_RANGE:-}" ] \
-    && [ "${FASTRTPS_DEFAULT_PROFILES_FILE:-$_af_root/config/fastdds_localhost.xml}" \
-         = "$_af_root/config/fastdds_localhost.xml" ]; then
-  export ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET
+# DDS transport on one machine: discovery range LOCALHOST with the shared-memory profile
+# (config/fastdds_localhost_shm.xml: 4 MB segments, so that a large camera frame arrives; with
+# rmw_fastrtps's own 0.5 MB segments a 748 kB frame reached the tracker 1-6 times a second;
+# docs/executors.md "Large frames"), or, on request, AMENT_FORMATION_DDS=udp for loopback UDP only
+# (config/fastdds_localhost.xml: every socket on 127.0.0.1, 127.0.0.1 as the only peer, 4 MB socket
+# buffers, no /dev/shm segments; docs/executors.md "The stall found"). UDP only leaves the range
+# to that profile by setting it to SUBNET, which only happens when that profile is the one in use
+# and the caller set no range. Both keep every packet on the host; a profile or range the caller
+# set is kept.
+_af_udp_profile="$_af_root/config/fastdds_localhost.xml"
+if [ "${AMENT_FORMATION_DDS:-shm}" = "udp" ]; then
+  if [ -z "${ROS_AUTOMATIC_DISCOVERY_RANGE:-}" ] \
+      && [ "${FASTRTPS_DEFAULT_PROFILES_FILE:-$_af_udp_profile}" = "$_af_udp_profile" ]; then
+    export ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET
+  fi
+  export FASTRTPS_DEFAULT_PROFILES_FILE="${FASTRTPS_DEFAULT_PROFILES_FILE:-$_af_udp_profile}"
 fi
 export ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}"
-export FASTRTPS_DEFAULT_PROFILES_FILE="${FASTRTPS_DEFAULT_PROFILES_FILE:-$_af_root/config/fastdds_localhost.xml}"
+export FASTRTPS_DEFAULT_PROFILES_FILE="${FASTRTPS_DEFAULT_PROFILES_FILE:-$_af_root/config/fastdds_localhost_shm.xml}"
+unset _af_udp_profile
 export RMW_IMPLEMENTATION="${RMW_IMPLEMENTATION:-rmw_fastrtps_cpp}"
 # A run-unique domain unless the caller chose one (e.g. a multi-machine deployment): 1..101, ROS's
 # safe range on Linux (0..101; a higher id's participant ports can fall in the kernel's ephemeral

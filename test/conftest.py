@@ -17,8 +17,9 @@ import pytest
 
 _ROOT = Path(__file__).resolve().parents[1]
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+# the default of scripts/ros_env.sh and `formation run` (shared memory, 4 MB segments)
 os.environ.setdefault(
-    'FASTRTPS_DEFAULT_PROFILES_FILE', str(_ROOT / 'config' / 'fastdds_localhost.xml')
+    'FASTRTPS_DEFAULT_PROFILES_FILE', str(_ROOT / 'config' / 'fastdds_localhost_shm.xml')
 )
 os.environ.setdefault('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp')
 # the real-robot launchers refuse their lab-network default under it (scripts/launch_common.sh):

@@ -18,7 +18,8 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPTS = ROOT / 'scripts'
 SCENARIO = ROOT / 'test' / 'data' / 'paper_short.yaml'
-LOOPBACK = ROOT / 'config' / 'fastdds_localhost.xml'
+LOOPBACK = ROOT / 'config' / 'fastdds_localhost.xml'  # loopback UDP only
+SHM = ROOT / 'config' / 'fastdds_localhost_shm.xml'  # the one-machine default
 UDP = ROOT / 'config' / 'fastdds_udp.xml'
 _UNSET = (
     'FASTRTPS_DEFAULT_PROFILES_FILE',
@@ -66,15 +67,16 @@ def test_multi_machine_keeps_a_labs_profile(tmp_path):
     assert _launch_env(tmp_path, str(lab), multi=True) == (str(lab), 'SUBNET')
 
 
-@pytest.mark.parametrize('profile', [None, str(LOOPBACK)], ids=['unset', 'loopback_profile'])
+@pytest.mark.parametrize('profile', [None, str(LOOPBACK), str(SHM)],
+                         ids=['unset', 'loopback_profile', 'shm_profile'])
 def test_multi_machine_replaces_the_loopback_profile_by_the_udp_one(tmp_path, profile):
     assert _launch_env(tmp_path, profile, multi=True) == (str(UDP), 'SUBNET')
 
 
 def test_single_machine_stays_on_loopback(tmp_path):
-    # the default: discovery range LOCALHOST with the loopback profile
-    assert _launch_env(tmp_path, None, multi=False) == (str(LOOPBACK), 'LOCALHOST')
-    assert _launch_env(tmp_path, None, multi=False, dds='shm') == (str(LOOPBACK), 'LOCALHOST')
+    # the default: discovery range LOCALHOST with the shared-memory profile
+    assert _launch_env(tmp_path, None, multi=False) == (str(SHM), 'LOCALHOST')
+    assert _launch_env(tmp_path, None, multi=False, dds='shm') == (str(SHM), 'LOCALHOST')
 
 
 def test_single_machine_udp_only_on_request(tmp_path):

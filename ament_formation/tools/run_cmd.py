@@ -165,20 +165,21 @@ def _free_domain_id() -> str:
 
 def loopback_env(log_dir: Path) -> None:
     """The environment of scripts/ros_env.sh, for callers that did not source it: discovery range
-    LOCALHOST with the loopback profile, or loopback UDP only with AMENT_FORMATION_DDS=udp (Fast
-    DDS shared memory stopped delivering for good in whole-system runs on a busy machine;
-    docs/executors.md "The stall found").
+    LOCALHOST with the shared-memory profile (4 MB segments: large camera frames arrive;
+    docs/executors.md "Large frames"), or loopback UDP only with AMENT_FORMATION_DDS=udp (the
+    loopback UDP profile governs discovery; docs/executors.md "The stall found").
     """
-    profile = str(config_file('fastdds_localhost.xml'))
+    udp_profile = str(config_file('fastdds_localhost.xml'))
     env = os.environ
-    if (
-        env.get('AMENT_FORMATION_DDS', 'shm') == 'udp'
-        and not env.get('ROS_AUTOMATIC_DISCOVERY_RANGE')
-        and env.get('FASTRTPS_DEFAULT_PROFILES_FILE', profile) == profile
-    ):
-        env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'SUBNET'  # loopback UDP only (see ros_env.sh)
-    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    os.environ.setdefault('FASTRTPS_DEFAULT_PROFILES_FILE', profile)
+    if env.get('AMENT_FORMATION_DDS', 'shm') == 'udp':
+        if (
+            not env.get('ROS_AUTOMATIC_DISCOVERY_RANGE')
+            and env.get('FASTRTPS_DEFAULT_PROFILES_FILE', udp_profile) == udp_profile
+        ):
+            env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'SUBNET'  # loopback UDP only (see ros_env.sh)
+        env.setdefault('FASTRTPS_DEFAULT_PROFILES_FILE', udp_profile)
+    env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    env.setdefault('FASTRTPS_DEFAULT_PROFILES_FILE', str(config_file('fastdds_localhost_shm.xml')))
     os.environ.setdefault('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp')
     if not os.environ.get('ROS_DOMAIN_ID'):
         os.environ['ROS_DOMAIN_ID'] = _free_domain_id()
