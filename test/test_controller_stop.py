@@ -266,3 +266,33 @@ def test_node_refuses_a_pose_timeout_shorter_than_the_worst_case_lead(ros_contex
         assert threshold < states.index('stopped_pose') * PERIOD_S <= threshold + PERIOD_S + 1e-9
     finally:
         node.destroy_node()
+
+
+def test_node_without_wheel_data_sends_no_torque_so_the_board_brakes(ros_context):
+    """With no wheel data the agent has nothing to brake with and outputs zero torque; a zero
+    torque lets a torque-controlled robot coast (in the frictionless twin, spinning it up: a
+    process-per-node run on an overloaded machine reached 0.6-1.8 m/s). So the node sends no
+    command at all, and the bridge's input timeout has the board brake with its own encoders
+    (docs/safety.md, "No wheel data"). Commands resume with the wheel data.
+    """
+    node = _node(ros_context)
+    sent: list[str] = []
+    publish = node.pub_torque.publish
+    node.pub_torque.publish = lambda msg: (sent.append(node.safety), publish(msg))
+    try:
+        t0 = 1000.0
+        _camera(node, t0)
+        states = _drive(node, t0, 0.05, 0.0, 5)
+        assert states == ['waiting'] * 5 and len(sent) == 5
+        for i in range(5, 30):  # the wheel samples stop; poses go on
+            node.batch.camera(node.rid, t0 + i * PERIOD_S, (0.0, 1.0, 0.0))
+            node.control_tick(t0 + i * PERIOD_S)
+            states.append(node.safety)
+        assert states[-1] == 'stopped_wheels'
+        first = states.index('stopped_wheels')
+        assert first * PERIOD_S >= node.prm.wheel_timeout_s - 1e-9
+        assert len(sent) == first and 'stopped_wheels' not in sent  # nothing from then on
+        _drive(node, t0, 0.05, 0.0, 3, start=30)  # the wheel data is back: commands again
+        assert len(sent) == first + 3
+    finally:
+        node.destroy_node()

@@ -15,7 +15,7 @@ Topics (namespace robot_<id>; QoS from ros/qos.py)
   sub  /formation/encounters   std_msgs/String JSON encounters/v2                  QOS_GRAPH
   sub  /robot_<k>/mode, pose   every other robot: its report; its camera pose (hearing range)
   sub  /robot_<k>/state, accel the robots it needs (S10.2: parents, partner, in range)
-  pub  wheel_torque            sensor_msgs/JointState effort [left, right] N m     QOS_CONTROL
+  pub  wheel_torque            JointState effort [l, r] N m (none without wheel data) QOS_CONTROL
   pub  state, accel            nav_msgs/Odometry, geometry_msgs/AccelStamped (while heard)
   pub  mode                    std_msgs/String JSON mode/v1 (on change and every second)
   pub  /diagnostics            "formation_controller: robot_<id> control" (status and why,
@@ -57,7 +57,7 @@ WHY = {
     'waiting': 'no camera pose, graph or mission start yet (is the camera PC up: tracker and '
     'coordinator, same ROS_DOMAIN_ID?)',
     'hold_parent': "the parent's state is lost: holding",
-    'stopped_wheels': 'no wheel data: is the motor board connected (bridge)?',
+    'stopped_wheels': 'no wheel data: no command, the board brakes (is the bridge up?)',
     'stopped_pose': 'no camera pose for pose_timeout_s: controlled stop',
     'stopped_coordinator': 'no message from the coordinator for coordinator_timeout_s: '
     'controlled stop (is formation_coordinator running, is the network up?)',
@@ -322,10 +322,12 @@ class ControllerNode(Node):
         b, r = self.batch, self.r
         torque = b.out.torque[r]
         stamp = msgs.stamp_from_s(now)
-        if self.bridge is None or self._heard['torque']():
+        # no wheel data: no command; the bridge's timeout brakes (docs/safety.md, No wheel data)
+        commanding = b.status(r) != 'stopped_wheels'
+        if commanding and (self.bridge is None or self._heard['torque']()):
             self._msgs['torque'] = msgs.wheel_torque(torque, stamp, out=self._msgs['torque'])
             self.pub_torque.publish(self._msgs['torque'])
-        if self.bridge is not None:
+        if commanding and self.bridge is not None:
             self.bridge.command((float(torque[0]), float(torque[1])))
         due = (self.ticks - 1) % self.prm.state_every == 0  # state_rate_hz
         if due and b.initialized(r) and self._heard['state']():

@@ -88,7 +88,8 @@ class AgentParams:
     pose_timeout_s: float = param(
         0.5, 'no camera pose this long -> controlled stop [s]', range=(0.01, 10.0))
     wheel_timeout_s: float = param(
-        0.1, 'no wheel_state this long -> zero torque [s]', range=(0.005, 10.0))
+        0.1, "no wheel_state this long -> no torque command: the bridge's input timeout brakes "
+        '[s]', range=(0.005, 10.0))
     parent_timeout_s: float = param(
         0.1, 'older states of other robots are extrapolated by their age [s] (0: every one; '
         'with a state_rate_hz below the control rate, S10.2)', range=(0.0, 10.0))
