@@ -19,6 +19,8 @@
 #      formatter writes before ':' in slices is removed (pycodestyle E203; ruff's E203 allows it).
 #   4. flake8 reports what is left (a human decides: long string literals, D401 imperative mood,
 #      names shadowing builtins, ...).
+# Exit status: 0 when flake8 finds nothing left, 1 when it does (in either mode), 2 for bad usage
+# or a missing tool.
 set -euo pipefail
 check=0
 if [ "${1:-}" = "--check" ]; then check=1; shift; fi
@@ -164,3 +166,4 @@ echo "lint_fix: flake8 findings left, by code:"
   | grep -E '^[0-9]+ +[A-Z]+[0-9]+ ' | sort -rn || true
 left="$(count "${files[@]}")"
 echo "lint_fix: flake8 findings left: $left"
+[ "$left" = 0 ] || exit 1
